@@ -1,0 +1,134 @@
+"""Nominal paths: RRT-Connect through OMPL, verified by Drake."""
+
+import numpy as np
+import pytest
+
+import drake_cfvol as cf
+from drake_cfvol.planning import NominalPath, densify, plan_nominal_path
+from conftest import write_arm_cell
+
+
+def _fine_checker(wc):
+    """A second Drake checker with a 4x finer edge step than the planner's."""
+    from pydrake.planning import SceneGraphCollisionChecker
+
+    return SceneGraphCollisionChecker(model=wc.diagram, robot_model_instances=[wc.robot],
+                                      edge_step_size=0.0025)
+
+
+@pytest.mark.parametrize("cell", ["automotive", "aerospace"])
+def test_all_named_paths_plan_and_are_free(cell, request):
+    """All named paths plan for seeds 0..4; every waypoint and every edge is
+    free per an independent fine Drake check; limits and max_step hold."""
+    wc = request.getfixturevalue(cell)
+    fine = _fine_checker(wc)
+    for name in wc.configurations:
+        s, g = wc.configuration(name)
+        for seed in range(5):
+            p = plan_nominal_path(wc, s, g, seed=seed)
+            wp = p.waypoints
+            np.testing.assert_array_equal(wp[0], s)
+            np.testing.assert_array_equal(wp[-1], g)
+            assert np.all(np.abs(np.diff(wp, axis=0)) <= 0.05 + 1e-12)
+            assert np.all(wp >= wc.position_lower) and np.all(wp <= wc.position_upper)
+            assert all(fine.CheckConfigsCollisionFree(wp))
+            assert all(fine.CheckEdgeCollisionFree(a, b) for a, b in zip(wp[:-1], wp[1:])), (name, seed)
+
+
+def test_same_seed_same_bytes(automotive):
+    """The same seed twice gives byte-identical waypoints, another seed differs."""
+    s, g = automotive.configuration("path2")
+    a = plan_nominal_path(automotive, s, g, seed=3)
+    other = plan_nominal_path(automotive, s, g, seed=4)
+    b = plan_nominal_path(automotive, s, g, seed=3)
+    assert a.waypoints.tobytes() == b.waypoints.tobytes()
+    assert a.sha256 == b.sha256 != other.sha256
+
+
+def test_waypoints_not_singular(aerospace):
+    """Every waypoint's tool Jacobian has its smallest singular value above the
+    threshold (SPEC 3)."""
+    from drake_cfvol.planning import min_singular_value
+
+    p = plan_nominal_path(aerospace, *aerospace.configuration("path1"), seed=0)
+    assert min(min_singular_value(aerospace, q) for q in p.waypoints) > 1e-3
+
+
+def test_densify_bounds_every_step():
+    """densify keeps the vertices and caps each joint's step."""
+    v = np.array([[0.0, 0.0], [1.0, -0.3], [1.0, 0.7]])
+    d = densify(v, 0.05)
+    assert np.all(np.abs(np.diff(d, axis=0)) <= 0.05 + 1e-12)
+    for row in v:
+        assert np.any(np.all(np.isclose(d, row), axis=1))
+    assert len(d) == 1 + 20 + 20
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".json"])
+def test_save_load_roundtrip(automotive, tmp_path, suffix):
+    """Saved paths load back bit for bit, and are not overwritten silently."""
+    p = plan_nominal_path(automotive, *automotive.configuration("path3"), seed=1, label="path3")
+    f = p.save(tmp_path / f"p{suffix}")
+    q = NominalPath.load(f)
+    assert q.waypoints.tobytes() == p.waypoints.tobytes()
+    assert q.joint_names == p.joint_names and q.label == "path3" and q.seed == 1
+    with pytest.raises(FileExistsError, match="overwrite"):
+        p.save(f)
+
+
+def test_start_in_collision_names_bodies(automotive):
+    """A start in collision is refused with the colliding bodies named."""
+    s = np.radians([0, 85, 30, 0, 0, 0])
+    with pytest.raises(cf.CollisionError, match="start.*<->"):
+        plan_nominal_path(automotive, s, automotive.configuration("path1")[1], seed=0)
+
+
+def test_goal_outside_limits(automotive):
+    """A goal outside the limits names the joint."""
+    s, g = automotive.configuration("path1")
+    g[4] = 3.0
+    with pytest.raises(cf.JointLimitError, match="joint_5"):
+        plan_nominal_path(automotive, s, g, seed=0)
+
+
+def test_wrong_length(automotive):
+    """A start of the wrong length is refused with the expected size."""
+    s, g = automotive.configuration("path1")
+    with pytest.raises(cf.DimensionError, match="expected 6"):
+        plan_nominal_path(automotive, s[:4], g, seed=0)
+
+
+def test_robot_without_limits(tmp_path):
+    """A continuous joint (no limits) cannot be planned for; the error names it
+    and says how to add limits."""
+    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": None, "upper": None}],
+                          obstacles={})
+    wc = cf.load_workcell(path)
+    with pytest.raises(cf.MissingJointLimitsError, match="joint1.*joint_limits"):
+        plan_nominal_path(wc, [0.0], [1.0], seed=0)
+    # The YAML override fixes it.
+    path.write_text(path.read_text().replace("cfvol:\n", "cfvol:\n  joint_limits: {joint1: [-3.0, 3.0]}\n"))
+    p = plan_nominal_path(cf.load_workcell(path), [0.0], [1.0], seed=0)
+    assert p.g == 21
+
+
+def test_unreachable_goal_times_out(tmp_path):
+    """A goal walled off from the start fails within the time limit, saying the
+    time and the attempts."""
+    # A one-link arm of length 1 turning about z; posts at y = +-0.8 block
+    # both ways round from 0 rad to pi rad.
+    path = write_arm_cell(
+        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3.1, "upper": 3.1}],
+        obstacles={"post_a": ((0.1, 0.1, 2.0), (0.0, 0.8, 1.0)), "post_b": ((0.1, 0.1, 2.0), (0.0, -0.8, 1.0))})
+    wc = cf.load_workcell(path)
+    with pytest.raises(cf.PlanningError, match=r"in 0.5 s \(\d+ attempt"):
+        plan_nominal_path(wc, [0.0], [3.0], seed=0, time_limit=0.5)
+
+
+def test_path_index_outside_range(automotive):
+    """NominalPath.at refuses s outside [0, g-1]."""
+    p = plan_nominal_path(automotive, *automotive.configuration("path1"), seed=0)
+    np.testing.assert_array_equal(p.at(0), p.waypoints[0])
+    np.testing.assert_allclose(p.at(1.5), (p.waypoints[1] + p.waypoints[2]) / 2)
+    with pytest.raises(cf.ParameterError, match="outside"):
+        p.at(p.g)

@@ -1,0 +1,107 @@
+"""Loading workcells: built-in cells, a user's own robot package, errors."""
+
+import numpy as np
+import pytest
+
+import drake_cfvol as cf
+from conftest import write_arm_cell
+
+
+def test_builtin_cells_load(automotive, aerospace):
+    """Both built-in cells load with their robots, obstacles and 3 path pairs."""
+    assert automotive.num_joints == 6 and aerospace.num_joints == 7
+    assert aerospace.joint_names[0] == "rail" and aerospace.rail_joint == "rail"
+    for wc in (automotive, aerospace):
+        assert "floor" in wc.obstacles
+        assert set(wc.configurations) == {"path1", "path2", "path3"}
+    assert {"pick_table", "mould", "cabinet"} <= set(automotive.obstacles)
+    assert {"ply_pallet", "mould", "jig"} <= set(aerospace.obstacles)
+
+
+@pytest.mark.parametrize("cell", ["automotive", "aerospace"])
+def test_named_pairs_are_free_and_nontrivial(cell, request):
+    """Each start and goal is free, and the straight joint-space line between
+    them collides (checked with a finer edge step than the planner's)."""
+    wc = request.getfixturevalue(cell)
+    for name, (s, g) in wc.configurations.items():
+        assert wc.is_free(s) and wc.is_free(g), name
+        line = np.linspace(s, g, 2000)
+        assert not all(wc.is_free(q) for q in line), f"{name}: straight line is free"
+
+
+def test_unknown_cell_lists_known():
+    """An unknown name lists the built-in cells."""
+    with pytest.raises(cf.UnknownCellError, match="automotive.*|aerospace") as e:
+        cf.load_workcell("shipyard")
+    assert "aerospace" in str(e.value) and "automotive" in str(e.value)
+
+
+def test_malformed_yaml_names_file_and_line(tmp_path):
+    """A YAML syntax error reports the file and line."""
+    p = tmp_path / "bad.yaml"
+    p.write_text("directives:\n- add_model:\n    name: x\n  file: [unclosed\ncfvol: {}\n")
+    with pytest.raises(cf.WorkcellFormatError) as e:
+        cf.load_workcell(p)
+    assert "bad.yaml" in str(e.value) and "line" in str(e.value)
+    assert e.value.line is not None and 3 <= e.value.line <= 6
+
+
+def test_missing_cfvol_key_is_reported(tmp_path):
+    """A workcell without cfvol.robot says which key is missing."""
+    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+                          obstacles={})
+    text = path.read_text().replace("  robot: toy\n", "")
+    path.write_text(text)
+    with pytest.raises(cf.WorkcellFormatError, match="'robot'"):
+        cf.load_workcell(path)
+
+
+def test_wrong_robot_instance_lists_instances(tmp_path):
+    """A cfvol.robot that is not a model instance lists the instances."""
+    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+                          obstacles={})
+    path.write_text(path.read_text().replace("robot: toy", "robot: tyo"))
+    with pytest.raises(cf.WorkcellFormatError, match="'tyo'.*toy"):
+        cf.load_workcell(path)
+
+
+def test_user_robot_package_with_stl_meshes(tmp_path, monkeypatch):
+    """A ROS-style package with STL collision meshes loads through package://,
+    the meshes are converted (and said so), and they collide where the box
+    they describe does."""
+    monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path / "cache"))
+    path = write_arm_cell(
+        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+        obstacles={"post": ((0.2, 0.2, 2.0), (0.0, 0.8, 1.0))}, mesh_links=True)
+    stl_before = (tmp_path / "toy_description" / "meshes" / "link1.stl").read_bytes()
+    wc = cf.load_workcell(path)
+    assert any("STL" in n for n in wc.notes)
+    assert (tmp_path / "toy_description" / "meshes" / "link1.stl").read_bytes() == stl_before
+    assert wc.joint_names == ["joint1"]
+    # The link spans x in [0, 1] at 0 rad: free. At 90 deg it lies along +y
+    # through the post at y in [0.7, 0.9].
+    assert wc.is_free([0.0])
+    assert wc.colliding_pairs([np.pi / 2]) == [("link1", "post")]
+
+
+def test_wrong_length_configuration(automotive):
+    """A configuration of the wrong size names the expected size and joints."""
+    with pytest.raises(cf.DimensionError, match="expected 6, got 5.*joint_1"):
+        automotive.validate_configuration(np.zeros(5), "start configuration")
+
+
+def test_outside_limits_names_joint(automotive):
+    """A value outside the limits names the joint, the value and the limits."""
+    q = np.zeros(6)
+    q[1] = 2.0
+    with pytest.raises(cf.JointLimitError, match="joint_2.*2.*-1.13.*1.48") as e:
+        automotive.validate_configuration(q, "goal configuration")
+    assert e.value.joint == "joint_2"
+
+
+def test_collision_names_bodies(automotive):
+    """A colliding configuration names the colliding bodies."""
+    q = np.radians([0, 85, 30, 0, 0, 0])  # arm thrown down to the floor
+    with pytest.raises(cf.CollisionError) as e:
+        automotive.require_free(q, "The start configuration")
+    assert any("floor" in p or "cabinet" in p for pair in e.value.pairs for p in pair)

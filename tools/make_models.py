@@ -1,0 +1,235 @@
+"""Writes the robot URDFs in ``models/`` from the numbers in
+``shared/reference/robots-and-cells.md``.
+
+One table per robot drives both the visual and the collision geometry, so they
+cannot drift apart. Run ``python tools/make_models.py`` after editing a table;
+the generated files are committed.
+
+Frames: every link frame sits on its joint axis and is aligned with the world
+at the zero configuration (x forward, z up). Lengths in metres, angles in
+radians in the files (degrees in the tables below, for reading).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+MODELS = Path(__file__).resolve().parent.parent / "models"
+
+D = math.radians
+
+# Shapes: ("box", (sx, sy, sz), xyz) | ("capsule", r, (x0,y0,z0), (x1,y1,z1))
+#       | ("cylinder_x", r, length, xyz)  (cylinder along the link's x axis)
+
+ABB = dict(
+    name="abb_irb6700",
+    root="base_link",
+    colour="0.93 0.45 0.10 1",
+    links={
+        "base_link": [("box", (1.00, 0.72, 0.37), (-0.125, 0.0, 0.187))],
+        "link_1": [("box", (1.08, 0.81, 0.80), (-0.009, -0.049, -0.1645))],
+        "link_2": [("capsule", 0.20, (0.0, -0.26, 0.0), (0.0, -0.26, 1.28))],
+        "link_3": [("box", (0.52, 0.63, 0.56), (-0.0265, 0.0325, 0.107))],
+        # Forearm: starts in front of the lower arm so that link_2 and link_4
+        # (not adjacent) are apart at the zero pose; link_3's box covers the
+        # housing behind it.
+        "link_4": [("capsule", 0.17, (0.43, 0.0, 0.0), (0.98, 0.0, 0.0))],
+        "link_5": [("capsule", 0.11, (-0.06, 0.0, 0.0), (0.06, 0.0, 0.0))],
+        "link_6": [("cylinder_x", 0.10, 0.041, (-0.0205, 0.0, 0.0))],
+        "gripper": [("box", (1.00, 1.70, 0.90), (0.51, 0.0, 0.0))],
+    },
+    joints=[
+        # name, type, parent, child, xyz, axis, lower, upper, vmax
+        ("joint_1", "revolute", "base_link", "link_1", (0, 0, 0.780), (0, 0, 1), D(-170), D(170), D(110)),
+        ("joint_2", "revolute", "link_1", "link_2", (0.320, 0, 0), (0, 1, 0), D(-65), D(85), D(110)),
+        ("joint_3", "revolute", "link_2", "link_3", (0, 0, 1.280), (0, 1, 0), D(-180), D(70), D(110)),
+        ("joint_4", "revolute", "link_3", "link_4", (0, 0, 0.200), (1, 0, 0), D(-300), D(300), D(190)),
+        ("joint_5", "revolute", "link_4", "link_5", (1.1825, 0, 0), (0, 1, 0), D(-130), D(130), D(150)),
+        ("joint_6", "revolute", "link_5", "link_6", (0.200, 0, 0), (1, 0, 0), D(-360), D(360), D(210)),
+        ("gripper_mount", "fixed", "link_6", "gripper", (0, 0, 0), None, 0, 0, 0),
+        ("tcp_joint", "fixed", "gripper", "tcp", (0.51, 0, 0), None, 0, 0, 0),
+    ],
+)
+
+KUKA = dict(
+    name="kuka_kr210_rail",
+    root="rail_base",
+    colour="0.95 0.55 0.05 1",
+    links={
+        # The rail beam (part of the robot model, welded to the world).
+        "rail_base": [("box", (11.0, 2.5, 0.40), (0.0, 0.0, 0.20))],
+        # Carriage plate (top 0.49 m above the floor) and socket (0.65 m).
+        "carriage": [
+            ("box", (1.30, 1.30, 0.09), (0.0, 0.0, 0.045)),
+            ("box", (1.14, 1.02, 0.65), (0.0, 0.0, 0.415)),
+        ],
+        "link_1": [("box", (0.63, 1.11, 0.69), (0.10, 0.0, 0.025))],
+        # Lower arm lies along the link's +x (A2 = 0 is horizontal).
+        "link_2": [("box", (1.71, 0.53, 0.45), (0.675, 0.0, 0.0))],
+        # Elbow housing: 0.96 m forward of A3, 0.44 m behind.
+        "link_3": [("box", (1.40, 0.53, 0.43), (0.26, 0.0, -0.02))],
+        # Forearm tube behind the wrist centre (link_4's frame is the wrist).
+        "link_4": [("capsule", 0.125, (-0.495, 0.0, 0.0), (-0.205, 0.0, 0.0))],
+        "link_5": [("box", (0.33, 0.34, 0.24), (0.0, 0.0, 0.0))],
+        "link_6": [("cylinder_x", 0.10, 0.035, (-0.0175, 0.0, 0.0))],
+        "gripper": [("box", (1.00, 1.70, 0.90), (0.51, 0.0, 0.0))],
+    },
+    joints=[
+        ("rail", "prismatic", "rail_base", "carriage", (0, 0, 0.40), (1, 0, 0), -4.0, 4.0, 1.8),
+        # A1 about +z (right-hand rule; KUKA's controller counts the other
+        # way). A1's frame is 0.675 m above the robot base, which sits 0.385 m
+        # above the carriage frame: A2 ends up 1.46 m above the floor.
+        ("A1", "revolute", "carriage", "link_1", (0, 0, 1.060), (0, 0, 1), D(-185), D(185), D(105)),
+        ("A2", "revolute", "link_1", "link_2", (0.350, 0, 0), (0, 1, 0), D(-140), D(-5), D(101)),
+        ("A3", "revolute", "link_2", "link_3", (1.350, 0, 0), (0, 1, 0), D(-120), D(155), D(107)),
+        ("A4", "revolute", "link_3", "link_4", (1.400, 0, -0.041), (-1, 0, 0), D(-350), D(350), D(136)),
+        ("A5", "revolute", "link_4", "link_5", (0, 0, 0), (0, 1, 0), D(-122.5), D(122.5), D(129)),
+        ("A6", "revolute", "link_5", "link_6", (0.240, 0, 0), (-1, 0, 0), D(-350), D(350), D(206)),
+        ("gripper_mount", "fixed", "link_6", "gripper", (0, 0, 0), None, 0, 0, 0),
+        ("tcp_joint", "fixed", "gripper", "tcp", (0.51, 0, 0), None, 0, 0, 0),
+    ],
+)
+
+
+# Workcells: static SDF models, one named body per obstacle (box size, centre
+# in the world). The robot bases: ABB on a 0.42 m pedestal at the origin; the
+# KUKA's rail centred on the origin along x.
+AUTOMOTIVE = dict(
+    name="automotive_cell",
+    obstacles={
+        "floor": ((12.0, 12.0, 0.10), (0.5, 0.0, -0.05)),
+        "pedestal": ((1.00, 0.80, 0.41), (-0.125, 0.0, 0.205)),
+        "pick_table": ((1.30, 2.50, 0.90), (0.95, 2.35, 0.45)),
+        "mould_stand": ((1.20, 0.80, 0.85), (1.0, -1.95, 0.425)),
+        "mould": ((1.50, 1.00, 0.30), (1.0, -1.95, 1.00)),
+        "cabinet": ((0.80, 1.20, 1.80), (2.70, 0.0, 0.90)),
+        "column": ((0.50, 0.50, 2.20), (-2.0, -2.6, 1.10)),
+        "fence_back": ((0.05, 8.0, 2.20), (-3.0, 0.0, 1.10)),
+        "fence_front": ((0.05, 8.0, 2.20), (4.2, 0.0, 1.10)),
+        "fence_left": ((7.2, 0.05, 2.20), (0.6, 4.0, 1.10)),
+        "fence_right": ((7.2, 0.05, 2.20), (0.6, -4.0, 1.10)),
+    },
+)
+
+AEROSPACE = dict(
+    name="aerospace_cell",
+    obstacles={
+        "floor": ((16.0, 14.0, 0.10), (0.0, 2.0, -0.05)),
+        "ply_pallet": ((2.80, 1.60, 0.95), (-3.6, 2.7, 0.475)),
+        "mould_stand": ((1.80, 1.20, 0.65), (-0.4, 2.7, 0.325)),
+        "mould": ((2.20, 1.60, 0.40), (-0.4, 2.7, 0.85)),
+        "jig": ((4.60, 1.40, 1.10), (3.4, 1.8, 0.55)),
+        "fence_back": ((11.9, 0.05, 2.20), (0.0, -3.0, 1.10)),
+        "fence_front": ((11.9, 0.05, 2.20), (0.0, 7.3, 1.10)),
+        "fence_left": ((0.05, 10.3, 2.20), (-5.95, 2.15, 1.10)),
+        "fence_right": ((0.05, 10.3, 2.20), (5.95, 2.15, 1.10)),
+    },
+)
+
+OBSTACLE_COLOURS = {"floor": "0.55 0.55 0.52 1"}
+
+
+def write_cell_sdf(cell: dict) -> str:
+    lines = ['<?xml version="1.0"?>',
+             "<!-- Generated by tools/make_models.py; do not edit. -->",
+             '<sdf version="1.9">',
+             f'  <model name="{cell["name"]}">',
+             "    <static>true</static>"]
+    for name, (size, centre) in cell["obstacles"].items():
+        rgba = OBSTACLE_COLOURS.get(name, "0.60 0.70 0.80 1")
+        if name.startswith("fence"):
+            rgba = "0.90 0.85 0.20 0.35"
+        lines += [f'    <link name="{name}">',
+                  f"      <pose>{_f(centre)} 0 0 0</pose>",
+                  f'      <collision name="{name}_collision"><geometry><box><size>{_f(size)}</size></box></geometry></collision>',
+                  f'      <visual name="{name}_visual"><geometry><box><size>{_f(size)}</size></box></geometry>'
+                  f"<material><diffuse>{rgba}</diffuse></material></visual>",
+                  "    </link>"]
+    lines += ["  </model>", "</sdf>"]
+    return "\n".join(lines) + "\n"
+
+
+def _f(v) -> str:
+    return " ".join(f"{x:.6g}" for x in v)
+
+
+def _geometry(shape) -> tuple[str, str]:
+    """Returns (origin element, geometry element) for a shape."""
+    kind = shape[0]
+    if kind == "box":
+        _, size, xyz = shape
+        return f'<origin xyz="{_f(xyz)}" rpy="0 0 0"/>', f'<box size="{_f(size)}"/>'
+    if kind == "cylinder_x":
+        _, r, length, xyz = shape
+        return (
+            f'<origin xyz="{_f(xyz)}" rpy="0 {math.pi / 2:.9f} 0"/>',
+            f'<cylinder radius="{r:g}" length="{length:g}"/>',
+        )
+    if kind == "capsule":
+        _, r, p0, p1 = shape
+        d = [b - a for a, b in zip(p0, p1)]
+        length = math.sqrt(sum(x * x for x in d))
+        mid = [(a + b) / 2 for a, b in zip(p0, p1)]
+        # Capsule axis is the geometry's z; rotate z onto d (only x, y, z
+        # aligned axes are used in the tables).
+        if abs(d[0]) > 1e-9:
+            rpy = (0.0, math.pi / 2, 0.0)
+        elif abs(d[1]) > 1e-9:
+            rpy = (-math.pi / 2, 0.0, 0.0)
+        else:
+            rpy = (0.0, 0.0, 0.0)
+        return (
+            f'<origin xyz="{_f(mid)}" rpy="{_f(rpy)}"/>',
+            f'<capsule radius="{r:g}" length="{length:.6g}"/>',
+        )
+    raise ValueError(kind)
+
+
+def write_urdf(robot: dict) -> str:
+    lines = ['<?xml version="1.0"?>',
+             "<!-- Generated by tools/make_models.py from the reference numbers; do not edit. -->",
+             f'<robot name="{robot["name"]}">',
+             f'  <material name="body"><color rgba="{robot["colour"]}"/></material>',
+             '  <material name="gripper"><color rgba="0.35 0.35 0.40 1"/></material>']
+    children = {j[3] for j in robot["joints"]}
+    all_links = list(robot["links"]) + [c for c in children if c not in robot["links"]]
+    for link in all_links:
+        lines.append(f'  <link name="{link}">')
+        shapes = robot["links"].get(link, [])
+        # A nominal inertia: the planner and bounds are kinematic; the
+        # simulation drives positions directly.
+        lines.append('    <inertial><mass value="10"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial>' if shapes else '    <inertial><mass value="0.01"/><inertia ixx="1e-5" ixy="0" ixz="0" iyy="1e-5" iyz="0" izz="1e-5"/></inertial>')
+        material = "gripper" if link == "gripper" else "body"
+        for i, shape in enumerate(shapes):
+            origin, geom = _geometry(shape)
+            lines.append(f'    <visual name="{link}_visual_{i}">{origin}<geometry>{geom}</geometry><material name="{material}"/></visual>')
+            lines.append(f'    <collision name="{link}_collision_{i}">{origin}<geometry>{geom}</geometry></collision>')
+        lines.append("  </link>")
+    for name, jtype, parent, child, xyz, axis, lo, hi, vmax in robot["joints"]:
+        lines.append(f'  <joint name="{name}" type="{jtype}">')
+        lines.append(f'    <parent link="{parent}"/><child link="{child}"/>')
+        lines.append(f'    <origin xyz="{_f(xyz)}" rpy="0 0 0"/>')
+        if jtype != "fixed":
+            lines.append(f'    <axis xyz="{_f(axis)}"/>')
+            lines.append(f'    <limit lower="{lo:.9f}" upper="{hi:.9f}" velocity="{vmax:.6f}" effort="10000"/>')
+        lines.append("  </joint>")
+    lines.append("</robot>")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    for robot, folder in ((ABB, "abb_irb6700"), (KUKA, "kuka_kr210")):
+        out = MODELS / folder / f"{robot['name']}.urdf"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(write_urdf(robot))
+        print(f"wrote {out.relative_to(MODELS.parent)}")
+    for cell in (AUTOMOTIVE, AEROSPACE):
+        out = MODELS / "cells" / f"{cell['name']}.sdf"
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(write_cell_sdf(cell))
+        print(f"wrote {out.relative_to(MODELS.parent)}")
+
+
+if __name__ == "__main__":
+    main()
