@@ -49,6 +49,55 @@ def cmd_plan(args) -> int:
     return 0
 
 
+def cmd_bounds(args) -> int:
+    from drake_cfvol.bounds import estimate_bounds
+    from drake_cfvol.metrics import confidence_factor, freedom
+    from drake_cfvol.planning import plan_nominal_path
+    from drake_cfvol.workcell import load_workcell
+
+    wc = load_workcell(args.cell)
+    label = _path_name(args.path)
+    path = plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label)
+    table = estimate_bounds(wc, path, resolution=args.resolution, backend=args.backend)
+    cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed)
+    fr = freedom(table, wc.revolute)
+    out = None
+    files = {}
+    if args.out:
+        out = Path(args.out)
+        stem = f"{wc.name}_{label}_R{args.resolution}"
+        files["bounds_npz"] = str(table.save(out / f"{stem}_bounds.npz", overwrite=args.force))
+        files["bounds_json"] = str(table.save(out / f"{stem}_bounds.json", overwrite=args.force))
+        files["path_json"] = str(path.save(out / f"{stem}_path.json", overwrite=args.force))
+        if args.plot:
+            from drake_cfvol.plotting import plot_bounds
+
+            files["plot_png"] = str(plot_bounds(table, out / f"{stem}_bounds.png", revolute=wc.revolute,
+                                                title=f"{wc.name} {label}, R = {args.resolution}"))
+    elif args.plot:
+        print("cfvol: --plot needs --out DIR", file=sys.stderr)
+        return 2
+    summary = {
+        "cell": wc.name, "path": label, "seed": args.seed, "resolution": args.resolution,
+        "backend": args.backend, "g": table.g, "k": table.k,
+        "time_ms": round(table.timing_ms["total"], 3),
+        "timing_ms": {k: round(v, 3) for k, v in table.timing_ms.items()},
+        "cf_percent": round(cf.percent, 4), "cf_samples": cf.samples, "cf_colliding": cf.colliding,
+        "freedom": round(fr.mean, 5),
+        "median_width": dict(zip(table.joint_names, [round(float(x), 3) for x in fr.median_width])),
+        "median_width_units": dict(zip(table.joint_names, fr.units)),
+        "n_boxes": table.info["n_boxes"], "lowered_columns": table.info["lowered_columns"],
+        "dropped_columns": table.info["dropped_columns"], "categories": table.info["categories"],
+        "out": str(out) if out else None, "files": files,
+    }
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for k, v in summary.items():
+            print(f"{k:>20}: {v}")
+    return 0
+
+
 def cmd_demo(args) -> int:
     from drake_cfvol.demo import run_demo
 
@@ -68,6 +117,21 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     q.add_argument("--json", action="store_true", help="print one JSON object")
     q.set_defaults(func=cmd_plan)
+
+    b = sub.add_parser("bounds", help="plan a path and compute its joint bounds, CF and freedom")
+    b.add_argument("cell", help="built-in cell name or a workcell YAML path")
+    b.add_argument("--path", default="1", help="configuration pair: 1, 2, 3 or a name (default 1)")
+    b.add_argument("--resolution", "-R", type=int, default=1000, help="height-map cells R (default 1000)")
+    b.add_argument("--seed", type=int, default=0, help="planner and CF seed (default 0)")
+    b.add_argument("--backend", choices=["fast", "drake"], default="fast",
+                   help="fast (any R) or drake (reference, one SceneGraph box per column)")
+    b.add_argument("--cf-windows", type=int, default=30, help="CF time windows N_tw (default 30)")
+    b.add_argument("--cf-samples", type=int, default=10000, help="CF samples per window N_m (default 10000)")
+    b.add_argument("--out", help="folder for bounds (.npz, .json), path and plot")
+    b.add_argument("--plot", action="store_true", help="write a PNG of the bounds (needs --out)")
+    b.add_argument("--force", action="store_true", help="overwrite existing files in --out")
+    b.add_argument("--json", action="store_true", help="print one JSON object")
+    b.set_defaults(func=cmd_bounds)
 
     d = sub.add_parser("demo", help="the main job: plan, bound and run the automotive cell")
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

@@ -274,37 +274,72 @@ def sphere_obb_distance(p, r, c, R, half):
     return outside + inside - r
 
 
-def obb_overlap(cA, RA, hA, cB, RB, hB, margin) -> np.ndarray:
-    """Separating-axis test of two oriented boxes, each grown by ``margin``
-    (broadcast over leading dimensions). True where no axis separates them
-    by more than ``margin``; a box grown by ``margin`` contains its
-    Minkowski sum with a ball of that radius, so the test is conservative.
+def motion_support(L, e, u=None, prismatic=False):
+    """How far a body can move along axis L (not necessarily unit) when each
+    of its points moves by at most ``e``:
+
+    - ``u`` None: any direction (a ball of radius e): e |L|;
+    - revolute about unit axis ``u``: points move in the plane normal to u,
+      e sqrt(|L|^2 - (L.u)^2);
+    - prismatic along ``u``: e |L.u|.
     """
-    t = cB - cA
-    # Rotation of B in A's frame, and t in A's frame.
-    C = np.einsum("...ji,...jk->...ik", RA, RB)
-    absC = np.abs(C) + 1e-9
-    tA = np.einsum("...ji,...j->...i", RA, t)
-    m = np.asarray(margin)[..., None]
-    # Axes of A.
-    ra = hA
-    rb = np.einsum("...ij,...j->...i", absC, hB)
-    sep = np.any(np.abs(tA) > ra + rb + m, axis=-1)
-    # Axes of B.
-    ra = np.einsum("...ji,...j->...i", absC, hA)
-    tB = np.einsum("...ji,...j->...i", C, tA)
-    sep |= np.any(np.abs(tB) > ra + hB + m, axis=-1)
-    # Cross products A_i x B_j.
+    e = np.asarray(e)
+    if u is None:
+        return e * np.linalg.norm(L, axis=-1)
+    Lu = np.einsum("...i,...i->...", L, u)
+    if prismatic:
+        return e * np.abs(Lu)
+    return e * np.sqrt(np.maximum(np.einsum("...i,...i->...", L, L) - Lu * Lu, 0.0))
+
+
+def obb_overlap(cA, RA, hA, cB, RB, hB, e, u=None, prismatic=False) -> np.ndarray:
+    """Separating-axis test of two oriented boxes where box A may be anywhere
+    within its motion set (see :func:`motion_support`; ``e`` 0 for a fixed
+    pose). Broadcasts over leading dimensions. True where none of the 15
+    axes separates them: conservative, never misses an overlap.
+    """
+    LA = np.swapaxes(RA, -1, -2)  # rows: A's axes in the world
+    LB = np.swapaxes(RB, -1, -2)
+    LA, LB = np.broadcast_arrays(LA, LB)
+    cross = np.cross(LA[..., :, None, :], LB[..., None, :, :]).reshape(LA.shape[:-2] + (9, 3))
+    L = np.concatenate([LA, LB, cross], axis=-2)  # (..., 15, 3)
+    radius = ((np.abs(L @ RA) @ np.asarray(hA)[..., None])[..., 0]
+              + (np.abs(L @ RB) @ np.asarray(hB)[..., None])[..., 0])
+    t = (cB - cA)[..., None, :]
+    dist = np.abs((L @ np.swapaxes(t, -1, -2))[..., 0])
+    ee = np.asarray(e)[..., None]
+    uu = None if u is None else np.asarray(u)[..., None, :]
+    sep = dist > radius + motion_support(L, ee, uu, prismatic) + 1e-12
+    return ~sep.any(axis=-1)
+
+
+def ball_box_overlap(pc, r, c, R, half, e, u=None, prismatic=False, ball_moves=True) -> np.ndarray:
+    """Whether a ball may touch a box while one of them moves (motion set of
+    :func:`motion_support` with size ``e``). Separating axes tried: the box's
+    three axes and the direction from the box's closest point to the ball's
+    centre. Conservative. Broadcasts over leading dimensions.
+
+    Args:
+        pc: (..., 3) ball centres; r: (...) radii.
+        c, R, half: the box (centre, rotation, half extents).
+        e: (...) motion size; u: (..., 3) motion axis or None.
+        ball_moves: which of the two moves (the support is symmetric; kept
+            for clarity of call sites).
+    """
+    del ball_moves
+    d = pc - c
+    local = np.einsum("...ji,...j->...i", R, d)
+    sep = np.zeros(np.broadcast_shapes(local.shape[:-1], np.shape(r), np.shape(e)), bool)
     for i in range(3):
-        i1, i2 = (i + 1) % 3, (i + 2) % 3
-        for j in range(3):
-            j1, j2 = (j + 1) % 3, (j + 2) % 3
-            ra = hA[..., i1] * absC[..., i2, j] + hA[..., i2] * absC[..., i1, j]
-            rb = hB[..., j1] * absC[..., i, j2] + hB[..., j2] * absC[..., i, j1]
-            d = np.abs(tA[..., i2] * C[..., i1, j] - tA[..., i1] * C[..., i2, j])
-            # The cross axis is not unit length: scale the margin by its norm.
-            axis_norm = np.sqrt(np.maximum(1.0 - C[..., i, j] ** 2, 0.0))
-            sep |= d > ra + rb + m[..., 0] * axis_norm
+        L = R[..., :, i]
+        sep |= np.abs(local[..., i]) > half[..., i] + r + motion_support(L, e, u, prismatic) + 1e-12
+    closest_local = np.clip(local, -half, half)
+    gap = local - closest_local
+    dist = np.linalg.norm(gap, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n_local = gap / np.where(dist > 0, dist, 1.0)[..., None]
+    n = np.einsum("...ij,...j->...i", R, n_local)
+    sep |= (dist > 0) & (dist > r + motion_support(n, e, u, prismatic) + 1e-12)
     return ~sep
 
 
@@ -370,7 +405,8 @@ class SceneTester:
         #: Counters of primitive tests done (for the benchmark's floor).
         self.counts = {"batches": 0, "poses": 0}
 
-    def hits(self, R, p, e, moving, pairs=None, *, env=True, self_collision=True, volume=True) -> np.ndarray:
+    def hits(self, R, p, e, moving, pairs=None, *, axis=None, prismatic=False,
+             env=True, self_collision=True, volume=True) -> np.ndarray:
         """Which poses may collide.
 
         Args:
@@ -382,6 +418,10 @@ class SceneTester:
                 (bodies that stay put are not tested there).
             pairs: (P, 2) body pairs to test for self-collision (default: all
                 unfiltered pairs).
+            axis: (N, 3) unit axis of the motion behind ``e`` (see
+                :func:`motion_support`), or None for any direction. With an
+                axis, only the bodies in ``moving`` may have e > 0.
+            prismatic: the motion is a translation along ``axis``.
 
         Returns:
             (N,) bool, True where a collision is possible.
@@ -392,6 +432,7 @@ class SceneTester:
         hit = np.zeros(N, bool)
         m = self.model
         moving_bodies = np.flatnonzero(moving)
+        self._axis, self._prismatic = axis, prismatic
         if env and self.obstacles is not None:
             for b in moving_bodies:
                 hit |= self._env_body(R[:, b], p[:, b], e[:, b], b, ~hit)
@@ -402,7 +443,16 @@ class SceneTester:
                 if len(live):
                     body = m.cover_body[idx]
                     c = np.einsum("nsij,sj->nsi", R[live][:, body], m.cover_c[idx]) + p[live][:, body]
-                    hv = self.volume.sphere_hits(c, m.cover_r[idx] + e[live][:, body]).any(axis=1)
+                    ee = e[live][:, body]
+                    if axis is None:
+                        e_xy, e_z = ee, ee
+                    else:
+                        uz = np.abs(axis[live, 2])[:, None]
+                        if prismatic:
+                            e_xy, e_z = ee * np.sqrt(np.maximum(1 - uz * uz, 0)), ee * uz
+                        else:
+                            e_xy, e_z = ee, ee * np.sqrt(np.maximum(1 - uz * uz, 0))
+                    hv = self.volume.sphere_hits(c, m.cover_r[idx], e_xy, e_z).any(axis=1)
                     hit[live] |= hv
         if self_collision:
             for a, b in (m.self_pairs if pairs is None else pairs):
@@ -426,18 +476,22 @@ class SceneTester:
         n_idx = live[rows]
         near = near[rows]
         Rn, pn, en = Rb[n_idx], pb[n_idx], eb[n_idx]
+        un = None if self._axis is None else self._axis[n_idx][:, None]
         res = np.zeros(len(n_idx), bool)
         for i in self._boxes_of[b]:
             cw = np.einsum("nij,j->ni", Rn, m.box_c[i]) + pn
             Rw = Rn @ m.box_R[i]
             ov = obb_overlap(cw[:, None], Rw[:, None], m.box_half[i], obs.centre[None], obs.R[None],
-                             obs.half[None], en[:, None])
+                             obs.half[None], en[:, None], un, self._prismatic)
             res |= (ov & near).any(axis=1)
         balls = self._balls_of[b]
         if len(balls):
-            cw = np.einsum("nij,sj->nsi", Rn, m.ball_c[balls]) + pn[:, None]
-            d = obs.sphere_distance(cw, m.ball_r[balls] + en[:, None])  # (n, s, O)
-            res |= ((d < 0) & near[:, None, :]).any(axis=(1, 2))
+            cw = np.einsum("nij,sj->nsi", Rn, m.ball_c[balls]) + pn[:, None]  # (n, s, 3)
+            uu = None if un is None else un[:, None]
+            ov = ball_box_overlap(cw[:, :, None], m.ball_r[balls][None, :, None], obs.centre[None, None],
+                                  obs.R[None, None], obs.half[None, None], en[:, None, None], uu,
+                                  self._prismatic)  # (n, s, O)
+            res |= (ov & near[:, None, :]).any(axis=(1, 2))
         out[n_idx] = res
         return out
 
@@ -452,6 +506,7 @@ class SceneTester:
         if not len(rows):
             return out
         R, p, margin = R[rows], p[rows], margin[rows]
+        u = None if self._axis is None else self._axis[rows]
         res = np.zeros(len(rows), bool)
 
         def boxes(body):
@@ -468,18 +523,25 @@ class SceneTester:
             return np.einsum("nij,sj->nsi", R[:, body], m.ball_c[idx]) + p[:, body][:, None], m.ball_r[idx]
 
         bx_a, bx_b, bl_a, bl_b = boxes(a), boxes(b), balls(a), balls(b)
+        prism = self._prismatic
+        u3 = None if u is None else u[:, None]
         for ca_, Ra_, ha_ in bx_a:
             for cb_, Rb_, hb_ in bx_b:
-                res |= obb_overlap(ca_, Ra_, ha_, cb_, Rb_, hb_, margin)
+                res |= obb_overlap(ca_, Ra_, ha_, cb_, Rb_, hb_, margin, u, prism)
             if bl_b is not None:
-                d = sphere_obb_distance(bl_b[0], bl_b[1] + margin[:, None], ca_[:, None], Ra_[:, None], ha_)
-                res |= (d < 0).any(axis=1)
+                res |= ball_box_overlap(bl_b[0], bl_b[1][None], ca_[:, None], Ra_[:, None], ha_,
+                                        margin[:, None], u3, prism).any(axis=1)
         if bl_a is not None:
             for cb_, Rb_, hb_ in bx_b:
-                d = sphere_obb_distance(bl_a[0], bl_a[1] + margin[:, None], cb_[:, None], Rb_[:, None], hb_)
-                res |= (d < 0).any(axis=1)
+                res |= ball_box_overlap(bl_a[0], bl_a[1][None], cb_[:, None], Rb_[:, None], hb_,
+                                        margin[:, None], u3, prism).any(axis=1)
             if bl_b is not None:
-                dd = np.linalg.norm(bl_a[0][:, :, None] - bl_b[0][:, None, :], axis=-1)
-                res |= (dd < bl_a[1][:, None] + bl_b[1][None, :] + margin[:, None, None]).any(axis=(1, 2))
+                diff = bl_a[0][:, :, None] - bl_b[0][:, None, :]  # (n, sa, sb, 3)
+                dist = np.linalg.norm(diff, axis=-1)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    nrm = diff / np.where(dist > 0, dist, 1.0)[..., None]
+                uu = None if u is None else u[:, None, None]
+                sup = motion_support(nrm, margin[:, None, None], uu, prism)
+                res |= (dist <= bl_a[1][:, None] + bl_b[1][None, :] + sup).any(axis=(1, 2))
         out[rows] = res
         return out

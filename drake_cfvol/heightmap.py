@@ -272,7 +272,7 @@ class Volume:
         sizes = np.stack([np.full_like(h, s), np.full_like(h, s), h], axis=1)
         return centres, sizes
 
-    def sphere_hits(self, p: np.ndarray, r: np.ndarray) -> np.ndarray:
+    def sphere_hits(self, p: np.ndarray, r: np.ndarray, e_xy=0.0, e_z=0.0) -> np.ndarray:
         """Conservative test of spheres against the columns.
 
         A sphere (p, r) is reported if its lowest point is below the tallest
@@ -282,19 +282,22 @@ class Volume:
         Args:
             p: (..., 3) centres, m.
             r: (...) radii, m.
+            e_xy, e_z: (...) how far the sphere may move horizontally and
+                vertically from p (motion between samples), m.
 
         Returns:
             (...) bool.
         """
         hm = self.heightmap
         s = hm.side
-        r = np.asarray(r, float)
+        r_z = np.asarray(r, float) + e_z
+        r = np.asarray(r, float) + e_xy
         i0 = np.floor((p[..., 0] - r - hm.origin[0]) / s).astype(np.int64)
         i1 = np.floor((p[..., 0] + r - hm.origin[0]) / s).astype(np.int64)
         j0 = np.floor((p[..., 1] - r - hm.origin[1]) / s).astype(np.int64)
         j1 = np.floor((p[..., 1] + r - hm.origin[1]) / s).astype(np.int64)
         top = self.range_max.query(i0, i1, j0, j1)
-        return (top > 0) & (p[..., 2] - r < top)
+        return (top > 0) & (p[..., 2] - r_z < top)
 
     def lower_under(self, p: np.ndarray, r: np.ndarray, clearance: float) -> None:
         """Lowers (or drops) every column that :meth:`sphere_hits` would

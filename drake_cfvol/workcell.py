@@ -182,6 +182,8 @@ class Workcell:
         package_map.AddPackageXml(str(models_dir() / "package.xml"))
         self._add_package_paths(cf.get("package_paths"), package_map, path, cf)
         directives = self._prepare_directives(directives, package_map, path)
+        self._directives = directives
+        self._package_paths = cf.get("package_paths")
         try:
             model_directives = LoadModelDirectivesFromString(yaml.safe_dump({"directives": directives}))
             ProcessModelDirectives(model_directives, builder.plant(), parser)
@@ -378,6 +380,32 @@ class Workcell:
                 str(self.path), "the workcell has no obstacles with proximity geometry; add at least "
                 "the floor as a body with a collision shape.")
         return obstacles
+
+    def build_scene(self, add_geometry=None, *, time_step: float = 0.0):
+        """Builds a fresh ``RobotDiagram`` of this workcell.
+
+        Args:
+            add_geometry: called as ``add_geometry(plant)`` before the plant
+                is finalized (e.g. to register the volume's boxes).
+            time_step: the plant's time step, s.
+
+        Returns:
+            (robot diagram, robot model instance)
+        """
+        from pydrake.multibody.parsing import LoadModelDirectivesFromString, ProcessModelDirectives
+        from pydrake.planning import RobotDiagramBuilder
+
+        builder = RobotDiagramBuilder(time_step=time_step)
+        parser = builder.parser()
+        parser.package_map().AddPackageXml(str(models_dir() / "package.xml"))
+        self._add_package_paths(self._package_paths, parser.package_map(), self.path, self._raw["cfvol"])
+        ProcessModelDirectives(LoadModelDirectivesFromString(yaml.safe_dump({"directives": self._directives})),
+                               builder.plant(), parser)
+        if add_geometry is not None:
+            add_geometry(builder.plant())
+        builder.plant().Finalize()
+        diagram = builder.Build()
+        return diagram, diagram.plant().GetModelInstanceByName(self.robot_name)
 
     # -- queries ---------------------------------------------------------
 

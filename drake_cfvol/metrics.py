@@ -1,0 +1,116 @@
+"""Metrics (SPEC 8): the paper's Confidence Factor, and freedom beside it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from drake_cfvol.bounds import BoundsTable
+from drake_cfvol.exceptions import DimensionError, ParameterError
+
+__all__ = ["CFResult", "Freedom", "confidence_factor", "freedom", "sample_boxes"]
+
+
+def sample_boxes(bounds: BoundsTable, s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Configurations drawn uniformly in the box at each path parameter s
+    (SPEC 7 interpolation), one per entry of s."""
+    g = bounds.g
+    s = np.asarray(s, float)
+    i = np.clip(np.floor(s).astype(int), 0, g - 2)
+    t = (s - i)[:, None]
+    nom = (1 - t) * bounds.nominal[i] + t * bounds.nominal[i + 1]
+    at_i = t[:, 0] == 0.0
+    lo = np.where(at_i[:, None], bounds.lower[i], np.minimum(np.maximum(bounds.lower[i], bounds.lower[i + 1]), nom))
+    hi = np.where(at_i[:, None], bounds.upper[i], np.maximum(np.minimum(bounds.upper[i], bounds.upper[i + 1]), nom))
+    at_end = t[:, 0] == 1.0
+    lo = np.where(at_end[:, None], bounds.lower[i + 1], lo)
+    hi = np.where(at_end[:, None], bounds.upper[i + 1], hi)
+    return lo + rng.random(lo.shape) * (hi - lo)
+
+
+@dataclasses.dataclass
+class CFResult:
+    """A Confidence Factor measurement.
+
+    Attributes:
+        percent: CF, % of samples free of collision with the real scene.
+        per_window: (N_tw,) CF per time window, %.
+        samples: total number of samples (N_tw N_m).
+        colliding: how many collided.
+        seed: the seed used.
+    """
+
+    percent: float
+    per_window: np.ndarray
+    samples: int
+    colliding: int
+    seed: int
+
+
+def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, samples: int = 10000,
+                      seed: int = 0, checker=None) -> CFResult:
+    """The paper's Confidence Factor (eq. 3-4, SPEC 8).
+
+    The path parameter s in [0, g-1] is split into ``windows`` equal windows;
+    in each, ``samples`` draws of s uniform in the window and q uniform in
+    the box at s are checked against the real scene (obstacles + self, not the
+    volume) with Drake.
+
+    Args:
+        workcell: the workcell.
+        bounds: the bounds table.
+        windows: N_tw.
+        samples: N_m, per window.
+        seed: random seed.
+        checker: a Drake collision checker (default: the workcell's).
+    """
+    if windows < 1 or samples < 1:
+        raise ParameterError(f"windows and samples must be >= 1, got {windows} and {samples}.")
+    if bounds.k != workcell.num_joints:
+        raise DimensionError("the bounds' joints", workcell.num_joints, bounds.k)
+    checker = checker or workcell.checker
+    rng = np.random.default_rng(seed)
+    edges = np.linspace(0.0, bounds.g - 1, windows + 1)
+    per = np.empty(windows)
+    colliding = 0
+    for w in range(windows):
+        s = rng.uniform(edges[w], edges[w + 1], samples)
+        Q = sample_boxes(bounds, s, rng)
+        free = np.array(checker.CheckConfigsCollisionFree(Q, parallelize=True), bool)
+        per[w] = 100.0 * free.mean()
+        colliding += int((~free).sum())
+    total = windows * samples
+    return CFResult(100.0 * (total - colliding) / total, per, total, colliding, seed)
+
+
+@dataclasses.dataclass
+class Freedom:
+    """How much room the bounds leave (SPEC 8).
+
+    Attributes:
+        mean: mean over waypoints of the geometric mean over joints of
+            (upper - lower) / (limit range); 0 .. 1.
+        per_waypoint: (g,) that geometric mean.
+        median_width: (k,) median width per joint, degrees for revolute
+            joints, metres for prismatic ones.
+        units: (k,) "deg" or "m".
+    """
+
+    mean: float
+    per_waypoint: np.ndarray
+    median_width: np.ndarray
+    units: list[str]
+
+
+def freedom(bounds: BoundsTable, revolute=None) -> Freedom:
+    """Freedom of a bounds table (reported beside every CF: a box of zero
+    width has CF 100 %)."""
+    rng = bounds.limit_upper - bounds.limit_lower
+    frac = np.clip(bounds.widths() / rng, 0.0, 1.0)
+    with np.errstate(divide="ignore"):
+        gm = np.exp(np.mean(np.log(frac), axis=1))
+    revolute = np.ones(bounds.k, bool) if revolute is None else np.asarray(revolute, bool)
+    med = np.median(bounds.widths(), axis=0)
+    med = np.where(revolute, np.degrees(med), med)
+    return Freedom(float(gm.mean()), gm, med, ["deg" if r else "m" for r in revolute])

@@ -1,0 +1,223 @@
+"""Object categorization (SPEC 4) and the height-map volume V (SPEC 5)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from drake_cfvol.collision import RobotModel, robot_model, workcell_obstacles
+from drake_cfvol.heightmap import FootprintRaster, HeightMap, Volume, height_function
+from drake_cfvol.params import VolumeParams
+from drake_cfvol.planning import NominalPath
+
+__all__ = ["Categories", "categorize", "build_volume", "ground_obstacles", "footprint_polygon"]
+
+#: An obstacle whose top is at most this high is ground (the floor).
+GROUND_TOP = 1e-3
+
+
+@dataclasses.dataclass
+class Categories:
+    """The obstacle sets of SPEC 4 (disjoint; their union is every obstacle).
+
+    Attributes:
+        trail: obstacles within ``trail_radius`` of the robot somewhere on the
+            path (the robot's own posed geometry is the rest of the trail).
+        goal: obstacles, not in the trail, within ``goal_radius`` of the robot
+            at the goal.
+        no_goal: every other obstacle.
+        trail_distance: per obstacle, the smallest signed distance to the
+            robot over the path that Drake reported (inf: beyond the radius).
+        goal_distance: per obstacle, the signed distance to the robot at the
+            goal (inf: beyond the radius).
+    """
+
+    trail: list[str]
+    goal: list[str]
+    no_goal: list[str]
+    trail_distance: dict[str, float]
+    goal_distance: dict[str, float]
+
+    def of(self, name: str) -> str:
+        """The category ("trail", "goal" or "no_goal") of an obstacle."""
+        for cat in ("trail", "goal", "no_goal"):
+            if name in getattr(self, cat):
+                return cat
+        raise KeyError(name)
+
+
+def _robot_obstacle_distances(workcell, q, max_distance: float) -> dict[str, float]:
+    """Smallest signed distance per obstacle to the robot at q, for the pairs
+    Drake finds within ``max_distance``."""
+    workcell.plant_context(q)
+    sg = workcell.scene_graph
+    query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(workcell.context))
+    owner = workcell.__dict__.get("_geometry_owner")
+    if owner is None:
+        owner = {}
+        for obs in workcell.obstacles.values():
+            for gid in obs.geometry_ids:
+                owner[gid] = obs.name
+        workcell.__dict__["_geometry_owner"] = owner
+    out: dict[str, float] = {}
+    for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=max_distance):
+        a, b = owner.get(pair.id_A), owner.get(pair.id_B)
+        if (a is None) == (b is None):
+            continue  # robot-robot or obstacle-obstacle
+        name = a if a is not None else b
+        out[name] = min(out.get(name, np.inf), pair.distance)
+    return out
+
+
+def categorize(workcell, path: NominalPath, params: VolumeParams) -> Categories:
+    """Sorts the obstacles into trail, goal and no-goal sets (SPEC 4) with
+    Drake's signed-distance queries on the real geometry."""
+    trail_d: dict[str, float] = {}
+    for q in path.waypoints:
+        for name, d in _robot_obstacle_distances(workcell, q, params.trail_radius).items():
+            trail_d[name] = min(trail_d.get(name, np.inf), d)
+    goal_d = _robot_obstacle_distances(workcell, path.waypoints[-1], params.goal_radius)
+    names = list(workcell.obstacles)
+    trail = [n for n in names if trail_d.get(n, np.inf) < params.trail_radius]
+    goal = [n for n in names if n not in trail and goal_d.get(n, np.inf) < params.goal_radius]
+    no_goal = [n for n in names if n not in trail and n not in goal]
+    return Categories(trail, goal, no_goal,
+                      {n: float(trail_d.get(n, np.inf)) for n in names},
+                      {n: float(goal_d.get(n, np.inf)) for n in names})
+
+
+def ground_obstacles(workcell) -> set[str]:
+    """Obstacles whose top is at floor level (z <= 1 mm): their footprint is
+    the whole map, so they take no part in the height function's distances
+    (the volume stands on them anyway)."""
+    obs = workcell_obstacles(workcell)
+    tops = {}
+    for name, c, R, h in zip(obs.names, obs.centre, obs.R, obs.half):
+        top = c[2] + np.abs(R[2]) @ h
+        tops[name] = max(tops.get(name, -np.inf), top)
+    return {n for n, t in tops.items() if t <= GROUND_TOP}
+
+
+def _convex_hull(points: np.ndarray) -> np.ndarray:
+    pts = sorted(set(map(tuple, np.round(points, 12))))
+    if len(pts) <= 2:
+        return np.array(pts)
+
+    def half(seq):
+        h = []
+        for p in seq:
+            while len(h) >= 2 and np.cross(np.subtract(h[-1], h[-2]), np.subtract(p, h[-2])) <= 0:
+                h.pop()
+            h.append(p)
+        return h
+
+    lower, upper = half(pts), half(pts[::-1])
+    return np.array(lower[:-1] + upper[:-1])
+
+
+def footprint_polygon(centre, R, half) -> np.ndarray:
+    """The xy projection of an oriented box: a convex polygon (n, 2)."""
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
+    corners = centre + (signs * half) @ R.T
+    return _convex_hull(corners[:, :2])
+
+
+def reach_activation(workcell, path: NominalPath, hm: HeightMap, reach: float) -> np.ndarray:
+    """(m, n) True where the cell centre is within ``reach`` of the robot's
+    base (or of the segment its base travels along a linear axis)."""
+    X, Y = hm.centres()
+    q0 = path.waypoints[0]
+    base = workcell.base_frame.CalcPoseInWorld(workcell.plant_context(q0)).translation()[:2]
+    if workcell.rail_joint is None:
+        return np.hypot(X - base[0], Y - base[1]) <= reach
+    j = workcell.joint_names.index(workcell.rail_joint)
+    ends = []
+    for v in (workcell.position_lower[j], workcell.position_upper[j]):
+        q = q0.copy()
+        q[j] = v
+        ends.append(workcell.base_frame.CalcPoseInWorld(workcell.plant_context(q)).translation()[:2])
+    a, b = ends
+    ab = b - a
+    t = np.clip(((X - a[0]) * ab[0] + (Y - a[1]) * ab[1]) / max(ab @ ab, 1e-12), 0, 1)
+    return np.hypot(X - (a[0] + t * ab[0]), Y - (a[1] + t * ab[1])) <= reach
+
+
+def height_map_of(workcell, params: VolumeParams) -> HeightMap:
+    """The workcell's height map at resolution ``params.resolution``."""
+    from drake_cfvol.exceptions import WorkcellError
+
+    o, size = workcell.height_map_origin, workcell.height_map_size
+    if not (np.all(np.isfinite(o)) and np.all(np.isfinite(size))):
+        raise WorkcellError(
+            f"workcell '{workcell.name}' has no height map extent: set cfvol.height_map: "
+            "{origin: [x, y], size: [x_dim, y_dim]} (m).")
+    return HeightMap((float(o[0]), float(o[1])), float(size[0]), float(size[1]), params.resolution)
+
+
+@dataclasses.dataclass
+class VolumeBuild:
+    """What :func:`build_volume` made.
+
+    Attributes:
+        volume: the volume V.
+        categories: the obstacle sets.
+        d_t, d_g, d_ng: (m, n) distances from the cell centres to the
+            footprints, m.
+        active: (m, n) reach activation.
+    """
+
+    volume: Volume
+    categories: Categories
+    d_t: np.ndarray
+    d_g: np.ndarray
+    d_ng: np.ndarray
+    active: np.ndarray
+
+
+def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
+                 model: RobotModel | None = None, categories: Categories | None = None) -> VolumeBuild:
+    """Grows the volume V around a nominal path (SPEC 4-5).
+
+    The trail's footprint is the xy projection of the robot's cover spheres
+    at every waypoint (a superset of its geometry) and of the trail
+    obstacles. Columns that the robot would touch at a nominal waypoint
+    (coarse cells, SPEC 5) are lowered under it, or dropped; the counts are
+    in ``volume.lowered`` / ``volume.dropped``.
+    """
+    model = model or robot_model(workcell, params.sphere_tolerance)
+    cats = categories or categorize(workcell, path, params)
+    hm = height_map_of(workcell, params)
+    obs = workcell_obstacles(workcell)
+    ground = ground_obstacles(workcell)
+    lo = np.array(hm.origin)
+    hi = lo + [hm.x_dim, hm.y_dim]
+    pad = max(params.d_t_ub, params.d_g_ub, params.d_ng_ub)
+    raster = FootprintRaster(lo, hi, params.raster, pad)
+
+    # Robot cover spheres at every waypoint (bodies that never move: once).
+    R, p = model.batch_poses(workcell, path.waypoints)
+    moving = model.moved_by.any(axis=0)
+    centres = model.cover_world(R, p)  # (g, Nc, 3)
+    cover_moving = moving[model.cover_body]
+    pts = np.concatenate([centres[:, cover_moving].reshape(-1, 3), centres[0, ~cover_moving]])
+    rad = np.concatenate([np.tile(model.cover_r[cover_moving], len(path.waypoints)),
+                          model.cover_r[~cover_moving]])
+
+    masks = {c: raster.empty() for c in ("trail", "goal", "no_goal")}
+    for name, c, Rb, h in zip(obs.names, obs.centre, obs.R, obs.half):
+        if name in ground:
+            continue
+        raster.fill_polygon(masks[cats.of(name)], footprint_polygon(c, Rb, h))
+    d_trail_obs = raster.distance(masks["trail"])
+    d_trail_robot = raster.disc_distance(pts[:, :2], rad, quantum=0.05)
+    X, Y = hm.centres()
+    d_t = raster.sample(np.minimum(d_trail_obs, d_trail_robot), X, Y)
+    d_g = raster.sample(raster.distance(masks["goal"]), X, Y)
+    d_ng = raster.sample(raster.distance(masks["no_goal"]), X, Y)
+    reach = params.reach if params.reach is not None else workcell.reach
+    active = reach_activation(workcell, path, hm, reach) if reach and reach > 0 else np.ones(hm.shape, bool)
+    raw = height_function(d_t, d_g, d_ng, active, params)
+    vol = Volume(hm, raw.copy(), raw)
+    vol.lower_under(pts, rad, params.column_clearance)
+    return VolumeBuild(vol, cats, d_t, d_g, d_ng, active)
