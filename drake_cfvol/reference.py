@@ -23,7 +23,7 @@ __all__ = ["VOLUME_BOX_PREFIX", "register_volume_boxes", "ReferenceScene", "drak
 VOLUME_BOX_PREFIX = "cfvol_volume_"
 
 #: Above this many columns the reference refuses (cost: see module docs).
-MAX_REFERENCE_BOXES = 6000
+MAX_REFERENCE_BOXES = 3000
 
 
 def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35), visual: bool = True) -> list:
@@ -57,15 +57,18 @@ class ReferenceScene:
         workcell: the workcell.
         volume: the volume V.
         edge_step: Drake's edge-check step, rad or m.
+        max_boxes: refuse volumes with more columns than this (Drake needs
+            ~1-2 s per 1000 boxes, 12 GB and a minute at 5000).
     """
 
-    def __init__(self, workcell, volume: Volume, *, edge_step: float = 0.01):
+    def __init__(self, workcell, volume: Volume, *, edge_step: float = 0.01,
+                 max_boxes: int = MAX_REFERENCE_BOXES):
         from pydrake.planning import SceneGraphCollisionChecker
 
-        if volume.n_boxes > MAX_REFERENCE_BOXES:
+        if volume.n_boxes > max_boxes:
             raise ParameterError(
                 f"the reference backend holds one SceneGraph box per column; {volume.n_boxes} columns "
-                f"exceed its practical limit of {MAX_REFERENCE_BOXES} (Drake's cost grows quadratically). "
+                f"exceed its practical limit of {max_boxes} (Drake's cost grows quadratically). "
                 "Use backend='fast' or a lower resolution.")
         t0 = time.perf_counter()
         holder = {}

@@ -1,0 +1,145 @@
+"""Joint bounding (SPEC 6-7) against geometry worked out by hand."""
+
+import numpy as np
+import pytest
+
+import drake_cfvol as cf
+from drake_cfvol.bounds import BoundsTable, estimate_bounds, interpolate_bounds
+from conftest import write_arm_cell
+
+L, W, Z = 1.0, 0.05, 0.5  # link length, half width, height of the arm
+
+
+def arm(tmp_path, obstacles, lower=-3.0, upper=3.0):
+    path = write_arm_cell(tmp_path, links=[{"length": L, "half_width": W, "lower": lower, "upper": upper}],
+                          obstacles=obstacles, base_z=Z)
+    return cf.load_workcell(path)
+
+
+def still_path(wc, theta):
+    return cf.NominalPath(np.array([[theta], [theta]]), wc.joint_names, wc.name)
+
+
+def test_wall_at_known_distance(tmp_path):
+    """A wall at y = d stops the link when its far corner reaches it:
+    L sin(t) + W cos(t) = d; the bound is within delta below that angle."""
+    d = 0.6
+    wc = arm(tmp_path, {"wall": ((1.8, 0.2, 1.0), (1.1, d + 0.1, Z))})
+    table = estimate_bounds(wc, still_path(wc, 0.0), h_max=0.0)
+    theta = np.arcsin(d / np.hypot(L, W)) - np.arctan2(W, L)
+    delta = table.params["delta"]
+    assert theta - delta <= table.upper[0, 0] <= theta
+    assert table.lower[0, 0] == pytest.approx(-3.0)  # nothing on the other side
+    # Drake agrees: free just below the bound, colliding just past theta.
+    assert wc.is_free([table.upper[0, 0]]) and not wc.is_free([theta + 1e-3])
+
+
+def _paper_bisection(wc, q0, limit, delta):
+    """Algorithm 2 of the paper: tests only end values."""
+    if wc.is_free([limit]):
+        return limit
+    free, coll = q0, limit
+    while abs(coll - free) >= delta:
+        mid = (free + coll) / 2
+        if wc.is_free([mid]):
+            free = mid
+        else:
+            coll = mid
+    return free
+
+
+def test_no_jump_over(tmp_path):
+    """A post between the nominal and a free joint limit: the paper's
+    end-value bisection jumps over it, ours stops before it."""
+    wc = arm(tmp_path, {"post": ((0.1, 0.1, 1.0), (0.0, 0.7, Z))})
+    assert wc.is_free([3.0])  # the limit itself is free
+    assert _paper_bisection(wc, 0.0, 3.0, 0.01) == 3.0
+    table = estimate_bounds(wc, still_path(wc, 0.0), h_max=0.0)
+    # The link's upper edge (offset W) meets the post's corner (0.05, 0.65).
+    r = np.hypot(0.05, 0.65)
+    contact = np.arctan2(0.65, 0.05) - np.arcsin(W / r)
+    assert contact - 0.01 <= table.upper[0, 0] <= contact
+    assert all(wc.is_free([t]) for t in np.linspace(0.0, table.upper[0, 0], 400))
+
+
+def test_limits_when_nothing_around(tmp_path):
+    """No obstacle near and no volume: the bounds are the joint limits."""
+    wc = arm(tmp_path, {}, lower=-2.5, upper=2.0)
+    table = estimate_bounds(wc, still_path(wc, 0.3), h_max=0.0)
+    assert table.lower[0, 0] == -2.5 and table.upper[0, 0] == 2.0
+
+
+def test_joint_without_limits_uses_pi(tmp_path):
+    """A continuous joint is bounded at nominal +- pi (SPEC 2)."""
+    wc = arm(tmp_path, {}, lower=None, upper=None)
+    table = estimate_bounds(wc, still_path(wc, 0.3), h_max=0.0)
+    assert table.lower[0, 0] == pytest.approx(0.3 - np.pi)
+    assert table.upper[0, 0] == pytest.approx(0.3 + np.pi)
+
+
+def test_volume_stops_the_link(tmp_path):
+    """With the volume on, the bound is no wider than without it, and the
+    swept link stays free of the real scene."""
+    wc = arm(tmp_path, {"post": ((0.3, 0.3, 1.5), (-1.5, 1.5, 0.75))})
+    path = cf.NominalPath(np.linspace([0.0], [0.6], 13), wc.joint_names, wc.name)
+    with_v = estimate_bounds(wc, path, resolution=2000)
+    without = estimate_bounds(wc, path, resolution=2000, h_max=0.0)
+    assert np.all(with_v.upper <= without.upper + 1e-12) and np.all(with_v.lower >= without.lower - 1e-12)
+    assert np.any(with_v.widths() < without.widths() - 0.1)
+
+
+def test_bounds_contain_nominal_on_a_real_path(automotive):
+    """lower <= nominal <= upper at every waypoint of a built-in path."""
+    path = cf.plan_nominal_path(automotive, *automotive.configuration("path3"), seed=2)
+    table = estimate_bounds(automotive, path, resolution=500)
+    assert np.all(table.lower <= table.nominal) and np.all(table.nominal <= table.upper)
+    assert np.all(table.lower >= table.limit_lower - 1e-12) and np.all(table.upper <= table.limit_upper + 1e-12)
+    assert table.timing_ms["total"] >= table.timing_ms["bounding"] > 0
+
+
+def test_interpolation_between_waypoints():
+    """SPEC 7: integer s gives the waypoint; fractional s the intersection of
+    the neighbours, widened to hold the interpolated nominal."""
+    lower = np.array([[-1.0, 0.0], [-0.5, 0.2]])
+    upper = np.array([[1.0, 1.0], [2.0, 0.4]])
+    nominal = np.array([[0.0, 0.5], [0.0, 0.3]])
+    lo, hi, nom = interpolate_bounds(0.0, lower, upper, nominal)
+    assert lo.tolist() == [-1.0, 0.0] and hi.tolist() == [1.0, 1.0]
+    lo, hi, nom = interpolate_bounds(0.5, lower, upper, nominal)
+    np.testing.assert_allclose(nom, [0.0, 0.4])
+    np.testing.assert_allclose(lo, [-0.5, 0.2])
+    # min(1.0, 0.4) = 0.4 already holds the nominal 0.4.
+    np.testing.assert_allclose(hi, [1.0, 0.4])
+    lo, hi, nom = interpolate_bounds(1.0, lower, upper, nominal)
+    assert lo.tolist() == [-0.5, 0.2]
+    with pytest.raises(cf.ParameterError, match="outside"):
+        interpolate_bounds(1.5, lower, upper, nominal)
+
+
+def test_interpolation_widens_to_nominal():
+    """Where the intersection excludes the interpolated nominal, it is widened."""
+    lower = np.array([[0.0], [0.9]])
+    upper = np.array([[0.1], [1.0]])
+    nominal = np.array([[0.0], [1.0]])
+    lo, hi, nom = interpolate_bounds(0.5, lower, upper, nominal)
+    assert lo[0] <= nom[0] <= hi[0] and nom[0] == 0.5
+
+
+def test_wrong_dof_path(automotive, aerospace):
+    """A path of the wrong DoF is refused with the expected size."""
+    path = cf.plan_nominal_path(automotive, *automotive.configuration("path1"), seed=0)
+    with pytest.raises(cf.DimensionError, match="expected 7"):
+        estimate_bounds(aerospace, path)
+
+
+def test_save_load(tmp_path):
+    """A bounds table saves to .npz and .json and loads back equal."""
+    wc = arm(tmp_path, {"post": ((0.1, 0.1, 1.0), (0.0, 0.7, Z))})
+    table = estimate_bounds(wc, still_path(wc, 0.0), h_max=0.0)
+    for suffix in (".npz", ".json"):
+        f = table.save(tmp_path / f"b{suffix}")
+        back = BoundsTable.load(f)
+        np.testing.assert_array_equal(back.upper, table.upper)
+        assert back.params == table.params and back.joint_names == table.joint_names
+        with pytest.raises(FileExistsError):
+            table.save(f)

@@ -1,0 +1,50 @@
+"""The cfvol command line, run in-process."""
+
+import json
+
+import pytest
+
+from drake_cfvol.cli import main
+
+
+def test_plan_json(capsys):
+    """cfvol plan --json prints one object with the promised keys; the hash is
+    stable for a seed."""
+    assert main(["plan", "automotive", "--path", "2", "--seed", "1", "--json"]) == 0
+    a = json.loads(capsys.readouterr().out)
+    for key in ("cell", "path", "seed", "g", "plan_time_ms", "path_length", "waypoints_sha256"):
+        assert key in a
+    assert a["cell"] == "automotive" and a["path"] == "path2" and a["seed"] == 1
+    assert main(["plan", "automotive", "--path", "2", "--seed", "1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["waypoints_sha256"] == a["waypoints_sha256"]
+
+
+def test_plan_unknown_cell(capsys):
+    """An unknown cell exits 2 with the known cells listed."""
+    assert main(["plan", "nowhere"]) == 2
+    assert "automotive" in capsys.readouterr().err
+
+
+def test_plan_refuses_to_overwrite(tmp_path, capsys):
+    """--out does not overwrite an existing file without --force."""
+    out = tmp_path / "p.json"
+    out.write_text("mine")
+    assert main(["plan", "automotive", "--out", str(out)]) == 2
+    assert out.read_text() == "mine"
+    assert "overwrite" in capsys.readouterr().err
+    assert main(["plan", "automotive", "--out", str(out), "--force"]) == 0
+    assert json.loads(out.read_text())["format"] == "drake_cfvol.NominalPath"
+
+
+def test_bounds_json_and_files(tmp_path, capsys):
+    """cfvol bounds --json --out --plot writes bounds, path and a PNG."""
+    rc = main(["bounds", "aerospace", "--path", "1", "--resolution", "300", "--cf-samples", "200",
+               "--out", str(tmp_path), "--plot", "--json"])
+    assert rc == 0
+    d = json.loads(capsys.readouterr().out)
+    for key in ("cell", "path", "resolution", "g", "k", "time_ms", "cf_percent", "freedom", "n_boxes", "out"):
+        assert key in d
+    assert d["k"] == 7 and 0 <= d["cf_percent"] <= 100 and 0 < d["freedom"] <= 1
+    for f in d["files"].values():
+        assert (tmp_path / f.split("/")[-1]).stat().st_size > 0
+    assert open(d["files"]["plot_png"], "rb").read(8) == b"\x89PNG\r\n\x1a\n"

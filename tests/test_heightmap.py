@@ -1,0 +1,100 @@
+"""Height map geometry, eq. 1 by hand, the range-max table, the column test."""
+
+import numpy as np
+import pytest
+
+import drake_cfvol as cf
+from drake_cfvol.heightmap import HeightMap, RangeMax2D, Volume, height_function
+from drake_cfvol.params import VolumeParams
+
+
+@pytest.mark.parametrize("x,y,R,side,m,n", [
+    (5.6, 5.6, 100, 0.56, 10, 10),
+    (5.6, 5.6, 1000, np.sqrt(5.6 * 5.6 / 1000), 31, 31),
+    (11.8, 6.0, 100, np.sqrt(11.8 * 6.0 / 100), 14, 7),
+    (4.0, 1.0, 4, 1.0, 4, 1),
+])
+def test_side_rows_columns(x, y, R, side, m, n):
+    """side = sqrt(x y / R), m = floor(x / side), n = floor(y / side), m n <= R."""
+    hm = HeightMap((0.0, 0.0), x, y, R)
+    assert hm.side == pytest.approx(side)
+    assert (hm.m, hm.n) == (m, n)
+    assert hm.m * hm.n <= R
+    X, Y = hm.centres()
+    assert X[0, 0] == pytest.approx(side / 2) and Y[0, -1] == pytest.approx((n - 0.5) * side)
+
+
+def test_height_function_by_hand():
+    """Each Delta term, the clamping and the activation, worked by hand."""
+    p = VolumeParams()  # d_t 0.35..1.5, d_g 0.1..2.0, d_ng_ub 0.5, h_max 1.5
+    # Delta_t = (0.925 - 0.35) / 1.15 = 0.5; Delta_g = (1.05 - 0.1) / 1.9 = 0.5;
+    # Delta_ng = (0.5 - 0.25) / 0.5 = 0.5 -> h = 1.5 * 1.5 = 2.25.
+    assert height_function(0.925, 1.05, 0.25, True, p) == pytest.approx(2.25)
+    # Clamping: far from everything -> 1 + 1 + 0.
+    assert height_function(10.0, 10.0, 10.0, True, p) == pytest.approx(3.0)
+    # On a no-goal footprint and at the goal's floor: 1 + 0 + 1.
+    assert height_function(5.0, 0.0, 0.0, True, p) == pytest.approx(3.0)
+    # Activation: nearer the trail than d_t,LB, or out of reach -> 0.
+    assert height_function(0.3499, 10.0, 0.0, True, p) == 0.0
+    assert height_function(1.0, 10.0, 0.0, False, p) == 0.0
+    # Empty sets (inf): Delta_t = Delta_g = 1, Delta_ng = 0.
+    assert height_function(np.inf, np.inf, np.inf, True, p) == pytest.approx(3.0)
+    # Exponents: alpha_t = 2 squares Delta_t = 0.5.
+    p2 = p.replace(alpha_t=2.0)
+    assert height_function(0.925, 0.1, 0.5, True, p2) == pytest.approx(1.5 * 0.25)
+
+
+def test_height_function_vectorised():
+    """Arrays in, arrays out, same values as scalar calls."""
+    p = VolumeParams()
+    d = np.linspace(0, 3, 50)
+    h = height_function(d, d[::-1], d, d > 0.5, p)
+    assert h.shape == (50,)
+    for i in (0, 13, 49):
+        assert h[i] == pytest.approx(height_function(d[i], d[::-1][i], d[i], d[i] > 0.5, p))
+
+
+def test_range_max_matches_brute_force():
+    """RangeMax2D.query equals numpy's max over the clipped block."""
+    rng = np.random.default_rng(0)
+    v = rng.random((23, 41))
+    t = RangeMax2D(v)
+    for _ in range(500):
+        i0, i1 = sorted(rng.integers(-3, 26, 2))
+        j0, j1 = sorted(rng.integers(-3, 44, 2))
+        a, b, c, d = max(i0, 0), min(i1, 22), max(j0, 0), min(j1, 40)
+        ref = v[a:b + 1, c:d + 1].max() if a <= b and c <= d else -np.inf
+        assert t.query(i0, i1, j0, j1) == ref
+
+
+def _exact_sphere_hits(vol, p, r):
+    X, Y = vol.heightmap.centres()
+    s = vol.heightmap.side
+    h = vol.heights
+    dx = np.maximum(np.abs(p[0] - X) - s / 2, 0)
+    dy = np.maximum(np.abs(p[1] - Y) - s / 2, 0)
+    dz = np.maximum(p[2] - h, 0)
+    return bool(np.any((h > 0) & (dx * dx + dy * dy + dz * dz < r * r)))
+
+
+def test_sphere_test_never_misses():
+    """The column test reports every sphere that truly touches a column
+    (exact sphere-box distances), and is not wildly conservative."""
+    rng = np.random.default_rng(1)
+    hm = HeightMap((0.0, 0.0), 4.0, 3.0, 300)
+    h = rng.uniform(0, 2, hm.shape) * (rng.random(hm.shape) < 0.5)
+    vol = Volume(hm, h, h.copy())
+    p = rng.uniform([-0.5, -0.5, 0], [4.5, 3.5, 3], (3000, 3))
+    r = rng.uniform(0.02, 0.4, 3000)
+    fast = vol.sphere_hits(p, r)
+    exact = np.array([_exact_sphere_hits(vol, pp, rr) for pp, rr in zip(p, r)])
+    assert not np.any(exact & ~fast)
+    assert exact.sum() > 100 and fast.sum() < 1.5 * exact.sum()
+
+
+def test_bad_height_map():
+    """Non-positive sides or R raise clear errors."""
+    with pytest.raises(cf.ParameterError, match="sides"):
+        HeightMap((0, 0), 0.0, 1.0, 10)
+    with pytest.raises(cf.ParameterError, match="positive"):
+        HeightMap((0, 0), 1.0, 1.0, 0)

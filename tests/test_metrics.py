@@ -1,0 +1,70 @@
+"""Confidence Factor and freedom (SPEC 8) on boxes of known collision share."""
+
+import numpy as np
+import pytest
+
+import drake_cfvol as cf
+from drake_cfvol.bounds import BoundsTable
+from conftest import write_arm_cell
+
+L, W, Z, D = 1.0, 0.05, 0.5, 0.6
+
+
+@pytest.fixture(scope="module")
+def wall_arm(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("wall")
+    return cf.load_workcell(write_arm_cell(
+        folder, links=[{"length": L, "half_width": W, "lower": -3.0, "upper": 3.0}],
+        obstacles={"wall": ((1.8, 0.2, 1.0), (1.1, D + 0.1, Z))}, base_z=Z))
+
+
+def _table(lo, hi, nominal=0.0):
+    g = 3
+    return BoundsTable(np.full((g, 1), lo), np.full((g, 1), hi), np.full((g, 1), nominal), ["joint1"],
+                       np.array([-3.0]), np.array([3.0]))
+
+
+def test_cf_free_box(wall_arm):
+    """A box known free (below the contact angle) gives CF = 100 %."""
+    res = cf.confidence_factor(wall_arm, _table(-0.5, 0.5), windows=5, samples=400, seed=1)
+    assert res.percent == 100.0 and res.colliding == 0 and res.samples == 2000
+
+
+def test_cf_half_box(wall_arm):
+    """A box centred on the contact angle is half in collision: CF ~ 50 %."""
+    theta = np.arcsin(D / np.hypot(L, W)) - np.arctan2(W, L)
+    a = 0.3
+    res = cf.confidence_factor(wall_arm, _table(theta - a, theta + a, theta - a), windows=10, samples=1000, seed=2)
+    # Binomial standard error at n = 10000: 0.5 %; allow 4 sigma.
+    assert res.percent == pytest.approx(50.0, abs=2.0)
+
+
+def test_cf_seeded(wall_arm):
+    """The same seed gives the same CF; windows are reported."""
+    t = _table(0.2, 0.9)
+    a = cf.confidence_factor(wall_arm, t, windows=4, samples=300, seed=5)
+    b = cf.confidence_factor(wall_arm, t, windows=4, samples=300, seed=5)
+    assert a.percent == b.percent and len(a.per_window) == 4
+
+
+def test_freedom_by_hand():
+    """Freedom: geometric mean of width / range; median width in degrees."""
+    t = BoundsTable(np.array([[-1.0, 0.0], [-0.5, 0.0]]), np.array([[1.0, 0.5], [0.5, 0.5]]),
+                    np.zeros((2, 2)), ["a", "b"], np.array([-2.0, -1.0]), np.array([2.0, 1.0]))
+    fr = cf.freedom(t, [True, False])
+    # waypoint 0: sqrt(0.5 * 0.25); waypoint 1: sqrt(0.25 * 0.25)
+    assert fr.mean == pytest.approx((np.sqrt(0.125) + 0.25) / 2)
+    np.testing.assert_allclose(fr.median_width, [np.degrees(1.5), 0.5])
+    assert fr.units == ["deg", "m"]
+
+
+def test_zero_width_box_has_zero_freedom():
+    """A box of zero width has CF 100 % trivially, and freedom 0 says so."""
+    t = BoundsTable(np.zeros((2, 1)), np.zeros((2, 1)), np.zeros((2, 1)), ["a"], np.array([-1.0]), np.array([1.0]))
+    assert cf.freedom(t).mean == 0.0
+
+
+def test_bad_cf_arguments(wall_arm):
+    """Windows or samples below 1 are refused."""
+    with pytest.raises(cf.ParameterError, match="windows"):
+        cf.confidence_factor(wall_arm, _table(0, 0.1), windows=0)
