@@ -437,30 +437,56 @@ class SceneTester:
             for b in moving_bodies:
                 hit |= self._env_body(R[:, b], p[:, b], e[:, b], b, ~hit)
         if volume and self.volume is not None and len(moving_bodies):
-            idx = np.concatenate([self._cover_of[b] for b in moving_bodies])
-            if len(idx):
+            hit |= self._volume(R, p, e, moving_bodies, ~hit, axis, prismatic)
+        if self_collision:
+            pairs = m.self_pairs if pairs is None else pairs
+            if len(pairs):
                 live = np.flatnonzero(~hit)
                 if len(live):
-                    body = m.cover_body[idx]
-                    c = np.einsum("nsij,sj->nsi", R[live][:, body], m.cover_c[idx]) + p[live][:, body]
-                    ee = e[live][:, body]
-                    if axis is None:
-                        e_xy, e_z = ee, ee
-                    else:
-                        uz = np.abs(axis[live, 2])[:, None]
-                        if prismatic:
-                            e_xy, e_z = ee * np.sqrt(np.maximum(1 - uz * uz, 0)), ee * uz
-                        else:
-                            e_xy, e_z = ee, ee * np.sqrt(np.maximum(1 - uz * uz, 0))
-                    hv = self.volume.sphere_hits(c, m.cover_r[idx], e_xy, e_z).any(axis=1)
-                    hit[live] |= hv
-        if self_collision:
-            for a, b in (m.self_pairs if pairs is None else pairs):
-                live = np.flatnonzero(~hit)
-                if not len(live):
-                    break
-                hit[live] |= self._pair(R[live], p[live], e[live], a, b)
+                    bc = np.einsum("nbij,bj->nbi", R[live], m.bound_c) + p[live]
+                    a_, b_ = pairs[:, 0], pairs[:, 1]
+                    gap = np.linalg.norm(bc[:, a_] - bc[:, b_], axis=-1)
+                    near = gap < m.bound_r[a_] + m.bound_r[b_] + e[live][:, a_] + e[live][:, b_]
+                    for k in np.flatnonzero(near.any(axis=0)):
+                        rows = live[near[:, k]]
+                        rows = rows[~hit[rows]]
+                        if len(rows):
+                            hit[rows] |= self._pair(R[rows], p[rows], e[rows], pairs[k, 0], pairs[k, 1],
+                                                    None if axis is None else axis[rows])
         return hit
+
+    def _volume(self, R, p, e, moving_bodies, live_mask, axis, prismatic) -> np.ndarray:
+        """Cover spheres against V, pruned per body by its bounding sphere."""
+        m, vol = self.model, self.volume
+        out = np.zeros(len(R), bool)
+        live = np.flatnonzero(live_mask)
+        if not len(live):
+            return out
+
+        def grow(ee, rows):
+            if axis is None:
+                return ee, ee
+            uz = np.abs(axis[rows, 2])
+            if ee.ndim == 2:
+                uz = uz[:, None]
+            side = np.sqrt(np.maximum(1 - uz * uz, 0))
+            return (ee * side, ee * uz) if prismatic else (ee, ee * side)
+
+        for b in moving_bodies:
+            rows = live[~out[live]]
+            if not len(rows):
+                break
+            bc = np.einsum("nij,j->ni", R[rows, b], m.bound_c[b]) + p[rows, b]
+            exy, ez = grow(e[rows, b], rows)
+            flagged = vol.sphere_hits(bc, m.bound_r[b], exy, ez)
+            rows = rows[flagged]
+            idx = self._cover_of[b]
+            if not len(rows) or not len(idx):
+                continue
+            c = np.einsum("nij,sj->nsi", R[rows, b], m.cover_c[idx]) + p[rows, b][:, None]
+            exy, ez = grow(e[rows, b][:, None], rows)
+            out[rows] |= vol.sphere_hits(c, m.cover_r[idx], exy, ez).any(axis=1)
+        return out
 
     def _env_body(self, Rb, pb, eb, b, live_mask) -> np.ndarray:
         m, obs = self.model, self.obstacles
@@ -495,7 +521,7 @@ class SceneTester:
         out[n_idx] = res
         return out
 
-    def _pair(self, R, p, e, a, b) -> np.ndarray:
+    def _pair(self, R, p, e, a, b, u=None) -> np.ndarray:
         m = self.model
         ca = np.einsum("nij,j->ni", R[:, a], m.bound_c[a]) + p[:, a]
         cb = np.einsum("nij,j->ni", R[:, b], m.bound_c[b]) + p[:, b]
@@ -506,7 +532,7 @@ class SceneTester:
         if not len(rows):
             return out
         R, p, margin = R[rows], p[rows], margin[rows]
-        u = None if self._axis is None else self._axis[rows]
+        u = None if u is None else u[rows]
         res = np.zeros(len(rows), bool)
 
         def boxes(body):
