@@ -98,6 +98,19 @@ def cmd_bounds(args) -> int:
     return 0
 
 
+def cmd_simulate(args) -> int:
+    from drake_cfvol.comanip import run_scenario
+
+    out = Path(args.out) if args.out else Path("out") / Path(args.scenario).stem
+    summary = run_scenario(args.scenario, out, record=not args.no_record)
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for k, v in summary.items():
+            print(f"{k:>22}: {v}")
+    return 0
+
+
 def cmd_demo(args) -> int:
     from drake_cfvol.demo import run_demo
 
@@ -132,6 +145,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--force", action="store_true", help="overwrite existing files in --out")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=cmd_bounds)
+
+    m = sub.add_parser("simulate", help="run a co-manipulation scenario and record it")
+    m.add_argument("scenario", help="bundled scenario name (automotive_push, aerospace_push) or a YAML path")
+    m.add_argument("--out", help="output folder (default out/<scenario>)")
+    m.add_argument("--no-record", action="store_true", help="skip the Meshcat recording")
+    m.add_argument("--json", action="store_true", help="print one JSON object")
+    m.set_defaults(func=cmd_simulate)
 
     d = sub.add_parser("demo", help="the main job: plan, bound and run the automotive cell")
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

@@ -381,6 +381,21 @@ class Workcell:
                 "the floor as a body with a collision shape.")
         return obstacles
 
+    def add_to_plant(self, plant, parser=None):
+        """Adds this workcell's models to an unfinalized ``MultibodyPlant``.
+
+        Returns:
+            The robot's model instance in that plant.
+        """
+        from pydrake.multibody.parsing import LoadModelDirectivesFromString, Parser, ProcessModelDirectives
+
+        parser = parser or Parser(plant)
+        parser.package_map().AddPackageXml(str(models_dir() / "package.xml"))
+        self._add_package_paths(self._package_paths, parser.package_map(), self.path, self._raw["cfvol"])
+        ProcessModelDirectives(LoadModelDirectivesFromString(yaml.safe_dump({"directives": self._directives})),
+                               plant, parser)
+        return plant.GetModelInstanceByName(self.robot_name)
+
     def build_scene(self, add_geometry=None, *, time_step: float = 0.0):
         """Builds a fresh ``RobotDiagram`` of this workcell.
 
@@ -392,15 +407,10 @@ class Workcell:
         Returns:
             (robot diagram, robot model instance)
         """
-        from pydrake.multibody.parsing import LoadModelDirectivesFromString, ProcessModelDirectives
         from pydrake.planning import RobotDiagramBuilder
 
         builder = RobotDiagramBuilder(time_step=time_step)
-        parser = builder.parser()
-        parser.package_map().AddPackageXml(str(models_dir() / "package.xml"))
-        self._add_package_paths(self._package_paths, parser.package_map(), self.path, self._raw["cfvol"])
-        ProcessModelDirectives(LoadModelDirectivesFromString(yaml.safe_dump({"directives": self._directives})),
-                               builder.plant(), parser)
+        self.add_to_plant(builder.plant(), builder.parser())
         if add_geometry is not None:
             add_geometry(builder.plant())
         builder.plant().Finalize()

@@ -1,0 +1,460 @@
+"""Co-manipulation runs: a scenario file -> a Drake diagram -> a recorded run.
+
+A scenario (``diagrams/*.yaml``, loaded with ``yaml_load_typed``) names a
+cell and path, the volume's resolution, the admittance gains and the human's
+pushes. :func:`build_comanipulation_diagram` plans the path, estimates the
+bounds and wires::
+
+    PathProgress -> JointBoundsSource -> AdmittanceDeformation <- ScriptedHuman
+                                               |
+                         commanded_position -> MultibodyPositionToGeometryPose -> SceneGraph
+                                            -> ClearanceMonitor
+
+The robot follows ``commanded_position`` kinematically. SceneGraph holds the
+robot, the obstacles (coloured by category) and the volume's columns (as
+proximity geometry while Drake can hold them, illustration only beyond).
+"""
+
+
+import dataclasses
+import json
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+
+from drake_cfvol.exceptions import CfvolError, ParameterError
+from drake_cfvol.systems import (
+    AdmittanceDeformation,
+    ClearanceMonitor,
+    JointBoundsSource,
+    PathProgress,
+    Push,
+    ScriptedHuman,
+)
+
+__all__ = ["AdmittanceGains", "RandomPushes", "Scenario", "load_scenario", "Comanipulation",
+           "build_comanipulation_diagram", "run_scenario", "CATEGORY_COLOURS", "diagrams_dir"]
+
+#: Obstacle colours by category (RGBA).
+CATEGORY_COLOURS = {
+    "trail": (0.95, 0.60, 0.10, 1.0),
+    "goal": (0.20, 0.45, 0.95, 1.0),
+    "no_goal": (0.55, 0.55, 0.60, 1.0),
+}
+VOLUME_COLOUR = (0.15, 0.80, 0.30, 0.30)
+#: Columns registered as proximity geometry up to this count (SceneGraph's
+#: cost grows quadratically with the number of proximity geometries).
+MAX_PROXIMITY_COLUMNS = 1500
+
+
+def diagrams_dir() -> Path:
+    """The folder of the bundled scenarios."""
+    return Path(__file__).resolve().parent.parent / "diagrams"
+
+
+@dataclasses.dataclass
+class AdmittanceGains:
+    """Admittance parameters, same for every joint.
+
+    Attributes:
+        mass: kg m^2 (kg for prismatic joints).
+        damping: N m s/rad (N s/m).
+        stiffness: N m/rad (N/m), towards the nominal.
+        period: update period, s.
+    """
+
+    mass: float = 10.0
+    damping: float = 200.0
+    stiffness: float = 400.0
+    period: float = 0.01
+
+
+@dataclasses.dataclass
+class RandomPushes:
+    """Seeded random joint-torque pushes (count 0: none).
+
+    Attributes:
+        count: number of pushes.
+        seed: their seed.
+        max_torque: N m (N), per joint.
+        mean_duration: s.
+    """
+
+    count: int = 0
+    seed: int = 0
+    max_torque: float = 300.0
+    mean_duration: float = 1.0
+
+
+@dataclasses.dataclass
+class Scenario:
+    """A co-manipulation run.
+
+    Attributes:
+        cell: built-in cell name or workcell YAML path (relative paths are
+            taken from the scenario file's folder).
+        path: the cell's named start/goal pair.
+        seed: planner seed.
+        resolution: the volume's R.
+        path_duration: seconds to go from start to goal along the path.
+        start_time: s before the robot starts moving.
+        end_hold: s to hold at the goal after arriving.
+        admittance: the gains.
+        pushes: scripted pushes.
+        random_pushes: seeded random pushes (added to ``pushes``).
+        log_period: logging and recording period, s.
+        params: VolumeParams overrides.
+        collision_guard: scale pushes back where the clamped configuration
+            would collide with the real scene (see AdmittanceDeformation).
+    """
+
+    cell: str = "automotive"
+    path: str = "path1"
+    seed: int = 0
+    resolution: int = 1000
+    path_duration: float = 8.0
+    start_time: float = 0.5
+    end_hold: float = 1.0
+    admittance: AdmittanceGains = dataclasses.field(default_factory=AdmittanceGains)
+    pushes: list[Push] = dataclasses.field(default_factory=list)
+    random_pushes: RandomPushes = dataclasses.field(default_factory=RandomPushes)
+    log_period: float = 0.02
+    params: dict[str, float] = dataclasses.field(default_factory=dict)
+    collision_guard: bool = True
+
+    @property
+    def duration(self) -> float:
+        """Total simulated time, s."""
+        return self.start_time + self.path_duration + self.end_hold
+
+
+def load_scenario(name_or_path: str | Path) -> tuple[Scenario, Path | None]:
+    """Loads a scenario by bundled name (``automotive_push``) or file path.
+
+    Returns:
+        (scenario, its file)
+    """
+    from pydrake.common.yaml import yaml_load_typed
+
+    p = Path(name_or_path)
+    if not p.is_file():
+        cand = diagrams_dir() / f"{name_or_path}.yaml"
+        if cand.is_file():
+            p = cand
+        else:
+            known = sorted(x.stem for x in diagrams_dir().glob("*.yaml"))
+            raise CfvolError(f"Unknown scenario '{name_or_path}'. Bundled: {', '.join(known)}; or pass a "
+                             "scenario YAML file.")
+    try:
+        scenario = yaml_load_typed(schema=Scenario, filename=str(p))
+    except Exception as e:
+        raise CfvolError(f"{p}: not a valid scenario: {e}") from e
+    return scenario, p.resolve()
+
+
+@dataclasses.dataclass
+class Comanipulation:
+    """A built co-manipulation diagram and what it was built from.
+
+    Attributes:
+        diagram: the Drake diagram (exported ports: ``path_index``, ``lower``,
+            ``upper``, ``nominal``, ``commanded_position``, ``deviation``,
+            ``guard_active``, ``human_torque``, ``min_distance``,
+            ``in_collision``).
+        scenario, workcell, path, bounds: the inputs.
+        plant, scene_graph: the visual/kinematic plant and its SceneGraph.
+        loggers: VectorLogSinks by name.
+        progress: the PathProgress system.
+        meshcat: the Meshcat instance, if any.
+        volume_in_proximity: whether the columns are proximity geometry.
+    """
+
+    diagram: object
+    scenario: Scenario
+    workcell: object
+    path: object
+    bounds: object
+    plant: object
+    scene_graph: object
+    loggers: dict
+    progress: PathProgress
+    meshcat: object = None
+    volume_in_proximity: bool = False
+    build_ms: dict = dataclasses.field(default_factory=dict)
+
+
+def _colour_obstacles(plant, scene_graph, workcell, categories) -> None:
+    import logging
+
+    from pydrake.geometry import IllustrationProperties, Rgba, Role, RoleAssign
+
+    # Drake warns on every illustration update that it must precede the
+    # visualizer's initialization: it does (no visualizer exists yet).
+    drake_log = logging.getLogger("drake")
+    level = drake_log.level
+    drake_log.setLevel(logging.ERROR)
+    try:
+        _assign_colours(plant, scene_graph, workcell, categories, IllustrationProperties, Rgba, Role, RoleAssign)
+    finally:
+        drake_log.setLevel(level)
+
+
+def _assign_colours(plant, scene_graph, workcell, categories, IllustrationProperties, Rgba, Role, RoleAssign):
+    inspector = scene_graph.model_inspector()
+    for name, obs in workcell.obstacles.items():
+        rgba = CATEGORY_COLOURS[categories.of(name)]
+        if name in ("floor",):
+            rgba = (0.75, 0.75, 0.72, 1.0)
+        body = plant.get_body(obs.body_index)
+        frame = plant.GetBodyFrameIdIfExists(body.index())
+        if frame is None:
+            continue
+        for gid in inspector.GetGeometries(frame, Role.kIllustration):
+            props = IllustrationProperties(inspector.GetIllustrationProperties(gid))
+            alpha = props.GetProperty("phong", "diffuse").a() if props.HasProperty("phong", "diffuse") else 1.0
+            props.UpdateProperty("phong", "diffuse", Rgba(*rgba[:3], min(rgba[3], alpha)))
+            scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
+
+
+def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: Path | None = None,
+                                 path=None, bounds=None) -> Comanipulation:
+    """Builds a co-manipulation diagram from a scenario.
+
+    Args:
+        scenario: the scenario.
+        meshcat: a ``Meshcat`` to visualise into (None: no visualiser).
+        base_dir: folder that relative cell paths are taken from.
+        path, bounds: a precomputed nominal path and bounds table (otherwise
+            planned and estimated here).
+
+    Returns:
+        The :class:`Comanipulation`.
+    """
+    from pydrake.geometry import SceneGraph
+    from pydrake.multibody.plant import MultibodyPlant
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import LogVectorOutput
+    from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+
+    from drake_cfvol.bounds import estimate_bounds
+    from drake_cfvol.planning import plan_nominal_path
+    from drake_cfvol.reference import register_volume_boxes
+    from drake_cfvol.workcell import builtin_cells, load_workcell
+
+    if scenario.path_duration <= 0 or scenario.log_period <= 0:
+        raise ParameterError("scenario path_duration and log_period must be > 0 s.")
+    t0 = time.perf_counter()
+    cell = scenario.cell
+    if cell not in builtin_cells() and base_dir is not None and not Path(cell).is_absolute():
+        cell = str((base_dir / cell).resolve())
+    wc = load_workcell(cell)
+    if path is None:
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path)
+    t1 = time.perf_counter()
+    if bounds is None:
+        bounds = estimate_bounds(wc, path, resolution=scenario.resolution, **dict(scenario.params))
+    t2 = time.perf_counter()
+    vb = bounds.volume
+    k, g = wc.num_joints, path.g
+
+    builder = DiagramBuilder()
+    scene_graph = builder.AddSystem(SceneGraph())
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    robot = wc.add_to_plant(plant)
+    in_proximity = vb.volume.n_boxes <= MAX_PROXIMITY_COLUMNS
+    if in_proximity:
+        register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR)
+    else:
+        from pydrake.geometry import Box
+        from pydrake.math import RigidTransform
+
+        centres, sizes = vb.volume.boxes()
+        for i, (c, s) in enumerate(zip(centres, sizes)):
+            plant.RegisterVisualGeometry(plant.world_body(), RigidTransform(c), Box(*s),
+                                         f"cfvol_volume_visual_{i}", np.asarray(VOLUME_COLOUR))
+    plant.Finalize()
+    assert plant.num_positions() == k and robot is not None
+    _colour_obstacles(plant, scene_graph, wc, vb.categories)
+
+    a = scenario.admittance
+    progress = builder.AddNamedSystem("path_progress", PathProgress(
+        g, rate=(g - 1) / scenario.path_duration, start_time=scenario.start_time))
+    source = builder.AddNamedSystem("joint_bounds", JointBoundsSource(bounds))
+    adm = builder.AddNamedSystem("admittance", AdmittanceDeformation(
+        k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=a.period, plant=plant,
+        tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot),
+        collision_guard=wc.is_free if scenario.collision_guard else None))
+    pushes = list(scenario.pushes)
+    rp = scenario.random_pushes
+    if rp.count > 0:
+        pushes += ScriptedHuman.random_pushes(k, count=rp.count, seed=rp.seed, duration=scenario.duration,
+                                              max_torque=rp.max_torque, mean_duration=rp.mean_duration)
+    human = builder.AddNamedSystem("human", ScriptedHuman(k, pushes))
+    monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(wc))
+    to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
+
+    builder.Connect(progress.path_index_output, source.path_index_input)
+    builder.Connect(source.nominal_output, adm.nominal_input)
+    builder.Connect(source.lower_output, adm.lower_input)
+    builder.Connect(source.upper_output, adm.upper_input)
+    builder.Connect(human.human_torque_output, adm.human_torque_input)
+    builder.Connect(human.human_wrench_output, adm.human_wrench_input)
+    builder.Connect(adm.commanded_position_output, to_pose.get_input_port())
+    builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
+    builder.Connect(adm.commanded_position_output, monitor.position_input)
+
+    exported = {
+        "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
+        "nominal": source.nominal_output, "commanded_position": adm.commanded_position_output,
+        "deviation": adm.deviation_output, "guard_active": adm.guard_active_output,
+        "human_torque": human.human_torque_output,
+        "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
+    }
+    loggers = {}
+    for name, port in exported.items():
+        builder.ExportOutput(port, name)
+        loggers[name] = LogVectorOutput(port, builder, publish_period=scenario.log_period)
+
+    if meshcat is not None:
+        from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role
+
+        params = MeshcatVisualizerParams(publish_period=scenario.log_period, role=Role.kIllustration)
+        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
+        tool = np.array([wc.tool_position(q) for q in path.waypoints]).T
+        meshcat.SetLine("/cfvol/nominal_tool_path", tool, 4.0, Rgba(0.9, 0.1, 0.1, 1.0))
+        # An overview camera: above a corner of the height map, looking at its centre.
+        hm = vb.volume.heightmap
+        centre = np.array([hm.origin[0] + hm.x_dim / 2, hm.origin[1] + hm.y_dim / 2, 1.0])
+        reach = 0.75 * max(hm.x_dim, hm.y_dim)
+        meshcat.SetCameraPose(centre + np.array([0.8 * reach, -1.1 * reach, 0.9 * reach]), centre)
+
+    diagram = builder.Build()
+    diagram.set_name("comanipulation")
+    t3 = time.perf_counter()
+    return Comanipulation(diagram, scenario, wc, path, bounds, plant, scene_graph, loggers, progress, meshcat,
+                          in_proximity, {"plan": (t1 - t0) * 1e3, "bounds": (t2 - t1) * 1e3,
+                                         "diagram": (t3 - t2) * 1e3})
+
+
+def _log(sim_context, logger):
+    log = logger.FindLog(sim_context)
+    return log.sample_times().copy(), log.data().T.copy()
+
+
+def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = True, plot: bool = True,
+                 svg: bool = True, path=None, bounds=None) -> dict:
+    """Loads a scenario, builds its diagram, simulates it and writes the
+    recording (self-contained HTML), plots and a summary.
+
+    Returns:
+        The summary dict (also written as ``summary.json``).
+    """
+    from pydrake.systems.analysis import Simulator
+
+    scenario, file = load_scenario(scenario_name_or_path)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    meshcat = None
+    if record:
+        from pydrake.geometry import Meshcat, MeshcatParams
+
+        meshcat = Meshcat(MeshcatParams(host="localhost"))
+    cm = build_comanipulation_diagram(scenario, meshcat=meshcat, base_dir=file.parent if file else None,
+                                      path=path, bounds=bounds)
+    sim = Simulator(cm.diagram)
+    ctx = sim.get_mutable_context()
+    if meshcat is not None:
+        meshcat.StartRecording(frames_per_second=1.0 / scenario.log_period,
+                               set_visualizations_while_recording=False)
+    t0 = time.perf_counter()
+    sim.AdvanceTo(scenario.duration)
+    sim_s = time.perf_counter() - t0
+    logs = {name: _log(ctx, lg) for name, lg in cm.loggers.items()}
+    t, q = logs["commanded_position"]
+    _, lo = logs["lower"]
+    _, hi = logs["upper"]
+    _, nom = logs["nominal"]
+    _, dist = logs["min_distance"]
+    _, coll = logs["in_collision"]
+    violation = float(np.max(np.maximum(np.maximum(lo - q, q - hi), 0.0))) if len(q) else 0.0
+    files = {}
+    if meshcat is not None:
+        meshcat.StopRecording()
+        meshcat.PublishRecording()
+        html = out / "recording.html"
+        html.write_text(meshcat.StaticHtml())
+        files["recording_html"] = str(html)
+    if plot:
+        files["plot_png"] = str(plot_run(logs, cm, out / "run.png"))
+    if svg:
+        files.update(write_diagram_svg(cm.diagram, out / "diagram"))
+    np.savez(out / "logs.npz", **{f"{k}_t": v[0] for k, v in logs.items()}, **{k: v[1] for k, v in logs.items()})
+    summary = {
+        "scenario": str(file) if file else str(scenario_name_or_path), "cell": cm.workcell.name,
+        "path": scenario.path, "resolution": scenario.resolution, "g": cm.path.g, "steps": int(len(t)),
+        "duration_s": scenario.duration, "sim_wall_s": sim_s,
+        "min_clearance_m": float(dist.min()) if len(dist) else None,
+        "collisions": int(coll.sum()), "max_bound_violation": violation,
+        "guard_steps": int(logs["guard_active"][1].sum()),
+        "collision_guard": scenario.collision_guard,
+        "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
+        "volume_in_proximity": cm.volume_in_proximity, "n_boxes": cm.bounds.info["n_boxes"],
+        "bounds_time_ms": cm.bounds.timing_ms["total"], "build_ms": cm.build_ms,
+        "recording_html": files.get("recording_html"), "plot_png": files.get("plot_png"),
+        "diagram_svg": files.get("diagram_svg"), "diagram_dot": files.get("diagram_dot"),
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
+    """Per joint over time: nominal, bounds, commanded; and the clearance."""
+    from drake_cfvol.plotting import _pyplot
+
+    plt = _pyplot()
+    t, q = logs["commanded_position"]
+    _, lo = logs["lower"]
+    _, hi = logs["upper"]
+    _, nom = logs["nominal"]
+    td, dist = logs["min_distance"]
+    k = q.shape[1]
+    rev = cm.workcell.revolute
+    fig, axes = plt.subplots(k + 1, 1, figsize=(8, 1.6 * (k + 1)), sharex=True)
+    for j in range(k):
+        f = np.degrees if rev[j] else (lambda x: x)
+        ax = axes[j]
+        ax.fill_between(t, f(lo[:, j]), f(hi[:, j]), color="tab:green", alpha=0.25, label="bounds")
+        ax.plot(t, f(nom[:, j]), "k--", lw=1, label="nominal")
+        ax.plot(t, f(q[:, j]), color="tab:blue", lw=1.4, label="commanded")
+        ax.set_ylabel(f"{cm.workcell.joint_names[j]}\n[{'deg' if rev[j] else 'm'}]", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=7, ncol=3)
+    axes[-1].plot(td, dist[:, 0], color="tab:red")
+    axes[-1].set_ylabel("clearance\n[m]", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    axes[-1].grid(alpha=0.3)
+    fig.suptitle(f"{cm.workcell.name} {cm.scenario.path}: co-manipulation run")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def write_diagram_svg(diagram, stem: Path) -> dict:
+    """Writes the diagram's GraphViz source and, if ``dot`` is installed,
+    an SVG. Returns the written files."""
+    dot = diagram.GetGraphvizString(max_depth=1)
+    files = {}
+    dot_path = stem.with_suffix(".dot")
+    dot_path.write_text(dot)
+    files["diagram_dot"] = str(dot_path)
+    try:
+        svg = subprocess.run(["dot", "-Tsvg"], input=dot.encode(), capture_output=True, check=True, timeout=60)
+        stem.with_suffix(".svg").write_bytes(svg.stdout)
+        files["diagram_svg"] = str(stem.with_suffix(".svg"))
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return files

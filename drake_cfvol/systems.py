@@ -1,0 +1,390 @@
+"""Drake systems for co-manipulation runs (SPEC 9).
+
+- :class:`JointBoundsSource`: the bounds table as a system of the path index.
+- :class:`AdmittanceDeformation`: the human's push -> a deviation from the
+  nominal, clamped inside the bounds without wind-up.
+- :class:`PathProgress`: the path index over time.
+- :class:`ScriptedHuman`: pushes with set magnitude, direction and timing, or
+  seeded random ones.
+- :class:`ClearanceMonitor`: the robot's distance to the real obstacles.
+"""
+
+
+import dataclasses
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+from drake_cfvol.bounds import BoundsTable
+from drake_cfvol.exceptions import DimensionError, ParameterError
+
+__all__ = ["JointBoundsSource", "AdmittanceDeformation", "PathProgress", "Push", "ScriptedHuman",
+           "ClearanceMonitor"]
+
+
+def _vector(value, k: int, name: str, *, positive: bool = False, nonnegative: bool = False) -> np.ndarray:
+    v = np.broadcast_to(np.asarray(value, float), (k,)).copy() if np.ndim(value) == 0 else np.asarray(value, float)
+    if v.shape != (k,):
+        raise DimensionError(name, k, v.shape)
+    if not np.all(np.isfinite(v)):
+        raise ParameterError(f"{name} must be finite, got {v.tolist()}.")
+    if positive and np.any(v <= 0):
+        raise ParameterError(f"{name} must be > 0, got {v.tolist()}.")
+    if nonnegative and np.any(v < 0):
+        raise ParameterError(f"{name} must be >= 0, got {v.tolist()}.")
+    return v
+
+
+class JointBoundsSource(LeafSystem):
+    """Joint bounds for the current path index.
+
+    .. pydrake_system::
+
+        name: JointBoundsSource
+        input_ports:
+        - path_index
+        output_ports:
+        - lower
+        - upper
+        - nominal
+
+    ``path_index`` is the path parameter s in [0, g-1] (a float; integer s is
+    a waypoint). Between waypoints the bounds follow SPEC 7: the intersection
+    of the neighbours' boxes, widened to hold the interpolated nominal.
+
+    Args:
+        bounds: the bounds table.
+        clamp: clamp s into [0, g-1] instead of raising (default False: an
+            s outside raises :class:`~drake_cfvol.ParameterError`).
+    """
+
+    def __init__(self, bounds: BoundsTable, *, clamp: bool = False):
+        super().__init__()
+        self._bounds = bounds
+        self._clamp = clamp
+        k = bounds.k
+        self.path_index_input = self.DeclareVectorInputPort(name="path_index", size=1)
+        self.lower_output = self.DeclareVectorOutputPort(
+            name="lower", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[0]))
+        self.upper_output = self.DeclareVectorOutputPort(
+            name="upper", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[1]))
+        self.nominal_output = self.DeclareVectorOutputPort(
+            name="nominal", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[2]))
+
+    @property
+    def bounds(self) -> BoundsTable:
+        return self._bounds
+
+    def _at(self, context):
+        s = float(self.path_index_input.Eval(context)[0])
+        if self._clamp:
+            s = min(max(s, 0.0), self._bounds.g - 1.0) if np.isfinite(s) else s
+        return self._bounds.at(s)
+
+
+class AdmittanceDeformation(LeafSystem):
+    """Admittance-controlled deformation of the nominal, clamped in bounds.
+
+    .. pydrake_system::
+
+        name: AdmittanceDeformation
+        input_ports:
+        - nominal
+        - lower
+        - upper
+        - human_torque
+        - human_wrench
+        output_ports:
+        - commanded_position
+        - deviation
+        - guard_active
+
+    Per joint, the deviation d from the nominal obeys
+    M d'' + D d' + K d = tau_h + J(q)^T w_h, integrated every ``period``
+    seconds (semi-implicit Euler). ``human_torque`` is a joint torque (N m, or
+    N for prismatic joints); ``human_wrench`` is the spatial force
+    [torque (N m); force (N)] at the tool frame's origin, expressed in the
+    world frame, mapped through the tool's spatial Jacobian at the current
+    commanded configuration. Either may be left unconnected (zero).
+
+    The output is ``commanded_position = clamp(nominal + d, lower, upper)``.
+    No wind-up: after each update the state itself is clamped so that
+    nominal + d stays inside the bounds, and a rate pushing outward at a bound
+    is zeroed; releasing a push at a bound leaves it on the next step.
+
+    Collision guard (optional, beyond the paper): per-joint bounds found with
+    the other joints at nominal do not make their whole box collision-free
+    (the paper's CF < 100 %). If ``collision_guard(q)`` reports the clamped
+    configuration in collision, the deviation is scaled back towards the
+    (collision-free) nominal by bisection to the largest free fraction, and
+    the rate is zeroed. ``guard_active`` is 1 after an update where the guard
+    acted, so runs show how often the bounds alone were not enough.
+
+    Args:
+        k: number of joints.
+        mass: M, kg m^2 per joint (kg for prismatic); scalar or (k,); > 0.
+        damping: D, N m s/rad (N s/m); >= 0.
+        stiffness: K, N m/rad (N/m) towards the nominal; >= 0.
+        period: update period, s; > 0.
+        plant, tool_frame: needed only when ``human_wrench`` is connected: the
+            robot's plant (finalized; its positions are the k joints) and the
+            tool frame.
+        collision_guard: callable q -> True if q is free, or None (off).
+        guard_iterations: bisection steps of the guard's scale-back.
+    """
+
+    def __init__(self, k: int, *, mass=10.0, damping=200.0, stiffness=400.0, period: float = 0.01,
+                 plant=None, tool_frame=None, collision_guard=None, guard_iterations: int = 10):
+        super().__init__()
+        if not period > 0:
+            raise ParameterError(f"period must be > 0 s, got {period}.")
+        self.k = int(k)
+        self.M = _vector(mass, k, "mass", positive=True)
+        self.D = _vector(damping, k, "damping", nonnegative=True)
+        self.K = _vector(stiffness, k, "stiffness", nonnegative=True)
+        self.period = float(period)
+        self._plant = plant
+        self._tool = tool_frame
+        self._plant_context = plant.CreateDefaultContext() if plant is not None else None
+        if plant is not None and plant.num_positions() != k:
+            raise DimensionError("the plant's positions", k, plant.num_positions())
+        self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=k)
+        self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
+        self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
+        self.human_torque_input = self.DeclareVectorInputPort(name="human_torque", size=k)
+        self.human_wrench_input = self.DeclareVectorInputPort(name="human_wrench", size=6)
+        self._guard = collision_guard
+        self._guard_iterations = int(guard_iterations)
+        self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
+        self._guard_state = self.DeclareDiscreteState(1)
+        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
+        self.commanded_position_output = self.DeclareVectorOutputPort(
+            name="commanded_position", size=k, calc=self._calc_commanded,
+            prerequisites_of_calc={self.all_sources_ticket()})
+        self.deviation_output = self.DeclareVectorOutputPort(
+            name="deviation", size=k,
+            calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._state).value()[:self.k]),
+            prerequisites_of_calc={self.xd_ticket()})
+        self.guard_active_output = self.DeclareVectorOutputPort(
+            name="guard_active", size=1,
+            calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._guard_state).value()),
+            prerequisites_of_calc={self.xd_ticket()})
+
+    def _inputs(self, context):
+        nominal = self.nominal_input.Eval(context)
+        lower = self.lower_input.Eval(context)
+        upper = self.upper_input.Eval(context)
+        for name, v in (("nominal", nominal), ("lower", lower), ("upper", upper)):
+            if not np.all(np.isfinite(v)):
+                raise ParameterError(f"AdmittanceDeformation: input '{name}' holds a non-finite value "
+                                     f"{np.asarray(v).tolist()}; connect a valid source.")
+        if np.any(lower > upper):
+            raise ParameterError(f"AdmittanceDeformation: lower > upper at joint(s) "
+                                 f"{np.flatnonzero(lower > upper).tolist()}.")
+        return nominal, lower, upper
+
+    def _push(self, context, q) -> np.ndarray:
+        tau = np.zeros(self.k)
+        if self.human_torque_input.HasValue(context):
+            t = self.human_torque_input.Eval(context)
+            if not np.all(np.isfinite(t)):
+                raise ParameterError(f"AdmittanceDeformation: 'human_torque' holds a non-finite value {t.tolist()}.")
+            tau += t
+        if self.human_wrench_input.HasValue(context):
+            w = self.human_wrench_input.Eval(context)
+            if not np.all(np.isfinite(w)):
+                raise ParameterError(f"AdmittanceDeformation: 'human_wrench' holds a non-finite value {w.tolist()}.")
+            if np.any(w != 0):
+                if self._plant is None:
+                    raise ParameterError("AdmittanceDeformation: 'human_wrench' is connected but no plant and "
+                                         "tool_frame were given to map it through the Jacobian.")
+                from pydrake.multibody.tree import JacobianWrtVariable
+
+                self._plant.SetPositions(self._plant_context, q)
+                J = self._plant.CalcJacobianSpatialVelocity(
+                    self._plant_context, JacobianWrtVariable.kQDot, self._tool, np.zeros(3),
+                    self._plant.world_frame(), self._plant.world_frame())
+                tau += J.T @ w
+        return tau
+
+    def _update(self, context, discrete_state):
+        nominal, lower, upper = self._inputs(context)
+        x = context.get_discrete_state(self._state).value()
+        d, v = x[:self.k].copy(), x[self.k:].copy()
+        q = np.clip(nominal + d, lower, upper)
+        tau = self._push(context, q)
+        h = self.period
+        v = v + h * (tau - self.D * v - self.K * d) / self.M
+        d = d + h * v
+        # No wind-up: keep nominal + d inside [lower, upper]; stop outward rates.
+        lo, hi = lower - nominal, upper - nominal
+        at_hi, at_lo = d >= hi, d <= lo
+        d = np.clip(d, lo, hi)
+        v = np.where((at_hi & (v > 0)) | (at_lo & (v < 0)), 0.0, v)
+        acted = 0.0
+        if self._guard is not None and np.any(d != 0) and not self._guard(nominal + d):
+            free, bad = 0.0, 1.0
+            for _ in range(self._guard_iterations):
+                mid = (free + bad) / 2
+                if self._guard(nominal + mid * d):
+                    free = mid
+                else:
+                    bad = mid
+            d = free * d
+            v = np.zeros_like(v)
+            acted = 1.0
+        discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
+        discrete_state.get_mutable_vector(self._guard_state).SetFromVector([acted])
+
+    def _calc_commanded(self, context, output):
+        nominal, lower, upper = self._inputs(context)
+        d = context.get_discrete_state(self._state).value()[:self.k]
+        output.SetFromVector(np.clip(nominal + d, lower, upper))
+
+
+class PathProgress(LeafSystem):
+    """The path index over time: s(t) = clip(rate (t - start_time), 0, g-1).
+
+    .. pydrake_system::
+
+        name: PathProgress
+        output_ports:
+        - path_index
+
+    Args:
+        g: number of waypoints.
+        rate: waypoints per second (> 0).
+        start_time: when the robot starts along the path, s.
+    """
+
+    def __init__(self, g: int, *, rate: float, start_time: float = 0.0):
+        super().__init__()
+        if not rate > 0:
+            raise ParameterError(f"rate must be > 0 waypoints/s, got {rate}.")
+        self.g, self.rate, self.start_time = int(g), float(rate), float(start_time)
+        self.path_index_output = self.DeclareVectorOutputPort(
+            name="path_index", size=1, calc=self._calc, prerequisites_of_calc={self.time_ticket()})
+
+    def index_at(self, t: float) -> float:
+        return float(np.clip(self.rate * (t - self.start_time), 0.0, self.g - 1.0))
+
+    def _calc(self, context, output):
+        output.SetAtIndex(0, self.index_at(context.get_time()))
+
+    @property
+    def duration(self) -> float:
+        """Time to reach the end of the path, s."""
+        return self.start_time + (self.g - 1) / self.rate
+
+
+@dataclasses.dataclass
+class Push:
+    """One push of the scripted human.
+
+    Attributes:
+        start: when it begins, s.
+        duration: how long it lasts, s.
+        joint_torque: joint torque (N m / N), length k, or empty.
+        wrench: [torque (N m); force (N)] at the tool in the world frame, or empty.
+    """
+
+    start: float = 0.0
+    duration: float = 1.0
+    joint_torque: list[float] = dataclasses.field(default_factory=list)
+    wrench: list[float] = dataclasses.field(default_factory=list)
+
+
+class ScriptedHuman(LeafSystem):
+    """A scripted co-worker: pushes as given, or seeded random ones.
+
+    .. pydrake_system::
+
+        name: ScriptedHuman
+        output_ports:
+        - human_torque
+        - human_wrench
+
+    Args:
+        k: number of joints.
+        pushes: the pushes (overlapping pushes add up).
+    """
+
+    def __init__(self, k: int, pushes: list[Push]):
+        super().__init__()
+        self.k = int(k)
+        self.pushes = []
+        for i, p in enumerate(pushes):
+            if p.duration < 0:
+                raise ParameterError(f"push {i}: duration must be >= 0 s, got {p.duration}.")
+            tau = np.asarray(p.joint_torque, float) if len(p.joint_torque) else np.zeros(self.k)
+            w = np.asarray(p.wrench, float) if len(p.wrench) else np.zeros(6)
+            if tau.shape != (self.k,):
+                raise DimensionError(f"push {i} joint_torque", self.k, tau.shape)
+            if w.shape != (6,):
+                raise DimensionError(f"push {i} wrench", 6, w.shape)
+            self.pushes.append((float(p.start), float(p.start + p.duration), tau, w))
+        self.human_torque_output = self.DeclareVectorOutputPort(
+            name="human_torque", size=self.k, calc=lambda c, o: o.SetFromVector(self.at(c.get_time())[0]),
+            prerequisites_of_calc={self.time_ticket()})
+        self.human_wrench_output = self.DeclareVectorOutputPort(
+            name="human_wrench", size=6, calc=lambda c, o: o.SetFromVector(self.at(c.get_time())[1]),
+            prerequisites_of_calc={self.time_ticket()})
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        tau, w = np.zeros(self.k), np.zeros(6)
+        for t0, t1, a, b in self.pushes:
+            if t0 <= t < t1:
+                tau += a
+                w += b
+        return tau, w
+
+    @staticmethod
+    def random_pushes(k: int, *, count: int, seed: int, duration: float, max_torque, mean_duration: float = 1.0,
+                      ) -> list[Push]:
+        """Seeded random joint-torque pushes within [0, duration] s, each joint's
+        torque uniform in +-max_torque (scalar or (k,))."""
+        rng = np.random.default_rng(seed)
+        mt = _vector(max_torque, k, "max_torque", nonnegative=True)
+        out = []
+        for _ in range(int(count)):
+            d = float(rng.uniform(0.3, 2.0) * mean_duration)
+            start = float(rng.uniform(0.0, max(duration - d, 0.0)))
+            out.append(Push(start, d, (rng.uniform(-1, 1, k) * mt).tolist(), []))
+        return out
+
+
+class ClearanceMonitor(LeafSystem):
+    """The robot's smallest signed distance to the real obstacles (not the
+    volume) and whether it collides with the real scene (obstacles + self).
+
+    .. pydrake_system::
+
+        name: ClearanceMonitor
+        input_ports:
+        - position
+        output_ports:
+        - min_distance
+        - in_collision
+
+    Args:
+        workcell: the workcell (its own scene is queried).
+        max_distance: distances beyond this are reported as this, m.
+    """
+
+    def __init__(self, workcell, *, max_distance: float = 2.0):
+        super().__init__()
+        self._wc = workcell
+        self._max = float(max_distance)
+        self.position_input = self.DeclareVectorInputPort(name="position", size=workcell.num_joints)
+        self.min_distance_output = self.DeclareVectorOutputPort(
+            name="min_distance", size=1, calc=lambda c, o: o.SetAtIndex(0, self.min_distance(
+                self.position_input.Eval(c))))
+        self.in_collision_output = self.DeclareVectorOutputPort(
+            name="in_collision", size=1, calc=lambda c, o: o.SetAtIndex(0, float(
+                not self._wc.is_free(self.position_input.Eval(c)))))
+
+    def min_distance(self, q) -> float:
+        from drake_cfvol.volume import _robot_obstacle_distances
+
+        d = _robot_obstacle_distances(self._wc, np.asarray(q, float), self._max)
+        return float(min(d.values())) if d else self._max

@@ -1,0 +1,202 @@
+"""The Drake systems, on their outputs (FixValue / Eval)."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from pydrake.systems.analysis import Simulator
+
+import drake_cfvol as cf
+from drake_cfvol.bounds import BoundsTable
+from drake_cfvol.systems import AdmittanceDeformation, JointBoundsSource, PathProgress, Push, ScriptedHuman
+
+
+def _table():
+    lower = np.array([[-1.0, 0.0], [-0.5, 0.2], [-0.2, 0.1]])
+    upper = np.array([[1.0, 1.0], [2.0, 0.4], [0.3, 0.9]])
+    nominal = np.array([[0.0, 0.5], [0.0, 0.3], [0.1, 0.5]])
+    return BoundsTable(lower, upper, nominal, ["a", "b"], np.array([-3.0, -3.0]), np.array([3.0, 3.0]))
+
+
+def _eval(system, s):
+    ctx = system.CreateDefaultContext()
+    system.path_index_input.FixValue(ctx, [s])
+    return (system.lower_output.Eval(ctx), system.upper_output.Eval(ctx), system.nominal_output.Eval(ctx))
+
+
+def test_bounds_source_at_waypoints():
+    """At integer s the outputs are the table's rows."""
+    t = _table()
+    src = JointBoundsSource(t)
+    for i in range(t.g):
+        lo, hi, nom = _eval(src, float(i))
+        np.testing.assert_array_equal(lo, t.lower[i])
+        np.testing.assert_array_equal(hi, t.upper[i])
+        np.testing.assert_array_equal(nom, t.nominal[i])
+
+
+def test_bounds_source_between_waypoints():
+    """At fractional s: intersection of the neighbours, holding the
+    interpolated nominal (SPEC 7), worked by hand."""
+    lo, hi, nom = _eval(JointBoundsSource(_table()), 0.5)
+    np.testing.assert_allclose(nom, [0.0, 0.4])
+    np.testing.assert_allclose(lo, [-0.5, 0.2])
+    np.testing.assert_allclose(hi, [1.0, 0.4])
+
+
+def test_bounds_source_outside_range():
+    """s outside [0, g-1] is an error, or clamped when asked."""
+    with pytest.raises(cf.ParameterError, match="outside"):
+        _eval(JointBoundsSource(_table()), 2.5)
+    lo, hi, nom = _eval(JointBoundsSource(_table(), clamp=True), 7.0)
+    np.testing.assert_array_equal(nom, _table().nominal[-1])
+
+
+def _admittance(k=2, **kw):
+    adm = AdmittanceDeformation(k, **kw)
+    ctx = adm.CreateDefaultContext()
+    return adm, ctx
+
+
+def _fix(adm, ctx, nominal, lower, upper, tau):
+    adm.nominal_input.FixValue(ctx, nominal)
+    adm.lower_input.FixValue(ctx, lower)
+    adm.upper_input.FixValue(ctx, upper)
+    adm.human_torque_input.FixValue(ctx, tau)
+
+
+def test_zero_push_gives_nominal():
+    """No push (the torque port left unconnected): commanded = nominal."""
+    adm, ctx = _admittance()
+    adm.nominal_input.FixValue(ctx, [0.3, -0.2])
+    adm.lower_input.FixValue(ctx, [-1, -1])
+    adm.upper_input.FixValue(ctx, [1, 1])
+    Simulator(adm, ctx).AdvanceTo(1.0)
+    np.testing.assert_array_equal(adm.commanded_position_output.Eval(ctx), [0.3, -0.2])
+
+
+def test_steady_state_is_k_inverse_tau():
+    """A constant torque inside the bounds settles at d = K^-1 tau."""
+    K = np.array([100.0, 250.0])
+    adm, ctx = _admittance(mass=[1.0, 2.0], damping=[20.0, 40.0], stiffness=K, period=0.005)
+    tau = np.array([12.0, -30.0])
+    _fix(adm, ctx, [0.1, 0.2], [-1, -1], [1, 1], tau)
+    Simulator(adm, ctx).AdvanceTo(4.0)
+    np.testing.assert_allclose(adm.deviation_output.Eval(ctx), tau / K, atol=1e-6)
+    np.testing.assert_allclose(adm.commanded_position_output.Eval(ctx), [0.1, 0.2] + tau / K, atol=1e-6)
+
+
+def test_large_push_sits_on_bound_and_releases_at_once():
+    """A push far past the bound holds commanded exactly on it; on release the
+    next update leaves the bound (no wind-up)."""
+    adm, ctx = _admittance(mass=1.0, damping=20.0, stiffness=100.0, period=0.01)
+    _fix(adm, ctx, [0.0, 0.0], [-0.5, -0.05], [0.5, 0.05], [10.0, 500.0])
+    sim = Simulator(adm, ctx)
+    sim.AdvanceTo(2.0)
+    q = adm.commanded_position_output.Eval(ctx)
+    assert q[1] == 0.05  # exactly on the bound
+    assert q[0] == pytest.approx(0.1, abs=1e-6)
+    adm.human_torque_input.FixValue(ctx, [10.0, 0.0])
+    sim.AdvanceTo(2.0 + 0.01)
+    assert adm.commanded_position_output.Eval(ctx)[1] < 0.05
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    tau=st.lists(st.floats(-1e4, 1e4), min_size=3, max_size=3),
+    mass=st.floats(0.1, 50.0), damping=st.floats(0.0, 500.0), stiffness=st.floats(0.0, 2000.0),
+    width=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3),
+)
+def test_commanded_always_inside_bounds(tau, mass, damping, stiffness, width):
+    """For random pushes and gains, commanded stays inside [lower, upper]."""
+    adm, ctx = _admittance(k=3, mass=mass, damping=damping, stiffness=stiffness, period=0.01)
+    nominal = np.array([0.1, -0.2, 0.0])
+    lo, hi = nominal - np.array(width), nominal + np.array(width)[::-1]
+    _fix(adm, ctx, nominal, lo, hi, tau)
+    sim = Simulator(adm, ctx)
+    for t in np.linspace(0.05, 1.0, 8):
+        sim.AdvanceTo(t)
+        q = adm.commanded_position_output.Eval(ctx)
+        assert np.all(q >= lo) and np.all(q <= hi)
+
+
+def test_nan_input_is_rejected():
+    """A NaN on an input raises an error naming the port."""
+    adm, ctx = _admittance()
+    _fix(adm, ctx, [0.0, np.nan], [-1, -1], [1, 1], [0, 0])
+    with pytest.raises(cf.ParameterError, match="nominal"):
+        adm.commanded_position_output.Eval(ctx)
+    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], [np.nan, 0])
+    with pytest.raises(Exception, match="human_torque"):
+        Simulator(adm, ctx).AdvanceTo(0.05)
+
+
+def test_wrench_needs_a_plant():
+    """A wrench without a plant to map it is refused clearly."""
+    adm, ctx = _admittance()
+    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], [0, 0])
+    adm.human_wrench_input.FixValue(ctx, [0, 0, 0, 1.0, 0, 0])
+    with pytest.raises(Exception, match="Jacobian"):
+        Simulator(adm, ctx).AdvanceTo(0.05)
+
+
+def test_wrench_maps_through_jacobian(automotive):
+    """A force at the tool gives the deviation K^-1 J^T w (J at the
+    commanded configuration; small push so J barely changes)."""
+    from pydrake.multibody.tree import JacobianWrtVariable
+
+    wc = automotive
+    q0 = wc.configuration("path1")[0]
+    K = 1e4
+    adm = AdmittanceDeformation(6, mass=1.0, damping=300.0, stiffness=K, period=0.002, plant=wc.plant,
+                                tool_frame=wc.tool_frame)
+    ctx = adm.CreateDefaultContext()
+    _fix(adm, ctx, q0, q0 - 1, q0 + 1, np.zeros(6))
+    w = np.array([0, 0, 0, 0, 0, -20.0])
+    adm.human_wrench_input.FixValue(ctx, w)
+    Simulator(adm, ctx).AdvanceTo(3.0)
+    J = wc.plant.CalcJacobianSpatialVelocity(wc.plant_context(q0), JacobianWrtVariable.kQDot, wc.tool_frame,
+                                             np.zeros(3), wc.plant.world_frame(), wc.plant.world_frame())
+    # J is taken at the deviated configuration: entries move by O(deviation).
+    np.testing.assert_allclose(adm.deviation_output.Eval(ctx), J.T @ w / K, rtol=0.02, atol=1e-4)
+
+
+def test_collision_guard_scales_back():
+    """With a guard that forbids the second joint above 0.02, the deviation is
+    scaled back to the largest free fraction and the guard is reported."""
+    adm = AdmittanceDeformation(2, mass=1.0, damping=20.0, stiffness=100.0, period=0.01,
+                                collision_guard=lambda q: q[1] <= 0.02)
+    ctx = adm.CreateDefaultContext()
+    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], [0.0, 10.0])
+    Simulator(adm, ctx).AdvanceTo(1.0)
+    q = adm.commanded_position_output.Eval(ctx)
+    assert q[1] <= 0.02 and q[1] > 0.015
+    assert adm.guard_active_output.Eval(ctx)[0] == 1.0
+
+
+def test_path_progress_and_human():
+    """Path index ramps at the rate and holds at g-1; pushes act in their window."""
+    pp = PathProgress(11, rate=2.0, start_time=1.0)
+    ctx = pp.CreateDefaultContext()
+    for t, s in ((0.0, 0.0), (1.0, 0.0), (3.5, 5.0), (100.0, 10.0)):
+        ctx.SetTime(t)
+        assert pp.path_index_output.Eval(ctx)[0] == pytest.approx(s)
+    human = ScriptedHuman(2, [Push(1.0, 0.5, [3.0, 0.0], []), Push(1.2, 1.0, [1.0, 1.0], [0, 0, 0, 5, 0, 0])])
+    hctx = human.CreateDefaultContext()
+    hctx.SetTime(1.3)
+    np.testing.assert_array_equal(human.human_torque_output.Eval(hctx), [4.0, 1.0])
+    np.testing.assert_array_equal(human.human_wrench_output.Eval(hctx), [0, 0, 0, 5, 0, 0])
+    hctx.SetTime(0.5)
+    np.testing.assert_array_equal(human.human_torque_output.Eval(hctx), [0.0, 0.0])
+    a = ScriptedHuman.random_pushes(3, count=4, seed=9, duration=10.0, max_torque=50.0)
+    b = ScriptedHuman.random_pushes(3, count=4, seed=9, duration=10.0, max_torque=50.0)
+    assert a == b and all(abs(x) <= 50 for p in a for x in p.joint_torque)
+
+
+def test_bad_gains():
+    """Non-positive mass or period, negative stiffness: clear errors."""
+    with pytest.raises(cf.ParameterError, match="mass"):
+        AdmittanceDeformation(2, mass=0.0)
+    with pytest.raises(cf.ParameterError, match="period"):
+        AdmittanceDeformation(2, period=0.0)
+    with pytest.raises(cf.ParameterError, match="stiffness"):
+        AdmittanceDeformation(2, stiffness=[-1.0, 1.0])
