@@ -58,7 +58,12 @@ def cmd_bounds(args) -> int:
     wc = load_workcell(args.cell)
     label = _path_name(args.path)
     path = plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label)
-    table = estimate_bounds(wc, path, resolution=args.resolution, backend=args.backend)
+    certify = None
+    if args.certify:
+        from drake_cfvol.certify import Certify
+
+        certify = Certify(epsilon=args.epsilon, confidence=args.confidence, seed=args.seed)
+    table = estimate_bounds(wc, path, resolution=args.resolution, backend=args.backend, certify=certify)
     cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed)
     fr = freedom(table, wc.revolute)
     out = None
@@ -90,6 +95,8 @@ def cmd_bounds(args) -> int:
         "dropped_columns": table.info["dropped_columns"], "categories": table.info["categories"],
         "out": str(out) if out else None, "files": files,
     }
+    if certify is not None:
+        summary["certificate"] = table.info["certificate"]
     if args.json:
         print(json.dumps(summary))
     else:
@@ -140,6 +147,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="fast (any R) or drake (reference, one SceneGraph box per column)")
     b.add_argument("--cf-windows", type=int, default=30, help="CF time windows N_tw (default 30)")
     b.add_argument("--cf-samples", type=int, default=10000, help="CF samples per window N_m (default 10000)")
+    b.add_argument("--certify", action="store_true",
+                   help="shrink the boxes until each stretch holds a sampled safety certificate")
+    b.add_argument("--epsilon", type=float, default=1e-3, help="certificate: colliding share allowed (1e-3)")
+    b.add_argument("--confidence", type=float, default=0.99, help="certificate: confidence (0.99)")
     b.add_argument("--out", help="folder for bounds (.npz, .json), path and plot")
     b.add_argument("--plot", action="store_true", help="write a PNG of the bounds (needs --out)")
     b.add_argument("--force", action="store_true", help="overwrite existing files in --out")
