@@ -118,6 +118,32 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def cmd_bench(args) -> int:
+    from drake_cfvol.bench import BenchConfig, run_bench, write_outputs
+
+    cfg = BenchConfig.quick() if args.quick else BenchConfig()
+    if args.cells:
+        cfg.cells = args.cells
+    if args.paths:
+        cfg.paths = [_path_name(p) for p in args.paths]
+    if args.resolutions:
+        cfg.resolutions = args.resolutions
+    if args.trials:
+        cfg.trials = args.trials
+    if args.cf_samples:
+        cfg.cf_samples = args.cf_samples
+    if args.no_iris:
+        cfg.iris = False
+    result = run_bench(cfg, progress=not args.json)
+    files = write_outputs(result, args.out)
+    if args.json:
+        print(json.dumps({"rows": result["rows"], "files": files, "wall_s": result["wall_s"]}, default=float))
+    else:
+        print(Path(files["markdown"]).read_text())
+        print(f"Written to {Path(args.out).resolve()}")
+    return 0
+
+
 def cmd_demo(args) -> int:
     from drake_cfvol.demo import run_demo
 
@@ -163,6 +189,18 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--no-record", action="store_true", help="skip the Meshcat recording")
     m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=cmd_simulate)
+
+    n = sub.add_parser("bench", help="reproduce the paper's Tables I and II side by side")
+    n.add_argument("--quick", action="store_true", help="a small run (a few minutes)")
+    n.add_argument("--cells", nargs="+", help="cells (default both)")
+    n.add_argument("--paths", nargs="+", help="paths, e.g. 1 2 3 (default all)")
+    n.add_argument("--resolutions", nargs="+", type=int, help="R values (default the paper's)")
+    n.add_argument("--trials", type=int, help="timed trials per row (default 20)")
+    n.add_argument("--cf-samples", type=int, help="CF samples per window N_m (default 10000)")
+    n.add_argument("--no-iris", action="store_true", help="skip Drake's IrisZo comparison")
+    n.add_argument("--out", default="out/bench", help="output folder (default out/bench)")
+    n.add_argument("--json", action="store_true", help="print one JSON object")
+    n.set_defaults(func=cmd_bench)
 
     d = sub.add_parser("demo", help="the main job: plan, bound and run the automotive cell")
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

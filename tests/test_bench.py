@@ -1,0 +1,58 @@
+"""The benchmark library on a tiny configuration."""
+
+import csv
+import json
+
+import pytest
+
+from drake_cfvol.bench import PAPER, BenchConfig, markdown, run_bench, write_outputs
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    cfg = BenchConfig(cells=["automotive"], paths=["path1"], resolutions=[100, 500], trials=2, cf_windows=3,
+                      cf_samples=100, reference_resolutions=[], iris=False, certify_resolutions=[])
+    result = run_bench(cfg, progress=False)
+    out = tmp_path_factory.mktemp("bench")
+    return result, write_outputs(result, out)
+
+
+def test_rows_hold_paper_and_ours(tiny):
+    """Each row carries the paper's figures for its (cell, path, R) and ours,
+    and paper / ours is the ratio of the two medians."""
+    result, _ = tiny
+    rows = result["rows"]
+    assert [(r["cell"], r["path"], r["resolution"]) for r in rows] == [("automotive", "path1", 100),
+                                                                        ("automotive", "path1", 500)]
+    for r in rows:
+        t, c = PAPER[("automotive", "path1")][r["resolution"]]
+        assert r["paper_time_ms"] == t and r["paper_cf_percent"] == c
+        assert r["paper_over_ours"] == pytest.approx(t / r["time_ms_median"])
+        assert 0 < r["freedom"] <= 1 and 0 <= r["cf_percent"] <= 100 and r["g"] > 2
+
+
+def test_trials_csv_has_every_trial(tiny):
+    """trials.csv has one line per timed run; their median is the row's."""
+    result, files = tiny
+    with open(files["trials_csv"]) as f:
+        lines = list(csv.DictReader(f))
+    assert len(lines) == 4
+    import numpy as np
+
+    for r in result["rows"]:
+        ts = [float(x["total_ms"]) for x in lines if int(x["resolution"]) == r["resolution"]]
+        assert r["time_ms_median"] == pytest.approx(float(np.median(ts)))
+
+
+def test_markdown_table_matches_rows(tiny):
+    """The Markdown table prints the paper's time and our median per row."""
+    result, files = tiny
+    md = open(files["markdown"]).read()
+    assert md == markdown(result)
+    for r in result["rows"]:
+        line = next(x for x in md.splitlines() if x.startswith(f"| {r['resolution']} |"))
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        assert cells[1] == f"{r['time_ms_median']:.0f}" and cells[2] == str(r["paper_time_ms"])
+        assert float(cells[3]) == pytest.approx(r["paper_time_ms"] / r["time_ms_median"], abs=1e-3)
+    assert json.load(open(files["machine"]))["cores"] >= 1
+    assert open(files["plot_0"], "rb").read(4) == b"\x89PNG"
