@@ -272,17 +272,32 @@ def markdown(result: dict) -> str:
            f"N_m = {result['config']['cf_samples']}; freedom per SPEC 8; g = waypoints. Our bounds are sound "
            "(each single-joint motion is checked, not only its end value).", ""]
     rows = result["rows"]
-    for cell in dict.fromkeys(r["cell"] for r in rows):
-        out += [f"## {cell}", ""]
-        for label in dict.fromkeys(r["path"] for r in rows if r["cell"] == cell):
+    for n, cell in enumerate(dict.fromkeys(r["cell"] for r in rows)):
+        labels = list(dict.fromkeys(r["path"] for r in rows if r["cell"] == cell))
+        table_no = {"automotive": "I", "aerospace": "II"}.get(cell, str(n + 1))
+        out += [f"## {cell}", "", f"Table {table_no}, ours / paper (time ms, CF %):", "",
+                "| R | " + " | ".join(f"{lb} time | {lb} CF" for lb in labels) + " |",
+                "|---:|" + "---:|---:|" * len(labels)]
+        for R in dict.fromkeys(r["resolution"] for r in rows if r["cell"] == cell):
+            cells = []
+            for lb in labels:
+                r = next((x for x in rows if x["cell"] == cell and x["path"] == lb and x["resolution"] == R), None)
+                if r is None:
+                    cells += ["-", "-"]
+                    continue
+                cells.append(f"{r['time_ms_median']:.0f} / {_fmt(r['paper_time_ms'], 'd')}")
+                cells.append(f"{r['cf_percent']:.2f} / {_fmt(r['paper_cf_percent'], '.2f')}")
+            out.append(f"| {R} | " + " | ".join(cells) + " |")
+        out.append("")
+        for label in labels:
             sel = [r for r in rows if r["cell"] == cell and r["path"] == label]
-            out += [f"### {label} (g = {sel[0]['g']})", "",
-                    "| R | time ms (ours) | time ms (paper) | paper / ours | CF % (ours) | CF % (paper) | freedom "
+            out += [f"### {cell} {label}", "",
+                    "| R | g | time ms (ours) | time ms (paper) | paper / ours | CF % (ours) | CF % (paper) | freedom "
                     "| columns | tests | ours / floor | ref. ms | ref. / ours | cert. CF % | cert. freedom | certify ms |",
-                    "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+                    "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
             for r in sel:
                 out.append(
-                    f"| {r['resolution']} | {r['time_ms_median']:.0f} | {_fmt(r['paper_time_ms'], 'd')} | "
+                    f"| {r['resolution']} | {r['g']} | {r['time_ms_median']:.0f} | {_fmt(r['paper_time_ms'], 'd')} | "
                     f"{_fmt(r['paper_over_ours'], '.3f')} | {r['cf_percent']:.4f} | {_fmt(r['paper_cf_percent'], '.4f')} | "
                     f"{r['freedom']:.3f} | {r['n_boxes']} | {r['interval_tests']} | {_fmt(r['time_over_floor'], '.1f')} | "
                     f"{_fmt(r.get('reference_time_ms_median'), '.0f')} | {_fmt(r.get('reference_over_fast'), '.2f')} | "

@@ -23,6 +23,16 @@ def _path_name(n: str) -> str:
     return n if n.startswith("path") or not n.isdigit() else f"path{n}"
 
 
+def _emit(summary: dict, as_json: bool) -> None:
+    """Prints a command's summary: one JSON object, or aligned key: value lines."""
+    if as_json:
+        print(json.dumps(summary, default=float))
+        return
+    width = max(len(k) for k in summary) + 2
+    for k, v in summary.items():
+        print(f"{k:>{width}}: {v}")
+
+
 def cmd_plan(args) -> int:
     from drake_cfvol.planning import plan_nominal_path
     from drake_cfvol.workcell import load_workcell
@@ -41,11 +51,7 @@ def cmd_plan(args) -> int:
         "attempts": path.stats["attempts"], "path_length": round(path.length, 6),
         "waypoints_sha256": path.sha256, "out": out,
     }
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        for k, v in summary.items():
-            print(f"{k:>18}: {v}")
+    _emit(summary, args.json)
     return 0
 
 
@@ -55,6 +61,9 @@ def cmd_bounds(args) -> int:
     from drake_cfvol.planning import plan_nominal_path
     from drake_cfvol.workcell import load_workcell
 
+    if args.plot and not args.out:
+        print("cfvol: --plot needs --out DIR", file=sys.stderr)
+        return 2
     wc = load_workcell(args.cell)
     label = _path_name(args.path)
     path = plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label)
@@ -79,9 +88,6 @@ def cmd_bounds(args) -> int:
 
             files["plot_png"] = str(plot_bounds(table, out / f"{stem}_bounds.png", revolute=wc.revolute,
                                                 title=f"{wc.name} {label}, R = {args.resolution}"))
-    elif args.plot:
-        print("cfvol: --plot needs --out DIR", file=sys.stderr)
-        return 2
     summary = {
         "cell": wc.name, "path": label, "seed": args.seed, "resolution": args.resolution,
         "backend": args.backend, "g": table.g, "k": table.k,
@@ -97,11 +103,7 @@ def cmd_bounds(args) -> int:
     }
     if certify is not None:
         summary["certificate"] = table.info["certificate"]
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        for k, v in summary.items():
-            print(f"{k:>20}: {v}")
+    _emit(summary, args.json)
     return 0
 
 
@@ -110,17 +112,21 @@ def cmd_simulate(args) -> int:
 
     out = Path(args.out) if args.out else Path("out") / Path(args.scenario).stem
     summary = run_scenario(args.scenario, out, record=not args.no_record)
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        for k, v in summary.items():
-            print(f"{k:>22}: {v}")
+    _emit(summary, args.json)
     return 0
 
 
 def cmd_bench(args) -> int:
     from drake_cfvol.bench import BenchConfig, run_bench, write_outputs
 
+    if args.report_only:
+        saved = Path(args.out) / "results.json"
+        if not saved.is_file():
+            print(f"cfvol: error: --report-only needs {saved} from an earlier run", file=sys.stderr)
+            return 2
+        files = write_outputs(json.loads(saved.read_text()), args.out)
+        print(f"Rewrote {', '.join(Path(f).name for f in files.values())} in {Path(args.out).resolve()}")
+        return 0
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
     if args.cells:
         cfg.cells = args.cells
@@ -199,6 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--cf-samples", type=int, help="CF samples per window N_m (default 10000)")
     n.add_argument("--no-iris", action="store_true", help="skip Drake's IrisZo comparison")
     n.add_argument("--out", default="out/bench", help="output folder (default out/bench)")
+    n.add_argument("--report-only", action="store_true",
+                   help="rewrite tables and plots from --out/results.json without running")
     n.add_argument("--json", action="store_true", help="print one JSON object")
     n.set_defaults(func=cmd_bench)
 

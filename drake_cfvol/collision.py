@@ -313,7 +313,7 @@ def obb_overlap(cA, RA, hA, cB, RB, hB, e, u=None, prismatic=False) -> np.ndarra
     return ~sep.any(axis=-1)
 
 
-def ball_box_overlap(pc, r, c, R, half, e, u=None, prismatic=False, ball_moves=True) -> np.ndarray:
+def ball_box_overlap(pc, r, c, R, half, e, u=None, prismatic=False) -> np.ndarray:
     """Whether a ball may touch a box while one of them moves (motion set of
     :func:`motion_support` with size ``e``). Separating axes tried: the box's
     three axes and the direction from the box's closest point to the ball's
@@ -322,11 +322,9 @@ def ball_box_overlap(pc, r, c, R, half, e, u=None, prismatic=False, ball_moves=T
     Args:
         pc: (..., 3) ball centres; r: (...) radii.
         c, R, half: the box (centre, rotation, half extents).
-        e: (...) motion size; u: (..., 3) motion axis or None.
-        ball_moves: which of the two moves (the support is symmetric; kept
-            for clarity of call sites).
+        e: (...) motion size; u: (..., 3) motion axis or None. Either of the
+            two may be the one moving: the test is symmetric.
     """
-    del ball_moves
     d = pc - c
     local = np.einsum("...ji,...j->...i", R, d)
     sep = np.zeros(np.broadcast_shapes(local.shape[:-1], np.shape(r), np.shape(e)), bool)

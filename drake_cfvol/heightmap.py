@@ -69,13 +69,6 @@ class HeightMap:
         y = self.origin[1] + (np.arange(self.n) + 0.5) * s
         return np.meshgrid(x, y, indexing="ij")
 
-    def cell_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Cell indices (i, j) containing points (..., 2); may be out of range."""
-        s = self.side
-        i = np.floor((xy[..., 0] - self.origin[0]) / s).astype(np.int64)
-        j = np.floor((xy[..., 1] - self.origin[1]) / s).astype(np.int64)
-        return i, j
-
 
 def height_function(d_t, d_g, d_ng, active, params: VolumeParams) -> np.ndarray:
     """Paper eq. 1 with every Delta clamped to [0, 1] (SPEC 5).

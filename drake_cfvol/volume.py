@@ -11,7 +11,8 @@ from drake_cfvol.heightmap import FootprintRaster, HeightMap, Volume, height_fun
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import NominalPath
 
-__all__ = ["Categories", "categorize", "build_volume", "ground_obstacles", "footprint_polygon"]
+__all__ = ["Categories", "categorize", "build_volume", "ground_obstacles", "footprint_polygon", "volume_mesh",
+           "show_volume"]
 
 #: An obstacle whose top is at most this high is ground (the floor).
 GROUND_TOP = 1e-3
@@ -224,3 +225,52 @@ def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
     vol = Volume(hm, raw.copy(), raw)
     vol.lower_under(pts, rad, params.column_clearance)
     return VolumeBuild(vol, cats, d_t, d_g, d_ng, active)
+
+
+def volume_mesh(volume: Volume):
+    """All columns of V as one ``TriangleSurfaceMesh`` (12 triangles per
+    column), for Meshcat: one object instead of thousands."""
+    from pydrake.geometry import SurfaceTriangle, TriangleSurfaceMesh
+
+    centres, sizes = volume.boxes()
+    if not len(centres):
+        return None
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+    faces = np.array([(0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4),
+                      (2, 6, 7), (2, 7, 3), (0, 4, 6), (0, 6, 2), (1, 3, 7), (1, 7, 5)])
+    verts = (centres[:, None, :] + signs[None] * sizes[:, None, :] / 2).reshape(-1, 3)
+    tris = (faces[None] + 8 * np.arange(len(centres))[:, None, None]).reshape(-1, 3)
+    return TriangleSurfaceMesh([SurfaceTriangle(*t) for t in tris.tolist()], verts)
+
+
+def show_volume(meshcat, workcell, build: "VolumeBuild", path: NominalPath | None = None, *,
+                prefix: str = "/cfvol") -> None:
+    """Draws the volume (semi-transparent), the obstacles coloured by category
+    and, if given, the nominal tool path in a Meshcat.
+
+    Args:
+        meshcat: a ``pydrake.geometry.Meshcat``.
+        workcell: the workcell.
+        build: what :func:`build_volume` returned (``table.volume`` of a
+            bounds table).
+        path: the nominal path (its tool path is drawn as a red line).
+    """
+    from pydrake.geometry import Box, Rgba
+    from pydrake.math import RigidTransform, RotationMatrix
+
+    from drake_cfvol.comanip import CATEGORY_COLOURS, VOLUME_COLOUR
+
+    mesh = volume_mesh(build.volume)
+    if mesh is not None:
+        meshcat.SetObject(f"{prefix}/volume", mesh, Rgba(*VOLUME_COLOUR))
+    obs = workcell_obstacles(workcell)
+    ground = ground_obstacles(workcell)
+    for i, (name, c, R, h) in enumerate(zip(obs.names, obs.centre, obs.R, obs.half)):
+        if name in ground:
+            continue
+        key = f"{prefix}/obstacles/{build.categories.of(name)}/{name}_{i}"
+        meshcat.SetObject(key, Box(*(2 * h)), Rgba(*CATEGORY_COLOURS[build.categories.of(name)]))
+        meshcat.SetTransform(key, RigidTransform(RotationMatrix(R), c))
+    if path is not None:
+        tool = np.array([workcell.tool_position(q) for q in path.waypoints]).T
+        meshcat.SetLine(f"{prefix}/nominal_tool_path", tool, 4.0, Rgba(0.9, 0.1, 0.1, 1.0))

@@ -53,8 +53,21 @@ DEFAULT_EDGE_STEP = 0.01
 
 
 def models_dir() -> Path:
-    """Returns the folder of the bundled models (holds ``package.xml``)."""
-    return Path(__file__).resolve().parent.parent / "models"
+    """Returns the folder of the bundled models (holds ``package.xml``):
+    ``$DRAKE_CFVOL_MODELS`` if set, else ``models/`` beside the package (a
+    repository checkout or an editable install).
+
+    Raises:
+        WorkcellError: the folder is missing.
+    """
+    import os
+
+    folder = Path(os.environ.get("DRAKE_CFVOL_MODELS") or Path(__file__).resolve().parent.parent / "models")
+    if not (folder / "package.xml").is_file():
+        raise WorkcellError(
+            f"drake_cfvol's models folder is missing ({folder}/package.xml not found). Install from a "
+            "checkout with `pip install -e .`, or point $DRAKE_CFVOL_MODELS at the repository's models/.")
+    return folder
 
 
 def builtin_cells() -> dict[str, Path]:

@@ -50,9 +50,9 @@ def test_markdown_table_matches_rows(tiny):
     md = open(files["markdown"]).read()
     assert md == markdown(result)
     for r in result["rows"]:
-        line = next(x for x in md.splitlines() if x.startswith(f"| {r['resolution']} |"))
+        line = next(x for x in md.splitlines() if x.startswith(f"| {r['resolution']} | {r['g']} |"))
         cells = [c.strip() for c in line.strip("|").split("|")]
-        assert cells[1] == f"{r['time_ms_median']:.0f}" and cells[2] == str(r["paper_time_ms"])
-        assert float(cells[3]) == pytest.approx(r["paper_time_ms"] / r["time_ms_median"], abs=1e-3)
+        assert cells[2] == f"{r['time_ms_median']:.0f}" and cells[3] == str(r["paper_time_ms"])
+        assert float(cells[4]) == pytest.approx(r["paper_time_ms"] / r["time_ms_median"], abs=1e-3)
     assert json.load(open(files["machine"]))["cores"] >= 1
     assert open(files["plot_0"], "rb").read(4) == b"\x89PNG"

@@ -48,3 +48,32 @@ def test_bounds_json_and_files(tmp_path, capsys):
     for f in d["files"].values():
         assert (tmp_path / f.split("/")[-1]).stat().st_size > 0
     assert open(d["files"]["plot_png"], "rb").read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_simulate_json(tmp_path, capsys):
+    """cfvol simulate --json prints the run's summary with the promised keys."""
+    assert main(["simulate", "aerospace_push", "--out", str(tmp_path), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    for key in ("scenario", "steps", "min_clearance_m", "max_bound_violation", "recording_html", "plot_png"):
+        assert key in d
+    assert d["steps"] > 100 and d["max_bound_violation"] == 0.0
+    assert (tmp_path / "recording.html").stat().st_size > 100_000
+
+
+def test_bounds_certify_json(capsys):
+    """cfvol bounds --certify reports the certificate it holds."""
+    assert main(["bounds", "automotive", "-R", "300", "--certify", "--epsilon", "0.05", "--confidence", "0.9",
+                 "--cf-windows", "3", "--cf-samples", "100", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    c = d["certificate"]
+    assert c["epsilon"] == 0.05 and c["n_samples"] == 47
+    assert c["freedom_after"] <= c["freedom_before"]
+
+
+def test_bench_quick_flags(tmp_path, capsys):
+    """cfvol bench parses its flags and writes its tables (tiny run)."""
+    assert main(["bench", "--quick", "--cells", "automotive", "--resolutions", "200", "--trials", "1",
+                 "--cf-samples", "20", "--no-iris", "--out", str(tmp_path), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert [r["resolution"] for r in d["rows"]] == [200]
+    assert (tmp_path / "results.md").is_file() and (tmp_path / "trials.csv").is_file()

@@ -78,3 +78,23 @@ def test_volume_is_numpy_over_cells(automotive):
     np.testing.assert_allclose(centres[:, 2], sizes[:, 2] / 2)
     np.testing.assert_allclose(sizes[:, :2], hm.side)
     assert len(centres) == vb.volume.n_boxes
+
+
+def test_volume_mesh_and_meshcat_view(automotive):
+    """The volume as one mesh has 12 triangles and 8 vertices per column, its
+    bounding box is the columns'; show_volume draws it with the obstacles."""
+    from pydrake.geometry import Meshcat, MeshcatParams
+
+    from drake_cfvol.volume import show_volume, volume_mesh
+
+    path = cf.plan_nominal_path(automotive, *automotive.configuration("path1"), seed=0)
+    vb = build_volume(automotive, path, VolumeParams.for_workcell(automotive, resolution=300))
+    mesh = volume_mesh(vb.volume)
+    n = vb.volume.n_boxes
+    assert mesh.num_triangles() == 12 * n and mesh.num_vertices() == 8 * n
+    verts = np.array([mesh.vertex(i) for i in range(mesh.num_vertices())])
+    assert verts[:, 2].min() == 0.0 and verts[:, 2].max() == pytest.approx(vb.volume.heights.max())
+    meshcat = Meshcat(MeshcatParams(host="localhost"))
+    show_volume(meshcat, automotive, vb, path)
+    assert meshcat.HasPath("/cfvol/volume") and meshcat.HasPath("/cfvol/obstacles/goal")
+    assert meshcat.HasPath("/cfvol/nominal_tool_path")
