@@ -18,12 +18,12 @@ directions) are bisected together in one batch.
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
+from drake_cfvol._records import load_record, save_record
 from drake_cfvol.collision import RobotModel, SceneTester, robot_model, workcell_obstacles
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.params import VolumeParams
@@ -296,35 +296,18 @@ class BoundsTable:
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
         """Saves as ``.npz`` (arrays + JSON metadata) or ``.json``."""
-        path = Path(path)
-        if path.exists() and not overwrite:
-            raise FileExistsError(f"{path} exists; pass overwrite=True (CLI: --force) to replace it.")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        d = self.to_json_dict()
-        if path.suffix == ".json":
-            path.write_text(json.dumps(d, indent=1))
-        elif path.suffix == ".npz":
-            meta = {k: v for k, v in d.items() if k not in ("lower", "upper", "nominal")}
-            np.savez(path, lower=self.lower, upper=self.upper, nominal=self.nominal, meta=json.dumps(meta))
-        else:
-            raise ParameterError(f"unknown bounds file type '{path.suffix}': use .npz or .json.")
-        return path
+        return save_record(path, self.to_json_dict(), _ARRAYS, "bounds", overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | Path) -> "BoundsTable":
-        path = Path(path)
-        if path.suffix == ".json":
-            d = json.loads(path.read_text())
-            arrays = {k: np.array(d[k], float) for k in ("lower", "upper", "nominal")}
-        elif path.suffix == ".npz":
-            with np.load(path) as z:
-                arrays = {k: z[k] for k in ("lower", "upper", "nominal")}
-                d = json.loads(str(z["meta"]))
-        else:
-            raise ParameterError(f"unknown bounds file type '{path.suffix}': use .npz or .json.")
-        return cls(arrays["lower"], arrays["upper"], arrays["nominal"], d["joint_names"],
+        """Loads a table saved by :meth:`save`."""
+        d, a = load_record(path, _ARRAYS, "bounds")
+        return cls(a["lower"], a["upper"], a["nominal"], d["joint_names"],
                    np.array(d["limit_lower"], float), np.array(d["limit_upper"], float),
                    d.get("params", {}), d.get("timing_ms", {}), d.get("info", {}))
+
+
+_ARRAYS = ("lower", "upper", "nominal")
 
 
 def _jsonable(obj):

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
 from drake_cfvol import _ompl
+from drake_cfvol._records import load_record, save_record
 from drake_cfvol.exceptions import (
     DimensionError,
     ParameterError,
@@ -98,34 +98,14 @@ class NominalPath:
         Raises:
             FileExistsError: the file exists and ``overwrite`` is False.
         """
-        path = Path(path)
-        if path.exists() and not overwrite:
-            raise FileExistsError(f"{path} exists; pass overwrite=True (CLI: --force) to replace it.")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if path.suffix == ".json":
-            path.write_text(json.dumps(self.to_dict(), indent=1))
-        elif path.suffix == ".npz":
-            meta = self.to_dict()
-            meta.pop("waypoints")
-            np.savez(path, waypoints=self.waypoints, meta=json.dumps(meta))
-        else:
-            raise ParameterError(f"unknown path file type '{path.suffix}': use .npz or .json.")
-        return path
+        return save_record(path, self.to_dict(), ("waypoints",), "path", overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | Path) -> "NominalPath":
         """Loads a path saved by :meth:`save`."""
-        path = Path(path)
-        if path.suffix == ".json":
-            d = json.loads(path.read_text())
-            wp = np.array(d["waypoints"], dtype=np.float64)
-        elif path.suffix == ".npz":
-            with np.load(path) as z:
-                wp = z["waypoints"]
-                d = json.loads(str(z["meta"]))
-        else:
-            raise ParameterError(f"unknown path file type '{path.suffix}': use .npz or .json.")
-        return cls(wp, d["joint_names"], d.get("cell", ""), d.get("label", ""), d.get("seed", 0), d.get("stats", {}))
+        d, arrays = load_record(path, ("waypoints",), "path")
+        return cls(arrays["waypoints"], d["joint_names"], d.get("cell", ""), d.get("label", ""), d.get("seed", 0),
+                   d.get("stats", {}))
 
 
 def densify(vertices: np.ndarray, max_step: float) -> np.ndarray:
