@@ -3,8 +3,22 @@ path, as Drake systems.
 
 Public API (re-exported here): :func:`load_workcell`, :func:`plan_nominal_path`,
 :class:`NominalPath`, :func:`estimate_bounds`, :class:`BoundsTable`,
-:class:`VolumeParams`, :func:`confidence_factor`, :func:`freedom`, and the
-exception hierarchy rooted at :class:`CfvolError`.
+:class:`Certify`, :class:`VolumeParams`, :func:`confidence_factor`,
+:func:`freedom`, and the exception hierarchy rooted at :class:`CfvolError`.
+
+Layers (each module imports only from the layers below it; a test checks):
+
+1. data and settings: ``exceptions``, ``params``, ``style``, ``_records``,
+   ``heightmap`` (height map, eq. 1, the volume V), ``table`` (BoundsTable,
+   the box-at-s rule);
+2. geometry and the scene: ``collision`` (fast conservative checks),
+   ``workcell`` (typed workcell files, Drake scene, cached models);
+3. algorithm steps: ``planning`` (RRT-Connect), ``volume`` (categorization,
+   growing V), ``sweep`` (joint bounding), ``reference`` (Drake backend),
+   ``metrics`` (CF, freedom), ``certify``;
+4. the orchestrator: ``pipeline`` (Algorithm 1: ``estimate_bounds``);
+5. Drake systems and runs: ``systems``, ``viz``, ``comanip``;
+6. front ends: ``demo``, ``bench``, ``cli``.
 """
 
 from drake_cfvol.exceptions import (
@@ -21,18 +35,20 @@ from drake_cfvol.exceptions import (
     WorkcellError,
     WorkcellFormatError,
 )
-from drake_cfvol.bounds import BoundsTable, estimate_bounds
+from drake_cfvol._version import __version__
+from drake_cfvol.certify import Certify
 from drake_cfvol.metrics import CFResult, Freedom, confidence_factor, freedom
 from drake_cfvol.params import VolumeParams
+from drake_cfvol.pipeline import estimate_bounds
 from drake_cfvol.planning import NominalPath, plan_nominal_path
+from drake_cfvol.table import BoundsTable
 from drake_cfvol.workcell import Workcell, builtin_cells, load_workcell
 
-__version__ = "0.1.0"
-
 __all__ = [
+    "__version__",
     "CfvolError", "CollisionError", "ConfigurationError", "DimensionError", "JointLimitError",
     "MissingJointLimitsError", "ParameterError", "PlanningError", "SingularityError",
     "UnknownCellError", "WorkcellError", "WorkcellFormatError",
     "NominalPath", "plan_nominal_path", "Workcell", "builtin_cells", "load_workcell",
-    "BoundsTable", "estimate_bounds", "VolumeParams", "CFResult", "Freedom", "confidence_factor", "freedom",
+    "BoundsTable", "estimate_bounds", "Certify", "VolumeParams", "CFResult", "Freedom", "confidence_factor", "freedom",
 ]

@@ -11,6 +11,7 @@ the machine description.
 """
 
 import csv
+from importlib.metadata import version
 import dataclasses
 import json
 import os
@@ -21,6 +22,17 @@ import time
 from pathlib import Path
 
 import numpy as np
+from pydrake.common import RandomGenerator
+from pydrake.geometry.optimization import HPolyhedron, Hyperellipsoid
+from pydrake.planning import IrisZo, IrisZoOptions
+
+from drake_cfvol._version import __version__
+from drake_cfvol.certify import Certify
+from drake_cfvol.metrics import confidence_factor, freedom
+from drake_cfvol.pipeline import estimate_bounds
+from drake_cfvol.planning import plan_nominal_path
+from drake_cfvol.plotting import _pyplot
+from drake_cfvol.workcell import load_workcell
 
 __all__ = ["PAPER", "BenchConfig", "run_bench", "write_outputs", "machine_info"]
 
@@ -123,9 +135,6 @@ def _cheapest_check_s(workcell, path, repeats: int = 5) -> float:
 
 
 def _iris(workcell, path, cfg: BenchConfig) -> dict:
-    from pydrake.common import RandomGenerator
-    from pydrake.geometry.optimization import HPolyhedron, Hyperellipsoid
-    from pydrake.planning import IrisZo, IrisZoOptions
 
     domain = HPolyhedron.MakeBox(workcell.position_lower, workcell.position_upper)
     opts = IrisZoOptions()
@@ -153,11 +162,6 @@ def _iris(workcell, path, cfg: BenchConfig) -> dict:
 def run_bench(cfg: BenchConfig, *, progress: bool = True) -> dict:
     """Runs the benchmark. Returns a dict of rows (one per cell, path, R),
     trials (one per timed run), reference, iris and floor results."""
-    from drake_cfvol.bounds import estimate_bounds
-    from drake_cfvol.certify import Certify
-    from drake_cfvol.metrics import confidence_factor, freedom
-    from drake_cfvol.planning import plan_nominal_path
-    from drake_cfvol.workcell import load_workcell
 
     n_paths = len(cfg.cells) * len(cfg.paths)
     total = n_paths * (len(cfg.resolutions) * (cfg.trials + 1) + len(cfg.reference_resolutions) * cfg.reference_trials
@@ -244,12 +248,8 @@ def machine_info() -> dict:
                                 cwd=Path(__file__).parent, timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         commit = ""
-    import drake_cfvol
-
-    versions = {"python": platform.python_version(), "numpy": np.__version__, "drake_cfvol": drake_cfvol.__version__}
+    versions = {"python": platform.python_version(), "numpy": np.__version__, "drake_cfvol": __version__}
     try:
-        from importlib.metadata import version
-
         versions.update({"drake": version("drake"), "ompl": version("ompl"), "scipy": version("scipy")})
     except Exception:
         pass
@@ -357,7 +357,6 @@ def targets(result: dict) -> list[str]:
 
 def plots(result: dict, out: Path) -> list[Path]:
     """Per cell: time vs R (log-log) and CF vs R, ours and the paper's."""
-    from drake_cfvol.plotting import _pyplot
 
     plt = _pyplot()
     files = []

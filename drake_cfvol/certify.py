@@ -25,6 +25,8 @@ import time
 import numpy as np
 
 from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.metrics import freedom
+from drake_cfvol.table import box_at
 
 __all__ = ["Certify", "CertificateReport", "certify_bounds", "certification_rng"]
 
@@ -92,15 +94,6 @@ def certification_rng(seed: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_CERT_STREAM,)))
 
 
-def _stretch_box(lower, upper, nominal, i, s):
-    """Boxes at s in (i, i+1) (SPEC 7), vectorised over s."""
-    t = (s - i)[:, None]
-    nom = (1 - t) * nominal[i] + t * nominal[i + 1]
-    lo = np.minimum(np.maximum(lower[i], lower[i + 1]), nom)
-    hi = np.maximum(np.minimum(upper[i], upper[i + 1]), nom)
-    return lo, hi, nom
-
-
 def certify_bounds(workcell, table, certify: Certify, *, checker=None):
     """Shrinks a bounds table's boxes until every stretch holds the sampled
     certificate.
@@ -108,12 +101,11 @@ def certify_bounds(workcell, table, certify: Certify, *, checker=None):
     Returns:
         (lower, upper, CertificateReport); the input table is not changed.
     """
-    from drake_cfvol.metrics import freedom
-
     checker = checker or workcell.checker
     t0 = time.perf_counter()
     lower, upper, nominal = table.lower.copy(), table.upper.copy(), table.nominal
     g = table.g
+    trajectory = table.trajectory
     rng = certification_rng(certify.seed)
     N = certify.n_samples
     dirty = np.ones(max(g - 1, 0), bool)
@@ -125,7 +117,7 @@ def certify_bounds(workcell, table, certify: Certify, *, checker=None):
             while run < N:
                 n = min(certify.batch, N - run)
                 s = rng.uniform(i, i + 1, n)
-                lo, hi, nom = _stretch_box(lower, upper, nominal, i, s)
+                lo, hi, nom = box_at(lower, upper, nominal, s, trajectory=trajectory)
                 Q = lo + rng.random(lo.shape) * (hi - lo)
                 free = np.array(checker.CheckConfigsCollisionFree(Q, parallelize=True), bool)
                 if free.all():

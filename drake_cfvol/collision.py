@@ -23,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Role, Sphere
 
 from drake_cfvol.exceptions import WorkcellError
 
@@ -78,8 +79,6 @@ def _mesh_half_extents(shape):
 def shape_box(shape) -> tuple[np.ndarray, np.ndarray]:
     """A box containing a Drake shape, in the shape's frame: (half extents,
     centre)."""
-    from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Sphere
-
     if isinstance(shape, Box):
         return np.asarray(shape.size()) / 2, np.zeros(3)
     if isinstance(shape, Sphere):
@@ -100,8 +99,6 @@ def shape_box(shape) -> tuple[np.ndarray, np.ndarray]:
 def shape_spheres(shape, tol: float) -> tuple[np.ndarray, np.ndarray]:
     """Spheres (centres in the shape's frame, radii) covering a Drake shape,
     sticking out by at most about ``tol`` (capsules: 12 % of their radius)."""
-    from pydrake.geometry import Capsule, Sphere
-
     if isinstance(shape, Sphere):
         return np.zeros((1, 3)), np.array([shape.radius()])
     if isinstance(shape, Capsule):
@@ -181,15 +178,9 @@ class RobotModel:
 
 
 def robot_model(workcell, tol: float = 0.06) -> RobotModel:
-    """Builds (and caches on the workcell) the robot's geometry model."""
-    cache = workcell.__dict__.setdefault("_robot_model_cache", {})
-    if tol in cache:
-        return cache[tol]
-    from pydrake.geometry import Capsule, Sphere
-
+    """Builds the robot's geometry model (``Workcell.robot_geometry`` caches it)."""
     plant = workcell.plant
     inspector = workcell.scene_graph.model_inspector()
-    from pydrake.geometry import Role
 
     bodies, names = [], []
     boxes, balls, cover = [], [], []
@@ -254,7 +245,6 @@ def robot_model(workcell, tol: float = 0.06) -> RobotModel:
     model = RobotModel(bodies, names, box_body, box_c, box_R, box_half, ball_body, ball_c, ball_r,
                        cover_body, cover_c, cover_r, bound_c, bound_r,
                        np.array(pairs, int).reshape(-1, 2), moved)
-    cache[tol] = model
     return model
 
 
@@ -362,9 +352,7 @@ class Obstacles:
 
 
 def workcell_obstacles(workcell) -> Obstacles:
-    """The obstacles of a workcell as boxes (cached on the workcell)."""
-    if "_obstacle_boxes" in workcell.__dict__:
-        return workcell.__dict__["_obstacle_boxes"]
+    """The obstacles of a workcell as boxes (``Workcell.obstacle_boxes`` caches them)."""
     inspector = workcell.scene_graph.model_inspector()
     sg_ctx = workcell.scene_graph.GetMyContextFromRoot(workcell.context)
     query = workcell.scene_graph.get_query_output_port().Eval(sg_ctx)
@@ -378,9 +366,7 @@ def workcell_obstacles(workcell) -> Obstacles:
             cs.append(X.translation() + R @ centre)
             Rs.append(R)
             hs.append(half)
-    out = Obstacles(names, np.array(cs), np.array(Rs), np.array(hs))
-    workcell.__dict__["_obstacle_boxes"] = out
-    return out
+    return Obstacles(names, np.array(cs), np.array(Rs), np.array(hs))
 
 
 class SceneTester:

@@ -18,13 +18,43 @@ proximity geometry while Drake can hold them, illustration only beyond).
 
 import dataclasses
 import json
+import logging
 import subprocess
 import time
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.geometry import (
+    Box,
+    IllustrationProperties,
+    Meshcat,
+    MeshcatParams,
+    MeshcatVisualizer,
+    MeshcatVisualizerParams,
+    Rgba,
+    Role,
+    RoleAssign,
+    SceneGraph,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import LogVectorOutput
+from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_cfvol.exceptions import CfvolError, ParameterError
+from drake_cfvol.params import VolumeParams
+from drake_cfvol.pipeline import estimate_bounds
+from drake_cfvol.planning import NominalPath, plan_nominal_path
+from drake_cfvol.plotting import _pyplot
+from drake_cfvol.reference import register_volume_boxes
+from drake_cfvol.style import CATEGORY_COLOURS, FLOOR_COLOUR, VOLUME_COLOUR
+from drake_cfvol.viz import show_tool_path
+from drake_cfvol.volume import build_volume
+from drake_cfvol.workcell import builtin_cells, load_workcell
 from drake_cfvol.systems import (
     AdmittanceDeformation,
     ClearanceMonitor,
@@ -37,13 +67,6 @@ from drake_cfvol.systems import (
 __all__ = ["AdmittanceGains", "RandomPushes", "Scenario", "load_scenario", "Comanipulation",
            "build_comanipulation_diagram", "run_scenario", "CATEGORY_COLOURS", "diagrams_dir"]
 
-#: Obstacle colours by category (RGBA).
-CATEGORY_COLOURS = {
-    "trail": (0.95, 0.60, 0.10, 1.0),
-    "goal": (0.20, 0.45, 0.95, 1.0),
-    "no_goal": (0.55, 0.55, 0.60, 1.0),
-}
-VOLUME_COLOUR = (0.15, 0.80, 0.30, 0.30)
 #: Columns registered as proximity geometry up to this count (SceneGraph's
 #: cost grows quadratically with the number of proximity geometries).
 MAX_PROXIMITY_COLUMNS = 1500
@@ -51,7 +74,7 @@ MAX_PROXIMITY_COLUMNS = 1500
 
 def diagrams_dir() -> Path:
     """The folder of the bundled scenarios."""
-    return Path(__file__).resolve().parent.parent / "diagrams"
+    return Path(str(resources.files("drake_cfvol.diagrams")))
 
 
 @dataclasses.dataclass
@@ -136,8 +159,6 @@ def load_scenario(name_or_path: str | Path) -> tuple[Scenario, Path | None]:
     Returns:
         (scenario, its file)
     """
-    from pydrake.common.yaml import yaml_load_typed
-
     p = Path(name_or_path)
     if not p.is_file():
         cand = diagrams_dir() / f"{name_or_path}.yaml"
@@ -186,27 +207,23 @@ class Comanipulation:
 
 
 def _colour_obstacles(plant, scene_graph, workcell, categories) -> None:
-    import logging
-
-    from pydrake.geometry import IllustrationProperties, Rgba, Role, RoleAssign
-
     # Drake warns on every illustration update that it must precede the
     # visualizer's initialization: it does (no visualizer exists yet).
     drake_log = logging.getLogger("drake")
     level = drake_log.level
     drake_log.setLevel(logging.ERROR)
     try:
-        _assign_colours(plant, scene_graph, workcell, categories, IllustrationProperties, Rgba, Role, RoleAssign)
+        _assign_colours(plant, scene_graph, workcell, categories)
     finally:
         drake_log.setLevel(level)
 
 
-def _assign_colours(plant, scene_graph, workcell, categories, IllustrationProperties, Rgba, Role, RoleAssign):
+def _assign_colours(plant, scene_graph, workcell, categories):
     inspector = scene_graph.model_inspector()
     for name, obs in workcell.obstacles.items():
         rgba = CATEGORY_COLOURS[categories.of(name)]
         if name in ("floor",):
-            rgba = (0.75, 0.75, 0.72, 1.0)
+            rgba = FLOOR_COLOUR
         body = plant.get_body(obs.body_index)
         frame = plant.GetBodyFrameIdIfExists(body.index())
         if frame is None:
@@ -232,17 +249,6 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     Returns:
         The :class:`Comanipulation`.
     """
-    from pydrake.geometry import SceneGraph
-    from pydrake.multibody.plant import MultibodyPlant
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import LogVectorOutput
-    from pydrake.systems.rendering import MultibodyPositionToGeometryPose
-
-    from drake_cfvol.bounds import estimate_bounds
-    from drake_cfvol.planning import plan_nominal_path
-    from drake_cfvol.reference import register_volume_boxes
-    from drake_cfvol.workcell import builtin_cells, load_workcell
-
     if scenario.path_duration <= 0 or scenario.log_period <= 0:
         raise ParameterError("scenario path_duration and log_period must be > 0 s.")
     t0 = time.perf_counter()
@@ -257,6 +263,10 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         bounds = estimate_bounds(wc, path, resolution=scenario.resolution, **dict(scenario.params))
     t2 = time.perf_counter()
     vb = bounds.volume
+    if vb is None:  # a table loaded from disk: grow its volume again
+        params = VolumeParams(**bounds.params)
+        nominal = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.seed)
+        vb = build_volume(wc, nominal, params)
     k, g = wc.num_joints, path.g
 
     builder = DiagramBuilder()
@@ -268,9 +278,6 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     if in_proximity:
         register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR)
     else:
-        from pydrake.geometry import Box
-        from pydrake.math import RigidTransform
-
         centres, sizes = vb.volume.boxes()
         for i, (c, s) in enumerate(zip(centres, sizes)):
             plant.RegisterVisualGeometry(plant.world_body(), RigidTransform(c), Box(*s),
@@ -319,12 +326,9 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         loggers[name] = LogVectorOutput(port, builder, publish_period=scenario.log_period)
 
     if meshcat is not None:
-        from pydrake.geometry import MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role
-
         params = MeshcatVisualizerParams(publish_period=scenario.log_period, role=Role.kIllustration)
         MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
-        tool = np.array([wc.tool_position(q) for q in path.waypoints]).T
-        meshcat.SetLine("/cfvol/nominal_tool_path", tool, 4.0, Rgba(0.9, 0.1, 0.1, 1.0))
+        show_tool_path(meshcat, wc, path)
         # An overview camera: above a corner of the height map, looking at its centre.
         hm = vb.volume.heightmap
         centre = np.array([hm.origin[0] + hm.x_dim / 2, hm.origin[1] + hm.y_dim / 2, 1.0])
@@ -352,15 +356,11 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     Returns:
         The summary dict (also written as ``summary.json``).
     """
-    from pydrake.systems.analysis import Simulator
-
     scenario, file = load_scenario(scenario_name_or_path)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meshcat = None
     if record:
-        from pydrake.geometry import Meshcat, MeshcatParams
-
         meshcat = Meshcat(MeshcatParams(host="localhost"))
     cm = build_comanipulation_diagram(scenario, meshcat=meshcat, base_dir=file.parent if file else None,
                                       path=path, bounds=bounds)
@@ -412,8 +412,6 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
 
 def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
     """Per joint over time: nominal, bounds, commanded; and the clearance."""
-    from drake_cfvol.plotting import _pyplot
-
     plt = _pyplot()
     t, q = logs["commanded_position"]
     _, lo = logs["lower"]

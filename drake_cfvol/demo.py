@@ -4,6 +4,13 @@ import json
 import time
 from pathlib import Path
 
+from drake_cfvol.comanip import load_scenario, run_scenario
+from drake_cfvol.metrics import confidence_factor, freedom
+from drake_cfvol.pipeline import estimate_bounds
+from drake_cfvol.planning import plan_nominal_path
+from drake_cfvol.plotting import plot_bounds
+from drake_cfvol.workcell import load_workcell
+
 
 def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: int = 1000) -> int:
     """Plans the automotive cell's three paths, bounds path 1 (volume, CF,
@@ -13,13 +20,6 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
     Returns:
         Process exit code (0).
     """
-    from drake_cfvol.bounds import estimate_bounds
-    from drake_cfvol.comanip import load_scenario, run_scenario
-    from drake_cfvol.metrics import confidence_factor, freedom
-    from drake_cfvol.planning import plan_nominal_path
-    from drake_cfvol.plotting import plot_bounds
-    from drake_cfvol.workcell import load_workcell
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from drake_cfvol.bounds import BoundsTable
+from drake_cfvol.table import BoundsTable
 from drake_cfvol.exceptions import DimensionError, ParameterError
 
 __all__ = ["CFResult", "Freedom", "confidence_factor", "freedom", "sample_boxes"]
@@ -14,18 +14,8 @@ __all__ = ["CFResult", "Freedom", "confidence_factor", "freedom", "sample_boxes"
 
 def sample_boxes(bounds: BoundsTable, s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Configurations drawn uniformly in the box at each path parameter s
-    (SPEC 7 interpolation), one per entry of s."""
-    g = bounds.g
-    s = np.asarray(s, float)
-    i = np.clip(np.floor(s).astype(int), 0, g - 2)
-    t = (s - i)[:, None]
-    nom = (1 - t) * bounds.nominal[i] + t * bounds.nominal[i + 1]
-    at_i = t[:, 0] == 0.0
-    lo = np.where(at_i[:, None], bounds.lower[i], np.minimum(np.maximum(bounds.lower[i], bounds.lower[i + 1]), nom))
-    hi = np.where(at_i[:, None], bounds.upper[i], np.maximum(np.minimum(bounds.upper[i], bounds.upper[i + 1]), nom))
-    at_end = t[:, 0] == 1.0
-    lo = np.where(at_end[:, None], bounds.lower[i + 1], lo)
-    hi = np.where(at_end[:, None], bounds.upper[i + 1], hi)
+    (:func:`drake_cfvol.table.box_at`), one per entry of s."""
+    lo, hi, _ = bounds.boxes_at(np.asarray(s, float))
     return lo + rng.random(lo.shape) * (hi - lo)
 
 

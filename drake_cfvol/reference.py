@@ -12,7 +12,7 @@ import time
 
 import numpy as np
 
-from drake_cfvol.bounds import absolute_bounds
+from drake_cfvol.table import absolute_bounds
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.heightmap import Volume
 from drake_cfvol.params import VolumeParams
@@ -122,7 +122,7 @@ def drake_sweep_bounds(workcell, waypoints: np.ndarray, volume: Volume, params: 
     checks = 0
     chunk = 64
     for i, q in enumerate(waypoints):
-        lo_abs, hi_abs = absolute_bounds(workcell, q)
+        lo_abs, hi_abs = absolute_bounds(workcell.position_lower, workcell.position_upper, q)
         for j in range(k):
             delta = params.delta if workcell.revolute[j] else params.delta_prismatic
             for sign, limit in ((+1, hi_abs[j]), (-1, lo_abs[j])):

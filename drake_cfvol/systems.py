@@ -13,9 +13,12 @@
 import dataclasses
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
+from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import TrajectorySource
+from pydrake.trajectories import PiecewisePolynomial
 
-from drake_cfvol.bounds import BoundsTable
+from drake_cfvol.table import BoundsTable
 from drake_cfvol.exceptions import DimensionError, ParameterError
 
 __all__ = ["JointBoundsSource", "AdmittanceDeformation", "PathProgress", "Push", "ScriptedHuman",
@@ -198,8 +201,6 @@ class AdmittanceDeformation(LeafSystem):
                 if self._plant is None:
                     raise ParameterError("AdmittanceDeformation: 'human_wrench' is connected but no plant and "
                                          "tool_frame were given to map it through the Jacobian.")
-                from pydrake.multibody.tree import JacobianWrtVariable
-
                 self._plant.SetPositions(self._plant_context, q)
                 J = self._plant.CalcJacobianSpatialVelocity(
                     self._plant_context, JacobianWrtVariable.kQDot, self._tool, np.zeros(3),
@@ -242,8 +243,9 @@ class AdmittanceDeformation(LeafSystem):
         output.SetFromVector(np.clip(nominal + d, lower, upper))
 
 
-class PathProgress(LeafSystem):
-    """The path index over time: s(t) = clip(rate (t - start_time), 0, g-1).
+class PathProgress(Diagram):
+    """The path index over time: s(t) = clip(rate (t - start_time), 0, g-1),
+    a Drake ``TrajectorySource`` of a first-order-hold trajectory.
 
     .. pydrake_system::
 
@@ -261,15 +263,24 @@ class PathProgress(LeafSystem):
         super().__init__()
         if not rate > 0:
             raise ParameterError(f"rate must be > 0 waypoints/s, got {rate}.")
+        if int(g) < 1:
+            raise ParameterError(f"g must be >= 1 waypoint, got {g}.")
         self.g, self.rate, self.start_time = int(g), float(rate), float(start_time)
-        self.path_index_output = self.DeclareVectorOutputPort(
-            name="path_index", size=1, calc=self._calc, prerequisites_of_calc={self.time_ticket()})
+        # Held at 0 before start_time and at g-1 after the end (Drake
+        # trajectories hold their end values outside their time span).
+        t0 = self.start_time
+        self.trajectory = PiecewisePolynomial.FirstOrderHold(
+            [t0, max(self.duration, t0 + 1e-9)], np.array([[0.0, self.g - 1.0]]))
+        builder = DiagramBuilder()
+        source = builder.AddNamedSystem("trajectory", TrajectorySource(self.trajectory))
+        builder.ExportOutput(source.get_output_port(), "path_index")
+        builder.BuildInto(self)
+        self.set_name("path_progress")
+        self.path_index_output = self.GetOutputPort("path_index")
 
     def index_at(self, t: float) -> float:
-        return float(np.clip(self.rate * (t - self.start_time), 0.0, self.g - 1.0))
-
-    def _calc(self, context, output):
-        output.SetAtIndex(0, self.index_at(context.get_time()))
+        """s at time t."""
+        return float(self.trajectory.value(float(t))[0, 0])
 
     @property
     def duration(self) -> float:
@@ -384,7 +395,5 @@ class ClearanceMonitor(LeafSystem):
                 not self._wc.is_free(self.position_input.Eval(c)))))
 
     def min_distance(self, q) -> float:
-        from drake_cfvol.volume import _robot_obstacle_distances
-
-        d = _robot_obstacle_distances(self._wc, np.asarray(q, float), self._max)
+        d = self._wc.obstacle_distances(np.asarray(q, float), self._max)
         return float(min(d.values())) if d else self._max

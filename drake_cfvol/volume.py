@@ -5,14 +5,15 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
-from drake_cfvol.collision import RobotModel, robot_model, workcell_obstacles
+from drake_cfvol.collision import RobotModel
+from drake_cfvol.exceptions import WorkcellError
 from drake_cfvol.heightmap import FootprintRaster, HeightMap, Volume, height_function
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import NominalPath
 
-__all__ = ["Categories", "categorize", "build_volume", "ground_obstacles", "footprint_polygon", "volume_mesh",
-           "show_volume"]
+__all__ = ["Categories", "VolumeBuild", "categorize", "build_volume", "ground_obstacles", "footprint_polygon"]
 
 #: An obstacle whose top is at most this high is ground (the floor).
 GROUND_TOP = 1e-3
@@ -48,37 +49,14 @@ class Categories:
         raise KeyError(name)
 
 
-def _robot_obstacle_distances(workcell, q, max_distance: float) -> dict[str, float]:
-    """Smallest signed distance per obstacle to the robot at q, for the pairs
-    Drake finds within ``max_distance``."""
-    workcell.plant_context(q)
-    sg = workcell.scene_graph
-    query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(workcell.context))
-    owner = workcell.__dict__.get("_geometry_owner")
-    if owner is None:
-        owner = {}
-        for obs in workcell.obstacles.values():
-            for gid in obs.geometry_ids:
-                owner[gid] = obs.name
-        workcell.__dict__["_geometry_owner"] = owner
-    out: dict[str, float] = {}
-    for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=max_distance):
-        a, b = owner.get(pair.id_A), owner.get(pair.id_B)
-        if (a is None) == (b is None):
-            continue  # robot-robot or obstacle-obstacle
-        name = a if a is not None else b
-        out[name] = min(out.get(name, np.inf), pair.distance)
-    return out
-
-
 def categorize(workcell, path: NominalPath, params: VolumeParams) -> Categories:
     """Sorts the obstacles into trail, goal and no-goal sets (SPEC 4) with
     Drake's signed-distance queries on the real geometry."""
     trail_d: dict[str, float] = {}
     for q in path.waypoints:
-        for name, d in _robot_obstacle_distances(workcell, q, params.trail_radius).items():
+        for name, d in workcell.obstacle_distances(q, params.trail_radius).items():
             trail_d[name] = min(trail_d.get(name, np.inf), d)
-    goal_d = _robot_obstacle_distances(workcell, path.waypoints[-1], params.goal_radius)
+    goal_d = workcell.obstacle_distances(path.waypoints[-1], params.goal_radius)
     names = list(workcell.obstacles)
     trail = [n for n in names if trail_d.get(n, np.inf) < params.trail_radius]
     goal = [n for n in names if n not in trail and goal_d.get(n, np.inf) < params.goal_radius]
@@ -92,7 +70,7 @@ def ground_obstacles(workcell) -> set[str]:
     """Obstacles whose top is at floor level (z <= 1 mm): their footprint is
     the whole map, so they take no part in the height function's distances
     (the volume stands on them anyway)."""
-    obs = workcell_obstacles(workcell)
+    obs = workcell.obstacle_boxes()
     tops = {}
     for name, c, R, h in zip(obs.names, obs.centre, obs.R, obs.half):
         top = c[2] + np.abs(R[2]) @ h
@@ -100,31 +78,12 @@ def ground_obstacles(workcell) -> set[str]:
     return {n for n, t in tops.items() if t <= GROUND_TOP}
 
 
-def _convex_hull(points: np.ndarray) -> np.ndarray:
-    pts = sorted(set(map(tuple, np.round(points, 12))))
-    if len(pts) <= 2:
-        return np.array(pts)
-
-    def cross(o, a, b):
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    def half(seq):
-        h = []
-        for p in seq:
-            while len(h) >= 2 and cross(h[-2], h[-1], p) <= 0:
-                h.pop()
-            h.append(p)
-        return h
-
-    lower, upper = half(pts), half(pts[::-1])
-    return np.array(lower[:-1] + upper[:-1])
-
-
 def footprint_polygon(centre, R, half) -> np.ndarray:
     """The xy projection of an oriented box: a convex polygon (n, 2)."""
     signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
     corners = centre + (signs * half) @ R.T
-    return _convex_hull(corners[:, :2])
+    xy = corners[:, :2]
+    return xy[ConvexHull(xy).vertices]
 
 
 def reach_activation(workcell, path: NominalPath, hm: HeightMap, reach: float) -> np.ndarray:
@@ -149,8 +108,6 @@ def reach_activation(workcell, path: NominalPath, hm: HeightMap, reach: float) -
 
 def height_map_of(workcell, params: VolumeParams) -> HeightMap:
     """The workcell's height map at resolution ``params.resolution``."""
-    from drake_cfvol.exceptions import WorkcellError
-
     o, size = workcell.height_map_origin, workcell.height_map_size
     if not (np.all(np.isfinite(o)) and np.all(np.isfinite(size))):
         raise WorkcellError(
@@ -189,10 +146,10 @@ def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
     (coarse cells, SPEC 5) are lowered under it, or dropped; the counts are
     in ``volume.lowered`` / ``volume.dropped``.
     """
-    model = model or robot_model(workcell, params.sphere_tolerance)
+    model = model or workcell.robot_geometry(params.sphere_tolerance)
     cats = categories or categorize(workcell, path, params)
     hm = height_map_of(workcell, params)
-    obs = workcell_obstacles(workcell)
+    obs = workcell.obstacle_boxes()
     ground = ground_obstacles(workcell)
     lo = np.array(hm.origin)
     hi = lo + [hm.x_dim, hm.y_dim]
@@ -225,52 +182,3 @@ def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
     vol = Volume(hm, raw.copy(), raw)
     vol.lower_under(pts, rad, params.column_clearance)
     return VolumeBuild(vol, cats, d_t, d_g, d_ng, active)
-
-
-def volume_mesh(volume: Volume):
-    """All columns of V as one ``TriangleSurfaceMesh`` (12 triangles per
-    column), for Meshcat: one object instead of thousands."""
-    from pydrake.geometry import SurfaceTriangle, TriangleSurfaceMesh
-
-    centres, sizes = volume.boxes()
-    if not len(centres):
-        return None
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-    faces = np.array([(0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4),
-                      (2, 6, 7), (2, 7, 3), (0, 4, 6), (0, 6, 2), (1, 3, 7), (1, 7, 5)])
-    verts = (centres[:, None, :] + signs[None] * sizes[:, None, :] / 2).reshape(-1, 3)
-    tris = (faces[None] + 8 * np.arange(len(centres))[:, None, None]).reshape(-1, 3)
-    return TriangleSurfaceMesh([SurfaceTriangle(*t) for t in tris.tolist()], verts)
-
-
-def show_volume(meshcat, workcell, build: "VolumeBuild", path: NominalPath | None = None, *,
-                prefix: str = "/cfvol") -> None:
-    """Draws the volume (semi-transparent), the obstacles coloured by category
-    and, if given, the nominal tool path in a Meshcat.
-
-    Args:
-        meshcat: a ``pydrake.geometry.Meshcat``.
-        workcell: the workcell.
-        build: what :func:`build_volume` returned (``table.volume`` of a
-            bounds table).
-        path: the nominal path (its tool path is drawn as a red line).
-    """
-    from pydrake.geometry import Box, Rgba
-    from pydrake.math import RigidTransform, RotationMatrix
-
-    from drake_cfvol.comanip import CATEGORY_COLOURS, VOLUME_COLOUR
-
-    mesh = volume_mesh(build.volume)
-    if mesh is not None:
-        meshcat.SetObject(f"{prefix}/volume", mesh, Rgba(*VOLUME_COLOUR))
-    obs = workcell_obstacles(workcell)
-    ground = ground_obstacles(workcell)
-    for i, (name, c, R, h) in enumerate(zip(obs.names, obs.centre, obs.R, obs.half)):
-        if name in ground:
-            continue
-        key = f"{prefix}/obstacles/{build.categories.of(name)}/{name}_{i}"
-        meshcat.SetObject(key, Box(*(2 * h)), Rgba(*CATEGORY_COLOURS[build.categories.of(name)]))
-        meshcat.SetTransform(key, RigidTransform(RotationMatrix(R), c))
-    if path is not None:
-        tool = np.array([workcell.tool_position(q) for q in path.waypoints]).T
-        meshcat.SetLine(f"{prefix}/nominal_tool_path", tool, 4.0, Rgba(0.9, 0.1, 0.1, 1.0))

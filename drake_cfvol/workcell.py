@@ -24,17 +24,31 @@ Every obstacle is a body outside the robot's model instance, welded to the
 world, with proximity geometry; the floor is one of them.
 """
 
-from __future__ import annotations
 
 import dataclasses
+import copy
 import functools
+import os
+import re
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.geometry import Role
+from pydrake.multibody.parsing import (
+    ModelDirective,
+    ModelDirectives,
+    Parser,
+    ProcessModelDirectives,
+)
+from pydrake.multibody.tree import BodyIndex, ModelInstanceIndex
+from pydrake.planning import RobotDiagramBuilder, SceneGraphCollisionChecker
 
 from drake_cfvol import _meshes
+from drake_cfvol.collision import Obstacles, RobotModel, robot_model, workcell_obstacles
 from drake_cfvol.exceptions import (
     CollisionError,
     DimensionError,
@@ -45,7 +59,8 @@ from drake_cfvol.exceptions import (
     WorkcellFormatError,
 )
 
-__all__ = ["Obstacle", "Workcell", "builtin_cells", "load_workcell", "models_dir"]
+__all__ = ["Obstacle", "Workcell", "WorkcellFile", "CfvolSection", "HeightMapExtent", "NamedConfiguration",
+           "builtin_cells", "load_workcell", "models_dir"]
 
 #: Distance between configurations at which Drake's edge checks sample (rad or
 #: m, Euclidean in joint space).
@@ -54,19 +69,19 @@ DEFAULT_EDGE_STEP = 0.01
 
 def models_dir() -> Path:
     """Returns the folder of the bundled models (holds ``package.xml``):
-    ``$DRAKE_CFVOL_MODELS`` if set, else ``models/`` beside the package (a
-    repository checkout or an editable install).
+    ``$DRAKE_CFVOL_MODELS`` if set, else the ``drake_cfvol.models`` package
+    data (the repository's ``models/``, shipped inside the wheel).
 
     Raises:
         WorkcellError: the folder is missing.
     """
-    import os
-
-    folder = Path(os.environ.get("DRAKE_CFVOL_MODELS") or Path(__file__).resolve().parent.parent / "models")
+    env = os.environ.get("DRAKE_CFVOL_MODELS")
+    folder = Path(env) if env else Path(str(resources.files("drake_cfvol.models")))
     if not (folder / "package.xml").is_file():
         raise WorkcellError(
-            f"drake_cfvol's models folder is missing ({folder}/package.xml not found). Install from a "
-            "checkout with `pip install -e .`, or point $DRAKE_CFVOL_MODELS at the repository's models/.")
+            f"drake_cfvol's models folder is missing ({folder}/package.xml not found). Reinstall the "
+            "package (`pip install drake-cfvol` or `pip install .` from a checkout), or point "
+            "$DRAKE_CFVOL_MODELS at a folder holding the models' package.xml.")
     return folder
 
 
@@ -90,53 +105,131 @@ class Obstacle:
     geometry_ids: tuple
 
 
-class _LineLoader(yaml.SafeLoader):
-    """A YAML loader that remembers the line of every mapping."""
+# -- the typed schema of a workcell file (yaml_load_typed) ------------------
+
+@dataclasses.dataclass
+class HeightMapExtent:
+    """The height map's extent on the floor.
+
+    Attributes:
+        origin: (x, y) of its corner, m.
+        size: (x_dim, y_dim), m.
+    """
+
+    origin: list[float] = dataclasses.field(default_factory=list)
+    size: list[float] = dataclasses.field(default_factory=list)
 
 
-def _construct_mapping(loader, node):
-    mapping = _Mapping(loader.construct_mapping(node, deep=True))
-    mapping.line = node.start_mark.line + 1
-    mapping.key_lines = {k.value: k.start_mark.line + 1 for k, _ in node.value if hasattr(k, "value")}
-    return mapping
+@dataclasses.dataclass
+class NamedConfiguration:
+    """A named start/goal pair, rad (m for prismatic joints)."""
+
+    start: list[float] = dataclasses.field(default_factory=list)
+    goal: list[float] = dataclasses.field(default_factory=list)
 
 
-class _Mapping(dict):
-    line: int | None = None
-    key_lines: dict = {}
+@dataclasses.dataclass
+class CfvolSection:
+    """The ``cfvol:`` section of a workcell file.
+
+    Attributes:
+        robot: the robot's model instance.
+        tool_frame: a frame of the robot (Jacobian, tool path).
+        base_frame: the reach is measured from here (default: the robot's root body).
+        rail_joint: a prismatic joint whose travel the reach follows, or None.
+        reach: the activation radius of the volume, m.
+        height_map: the height map's extent.
+        package_paths: package name -> folder (relative to the file).
+        joint_limits: joint -> [lower, upper] overrides, rad or m.
+        params: :class:`drake_cfvol.VolumeParams` overrides.
+        configurations: named start/goal pairs.
+    """
+
+    robot: str = ""
+    tool_frame: str = ""
+    base_frame: str | None = None
+    rail_joint: str | None = None
+    reach: float = 0.0
+    height_map: HeightMapExtent | None = None
+    package_paths: dict[str, str] = dataclasses.field(default_factory=dict)
+    joint_limits: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+    params: dict[str, float] = dataclasses.field(default_factory=dict)
+    configurations: dict[str, NamedConfiguration] = dataclasses.field(default_factory=dict)
 
 
-_LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+@dataclasses.dataclass
+class WorkcellFile:
+    """A workcell file: Drake model directives plus the ``cfvol:`` section
+    (loaded with ``yaml_load_typed``, as Drake's hardware_sim scenarios)."""
+
+    directives: list[ModelDirective] = dataclasses.field(default_factory=list)
+    cfvol: CfvolSection = dataclasses.field(default_factory=CfvolSection)
 
 
-def _read_yaml(path: Path) -> _Mapping:
+def _key_lines(text: str) -> dict[str, int]:
+    """First line (1-based) of every mapping key in a YAML text, by key and by
+    dotted path."""
+    out: dict[str, int] = {}
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return out
+
+    def walk(node, prefix):
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                name = str(k.value)
+                line = k.start_mark.line + 1
+                out.setdefault(name, line)
+                out.setdefault(prefix + name, line)
+                walk(v, prefix + name + ".")
+        elif isinstance(node, yaml.SequenceNode):
+            for item in node.value:
+                walk(item, prefix)
+
+    walk(root, "")
+    return out
+
+
+def read_workcell_file(path: Path) -> tuple[WorkcellFile, dict[str, int]]:
+    """Reads and type-checks a workcell file.
+
+    Returns:
+        (the typed file, key -> line)
+
+    Raises:
+        WorkcellFormatError: unreadable, not YAML, an unknown key (named, with
+            its line), or a value of the wrong type.
+    """
     try:
         text = path.read_text()
     except OSError as e:
         raise WorkcellFormatError(str(path), f"cannot read the file ({e.strerror}).") from e
     try:
-        data = yaml.load(text, Loader=_LineLoader)
+        data = yaml.safe_load(text)
     except yaml.MarkedYAMLError as e:
         mark = e.problem_mark or e.context_mark
         line = mark.line + 1 if mark is not None else None
         raise WorkcellFormatError(str(path), f"not valid YAML: {e.problem or e}. Fix the syntax there.", line) from e
     if not isinstance(data, dict):
         raise WorkcellFormatError(str(path), "expected a mapping with 'directives:' and 'cfvol:' at the top.", 1)
-    return data
-
-
-def _need(mapping: dict, key: str, path: Path, where: str, kind=None):
-    if key not in mapping or mapping[key] is None:
-        raise WorkcellFormatError(
-            str(path), f"'{where}' lacks the required key '{key}'.", getattr(mapping, "line", None)
-        )
-    value = mapping[key]
-    if kind is not None and not isinstance(value, kind):
-        line = getattr(mapping, "key_lines", {}).get(key, getattr(mapping, "line", None))
-        raise WorkcellFormatError(
-            str(path), f"'{where}.{key}' must be a {kind.__name__}, got {type(value).__name__}.", line
-        )
-    return value
+    lines = _key_lines(text)
+    for key in ("directives", "cfvol"):
+        if data.get(key) is None:
+            raise WorkcellFormatError(str(path), f"'(top level)' lacks the required key '{key}'.", 1)
+    try:
+        typed = yaml_load_typed(schema=WorkcellFile, data=text)
+    except Exception as e:  # Drake raises RuntimeError / ValueError / TypeError here.
+        msg = str(e)
+        unknown = re.search(r"fields \[([^\]]*)\] were unknown", msg)
+        if unknown:
+            names = [n.strip(" '\"") for n in unknown.group(1).split(",")]
+            line = lines.get(names[0])
+            raise WorkcellFormatError(
+                str(path), f"unknown key {', '.join(repr(n) for n in names)}: not part of a workcell file. "
+                "Check its spelling (see the drake_cfvol.workcell docstring for the keys).", line) from e
+        raise WorkcellFormatError(str(path), f"a value has the wrong type: {msg}. Fix it there.") from e
+    return typed, lines
 
 
 class Workcell:
@@ -176,49 +269,42 @@ class Workcell:
         self.path = path
         self.name = path.stem
         self.notes: list[str] = []
-        data = _read_yaml(path)
-        self._raw = data
-        directives = _need(data, "directives", path, "(top level)", list)
-        cf = _need(data, "cfvol", path, "(top level)", dict)
-        robot_name = _need(cf, "robot", path, "cfvol", str)
-        tool_name = _need(cf, "tool_frame", path, "cfvol", str)
-
-        from pydrake.multibody.parsing import (
-            LoadModelDirectivesFromString,
-            ProcessModelDirectives,
-        )
-        from pydrake.planning import RobotDiagramBuilder
+        spec, lines = read_workcell_file(path)
+        self.spec = spec
+        self._lines = lines
+        cf = spec.cfvol
+        for key in ("robot", "tool_frame"):
+            if not getattr(cf, key):
+                raise WorkcellFormatError(str(path), f"'cfvol' lacks the required key '{key}'.", lines.get("cfvol"))
+        if not spec.directives:
+            raise WorkcellFormatError(str(path), "'directives' is empty: add the robot and the obstacles.",
+                                      lines.get("directives"))
 
         builder = RobotDiagramBuilder(time_step=0.0)
         parser = builder.parser()
-        package_map = parser.package_map()
-        package_map.AddPackageXml(str(models_dir() / "package.xml"))
-        self._add_package_paths(cf.get("package_paths"), package_map, path, cf)
-        directives = self._prepare_directives(directives, package_map, path)
-        self._directives = directives
-        self._package_paths = cf.get("package_paths")
+        self._add_packages(parser.package_map())
+        self._directives = self._prepare_directives(spec.directives, parser.package_map())
         try:
-            model_directives = LoadModelDirectivesFromString(yaml.safe_dump({"directives": directives}))
-            ProcessModelDirectives(model_directives, builder.plant(), parser)
+            ProcessModelDirectives(ModelDirectives(directives=self._directives), builder.plant(), parser)
         except Exception as e:  # Drake raises RuntimeError / ValueError here.
             raise WorkcellFormatError(
-                str(path), f"Drake cannot load the model directives: {e}",
-                getattr(data, "key_lines", {}).get("directives"),
-            ) from e
+                str(path), f"Drake cannot load the model directives: {e}", lines.get("directives")) from e
         plant = builder.plant()
-        if not plant.HasModelInstanceNamed(robot_name):
-            names = self._instance_names(plant)
+        if not plant.HasModelInstanceNamed(cf.robot):
+            names = [plant.GetModelInstanceName(ModelInstanceIndex(i)) for i in range(plant.num_model_instances())]
             raise WorkcellFormatError(
-                str(path), f"cfvol.robot '{robot_name}' is not a model instance of the directives "
-                f"(there are: {', '.join(names)}).", cf.key_lines.get("robot"))
-        self.robot = plant.GetModelInstanceByName(robot_name)
-        self.robot_name = robot_name
+                str(path), f"cfvol.robot '{cf.robot}' is not a model instance of the directives "
+                f"(there are: {', '.join(names)}).", lines.get("robot"))
+        self.robot = plant.GetModelInstanceByName(cf.robot)
+        self.robot_name = cf.robot
         plant.Finalize()
         self.diagram = builder.Build()
         self.plant = self.diagram.plant()
         self.scene_graph = self.diagram.scene_graph()
         self._context = self.diagram.CreateDefaultContext()
         self._edge_step = float(edge_step)
+        self._geometry_cache: dict[float, RobotModel] = {}
+        self._obstacle_boxes: Obstacles | None = None
 
         plant = self.plant
         if plant.num_positions() != plant.num_positions(self.robot):
@@ -236,15 +322,15 @@ class Workcell:
         self.revolute = np.array([j.type_name() == "revolute" for j in joints])
         lower = plant.GetPositionLowerLimits().copy()
         upper = plant.GetPositionUpperLimits().copy()
-        for jname, lim in (cf.get("joint_limits") or {}).items():
+        for jname, lim in cf.joint_limits.items():
             if jname not in self.joint_names:
                 raise WorkcellFormatError(
                     str(path), f"cfvol.joint_limits names joint '{jname}', which the robot lacks "
-                    f"(joints: {', '.join(self.joint_names)}).", cf.key_lines.get("joint_limits"))
-            if not (isinstance(lim, list) and len(lim) == 2 and float(lim[0]) < float(lim[1])):
+                    f"(joints: {', '.join(self.joint_names)}).", lines.get(jname))
+            if not (len(lim) == 2 and float(lim[0]) < float(lim[1])):
                 raise WorkcellFormatError(
                     str(path), f"cfvol.joint_limits.{jname} must be [lower, upper] with lower < upper.",
-                    cf.key_lines.get("joint_limits"))
+                    lines.get(jname))
             i = self.joint_names.index(jname)
             lower[i], upper[i] = float(lim[0]), float(lim[1])
         self.position_lower = lower
@@ -252,51 +338,48 @@ class Workcell:
         self.velocity_limits = plant.GetVelocityUpperLimits().copy()
 
         try:
-            self.tool_frame = plant.GetFrameByName(tool_name, self.robot)
+            self.tool_frame = plant.GetFrameByName(cf.tool_frame, self.robot)
         except RuntimeError as e:
             raise WorkcellFormatError(
-                str(path), f"cfvol.tool_frame '{tool_name}' is not a frame of '{robot_name}'.",
-                cf.key_lines.get("tool_frame")) from e
-        base_name = cf.get("base_frame")
-        if base_name is None:
+                str(path), f"cfvol.tool_frame '{cf.tool_frame}' is not a frame of '{cf.robot}'.",
+                lines.get("tool_frame")) from e
+        if cf.base_frame is None:
             self.base_frame = self._robot_root(plant).body_frame()
         else:
             try:
-                self.base_frame = plant.GetFrameByName(base_name, self.robot)
+                self.base_frame = plant.GetFrameByName(cf.base_frame, self.robot)
             except RuntimeError as e:
                 raise WorkcellFormatError(
-                    str(path), f"cfvol.base_frame '{base_name}' is not a frame of '{robot_name}'.",
-                    cf.key_lines.get("base_frame")) from e
-        self.rail_joint = cf.get("rail_joint")
+                    str(path), f"cfvol.base_frame '{cf.base_frame}' is not a frame of '{cf.robot}'.",
+                    lines.get("base_frame")) from e
+        self.rail_joint = cf.rail_joint
         if self.rail_joint is not None and self.rail_joint not in self.joint_names:
             raise WorkcellFormatError(
-                str(path), f"cfvol.rail_joint '{self.rail_joint}' is not a joint of the robot.",
-                cf.key_lines.get("rail_joint"))
-        self.reach = float(cf.get("reach", 0.0) or 0.0)
-        hm = cf.get("height_map") or {}
-        self.height_map_origin = np.asarray(hm.get("origin", [np.nan, np.nan]), float)
-        self.height_map_size = np.asarray(hm.get("size", [np.nan, np.nan]), float)
-        self.params = dict(cf.get("params") or {})
+                str(path), f"cfvol.rail_joint '{self.rail_joint}' is not a joint of the robot "
+                f"(joints: {', '.join(self.joint_names)}).", lines.get("rail_joint"))
+        self.reach = float(cf.reach or 0.0)
+        hm = cf.height_map
+        self.height_map_origin = np.asarray(hm.origin if hm and hm.origin else [np.nan, np.nan], float)
+        self.height_map_size = np.asarray(hm.size if hm and hm.size else [np.nan, np.nan], float)
+        for label, v in (("origin", self.height_map_origin), ("size", self.height_map_size)):
+            if v.shape != (2,):
+                raise WorkcellFormatError(str(path), f"cfvol.height_map.{label} must be [x, y] (m), got "
+                                          f"{v.size} values.", lines.get("height_map"))
+        self.params = dict(cf.params)
         self.configurations: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        for cname, pair in (cf.get("configurations") or {}).items():
-            start = np.asarray(_need(pair, "start", path, f"cfvol.configurations.{cname}", list), float)
-            goal = np.asarray(_need(pair, "goal", path, f"cfvol.configurations.{cname}", list), float)
+        for cname, pair in cf.configurations.items():
+            start, goal = np.asarray(pair.start, float), np.asarray(pair.goal, float)
             for label, q in (("start", start), ("goal", goal)):
                 if q.shape != (self.num_joints,):
                     raise WorkcellFormatError(
                         str(path), f"cfvol.configurations.{cname}.{label} has {q.size} values; the robot "
                         f"has {self.num_joints} joints ({', '.join(self.joint_names)}).",
-                        pair.key_lines.get(label))
+                        lines.get(f"cfvol.configurations.{cname}.{label}", lines.get(cname)))
             self.configurations[str(cname)] = (start, goal)
         self.obstacles = self._find_obstacles()
+        self._geometry_owner = {gid: obs.name for obs in self.obstacles.values() for gid in obs.geometry_ids}
 
     # -- loading helpers -------------------------------------------------
-
-    @staticmethod
-    def _instance_names(plant) -> list[str]:
-        from pydrake.multibody.tree import ModelInstanceIndex
-
-        return [plant.GetModelInstanceName(ModelInstanceIndex(i)) for i in range(plant.num_model_instances())]
 
     def _robot_root(self, plant):
         bodies = [plant.get_body(b) for b in plant.GetBodyIndices(self.robot)]
@@ -307,47 +390,36 @@ class Workcell:
                 return b
         return bodies[0]
 
-    def _add_package_paths(self, spec, package_map, path: Path, cf) -> None:
-        if spec is None:
-            return
-        base = path.parent
-        if isinstance(spec, dict):
-            for pname, ppath in spec.items():
-                folder = (base / str(ppath)).resolve()
-                if not folder.is_dir():
-                    raise WorkcellFormatError(
-                        str(path), f"cfvol.package_paths.{pname}: folder '{folder}' does not exist.",
-                        cf.key_lines.get("package_paths"))
-                package_map.Add(str(pname), str(folder))
-        elif isinstance(spec, list):
-            for ppath in spec:
-                folder = (base / str(ppath)).resolve()
-                if not folder.is_dir():
-                    raise WorkcellFormatError(
-                        str(path), f"cfvol.package_paths: folder '{folder}' does not exist.",
-                        cf.key_lines.get("package_paths"))
-                package_map.PopulateFromFolder(str(folder))
-        else:
-            raise WorkcellFormatError(
-                str(path), "cfvol.package_paths must map package names to folders, or list folders "
-                "to search for package.xml files.", cf.key_lines.get("package_paths"))
+    def _add_packages(self, package_map) -> None:
+        """The bundled models' package, then the file's ``package_paths``."""
+        package_map.AddPackageXml(str(models_dir() / "package.xml"))
+        for pname, ppath in self.spec.cfvol.package_paths.items():
+            folder = (self.path.parent / str(ppath)).resolve()
+            if not folder.is_dir():
+                raise WorkcellFormatError(
+                    str(self.path), f"cfvol.package_paths.{pname}: folder '{folder}' does not exist.",
+                    self._lines.get(pname, self._lines.get("package_paths")))
+            if package_map.Contains(str(pname)):
+                package_map.Remove(str(pname))
+            package_map.Add(str(pname), str(folder))
 
-    def _prepare_directives(self, directives: list, package_map, path: Path) -> list:
+    def _prepare_directives(self, directives: list, package_map) -> list:
         """Resolves relative model files and converts STL meshes (Drake 1.51
-        refuses STL collision meshes)."""
+        refuses STL collision meshes); the typed directives are copied, not
+        changed."""
         out = []
+        path = self.path
         for d in directives:
-            d = dict(d) if isinstance(d, dict) else d
-            if isinstance(d, dict) and isinstance(d.get("add_model"), dict):
-                am = dict(d["add_model"])
-                url = str(am.get("file", ""))
+            d = copy.deepcopy(d)
+            if d.add_model is not None:
+                url = str(d.add_model.file)
                 if url.startswith("package://"):
                     try:
                         resolved = Path(package_map.ResolveUrl(url))
                     except Exception as e:
                         raise WorkcellFormatError(
-                            str(path), f"cannot resolve '{url}': {e}. Name the package's folder in "
-                            "cfvol.package_paths.", getattr(d, "line", None)) from e
+                            str(path), f"cannot resolve '{url}': {e} Name the package's folder in "
+                            "cfvol.package_paths.", self._lines.get("directives")) from e
                 elif url.startswith("file://"):
                     resolved = Path(url[len("file://"):])
                 else:
@@ -355,18 +427,14 @@ class Workcell:
                 if not resolved.is_file():
                     raise WorkcellFormatError(
                         str(path), f"model file '{url}' not found (looked at {resolved}).",
-                        getattr(d, "line", None))
+                        self._lines.get("directives"))
                 converted, notes = _meshes.convert_stl_references(resolved, package_map)
                 self.notes.extend(notes)
-                am["file"] = "file://" + str(converted)
-                d = {"add_model": am}
-            out.append(_plain(d))
+                d.add_model.file = "file://" + str(converted)
+            out.append(d)
         return out
 
     def _find_obstacles(self) -> dict[str, Obstacle]:
-        from pydrake.geometry import Role
-        from pydrake.multibody.tree import BodyIndex
-
         plant = self.plant
         inspector = self.scene_graph.model_inspector()
         found: list[tuple[str, str, Any, tuple]] = []
@@ -400,13 +468,9 @@ class Workcell:
         Returns:
             The robot's model instance in that plant.
         """
-        from pydrake.multibody.parsing import LoadModelDirectivesFromString, Parser, ProcessModelDirectives
-
         parser = parser or Parser(plant)
-        parser.package_map().AddPackageXml(str(models_dir() / "package.xml"))
-        self._add_package_paths(self._package_paths, parser.package_map(), self.path, self._raw["cfvol"])
-        ProcessModelDirectives(LoadModelDirectivesFromString(yaml.safe_dump({"directives": self._directives})),
-                               plant, parser)
+        self._add_packages(parser.package_map())
+        ProcessModelDirectives(ModelDirectives(directives=self._directives), plant, parser)
         return plant.GetModelInstanceByName(self.robot_name)
 
     def build_scene(self, add_geometry=None, *, time_step: float = 0.0):
@@ -420,8 +484,6 @@ class Workcell:
         Returns:
             (robot diagram, robot model instance)
         """
-        from pydrake.planning import RobotDiagramBuilder
-
         builder = RobotDiagramBuilder(time_step=time_step)
         self.add_to_plant(builder.plant(), builder.parser())
         if add_geometry is not None:
@@ -429,6 +491,39 @@ class Workcell:
         builder.plant().Finalize()
         diagram = builder.Build()
         return diagram, diagram.plant().GetModelInstanceByName(self.robot_name)
+
+    # -- cached models of the scene ----------------------------------------
+
+    def robot_geometry(self, tol: float = 0.06) -> RobotModel:
+        """The robot's geometry for the fast checks
+        (:func:`drake_cfvol.collision.robot_model`), built once per ``tol``."""
+        key = float(tol)
+        if key not in self._geometry_cache:
+            self._geometry_cache[key] = robot_model(self, key)
+        return self._geometry_cache[key]
+
+    def obstacle_boxes(self) -> Obstacles:
+        """The obstacles as oriented boxes
+        (:func:`drake_cfvol.collision.workcell_obstacles`), built once."""
+        if self._obstacle_boxes is None:
+            self._obstacle_boxes = workcell_obstacles(self)
+        return self._obstacle_boxes
+
+    def obstacle_distances(self, q, max_distance: float) -> dict[str, float]:
+        """Smallest signed distance per obstacle to the robot at ``q`` (real
+        geometry, Drake), for the obstacles within ``max_distance``, m."""
+        self.plant_context(q)
+        sg = self.scene_graph
+        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
+        owner = self._geometry_owner
+        out: dict[str, float] = {}
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=max_distance):
+            a, b = owner.get(pair.id_A), owner.get(pair.id_B)
+            if (a is None) == (b is None):
+                continue  # robot-robot or obstacle-obstacle
+            name = a if a is not None else b
+            out[name] = min(out.get(name, np.inf), pair.distance)
+        return out
 
     # -- queries ---------------------------------------------------------
 
@@ -453,8 +548,6 @@ class Workcell:
     def checker(self):
         """A Drake ``SceneGraphCollisionChecker`` of the real scene (obstacles
         + self-collision, adjacent links filtered)."""
-        from pydrake.planning import SceneGraphCollisionChecker
-
         return SceneGraphCollisionChecker(
             model=self.diagram, robot_model_instances=[self.robot],
             edge_step_size=self._edge_step, env_collision_padding=0.0, self_collision_padding=0.0)
@@ -527,15 +620,6 @@ class Workcell:
     def __repr__(self) -> str:
         return (f"Workcell(name={self.name!r}, robot={self.robot_name!r}, k={self.num_joints}, "
                 f"obstacles={list(self.obstacles)})")
-
-
-def _plain(obj):
-    """Turns loader mappings back into plain dicts (for yaml.safe_dump)."""
-    if isinstance(obj, dict):
-        return {k: _plain(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_plain(v) for v in obj]
-    return obj
 
 
 def load_workcell(name_or_path: str | Path, **kwargs) -> Workcell:

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.bounds import BoundsTable, estimate_bounds, interpolate_bounds
+from drake_cfvol.pipeline import estimate_bounds
+from drake_cfvol.table import BoundsTable, box_at
 from conftest import write_arm_cell
 
 L, W, Z = 1.0, 0.05, 0.5  # link length, half width, height of the arm
@@ -103,17 +104,17 @@ def test_interpolation_between_waypoints():
     lower = np.array([[-1.0, 0.0], [-0.5, 0.2]])
     upper = np.array([[1.0, 1.0], [2.0, 0.4]])
     nominal = np.array([[0.0, 0.5], [0.0, 0.3]])
-    lo, hi, nom = interpolate_bounds(0.0, lower, upper, nominal)
+    lo, hi, nom = box_at(lower, upper, nominal, 0.0)
     assert lo.tolist() == [-1.0, 0.0] and hi.tolist() == [1.0, 1.0]
-    lo, hi, nom = interpolate_bounds(0.5, lower, upper, nominal)
+    lo, hi, nom = box_at(lower, upper, nominal, 0.5)
     np.testing.assert_allclose(nom, [0.0, 0.4])
     np.testing.assert_allclose(lo, [-0.5, 0.2])
     # min(1.0, 0.4) = 0.4 already holds the nominal 0.4.
     np.testing.assert_allclose(hi, [1.0, 0.4])
-    lo, hi, nom = interpolate_bounds(1.0, lower, upper, nominal)
+    lo, hi, nom = box_at(lower, upper, nominal, 1.0)
     assert lo.tolist() == [-0.5, 0.2]
     with pytest.raises(cf.ParameterError, match="outside"):
-        interpolate_bounds(1.5, lower, upper, nominal)
+        box_at(lower, upper, nominal, 1.5)
 
 
 def test_interpolation_widens_to_nominal():
@@ -121,7 +122,7 @@ def test_interpolation_widens_to_nominal():
     lower = np.array([[0.0], [0.9]])
     upper = np.array([[0.1], [1.0]])
     nominal = np.array([[0.0], [1.0]])
-    lo, hi, nom = interpolate_bounds(0.5, lower, upper, nominal)
+    lo, hi, nom = box_at(lower, upper, nominal, 0.5)
     assert lo[0] <= nom[0] <= hi[0] and nom[0] == 0.5
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from drake_cfvol.collision import SceneTester, obb_overlap, robot_model, workcell_obstacles
+from drake_cfvol.collision import SceneTester, obb_overlap
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.reference import ReferenceScene
 from drake_cfvol.volume import build_volume
@@ -40,8 +40,8 @@ def test_obstacles_and_self_never_missed(cell, request):
     """On 2000 random configurations, the fast test reports every collision
     Drake reports (obstacles + self); the conservative rate is small."""
     wc = request.getfixturevalue(cell)
-    model = robot_model(wc)
-    tester = SceneTester(model, workcell_obstacles(wc))
+    model = wc.robot_geometry()
+    tester = SceneTester(model, wc.obstacle_boxes())
     Q = np.random.default_rng(3).uniform(wc.position_lower, wc.position_upper, (2000, wc.num_joints))
     R, p = model.batch_poses(wc, Q)
     fast = tester.hits(R, p, np.zeros(R.shape[:2]), model.moved_by.any(axis=0))
@@ -65,7 +65,7 @@ def test_volume_check_never_reports_free_where_drake_collides(automotive):
     span = table.upper[idx] - table.lower[idx]
     Q = table.lower[idx] - 0.15 * span + rng.random((2500, wc.num_joints)) * 1.3 * span
     Q = np.clip(Q, wc.position_lower, wc.position_upper)
-    model = robot_model(wc)
+    model = wc.robot_geometry()
     R, p = model.batch_poses(wc, Q)
     fast = SceneTester(model, None, vol).hits(R, p, np.zeros(R.shape[:2]), model.moved_by.any(axis=0),
                                               self_collision=False)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.bounds import BoundsTable
+from drake_cfvol.table import BoundsTable
 from conftest import write_arm_cell
 
 L, W, Z, D = 1.0, 0.05, 0.5, 0.6

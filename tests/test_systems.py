@@ -6,7 +6,7 @@ from hypothesis import given, settings, strategies as st
 from pydrake.systems.analysis import Simulator
 
 import drake_cfvol as cf
-from drake_cfvol.bounds import BoundsTable
+from drake_cfvol.table import BoundsTable
 from drake_cfvol.systems import AdmittanceDeformation, JointBoundsSource, PathProgress, Push, ScriptedHuman
 
 

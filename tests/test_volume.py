@@ -85,7 +85,7 @@ def test_volume_mesh_and_meshcat_view(automotive):
     bounding box is the columns'; show_volume draws it with the obstacles."""
     from pydrake.geometry import Meshcat, MeshcatParams
 
-    from drake_cfvol.volume import show_volume, volume_mesh
+    from drake_cfvol.viz import show_volume, volume_mesh
 
     path = cf.plan_nominal_path(automotive, *automotive.configuration("path1"), seed=0)
     vb = build_volume(automotive, path, VolumeParams.for_workcell(automotive, resolution=300))

@@ -1,0 +1,1 @@
+"""drake_cfvol's bundled co-manipulation scenarios."""

@@ -1,0 +1,93 @@
+"""The orchestrator: the paper's Algorithm 1 from a planned path to a bounds
+table (docs/spec.md, section 1).
+
+categorize -> grow the volume V -> bound every joint at every waypoint
+(fast backend or the Drake reference) -> optionally certify whole boxes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+from drake_cfvol.certify import Certify, certify_bounds
+from drake_cfvol.collision import SceneTester
+from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.params import VolumeParams
+from drake_cfvol.planning import NominalPath
+from drake_cfvol.reference import drake_sweep_bounds
+from drake_cfvol.sweep import sweep_bounds
+from drake_cfvol.table import BoundsTable, absolute_bounds
+from drake_cfvol.volume import build_volume, categorize
+
+__all__ = ["estimate_bounds", "BACKENDS"]
+
+#: The joint-bounding backends.
+BACKENDS = ("fast", "drake")
+
+
+def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = None, *,
+                    backend: str = "fast", certify: Certify | None = None, **overrides) -> BoundsTable:
+    """Algorithm 1: categorize, grow the volume, bound every joint at every
+    waypoint.
+
+    Args:
+        workcell: the workcell.
+        path: a nominal path of this workcell's robot.
+        params: the parameters (default: the workcell's, see
+            :meth:`VolumeParams.for_workcell`); ``overrides`` replace fields.
+        backend: ``"fast"`` (primitives + height-field queries, any R) or
+            ``"drake"`` (one SceneGraph box per column and Drake's checker;
+            the reference, practical up to R ~ 1000-2000).
+        certify: a :class:`drake_cfvol.Certify` to shrink the boxes until
+            every stretch holds a sampled safety certificate (beyond the
+            paper); its report is in ``info["certificate"]`` and its time in
+            ``timing_ms["certify"]`` (not part of the paper's ``total``).
+
+    Returns:
+        The bounds table, its ``volume`` field set; ``timing_ms["total"]`` is
+        the paper's "time to compute the boundaries" (categorization +
+        volume + bounding).
+    """
+    if params is None:
+        params = VolumeParams.for_workcell(workcell, **overrides)
+    elif overrides:
+        params = params.replace(**overrides)
+    if not isinstance(path, NominalPath):
+        raise ParameterError(f"path must be a NominalPath, got {type(path).__name__}.")
+    if path.k != workcell.num_joints:
+        raise DimensionError("the path's configurations", workcell.num_joints, path.k,
+                             f"The workcell's robot has joints {', '.join(workcell.joint_names)}.")
+    if backend not in BACKENDS:
+        raise ParameterError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {backend!r}.")
+    if certify is not None and not isinstance(certify, Certify):
+        raise ParameterError(f"certify must be a drake_cfvol.Certify or None, got {type(certify).__name__}.")
+    t0 = time.perf_counter()
+    model = workcell.robot_geometry(params.sphere_tolerance)
+    cats = categorize(workcell, path, params)
+    t1 = time.perf_counter()
+    vb = build_volume(workcell, path, params, model=model, categories=cats)
+    t2 = time.perf_counter()
+    if backend == "fast":
+        tester = SceneTester(model, workcell.obstacle_boxes(), vb.volume)
+        lower, upper, stats = sweep_bounds(workcell, path.waypoints, tester, params)
+    else:
+        lower, upper, stats = drake_sweep_bounds(workcell, path.waypoints, vb.volume, params)
+    t3 = time.perf_counter()
+    lim_lo, lim_hi = absolute_bounds(workcell.position_lower, workcell.position_upper, path.waypoints[0])
+    info = {"cell": workcell.name, "path": path.label, "seed": path.seed, "backend": backend,
+            "resolution": params.resolution, "n_boxes": vb.volume.n_boxes,
+            "lowered_columns": vb.volume.lowered, "dropped_columns": vb.volume.dropped,
+            "categories": {"trail": cats.trail, "goal": cats.goal, "no_goal": cats.no_goal},
+            "cell_side_m": vb.volume.heightmap.side, "grid": list(vb.volume.heightmap.shape), **stats}
+    timing = {"categorize": (t1 - t0) * 1e3, "volume": (t2 - t1) * 1e3, "bounding": (t3 - t2) * 1e3,
+              "total": (t3 - t0) * 1e3}
+    table = BoundsTable(lower, upper, path.waypoints.copy(), list(workcell.joint_names), lim_lo, lim_hi,
+                        params.to_dict(), timing, info, volume=vb)
+    if certify is not None:
+        info["uncertified_lower"], info["uncertified_upper"] = lower, upper
+        c_lower, c_upper, report = certify_bounds(workcell, table, certify)
+        table = dataclasses.replace(table, lower=c_lower, upper=c_upper)
+        table.info["certificate"] = report.to_dict()
+        table.timing_ms["certify"] = report.time_ms
+    return table

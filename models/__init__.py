@@ -1,0 +1,1 @@
+"""drake_cfvol's bundled robot and cell models (a ROS-style package, see package.xml)."""
