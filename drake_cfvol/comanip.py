@@ -267,6 +267,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         params = VolumeParams(**bounds.params)
         nominal = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.seed)
         vb = build_volume(wc, nominal, params)
+        bounds = dataclasses.replace(bounds, volume=vb)
     k, g = wc.num_joints, path.g
 
     builder = DiagramBuilder()

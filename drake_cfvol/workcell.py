@@ -22,11 +22,17 @@ and the obstacles, and a ``cfvol:`` section::
 
 Every obstacle is a body outside the robot's model instance, welded to the
 world, with proximity geometry; the floor is one of them.
+
+The file is read with pydrake's ``yaml_load_typed`` into
+:class:`WorkcellFile` (``directives: list[ModelDirective]`` and
+:class:`CfvolSection`), as Drake's hardware_sim reads its scenarios: a key
+that is not part of the schema, anywhere, is an error that names the key and
+its line.
 """
 
 
-import dataclasses
 import copy
+import dataclasses
 import functools
 import os
 import re

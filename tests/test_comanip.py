@@ -89,6 +89,26 @@ def test_diagram_ports_named():
     assert {"path_index", "lower", "upper", "nominal", "commanded_position", "min_distance"} <= names
 
 
+def test_table_loaded_from_disk_builds_a_diagram(tmp_path):
+    """A bounds table saved and loaded again (no volume kept) still builds a
+    co-manipulation diagram: its volume is grown again, with the same columns."""
+    from pydrake.systems.analysis import Simulator
+
+    scenario, file = load_scenario("automotive_push")
+    wc = cf.load_workcell(scenario.cell)
+    path = cf.plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed)
+    table = cf.estimate_bounds(wc, path, resolution=scenario.resolution)
+    loaded = cf.BoundsTable.load(table.save(tmp_path / "b.npz"))
+    assert loaded.volume is None
+    cm = build_comanipulation_diagram(scenario, base_dir=file.parent, path=path, bounds=loaded)
+    assert cm.bounds.volume.volume.n_boxes == table.volume.volume.n_boxes
+    np.testing.assert_array_equal(cm.bounds.volume.volume.heights, table.volume.volume.heights)
+    sim = Simulator(cm.diagram)
+    sim.AdvanceTo(0.2)
+    q = cm.diagram.GetOutputPort("commanded_position").Eval(sim.get_context())
+    np.testing.assert_allclose(q, path.waypoints[0])  # before start_time the robot holds the start
+
+
 def test_unknown_scenario():
     """An unknown scenario lists the bundled ones."""
     with pytest.raises(cf.CfvolError, match="automotive_push"):

@@ -105,3 +105,45 @@ def test_collision_names_bodies(automotive):
     with pytest.raises(cf.CollisionError) as e:
         automotive.require_free(q, "The start configuration")
     assert any("floor" in p or "cabinet" in p for pair in e.value.pairs for p in pair)
+
+
+@pytest.mark.parametrize("key, anchor", [
+    ("rail_jiont: rail", "  reach: 3.0\n"),          # a misspelled optional key in cfvol
+    ("flie: x.urdf", "    name: toy\n"),            # inside a model directive
+    ("orgin: [0, 0]", "    origin:\n"),             # inside the height map
+])
+def test_misspelled_key_is_rejected_with_its_name_and_line(tmp_path, key, anchor):
+    """An unknown key anywhere in a workcell file is an error naming the key
+    and the line it is on (it used to load silently, e.g. as a cell without a rail)."""
+    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+                          obstacles={})
+    text = path.read_text()
+    assert anchor in text
+    indent = anchor[: len(anchor) - len(anchor.lstrip())]
+    text = text.replace(anchor, indent + key + "\n" + anchor, 1)
+    path.write_text(text)
+    bad_line = text.splitlines().index(indent + key) + 1
+    name = key.split(":")[0]
+    with pytest.raises(cf.WorkcellFormatError, match=f"unknown key '{name}'") as e:
+        cf.load_workcell(path)
+    assert e.value.line == bad_line and path.name in str(e.value)
+
+
+def test_wrong_value_type_is_rejected(tmp_path):
+    """A value of the wrong type (text for the reach) is a format error, not a crash."""
+    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+                          obstacles={})
+    path.write_text(path.read_text().replace("reach: 3.0", "reach: far"))
+    with pytest.raises(cf.WorkcellFormatError, match="far"):
+        cf.load_workcell(path)
+
+
+def test_typed_file_is_kept_and_not_changed_by_loading(tmp_path, monkeypatch):
+    """The typed file is kept on the workcell; STL conversion rewrites a copy
+    of the directives, never the user's own entries."""
+    monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path / "cache"))
+    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+                          obstacles={}, mesh_links=True)
+    wc = cf.load_workcell(path)
+    assert wc.spec.directives[0].add_model.file == "package://toy_description/urdf/toy.urdf"
+    assert wc.spec.cfvol.robot == "toy" and wc.spec.cfvol.reach == 3.0
