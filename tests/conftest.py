@@ -24,6 +24,38 @@ def aerospace():
     return cf.load_workcell("aerospace")
 
 
+@pytest.fixture(scope="session")
+def planned(automotive, aerospace):
+    """planned(cell, label, seed) -> NominalPath, planned once per session
+    (planning is deterministic per seed, so sharing changes nothing)."""
+    cells = {"automotive": automotive, "aerospace": aerospace}
+    cache: dict = {}
+
+    def get(cell: str, label: str = "path1", seed: int = 0):
+        key = (cell, label, seed)
+        if key not in cache:
+            wc = cells[cell]
+            cache[key] = cf.plan_nominal_path(wc, *wc.configuration(label), seed=seed, label=label)
+        return cache[key]
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def bounded(automotive, aerospace, planned):
+    """bounded(cell, label, resolution) -> BoundsTable (seed 0), once per session."""
+    cells = {"automotive": automotive, "aerospace": aerospace}
+    cache: dict = {}
+
+    def get(cell: str, label: str = "path1", resolution: int = 1000):
+        key = (cell, label, resolution)
+        if key not in cache:
+            cache[key] = cf.estimate_bounds(cells[cell], planned(cell, label), resolution=resolution)
+        return cache[key]
+
+    return get
+
+
 def box_stl_bytes(size, centre=(0, 0, 0)) -> bytes:
     """A binary STL of an axis-aligned box."""
     sx, sy, sz = (s / 2 for s in size)

@@ -126,9 +126,9 @@ def test_interpolation_widens_to_nominal():
     assert lo[0] <= nom[0] <= hi[0] and nom[0] == 0.5
 
 
-def test_wrong_dof_path(automotive, aerospace):
+def test_wrong_dof_path(automotive, aerospace, planned):
     """A path of the wrong DoF is refused with the expected size."""
-    path = cf.plan_nominal_path(automotive, *automotive.configuration("path1"), seed=0)
+    path = planned("automotive")
     with pytest.raises(cf.DimensionError, match="expected 7"):
         estimate_bounds(aerospace, path)
 

@@ -51,13 +51,13 @@ def test_obstacles_and_self_never_missed(cell, request):
     assert (fast & ~drake).sum() / len(Q) < 0.05
 
 
-def test_volume_check_never_reports_free_where_drake_collides(automotive):
+def test_volume_check_never_reports_free_where_drake_collides(automotive, bounded):
     """Thousands of configurations near the volume's surface (uniform in and
     just past the per-joint bounds): where Drake finds the robot touching a
     column, the fast check reports it too. Conservative rate printed."""
     wc = automotive
-    path = cf.plan_nominal_path(wc, *wc.configuration("path1"), seed=0)
-    table = cf.estimate_bounds(wc, path, resolution=1000)
+    table = bounded("automotive", "path1", 1000)
+    path = cf.NominalPath(table.nominal, table.joint_names)
     vol = table.volume.volume
     scene = ReferenceScene(wc, vol)
     rng = np.random.default_rng(7)

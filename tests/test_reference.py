@@ -27,9 +27,9 @@ def test_fast_bounds_inside_reference_bounds(tmp_path):
     assert ref.info["drake_checks"] > 0
 
 
-def test_reference_refuses_huge_volumes(automotive):
+def test_reference_refuses_huge_volumes(automotive, planned):
     """Beyond its practical size the reference says so instead of stalling."""
-    path = cf.plan_nominal_path(automotive, *automotive.configuration("path1"), seed=0)
+    path = planned("automotive")
     table = cf.estimate_bounds(automotive, path, resolution=20000)
     assert table.volume.volume.n_boxes > MAX_REFERENCE_BOXES
     with pytest.raises(cf.ParameterError, match="backend='fast'"):

@@ -34,11 +34,11 @@ def test_categorization_of_a_hand_made_scene(tmp_path):
 
 @pytest.mark.parametrize("cell", ["automotive", "aerospace"])
 @pytest.mark.parametrize("resolution", [100, 1000])
-def test_nominal_free_of_volume_per_drake(cell, resolution, request):
+def test_nominal_free_of_volume_per_drake(cell, resolution, request, planned):
     """The robot at every nominal waypoint is free of V, checked by Drake with
     the real geometry against one SceneGraph box per column."""
     wc = request.getfixturevalue(cell)
-    path = cf.plan_nominal_path(wc, *wc.configuration("path1"), seed=0)
+    path = planned(cell)
     vb = build_volume(wc, path, VolumeParams.for_workcell(wc, resolution=resolution))
     assert vb.volume.n_boxes > 0
     scene = ReferenceScene(wc, vb.volume)
@@ -67,10 +67,10 @@ def test_coarse_columns_are_lowered(tmp_path):
     assert table.info["lowered_columns"] + table.info["dropped_columns"] >= 1
 
 
-def test_volume_is_numpy_over_cells(automotive):
+def test_volume_is_numpy_over_cells(automotive, planned):
     """The volume's arrays have the height map's shape at R = 20000 and the
     columns are side x side x h boxes on the floor."""
-    path = cf.plan_nominal_path(automotive, *automotive.configuration("path1"), seed=0)
+    path = planned("automotive")
     vb = build_volume(automotive, path, VolumeParams.for_workcell(automotive, resolution=20000))
     hm = vb.volume.heightmap
     assert vb.volume.heights.shape == (hm.m, hm.n) and hm.m * hm.n <= 20000
@@ -80,14 +80,14 @@ def test_volume_is_numpy_over_cells(automotive):
     assert len(centres) == vb.volume.n_boxes
 
 
-def test_volume_mesh_and_meshcat_view(automotive):
+def test_volume_mesh_and_meshcat_view(automotive, planned):
     """The volume as one mesh has 12 triangles and 8 vertices per column, its
     bounding box is the columns'; show_volume draws it with the obstacles."""
     from pydrake.geometry import Meshcat, MeshcatParams
 
     from drake_cfvol.viz import show_volume, volume_mesh
 
-    path = cf.plan_nominal_path(automotive, *automotive.configuration("path1"), seed=0)
+    path = planned("automotive")
     vb = build_volume(automotive, path, VolumeParams.for_workcell(automotive, resolution=300))
     mesh = volume_mesh(vb.volume)
     n = vb.volume.n_boxes
