@@ -21,6 +21,8 @@ Layers (each module imports only from the layers below it; a test checks):
 6. front ends: ``demo``, ``bench``, ``cli``.
 """
 
+from drake_cfvol._version import __version__
+from drake_cfvol.certify import Certify
 from drake_cfvol.exceptions import (
     CfvolError,
     CollisionError,
@@ -35,8 +37,6 @@ from drake_cfvol.exceptions import (
     WorkcellError,
     WorkcellFormatError,
 )
-from drake_cfvol._version import __version__
-from drake_cfvol.certify import Certify
 from drake_cfvol.metrics import CFResult, Freedom, confidence_factor, freedom
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.pipeline import estimate_bounds

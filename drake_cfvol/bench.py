@@ -11,7 +11,6 @@ the machine description.
 """
 
 import csv
-from importlib.metadata import version
 import dataclasses
 import json
 import os
@@ -19,6 +18,7 @@ import platform
 import subprocess
 import sys
 import time
+from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np

@@ -56,8 +56,8 @@ def cmd_plan(args) -> int:
 
 
 def cmd_bounds(args) -> int:
-    from drake_cfvol.pipeline import estimate_bounds
     from drake_cfvol.metrics import confidence_factor, freedom
+    from drake_cfvol.pipeline import estimate_bounds
     from drake_cfvol.planning import plan_nominal_path
     from drake_cfvol.workcell import load_workcell
 

@@ -23,7 +23,16 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Role, Sphere
+from pydrake.geometry import (
+    Box,
+    Capsule,
+    Convex,
+    Cylinder,
+    Ellipsoid,
+    Mesh,
+    Role,
+    Sphere,
+)
 
 from drake_cfvol.exceptions import WorkcellError
 

@@ -52,9 +52,6 @@ from drake_cfvol.planning import NominalPath, plan_nominal_path
 from drake_cfvol.plotting import _pyplot
 from drake_cfvol.reference import register_volume_boxes
 from drake_cfvol.style import CATEGORY_COLOURS, FLOOR_COLOUR, VOLUME_COLOUR
-from drake_cfvol.viz import show_tool_path
-from drake_cfvol.volume import build_volume
-from drake_cfvol.workcell import builtin_cells, load_workcell
 from drake_cfvol.systems import (
     AdmittanceDeformation,
     ClearanceMonitor,
@@ -63,6 +60,9 @@ from drake_cfvol.systems import (
     Push,
     ScriptedHuman,
 )
+from drake_cfvol.viz import show_tool_path
+from drake_cfvol.volume import build_volume
+from drake_cfvol.workcell import builtin_cells, load_workcell
 
 __all__ = ["AdmittanceGains", "RandomPushes", "Scenario", "load_scenario", "Comanipulation",
            "build_comanipulation_diagram", "run_scenario", "CATEGORY_COLOURS", "diagrams_dir"]

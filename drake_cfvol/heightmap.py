@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.params import VolumeParams
@@ -148,8 +149,6 @@ class FootprintRaster:
     def distance(self, mask: np.ndarray) -> np.ndarray:
         """Distance from each pixel centre to the nearest marked pixel, m (0
         on marked pixels, +inf if none is marked)."""
-        from scipy.ndimage import distance_transform_edt
-
         if not mask.any():
             return np.full(self.shape, np.inf)
         return distance_transform_edt(~mask, sampling=self.pixel)

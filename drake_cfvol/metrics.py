@@ -6,8 +6,8 @@ import dataclasses
 
 import numpy as np
 
-from drake_cfvol.table import BoundsTable
 from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.table import BoundsTable
 
 __all__ = ["CFResult", "Freedom", "confidence_factor", "freedom", "sample_boxes"]
 

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from pydrake.multibody.tree import JacobianWrtVariable
 
 from drake_cfvol import _ompl
 from drake_cfvol._records import load_record, save_record
@@ -122,8 +123,6 @@ def densify(vertices: np.ndarray, max_step: float) -> np.ndarray:
 
 def min_singular_value(workcell: Workcell, q: np.ndarray) -> float:
     """Smallest singular value of the tool frame's spatial Jacobian at q."""
-    from pydrake.multibody.tree import JacobianWrtVariable
-
     plant = workcell.plant
     ctx = workcell.plant_context(q)
     J = plant.CalcJacobianSpatialVelocity(

@@ -11,11 +11,15 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from pydrake.geometry import Box
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import CoulombFriction
+from pydrake.planning import SceneGraphCollisionChecker
 
-from drake_cfvol.table import absolute_bounds
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.heightmap import Volume
 from drake_cfvol.params import VolumeParams
+from drake_cfvol.table import absolute_bounds
 
 __all__ = ["VOLUME_BOX_PREFIX", "register_volume_boxes", "ReferenceScene", "drake_sweep_bounds"]
 
@@ -33,10 +37,6 @@ def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35
     Returns:
         The proximity ``GeometryId`` of each column.
     """
-    from pydrake.geometry import Box
-    from pydrake.math import RigidTransform
-    from pydrake.multibody.plant import CoulombFriction
-
     centres, sizes = volume.boxes()
     world = plant.world_body()
     ids = []
@@ -63,8 +63,6 @@ class ReferenceScene:
 
     def __init__(self, workcell, volume: Volume, *, edge_step: float = 0.01,
                  max_boxes: int = MAX_REFERENCE_BOXES):
-        from pydrake.planning import SceneGraphCollisionChecker
-
         if volume.n_boxes > max_boxes:
             raise ParameterError(
                 f"the reference backend holds one SceneGraph box per column; {volume.n_boxes} columns "

@@ -18,8 +18,8 @@ from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from drake_cfvol.table import BoundsTable
 from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.table import BoundsTable
 
 __all__ = ["JointBoundsSource", "AdmittanceDeformation", "PathProgress", "Push", "ScriptedHuman",
            "ClearanceMonitor"]

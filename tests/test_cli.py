@@ -2,7 +2,6 @@
 
 import json
 
-import pytest
 
 from drake_cfvol.cli import main
 

@@ -4,9 +4,7 @@ import numpy as np
 import pytest
 
 from drake_cfvol.collision import SceneTester, obb_overlap
-from drake_cfvol.params import VolumeParams
 from drake_cfvol.reference import ReferenceScene
-from drake_cfvol.volume import build_volume
 import drake_cfvol as cf
 
 
