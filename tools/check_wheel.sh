@@ -25,4 +25,6 @@ load_scenario("automotive_push")
 PYEOF
 "$py" -m drake_cfvol plan automotive --path 1 --json
 "$py" -m drake_cfvol plan aerospace --path 1 --json >/dev/null
+"$py" -m drake_cfvol simulate automotive_push --out run --json >/dev/null
+test -s run/recording.html && test -s run/summary.json
 echo "wheel check: OK"
