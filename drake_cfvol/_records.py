@@ -31,13 +31,14 @@ def save_record(path, record: dict, array_keys: tuple, what: str, *, overwrite: 
     return path
 
 
-def load_record(path, array_keys: tuple, what: str) -> tuple[dict, dict]:
-    """Reads a record saved by :func:`save_record`: (metadata, float arrays)."""
+def load_record(path, array_keys: tuple, what: str, optional: tuple = ()) -> tuple[dict, dict]:
+    """Reads a record saved by :func:`save_record`: (metadata, float arrays);
+    the ``optional`` arrays are left out where the file lacks them."""
     path = Path(path)
     if path.suffix == ".json":
         d = json.loads(path.read_text())
-        return d, {k: np.array(d[k], dtype=np.float64) for k in array_keys}
+        return d, {k: np.array(d[k], dtype=np.float64) for k in array_keys + optional if k in d}
     if path.suffix == ".npz":
         with np.load(path) as z:
-            return json.loads(str(z["meta"])), {k: z[k] for k in array_keys}
+            return json.loads(str(z["meta"])), {k: z[k] for k in array_keys + optional if k in z.files}
     raise ParameterError(f"unknown {what} file type '{path.suffix}': use .npz or .json.")

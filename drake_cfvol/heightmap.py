@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 from scipy.ndimage import distance_transform_edt
 
+from drake_cfvol import kernel as K
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.params import VolumeParams
 
@@ -242,6 +243,19 @@ class Volume:
 
     def __post_init__(self):
         self._rmq = None
+        self._kernel_table = None
+
+    def kernel_table(self) -> np.ndarray:
+        """The compiled kernel's range-max table of the heights (built once;
+        call :meth:`changed` after editing ``heights``)."""
+        if self._kernel_table is None:
+            self._kernel_table = K.range_max_table(np.ascontiguousarray(self.heights, dtype=np.float64))
+        return self._kernel_table
+
+    def changed(self) -> None:
+        """Forget cached tables after ``heights`` changed."""
+        self._rmq = None
+        self._kernel_table = None
 
     @property
     def n_boxes(self) -> int:
@@ -310,7 +324,7 @@ class Volume:
                 cap = c[2] - rr - clearance
                 block = self.heights[i0: i1 + 1, j0: j1 + 1]
                 np.minimum(block, max(cap, 0.0), out=block)
-            self._rmq = None
+            self.changed()
         changed = self.heights < self.raw_heights
         self.dropped = int(np.count_nonzero(changed & (self.heights <= 0)))
         self.lowered = int(np.count_nonzero(changed & (self.heights > 0)))

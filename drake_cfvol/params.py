@@ -40,6 +40,9 @@ class VolumeParams:
             may stick out of it, m.
         sdf_voxel: voxel size of the obstacles' distance grid, m.
         raster: pixel size of the footprint distance maps, m.
+        waypoint_time: nominal seconds per waypoint, for the bounds' rate
+            limit (each joint's velocity limit times this, per unit s). None:
+            the nominal at full speed (its slowest joint at its limit).
     """
 
     resolution: int = 1000
@@ -61,6 +64,7 @@ class VolumeParams:
     sphere_tolerance: float = 0.06
     sdf_voxel: float = 0.05
     raster: float = 0.02
+    waypoint_time: float | None = None
 
     def __post_init__(self):
         def bad(msg):
@@ -92,6 +96,8 @@ class VolumeParams:
         for name in ("trail_radius", "goal_radius", "column_clearance"):
             if getattr(self, name) < 0:
                 bad(f"{name} must be >= 0 m, got {getattr(self, name)}.")
+        if self.waypoint_time is not None and self.waypoint_time <= 0:
+            bad(f"waypoint_time must be > 0 s, got {self.waypoint_time}.")
         for name in ("delta", "delta_prismatic", "sphere_tolerance", "sdf_voxel", "raster"):
             if getattr(self, name) <= 0:
                 bad(f"{name} must be > 0, got {getattr(self, name)}.")

@@ -10,14 +10,20 @@ from __future__ import annotations
 import dataclasses
 import time
 
+import numpy as np
+
 from drake_cfvol.certify import Certify, certify_bounds
-from drake_cfvol.collision import SceneTester
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import NominalPath
 from drake_cfvol.reference import drake_sweep_bounds
-from drake_cfvol.sweep import sweep_bounds
-from drake_cfvol.table import BoundsTable, absolute_bounds
+from drake_cfvol.sweep import default_rate, stretch_bounds
+from drake_cfvol.table import (
+    BoundsTable,
+    absolute_bounds,
+    intersection_stretches,
+    waypoint_boxes,
+)
 from drake_cfvol.volume import build_volume, categorize
 
 __all__ = ["estimate_bounds", "BACKENDS"]
@@ -68,13 +74,22 @@ def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = N
     t1 = time.perf_counter()
     vb = build_volume(workcell, path, params, model=model, categories=cats)
     t2 = time.perf_counter()
+    W = path.waypoints
     if backend == "fast":
-        tester = SceneTester(model, workcell.obstacle_boxes(), vb.volume)
-        lower, upper, stats = sweep_bounds(workcell, path.waypoints, tester, params)
+        # Absolute bounds per stretch: nominal +- pi for a joint without limits.
+        lo_w, hi_w = absolute_bounds(workcell.position_lower, workcell.position_upper, W)
+        lim_lo_st = np.maximum(lo_w[:-1], lo_w[1:])
+        lim_hi_st = np.minimum(hi_w[:-1], hi_w[1:])
+        st_lower, st_upper, stats = stretch_bounds(workcell.scene_arrays(), W, vb.volume, params,
+                                                   lim_lo_st, lim_hi_st)
+        rate = default_rate(W, workcell.velocity_limits, params.waypoint_time)
+        lower, upper = waypoint_boxes(st_lower, st_upper, W, rate)
     else:
-        lower, upper, stats = drake_sweep_bounds(workcell, path.waypoints, vb.volume, params)
+        lower, upper, stats = drake_sweep_bounds(workcell, W, vb.volume, params)
+        st_lower, st_upper = intersection_stretches(lower, upper)
+        rate = None
     t3 = time.perf_counter()
-    lim_lo, lim_hi = absolute_bounds(workcell.position_lower, workcell.position_upper, path.waypoints[0])
+    lim_lo, lim_hi = absolute_bounds(workcell.position_lower, workcell.position_upper, W[0])
     info = {"cell": workcell.name, "path": path.label, "seed": path.seed, "backend": backend,
             "resolution": params.resolution, "n_boxes": vb.volume.n_boxes,
             "lowered_columns": vb.volume.lowered, "dropped_columns": vb.volume.dropped,
@@ -82,8 +97,9 @@ def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = N
             "cell_side_m": vb.volume.heightmap.side, "grid": list(vb.volume.heightmap.shape), **stats}
     timing = {"categorize": (t1 - t0) * 1e3, "volume": (t2 - t1) * 1e3, "bounding": (t3 - t2) * 1e3,
               "total": (t3 - t0) * 1e3}
-    table = BoundsTable(lower, upper, path.waypoints.copy(), list(workcell.joint_names), lim_lo, lim_hi,
-                        params.to_dict(), timing, info, volume=vb)
+    table = BoundsTable(lower, upper, W.copy(), list(workcell.joint_names), lim_lo, lim_hi,
+                        params.to_dict(), timing, info, volume=vb, stretch_lower=st_lower, stretch_upper=st_upper,
+                        rate=rate)
     if certify is not None:
         info["uncertified_lower"], info["uncertified_upper"] = lower, upper
         c_lower, c_upper, report = certify_bounds(workcell, table, certify)

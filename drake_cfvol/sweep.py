@@ -1,182 +1,149 @@
-"""Joint bounding (paper Algorithm 2, made sound; docs/spec.md, section 6).
+"""Joint bounding (paper Algorithm 2, made sound and safe between waypoints;
+docs/spec.md, sections 6-7), on the compiled kernel.
 
-For waypoint q_i, joint j and each direction, the bound is (to within delta)
-the farthest value v towards the joint's limit such that moving joint j alone
-from q_i[j] to v is free along the whole motion against the volume V, the
-obstacles and the robot itself.
+For every stretch [i, i+1] of the path, joint j and each direction, the
+bound is (to within delta) the farthest value v towards the joint's limit
+such that, for every s in the stretch, moving joint j alone from the
+interpolated nominal to v is free against the volume V, the obstacles and
+the robot itself.
 
-The paper's bisection tests only end values and can jump over an obstacle.
-Here each bisection step tests an *interval* [a, b] of the motion: the
-moving bodies are posed at the interval's midpoint and grown by how far any
-of their points travels over half the interval (distance from the joint axis
-times the half-width, or the half-width for a prismatic joint). A free test
-certifies the whole interval. All sweeps of one joint (every waypoint, both
-directions) are bisected together in one batch.
+The paper tests only end values, and only at waypoints: its bisection can
+jump over an obstacle, and a box found at two waypoints can collide between
+them. Here each step of the search certifies a whole *region*: joint j over
+an interval [a, b] while the rest of the robot follows the nominal over the
+stretch. The robot is posed at the region's centre and each body grown by
+how far its points can move over the region (:func:`kernel._region_hits`);
+where the nominal's own motion is what makes a test fail, the stretch is
+halved. All (stretch, joint, direction) searches run in parallel; every
+eighth stretch starts cold and the others start from its answer.
 """
 
 from __future__ import annotations
 
-import dataclasses
+import math
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
-from drake_cfvol.collision import RobotModel, SceneTester
+from drake_cfvol import kernel as K
+from drake_cfvol.geometry import SceneArrays
+from drake_cfvol.heightmap import Volume
 from drake_cfvol.params import VolumeParams
-from drake_cfvol.table import absolute_bounds
 
-__all__ = ["sweep_bounds"]
+__all__ = ["stretch_bounds", "volume_table", "nominal_motion"]
 
-
-@dataclasses.dataclass
-class _Kinematics:
-    """Body poses and joint axes at every waypoint."""
-
-    R: np.ndarray  # (g, B, 3, 3)
-    p: np.ndarray  # (g, B, 3)
-    axis_point: np.ndarray  # (g, k, 3)
-    axis_dir: np.ndarray  # (g, k, 3)
+#: The stretch is halved until the nominal's motion grows a body by at most
+#: this much (m), at most ``MAX_DEPTH`` times.
+MOTION_TOLERANCE = 0.02
+MAX_DEPTH = 10
 
 
-def _kinematics(workcell, model: RobotModel, waypoints: np.ndarray) -> _Kinematics:
-    plant = workcell.plant
-    joints = [plant.GetJointByName(n, workcell.robot) for n in workcell.joint_names]
-    local_axes = [np.asarray(j.revolute_axis() if r else j.translation_axis())
-                  for j, r in zip(joints, workcell.revolute)]
-    g, k, B = len(waypoints), len(joints), model.num_bodies
-    R = np.empty((g, B, 3, 3))
-    p = np.empty((g, B, 3))
-    c = np.empty((g, k, 3))
-    u = np.empty((g, k, 3))
-    for i, q in enumerate(waypoints):
-        R[i], p[i] = model.body_poses(workcell, q)
-        ctx = workcell.plant_context()
-        for jj, (joint, ax) in enumerate(zip(joints, local_axes)):
-            X = joint.frame_on_child().CalcPoseInWorld(ctx)
-            c[i, jj] = X.translation()
-            u[i, jj] = X.rotation().matrix() @ ax
-    return _Kinematics(R, p, c, u)
+def volume_table(volume: Volume | None) -> tuple[np.ndarray, float, float, float]:
+    """The kernel's view of V: (range-max table, origin x, origin y, side)."""
+    if volume is None or volume.n_boxes == 0:
+        return np.zeros((1, 1, 0, 0)), 0.0, 0.0, 1.0
+    hm = volume.heightmap
+    return volume.kernel_table(), float(hm.origin[0]), float(hm.origin[1]), float(hm.side)
 
 
-def _joint_sweeps(workcell, tester, kin, waypoints, j, wsel, guess, delta, counters):
-    """Bounds of joint j at the waypoints ``wsel`` (both directions).
-
-    ``guess`` (2 * len(wsel),) or None: expected free extents (from a
-    neighbouring waypoint). The first test is then [0, guess]; if free, the
-    next probes just past it (2 delta), so a good guess costs ~4 tests.
-
-    Returns:
-        F (2 * len(wsel),): certified free extent, upper direction first.
-    """
-    model = tester.model
-    moving = model.moved_by[j]
-    pairs = counters.setdefault(("pairs", j), np.array(
-        [pr for pr in model.self_pairs if moving[pr[0]] != moving[pr[1]]], int).reshape(-1, 2))
-    revolute = bool(workcell.revolute[j])
-    n = len(wsel)
-    q = waypoints[wsel, j]
-    lo_abs = np.empty(n)
-    hi_abs = np.empty(n)
-    lo_all, hi_all = absolute_bounds(workcell.position_lower, workcell.position_upper, waypoints[wsel])
-    lo_abs[:], hi_abs[:] = lo_all[:, j], hi_all[:, j]
-    w_idx = np.concatenate([wsel, wsel])
-    sign = np.concatenate([np.ones(n), -np.ones(n)])
-    T = np.maximum(np.concatenate([hi_abs - q, q - lo_abs]), 0.0)
-    c = kin.axis_point[w_idx, j]
-    u = kin.axis_dir[w_idx, j]
-    R0, p0 = kin.R[w_idx], kin.p[w_idx]
-    if revolute:
-        # Farthest distance of each body's points from the joint axis.
-        bc = np.einsum("sbij,bj->sbi", R0, model.bound_c) + p0
-        rel = bc - c[:, None]
-        along = np.einsum("sbi,si->sb", rel, u)
-        perp = np.linalg.norm(rel - along[..., None] * u[:, None], axis=-1)
-        rho = (perp + model.bound_r) * moving
-    else:
-        rho = np.broadcast_to(moving.astype(float), (2 * n, model.num_bodies))
-    # Adaptive stepping: test [F, F + w]; free -> certified, advance and
-    # double w; possible collision -> halve w; stop when a possibly
-    # colliding interval is narrower than delta.
-    F = np.zeros(2 * n)
-    if guess is None:
-        w = T.copy()
-        w_next = np.full(2 * n, np.nan)
-    else:
-        w = np.clip(guess, delta, None)
-        w_next = np.full(2 * n, 2 * delta)
-    active = T > 0
-    mv = np.flatnonzero(moving)
-    while active.any():
-        counters["rounds"] = counters.get("rounds", 0) + 1
-        s = np.flatnonzero(active)
-        counters["interval_tests"] = counters.get("interval_tests", 0) + len(s)
-        X = np.minimum(F[s] + w[s], T[s])
-        t_mid = (F[s] + X) / 2
-        hw = (X - F[s]) / 2
-        Rs, ps = R0[s].copy(), p0[s].copy()
-        if revolute:
-            Rot = Rotation.from_rotvec(u[s] * (sign[s] * t_mid)[:, None]).as_matrix()
-            Rs[:, mv] = np.einsum("nij,nbjk->nbik", Rot, Rs[:, mv])
-            ps[:, mv] = np.einsum("nij,nbj->nbi", Rot, ps[:, mv] - c[s][:, None]) + c[s][:, None]
-        else:
-            ps[:, mv] += (sign[s] * t_mid)[:, None, None] * u[s][:, None, :]
-        e = rho[s] * hw[:, None]
-        hit = tester.hits(Rs, ps, e, moving, pairs, axis=u[s], prismatic=not revolute)
-        sf = s[~hit]
-        F[sf] = X[~hit]
-        first = ~np.isnan(w_next[sf])
-        w[sf] = np.where(first, w_next[sf], 2 * w[sf])
-        w_next[sf] = np.nan
-        active[sf[F[sf] >= T[sf]]] = False
-        sb = s[hit]
-        w_next[sb] = np.nan
-        width = X[hit] - F[sb]
-        stop = width < delta
-        active[sb[stop]] = False
-        w[sb[~stop]] = width[~stop] / 2
-    return F
+def nominal_motion(arrays: SceneArrays, waypoints: np.ndarray) -> np.ndarray:
+    """(g-1, k, B): how far body b's points can move over stretch i from the
+    motion of every joint but j, m (sum_k |dq_k| reach[k, b], k != j)."""
+    dq = np.abs(np.diff(waypoints, axis=0))  # (g-1, k)
+    rev = arrays.revolute
+    per_joint = np.where(rev[None, :, None], dq[:, :, None] * arrays.reach[None], dq[:, :, None] * arrays.moved_by[None])
+    total = per_joint.sum(axis=1)  # (g-1, B)
+    return total[:, None, :] - per_joint  # leave joint j out
 
 
-def sweep_bounds(workcell, waypoints: np.ndarray, tester: SceneTester, params: VolumeParams,
-                 *, kin: _Kinematics | None = None, stride: int = 8) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Sound per-joint bounds at each waypoint by batched interval bisection.
-
-    Every ``stride``-th waypoint (and the last) is bounded from scratch; the
-    others start from the nearest such waypoint's result (a guess only: the
-    answer is certified the same way).
+def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | None, params: VolumeParams,
+                   lower_limit: np.ndarray, upper_limit: np.ndarray, *, stride: int = 8
+                   ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Certified per-stretch joint bounds.
 
     Args:
-        workcell: the workcell.
-        waypoints: (g, k) configurations.
-        tester: what counts as a collision (volume, obstacles, self).
+        arrays: the workcell's kernel arrays.
+        waypoints: (g, k) the nominal path.
+        volume: V (None: obstacles and self only).
         params: ``delta`` / ``delta_prismatic`` tolerances.
-        stride: spacing of the cold-started waypoints (1: all cold).
+        lower_limit, upper_limit: (g-1, k) absolute bounds per stretch (finite).
+        stride: spacing of the cold-started stretches (1: all cold).
 
     Returns:
-        (lower (g, k), upper (g, k), stats)
+        (lower (g-1, k), upper (g-1, k), stats). ``stats["uncertified"]``
+        counts searches that could not certify even the nominal's own range
+        of a joint over a stretch (their bound is that range).
     """
-    model = tester.model
-    waypoints = np.asarray(waypoints, float)
-    g, k = waypoints.shape
-    kin = kin or _kinematics(workcell, model, waypoints)
-    lower = waypoints.copy()
-    upper = waypoints.copy()
-    counters: dict = {}
-    cold = np.unique(np.r_[np.arange(0, g, max(1, stride)), g - 1])
-    warm = np.setdiff1d(np.arange(g), cold)
-    nearest = cold[np.abs(warm[:, None] - cold[None, :]).argmin(axis=1)] if len(warm) else warm
-    for j in range(k):
-        delta = params.delta if workcell.revolute[j] else params.delta_prismatic
-        Fc = _joint_sweeps(workcell, tester, kin, waypoints, j, cold, None, delta, counters)
-        n = len(cold)
-        upper[cold, j] += Fc[:n]
-        lower[cold, j] -= Fc[n:]
-        if len(warm):
-            pos = np.searchsorted(cold, nearest)
-            guess = np.concatenate([Fc[:n][pos], Fc[n:][pos]])
-            Fw = _joint_sweeps(workcell, tester, kin, waypoints, j, warm, guess, delta, counters)
-            m = len(warm)
-            upper[warm, j] += Fw[:m]
-            lower[warm, j] -= Fw[m:]
-    stats = {"interval_tests": counters.get("interval_tests", 0), "rounds": counters.get("rounds", 0)}
+    W = np.ascontiguousarray(waypoints, dtype=np.float64)
+    g, k = W.shape
+    n_st = g - 1
+    delta = np.where(arrays.revolute, params.delta, params.delta_prismatic).astype(np.float64)
+    motion = nominal_motion(arrays, W)  # (g-1, k, B)
+    worst = motion.max(axis=2) / 2
+    depth = np.zeros((n_st, k), np.int64)
+    need = worst > MOTION_TOLERANCE
+    depth[need] = np.minimum(np.ceil(np.log2(worst[need] / MOTION_TOLERANCE)), MAX_DEPTH).astype(np.int64)
+    table, ox, oy, side = volume_table(volume)
+    a = arrays
+    common = (a.parent, a.jtype, a.qidx, a.axis, a.R_PF, a.p_PF, a.R_MB, a.p_MB, a.shapes, a.shape_body,
+              a.shape_bc, a.shape_br, a.verts, a.obstacles, a.obstacle_bc, a.obstacle_br, a.obstacle_aabb, a.self_pairs,
+              a.moved_by, a.reach, a.revolute, a.joint_body, table, ox, oy, side)
+    lim_lo = np.ascontiguousarray(lower_limit, dtype=np.float64)
+    lim_hi = np.ascontiguousarray(upper_limit, dtype=np.float64)
+
+    cold = np.unique(np.r_[np.arange(0, n_st, max(1, stride)), n_st - 1])
+    warm = np.setdiff1d(np.arange(n_st), cold)
+
+    def tasks_for(stretches):
+        i, j, s = np.meshgrid(stretches, np.arange(k), [1, -1], indexing="ij")
+        return np.stack([i.ravel(), j.ravel(), s.ravel()], axis=1).astype(np.int64)
+
+    bound = np.zeros((n_st, k, 2))  # [..., 0] upper, [..., 1] lower
+    tests = 0
+    t_cold = tasks_for(cold)
+    bc, nc = K.sweep_stretches(t_cold, np.full(len(t_cold), -1.0), delta, lim_lo, lim_hi, depth, W, *common)
+    bound[t_cold[:, 0], t_cold[:, 1], (1 - t_cold[:, 2]) // 2] = bc
+    tests += int(nc.sum())
+    lo_nom = np.minimum(W[:-1], W[1:])
+    hi_nom = np.maximum(W[:-1], W[1:])
+    if len(warm):
+        t_warm = tasks_for(warm)
+        nearest = cold[np.abs(t_warm[:, 0][:, None] - cold[None, :]).argmin(axis=1)]
+        side = (1 - t_warm[:, 2]) // 2
+        # The neighbour's extent beyond its own nominal range, as a guess.
+        extent = np.where(side == 0, bound[nearest, t_warm[:, 1], 0] - hi_nom[nearest, t_warm[:, 1]],
+                          lo_nom[nearest, t_warm[:, 1]] - bound[nearest, t_warm[:, 1], 1])
+        own = (hi_nom - lo_nom)[t_warm[:, 0], t_warm[:, 1]]
+        guess = np.maximum(extent, 0.0) + own
+        bw, nw = K.sweep_stretches(t_warm, np.ascontiguousarray(guess), delta, lim_lo, lim_hi, depth, W, *common)
+        bound[t_warm[:, 0], t_warm[:, 1], side] = bw
+        tests += int(nw.sum())
+    upper = bound[:, :, 0]
+    lower = bound[:, :, 1]
+    short_up = upper < hi_nom
+    short_lo = lower > lo_nom
+    upper = np.maximum(upper, hi_nom)
+    lower = np.minimum(lower, lo_nom)
+    stats = {"region_tests": tests, "searches": 2 * n_st * k,
+             "uncertified": int(short_up.sum() + short_lo.sum()),
+             "max_depth": int(depth.max()) if depth.size else 0,
+             "motion_tolerance_m": MOTION_TOLERANCE}
     return lower, upper, stats
+
+
+def default_rate(waypoints: np.ndarray, velocity_limits: np.ndarray, waypoint_time: float | None) -> np.ndarray:
+    """The bounds' Lipschitz rate per unit s (docs/spec.md, section 7): each
+    joint's velocity limit times the nominal time per waypoint. Without a
+    given ``waypoint_time``, the time of the nominal at full speed: the
+    slowest joint needs max |dq_j| / vmax_j per waypoint. A joint without a
+    velocity limit gets no rate limit (inf)."""
+    vmax = np.asarray(velocity_limits, float)
+    ok = np.isfinite(vmax) & (vmax > 0)
+    if waypoint_time is None:
+        step = np.abs(np.diff(waypoints, axis=0)).max(axis=0) if len(waypoints) > 1 else np.zeros(len(vmax))
+        per = np.where(ok, step / np.where(ok, vmax, 1.0), 0.0)
+        waypoint_time = float(per.max()) if per.size else 0.0
+    rate = np.where(ok, vmax * waypoint_time, math.inf)
+    # A rate below the nominal's own motion could not hold the nominal.
+    if len(waypoints) > 1:
+        rate = np.maximum(rate, np.abs(np.diff(waypoints, axis=0)).max(axis=0))
+    return rate

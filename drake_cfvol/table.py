@@ -18,10 +18,11 @@ from pydrake.trajectories import PiecewisePolynomial
 from drake_cfvol._records import load_record, save_record
 from drake_cfvol.exceptions import DimensionError, ParameterError
 
-__all__ = ["BoundsTable", "absolute_bounds", "box_at", "nominal_trajectory"]
+__all__ = ["BoundsTable", "absolute_bounds", "box_at", "nominal_trajectory", "waypoint_boxes", "intersection_stretches"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 _ARRAYS = ("lower", "upper", "nominal")
+_STRETCH_ARRAYS = ("stretch_lower", "stretch_upper")
 
 
 def absolute_bounds(position_lower, position_upper, q) -> tuple[np.ndarray, np.ndarray]:
@@ -48,17 +49,51 @@ def nominal_trajectory(nominal: np.ndarray) -> PiecewisePolynomial:
     return PiecewisePolynomial.FirstOrderHold(np.arange(len(nominal), dtype=float), nominal.T)
 
 
+def intersection_stretches(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Stretch boxes from waypoint boxes by the plain intersection of the
+    two neighbours (the rule of format-1 tables)."""
+    return np.maximum(lower[:-1], lower[1:]), np.minimum(upper[:-1], upper[1:])
+
+
+def _envelopes(U: np.ndarray, rate: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
+    """For the upper bound (sign +1): A[i] = min over i' < i of
+    (U[i'] - rate (i' + 1)) and Bv[i] = min over i' > i of (U[i'] + rate i'),
+    so that min(U[i], A[i] + rate s, Bv[i] - rate s) is the smallest of
+    U[i'] + rate * dist(s, stretch i') for s in stretch i. For the lower bound
+    (sign -1) the same with max and the signs turned."""
+    n, k = U.shape
+    idx = np.arange(n, dtype=float)[:, None]
+    with np.errstate(invalid="ignore"):
+        before = sign * U - rate * (idx + 1)
+        after = sign * U + rate * idx
+    before = np.where(np.isfinite(rate), before, np.inf)
+    after = np.where(np.isfinite(rate), after, np.inf)
+    A = np.full((n, k), np.inf)
+    Bv = np.full((n, k), np.inf)
+    if n > 1:
+        A[1:] = np.minimum.accumulate(before[:-1], axis=0)
+        Bv[:-1] = np.minimum.accumulate(after[::-1], axis=0)[::-1][1:]
+    return A, Bv
+
+
 def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
-           trajectory: PiecewisePolynomial | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           stretch_lower: np.ndarray | None = None, stretch_upper: np.ndarray | None = None,
+           rate: np.ndarray | None = None, trajectory: PiecewisePolynomial | None = None
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The box at path parameters s (docs/spec.md, section 7), vectorised.
 
-    At an integer s the waypoint's box. Between waypoints i and i+1: the
-    intersection of the two boxes, widened where needed to hold the
-    interpolated nominal.
+    At an integer s: the waypoint's box. In stretch [i, i+1]: its certified
+    stretch box, tightened so that no bound changes faster than ``rate`` per
+    unit s (the smallest of the stretch bounds plus rate times the distance
+    to their stretch), and widened where needed to hold the interpolated
+    nominal. Without stretch boxes they are the intersection of the two
+    waypoints' boxes; without a rate, no rate limit.
 
     Args:
-        lower, upper, nominal: (g, k) per-waypoint bounds and nominal.
+        lower, upper, nominal: (g, k) waypoint boxes and nominal.
         s: a scalar or (n,) path parameters in [0, g-1].
+        stretch_lower, stretch_upper: (g-1, k) certified stretch boxes.
+        rate: (k,) largest change of a bound per unit s (inf: none).
         trajectory: :func:`nominal_trajectory` of ``nominal`` (saves building it).
 
     Returns:
@@ -67,7 +102,7 @@ def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
     Raises:
         ParameterError: an s outside [0, g-1] or not finite.
     """
-    g = len(nominal)
+    g, k = nominal.shape
     scalar = np.ndim(s) == 0
     s = np.atleast_1d(np.asarray(s, float))
     bad = ~np.isfinite(s) | (s < 0) | (s > g - 1)
@@ -75,17 +110,49 @@ def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
         raise ParameterError(f"path index s = {s[bad][0]} is outside [0, {g - 1}] (g = {g} waypoints).")
     traj = trajectory if trajectory is not None else nominal_trajectory(nominal)
     nom = traj.vector_values(s).T if g > 1 else np.repeat(nominal[:1], len(s), axis=0)
-    i = np.clip(np.floor(s).astype(int), 0, max(g - 2, 0))
-    j = np.minimum(i + 1, g - 1)
-    t = s - i
-    lo = np.minimum(np.maximum(lower[i], lower[j]), nom)
-    hi = np.maximum(np.minimum(upper[i], upper[j]), nom)
-    at_i, at_j = t == 0.0, t == 1.0
-    lo[at_i], hi[at_i], nom[at_i] = lower[i[at_i]], upper[i[at_i]], nominal[i[at_i]]
-    lo[at_j], hi[at_j], nom[at_j] = lower[j[at_j]], upper[j[at_j]], nominal[j[at_j]]
+    if g == 1:
+        lo, hi = np.repeat(lower[:1], len(s), axis=0), np.repeat(upper[:1], len(s), axis=0)
+    else:
+        if stretch_lower is None or stretch_upper is None:
+            stretch_lower, stretch_upper = intersection_stretches(lower, upper)
+        rate = np.full(k, np.inf) if rate is None else np.asarray(rate, float)
+        i = np.clip(np.floor(s).astype(int), 0, g - 2)
+        Au, Bu = _envelopes(stretch_upper, rate, 1.0)
+        Al, Bl = _envelopes(stretch_lower, rate, -1.0)
+        r = np.where(np.isfinite(rate), rate, 0.0)
+        sc = s[:, None]
+        hi = np.minimum(np.minimum(stretch_upper[i], Au[i] + r * sc), Bu[i] - r * sc)
+        lo = -np.minimum(np.minimum(-stretch_lower[i], Al[i] + r * sc), Bl[i] - r * sc)
+        lo, hi = np.minimum(lo, nom), np.maximum(hi, nom)
+        at = s == np.floor(s)
+        w = s[at].astype(int)
+        lo[at], hi[at], nom[at] = lower[w], upper[w], nominal[w]
     if scalar:
         return lo[0], hi[0], nom[0]
     return lo, hi, nom
+
+
+def waypoint_boxes(stretch_lower: np.ndarray, stretch_upper: np.ndarray, nominal: np.ndarray,
+                   rate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The waypoint boxes that the stretch rule gives at integer s (the limit
+    from either side): both neighbouring stretches' bounds, rate-limited."""
+    g = len(nominal)
+    rate = np.asarray(rate, float)
+    k = nominal.shape[1]
+    # Evaluate the stretch formula at every integer s (s = g-1 lies in the last stretch).
+    s = np.arange(g, dtype=float)
+    i = np.clip(np.arange(g), 0, g - 2)
+    Au, Bu = _envelopes(stretch_upper, rate, 1.0)
+    Al, Bl = _envelopes(stretch_lower, rate, -1.0)
+    r = np.where(np.isfinite(rate), rate, 0.0)
+    sc = s[:, None]
+    hi = np.minimum(np.minimum(stretch_upper[i], Au[i] + r * sc), Bu[i] - r * sc)
+    lo = -np.minimum(np.minimum(-stretch_lower[i], Al[i] + r * sc), Bl[i] - r * sc)
+    # At an interior waypoint the previous stretch's cap also applies.
+    hi[1:g - 1] = np.minimum(hi[1:g - 1], stretch_upper[: g - 2])
+    lo[1:g - 1] = np.maximum(lo[1:g - 1], stretch_lower[: g - 2])
+    assert hi.shape == (g, k)
+    return np.minimum(lo, nominal), np.maximum(hi, nominal)
 
 
 @dataclasses.dataclass
@@ -104,6 +171,10 @@ class BoundsTable:
             (a :class:`drake_cfvol.volume.VolumeBuild`), or None for a table
             loaded from disk (not saved; rebuild it with
             :func:`drake_cfvol.volume.build_volume`).
+        stretch_lower, stretch_upper: (g-1, k) the certified box of each
+            stretch [i, i+1] (default: the intersection of its two waypoint
+            boxes, as in format-1 files).
+        rate: (k,) the largest change of a bound per unit s (inf: none).
     """
 
     lower: np.ndarray
@@ -116,6 +187,9 @@ class BoundsTable:
     timing_ms: dict = dataclasses.field(default_factory=dict)
     info: dict = dataclasses.field(default_factory=dict)
     volume: Any = dataclasses.field(default=None, repr=False, compare=False)
+    stretch_lower: np.ndarray | None = None
+    stretch_upper: np.ndarray | None = None
+    rate: np.ndarray | None = None
 
     def __post_init__(self):
         for name in ("lower", "upper", "nominal", "limit_lower", "limit_upper"):
@@ -124,6 +198,14 @@ class BoundsTable:
             raise DimensionError("bounds arrays", self.nominal.shape, (self.lower.shape, self.upper.shape))
         if self.nominal.shape[1] != len(self.joint_names):
             raise DimensionError("bounds columns", len(self.joint_names), self.nominal.shape[1])
+        g, k = self.nominal.shape
+        if self.stretch_lower is None or self.stretch_upper is None:
+            self.stretch_lower, self.stretch_upper = intersection_stretches(self.lower, self.upper)
+        self.stretch_lower = np.asarray(self.stretch_lower, float)
+        self.stretch_upper = np.asarray(self.stretch_upper, float)
+        if self.stretch_lower.shape != (max(g - 1, 0), k) or self.stretch_upper.shape != (max(g - 1, 0), k):
+            raise DimensionError("stretch bounds", (g - 1, k), (self.stretch_lower.shape, self.stretch_upper.shape))
+        self.rate = np.full(k, np.inf) if self.rate is None else np.asarray(self.rate, float).reshape(k)
         self._trajectory = nominal_trajectory(self.nominal)
 
     @property
@@ -148,11 +230,13 @@ class BoundsTable:
 
     def at(self, s: float):
         """(lower, upper, nominal) at path parameter s in [0, g-1]."""
-        return box_at(self.lower, self.upper, self.nominal, float(s), trajectory=self._trajectory)
+        return box_at(self.lower, self.upper, self.nominal, float(s), stretch_lower=self.stretch_lower,
+                      stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self._trajectory)
 
     def boxes_at(self, s: np.ndarray):
         """:meth:`at` for many s at once: three (n, k) arrays."""
-        return box_at(self.lower, self.upper, self.nominal, np.asarray(s, float), trajectory=self._trajectory)
+        return box_at(self.lower, self.upper, self.nominal, np.asarray(s, float), stretch_lower=self.stretch_lower,
+                      stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self._trajectory)
 
     def widths(self) -> np.ndarray:
         """(g, k) upper - lower."""
@@ -163,20 +247,25 @@ class BoundsTable:
                 "joint_names": list(self.joint_names), "lower": self.lower.tolist(),
                 "upper": self.upper.tolist(), "nominal": self.nominal.tolist(),
                 "limit_lower": self.limit_lower.tolist(), "limit_upper": self.limit_upper.tolist(),
+                "stretch_lower": self.stretch_lower.tolist(), "stretch_upper": self.stretch_upper.tolist(),
+                "rate": [v if np.isfinite(v) else None for v in self.rate.tolist()],
                 "params": self.params, "timing_ms": self.timing_ms, "info": _jsonable(self.info)}
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
         """Saves as ``.npz`` (arrays + JSON metadata) or ``.json`` (the
         volume is not saved)."""
-        return save_record(path, self.to_json_dict(), _ARRAYS, "bounds", overwrite=overwrite)
+        return save_record(path, self.to_json_dict(), _ARRAYS + _STRETCH_ARRAYS, "bounds", overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | Path) -> "BoundsTable":
         """Loads a table saved by :meth:`save` (``volume`` is None)."""
-        d, a = load_record(path, _ARRAYS, "bounds")
+        d, a = load_record(path, _ARRAYS, "bounds", optional=_STRETCH_ARRAYS)
+        rate = d.get("rate")
         return cls(a["lower"], a["upper"], a["nominal"], d["joint_names"],
                    np.array(d["limit_lower"], float), np.array(d["limit_upper"], float),
-                   d.get("params", {}), d.get("timing_ms", {}), d.get("info", {}))
+                   d.get("params", {}), d.get("timing_ms", {}), d.get("info", {}),
+                   stretch_lower=a.get("stretch_lower"), stretch_upper=a.get("stretch_upper"),
+                   rate=None if rate is None else np.array([np.inf if v is None else v for v in rate], float))
 
 
 def _jsonable(obj):

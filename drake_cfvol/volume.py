@@ -181,4 +181,45 @@ def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
     raw = height_function(d_t, d_g, d_ng, active, params)
     vol = Volume(hm, raw.copy(), raw)
     vol.lower_under(pts, rad, params.column_clearance)
+    lower_along_path(vol, workcell.scene_arrays(), path.waypoints, params.column_clearance)
     return VolumeBuild(vol, cats, d_t, d_g, d_ng, active)
+
+
+#: Between waypoints the robot is posed at points this close in s that each
+#: body moves at most about this far between (m): columns are lowered under
+#: the whole motion, not only under the waypoints.
+LOWERING_MOTION = 0.02
+
+
+def lower_along_path(vol: Volume, arrays, waypoints: np.ndarray, clearance: float) -> None:
+    """Lowers the columns under the robot all along the nominal, waypoints
+    and the motion between them (each body grown by how far it can move
+    between the samples), so that the nominal is free of V at every s, not
+    only at waypoints. Updates the lowered/dropped counts."""
+    from drake_cfvol import kernel as K
+
+    W = np.asarray(waypoints, float)
+    dq = np.abs(np.diff(W, axis=0))  # (g-1, k)
+    rev = arrays.revolute
+    motion = np.where(rev[None, :, None], dq[:, :, None] * arrays.reach[None],
+                      dq[:, :, None] * arrays.moved_by[None]).sum(axis=1)  # (g-1, B)
+    pieces = np.maximum(1, np.ceil(motion.max(axis=1) / (2 * LOWERING_MOTION))).astype(int)
+    Q, E = [], []
+    for i, n in enumerate(pieces):
+        t = (np.arange(n) + 0.5) / n
+        Q.append(W[i] + t[:, None] * (W[i + 1] - W[i]))
+        E.append(np.repeat(motion[i][None] / (2 * n), n, axis=0))
+    if not Q:
+        return
+    hm = vol.heightmap
+    heights = np.ascontiguousarray(vol.heights, dtype=np.float64)
+    a = arrays
+    K.lower_columns_under(np.ascontiguousarray(np.concatenate(Q)), np.ascontiguousarray(np.concatenate(E)),
+                          a.parent, a.jtype, a.qidx, a.axis, a.R_PF, a.p_PF, a.R_MB, a.p_MB, a.shapes,
+                          a.shape_body, a.verts, heights, float(hm.origin[0]), float(hm.origin[1]),
+                          float(hm.side), float(clearance))
+    vol.heights = heights
+    vol.changed()
+    changed = vol.heights < vol.raw_heights
+    vol.dropped = int(np.count_nonzero(changed & (vol.heights <= 0)))
+    vol.lowered = int(np.count_nonzero(changed & (vol.heights > 0)))

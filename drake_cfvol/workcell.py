@@ -64,6 +64,7 @@ from drake_cfvol.exceptions import (
     WorkcellError,
     WorkcellFormatError,
 )
+from drake_cfvol.geometry import SceneArrays, scene_arrays
 
 __all__ = ["Obstacle", "Workcell", "WorkcellFile", "CfvolSection", "HeightMapExtent", "NamedConfiguration",
            "builtin_cells", "load_workcell", "models_dir"]
@@ -311,6 +312,7 @@ class Workcell:
         self._edge_step = float(edge_step)
         self._geometry_cache: dict[float, RobotModel] = {}
         self._obstacle_boxes: Obstacles | None = None
+        self._scene_arrays: SceneArrays | None = None
 
         plant = self.plant
         if plant.num_positions() != plant.num_positions(self.robot):
@@ -507,6 +509,13 @@ class Workcell:
         if key not in self._geometry_cache:
             self._geometry_cache[key] = robot_model(self, key)
         return self._geometry_cache[key]
+
+    def scene_arrays(self) -> SceneArrays:
+        """The robot chain, robot shapes and obstacle shapes as arrays for the
+        compiled kernel (:func:`drake_cfvol.geometry.scene_arrays`), built once."""
+        if self._scene_arrays is None:
+            self._scene_arrays = scene_arrays(self)
+        return self._scene_arrays
 
     def obstacle_boxes(self) -> Obstacles:
         """The obstacles as oriented boxes

@@ -1,0 +1,356 @@
+"""The robot and its obstacles as plain arrays for the compiled kernel
+(:mod:`drake_cfvol.kernel`), read from Drake once per workcell.
+
+- The kinematic chain: every body of the robot in topological order, its
+  parent, its inboard joint (type, axis, position index) and the fixed poses
+  around the joint, so that ``kernel.fk`` reproduces Drake's X_WB.
+- The shapes: each proximity geometry as an exact convex shape (box,
+  sphere, capsule, cylinder, ellipsoid) or, for a mesh or convex shape, its
+  convex hull (what Drake uses for a mesh in point-pair queries). Nothing is
+  approximated, so no excess needs reporting.
+- Bounding spheres per shape and per body, the self-collision pairs Drake
+  does not filter, which joints move which bodies, and a bound on how far
+  any point of a body can be from each joint's axis (``reach``), the same at
+  every configuration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from pydrake.geometry import (
+    Box,
+    Capsule,
+    Convex,
+    Cylinder,
+    Ellipsoid,
+    HalfSpace,
+    Mesh,
+    Role,
+    Sphere,
+)
+from pydrake.multibody.tree import JointIndex
+
+from drake_cfvol import kernel as K
+from drake_cfvol.exceptions import WorkcellError
+
+__all__ = ["SceneArrays", "scene_arrays", "shape_row"]
+
+#: A half space (an infinite floor) is modelled as a box this deep and wide, m.
+HALF_SPACE_SIZE = 1000.0
+
+
+def _hull_vertices(shape) -> np.ndarray:
+    hull = shape.GetConvexHull()
+    return np.array([hull.vertex(i) for i in range(hull.num_vertices())], float).reshape(-1, 3)
+
+
+def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[np.ndarray, float, np.ndarray]:
+    """A Drake shape posed at X_BG as a kernel shape row.
+
+    Args:
+        shape: the Drake shape.
+        R_BG, p_BG: its pose in the body (or world) frame.
+        verts: the list of vertex arrays so far; a hull appends to it.
+
+    Returns:
+        (row (SHAPE_W,), bounding radius about the returned centre, centre in B)
+
+    Raises:
+        WorkcellError: an unsupported shape.
+    """
+    row = np.zeros(K.SHAPE_W)
+    R = np.asarray(R_BG, float)
+    c = np.asarray(p_BG, float).copy()
+    if isinstance(shape, Box):
+        kind, size = K.BOX, np.asarray(shape.size()) / 2
+        radius = float(np.linalg.norm(size))
+    elif isinstance(shape, Sphere):
+        kind, size = K.SPHERE, np.array([shape.radius(), 0, 0])
+        radius = shape.radius()
+    elif isinstance(shape, Capsule):
+        kind, size = K.CAPSULE, np.array([shape.radius(), shape.length() / 2, 0])
+        radius = shape.radius() + shape.length() / 2
+    elif isinstance(shape, Cylinder):
+        kind, size = K.CYLINDER, np.array([shape.radius(), shape.length() / 2, 0])
+        radius = float(np.hypot(shape.radius(), shape.length() / 2))
+    elif isinstance(shape, Ellipsoid):
+        kind, size = K.ELLIPSOID, np.array([shape.a(), shape.b(), shape.c()])
+        radius = float(size.max())
+    elif isinstance(shape, HalfSpace):
+        # The half space z <= 0 of its frame: a big box below the plane.
+        kind, size = K.BOX, np.full(3, HALF_SPACE_SIZE / 2)
+        c = c + R @ np.array([0.0, 0.0, -HALF_SPACE_SIZE / 2])
+        radius = float(np.linalg.norm(size))
+    elif isinstance(shape, (Mesh, Convex)):
+        v = _hull_vertices(shape)
+        if len(v) < 4:
+            raise WorkcellError(f"a {type(shape).__name__} shape has a degenerate convex hull ({len(v)} vertices).")
+        centre = (v.min(0) + v.max(0)) / 2
+        v = v - centre
+        c = c + R @ centre
+        start = sum(len(x) for x in verts)
+        verts.append(v)
+        kind, size = K.HULL, np.zeros(3)
+        row[K._V0], row[K._V1] = start, start + len(v)
+        radius = float(np.linalg.norm(v, axis=1).max())
+    else:
+        raise WorkcellError(
+            f"shape {type(shape).__name__} is not supported by the fast backend; use boxes, spheres, "
+            "cylinders, capsules, ellipsoids, meshes or convex shapes (or backend='drake').")
+    row[K._K] = kind
+    row[K._C:K._C + 3] = c
+    row[K._R:K._R + 9] = R.ravel()
+    row[K._S:K._S + 3] = size
+    return row, radius, c
+
+
+@dataclasses.dataclass
+class SceneArrays:
+    """Everything the kernel needs about a workcell.
+
+    Attributes:
+        body_names, body_indices: the robot's bodies (B), topological order.
+        parent (B,): parent body index, -1 for a body fixed to the world.
+        jtype (B,): 0 fixed, 1 revolute, 2 prismatic (the inboard joint).
+        qidx (B,): the joint's position index (0 for fixed joints).
+        axis (B, 3): the joint's unit axis in its frames.
+        R_PF, p_PF (B, 3, 3), (B, 3): joint frame F in the parent body (the
+            parent's world pose folded in for a parent outside the chain).
+        R_MB, p_MB: the body in the joint's child frame M.
+        shapes (S, SHAPE_W): robot shapes in their body's frame.
+        shape_body (S,): their body.
+        shape_bc (S, 3), shape_br (S,): bounding spheres (body frame).
+        body_bc (B, 3), body_br (B,): bounding spheres of each body's shapes.
+        obstacles (O, SHAPE_W): obstacle shapes in the world.
+        obstacle_names (O,): the obstacle each belongs to.
+        obstacle_bc (O, 3), obstacle_br (O,): their bounding spheres.
+        obstacle_aabb (O, 6): their axis-aligned boxes [min xyz, max xyz].
+        verts (V, 3): hull vertices (shape frames) of every hull.
+        self_pairs (P, 2): robot body pairs that Drake does not filter.
+        moved_by (k, B): True where joint j moves body b.
+        reach (k, B): bound on the distance from joint j's axis point to any
+            point of body b, at every configuration, m (0 if not moved).
+        revolute (k,): joint types.
+        joint_body (k,): the body whose inboard joint each joint is.
+    """
+
+    body_names: list
+    body_indices: list
+    parent: np.ndarray
+    jtype: np.ndarray
+    qidx: np.ndarray
+    axis: np.ndarray
+    R_PF: np.ndarray
+    p_PF: np.ndarray
+    R_MB: np.ndarray
+    p_MB: np.ndarray
+    shapes: np.ndarray
+    shape_body: np.ndarray
+    shape_bc: np.ndarray
+    shape_br: np.ndarray
+    body_bc: np.ndarray
+    body_br: np.ndarray
+    obstacles: np.ndarray
+    obstacle_names: list
+    obstacle_bc: np.ndarray
+    obstacle_br: np.ndarray
+    obstacle_aabb: np.ndarray
+    verts: np.ndarray
+    self_pairs: np.ndarray
+    moved_by: np.ndarray
+    reach: np.ndarray
+    revolute: np.ndarray
+    joint_body: np.ndarray
+
+    @property
+    def num_bodies(self) -> int:
+        return len(self.body_names)
+
+    def fk(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Body poses (N, B, 3, 3), (N, B, 3) for configurations (N, k)."""
+        Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
+        return K.fk(Q, self.parent, self.jtype, self.qidx, self.axis, self.R_PF, self.p_PF, self.R_MB, self.p_MB)
+
+    @property
+    def chain(self) -> tuple:
+        """The chain arrays in ``kernel.fk`` order."""
+        return (self.parent, self.jtype, self.qidx, self.axis, self.R_PF, self.p_PF, self.R_MB, self.p_MB)
+
+
+def _pose(X) -> tuple[np.ndarray, np.ndarray]:
+    return X.rotation().matrix().copy(), X.translation().copy()
+
+
+def scene_arrays(workcell) -> SceneArrays:
+    """Reads the workcell's robot chain, robot shapes and obstacle shapes
+    from Drake (``Workcell.scene_arrays`` caches the result)."""
+    plant = workcell.plant
+    inspector = workcell.scene_graph.model_inspector()
+    ctx = plant.CreateDefaultContext()
+    plant.SetPositions(ctx, np.zeros(plant.num_positions()))
+    robot_bodies = [plant.get_body(b) for b in plant.GetBodyIndices(workcell.robot)]
+    inboard = {}
+    for i in range(plant.num_joints()):
+        joint = plant.get_joint(JointIndex(i))
+        inboard[int(joint.child_body().index())] = joint
+    # Topological order: parents before children.
+    order, placed = [], set()
+    pending = list(robot_bodies)
+    while pending:
+        progressed = False
+        for body in list(pending):
+            joint = inboard.get(int(body.index()))
+            if joint is None:
+                raise WorkcellError(
+                    f"robot body '{body.name()}' has no inboard joint (a floating base?); weld the robot's "
+                    "base to the world with add_weld.")
+            par = joint.parent_body()
+            if par.model_instance() != workcell.robot or int(par.index()) in placed:
+                order.append(body)
+                placed.add(int(body.index()))
+                pending.remove(body)
+                progressed = True
+        if not progressed:
+            raise WorkcellError("the robot's kinematic tree has a loop; only trees are supported.")
+    index_of = {int(b.index()): n for n, b in enumerate(order)}
+    B = len(order)
+    parent = np.full(B, -1, np.int64)
+    jtype = np.zeros(B, np.int64)
+    qidx = np.zeros(B, np.int64)
+    axis = np.zeros((B, 3))
+    R_PF = np.zeros((B, 3, 3))
+    p_PF = np.zeros((B, 3))
+    R_MB = np.zeros((B, 3, 3))
+    p_MB = np.zeros((B, 3))
+    joint_names = list(workcell.joint_names)
+    joint_body = np.full(len(joint_names), -1, np.int64)
+    for n, body in enumerate(order):
+        joint = inboard[int(body.index())]
+        X_PF = joint.frame_on_parent().GetFixedPoseInBodyFrame()
+        X_BM = joint.frame_on_child().GetFixedPoseInBodyFrame()
+        par = joint.parent_body()
+        if par.model_instance() == workcell.robot:
+            parent[n] = index_of[int(par.index())]
+        else:
+            X_PF = par.EvalPoseInWorld(ctx) @ X_PF  # fixed: only the robot moves
+        if joint.num_positions() == 0:
+            # Fold the weld's fixed X_FM into X_PF.
+            X_FM = joint.frame_on_child().CalcPose(ctx, joint.frame_on_parent())
+            X_PF = X_PF @ X_FM
+        else:
+            kind = joint.type_name()
+            jtype[n] = {"revolute": 1, "prismatic": 2}[kind]
+            qidx[n] = joint.position_start()
+            ax = joint.revolute_axis() if kind == "revolute" else joint.translation_axis()
+            axis[n] = np.asarray(ax, float) / np.linalg.norm(ax)
+            joint_body[joint_names.index(joint.name())] = n
+        R_PF[n], p_PF[n] = _pose(X_PF)
+        R_MB[n], p_MB[n] = _pose(X_BM.inverse())
+
+    verts: list[np.ndarray] = []
+    rows, bodies, bcs, brs = [], [], [], []
+    for n, body in enumerate(order):
+        fid = plant.GetBodyFrameIdIfExists(body.index())
+        if fid is None:
+            continue
+        for gid in inspector.GetGeometries(fid, Role.kProximity):
+            X_BG = inspector.GetPoseInFrame(gid)
+            row, radius, centre = shape_row(inspector.GetShape(gid), *_pose(X_BG), verts)
+            rows.append(row)
+            bodies.append(n)
+            bcs.append(centre)
+            brs.append(radius)
+    if not rows:
+        raise WorkcellError(f"robot '{workcell.robot_name}' has no proximity geometry; the bounds need it.")
+    shapes = np.array(rows)
+    shape_body = np.array(bodies, np.int64)
+    shape_bc, shape_br = np.array(bcs), np.array(brs)
+    body_bc = np.zeros((B, 3))
+    body_br = np.zeros(B)
+    for b in range(B):
+        sel = shape_body == b
+        if not sel.any():
+            continue
+        lo = (shape_bc[sel] - shape_br[sel, None]).min(0)
+        hi = (shape_bc[sel] + shape_br[sel, None]).max(0)
+        body_bc[b] = (lo + hi) / 2
+        body_br[b] = (np.linalg.norm(shape_bc[sel] - body_bc[b], axis=1) + shape_br[sel]).max() + 1e-9
+
+    obs_rows, obs_names, obs_bc, obs_br = [], [], [], []
+    sg_ctx = workcell.scene_graph.GetMyContextFromRoot(workcell.context)
+    query = workcell.scene_graph.get_query_output_port().Eval(sg_ctx)
+    for obs in workcell.obstacles.values():
+        for gid in obs.geometry_ids:
+            row, radius, centre = shape_row(inspector.GetShape(gid), *_pose(query.GetPoseInWorld(gid)), verts)
+            obs_rows.append(row)
+            obs_names.append(obs.name)
+            obs_bc.append(centre)
+            obs_br.append(radius)
+
+    checker = workcell.checker
+    has_geometry = [bool((shape_body == b).any()) for b in range(B)]
+    pairs = [(a, b) for a in range(B) for b in range(a + 1, B)
+             if has_geometry[a] and has_geometry[b]
+             and not checker.IsCollisionFilteredBetween(order[a], order[b])]
+    k = len(joint_names)
+    moved = np.zeros((k, B), bool)
+    for j in range(k):
+        b = joint_body[j]
+        stack = [b]
+        while stack:
+            x = stack.pop()
+            moved[j, x] = True
+            stack.extend(np.flatnonzero(parent == x).tolist())
+    obstacles = np.array(obs_rows).reshape(-1, K.SHAPE_W)
+    all_verts = np.concatenate(verts) if verts else np.zeros((0, 3))
+    obs_aabb = np.zeros((len(obstacles), 6))
+    tmp = np.empty(3)
+    for o in range(len(obstacles)):
+        K.shape_aabb(obstacles[o], all_verts, tmp, obs_aabb[o])
+    reach = _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved,
+                   workcell.position_lower, workcell.position_upper, qidx)
+    return SceneArrays(
+        [b.name() for b in order], [b.index() for b in order], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
+        shapes, shape_body, shape_bc, shape_br, body_bc, body_br,
+        obstacles, obs_names, np.array(obs_bc).reshape(-1, 3), np.array(obs_br), obs_aabb,
+        all_verts, np.array(pairs, np.int64).reshape(-1, 2), moved,
+        reach, np.asarray(workcell.revolute, bool), joint_body)
+
+
+def _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved,
+           lower, upper, qidx) -> np.ndarray:
+    """reach[j, b]: a configuration-independent bound on |p - c_j| for any
+    point p of body b, c_j the origin of joint j's child frame M (on its
+    axis). Triangle inequality along the chain: the distance between
+    consecutive joint origins is fixed in the body between them (plus the
+    travel of a prismatic joint), and each body's points lie within a fixed
+    distance of its own joint origin."""
+    B = len(parent)
+    anchor = np.array([-R_MB[b].T @ p_MB[b] for b in range(B)])  # M origin in body b's frame
+    own = np.zeros(B)  # max |p - anchor_b| over body b's shapes
+    for b in range(B):
+        sel = shape_body == b
+        if sel.any():
+            own[b] = (np.linalg.norm(shape_bc[sel] - anchor[b], axis=1) + shape_br[sel]).max()
+    step = np.zeros(B)  # |anchor_b - anchor_parent| bound, in the parent's frame
+    for b in range(B):
+        par = parent[b]
+        if par < 0:
+            continue
+        step[b] = np.linalg.norm(p_PF[b] - anchor[par])
+        if jtype[b] == 2:
+            q = qidx[b]
+            travel = max(abs(lower[q]), abs(upper[q]))
+            step[b] += travel if np.isfinite(travel) else np.inf
+    k = len(joint_body)
+    reach = np.zeros((k, B))
+    for j in range(k):
+        for b in np.flatnonzero(moved[j]):
+            total, x = own[b], b
+            while x != joint_body[j]:
+                total += step[x]
+                x = parent[x]
+            reach[j, b] = total
+    return reach

@@ -1,0 +1,1007 @@
+"""The compiled collision kernel (numba, ``@njit(cache=True)``).
+
+One kernel serves joint bounding, the volume test, categorization
+distances, the Confidence Factor's pre-filter and certification. It works on
+plain arrays extracted from Drake once (:mod:`drake_cfvol.geometry`):
+
+- forward kinematics of the robot's chain (:func:`fk`), tested against
+  Drake's poses to 1e-12;
+- convex shapes given by exact support functions: boxes, spheres, capsules,
+  cylinders, ellipsoids, and convex hulls of meshes (what Drake itself uses
+  for a mesh in point-pair queries);
+- motion sets folded into the support: a ball of radius ``e_iso`` (any
+  motion), a disc of radius ``e_disc`` normal to an axis u (rotation about
+  u), a segment of half-length ``e_seg`` along u (translation);
+- a boolean GJK whose "separated" answer is a certificate: a direction d
+  with h_A(d) + h_B(-d) < 0 computed from the exact supports, so the kernel
+  never calls a pose free where the shapes overlap. Where GJK does not
+  conclude it answers "may collide" (conservative);
+- the height-field volume V: a 2-D range-maximum table, and a shape against
+  the columns by recursive halving of its footprint (exact at one cell).
+
+Shape rows (``SHAPE_W`` floats): kind, centre (3), rotation (9, row-major),
+size (3), first vertex, end vertex, e_iso, axis u (3), e_disc, e_seg.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+__all__ = ["BOX", "SPHERE", "CAPSULE", "CYLINDER", "ELLIPSOID", "HULL", "SHAPE_W", "fk", "gjk_intersect",
+           "range_max_table", "range_max", "shape_hits_columns"]
+
+BOX, SPHERE, CAPSULE, CYLINDER, ELLIPSOID, HULL = 0, 1, 2, 3, 4, 5
+SHAPE_W = 25
+# Offsets in a shape row.
+_K, _C, _R, _S, _V0, _V1, _EI, _U, _ED, _ES = 0, 1, 4, 13, 16, 17, 18, 19, 22, 23
+#: A separating direction must separate by at least this (m): numerical
+#: rounding can never turn an overlap into "free".
+SEP_EPS = 1e-9
+
+
+# -- forward kinematics ----------------------------------------------------
+
+@njit(cache=True)
+def _axis_rotation(u, theta, out):
+    """Rotation matrix about unit axis u by theta (Rodrigues), into out."""
+    c = np.cos(theta)
+    s = np.sin(theta)
+    t = 1.0 - c
+    x, y, z = u[0], u[1], u[2]
+    out[0, 0] = t * x * x + c
+    out[0, 1] = t * x * y - s * z
+    out[0, 2] = t * x * z + s * y
+    out[1, 0] = t * x * y + s * z
+    out[1, 1] = t * y * y + c
+    out[1, 2] = t * y * z - s * x
+    out[2, 0] = t * x * z - s * y
+    out[2, 1] = t * y * z + s * x
+    out[2, 2] = t * z * z + c
+
+
+@njit(cache=True, inline="always")
+def _mm(A, B, out):
+    """out = A B for 3x3 matrices (no BLAS call: these are tiny)."""
+    for r in range(3):
+        a0 = A[r, 0]
+        a1 = A[r, 1]
+        a2 = A[r, 2]
+        out[r, 0] = a0 * B[0, 0] + a1 * B[1, 0] + a2 * B[2, 0]
+        out[r, 1] = a0 * B[0, 1] + a1 * B[1, 1] + a2 * B[2, 1]
+        out[r, 2] = a0 * B[0, 2] + a1 * B[1, 2] + a2 * B[2, 2]
+
+
+@njit(cache=True, inline="always")
+def _mv_add(A, v, base, out):
+    """out = base + A v (3x3 times 3-vector)."""
+    x = A[0, 0] * v[0] + A[0, 1] * v[1] + A[0, 2] * v[2]
+    y = A[1, 0] * v[0] + A[1, 1] * v[1] + A[1, 2] * v[2]
+    z = A[2, 0] * v[0] + A[2, 1] * v[1] + A[2, 2] * v[2]
+    out[0] = base[0] + x
+    out[1] = base[1] + y
+    out[2] = base[2] + z
+
+
+@njit(cache=True)
+def fk_into(q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB):
+    """Body poses X_WB at q into (B, 3, 3) / (B, 3) arrays. Bodies are in
+    topological order (parents first); parent -1 is the world.
+    X_WB = X_WP X_PF X_FM(q) X_MB."""
+    B = parent.shape[0]
+    M = np.empty((3, 3, 3))  # R_FM, R_PM, R_PB
+    V = np.empty((3, 3))  # p_FM, p_PM, p_PB
+    for b in range(B):
+        R_FM = M[0]
+        if jtype[b] == 1:
+            _axis_rotation(axis[b], q[qidx[b]], R_FM)
+        else:
+            R_FM[:, :] = 0.0
+            R_FM[0, 0] = 1.0
+            R_FM[1, 1] = 1.0
+            R_FM[2, 2] = 1.0
+        V[0, :] = 0.0
+        if jtype[b] == 2:
+            qq = q[qidx[b]]
+            V[0, 0] = axis[b, 0] * qq
+            V[0, 1] = axis[b, 1] * qq
+            V[0, 2] = axis[b, 2] * qq
+        _mm(R_PF[b], R_FM, M[1])
+        _mv_add(R_PF[b], V[0], p_PF[b], V[1])
+        _mm(M[1], R_MB[b], M[2])
+        _mv_add(M[1], p_MB[b], V[1], V[2])
+        par = parent[b]
+        if par < 0:
+            R_WB[b] = M[2]
+            p_WB[b] = V[2]
+        else:
+            _mm(R_WB[par], M[2], R_WB[b])
+            _mv_add(R_WB[par], V[2], p_WB[par], p_WB[b])
+
+
+@njit(cache=True, parallel=True)
+def fk(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB):
+    """Body poses for many configurations: (N, B, 3, 3), (N, B, 3)."""
+    N = Q.shape[0]
+    B = parent.shape[0]
+    R = np.empty((N, B, 3, 3))
+    p = np.empty((N, B, 3))
+    for n in prange(N):
+        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R[n], p[n])
+    return R, p
+
+
+# -- shapes in the world -----------------------------------------------------
+
+@njit(cache=True)
+def pose_shape(local, R_WB, p_WB, out):
+    """A shape row posed in the world: out = local with the body pose applied
+    (centre and rotation); the motion fields are left as in ``local``."""
+    out[:] = local
+    for i in range(3):
+        acc = p_WB[i]
+        for j in range(3):
+            acc += R_WB[i, j] * local[_C + j]
+        out[_C + i] = acc
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += R_WB[i, k] * local[_R + 3 * k + j]
+            out[_R + 3 * i + j] = acc
+
+
+@njit(cache=True)
+def set_motion(row, e_iso, u0, u1, u2, e_disc, e_seg):
+    row[_EI] = e_iso
+    row[_U] = u0
+    row[_U + 1] = u1
+    row[_U + 2] = u2
+    row[_ED] = e_disc
+    row[_ES] = e_seg
+
+
+@njit(cache=True)
+def support(row, verts, d0, d1, d2, out):
+    """The point of the shape (with its motion set) farthest along d, into
+    out (3,). Exact for every kind."""
+    # Direction in the shape frame: R^T d.
+    l0 = row[_R + 0] * d0 + row[_R + 3] * d1 + row[_R + 6] * d2
+    l1 = row[_R + 1] * d0 + row[_R + 4] * d1 + row[_R + 7] * d2
+    l2 = row[_R + 2] * d0 + row[_R + 5] * d1 + row[_R + 8] * d2
+    kind = int(row[_K])
+    s0 = row[_S]
+    s1 = row[_S + 1]
+    s2 = row[_S + 2]
+    x = 0.0
+    y = 0.0
+    z = 0.0
+    if kind == 0:  # box: half extents
+        x = s0 if l0 >= 0 else -s0
+        y = s1 if l1 >= 0 else -s1
+        z = s2 if l2 >= 0 else -s2
+    elif kind == 1:  # sphere: radius
+        n = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
+        if n > 0:
+            x = s0 * l0 / n
+            y = s0 * l1 / n
+            z = s0 * l2 / n
+    elif kind == 2:  # capsule along z: radius, half length
+        n = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
+        z = s1 if l2 >= 0 else -s1
+        if n > 0:
+            x = s0 * l0 / n
+            y = s0 * l1 / n
+            z += s0 * l2 / n
+    elif kind == 3:  # cylinder along z: radius, half length
+        n = np.sqrt(l0 * l0 + l1 * l1)
+        z = s1 if l2 >= 0 else -s1
+        if n > 0:
+            x = s0 * l0 / n
+            y = s0 * l1 / n
+    elif kind == 4:  # ellipsoid: semi-axes
+        a0 = s0 * s0 * l0
+        a1 = s1 * s1 * l1
+        a2 = s2 * s2 * l2
+        n = np.sqrt(a0 * l0 + a1 * l1 + a2 * l2)
+        if n > 0:
+            x = a0 / n
+            y = a1 / n
+            z = a2 / n
+    else:  # convex hull: its vertices
+        v0 = int(row[_V0])
+        v1 = int(row[_V1])
+        best = -1e300
+        for v in range(v0, v1):
+            h = verts[v, 0] * l0 + verts[v, 1] * l1 + verts[v, 2] * l2
+            if h > best:
+                best = h
+                x = verts[v, 0]
+                y = verts[v, 1]
+                z = verts[v, 2]
+    out[0] = row[_C] + row[_R + 0] * x + row[_R + 1] * y + row[_R + 2] * z
+    out[1] = row[_C + 1] + row[_R + 3] * x + row[_R + 4] * y + row[_R + 5] * z
+    out[2] = row[_C + 2] + row[_R + 6] * x + row[_R + 7] * y + row[_R + 8] * z
+    # Motion sets.
+    dn = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    if dn > 0:
+        ei = row[_EI]
+        if ei > 0:
+            out[0] += ei * d0 / dn
+            out[1] += ei * d1 / dn
+            out[2] += ei * d2 / dn
+        ed = row[_ED]
+        es = row[_ES]
+        if ed > 0 or es > 0:
+            u0 = row[_U]
+            u1 = row[_U + 1]
+            u2 = row[_U + 2]
+            du = d0 * u0 + d1 * u1 + d2 * u2
+            if es > 0:
+                sg = 1.0 if du >= 0 else -1.0
+                out[0] += es * sg * u0
+                out[1] += es * sg * u1
+                out[2] += es * sg * u2
+            if ed > 0:
+                w0 = d0 - du * u0
+                w1 = d1 - du * u1
+                w2 = d2 - du * u2
+                wn = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+                if wn > 0:
+                    out[0] += ed * w0 / wn
+                    out[1] += ed * w1 / wn
+                    out[2] += ed * w2 / wn
+
+
+# -- GJK ---------------------------------------------------------------------
+
+@njit(cache=True)
+def _cross(a, b, out):
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@njit(cache=True)
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True)
+def _mink_support(A, vA, B, vB, d, out, tmpA, tmpB):
+    """Support of A - B along d."""
+    support(A, vA, d[0], d[1], d[2], tmpA)
+    support(B, vB, -d[0], -d[1], -d[2], tmpB)
+    out[0] = tmpA[0] - tmpB[0]
+    out[1] = tmpA[1] - tmpB[1]
+    out[2] = tmpA[2] - tmpB[2]
+
+
+@njit(cache=True)
+def gjk_intersect(A, vA, B, vB, max_iter=64):
+    """True where shapes A and B (with their motion sets) may overlap.
+
+    False only with a certificate: a direction d along which the support of
+    A - B lies below -SEP_EPS |d|. Conservative: an undecided run (touching
+    shapes, iteration cap) answers True.
+    """
+    ws = np.empty((16, 3))
+    return _gjk(A, vA, B, vB, max_iter, ws)
+
+
+@njit(cache=True)
+def _gjk(A, vA, B, vB, max_iter, ws):
+    # Workspace rows: 0-3 simplex (oldest first), 4 d, 5 a, 6 tA, 7 tB, 8-15 scratch.
+    simplex = ws[0:4]
+    d = ws[4]
+    a = ws[5]
+    tA = ws[6]
+    tB = ws[7]
+    n = 0
+    # d always points from the simplex towards the origin; the first
+    # simplex point is near cA - cB, so start with d = cB - cA.
+    d[0] = B[_C] - A[_C]
+    d[1] = B[_C + 1] - A[_C + 1]
+    d[2] = B[_C + 2] - A[_C + 2]
+    if _dot(d, d) < 1e-24:
+        d[0] = 1.0
+        d[1] = 0.0
+        d[2] = 0.0
+    for _ in range(max_iter):
+        dn = np.sqrt(_dot(d, d))
+        if dn < 1e-14:
+            return True  # the origin lies on the simplex: touching
+        _mink_support(A, vA, B, vB, d, a, tA, tB)
+        if _dot(a, d) < -SEP_EPS * dn:
+            return False  # certified separating direction
+        simplex[n, 0] = a[0]
+        simplex[n, 1] = a[1]
+        simplex[n, 2] = a[2]
+        n += 1
+        n = _do_simplex(simplex, n, d, ws)
+        if n < 0:
+            return True
+    return True
+
+
+@njit(cache=True)
+def _do_simplex(simplex, n, d, ws):
+    """Reduces the simplex (newest point last) to the feature nearest the
+    origin and points d at the origin. Returns the new size, or -1 when the
+    origin is enclosed or on the simplex."""
+    ao = ws[8]
+    ab = ws[9]
+    ac = ws[10]
+    ad = ws[11]
+    t1 = ws[12]
+    abc = ws[13]
+    acd = ws[14]
+    adb = ws[15]
+    if n == 1:
+        for i in range(3):
+            d[i] = -simplex[0, i]
+        return 1
+    if n == 2:
+        return _segment(simplex, 0, 1, d, ao, ab, t1)
+    if n == 3:
+        return _triangle(simplex, d, ao, ab, ac, abc, t1)
+    # Tetrahedron: rows 0..3 = d, c, b, a (a newest).
+    for i in range(3):
+        ao[i] = -simplex[3, i]
+        ab[i] = simplex[2, i] - simplex[3, i]
+        ac[i] = simplex[1, i] - simplex[3, i]
+        ad[i] = simplex[0, i] - simplex[3, i]
+    _cross(ab, ac, abc)
+    _cross(ac, ad, acd)
+    _cross(ad, ab, adb)
+    # Face normals pointing away from the opposite vertex.
+    if _dot(abc, ad) > 0:
+        for i in range(3):
+            abc[i] = -abc[i]
+    if _dot(acd, ab) > 0:
+        for i in range(3):
+            acd[i] = -acd[i]
+    if _dot(adb, ac) > 0:
+        for i in range(3):
+            adb[i] = -adb[i]
+    if _dot(abc, ao) > 0:
+        keep0, keep1 = 1, 2  # c, b (+ a)
+    elif _dot(acd, ao) > 0:
+        keep0, keep1 = 0, 1  # d, c (+ a)
+    elif _dot(adb, ao) > 0:
+        keep0, keep1 = 2, 0  # b, d (+ a)
+    else:
+        return -1  # the origin is inside the tetrahedron
+    for i in range(3):
+        x0 = simplex[keep0, i]
+        x1 = simplex[keep1, i]
+        simplex[2, i] = simplex[3, i]
+        simplex[0, i] = x0
+        simplex[1, i] = x1
+    return _triangle(simplex, d, ao, ab, ac, abc, t1)
+
+
+@njit(cache=True)
+def _segment(simplex, ib, ia, d, ao, ab, t1):
+    """Segment case: b = simplex[ib], a = simplex[ia] (newest). Writes the
+    kept points to rows 0.. and returns the size."""
+    for i in range(3):
+        ao[i] = -simplex[ia, i]
+        ab[i] = simplex[ib, i] - simplex[ia, i]
+    if _dot(ab, ao) > 0:
+        _cross(ab, ao, t1)
+        _cross(t1, ab, d)
+        for i in range(3):
+            x_b = simplex[ib, i]
+            x_a = simplex[ia, i]
+            simplex[0, i] = x_b
+            simplex[1, i] = x_a
+        if _dot(d, d) < 1e-24:
+            return -1  # origin on the segment
+        return 2
+    for i in range(3):
+        simplex[0, i] = simplex[ia, i]
+        d[i] = ao[i]
+    return 1
+
+
+@njit(cache=True)
+def _triangle(simplex, d, ao, ab, ac, abc, t1):
+    """Triangle case, rows 0..2 = c, b, a (a newest)."""
+    for i in range(3):
+        ao[i] = -simplex[2, i]
+        ab[i] = simplex[1, i] - simplex[2, i]
+        ac[i] = simplex[0, i] - simplex[2, i]
+    _cross(ab, ac, abc)
+    _cross(abc, ac, t1)
+    if _dot(t1, ao) > 0:
+        if _dot(ac, ao) > 0:
+            return _segment(simplex, 0, 2, d, ao, ac, t1)
+        return _segment(simplex, 1, 2, d, ao, ab, t1)
+    _cross(ab, abc, t1)
+    if _dot(t1, ao) > 0:
+        return _segment(simplex, 1, 2, d, ao, ab, t1)
+    h = _dot(abc, ao)
+    if abs(h) < 1e-18 * (1.0 + _dot(abc, abc)):
+        return -1  # origin in the triangle
+    if h > 0:
+        for i in range(3):
+            d[i] = abc[i]
+    else:
+        for i in range(3):
+            x = simplex[0, i]
+            simplex[0, i] = simplex[1, i]
+            simplex[1, i] = x
+            d[i] = -abc[i]
+    return 3
+
+
+# -- the height-field volume ---------------------------------------------------
+
+@njit(cache=True)
+def range_max_table(h):
+    """2-D sparse table of maxima over blocks of 2^a x 2^b cells:
+    (la, lb, m, n)."""
+    m, n = h.shape
+    la = 1
+    while (1 << la) <= m:
+        la += 1
+    lb = 1
+    while (1 << lb) <= n:
+        lb += 1
+    t = np.full((la, lb, m, n), -np.inf)
+    t[0, 0] = h
+    for b in range(1, lb):
+        w = 1 << (b - 1)
+        for i in range(m):
+            for j in range(n - w):
+                t[0, b, i, j] = max(t[0, b - 1, i, j], t[0, b - 1, i, j + w])
+    for a in range(1, la):
+        w = 1 << (a - 1)
+        for b in range(lb):
+            for i in range(m - w):
+                for j in range(n):
+                    t[a, b, i, j] = max(t[a - 1, b, i, j], t[a - 1, b, i + w, j])
+    return t
+
+
+@njit(cache=True)
+def _log2floor(x):
+    r = 0
+    while (1 << (r + 1)) <= x:
+        r += 1
+    return r
+
+
+@njit(cache=True)
+def range_max(t, i0, i1, j0, j1):
+    """Max over cells [i0, i1] x [j0, j1] (clipped); -inf if empty."""
+    m = t.shape[2]
+    n = t.shape[3]
+    if i0 < 0:
+        i0 = 0
+    if j0 < 0:
+        j0 = 0
+    if i1 > m - 1:
+        i1 = m - 1
+    if j1 > n - 1:
+        j1 = n - 1
+    if i1 < i0 or j1 < j0:
+        return -np.inf
+    a = _log2floor(i1 - i0 + 1)
+    b = _log2floor(j1 - j0 + 1)
+    ia = i1 - (1 << a) + 1
+    jb = j1 - (1 << b) + 1
+    return max(max(t[a, b, i0, j0], t[a, b, ia, j0]), max(t[a, b, i0, jb], t[a, b, ia, jb]))
+
+
+@njit(cache=True)
+def shape_extent(row, verts, axis_i, sign, tmp):
+    """sign * (support of the shape along sign * e_axis)[axis]."""
+    d0 = sign if axis_i == 0 else 0.0
+    d1 = sign if axis_i == 1 else 0.0
+    d2 = sign if axis_i == 2 else 0.0
+    support(row, verts, d0, d1, d2, tmp)
+    return tmp[axis_i]
+
+
+@njit(cache=True)
+def shape_aabb(row, verts, tmp, out):
+    """The shape's (with its motion set) axis-aligned box: out = [xmin,
+    ymin, zmin, xmax, ymax, zmax]."""
+    for a in range(3):
+        out[a] = shape_extent(row, verts, a, -1.0, tmp)
+        out[3 + a] = shape_extent(row, verts, a, 1.0, tmp)
+
+
+@njit(cache=True, inline="always")
+def _aabb_apart(a, b):
+    return (a[0] > b[3] or b[0] > a[3] or a[1] > b[4] or b[1] > a[4] or a[2] > b[5] or b[2] > a[5])
+
+
+@njit(cache=True)
+def new_workspace():
+    """Scratch arrays for the scene tests (one per thread): GJK rows, the
+    footprint stack, a box row and a vector."""
+    ws = np.empty((16, 3))
+    stack = np.empty((64, 4), np.int64)
+    box = np.zeros(SHAPE_W)
+    box[_K] = BOX
+    box[_R + 0] = 1.0
+    box[_R + 4] = 1.0
+    box[_R + 8] = 1.0
+    return ws, stack, box
+
+
+@njit(cache=True)
+def shape_hits_columns(row, verts, aabb, table, ox, oy, side, ws, stack, box):
+    """True where the shape (its axis-aligned box ``aabb``) may touch a
+    column of V. The footprint's cell block is halved until each half is
+    free (its tallest column below the shape, or a GJK certificate against
+    the block's bounding box) or a single cell, which is tested exactly
+    against its column."""
+    xmin = aabb[0]
+    ymin = aabb[1]
+    zmin = aabb[2]
+    xmax = aabb[3]
+    ymax = aabb[4]
+    i0 = int(np.floor((xmin - ox) / side))
+    i1 = int(np.floor((xmax - ox) / side))
+    j0 = int(np.floor((ymin - oy) / side))
+    j1 = int(np.floor((ymax - oy) / side))
+    m = table.shape[2]
+    n = table.shape[3]
+    if i0 < 0:
+        i0 = 0
+    if j0 < 0:
+        j0 = 0
+    if i1 > m - 1:
+        i1 = m - 1
+    if j1 > n - 1:
+        j1 = n - 1
+    if i1 < i0 or j1 < j0:
+        return False
+    stack[0, 0] = i0
+    stack[0, 1] = i1
+    stack[0, 2] = j0
+    stack[0, 3] = j1
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        a0 = stack[sp, 0]
+        a1 = stack[sp, 1]
+        b0 = stack[sp, 2]
+        b1 = stack[sp, 3]
+        top = range_max(table, a0, a1, b0, b1)
+        if not (top > 0.0) or zmin >= top:
+            continue
+        # The block's bounding box: cells a0..a1 x b0..b1, floor to top.
+        box[_C] = ox + (a0 + a1 + 1) * 0.5 * side
+        box[_C + 1] = oy + (b0 + b1 + 1) * 0.5 * side
+        box[_C + 2] = 0.5 * top
+        box[_S] = (a1 - a0 + 1) * 0.5 * side
+        box[_S + 1] = (b1 - b0 + 1) * 0.5 * side
+        box[_S + 2] = 0.5 * top
+        if not _gjk(row, verts, box, verts, 64, ws):
+            continue
+        if a0 == a1 and b0 == b1:
+            return True  # exact: the shape meets this column
+        if sp + 2 > stack.shape[0]:
+            return True  # conservative on overflow (never at sane sizes)
+        if (a1 - a0) >= (b1 - b0):
+            mid = (a0 + a1) // 2
+            stack[sp, 0] = a0
+            stack[sp, 1] = mid
+            stack[sp, 2] = b0
+            stack[sp, 3] = b1
+            stack[sp + 1, 0] = mid + 1
+            stack[sp + 1, 1] = a1
+            stack[sp + 1, 2] = b0
+            stack[sp + 1, 3] = b1
+        else:
+            mid = (b0 + b1) // 2
+            stack[sp, 0] = a0
+            stack[sp, 1] = a1
+            stack[sp, 2] = b0
+            stack[sp, 3] = mid
+            stack[sp + 1, 0] = a0
+            stack[sp + 1, 1] = a1
+            stack[sp + 1, 2] = mid + 1
+            stack[sp + 1, 3] = b1
+        sp += 2
+    return False
+
+
+# -- scene tests -----------------------------------------------------------------
+
+@njit(cache=True)
+def _pose_rows(R_WB, p_WB, shapes, shape_body, shape_bc, rows, centres):
+    """World rows and bounding-sphere centres of every robot shape."""
+    for s in range(shapes.shape[0]):
+        b = shape_body[s]
+        pose_shape(shapes[s], R_WB[b], p_WB[b], rows[s])
+        _mv_add(R_WB[b], shape_bc[s], p_WB[b], centres[s])
+
+
+@njit(cache=True)
+def _shape_vs_scene(s, rows, centres, radii, aabbs, verts, obstacles, obs_bc, obs_br, obs_aabb, table, ox, oy,
+                    side, ws, stack, box):
+    """Shape s (posed, with its motion set, bounding radius radii[s], box
+    aabbs[s]) against the obstacles and V (an empty table: no V)."""
+    for o in range(obstacles.shape[0]):
+        if _aabb_apart(aabbs[s], obs_aabb[o]):
+            continue
+        dx = centres[s, 0] - obs_bc[o, 0]
+        dy = centres[s, 1] - obs_bc[o, 1]
+        dz = centres[s, 2] - obs_bc[o, 2]
+        rr = radii[s] + obs_br[o]
+        if dx * dx + dy * dy + dz * dz > rr * rr:
+            continue
+        if _gjk(rows[s], verts, obstacles[o], verts, 64, ws):
+            return True
+    if table.shape[2] > 0:
+        if shape_hits_columns(rows[s], verts, aabbs[s], table, ox, oy, side, ws, stack, box):
+            return True
+    return False
+
+
+@njit(cache=True)
+def _pair_hits(sa, sb, rows, centres, radii, aabbs, verts, ws):
+    if _aabb_apart(aabbs[sa], aabbs[sb]):
+        return False
+    dx = centres[sa, 0] - centres[sb, 0]
+    dy = centres[sa, 1] - centres[sb, 1]
+    dz = centres[sa, 2] - centres[sb, 2]
+    rr = radii[sa] + radii[sb]
+    if dx * dx + dy * dy + dz * dz > rr * rr:
+        return False
+    return _gjk(rows[sa], verts, rows[sb], verts, 64, ws)
+
+
+@njit(cache=True, parallel=True)
+def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, shape_bc,
+                        shape_br, verts, obstacles, obs_bc, obs_br, obs_aabb, pairs):
+    """(N,) True where a configuration may collide with the obstacles or
+    itself (the unfiltered body pairs); False is certified free."""
+    N = Q.shape[0]
+    B = parent.shape[0]
+    S = shapes.shape[0]
+    out = np.zeros(N, np.bool_)
+    empty_table = np.zeros((1, 1, 0, 0))
+    for n in prange(N):
+        ws, stack, box = new_workspace()
+        R_WB = np.empty((B, 3, 3))
+        p_WB = np.empty((B, 3))
+        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+        rows = np.empty((S, SHAPE_W))
+        centres = np.empty((S, 3))
+        aabbs = np.empty((S, 6))
+        _pose_rows(R_WB, p_WB, shapes, shape_body, shape_bc, rows, centres)
+        for s in range(S):
+            shape_aabb(rows[s], verts, ws[15], aabbs[s])
+        hit = False
+        for s in range(S):
+            if _shape_vs_scene(s, rows, centres, shape_br, aabbs, verts, obstacles, obs_bc, obs_br, obs_aabb,
+                               empty_table, 0.0, 0.0, 1.0, ws, stack, box):
+                hit = True
+                break
+        if not hit:
+            for p in range(pairs.shape[0]):
+                for sa in range(S):
+                    if shape_body[sa] != pairs[p, 0]:
+                        continue
+                    for sb in range(S):
+                        if shape_body[sb] == pairs[p, 1] and _pair_hits(sa, sb, rows, centres, shape_br, aabbs,
+                                                                        verts, ws):
+                            hit = True
+                            break
+                    if hit:
+                        break
+                if hit:
+                    break
+        out[n] = hit
+    return out
+
+
+@njit(cache=True)
+def _region_hits(q_c, j, h_tau, h_v, dq, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
+                 shapes, shape_body, shape_bc, shape_br, verts, obstacles, obs_bc, obs_br, obs_aabb, pairs,
+                 moved, reach, revolute, joint_body, table, ox, oy, side,
+                 R_WB, p_WB, rows, centres, radii, aabbs, ws, stack, box):
+    """May the robot collide anywhere in the region: configurations
+    nom + t dq with joint j replaced by v, t within h_tau of the centre's t
+    and v within h_v of q_c[j]?
+
+    The robot is posed at q_c. Each body is grown by how far its points can
+    move over the region: the other joints' motion bounded by
+    sum_k |dq_k| h_tau reach[k, b] (a ball), joint j's by a disc of radius
+    h_v times the distance from its axis (revolute) or a segment of half
+    length h_v along it (prismatic). Only pairs that joint j moves apart
+    are tested for self-collision, and only bodies joint j moves against
+    the obstacles and V: everything else keeps its pose relative to the
+    nominal, which is free.
+    """
+    S = shapes.shape[0]
+    k = dq.shape[0]
+    fk_into(q_c, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+    _pose_rows(R_WB, p_WB, shapes, shape_body, shape_bc, rows, centres)
+    jb = joint_body[j]
+    # Joint j's axis in the world, through the origin of its child frame M:
+    # p_WM = p_WB - R_WB R_MB^T p_MB, u = R_WB R_MB^T axis.
+    RB = R_WB[jb]
+    RM = R_MB[jb]
+    pm = p_MB[jb]
+    t0 = RM[0, 0] * pm[0] + RM[1, 0] * pm[1] + RM[2, 0] * pm[2]
+    t1 = RM[0, 1] * pm[0] + RM[1, 1] * pm[1] + RM[2, 1] * pm[2]
+    t2 = RM[0, 2] * pm[0] + RM[1, 2] * pm[1] + RM[2, 2] * pm[2]
+    c0 = p_WB[jb, 0] - (RB[0, 0] * t0 + RB[0, 1] * t1 + RB[0, 2] * t2)
+    c1 = p_WB[jb, 1] - (RB[1, 0] * t0 + RB[1, 1] * t1 + RB[1, 2] * t2)
+    c2 = p_WB[jb, 2] - (RB[2, 0] * t0 + RB[2, 1] * t1 + RB[2, 2] * t2)
+    ax = axis[jb]
+    a0 = RM[0, 0] * ax[0] + RM[1, 0] * ax[1] + RM[2, 0] * ax[2]
+    a1 = RM[0, 1] * ax[0] + RM[1, 1] * ax[1] + RM[2, 1] * ax[2]
+    a2 = RM[0, 2] * ax[0] + RM[1, 2] * ax[1] + RM[2, 2] * ax[2]
+    u0 = RB[0, 0] * a0 + RB[0, 1] * a1 + RB[0, 2] * a2
+    u1 = RB[1, 0] * a0 + RB[1, 1] * a1 + RB[1, 2] * a2
+    u2 = RB[2, 0] * a0 + RB[2, 1] * a1 + RB[2, 2] * a2
+    for s in range(S):
+        b = shape_body[s]
+        e_iso = 0.0
+        if h_tau > 0:
+            for kk in range(k):
+                if kk == j or not moved[kk, b] or dq[kk] == 0.0:
+                    continue
+                if revolute[kk]:
+                    e_iso += abs(dq[kk]) * h_tau * reach[kk, b]
+                else:
+                    e_iso += abs(dq[kk]) * h_tau
+        e_disc = 0.0
+        e_seg = 0.0
+        if moved[j, b] and h_v > 0:
+            if revolute[j]:
+                w0 = centres[s, 0] - c0
+                w1 = centres[s, 1] - c1
+                w2 = centres[s, 2] - c2
+                wu = w0 * u0 + w1 * u1 + w2 * u2
+                perp = np.sqrt(max(w0 * w0 + w1 * w1 + w2 * w2 - wu * wu, 0.0))
+                e_disc = h_v * (perp + shape_br[s])
+            else:
+                e_seg = h_v
+        set_motion(rows[s], e_iso, u0, u1, u2, e_disc, e_seg)
+        radii[s] = shape_br[s] + e_iso + e_disc + e_seg
+        shape_aabb(rows[s], verts, ws[15], aabbs[s])
+    for s in range(S):
+        if not moved[j, shape_body[s]]:
+            continue
+        if _shape_vs_scene(s, rows, centres, radii, aabbs, verts, obstacles, obs_bc, obs_br, obs_aabb, table, ox,
+                           oy, side, ws, stack, box):
+            return True
+    for p in range(pairs.shape[0]):
+        a = pairs[p, 0]
+        bb = pairs[p, 1]
+        if moved[j, a] == moved[j, bb]:
+            continue
+        for sa in range(S):
+            if shape_body[sa] != a:
+                continue
+            for sb in range(S):
+                if shape_body[sb] == bb and _pair_hits(sa, sb, rows, centres, radii, aabbs, verts, ws):
+                    return True
+    return False
+
+
+@njit(cache=True, parallel=True)
+def sweep_stretches(tasks, guesses, delta, lim_lo, lim_hi, depth, W, parent, jtype, qidx, axis, R_PF, p_PF,
+                    R_MB, p_MB, shapes, shape_body, shape_bc, shape_br, verts, obstacles, obs_bc, obs_br, obs_aabb,
+                    pairs, moved, reach, revolute, joint_body, table, ox, oy, side):
+    """Certified single-joint bounds over stretches of the nominal.
+
+    Task n = (i, j, sign): the bound v of joint j (upper for sign +1, lower
+    for -1) such that for every t in [0, 1] moving joint j alone from
+    nom(i + t) to v is free. The stretch is cut into 2^depth[i, j] pieces
+    (so that the nominal's own motion over a piece grows no body by more
+    than a tolerance); for each piece, an adaptive search from the piece's
+    nominal range outwards: test [F, F + w]; free -> certified, advance and
+    double w; possible collision -> halve w; stop once a possibly colliding
+    interval is narrower than delta[j]. The first piece starts from
+    ``guesses[n]`` (>= 0: a neighbour's extent) or cold; each later piece
+    first checks the bound found so far in one test and searches only if
+    that fails. The bound is the tightest over the pieces.
+
+    Returns:
+        (bound (n,), tests (n,)): the bound (absolute, rad or m) and the
+        region tests it took.
+    """
+    n_tasks = tasks.shape[0]
+    out = np.zeros(n_tasks)
+    tests = np.zeros(n_tasks, np.int64)
+    B = parent.shape[0]
+    S = shapes.shape[0]
+    k = W.shape[1]
+    for n in prange(n_tasks):
+        i = tasks[n, 0]
+        j = tasks[n, 1]
+        sgn = tasks[n, 2]
+        ws, stack, box = new_workspace()
+        R_WB = np.empty((B, 3, 3))
+        p_WB = np.empty((B, 3))
+        rows = np.empty((S, SHAPE_W))
+        centres = np.empty((S, 3))
+        radii = np.empty(S)
+        aabbs = np.empty((S, 6))
+        q_c = np.empty(k)
+        dq = np.empty(k)
+        for kk in range(k):
+            dq[kk] = W[i + 1, kk] - W[i, kk]
+        pieces = 1 << depth[i, j]
+        h_tau = 0.5 / pieces
+        bound = lim_hi[i, j] if sgn > 0 else lim_lo[i, j]
+        count = 0
+        for piece in range(pieces):
+            ta = piece / pieces
+            tb = (piece + 1) / pieces
+            tm = 0.5 * (ta + tb)
+            na = W[i, j] + ta * dq[j]
+            nb = W[i, j] + tb * dq[j]
+            if sgn > 0:
+                v0 = min(na, nb)
+                T = bound - v0
+            else:
+                v0 = max(na, nb)
+                T = v0 - bound
+            if T <= 0:
+                continue
+            F = 0.0
+            verify = piece > 0
+            if piece > 0 or guesses[n] < 0:
+                w = T
+                w_next = -1.0
+            else:
+                w = max(guesses[n], delta[j])
+                w_next = 2.0 * delta[j]
+            for kk in range(k):
+                q_c[kk] = W[i, kk] + tm * dq[kk]
+            while True:
+                X = min(F + w, T)
+                h_v = 0.5 * (X - F)
+                q_c[j] = v0 + sgn * 0.5 * (F + X)
+                count += 1
+                hit = _region_hits(q_c, j, h_tau, h_v, dq, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
+                                   shapes, shape_body, shape_bc, shape_br, verts, obstacles, obs_bc, obs_br,
+                                   obs_aabb, pairs, moved, reach, revolute, joint_body, table, ox, oy, side,
+                                   R_WB, p_WB, rows, centres, radii, aabbs, ws, stack, box)
+                if not hit:
+                    F = X
+                    if F >= T:
+                        break
+                    if w_next > 0:
+                        w = w_next
+                        w_next = -1.0
+                    else:
+                        w = 2.0 * w
+                else:
+                    width = X - F
+                    w_next = -1.0
+                    if width < delta[j]:
+                        break
+                    if verify:
+                        # The bound so far failed on this piece: it is most
+                        # likely a little too far; try just short of it.
+                        verify = False
+                        w = max(width - 2.0 * delta[j], 0.5 * delta[j])
+                        w_next = delta[j]
+                    else:
+                        w = 0.5 * width
+            bound = v0 + sgn * F
+        out[n] = bound
+        tests[n] = count
+    return out, tests
+
+
+@njit(cache=True)
+def lower_columns_under(Q, e_body, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body,
+                        verts, heights, ox, oy, side, clearance):
+    """Lowers every column under the robot at configurations Q (each body
+    grown by e_body[n, b], a ball) to ``clearance`` below the lowest point of
+    any shape whose footprint's bounding rectangle covers it. In place."""
+    B = parent.shape[0]
+    S = shapes.shape[0]
+    m, nn = heights.shape
+    R_WB = np.empty((B, 3, 3))
+    p_WB = np.empty((B, 3))
+    row = np.empty(SHAPE_W)
+    tmp = np.empty(3)
+    for n in range(Q.shape[0]):
+        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+        for s in range(S):
+            b = shape_body[s]
+            pose_shape(shapes[s], R_WB[b], p_WB[b], row)
+            set_motion(row, e_body[n, b], 0.0, 0.0, 1.0, 0.0, 0.0)
+            xmin = shape_extent(row, verts, 0, -1.0, tmp)
+            xmax = shape_extent(row, verts, 0, 1.0, tmp)
+            ymin = shape_extent(row, verts, 1, -1.0, tmp)
+            ymax = shape_extent(row, verts, 1, 1.0, tmp)
+            cap = shape_extent(row, verts, 2, -1.0, tmp) - clearance
+            if cap < 0:
+                cap = 0.0
+            i0 = max(int(np.floor((xmin - ox) / side)), 0)
+            i1 = min(int(np.floor((xmax - ox) / side)), m - 1)
+            j0 = max(int(np.floor((ymin - oy) / side)), 0)
+            j1 = min(int(np.floor((ymax - oy) / side)), nn - 1)
+            for a in range(i0, i1 + 1):
+                for c in range(j0, j1 + 1):
+                    if heights[a, c] > cap:
+                        heights[a, c] = cap
+
+
+@njit(cache=True, parallel=True)
+def shapes_within(Q, radius, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, shape_bc,
+                  shape_br, verts, obstacles, obs_bc, obs_br):
+    """(N, O) True where obstacle shape o is within ``radius`` of the robot
+    at Q[n] (every robot shape grown by a ball of that radius)."""
+    N = Q.shape[0]
+    O = obstacles.shape[0]
+    B = parent.shape[0]
+    S = shapes.shape[0]
+    out = np.zeros((N, O), np.bool_)
+    for n in prange(N):
+        ws = np.empty((16, 3))
+        R_WB = np.empty((B, 3, 3))
+        p_WB = np.empty((B, 3))
+        rows = np.empty((S, SHAPE_W))
+        centres = np.empty((S, 3))
+        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+        _pose_rows(R_WB, p_WB, shapes, shape_body, shape_bc, rows, centres)
+        for s in range(S):
+            set_motion(rows[s], radius, 0.0, 0.0, 1.0, 0.0, 0.0)
+            for o in range(O):
+                if out[n, o]:
+                    continue
+                dx = centres[s, 0] - obs_bc[o, 0]
+                dy = centres[s, 1] - obs_bc[o, 1]
+                dz = centres[s, 2] - obs_bc[o, 2]
+                rr = shape_br[s] + radius + obs_br[o]
+                if dx * dx + dy * dy + dz * dz > rr * rr:
+                    continue
+                if _gjk(rows[s], verts, obstacles[o], verts, 64, ws):
+                    out[n, o] = True
+    return out
+
+
+@njit(cache=True)
+def _touches(rows, S, e, verts, obstacle, ws):
+    for s in range(S):
+        set_motion(rows[s], e, 0.0, 0.0, 1.0, 0.0, 0.0)
+        if _gjk(rows[s], verts, obstacle, verts, 64, ws):
+            return True
+    return False
+
+
+@njit(cache=True)
+def robot_obstacle_distance(q, o, hi, tol, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes,
+                            shape_body, shape_bc, verts, obstacles):
+    """Distance from the robot at q to obstacle shape o, by bisection on the
+    radius of a ball grown around every robot shape: within ``tol`` below
+    the true distance; 0 if touching; ``hi`` if farther than hi."""
+    B = parent.shape[0]
+    S = shapes.shape[0]
+    ws = np.empty((16, 3))
+    R_WB = np.empty((B, 3, 3))
+    p_WB = np.empty((B, 3))
+    rows = np.empty((S, SHAPE_W))
+    centres = np.empty((S, 3))
+    fk_into(q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+    _pose_rows(R_WB, p_WB, shapes, shape_body, shape_bc, rows, centres)
+    if _touches(rows, S, 0.0, verts, obstacles[o], ws):
+        return 0.0
+    if not _touches(rows, S, hi, verts, obstacles[o], ws):
+        return hi
+    lo_e = 0.0
+    hi_e = hi
+    while hi_e - lo_e > tol:
+        mid = 0.5 * (lo_e + hi_e)
+        if _touches(rows, S, mid, verts, obstacles[o], ws):
+            hi_e = mid
+        else:
+            lo_e = mid
+    return lo_e
