@@ -132,6 +132,8 @@ class SceneArrays:
         moved_by (k, B): True where joint j moves body b.
         reach (k, B): bound on the distance from joint j's axis point to any
             point of body b, at every configuration, m (0 if not moved).
+        curvature (k, k, B): bound on |d^2 p / dq_k dq_l| for any point p of
+            body b at any configuration, m (see :func:`_curvature`).
         revolute (k,): joint types.
         joint_body (k,): the body whose inboard joint each joint is.
     """
@@ -161,6 +163,7 @@ class SceneArrays:
     self_pairs: np.ndarray
     moved_by: np.ndarray
     reach: np.ndarray
+    curvature: np.ndarray
     revolute: np.ndarray
     joint_body: np.ndarray
 
@@ -306,9 +309,8 @@ def scene_arrays(workcell) -> SceneArrays:
     obstacles = np.array(obs_rows).reshape(-1, K.SHAPE_W)
     all_verts = np.concatenate(verts) if verts else np.zeros((0, 3))
     obs_aabb = np.zeros((len(obstacles), 6))
-    tmp = np.empty(3)
     for o in range(len(obstacles)):
-        K.shape_aabb(obstacles[o], all_verts, tmp, obs_aabb[o])
+        K.row_aabb(obstacles[o], all_verts, obs_aabb[o])
     reach = _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved,
                    workcell.position_lower, workcell.position_upper, qidx)
     return SceneArrays(
@@ -316,7 +318,8 @@ def scene_arrays(workcell) -> SceneArrays:
         shapes, shape_body, shape_bc, shape_br, body_bc, body_br,
         obstacles, obs_names, np.array(obs_bc).reshape(-1, 3), np.array(obs_br), obs_aabb,
         all_verts, np.array(pairs, np.int64).reshape(-1, 2), moved,
-        reach, np.asarray(workcell.revolute, bool), joint_body)
+        reach, _curvature(reach, moved, np.asarray(workcell.revolute, bool)), np.asarray(workcell.revolute, bool),
+        joint_body)
 
 
 def _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved,
@@ -354,3 +357,28 @@ def _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br
                 x = parent[x]
             reach[j, b] = total
     return reach
+
+
+def _curvature(reach: np.ndarray, moved: np.ndarray, revolute: np.ndarray) -> np.ndarray:
+    """curvature[k, l, b] >= |d^2 p / dq_k dq_l| for every point p of body b.
+
+    With c_l, u_l joint l's axis point and direction, for joint k upstream of
+    l (both revolute): d/dq_k (u_l x (p - c_l)) = (u_k x u_l) x (p - c_l) +
+    u_l x (u_k x (p - c_l)), at most 2 |p - c_l|; for k = l, |p - c_k|. A
+    revolute and a prismatic joint: at most 1 (the prismatic axis turns
+    with the revolute joint upstream of it; a translation turns nothing). Two
+    prismatic joints: 0.
+    """
+    k, B = reach.shape
+    out = np.zeros((k, k, B))
+    for a in range(k):
+        for c in range(k):
+            both = moved[a] & moved[c]
+            if revolute[a] and revolute[c]:
+                val = reach[a] if a == c else 2.0 * np.maximum(reach[a], reach[c])
+            elif revolute[a] or revolute[c]:
+                val = np.ones(B)
+            else:
+                val = np.zeros(B)
+            out[a, c] = np.where(both, val, 0.0)
+    return out

@@ -29,7 +29,8 @@ import numpy as np
 from numba import njit, prange
 
 __all__ = ["BOX", "SPHERE", "CAPSULE", "CYLINDER", "ELLIPSOID", "HULL", "SHAPE_W", "fk", "gjk_intersect",
-           "range_max_table", "range_max", "shape_hits_columns"]
+           "range_max_table", "range_max", "object_hits_columns", "configs_may_collide", "sweep_stretches",
+           "lower_columns_under", "obstacle_distances", "row_aabb"]
 
 BOX, SPHERE, CAPSULE, CYLINDER, ELLIPSOID, HULL = 0, 1, 2, 3, 4, 5
 SHAPE_W = 25
@@ -253,7 +254,11 @@ def support(row, verts, d0, d1, d2, out):
                     out[2] += ed * w2 / wn
 
 
-# -- GJK ---------------------------------------------------------------------
+# -- GJK on convex hulls of posed shapes -----------------------------------------
+#
+# An "object" is a 2-D array of shape rows (P, SHAPE_W): the convex hull of
+# the P posed shapes (each with its motion set). P = 1 is a plain shape;
+# P > 1 covers a motion by its end poses (see _region_hits).
 
 @njit(cache=True)
 def _cross(a, b, out):
@@ -262,47 +267,53 @@ def _cross(a, b, out):
     out[2] = a[0] * b[1] - a[1] * b[0]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 @njit(cache=True)
-def _mink_support(A, vA, B, vB, d, out, tmpA, tmpB):
-    """Support of A - B along d."""
-    support(A, vA, d[0], d[1], d[2], tmpA)
-    support(B, vB, -d[0], -d[1], -d[2], tmpB)
-    out[0] = tmpA[0] - tmpB[0]
-    out[1] = tmpA[1] - tmpB[1]
-    out[2] = tmpA[2] - tmpB[2]
+def support_multi(obj, verts, d0, d1, d2, out, tmp):
+    """Support of the convex hull of the object's rows along d, into out."""
+    best = -np.inf
+    for p in range(obj.shape[0]):
+        support(obj[p], verts, d0, d1, d2, tmp)
+        h = tmp[0] * d0 + tmp[1] * d1 + tmp[2] * d2
+        if h > best:
+            best = h
+            out[0] = tmp[0]
+            out[1] = tmp[1]
+            out[2] = tmp[2]
 
 
 @njit(cache=True)
 def gjk_intersect(A, vA, B, vB, max_iter=64):
-    """True where shapes A and B (with their motion sets) may overlap.
+    """True where objects A and B (2-D arrays of shape rows) may overlap.
 
     False only with a certificate: a direction d along which the support of
     A - B lies below -SEP_EPS |d|. Conservative: an undecided run (touching
     shapes, iteration cap) answers True.
     """
-    ws = np.empty((16, 3))
+    ws = np.empty((18, 3))
     return _gjk(A, vA, B, vB, max_iter, ws)
 
 
 @njit(cache=True)
 def _gjk(A, vA, B, vB, max_iter, ws):
-    # Workspace rows: 0-3 simplex (oldest first), 4 d, 5 a, 6 tA, 7 tB, 8-15 scratch.
+    # Workspace rows: 0-3 simplex (oldest first), 4 d, 5 a, 6 tA, 7 tB,
+    # 8-15 scratch, 16-17 support scratch.
     simplex = ws[0:4]
     d = ws[4]
     a = ws[5]
     tA = ws[6]
     tB = ws[7]
+    tmp = ws[16]
     n = 0
     # d always points from the simplex towards the origin; the first
     # simplex point is near cA - cB, so start with d = cB - cA.
-    d[0] = B[_C] - A[_C]
-    d[1] = B[_C + 1] - A[_C + 1]
-    d[2] = B[_C + 2] - A[_C + 2]
+    d[0] = B[0, _C] - A[0, _C]
+    d[1] = B[0, _C + 1] - A[0, _C + 1]
+    d[2] = B[0, _C + 2] - A[0, _C + 2]
     if _dot(d, d) < 1e-24:
         d[0] = 1.0
         d[1] = 0.0
@@ -311,7 +322,11 @@ def _gjk(A, vA, B, vB, max_iter, ws):
         dn = np.sqrt(_dot(d, d))
         if dn < 1e-14:
             return True  # the origin lies on the simplex: touching
-        _mink_support(A, vA, B, vB, d, a, tA, tB)
+        support_multi(A, vA, d[0], d[1], d[2], tA, tmp)
+        support_multi(B, vB, -d[0], -d[1], -d[2], tB, tmp)
+        a[0] = tA[0] - tB[0]
+        a[1] = tA[1] - tB[1]
+        a[2] = tA[2] - tB[2]
         if _dot(a, d) < -SEP_EPS * dn:
             return False  # certified separating direction
         simplex[n, 0] = a[0]
@@ -495,23 +510,68 @@ def range_max(t, i0, i1, j0, j1):
     return max(max(t[a, b, i0, j0], t[a, b, ia, j0]), max(t[a, b, i0, jb], t[a, b, ia, jb]))
 
 
-@njit(cache=True)
-def shape_extent(row, verts, axis_i, sign, tmp):
-    """sign * (support of the shape along sign * e_axis)[axis]."""
-    d0 = sign if axis_i == 0 else 0.0
-    d1 = sign if axis_i == 1 else 0.0
-    d2 = sign if axis_i == 2 else 0.0
-    support(row, verts, d0, d1, d2, tmp)
-    return tmp[axis_i]
-
+# -- bounding boxes and the volume test -----------------------------------------
 
 @njit(cache=True)
-def shape_aabb(row, verts, tmp, out):
-    """The shape's (with its motion set) axis-aligned box: out = [xmin,
-    ymin, zmin, xmax, ymax, zmax]."""
+def row_aabb(row, verts, out):
+    """A shape row's (with its motion set) axis-aligned box, closed form:
+    out = [xmin, ymin, zmin, xmax, ymax, zmax]."""
+    kind = int(row[_K])
+    s0 = row[_S]
+    s1 = row[_S + 1]
+    s2 = row[_S + 2]
     for a in range(3):
-        out[a] = shape_extent(row, verts, a, -1.0, tmp)
-        out[3 + a] = shape_extent(row, verts, a, 1.0, tmp)
+        r0 = row[_R + 3 * a]
+        r1 = row[_R + 3 * a + 1]
+        r2 = row[_R + 3 * a + 2]
+        c = row[_C + a]
+        lo = 0.0
+        hi = 0.0
+        if kind == 0:
+            h = abs(r0) * s0 + abs(r1) * s1 + abs(r2) * s2
+            lo = -h
+            hi = h
+        elif kind == 1:
+            lo = -s0
+            hi = s0
+        elif kind == 2:
+            h = abs(r2) * s1 + s0
+            lo = -h
+            hi = h
+        elif kind == 3:
+            h = abs(r2) * s1 + s0 * np.sqrt(max(1.0 - r2 * r2, 0.0))
+            lo = -h
+            hi = h
+        elif kind == 4:
+            h = np.sqrt((r0 * s0) ** 2 + (r1 * s1) ** 2 + (r2 * s2) ** 2)
+            lo = -h
+            hi = h
+        else:
+            lo = np.inf
+            hi = -np.inf
+            for v in range(int(row[_V0]), int(row[_V1])):
+                x = r0 * verts[v, 0] + r1 * verts[v, 1] + r2 * verts[v, 2]
+                if x < lo:
+                    lo = x
+                if x > hi:
+                    hi = x
+        ua = row[_U + a]
+        m = row[_EI] + row[_ED] * np.sqrt(max(1.0 - ua * ua, 0.0)) + row[_ES] * abs(ua)
+        out[a] = c + lo - m
+        out[3 + a] = c + hi + m
+
+
+@njit(cache=True)
+def object_aabb(obj, verts, out, tmp6):
+    """The axis-aligned box of an object (union over its rows)."""
+    row_aabb(obj[0], verts, out)
+    for p in range(1, obj.shape[0]):
+        row_aabb(obj[p], verts, tmp6)
+        for a in range(3):
+            if tmp6[a] < out[a]:
+                out[a] = tmp6[a]
+            if tmp6[3 + a] > out[3 + a]:
+                out[3 + a] = tmp6[3 + a]
 
 
 @njit(cache=True, inline="always")
@@ -522,33 +582,30 @@ def _aabb_apart(a, b):
 @njit(cache=True)
 def new_workspace():
     """Scratch arrays for the scene tests (one per thread): GJK rows, the
-    footprint stack, a box row and a vector."""
-    ws = np.empty((16, 3))
+    footprint stack, a one-row box object, and a 6-vector."""
+    ws = np.empty((18, 3))
     stack = np.empty((64, 4), np.int64)
-    box = np.zeros(SHAPE_W)
-    box[_K] = BOX
-    box[_R + 0] = 1.0
-    box[_R + 4] = 1.0
-    box[_R + 8] = 1.0
-    return ws, stack, box
+    box = np.zeros((1, SHAPE_W))
+    box[0, _K] = BOX
+    box[0, _R + 0] = 1.0
+    box[0, _R + 4] = 1.0
+    box[0, _R + 8] = 1.0
+    tmp6 = np.empty(6)
+    return ws, stack, box, tmp6
 
 
 @njit(cache=True)
-def shape_hits_columns(row, verts, aabb, table, ox, oy, side, ws, stack, box):
-    """True where the shape (its axis-aligned box ``aabb``) may touch a
+def object_hits_columns(obj, verts, aabb, table, ox, oy, side, ws, stack, box):
+    """True where the object (its axis-aligned box ``aabb``) may touch a
     column of V. The footprint's cell block is halved until each half is
-    free (its tallest column below the shape, or a GJK certificate against
-    the block's bounding box) or a single cell, which is tested exactly
-    against its column."""
-    xmin = aabb[0]
-    ymin = aabb[1]
+    free (its tallest column below the object, or a GJK certificate against
+    the block's bounding box) or a single cell, tested exactly against its
+    column."""
     zmin = aabb[2]
-    xmax = aabb[3]
-    ymax = aabb[4]
-    i0 = int(np.floor((xmin - ox) / side))
-    i1 = int(np.floor((xmax - ox) / side))
-    j0 = int(np.floor((ymin - oy) / side))
-    j1 = int(np.floor((ymax - oy) / side))
+    i0 = int(np.floor((aabb[0] - ox) / side))
+    i1 = int(np.floor((aabb[3] - ox) / side))
+    j0 = int(np.floor((aabb[1] - oy) / side))
+    j1 = int(np.floor((aabb[4] - oy) / side))
     m = table.shape[2]
     n = table.shape[3]
     if i0 < 0:
@@ -576,16 +633,16 @@ def shape_hits_columns(row, verts, aabb, table, ox, oy, side, ws, stack, box):
         if not (top > 0.0) or zmin >= top:
             continue
         # The block's bounding box: cells a0..a1 x b0..b1, floor to top.
-        box[_C] = ox + (a0 + a1 + 1) * 0.5 * side
-        box[_C + 1] = oy + (b0 + b1 + 1) * 0.5 * side
-        box[_C + 2] = 0.5 * top
-        box[_S] = (a1 - a0 + 1) * 0.5 * side
-        box[_S + 1] = (b1 - b0 + 1) * 0.5 * side
-        box[_S + 2] = 0.5 * top
-        if not _gjk(row, verts, box, verts, 64, ws):
+        box[0, _C] = ox + (a0 + a1 + 1) * 0.5 * side
+        box[0, _C + 1] = oy + (b0 + b1 + 1) * 0.5 * side
+        box[0, _C + 2] = 0.5 * top
+        box[0, _S] = (a1 - a0 + 1) * 0.5 * side
+        box[0, _S + 1] = (b1 - b0 + 1) * 0.5 * side
+        box[0, _S + 2] = 0.5 * top
+        if not _gjk(obj, verts, box, verts, 64, ws):
             continue
         if a0 == a1 and b0 == b1:
-            return True  # exact: the shape meets this column
+            return True  # exact: the object meets this column
         if sp + 2 > stack.shape[0]:
             return True  # conservative on overflow (never at sane sizes)
         if (a1 - a0) >= (b1 - b0):
@@ -615,52 +672,30 @@ def shape_hits_columns(row, verts, aabb, table, ox, oy, side, ws, stack, box):
 # -- scene tests -----------------------------------------------------------------
 
 @njit(cache=True)
-def _pose_rows(R_WB, p_WB, shapes, shape_body, shape_bc, rows, centres):
-    """World rows and bounding-sphere centres of every robot shape."""
+def _pose_objects(R_WB, p_WB, shapes, shape_body, pose, objs):
+    """Pose every robot shape into objs[s, pose] for the body poses given."""
     for s in range(shapes.shape[0]):
         b = shape_body[s]
-        pose_shape(shapes[s], R_WB[b], p_WB[b], rows[s])
-        _mv_add(R_WB[b], shape_bc[s], p_WB[b], centres[s])
+        pose_shape(shapes[s], R_WB[b], p_WB[b], objs[s, pose])
 
 
 @njit(cache=True)
-def _shape_vs_scene(s, rows, centres, radii, aabbs, verts, obstacles, obs_bc, obs_br, obs_aabb, table, ox, oy,
-                    side, ws, stack, box):
-    """Shape s (posed, with its motion set, bounding radius radii[s], box
-    aabbs[s]) against the obstacles and V (an empty table: no V)."""
+def _object_vs_scene(obj, aabb, verts, obstacles, obs_aabb, table, ox, oy, side, ws, stack, box):
+    """An object against the obstacles and V (an empty table: no V)."""
     for o in range(obstacles.shape[0]):
-        if _aabb_apart(aabbs[s], obs_aabb[o]):
+        if _aabb_apart(aabb, obs_aabb[o]):
             continue
-        dx = centres[s, 0] - obs_bc[o, 0]
-        dy = centres[s, 1] - obs_bc[o, 1]
-        dz = centres[s, 2] - obs_bc[o, 2]
-        rr = radii[s] + obs_br[o]
-        if dx * dx + dy * dy + dz * dz > rr * rr:
-            continue
-        if _gjk(rows[s], verts, obstacles[o], verts, 64, ws):
+        if _gjk(obj, verts, obstacles[o:o + 1], verts, 64, ws):
             return True
     if table.shape[2] > 0:
-        if shape_hits_columns(rows[s], verts, aabbs[s], table, ox, oy, side, ws, stack, box):
+        if object_hits_columns(obj, verts, aabb, table, ox, oy, side, ws, stack, box):
             return True
     return False
 
 
-@njit(cache=True)
-def _pair_hits(sa, sb, rows, centres, radii, aabbs, verts, ws):
-    if _aabb_apart(aabbs[sa], aabbs[sb]):
-        return False
-    dx = centres[sa, 0] - centres[sb, 0]
-    dy = centres[sa, 1] - centres[sb, 1]
-    dz = centres[sa, 2] - centres[sb, 2]
-    rr = radii[sa] + radii[sb]
-    if dx * dx + dy * dy + dz * dz > rr * rr:
-        return False
-    return _gjk(rows[sa], verts, rows[sb], verts, 64, ws)
-
-
 @njit(cache=True, parallel=True)
-def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, shape_bc,
-                        shape_br, verts, obstacles, obs_bc, obs_br, obs_aabb, pairs):
+def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
+                        obstacles, obs_aabb, pairs):
     """(N,) True where a configuration may collide with the obstacles or
     itself (the unfiltered body pairs); False is certified free."""
     N = Q.shape[0]
@@ -669,20 +704,19 @@ def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, sh
     out = np.zeros(N, np.bool_)
     empty_table = np.zeros((1, 1, 0, 0))
     for n in prange(N):
-        ws, stack, box = new_workspace()
+        ws, stack, box, tmp6 = new_workspace()
         R_WB = np.empty((B, 3, 3))
         p_WB = np.empty((B, 3))
         fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
-        rows = np.empty((S, SHAPE_W))
-        centres = np.empty((S, 3))
+        objs = np.empty((S, 1, SHAPE_W))
         aabbs = np.empty((S, 6))
-        _pose_rows(R_WB, p_WB, shapes, shape_body, shape_bc, rows, centres)
+        _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
         for s in range(S):
-            shape_aabb(rows[s], verts, ws[15], aabbs[s])
+            row_aabb(objs[s, 0], verts, aabbs[s])
         hit = False
         for s in range(S):
-            if _shape_vs_scene(s, rows, centres, shape_br, aabbs, verts, obstacles, obs_bc, obs_br, obs_aabb,
-                               empty_table, 0.0, 0.0, 1.0, ws, stack, box):
+            if _object_vs_scene(objs[s], aabbs[s], verts, obstacles, obs_aabb, empty_table, 0.0, 0.0, 1.0,
+                                ws, stack, box):
                 hit = True
                 break
         if not hit:
@@ -691,8 +725,9 @@ def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, sh
                     if shape_body[sa] != pairs[p, 0]:
                         continue
                     for sb in range(S):
-                        if shape_body[sb] == pairs[p, 1] and _pair_hits(sa, sb, rows, centres, shape_br, aabbs,
-                                                                        verts, ws):
+                        if shape_body[sb] != pairs[p, 1] or _aabb_apart(aabbs[sa], aabbs[sb]):
+                            continue
+                        if _gjk(objs[sa], verts, objs[sb], verts, 64, ws):
                             hit = True
                             break
                     if hit:
@@ -704,109 +739,131 @@ def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, sh
 
 
 @njit(cache=True)
-def _region_hits(q_c, j, h_tau, h_v, dq, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
-                 shapes, shape_body, shape_bc, shape_br, verts, obstacles, obs_bc, obs_br, obs_aabb, pairs,
-                 moved, reach, revolute, joint_body, table, ox, oy, side,
-                 R_WB, p_WB, rows, centres, radii, aabbs, ws, stack, box):
-    """May the robot collide anywhere in the region: configurations
-    nom + t dq with joint j replaced by v, t within h_tau of the centre's t
-    and v within h_v of q_c[j]?
+def _relative_growth(W, i, j, a, b, L_t, L_v, moved, curvature, reach, revolute):
+    """Second-order growth of body b's shapes relative to body a over the
+    region (joints that move both alike do not count)."""
+    k = W.shape[1]
+    a_t = 0.0
+    for kk in range(k):
+        if kk == j or not moved[kk, b] or (a >= 0 and moved[kk, a]):
+            continue
+        dk = abs(W[i + 1, kk] - W[i, kk])
+        if dk == 0.0:
+            continue
+        for ll in range(k):
+            if ll == j or not moved[ll, b] or (a >= 0 and moved[ll, a]):
+                continue
+            a_t += dk * abs(W[i + 1, ll] - W[i, ll]) * curvature[kk, ll, b]
+    grow = a_t * L_t * L_t / 8.0
+    if moved[j, b] and revolute[j] and L_v > 0:
+        # |d^2 p / dv^2| = distance from j's axis <= reach (any pose).
+        grow += reach[j, b] * L_v * L_v / 8.0
+    return grow
 
-    The robot is posed at q_c. Each body is grown by how far its points can
-    move over the region: the other joints' motion bounded by
-    sum_k |dq_k| h_tau reach[k, b] (a ball), joint j's by a disc of radius
-    h_v times the distance from its axis (revolute) or a segment of half
-    length h_v along it (prismatic). Only pairs that joint j moves apart
-    are tested for self-collision, and only bodies joint j moves against
-    the obstacles and V: everything else keeps its pose relative to the
-    nominal, which is free.
+
+@njit(cache=True)
+def _region_hits(W, i, j, ta, tb, va, vb, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
+                 shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
+                 curvature, revolute, table, ox, oy, side,
+                 R4, p4, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6):
+    """May the robot collide anywhere in the region R = {nom(i + t) with
+    joint j replaced by v : t in [ta, tb], v in [va, vb]}?
+
+    R is the image of a rectangle under an affine map into configuration
+    space. Each shape's positions over R lie in the convex hull of its four
+    corner poses grown by a ball (a second-order bound): along a segment of
+    length L where |d^2 p / ds^2| <= A, a point stays within A L^2 / 8 of
+    the chord, and the chord lies in the hull of its ends. For the nominal's
+    direction dq' (dq without joint j), A = sum_kl |dq'_k| |dq'_l|
+    curvature[k, l, b]; for joint j's direction, A = the shape's distance
+    from j's axis <= reach (revolute) or 0 (prismatic).
+
+    Shapes that joint j moves are tested in the world against the obstacles
+    and V. A self-collision pair that joint j moves apart is tested in the
+    frame of its body that j does not move, where only the joints between
+    the two bodies move anything: a common motion would smear both hulls
+    over each other. Everything else keeps its pose relative to the nominal,
+    which is free.
     """
     S = shapes.shape[0]
-    k = dq.shape[0]
-    fk_into(q_c, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
-    _pose_rows(R_WB, p_WB, shapes, shape_body, shape_bc, rows, centres)
-    jb = joint_body[j]
-    # Joint j's axis in the world, through the origin of its child frame M:
-    # p_WM = p_WB - R_WB R_MB^T p_MB, u = R_WB R_MB^T axis.
-    RB = R_WB[jb]
-    RM = R_MB[jb]
-    pm = p_MB[jb]
-    t0 = RM[0, 0] * pm[0] + RM[1, 0] * pm[1] + RM[2, 0] * pm[2]
-    t1 = RM[0, 1] * pm[0] + RM[1, 1] * pm[1] + RM[2, 1] * pm[2]
-    t2 = RM[0, 2] * pm[0] + RM[1, 2] * pm[1] + RM[2, 2] * pm[2]
-    c0 = p_WB[jb, 0] - (RB[0, 0] * t0 + RB[0, 1] * t1 + RB[0, 2] * t2)
-    c1 = p_WB[jb, 1] - (RB[1, 0] * t0 + RB[1, 1] * t1 + RB[1, 2] * t2)
-    c2 = p_WB[jb, 2] - (RB[2, 0] * t0 + RB[2, 1] * t1 + RB[2, 2] * t2)
-    ax = axis[jb]
-    a0 = RM[0, 0] * ax[0] + RM[1, 0] * ax[1] + RM[2, 0] * ax[2]
-    a1 = RM[0, 1] * ax[0] + RM[1, 1] * ax[1] + RM[2, 1] * ax[2]
-    a2 = RM[0, 2] * ax[0] + RM[1, 2] * ax[1] + RM[2, 2] * ax[2]
-    u0 = RB[0, 0] * a0 + RB[0, 1] * a1 + RB[0, 2] * a2
-    u1 = RB[1, 0] * a0 + RB[1, 1] * a1 + RB[1, 2] * a2
-    u2 = RB[2, 0] * a0 + RB[2, 1] * a1 + RB[2, 2] * a2
+    k = W.shape[1]
+    # The four corners: (ta, va), (ta, vb), (tb, va), (tb, vb).
+    corner = 0
+    for ti in range(2):
+        t = ta if ti == 0 else tb
+        for vi in range(2):
+            for kk in range(k):
+                q_c[kk] = W[i, kk] + t * (W[i + 1, kk] - W[i, kk])
+            q_c[j] = va if vi == 0 else vb
+            fk_into(q_c, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R4[corner], p4[corner])
+            corner += 1
+    L_t = tb - ta
+    L_v = vb - va
     for s in range(S):
         b = shape_body[s]
-        e_iso = 0.0
-        if h_tau > 0:
-            for kk in range(k):
-                if kk == j or not moved[kk, b] or dq[kk] == 0.0:
-                    continue
-                if revolute[kk]:
-                    e_iso += abs(dq[kk]) * h_tau * reach[kk, b]
-                else:
-                    e_iso += abs(dq[kk]) * h_tau
-        e_disc = 0.0
-        e_seg = 0.0
-        if moved[j, b] and h_v > 0:
-            if revolute[j]:
-                w0 = centres[s, 0] - c0
-                w1 = centres[s, 1] - c1
-                w2 = centres[s, 2] - c2
-                wu = w0 * u0 + w1 * u1 + w2 * u2
-                perp = np.sqrt(max(w0 * w0 + w1 * w1 + w2 * w2 - wu * wu, 0.0))
-                e_disc = h_v * (perp + shape_br[s])
-            else:
-                e_seg = h_v
-        set_motion(rows[s], e_iso, u0, u1, u2, e_disc, e_seg)
-        radii[s] = shape_br[s] + e_iso + e_disc + e_seg
-        shape_aabb(rows[s], verts, ws[15], aabbs[s])
-    for s in range(S):
-        if not moved[j, shape_body[s]]:
+        if not moved[j, b]:
             continue
-        if _shape_vs_scene(s, rows, centres, radii, aabbs, verts, obstacles, obs_bc, obs_br, obs_aabb, table, ox,
-                           oy, side, ws, stack, box):
+        grow = _relative_growth(W, i, j, -1, b, L_t, L_v, moved, curvature, reach, revolute)
+        for c in range(4):
+            pose_shape(shapes[s], R4[c, b], p4[c, b], objs[s, c])
+            set_motion(objs[s, c], grow, 0.0, 0.0, 1.0, 0.0, 0.0)
+        object_aabb(objs[s], verts, aabbs[s], tmp6)
+        if _object_vs_scene(objs[s], aabbs[s], verts, obstacles, obs_aabb, table, ox, oy, side, ws, stack, box):
             return True
+    R_fm = np.empty((3, 3))
+    p_fm = np.empty(3)
+    dp = np.empty(3)
     for p in range(pairs.shape[0]):
         a = pairs[p, 0]
         bb = pairs[p, 1]
         if moved[j, a] == moved[j, bb]:
             continue
-        for sa in range(S):
-            if shape_body[sa] != a:
+        f = a if not moved[j, a] else bb  # the body j does not move
+        m = bb if f == a else a
+        grow = _relative_growth(W, i, j, f, m, L_t, L_v, moved, curvature, reach, revolute)
+        for sm in range(S):
+            if shape_body[sm] != m:
                 continue
-            for sb in range(S):
-                if shape_body[sb] == bb and _pair_hits(sa, sb, rows, centres, radii, aabbs, verts, ws):
+            for c in range(4):
+                # X_fm = X_Wf^-1 X_Wm at corner c.
+                Rf = R4[c, f]
+                Rm = R4[c, m]
+                for r in range(3):
+                    for cc in range(3):
+                        R_fm[r, cc] = Rf[0, r] * Rm[0, cc] + Rf[1, r] * Rm[1, cc] + Rf[2, r] * Rm[2, cc]
+                    dp[r] = p4[c, m, r] - p4[c, f, r]
+                for r in range(3):
+                    p_fm[r] = Rf[0, r] * dp[0] + Rf[1, r] * dp[1] + Rf[2, r] * dp[2]
+                pose_shape(shapes[sm], R_fm, p_fm, rel[c])
+                set_motion(rel[c], grow, 0.0, 0.0, 1.0, 0.0, 0.0)
+            object_aabb(rel, verts, rel_aabb, tmp6)
+            for sf in range(S):
+                if shape_body[sf] != f:
+                    continue
+                # Body f's shape in its own frame: the local row as it is.
+                row_aabb(shapes[sf], verts, tmp6)
+                if _aabb_apart(rel_aabb, tmp6):
+                    continue
+                if _gjk(rel, verts, shapes[sf:sf + 1], verts, 64, ws):
                     return True
     return False
 
 
 @njit(cache=True, parallel=True)
 def sweep_stretches(tasks, guesses, delta, lim_lo, lim_hi, depth, W, parent, jtype, qidx, axis, R_PF, p_PF,
-                    R_MB, p_MB, shapes, shape_body, shape_bc, shape_br, verts, obstacles, obs_bc, obs_br, obs_aabb,
-                    pairs, moved, reach, revolute, joint_body, table, ox, oy, side):
+                    R_MB, p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved,
+                    reach, curvature, revolute, table, ox, oy, side):
     """Certified single-joint bounds over stretches of the nominal.
 
     Task n = (i, j, sign): the bound v of joint j (upper for sign +1, lower
     for -1) such that for every t in [0, 1] moving joint j alone from
-    nom(i + t) to v is free. The stretch is cut into 2^depth[i, j] pieces
-    (so that the nominal's own motion over a piece grows no body by more
-    than a tolerance); for each piece, an adaptive search from the piece's
-    nominal range outwards: test [F, F + w]; free -> certified, advance and
-    double w; possible collision -> halve w; stop once a possibly colliding
-    interval is narrower than delta[j]. The first piece starts from
-    ``guesses[n]`` (>= 0: a neighbour's extent) or cold; each later piece
-    first checks the bound found so far in one test and searches only if
-    that fails. The bound is the tightest over the pieces.
+    nom(i + t) to v is free. The stretch is cut into 2^depth[i, j] pieces;
+    for each piece, an adaptive search from the piece's nominal range
+    outwards: test [F, F + w]; free -> certified, advance and double w;
+    possible collision -> halve w; stop once a possibly colliding interval
+    is narrower than delta[j]. The first piece starts from ``guesses[n]``
+    (>= 0: a neighbour's extent) or cold; a later piece starts from the
+    bound found so far. The bound is the tightest over the pieces.
 
     Returns:
         (bound (n,), tests (n,)): the bound (absolute, rad or m) and the
@@ -822,27 +879,23 @@ def sweep_stretches(tasks, guesses, delta, lim_lo, lim_hi, depth, W, parent, jty
         i = tasks[n, 0]
         j = tasks[n, 1]
         sgn = tasks[n, 2]
-        ws, stack, box = new_workspace()
-        R_WB = np.empty((B, 3, 3))
-        p_WB = np.empty((B, 3))
-        rows = np.empty((S, SHAPE_W))
-        centres = np.empty((S, 3))
-        radii = np.empty(S)
+        ws, stack, box, tmp6 = new_workspace()
+        R4 = np.empty((4, B, 3, 3))
+        p4 = np.empty((4, B, 3))
+        objs = np.empty((S, 4, SHAPE_W))
         aabbs = np.empty((S, 6))
+        rel = np.empty((4, SHAPE_W))
+        rel_aabb = np.empty(6)
         q_c = np.empty(k)
-        dq = np.empty(k)
-        for kk in range(k):
-            dq[kk] = W[i + 1, kk] - W[i, kk]
         pieces = 1 << depth[i, j]
-        h_tau = 0.5 / pieces
         bound = lim_hi[i, j] if sgn > 0 else lim_lo[i, j]
         count = 0
+        dqj = W[i + 1, j] - W[i, j]
         for piece in range(pieces):
             ta = piece / pieces
             tb = (piece + 1) / pieces
-            tm = 0.5 * (ta + tb)
-            na = W[i, j] + ta * dq[j]
-            nb = W[i, j] + tb * dq[j]
+            na = W[i, j] + ta * dqj
+            nb = W[i, j] + tb * dqj
             if sgn > 0:
                 v0 = min(na, nb)
                 T = bound - v0
@@ -852,24 +905,29 @@ def sweep_stretches(tasks, guesses, delta, lim_lo, lim_hi, depth, W, parent, jty
             if T <= 0:
                 continue
             F = 0.0
-            verify = piece > 0
-            if piece > 0 or guesses[n] < 0:
-                w = T
-                w_next = -1.0
-            else:
+            if piece == 0 and guesses[n] >= 0:
                 w = max(guesses[n], delta[j])
                 w_next = 2.0 * delta[j]
-            for kk in range(k):
-                q_c[kk] = W[i, kk] + tm * dq[kk]
+            elif piece > 0:
+                # Start from the bound so far: most likely right, or close.
+                w = max(T - 2.0 * delta[j], 0.5 * delta[j])
+                w_next = 2.0 * delta[j]
+            else:
+                w = T
+                w_next = -1.0
             while True:
                 X = min(F + w, T)
-                h_v = 0.5 * (X - F)
-                q_c[j] = v0 + sgn * 0.5 * (F + X)
+                if sgn > 0:
+                    va = v0 + F
+                    vb = v0 + X
+                else:
+                    va = v0 - X
+                    vb = v0 - F
                 count += 1
-                hit = _region_hits(q_c, j, h_tau, h_v, dq, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
-                                   shapes, shape_body, shape_bc, shape_br, verts, obstacles, obs_bc, obs_br,
-                                   obs_aabb, pairs, moved, reach, revolute, joint_body, table, ox, oy, side,
-                                   R_WB, p_WB, rows, centres, radii, aabbs, ws, stack, box)
+                hit = _region_hits(W, i, j, ta, tb, va, vb, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
+                                   shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
+                                   curvature, revolute, table, ox, oy, side,
+                                   R4, p4, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6)
                 if not hit:
                     F = X
                     if F >= T:
@@ -884,14 +942,7 @@ def sweep_stretches(tasks, guesses, delta, lim_lo, lim_hi, depth, W, parent, jty
                     w_next = -1.0
                     if width < delta[j]:
                         break
-                    if verify:
-                        # The bound so far failed on this piece: it is most
-                        # likely a little too far; try just short of it.
-                        verify = False
-                        w = max(width - 2.0 * delta[j], 0.5 * delta[j])
-                        w_next = delta[j]
-                    else:
-                        w = 0.5 * width
+                    w = 0.5 * width
             bound = v0 + sgn * F
         out[n] = bound
         tests[n] = count
@@ -910,98 +961,80 @@ def lower_columns_under(Q, e_body, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, 
     R_WB = np.empty((B, 3, 3))
     p_WB = np.empty((B, 3))
     row = np.empty(SHAPE_W)
-    tmp = np.empty(3)
+    box = np.empty(6)
     for n in range(Q.shape[0]):
         fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
         for s in range(S):
             b = shape_body[s]
             pose_shape(shapes[s], R_WB[b], p_WB[b], row)
             set_motion(row, e_body[n, b], 0.0, 0.0, 1.0, 0.0, 0.0)
-            xmin = shape_extent(row, verts, 0, -1.0, tmp)
-            xmax = shape_extent(row, verts, 0, 1.0, tmp)
-            ymin = shape_extent(row, verts, 1, -1.0, tmp)
-            ymax = shape_extent(row, verts, 1, 1.0, tmp)
-            cap = shape_extent(row, verts, 2, -1.0, tmp) - clearance
+            row_aabb(row, verts, box)
+            cap = box[2] - clearance
             if cap < 0:
                 cap = 0.0
-            i0 = max(int(np.floor((xmin - ox) / side)), 0)
-            i1 = min(int(np.floor((xmax - ox) / side)), m - 1)
-            j0 = max(int(np.floor((ymin - oy) / side)), 0)
-            j1 = min(int(np.floor((ymax - oy) / side)), nn - 1)
+            i0 = max(int(np.floor((box[0] - ox) / side)), 0)
+            i1 = min(int(np.floor((box[3] - ox) / side)), m - 1)
+            j0 = max(int(np.floor((box[1] - oy) / side)), 0)
+            j1 = min(int(np.floor((box[4] - oy) / side)), nn - 1)
             for a in range(i0, i1 + 1):
                 for c in range(j0, j1 + 1):
                     if heights[a, c] > cap:
                         heights[a, c] = cap
 
 
-@njit(cache=True, parallel=True)
-def shapes_within(Q, radius, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, shape_bc,
-                  shape_br, verts, obstacles, obs_bc, obs_br):
-    """(N, O) True where obstacle shape o is within ``radius`` of the robot
-    at Q[n] (every robot shape grown by a ball of that radius)."""
-    N = Q.shape[0]
-    O = obstacles.shape[0]
-    B = parent.shape[0]
-    S = shapes.shape[0]
-    out = np.zeros((N, O), np.bool_)
-    for n in prange(N):
-        ws = np.empty((16, 3))
-        R_WB = np.empty((B, 3, 3))
-        p_WB = np.empty((B, 3))
-        rows = np.empty((S, SHAPE_W))
-        centres = np.empty((S, 3))
-        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
-        _pose_rows(R_WB, p_WB, shapes, shape_body, shape_bc, rows, centres)
-        for s in range(S):
-            set_motion(rows[s], radius, 0.0, 0.0, 1.0, 0.0, 0.0)
-            for o in range(O):
-                if out[n, o]:
-                    continue
-                dx = centres[s, 0] - obs_bc[o, 0]
-                dy = centres[s, 1] - obs_bc[o, 1]
-                dz = centres[s, 2] - obs_bc[o, 2]
-                rr = shape_br[s] + radius + obs_br[o]
-                if dx * dx + dy * dy + dz * dz > rr * rr:
-                    continue
-                if _gjk(rows[s], verts, obstacles[o], verts, 64, ws):
-                    out[n, o] = True
-    return out
-
-
 @njit(cache=True)
-def _touches(rows, S, e, verts, obstacle, ws):
+def _touches(objs, S, e, verts, obstacle, ws):
     for s in range(S):
-        set_motion(rows[s], e, 0.0, 0.0, 1.0, 0.0, 0.0)
-        if _gjk(rows[s], verts, obstacle, verts, 64, ws):
+        set_motion(objs[s, 0], e, 0.0, 0.0, 1.0, 0.0, 0.0)
+        if _gjk(objs[s], verts, obstacle, verts, 64, ws):
             return True
     return False
 
 
-@njit(cache=True)
-def robot_obstacle_distance(q, o, hi, tol, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes,
-                            shape_body, shape_bc, verts, obstacles):
-    """Distance from the robot at q to obstacle shape o, by bisection on the
-    radius of a ball grown around every robot shape: within ``tol`` below
-    the true distance; 0 if touching; ``hi`` if farther than hi."""
+@njit(cache=True, parallel=True)
+def obstacle_distances(Q, hi, tol, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body,
+                       verts, obstacles, obs_aabb):
+    """(N, O) distance from the robot at Q[n] to obstacle shape o, by
+    bisection on the radius of a ball grown around every robot shape:
+    within ``tol`` below the true distance; 0 when touching; ``hi`` for
+    anything farther than hi."""
+    N = Q.shape[0]
+    O = obstacles.shape[0]
     B = parent.shape[0]
     S = shapes.shape[0]
-    ws = np.empty((16, 3))
-    R_WB = np.empty((B, 3, 3))
-    p_WB = np.empty((B, 3))
-    rows = np.empty((S, SHAPE_W))
-    centres = np.empty((S, 3))
-    fk_into(q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
-    _pose_rows(R_WB, p_WB, shapes, shape_body, shape_bc, rows, centres)
-    if _touches(rows, S, 0.0, verts, obstacles[o], ws):
-        return 0.0
-    if not _touches(rows, S, hi, verts, obstacles[o], ws):
-        return hi
-    lo_e = 0.0
-    hi_e = hi
-    while hi_e - lo_e > tol:
-        mid = 0.5 * (lo_e + hi_e)
-        if _touches(rows, S, mid, verts, obstacles[o], ws):
-            hi_e = mid
-        else:
-            lo_e = mid
-    return lo_e
+    out = np.full((N, O), hi)
+    for n in prange(N):
+        ws = np.empty((18, 3))
+        R_WB = np.empty((B, 3, 3))
+        p_WB = np.empty((B, 3))
+        objs = np.empty((S, 1, SHAPE_W))
+        aabb = np.empty(6)
+        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+        _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
+        for o in range(O):
+            # Any robot shape near enough to matter?
+            near = False
+            for s in range(S):
+                set_motion(objs[s, 0], hi, 0.0, 0.0, 1.0, 0.0, 0.0)
+                row_aabb(objs[s, 0], verts, aabb)
+                if not _aabb_apart(aabb, obs_aabb[o]):
+                    near = True
+                    break
+            if not near:
+                continue
+            ob = obstacles[o:o + 1]
+            if not _touches(objs, S, hi, verts, ob, ws):
+                continue
+            if _touches(objs, S, 0.0, verts, ob, ws):
+                out[n, o] = 0.0
+                continue
+            lo_e = 0.0
+            hi_e = hi
+            while hi_e - lo_e > tol:
+                mid = 0.5 * (lo_e + hi_e)
+                if _touches(objs, S, mid, verts, ob, ws):
+                    hi_e = mid
+                else:
+                    lo_e = mid
+            out[n, o] = lo_e
+    return out

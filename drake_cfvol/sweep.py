@@ -29,12 +29,12 @@ from drake_cfvol.geometry import SceneArrays
 from drake_cfvol.heightmap import Volume
 from drake_cfvol.params import VolumeParams
 
-__all__ = ["stretch_bounds", "volume_table", "nominal_motion"]
+__all__ = ["stretch_bounds", "volume_table", "nominal_growth", "default_rate"]
 
-#: The stretch is halved until the nominal's motion grows a body by at most
-#: this much (m), at most ``MAX_DEPTH`` times.
-MOTION_TOLERANCE = 0.02
-MAX_DEPTH = 10
+#: The stretch is halved until the nominal's own motion grows a body by at
+#: most this much (m, second-order bound), at most ``MAX_DEPTH`` times.
+MOTION_TOLERANCE = 0.005
+MAX_DEPTH = 6
 
 
 def volume_table(volume: Volume | None) -> tuple[np.ndarray, float, float, float]:
@@ -45,14 +45,18 @@ def volume_table(volume: Volume | None) -> tuple[np.ndarray, float, float, float
     return volume.kernel_table(), float(hm.origin[0]), float(hm.origin[1]), float(hm.side)
 
 
-def nominal_motion(arrays: SceneArrays, waypoints: np.ndarray) -> np.ndarray:
-    """(g-1, k, B): how far body b's points can move over stretch i from the
-    motion of every joint but j, m (sum_k |dq_k| reach[k, b], k != j)."""
+def nominal_growth(arrays: SceneArrays, waypoints: np.ndarray) -> np.ndarray:
+    """(g-1, k): the most any body is grown over a whole stretch by the
+    nominal's own motion when joint j is the one swept, m: max over bodies
+    of sum_kl |dq_k| |dq_l| curvature[k, l, b] / 8, k, l != j."""
     dq = np.abs(np.diff(waypoints, axis=0))  # (g-1, k)
-    rev = arrays.revolute
-    per_joint = np.where(rev[None, :, None], dq[:, :, None] * arrays.reach[None], dq[:, :, None] * arrays.moved_by[None])
-    total = per_joint.sum(axis=1)  # (g-1, B)
-    return total[:, None, :] - per_joint  # leave joint j out
+    out = np.zeros(dq.shape)
+    for j in range(dq.shape[1]):
+        d = dq.copy()
+        d[:, j] = 0.0
+        a = np.einsum("ik,il,klb->ib", d, d, arrays.curvature)
+        out[:, j] = a.max(axis=1) / 8.0
+    return out
 
 
 def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | None, params: VolumeParams,
@@ -77,16 +81,15 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     g, k = W.shape
     n_st = g - 1
     delta = np.where(arrays.revolute, params.delta, params.delta_prismatic).astype(np.float64)
-    motion = nominal_motion(arrays, W)  # (g-1, k, B)
-    worst = motion.max(axis=2) / 2
+    growth = nominal_growth(arrays, W)  # (g-1, k); it scales with the piece length squared
     depth = np.zeros((n_st, k), np.int64)
-    need = worst > MOTION_TOLERANCE
-    depth[need] = np.minimum(np.ceil(np.log2(worst[need] / MOTION_TOLERANCE)), MAX_DEPTH).astype(np.int64)
+    need = growth > MOTION_TOLERANCE
+    depth[need] = np.minimum(np.ceil(0.5 * np.log2(growth[need] / MOTION_TOLERANCE)), MAX_DEPTH).astype(np.int64)
     table, ox, oy, side = volume_table(volume)
     a = arrays
     common = (a.parent, a.jtype, a.qidx, a.axis, a.R_PF, a.p_PF, a.R_MB, a.p_MB, a.shapes, a.shape_body,
-              a.shape_bc, a.shape_br, a.verts, a.obstacles, a.obstacle_bc, a.obstacle_br, a.obstacle_aabb, a.self_pairs,
-              a.moved_by, a.reach, a.revolute, a.joint_body, table, ox, oy, side)
+              a.verts, a.obstacles, a.obstacle_aabb, a.self_pairs, a.moved_by, a.reach, a.curvature, a.revolute,
+              table, ox, oy, side)
     lim_lo = np.ascontiguousarray(lower_limit, dtype=np.float64)
     lim_hi = np.ascontiguousarray(upper_limit, dtype=np.float64)
 
