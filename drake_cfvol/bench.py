@@ -189,13 +189,13 @@ def run_bench(cfg: BenchConfig, *, progress: bool = True) -> dict:
                 fr = freedom(table, wc.revolute)
                 bar.step(f"{cell} {label} R={R} CF")
                 paper_t, paper_cf = PAPER.get((cell, label), {}).get(R, (None, None))
-                floor_ms = table.info["interval_tests"] * t_check * 1e3
+                floor_ms = table.info["region_tests"] * t_check * 1e3
                 row = {"cell": cell, "path": label, "resolution": R, "g": path.g,
                        "time_ms_median": float(np.median(times)), "time_ms_mean": float(np.mean(times)),
                        "cf_percent": cf_res.percent, "cf_colliding": cf_res.colliding, "cf_samples": cf_res.samples,
                        "freedom": fr.mean, "n_boxes": table.info["n_boxes"],
                        "lowered_columns": table.info["lowered_columns"], "dropped_columns": table.info["dropped_columns"],
-                       "interval_tests": table.info["interval_tests"], "floor_ms": floor_ms,
+                       "region_tests": table.info["region_tests"], "floor_ms": floor_ms,
                        "time_over_floor": float(np.median(times)) / floor_ms if floor_ms > 0 else None,
                        "paper_time_ms": paper_t, "paper_cf_percent": paper_cf,
                        "paper_over_ours": (paper_t / float(np.median(times))) if paper_t else None}
@@ -299,7 +299,7 @@ def markdown(result: dict) -> str:
                 out.append(
                     f"| {r['resolution']} | {r['g']} | {r['time_ms_median']:.0f} | {_fmt(r['paper_time_ms'], 'd')} | "
                     f"{_fmt(r['paper_over_ours'], '.3f')} | {r['cf_percent']:.4f} | {_fmt(r['paper_cf_percent'], '.4f')} | "
-                    f"{r['freedom']:.3f} | {r['n_boxes']} | {r['interval_tests']} | {_fmt(r['time_over_floor'], '.1f')} | "
+                    f"{r['freedom']:.3f} | {r['n_boxes']} | {r['region_tests']} | {_fmt(r['time_over_floor'], '.1f')} | "
                     f"{_fmt(r.get('reference_time_ms_median'), '.0f')} | {_fmt(r.get('reference_over_fast'), '.2f')} | "
                     f"{_fmt(r.get('certified_cf_percent'), '.4f')} | {_fmt(r.get('certified_freedom'), '.3f')} | "
                     f"{_fmt(r.get('certify_time_ms'), '.0f')} |")

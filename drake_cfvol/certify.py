@@ -26,7 +26,7 @@ import numpy as np
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.metrics import freedom
-from drake_cfvol.table import box_at
+from drake_cfvol.table import box_at, waypoint_boxes
 
 __all__ = ["Certify", "CertificateReport", "certify_bounds", "certification_rng"]
 
@@ -99,11 +99,15 @@ def certify_bounds(workcell, table, certify: Certify, *, checker=None):
     certificate.
 
     Returns:
-        (lower, upper, CertificateReport); the input table is not changed.
+        (stretch_lower, stretch_upper, CertificateReport): the certified
+        stretch boxes (the waypoint boxes follow from them,
+        :func:`drake_cfvol.table.waypoint_boxes`); the input table is not
+        changed.
     """
     checker = checker or workcell.checker
     t0 = time.perf_counter()
-    lower, upper, nominal = table.lower.copy(), table.upper.copy(), table.nominal
+    lower, upper, nominal = table.lower, table.upper, table.nominal
+    st_lower, st_upper, rate = table.stretch_lower.copy(), table.stretch_upper.copy(), table.rate
     g = table.g
     trajectory = table.trajectory
     rng = certification_rng(certify.seed)
@@ -117,7 +121,8 @@ def certify_bounds(workcell, table, certify: Certify, *, checker=None):
             while run < N:
                 n = min(certify.batch, N - run)
                 s = rng.uniform(i, i + 1, n)
-                lo, hi, nom = box_at(lower, upper, nominal, s, trajectory=trajectory)
+                lo, hi, nom = box_at(lower, upper, nominal, s, stretch_lower=st_lower, stretch_upper=st_upper,
+                                     rate=rate, trajectory=trajectory)
                 Q = lo + rng.random(lo.shape) * (hi - lo)
                 free = np.array(checker.CheckConfigsCollisionFree(Q, parallelize=True), bool)
                 if free.all():
@@ -157,21 +162,21 @@ def certify_bounds(workcell, table, certify: Certify, *, checker=None):
                         f"certification: the nominal at s = {s[first]:.4f} collides; the path is not "
                         "collision-free between waypoints (plan with a finer max_step).")
                 _, j, side = best
-                for w in (i, i + 1):
-                    if side == "upper":
-                        upper[w, j] = max(min(upper[w, j], q[j]), nominal[w, j])
-                    else:
-                        lower[w, j] = min(max(lower[w, j], q[j]), nominal[w, j])
+                if side == "upper":
+                    st_upper[i, j] = min(st_upper[i, j], q[j])
+                else:
+                    st_lower[i, j] = max(st_lower[i, j], q[j])
                 shrinks += 1
                 run = 0
-                for w in (i, i + 1):
-                    for stretch in (w - 1, w):
-                        if 0 <= stretch < g - 1 and stretch != i:
-                            dirty[stretch] = True
+                for stretch in (i - 1, i + 1):
+                    if 0 <= stretch < g - 1:
+                        dirty[stretch] = True
             dirty[i] = False
     before = freedom(table).mean
-    after_table = dataclasses.replace(table, lower=lower, upper=upper)
+    w_lower, w_upper = waypoint_boxes(st_lower, st_upper, nominal, rate)
+    after_table = dataclasses.replace(table, lower=w_lower, upper=w_upper, stretch_lower=st_lower,
+                                      stretch_upper=st_upper)
     after = freedom(after_table).mean
     report = CertificateReport(certify.epsilon, certify.confidence, N, (time.perf_counter() - t0) * 1e3,
                                samples, shrinks, before, after)
-    return lower, upper, report
+    return st_lower, st_upper, report

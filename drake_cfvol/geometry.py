@@ -176,6 +176,13 @@ class SceneArrays:
         Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
         return K.fk(Q, self.parent, self.jtype, self.qidx, self.axis, self.R_PF, self.p_PF, self.R_MB, self.p_MB)
 
+    def may_collide(self, Q: np.ndarray) -> np.ndarray:
+        """(N,) True where a configuration may collide with the obstacles or
+        itself; False is certified free (the kernel is conservative)."""
+        Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
+        return K.configs_may_collide(Q, *self.chain, self.shapes, self.shape_body, self.verts, self.obstacles,
+                                     self.obstacle_aabb, self.self_pairs, self.moved_by.any(axis=0))
+
     @property
     def chain(self) -> tuple:
         """The chain arrays in ``kernel.fk`` order."""

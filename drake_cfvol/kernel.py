@@ -695,9 +695,11 @@ def _object_vs_scene(obj, aabb, verts, obstacles, obs_aabb, table, ox, oy, side,
 
 @njit(cache=True, parallel=True)
 def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
-                        obstacles, obs_aabb, pairs):
+                        obstacles, obs_aabb, pairs, movable):
     """(N,) True where a configuration may collide with the obstacles or
-    itself (the unfiltered body pairs); False is certified free."""
+    itself (the unfiltered body pairs); False is certified free. Bodies
+    that no joint moves (``movable`` False) are welded to the world, like
+    the obstacles: Drake filters those pairs, and so does this."""
     N = Q.shape[0]
     B = parent.shape[0]
     S = shapes.shape[0]
@@ -715,6 +717,8 @@ def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, sh
             row_aabb(objs[s, 0], verts, aabbs[s])
         hit = False
         for s in range(S):
+            if not movable[shape_body[s]]:
+                continue
             if _object_vs_scene(objs[s], aabbs[s], verts, obstacles, obs_aabb, empty_table, 0.0, 0.0, 1.0,
                                 ws, stack, box):
                 hit = True

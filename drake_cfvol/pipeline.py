@@ -103,7 +103,8 @@ def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = N
     if certify is not None:
         info["uncertified_lower"], info["uncertified_upper"] = lower, upper
         c_lower, c_upper, report = certify_bounds(workcell, table, certify)
-        table = dataclasses.replace(table, lower=c_lower, upper=c_upper)
+        w_lower, w_upper = waypoint_boxes(c_lower, c_upper, W, table.rate)
+        table = dataclasses.replace(table, lower=w_lower, upper=w_upper, stretch_lower=c_lower, stretch_upper=c_upper)
         table.info["certificate"] = report.to_dict()
         table.timing_ms["certify"] = report.time_ms
     return table

@@ -73,9 +73,9 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
         stride: spacing of the cold-started stretches (1: all cold).
 
     Returns:
-        (lower (g-1, k), upper (g-1, k), stats). ``stats["uncertified"]``
-        counts searches that could not certify even the nominal's own range
-        of a joint over a stretch (their bound is that range).
+        (lower (g-1, k), upper (g-1, k), stats). A bound may lie inside the
+        nominal's own range over its stretch (``stats["pinned"]`` counts
+        them): there the box is held at the nominal.
     """
     W = np.ascontiguousarray(waypoints, dtype=np.float64)
     g, k = W.shape
@@ -122,28 +122,34 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
         tests += int(nw.sum())
     upper = bound[:, :, 0]
     lower = bound[:, :, 1]
-    short_up = upper < hi_nom
-    short_lo = lower > lo_nom
-    upper = np.maximum(upper, hi_nom)
-    lower = np.minimum(lower, lo_nom)
+    # A bound inside the nominal's own range over the stretch is kept as it
+    # is: where the nominal passes it, the box is held at the nominal (the
+    # box at s always holds nom(s); see table.box_at).
     stats = {"region_tests": tests, "searches": 2 * n_st * k,
-             "uncertified": int(short_up.sum() + short_lo.sum()),
+             "pinned": int((upper < hi_nom).sum() + (lower > lo_nom).sum()),
              "max_depth": int(depth.max()) if depth.size else 0,
              "motion_tolerance_m": MOTION_TOLERANCE}
     return lower, upper, stats
 
 
+#: Without a given time per waypoint, the nominal is taken to run at this
+#: fraction of the joints' velocity limits (a collaborative speed).
+NOMINAL_SPEED_FRACTION = 0.25
+
+
 def default_rate(waypoints: np.ndarray, velocity_limits: np.ndarray, waypoint_time: float | None) -> np.ndarray:
     """The bounds' Lipschitz rate per unit s (docs/spec.md, section 7): each
-    joint's velocity limit times the nominal time per waypoint. Without a
-    given ``waypoint_time``, the time of the nominal at full speed: the
-    slowest joint needs max |dq_j| / vmax_j per waypoint. A joint without a
-    velocity limit gets no rate limit (inf)."""
+    joint's velocity limit times the nominal time per waypoint, so that a
+    clamp following the nominal never has to move a joint faster than its
+    limit. Without a given ``waypoint_time``: the time per waypoint of the
+    nominal at NOMINAL_SPEED_FRACTION of the limits (its slowest joint sets
+    it: max over steps and joints of |dq_j| / (fraction vmax_j)). A joint
+    without a velocity limit gets no rate limit (inf)."""
     vmax = np.asarray(velocity_limits, float)
     ok = np.isfinite(vmax) & (vmax > 0)
     if waypoint_time is None:
         step = np.abs(np.diff(waypoints, axis=0)).max(axis=0) if len(waypoints) > 1 else np.zeros(len(vmax))
-        per = np.where(ok, step / np.where(ok, vmax, 1.0), 0.0)
+        per = np.where(ok, step / np.where(ok, NOMINAL_SPEED_FRACTION * vmax, 1.0), 0.0)
         waypoint_time = float(per.max()) if per.size else 0.0
     rate = np.where(ok, vmax * waypoint_time, math.inf)
     # A rate below the nominal's own motion could not hold the nominal.

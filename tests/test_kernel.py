@@ -1,0 +1,134 @@
+"""The compiled kernel against independent facts: Drake's poses and
+collision checks, exact sphere and box geometry, and brute force over the
+height field."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import drake_cfvol as cf
+from drake_cfvol import kernel as K
+from drake_cfvol.heightmap import HeightMap, Volume
+from drake_cfvol.sweep import volume_table
+
+MESH_CELL = "tests/data/mesh_cell.yaml"
+
+
+@pytest.fixture(scope="module")
+def mesh_cell():
+    return cf.load_workcell(MESH_CELL)
+
+
+def _cells(request, names=("automotive", "aerospace")):
+    return [request.getfixturevalue(n) for n in names]
+
+
+def _random_configs(wc, n, seed):
+    return np.random.default_rng(seed).uniform(wc.position_lower, wc.position_upper, (n, wc.num_joints))
+
+
+@pytest.mark.parametrize("cell", ["automotive", "aerospace", "mesh"])
+def test_fk_matches_drake(cell, request, mesh_cell):
+    """Body poses from the kernel's chain equal Drake's to 1e-12 on random
+    configurations."""
+    wc = mesh_cell if cell == "mesh" else request.getfixturevalue(cell)
+    arrays = wc.scene_arrays()
+    Q = _random_configs(wc, 40, 1)
+    R, p = arrays.fk(Q)
+    for n, q in enumerate(Q):
+        ctx = wc.plant_context(q)
+        for b, index in enumerate(arrays.body_indices):
+            X = wc.plant.get_body(index).EvalPoseInWorld(ctx)
+            np.testing.assert_allclose(R[n, b], X.rotation().matrix(), atol=1e-12, rtol=0)
+            np.testing.assert_allclose(p[n, b], X.translation(), atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("cell", ["automotive", "aerospace", "mesh"])
+def test_never_calls_free_where_drake_collides(cell, request, mesh_cell):
+    """On random configurations (about half colliding), the kernel reports
+    every configuration Drake finds in collision; and since every shape is
+    represented exactly (meshes by their convex hulls, as Drake does), it
+    calls nothing else a collision either."""
+    wc = mesh_cell if cell == "mesh" else request.getfixturevalue(cell)
+    Q = _random_configs(wc, 3000, 2)
+    drake_hit = ~np.array(wc.checker.CheckConfigsCollisionFree(Q, parallelize=True), bool)
+    kernel_hit = wc.scene_arrays().may_collide(Q)
+    assert 0.05 * len(Q) < drake_hit.sum() < 0.95 * len(Q)
+    assert not (drake_hit & ~kernel_hit).any(), "the kernel called a colliding configuration free"
+    assert (kernel_hit & ~drake_hit).sum() <= 0.002 * len(Q)
+
+
+def _box_row(c, half, R=np.eye(3)):
+    row = np.zeros(K.SHAPE_W)
+    row[0] = K.BOX
+    row[1:4], row[4:13], row[13:16] = c, np.asarray(R).ravel(), half
+    return row[None]
+
+
+def _sphere_row(c, r):
+    row = np.zeros(K.SHAPE_W)
+    row[0] = K.SPHERE
+    row[1:4], row[4:13], row[13] = c, np.eye(3).ravel(), r
+    return row[None]
+
+
+def _sat_overlap(A, B):
+    """Box-box overlap by the 15-axis separating-axis theorem."""
+    RA, RB = A[0, 4:13].reshape(3, 3), B[0, 4:13].reshape(3, 3)
+    hA, hB, t = A[0, 13:16], B[0, 13:16], B[0, 1:4] - A[0, 1:4]
+    axes = [RA[:, i] for i in range(3)] + [RB[:, i] for i in range(3)]
+    axes += [np.cross(RA[:, i], RB[:, j]) for i in range(3) for j in range(3)]
+    for L in axes:
+        if np.linalg.norm(L) > 1e-9 and abs(L @ t) > np.abs(L @ RA) @ hA + np.abs(L @ RB) @ hB:
+            return False
+    return True
+
+
+def test_gjk_agrees_with_exact_tests():
+    """GJK equals the exact sphere-sphere distance test and the box-box
+    separating-axis test on random pairs, with motion sets: a sphere grown
+    by a ball of radius e is a sphere of radius r + e."""
+    rng = np.random.default_rng(3)
+    V = np.zeros((0, 3))
+    for _ in range(3000):
+        c1, c2 = rng.uniform(-1, 1, (2, 3))
+        r1, r2, e = rng.uniform(0.05, 0.6, 3)
+        A = _sphere_row(c1, r1)
+        A[0, 18] = e  # e_iso
+        assert K.gjk_intersect(A, V, _sphere_row(c2, r2), V) == (np.linalg.norm(c1 - c2) <= r1 + r2 + e)
+    for _ in range(3000):
+        A = _box_row(rng.uniform(-1, 1, 3), rng.uniform(0.05, 0.7, 3), Rotation.random(random_state=rng).as_matrix())
+        B = _box_row(rng.uniform(-1, 1, 3), rng.uniform(0.05, 0.7, 3), Rotation.random(random_state=rng).as_matrix())
+        assert K.gjk_intersect(A, V, B, V) == _sat_overlap(A, B)
+
+
+def test_hull_of_two_poses_covers_the_segment_between():
+    """An object of two rows is the convex hull of both: a small sphere
+    halfway between two far poses of a box meets it, one beside it does not."""
+    V = np.zeros((0, 3))
+    two = np.concatenate([_box_row([-1, 0, 0], [0.1, 0.1, 0.1]), _box_row([1, 0, 0], [0.1, 0.1, 0.1])])
+    assert K.gjk_intersect(two, V, _sphere_row([0, 0, 0], 0.05), V)
+    assert not K.gjk_intersect(two, V, _sphere_row([0, 0.3, 0], 0.05), V)
+
+
+def test_height_field_test_matches_brute_force():
+    """Shapes against the columns of V: the kernel's halving search equals
+    testing every column as its own box."""
+    rng = np.random.default_rng(4)
+    hm = HeightMap((-1.0, -1.0), 2.0, 2.0, 400)
+    heights = np.where(rng.random(hm.shape) < 0.5, rng.uniform(0.0, 1.0, hm.shape), 0.0)
+    vol = Volume(hm, heights, heights.copy())
+    table, ox, oy, side = volume_table(vol)
+    X, Y = hm.centres()
+    V = np.zeros((0, 3))
+    ws, stack, box, tmp6 = K.new_workspace()
+    aabb = np.empty(6)
+    for _ in range(400):
+        obj = _box_row(rng.uniform([-1, -1, 0.2], [1, 1, 1.4]), rng.uniform(0.02, 0.3, 3),
+                       Rotation.random(random_state=rng).as_matrix())
+        K.row_aabb(obj[0], V, aabb)
+        fast = K.object_hits_columns(obj, V, aabb, table, ox, oy, side, ws, stack, box)
+        brute = any(K.gjk_intersect(obj, V, _box_row([X[i, j], Y[i, j], heights[i, j] / 2],
+                                                     [side / 2, side / 2, heights[i, j] / 2]), V)
+                    for i, j in zip(*np.nonzero(heights > 0)))
+        assert fast == brute
