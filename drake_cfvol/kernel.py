@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit, prange
 
 __all__ = ["BOX", "SPHERE", "CAPSULE", "CYLINDER", "ELLIPSOID", "HULL", "SHAPE_W", "fk", "gjk_intersect",
-           "range_max_table", "range_max", "object_hits_columns", "configs_may_collide", "sweep_stretches",
+           "range_max_table", "range_max", "object_hits_columns", "configs_may_collide", "sweep_chains",
            "lower_columns_under", "obstacle_distances", "row_aabb"]
 
 BOX, SPHERE, CAPSULE, CYLINDER, ELLIPSOID, HULL = 0, 1, 2, 3, 4, 5
@@ -765,22 +765,28 @@ def _relative_growth(W, i, j, a, b, L_t, L_v, moved, curvature, reach, revolute)
     return grow
 
 
+#: Most poses sampled along t and along v in one region test.
+MAX_T_SAMPLES = 5
+MAX_V_SAMPLES = 9
+
+
 @njit(cache=True)
-def _region_hits(W, i, j, ta, tb, va, vb, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
+def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
                  shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
                  curvature, revolute, table, ox, oy, side,
-                 R4, p4, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6):
+                 RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6):
     """May the robot collide anywhere in the region R = {nom(i + t) with
     joint j replaced by v : t in [ta, tb], v in [va, vb]}?
 
     R is the image of a rectangle under an affine map into configuration
-    space. Each shape's positions over R lie in the convex hull of its four
-    corner poses grown by a ball (a second-order bound): along a segment of
-    length L where |d^2 p / ds^2| <= A, a point stays within A L^2 / 8 of
-    the chord, and the chord lies in the hull of its ends. For the nominal's
-    direction dq' (dq without joint j), A = sum_kl |dq'_k| |dq'_l|
-    curvature[k, l, b]; for joint j's direction, A = the shape's distance
-    from j's axis <= reach (revolute) or 0 (prismatic).
+    space. The rectangle is sampled on an nt x nv grid; each shape's
+    positions over R lie in the convex hull of its poses at the grid points
+    grown by a ball (a second-order bound): along a segment of length L
+    where |d^2 p / ds^2| <= A, a point stays within A L^2 / 8 of the chord,
+    and the chord lies in the hull of its ends. For the nominal's direction
+    dq' (dq without joint j), A = sum_kl |dq'_k| |dq'_l| curvature[k, l, b];
+    for joint j's direction, A = the shape's distance from j's axis <= reach
+    (revolute) or 0 (prismatic).
 
     Shapes that joint j moves are tested in the world against the obstacles
     and V. A self-collision pair that joint j moves apart is tested in the
@@ -791,32 +797,33 @@ def _region_hits(W, i, j, ta, tb, va, vb, parent, jtype, qidx, axis, R_PF, p_PF,
     """
     S = shapes.shape[0]
     k = W.shape[1]
-    # The four corners: (ta, va), (ta, vb), (tb, va), (tb, vb).
-    corner = 0
-    for ti in range(2):
-        t = ta if ti == 0 else tb
-        for vi in range(2):
+    P = nt * nv
+    for ti in range(nt):
+        t = ta if nt == 1 else ta + (tb - ta) * ti / (nt - 1)
+        for vi in range(nv):
             for kk in range(k):
                 q_c[kk] = W[i, kk] + t * (W[i + 1, kk] - W[i, kk])
-            q_c[j] = va if vi == 0 else vb
-            fk_into(q_c, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R4[corner], p4[corner])
-            corner += 1
-    L_t = tb - ta
-    L_v = vb - va
+            q_c[j] = va if nv == 1 else va + (vb - va) * vi / (nv - 1)
+            c = ti * nv + vi
+            fk_into(q_c, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, RP[c], pP[c])
+    L_t = (tb - ta) / max(nt - 1, 1)
+    L_v = (vb - va) / max(nv - 1, 1)
     for s in range(S):
         b = shape_body[s]
         if not moved[j, b]:
             continue
         grow = _relative_growth(W, i, j, -1, b, L_t, L_v, moved, curvature, reach, revolute)
-        for c in range(4):
-            pose_shape(shapes[s], R4[c, b], p4[c, b], objs[s, c])
+        for c in range(P):
+            pose_shape(shapes[s], RP[c, b], pP[c, b], objs[s, c])
             set_motion(objs[s, c], grow, 0.0, 0.0, 1.0, 0.0, 0.0)
-        object_aabb(objs[s], verts, aabbs[s], tmp6)
-        if _object_vs_scene(objs[s], aabbs[s], verts, obstacles, obs_aabb, table, ox, oy, side, ws, stack, box):
+        obj = objs[s, :P]
+        object_aabb(obj, verts, aabbs[s], tmp6)
+        if _object_vs_scene(obj, aabbs[s], verts, obstacles, obs_aabb, table, ox, oy, side, ws, stack, box):
             return True
     R_fm = np.empty((3, 3))
     p_fm = np.empty(3)
     dp = np.empty(3)
+    relP = rel[:P]
     for p in range(pairs.shape[0]):
         a = pairs[p, 0]
         bb = pairs[p, 1]
@@ -828,19 +835,19 @@ def _region_hits(W, i, j, ta, tb, va, vb, parent, jtype, qidx, axis, R_PF, p_PF,
         for sm in range(S):
             if shape_body[sm] != m:
                 continue
-            for c in range(4):
-                # X_fm = X_Wf^-1 X_Wm at corner c.
-                Rf = R4[c, f]
-                Rm = R4[c, m]
+            for c in range(P):
+                # X_fm = X_Wf^-1 X_Wm at grid point c.
+                Rf = RP[c, f]
+                Rm = RP[c, m]
                 for r in range(3):
                     for cc in range(3):
                         R_fm[r, cc] = Rf[0, r] * Rm[0, cc] + Rf[1, r] * Rm[1, cc] + Rf[2, r] * Rm[2, cc]
-                    dp[r] = p4[c, m, r] - p4[c, f, r]
+                    dp[r] = pP[c, m, r] - pP[c, f, r]
                 for r in range(3):
                     p_fm[r] = Rf[0, r] * dp[0] + Rf[1, r] * dp[1] + Rf[2, r] * dp[2]
-                pose_shape(shapes[sm], R_fm, p_fm, rel[c])
-                set_motion(rel[c], grow, 0.0, 0.0, 1.0, 0.0, 0.0)
-            object_aabb(rel, verts, rel_aabb, tmp6)
+                pose_shape(shapes[sm], R_fm, p_fm, relP[c])
+                set_motion(relP[c], grow, 0.0, 0.0, 1.0, 0.0, 0.0)
+            object_aabb(relP, verts, rel_aabb, tmp6)
             for sf in range(S):
                 if shape_body[sf] != f:
                     continue
@@ -848,107 +855,122 @@ def _region_hits(W, i, j, ta, tb, va, vb, parent, jtype, qidx, axis, R_PF, p_PF,
                 row_aabb(shapes[sf], verts, tmp6)
                 if _aabb_apart(rel_aabb, tmp6):
                     continue
-                if _gjk(rel, verts, shapes[sf:sf + 1], verts, 64, ws):
+                if _gjk(relP, verts, shapes[sf:sf + 1], verts, 64, ws):
                     return True
     return False
 
 
-@njit(cache=True, parallel=True)
-def sweep_stretches(tasks, guesses, delta, lim_lo, lim_hi, depth, W, parent, jtype, qidx, axis, R_PF, p_PF,
-                    R_MB, p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved,
-                    reach, curvature, revolute, table, ox, oy, side):
-    """Certified single-joint bounds over stretches of the nominal.
-
-    Task n = (i, j, sign): the bound v of joint j (upper for sign +1, lower
-    for -1) such that for every t in [0, 1] moving joint j alone from
-    nom(i + t) to v is free. The stretch is cut into 2^depth[i, j] pieces;
-    for each piece, an adaptive search from the piece's nominal range
-    outwards: test [F, F + w]; free -> certified, advance and double w;
-    possible collision -> halve w; stop once a possibly colliding interval
-    is narrower than delta[j]. The first piece starts from ``guesses[n]``
-    (>= 0: a neighbour's extent) or cold; a later piece starts from the
-    bound found so far. The bound is the tightest over the pieces.
+@njit(cache=True)
+def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtype, qidx, axis, R_PF, p_PF,
+            R_MB, p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute,
+            table, ox, oy, side, RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6):
+    """The bound v of joint j over stretch i (upper for sgn +1, lower for
+    -1): for every t in [0, 1], moving joint j alone from nom(i + t) to v is
+    free. An adaptive search from the stretch's nominal range outwards:
+    test [F, F + w]; free -> certified, advance and double w; possible
+    collision -> halve w; stop once a possibly colliding interval is
+    narrower than delta[j]. Each test samples nt poses along t and one pose
+    per ``v_step`` along v (at most MAX_V_SAMPLES). ``guess`` is an
+    absolute bound to start from (the previous stretch's; NaN: cold).
 
     Returns:
-        (bound (n,), tests (n,)): the bound (absolute, rad or m) and the
-        region tests it took.
+        (bound, tests)
     """
-    n_tasks = tasks.shape[0]
-    out = np.zeros(n_tasks)
-    tests = np.zeros(n_tasks, np.int64)
+    bound = lim_hi[i, j] if sgn > 0 else lim_lo[i, j]
+    dj = delta[j]
+    if sgn > 0:
+        v0 = min(W[i, j], W[i + 1, j])
+        T = bound - v0
+    else:
+        v0 = max(W[i, j], W[i + 1, j])
+        T = v0 - bound
+    if T <= 0:
+        return v0, 0
+    count = 0
+    F = 0.0
+    start = T
+    if not np.isnan(guess):
+        start = sgn * (guess - v0) - dj  # just short of the neighbour's bound
+    if start >= dj and start < T:
+        w = start
+        w_next = 2.0 * dj
+    else:
+        w = T
+        w_next = -1.0
+    while True:
+        X = min(F + w, T)
+        if sgn > 0:
+            va = v0 + F
+            vb = v0 + X
+        else:
+            va = v0 - X
+            vb = v0 - F
+        nv = 2 + int((X - F) / v_step)
+        if nv > MAX_V_SAMPLES:
+            nv = MAX_V_SAMPLES
+        count += 1
+        hit = _region_hits(W, i, j, 0.0, 1.0, nt, va, vb, nv, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
+                           shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
+                           curvature, revolute, table, ox, oy, side,
+                           RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6)
+        if not hit:
+            F = X
+            if F >= T:
+                break
+            if w_next > 0:
+                w = w_next
+                w_next = -1.0
+            else:
+                w = 2.0 * w
+        else:
+            width = X - F
+            w_next = -1.0
+            if width < dj:
+                break
+            w = 0.5 * width
+    return v0 + sgn * F, count
+
+
+@njit(cache=True, parallel=True)
+def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, qidx, axis, R_PF, p_PF, R_MB,
+                 p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute,
+                 table, ox, oy, side):
+    """Certified single-joint bounds of every stretch (:func:`_search`).
+    Chain n = (j, sign) walks the stretches in order, each search starting
+    from the previous stretch's bound; the chains run in parallel.
+
+    Returns:
+        (bounds (n, g-1), tests (n,))
+    """
+    n_chains = chains.shape[0]
+    n_st = W.shape[0] - 1
+    out = np.zeros((n_chains, n_st))
+    tests = np.zeros(n_chains, np.int64)
     B = parent.shape[0]
     S = shapes.shape[0]
     k = W.shape[1]
-    for n in prange(n_tasks):
-        i = tasks[n, 0]
-        j = tasks[n, 1]
-        sgn = tasks[n, 2]
+    for n in prange(n_chains):
+        j = chains[n, 0]
+        sgn = chains[n, 1]
         ws, stack, box, tmp6 = new_workspace()
-        R4 = np.empty((4, B, 3, 3))
-        p4 = np.empty((4, B, 3))
-        objs = np.empty((S, 4, SHAPE_W))
+        P = MAX_T_SAMPLES * MAX_V_SAMPLES
+        RP = np.empty((P, B, 3, 3))
+        pP = np.empty((P, B, 3))
+        objs = np.empty((S, P, SHAPE_W))
         aabbs = np.empty((S, 6))
-        rel = np.empty((4, SHAPE_W))
+        rel = np.empty((P, SHAPE_W))
         rel_aabb = np.empty(6)
         q_c = np.empty(k)
-        pieces = 1 << depth[i, j]
-        bound = lim_hi[i, j] if sgn > 0 else lim_lo[i, j]
+        guess = np.nan
         count = 0
-        dqj = W[i + 1, j] - W[i, j]
-        for piece in range(pieces):
-            ta = piece / pieces
-            tb = (piece + 1) / pieces
-            na = W[i, j] + ta * dqj
-            nb = W[i, j] + tb * dqj
-            if sgn > 0:
-                v0 = min(na, nb)
-                T = bound - v0
-            else:
-                v0 = max(na, nb)
-                T = v0 - bound
-            if T <= 0:
-                continue
-            F = 0.0
-            if piece == 0 and guesses[n] >= 0:
-                w = max(guesses[n], delta[j])
-                w_next = 2.0 * delta[j]
-            elif piece > 0:
-                # Start from the bound so far: most likely right, or close.
-                w = max(T - 2.0 * delta[j], 0.5 * delta[j])
-                w_next = 2.0 * delta[j]
-            else:
-                w = T
-                w_next = -1.0
-            while True:
-                X = min(F + w, T)
-                if sgn > 0:
-                    va = v0 + F
-                    vb = v0 + X
-                else:
-                    va = v0 - X
-                    vb = v0 - F
-                count += 1
-                hit = _region_hits(W, i, j, ta, tb, va, vb, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
-                                   shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
-                                   curvature, revolute, table, ox, oy, side,
-                                   R4, p4, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6)
-                if not hit:
-                    F = X
-                    if F >= T:
-                        break
-                    if w_next > 0:
-                        w = w_next
-                        w_next = -1.0
-                    else:
-                        w = 2.0 * w
-                else:
-                    width = X - F
-                    w_next = -1.0
-                    if width < delta[j]:
-                        break
-                    w = 0.5 * width
-            bound = v0 + sgn * F
-        out[n] = bound
+        for i in range(n_st):
+            bound, c = _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nts[i, j], v_steps[j], W, parent, jtype,
+                               qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts, obstacles, obs_aabb,
+                               pairs, moved, reach, curvature, revolute, table, ox, oy, side, RP, pP, objs, aabbs,
+                               rel, rel_aabb, q_c, ws, stack, box, tmp6)
+            out[n, i] = bound
+            count += c
+            guess = bound
         tests[n] = count
     return out, tests
 

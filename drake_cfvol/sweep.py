@@ -14,8 +14,8 @@ an interval [a, b] while the rest of the robot follows the nominal over the
 stretch. The robot is posed at the region's centre and each body grown by
 how far its points can move over the region (:func:`kernel._region_hits`);
 where the nominal's own motion is what makes a test fail, the stretch is
-halved. All (stretch, joint, direction) searches run in parallel; every
-eighth stretch starts cold and the others start from its answer.
+halved. Each (joint, direction) walks the stretches in order, every search
+starting from the previous stretch's bound; the walks run in parallel.
 """
 
 from __future__ import annotations
@@ -31,10 +31,11 @@ from drake_cfvol.params import VolumeParams
 
 __all__ = ["stretch_bounds", "volume_table", "nominal_growth", "default_rate"]
 
-#: The stretch is halved until the nominal's own motion grows a body by at
-#: most this much (m, second-order bound), at most ``MAX_DEPTH`` times.
+#: Poses are sampled along the stretch (up to kernel.MAX_T_SAMPLES) until
+#: the nominal's own motion grows a body by at most this much between
+#: samples, and along joint j (up to kernel.MAX_V_SAMPLES) until j's motion
+#: does (m, second-order bounds).
 MOTION_TOLERANCE = 0.005
-MAX_DEPTH = 6
 
 
 def volume_table(volume: Volume | None) -> tuple[np.ndarray, float, float, float]:
@@ -60,8 +61,7 @@ def nominal_growth(arrays: SceneArrays, waypoints: np.ndarray) -> np.ndarray:
 
 
 def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | None, params: VolumeParams,
-                   lower_limit: np.ndarray, upper_limit: np.ndarray, *, stride: int = 8
-                   ) -> tuple[np.ndarray, np.ndarray, dict]:
+                   lower_limit: np.ndarray, upper_limit: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
     """Certified per-stretch joint bounds.
 
     Args:
@@ -70,7 +70,6 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
         volume: V (None: obstacles and self only).
         params: ``delta`` / ``delta_prismatic`` tolerances.
         lower_limit, upper_limit: (g-1, k) absolute bounds per stretch (finite).
-        stride: spacing of the cold-started stretches (1: all cold).
 
     Returns:
         (lower (g-1, k), upper (g-1, k), stats). A bound may lie inside the
@@ -81,10 +80,11 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     g, k = W.shape
     n_st = g - 1
     delta = np.where(arrays.revolute, params.delta, params.delta_prismatic).astype(np.float64)
-    growth = nominal_growth(arrays, W)  # (g-1, k); it scales with the piece length squared
-    depth = np.zeros((n_st, k), np.int64)
-    need = growth > MOTION_TOLERANCE
-    depth[need] = np.minimum(np.ceil(0.5 * np.log2(growth[need] / MOTION_TOLERANCE)), MAX_DEPTH).astype(np.int64)
+    growth = nominal_growth(arrays, W)  # (g-1, k); it scales with the sample spacing squared
+    nts = np.clip(1 + np.ceil(np.sqrt(growth / MOTION_TOLERANCE)), 2, K.MAX_T_SAMPLES).astype(np.int64)
+    # Along v: growth = reach L^2 / 8 <= tolerance for a step L.
+    reach_j = np.where(arrays.revolute, arrays.reach.max(axis=1), 0.0)
+    v_steps = np.where(reach_j > 0, np.sqrt(8 * MOTION_TOLERANCE / np.maximum(reach_j, 1e-9)), np.inf)
     table, ox, oy, side = volume_table(volume)
     a = arrays
     common = (a.parent, a.jtype, a.qidx, a.axis, a.R_PF, a.p_PF, a.R_MB, a.p_MB, a.shapes, a.shape_body,
@@ -93,41 +93,19 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     lim_lo = np.ascontiguousarray(lower_limit, dtype=np.float64)
     lim_hi = np.ascontiguousarray(upper_limit, dtype=np.float64)
 
-    cold = np.unique(np.r_[np.arange(0, n_st, max(1, stride)), n_st - 1])
-    warm = np.setdiff1d(np.arange(n_st), cold)
-
-    def tasks_for(stretches):
-        i, j, s = np.meshgrid(stretches, np.arange(k), [1, -1], indexing="ij")
-        return np.stack([i.ravel(), j.ravel(), s.ravel()], axis=1).astype(np.int64)
-
-    bound = np.zeros((n_st, k, 2))  # [..., 0] upper, [..., 1] lower
-    tests = 0
-    t_cold = tasks_for(cold)
-    bc, nc = K.sweep_stretches(t_cold, np.full(len(t_cold), -1.0), delta, lim_lo, lim_hi, depth, W, *common)
-    bound[t_cold[:, 0], t_cold[:, 1], (1 - t_cold[:, 2]) // 2] = bc
-    tests += int(nc.sum())
+    chains = np.array([(j, sgn) for j in range(k) for sgn in (1, -1)], np.int64)
+    bounds, tests = K.sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, *common)
     lo_nom = np.minimum(W[:-1], W[1:])
     hi_nom = np.maximum(W[:-1], W[1:])
-    if len(warm):
-        t_warm = tasks_for(warm)
-        nearest = cold[np.abs(t_warm[:, 0][:, None] - cold[None, :]).argmin(axis=1)]
-        side = (1 - t_warm[:, 2]) // 2
-        # The neighbour's extent beyond its own nominal range, as a guess.
-        extent = np.where(side == 0, bound[nearest, t_warm[:, 1], 0] - hi_nom[nearest, t_warm[:, 1]],
-                          lo_nom[nearest, t_warm[:, 1]] - bound[nearest, t_warm[:, 1], 1])
-        own = (hi_nom - lo_nom)[t_warm[:, 0], t_warm[:, 1]]
-        guess = np.maximum(extent, 0.0) + own
-        bw, nw = K.sweep_stretches(t_warm, np.ascontiguousarray(guess), delta, lim_lo, lim_hi, depth, W, *common)
-        bound[t_warm[:, 0], t_warm[:, 1], side] = bw
-        tests += int(nw.sum())
-    upper = bound[:, :, 0]
-    lower = bound[:, :, 1]
+    upper = bounds[0::2].T.copy()
+    lower = bounds[1::2].T.copy()
+    tests = int(tests.sum())
     # A bound inside the nominal's own range over the stretch is kept as it
     # is: where the nominal passes it, the box is held at the nominal (the
     # box at s always holds nom(s); see table.box_at).
     stats = {"region_tests": tests, "searches": 2 * n_st * k,
              "pinned": int((upper < hi_nom).sum() + (lower > lo_nom).sum()),
-             "max_depth": int(depth.max()) if depth.size else 0,
+             "max_t_samples": int(nts.max()) if nts.size else 0,
              "motion_tolerance_m": MOTION_TOLERANCE}
     return lower, upper, stats
 

@@ -132,3 +132,38 @@ def test_height_field_test_matches_brute_force():
                                                      [side / 2, side / 2, heights[i, j] / 2]), V)
                     for i, j in zip(*np.nonzero(heights > 0)))
         assert fast == brute
+
+
+def _drake_extent(wc, q, j, sign, step=0.005):
+    """How far joint j alone can move from q (one direction) before Drake
+    finds a collision with the real scene, sampled every ``step``."""
+    limit = wc.position_upper[j] if sign > 0 else wc.position_lower[j]
+    span = abs(limit - q[j])
+    t = np.r_[np.arange(step, span, step), span]
+    Q = np.repeat(q[None], len(t), axis=0)
+    Q[:, j] = q[j] + sign * t
+    free = np.array(wc.checker.CheckConfigsCollisionFree(Q, parallelize=True), bool)
+    return span if free.all() else (t[np.argmin(free) - 1] if np.argmin(free) > 0 else 0.0)
+
+
+def test_mesh_robot_compact_wrist_keeps_its_freedom(mesh_cell):
+    """On the mesh robot (convex-hull links, a compact wrist whose links
+    nearly touch), no joint gets zero width where Drake lets it move more
+    than 0.1 rad alone, and every width is at least 60 % of Drake's
+    single-joint extent (no volume: both against the real scene)."""
+    rng = np.random.default_rng(5)
+    checked = 0
+    while checked < 6:
+        q = rng.uniform(mesh_cell.position_lower, mesh_cell.position_upper)
+        if not mesh_cell.is_free(q):
+            continue
+        checked += 1
+        path = cf.NominalPath(np.array([q, q]), mesh_cell.joint_names, mesh_cell.name)
+        table = cf.estimate_bounds(mesh_cell, path, h_max=0.0)
+        for j in range(mesh_cell.num_joints):
+            true_width = _drake_extent(mesh_cell, q, j, +1) + _drake_extent(mesh_cell, q, j, -1)
+            width = table.upper[0, j] - table.lower[0, j]
+            assert width <= true_width + 2 * table.params["delta"] + 0.01
+            if true_width > 0.1:
+                assert width > 0, f"joint {j} zeroed at {q}"
+            assert width >= 0.6 * true_width, f"joint {j}: {width:.3f} of {true_width:.3f} rad at {q}"
