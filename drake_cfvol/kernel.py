@@ -773,7 +773,7 @@ MAX_V_SAMPLES = 9
 @njit(cache=True)
 def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
                  shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
-                 curvature, revolute, table, ox, oy, side,
+                 curvature, revolute, joint_body, table, ox, oy, side,
                  RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6):
     """May the robot collide anywhere in the region R = {nom(i + t) with
     joint j replaced by v : t in [ta, tb], v in [va, vb]}?
@@ -798,14 +798,62 @@ def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_P
     S = shapes.shape[0]
     k = W.shape[1]
     P = nt * nv
+    B = parent.shape[0]
+    jb = joint_body[j]
+    Rot = ws[8:11]  # scratch rows reused as a 3x3 matrix (free outside GJK)
     for ti in range(nt):
         t = ta if nt == 1 else ta + (tb - ta) * ti / (nt - 1)
-        for vi in range(nv):
-            for kk in range(k):
-                q_c[kk] = W[i, kk] + t * (W[i + 1, kk] - W[i, kk])
-            q_c[j] = va if nv == 1 else va + (vb - va) * vi / (nv - 1)
-            c = ti * nv + vi
-            fk_into(q_c, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, RP[c], pP[c])
+        for kk in range(k):
+            q_c[kk] = W[i, kk] + t * (W[i + 1, kk] - W[i, kk])
+        q_c[j] = va
+        c0 = ti * nv
+        fk_into(q_c, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, RP[c0], pP[c0])
+        if nv == 1:
+            continue
+        # Joint j's axis in the world (through its child frame's origin):
+        # p_WM = p_WB - R_WB R_MB^T p_MB, u = R_WB R_MB^T axis.
+        RB = RP[c0, jb]
+        RM = R_MB[jb]
+        pm = p_MB[jb]
+        ax = axis[jb]
+        cw0 = pP[c0, jb, 0]
+        cw1 = pP[c0, jb, 1]
+        cw2 = pP[c0, jb, 2]
+        u0 = 0.0
+        u1 = 0.0
+        u2 = 0.0
+        for r in range(3):
+            tr = RM[0, r] * pm[0] + RM[1, r] * pm[1] + RM[2, r] * pm[2]
+            ar = RM[0, r] * ax[0] + RM[1, r] * ax[1] + RM[2, r] * ax[2]
+            cw0 -= RB[0, r] * tr
+            cw1 -= RB[1, r] * tr
+            cw2 -= RB[2, r] * tr
+            u0 += RB[0, r] * ar
+            u1 += RB[1, r] * ar
+            u2 += RB[2, r] * ar
+        un = np.array([u0, u1, u2])
+        for vi in range(1, nv):
+            c = c0 + vi
+            dv = (vb - va) * vi / (nv - 1)
+            if revolute[j]:
+                _axis_rotation(un, dv, Rot)
+            for b in range(B):
+                if not moved[j, b]:
+                    RP[c, b] = RP[c0, b]
+                    pP[c, b] = pP[c0, b]
+                elif revolute[j]:
+                    _mm(Rot, RP[c0, b], RP[c, b])
+                    x0 = pP[c0, b, 0] - cw0
+                    x1 = pP[c0, b, 1] - cw1
+                    x2 = pP[c0, b, 2] - cw2
+                    pP[c, b, 0] = cw0 + Rot[0, 0] * x0 + Rot[0, 1] * x1 + Rot[0, 2] * x2
+                    pP[c, b, 1] = cw1 + Rot[1, 0] * x0 + Rot[1, 1] * x1 + Rot[1, 2] * x2
+                    pP[c, b, 2] = cw2 + Rot[2, 0] * x0 + Rot[2, 1] * x1 + Rot[2, 2] * x2
+                else:
+                    RP[c, b] = RP[c0, b]
+                    pP[c, b, 0] = pP[c0, b, 0] + u0 * dv
+                    pP[c, b, 1] = pP[c0, b, 1] + u1 * dv
+                    pP[c, b, 2] = pP[c0, b, 2] + u2 * dv
     L_t = (tb - ta) / max(nt - 1, 1)
     L_v = (vb - va) / max(nv - 1, 1)
     for s in range(S):
@@ -863,7 +911,7 @@ def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_P
 @njit(cache=True)
 def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtype, qidx, axis, R_PF, p_PF,
             R_MB, p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute,
-            table, ox, oy, side, RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6):
+            joint_body, table, ox, oy, side, RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6):
     """The bound v of joint j over stretch i (upper for sgn +1, lower for
     -1): for every t in [0, 1], moving joint j alone from nom(i + t) to v is
     free. An adaptive search from the stretch's nominal range outwards:
@@ -911,7 +959,7 @@ def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtyp
         count += 1
         hit = _region_hits(W, i, j, 0.0, 1.0, nt, va, vb, nv, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
                            shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
-                           curvature, revolute, table, ox, oy, side,
+                           curvature, revolute, joint_body, table, ox, oy, side,
                            RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6)
         if not hit:
             F = X
@@ -934,7 +982,7 @@ def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtyp
 @njit(cache=True, parallel=True)
 def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, qidx, axis, R_PF, p_PF, R_MB,
                  p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute,
-                 table, ox, oy, side):
+                 joint_body, table, ox, oy, side):
     """Certified single-joint bounds of every stretch (:func:`_search`).
     Chain n = (j, sign) walks the stretches in order, each search starting
     from the previous stretch's bound; the chains run in parallel.
@@ -966,7 +1014,8 @@ def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, 
         for i in range(n_st):
             bound, c = _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nts[i, j], v_steps[j], W, parent, jtype,
                                qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts, obstacles, obs_aabb,
-                               pairs, moved, reach, curvature, revolute, table, ox, oy, side, RP, pP, objs, aabbs,
+                               pairs, moved, reach, curvature, revolute, joint_body, table, ox, oy, side, RP, pP,
+                               objs, aabbs,
                                rel, rel_aabb, q_c, ws, stack, box, tmp6)
             out[n, i] = bound
             count += c

@@ -35,7 +35,7 @@ __all__ = ["stretch_bounds", "volume_table", "nominal_growth", "default_rate"]
 #: the nominal's own motion grows a body by at most this much between
 #: samples, and along joint j (up to kernel.MAX_V_SAMPLES) until j's motion
 #: does (m, second-order bounds).
-MOTION_TOLERANCE = 0.005
+MOTION_TOLERANCE = 0.01
 
 
 def volume_table(volume: Volume | None) -> tuple[np.ndarray, float, float, float]:
@@ -89,7 +89,7 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     a = arrays
     common = (a.parent, a.jtype, a.qidx, a.axis, a.R_PF, a.p_PF, a.R_MB, a.p_MB, a.shapes, a.shape_body,
               a.verts, a.obstacles, a.obstacle_aabb, a.self_pairs, a.moved_by, a.reach, a.curvature, a.revolute,
-              table, ox, oy, side)
+              a.joint_body, table, ox, oy, side)
     lim_lo = np.ascontiguousarray(lower_limit, dtype=np.float64)
     lim_hi = np.ascontiguousarray(upper_limit, dtype=np.float64)
 
