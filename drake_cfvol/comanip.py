@@ -264,7 +264,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     t2 = time.perf_counter()
     vb = bounds.volume
     if vb is None:  # a table loaded from disk: grow its volume again
-        params = VolumeParams(**bounds.params)
+        known = {f.name for f in dataclasses.fields(VolumeParams)}
+        params = VolumeParams(**{k: v for k, v in bounds.params.items() if k in known})
         nominal = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.seed)
         vb = build_volume(wc, nominal, params)
         bounds = dataclasses.replace(bounds, volume=vb)

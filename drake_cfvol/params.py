@@ -36,9 +36,6 @@ class VolumeParams:
         delta_prismatic: bisection tolerance for prismatic joints, m.
         column_clearance: columns are lowered to stay this far below the
             robot at every nominal waypoint, m.
-        sphere_tolerance: how far the fast backend's sphere cover of a box
-            may stick out of it, m.
-        sdf_voxel: voxel size of the obstacles' distance grid, m.
         raster: pixel size of the footprint distance maps, m.
         waypoint_time: nominal seconds per waypoint, for the bounds' rate
             limit (each joint's velocity limit times this, per unit s). None:
@@ -61,9 +58,7 @@ class VolumeParams:
     delta: float = 0.01
     delta_prismatic: float = 0.005
     column_clearance: float = 0.0
-    sphere_tolerance: float = 0.06
-    sdf_voxel: float = 0.05
-    raster: float = 0.02
+    raster: float = 0.04
     waypoint_time: float | None = None
 
     def __post_init__(self):
@@ -98,7 +93,7 @@ class VolumeParams:
                 bad(f"{name} must be >= 0 m, got {getattr(self, name)}.")
         if self.waypoint_time is not None and self.waypoint_time <= 0:
             bad(f"waypoint_time must be > 0 s, got {self.waypoint_time}.")
-        for name in ("delta", "delta_prismatic", "sphere_tolerance", "sdf_voxel", "raster"):
+        for name in ("delta", "delta_prismatic", "raster"):
             if getattr(self, name) <= 0:
                 bad(f"{name} must be > 0, got {getattr(self, name)}.")
 

@@ -69,10 +69,9 @@ def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = N
     if certify is not None and not isinstance(certify, Certify):
         raise ParameterError(f"certify must be a drake_cfvol.Certify or None, got {type(certify).__name__}.")
     t0 = time.perf_counter()
-    model = workcell.robot_geometry(params.sphere_tolerance)
     cats = categorize(workcell, path, params)
     t1 = time.perf_counter()
-    vb = build_volume(workcell, path, params, model=model, categories=cats)
+    vb = build_volume(workcell, path, params, categories=cats)
     t2 = time.perf_counter()
     W = path.waypoints
     if backend == "fast":

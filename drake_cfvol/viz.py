@@ -4,8 +4,7 @@ nominal tool path (colours from :mod:`drake_cfvol.style`)."""
 from __future__ import annotations
 
 import numpy as np
-from pydrake.geometry import Box, Rgba, SurfaceTriangle, TriangleSurfaceMesh
-from pydrake.math import RigidTransform, RotationMatrix
+from pydrake.geometry import Rgba, SurfaceTriangle, TriangleSurfaceMesh
 
 from drake_cfvol.heightmap import Volume
 from drake_cfvol.planning import NominalPath
@@ -50,14 +49,17 @@ def show_volume(meshcat, workcell, build: VolumeBuild, path: NominalPath | None 
     mesh = volume_mesh(build.volume)
     if mesh is not None:
         meshcat.SetObject(f"{prefix}/volume", mesh, Rgba(*VOLUME_COLOUR))
-    obs = workcell.obstacle_boxes()
     ground = ground_obstacles(workcell)
-    for i, (name, c, R, h) in enumerate(zip(obs.names, obs.centre, obs.R, obs.half)):
+    inspector = workcell.scene_graph.model_inspector()
+    query = workcell.scene_graph.get_query_output_port().Eval(
+        workcell.scene_graph.GetMyContextFromRoot(workcell.context))
+    for name, obstacle in workcell.obstacles.items():
         if name in ground:
             continue
         category = build.categories.of(name)
-        key = f"{prefix}/obstacles/{category}/{name}_{i}"
-        meshcat.SetObject(key, Box(*(2 * h)), Rgba(*CATEGORY_COLOURS[category]))
-        meshcat.SetTransform(key, RigidTransform(RotationMatrix(R), c))
+        for i, gid in enumerate(obstacle.geometry_ids):
+            key = f"{prefix}/obstacles/{category}/{name}_{i}"
+            meshcat.SetObject(key, inspector.GetShape(gid), Rgba(*CATEGORY_COLOURS[category]))
+            meshcat.SetTransform(key, query.GetPoseInWorld(gid))
     if path is not None:
         show_tool_path(meshcat, workcell, path, name=f"{prefix}/nominal_tool_path")

@@ -5,11 +5,10 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.spatial import ConvexHull
 
-from drake_cfvol.collision import RobotModel
+from drake_cfvol import kernel as K
 from drake_cfvol.exceptions import WorkcellError
-from drake_cfvol.heightmap import FootprintRaster, HeightMap, Volume, height_function
+from drake_cfvol.heightmap import HeightMap, Volume, height_function
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import NominalPath
 
@@ -50,13 +49,25 @@ class Categories:
 
 
 def categorize(workcell, path: NominalPath, params: VolumeParams) -> Categories:
-    """Sorts the obstacles into trail, goal and no-goal sets (SPEC 4) with
-    Drake's signed-distance queries on the real geometry."""
-    trail_d: dict[str, float] = {}
-    for q in path.waypoints:
-        for name, d in workcell.obstacle_distances(q, params.trail_radius).items():
-            trail_d[name] = min(trail_d.get(name, np.inf), d)
-    goal_d = workcell.obstacle_distances(path.waypoints[-1], params.goal_radius)
+    """Sorts the obstacles into trail, goal and no-goal sets (SPEC 4) by the
+    kernel's distances between the robot's and the obstacles' real shapes
+    (to within 1e-7 m; shapes welded to the world, like the robot's base,
+    take no part, as in Drake)."""
+    a = workcell.scene_arrays()
+    W = np.ascontiguousarray(path.waypoints, dtype=np.float64)
+    movable = a.moved_by.any(axis=0)
+
+    def per_obstacle(Q, radius):
+        d = K.obstacle_distances(np.ascontiguousarray(Q), float(radius), 1e-7, *a.chain, a.shapes,
+                                 a.shape_body, a.verts, a.obstacles, a.obstacle_aabb, movable).min(axis=0)
+        out: dict[str, float] = {}
+        for name, value in zip(a.obstacle_names, d):
+            if value < radius:
+                out[name] = min(out.get(name, np.inf), float(value))
+        return out
+
+    trail_d = per_obstacle(W, params.trail_radius)
+    goal_d = per_obstacle(W[-1:], params.goal_radius)
     names = list(workcell.obstacles)
     trail = [n for n in names if trail_d.get(n, np.inf) < params.trail_radius]
     goal = [n for n in names if n not in trail and goal_d.get(n, np.inf) < params.goal_radius]
@@ -70,20 +81,19 @@ def ground_obstacles(workcell) -> set[str]:
     """Obstacles whose top is at floor level (z <= 1 mm): their footprint is
     the whole map, so they take no part in the height function's distances
     (the volume stands on them anyway)."""
-    obs = workcell.obstacle_boxes()
-    tops = {}
-    for name, c, R, h in zip(obs.names, obs.centre, obs.R, obs.half):
-        top = c[2] + np.abs(R[2]) @ h
-        tops[name] = max(tops.get(name, -np.inf), top)
+    a = workcell.scene_arrays()
+    tops: dict[str, float] = {}
+    for name, box in zip(a.obstacle_names, a.obstacle_aabb):
+        tops[name] = max(tops.get(name, -np.inf), box[5])
     return {n for n, t in tops.items() if t <= GROUND_TOP}
 
 
-def footprint_polygon(centre, R, half) -> np.ndarray:
-    """The xy projection of an oriented box: a convex polygon (n, 2)."""
-    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)])
-    corners = centre + (signs * half) @ R.T
-    xy = corners[:, :2]
-    return xy[ConvexHull(xy).vertices]
+def footprint_polygon(row: np.ndarray, verts: np.ndarray) -> np.ndarray:
+    """The xy footprint of a kernel shape row: a convex polygon (n, 2) of its
+    support points (the corners, for a box standing upright)."""
+    out = np.empty((K.FOOTPRINT_DIRECTIONS, 2))
+    K.shape_footprint(np.ascontiguousarray(row, dtype=np.float64), verts, out)
+    return out
 
 
 def reach_activation(workcell, path: NominalPath, hm: HeightMap, reach: float) -> np.ndarray:
@@ -137,52 +147,44 @@ class VolumeBuild:
 
 
 def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
-                 model: RobotModel | None = None, categories: Categories | None = None) -> VolumeBuild:
+                 categories: Categories | None = None) -> VolumeBuild:
     """Grows the volume V around a nominal path (SPEC 4-5).
 
-    The trail's footprint is the xy projection of the robot's cover spheres
-    at every waypoint (a superset of its geometry) and of the trail
-    obstacles. Columns that the robot would touch at a nominal waypoint
-    (coarse cells, SPEC 5) are lowered under it, or dropped; the counts are
-    in ``volume.lowered`` / ``volume.dropped``.
+    Footprints (xy projections) are drawn on a raster of ``params.raster``
+    pixels: the trail's is the robot's shapes at every waypoint and the
+    trail obstacles; distances come from an exact distance transform and are
+    read at the cell centres, so their cost does not grow with R. Columns
+    under the robot anywhere along the nominal (coarse cells, SPEC 5) are
+    lowered under it, or dropped; the counts are in ``volume.lowered`` /
+    ``volume.dropped``.
     """
-    model = model or workcell.robot_geometry(params.sphere_tolerance)
     cats = categories or categorize(workcell, path, params)
     hm = height_map_of(workcell, params)
-    obs = workcell.obstacle_boxes()
+    a = workcell.scene_arrays()
     ground = ground_obstacles(workcell)
-    lo = np.array(hm.origin)
-    hi = lo + [hm.x_dim, hm.y_dim]
     pad = max(params.d_t_ub, params.d_g_ub, params.d_ng_ub)
-    raster = FootprintRaster(lo, hi, params.raster, pad)
-
-    # Robot cover spheres at every waypoint (bodies that never move: once).
-    R, p = model.batch_poses(workcell, path.waypoints)
-    moving = model.moved_by.any(axis=0)
-    centres = model.cover_world(R, p)  # (g, Nc, 3)
-    cover_moving = moving[model.cover_body]
-    pts = np.concatenate([centres[:, cover_moving].reshape(-1, 3), centres[0, ~cover_moving]])
-    rad = np.concatenate([np.tile(model.cover_r[cover_moving], len(path.waypoints)),
-                          model.cover_r[~cover_moving]])
-
-    masks = {c: raster.empty() for c in ("trail", "goal", "no_goal")}
-    for name, c, Rb, h in zip(obs.names, obs.centre, obs.R, obs.half):
+    pixel = float(params.raster)
+    x0, y0 = hm.origin[0] - pad, hm.origin[1] - pad
+    shape = (int(np.ceil((hm.x_dim + 2 * pad) / pixel)), int(np.ceil((hm.y_dim + 2 * pad) / pixel)))
+    masks = {c: np.zeros(shape, bool) for c in ("trail", "goal", "no_goal")}
+    poly = np.empty((K.FOOTPRINT_DIRECTIONS, 2))
+    for name, row in zip(a.obstacle_names, a.obstacles):
         if name in ground:
             continue
-        raster.fill_polygon(masks[cats.of(name)], footprint_polygon(c, Rb, h))
-    d_trail_obs = raster.distance(masks["trail"])
-    d_trail_robot = raster.disc_distance(pts[:, :2], rad, quantum=0.05)
+        K.shape_footprint(row, a.verts, poly)
+        K.fill_convex_polygon(masks[cats.of(name)], poly, x0, y0, pixel)
+    K.robot_footprint(np.ascontiguousarray(path.waypoints, dtype=np.float64), *a.chain, a.shapes, a.shape_body,
+                      a.verts, a.moved_by.any(axis=0), masks["trail"], x0, y0, pixel)
     X, Y = hm.centres()
-    d_t = raster.sample(np.minimum(d_trail_obs, d_trail_robot), X, Y)
-    d_g = raster.sample(raster.distance(masks["goal"]), X, Y)
-    d_ng = raster.sample(raster.distance(masks["no_goal"]), X, Y)
+    ix = np.clip(np.floor((X - x0) / pixel).astype(int), 0, shape[0] - 1)
+    iy = np.clip(np.floor((Y - y0) / pixel).astype(int), 0, shape[1] - 1)
+    d = {c: K.distance_map(m)[ix, iy] * pixel for c, m in masks.items()}
     reach = params.reach if params.reach is not None else workcell.reach
     active = reach_activation(workcell, path, hm, reach) if reach and reach > 0 else np.ones(hm.shape, bool)
-    raw = height_function(d_t, d_g, d_ng, active, params)
+    raw = height_function(d["trail"], d["goal"], d["no_goal"], active, params)
     vol = Volume(hm, raw.copy(), raw)
-    vol.lower_under(pts, rad, params.column_clearance)
-    lower_along_path(vol, workcell.scene_arrays(), path.waypoints, params.column_clearance)
-    return VolumeBuild(vol, cats, d_t, d_g, d_ng, active)
+    lower_along_path(vol, a, path.waypoints, params.column_clearance)
+    return VolumeBuild(vol, cats, d["trail"], d["goal"], d["no_goal"], active)
 
 
 #: Between waypoints the robot is posed at points this close in s that each
@@ -196,8 +198,6 @@ def lower_along_path(vol: Volume, arrays, waypoints: np.ndarray, clearance: floa
     and the motion between them (each body grown by how far it can move
     between the samples), so that the nominal is free of V at every s, not
     only at waypoints. Updates the lowered/dropped counts."""
-    from drake_cfvol import kernel as K
-
     W = np.asarray(waypoints, float)
     dq = np.abs(np.diff(W, axis=0))  # (g-1, k)
     rev = arrays.revolute

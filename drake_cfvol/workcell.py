@@ -54,7 +54,6 @@ from pydrake.multibody.tree import BodyIndex, ModelInstanceIndex
 from pydrake.planning import RobotDiagramBuilder, SceneGraphCollisionChecker
 
 from drake_cfvol import _meshes
-from drake_cfvol.collision import Obstacles, RobotModel, robot_model, workcell_obstacles
 from drake_cfvol.exceptions import (
     CollisionError,
     DimensionError,
@@ -310,8 +309,6 @@ class Workcell:
         self.scene_graph = self.diagram.scene_graph()
         self._context = self.diagram.CreateDefaultContext()
         self._edge_step = float(edge_step)
-        self._geometry_cache: dict[float, RobotModel] = {}
-        self._obstacle_boxes: Obstacles | None = None
         self._scene_arrays: SceneArrays | None = None
 
         plant = self.plant
@@ -502,27 +499,12 @@ class Workcell:
 
     # -- cached models of the scene ----------------------------------------
 
-    def robot_geometry(self, tol: float = 0.06) -> RobotModel:
-        """The robot's geometry for the fast checks
-        (:func:`drake_cfvol.collision.robot_model`), built once per ``tol``."""
-        key = float(tol)
-        if key not in self._geometry_cache:
-            self._geometry_cache[key] = robot_model(self, key)
-        return self._geometry_cache[key]
-
     def scene_arrays(self) -> SceneArrays:
         """The robot chain, robot shapes and obstacle shapes as arrays for the
         compiled kernel (:func:`drake_cfvol.geometry.scene_arrays`), built once."""
         if self._scene_arrays is None:
             self._scene_arrays = scene_arrays(self)
         return self._scene_arrays
-
-    def obstacle_boxes(self) -> Obstacles:
-        """The obstacles as oriented boxes
-        (:func:`drake_cfvol.collision.workcell_obstacles`), built once."""
-        if self._obstacle_boxes is None:
-            self._obstacle_boxes = workcell_obstacles(self)
-        return self._obstacle_boxes
 
     def obstacle_distances(self, q, max_distance: float) -> dict[str, float]:
         """Smallest signed distance per obstacle to the robot at ``q`` (real

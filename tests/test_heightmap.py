@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.heightmap import HeightMap, RangeMax2D, Volume, height_function
+from drake_cfvol import kernel as K
+from drake_cfvol.heightmap import HeightMap, height_function
 from drake_cfvol.params import VolumeParams
 
 
@@ -55,41 +56,37 @@ def test_height_function_vectorised():
 
 
 def test_range_max_matches_brute_force():
-    """RangeMax2D.query equals numpy's max over the clipped block."""
+    """The kernel's range-max table equals numpy's max over the clipped block."""
     rng = np.random.default_rng(0)
     v = rng.random((23, 41))
-    t = RangeMax2D(v)
+    t = K.range_max_table(v)
     for _ in range(500):
         i0, i1 = sorted(rng.integers(-3, 26, 2))
         j0, j1 = sorted(rng.integers(-3, 44, 2))
         a, b, c, d = max(i0, 0), min(i1, 22), max(j0, 0), min(j1, 40)
         ref = v[a:b + 1, c:d + 1].max() if a <= b and c <= d else -np.inf
-        assert t.query(i0, i1, j0, j1) == ref
+        assert K.range_max(t, int(i0), int(i1), int(j0), int(j1)) == ref
 
 
-def _exact_sphere_hits(vol, p, r):
-    X, Y = vol.heightmap.centres()
-    s = vol.heightmap.side
-    h = vol.heights
-    dx = np.maximum(np.abs(p[0] - X) - s / 2, 0)
-    dy = np.maximum(np.abs(p[1] - Y) - s / 2, 0)
-    dz = np.maximum(p[2] - h, 0)
-    return bool(np.any((h > 0) & (dx * dx + dy * dy + dz * dz < r * r)))
+def test_distance_map_is_exact():
+    """The kernel's distance transform equals scipy's exact one."""
+    from scipy.ndimage import distance_transform_edt
 
-
-def test_sphere_test_never_misses():
-    """The column test reports every sphere that truly touches a column
-    (exact sphere-box distances), and is not wildly conservative."""
     rng = np.random.default_rng(1)
-    hm = HeightMap((0.0, 0.0), 4.0, 3.0, 300)
-    h = rng.uniform(0, 2, hm.shape) * (rng.random(hm.shape) < 0.5)
-    vol = Volume(hm, h, h.copy())
-    p = rng.uniform([-0.5, -0.5, 0], [4.5, 3.5, 3], (3000, 3))
-    r = rng.uniform(0.02, 0.4, 3000)
-    fast = vol.sphere_hits(p, r)
-    exact = np.array([_exact_sphere_hits(vol, pp, rr) for pp, rr in zip(p, r)])
-    assert not np.any(exact & ~fast)
-    assert exact.sum() > 100 and fast.sum() < 1.5 * exact.sum()
+    mask = rng.random((120, 77)) < 0.01
+    np.testing.assert_allclose(K.distance_map(mask), distance_transform_edt(~mask), atol=1e-12)
+    assert np.isinf(K.distance_map(np.zeros((5, 6), bool))).all()
+
+
+def test_polygon_fill_marks_pixel_centres_inside():
+    """An axis-aligned rectangle marks exactly the pixels whose centres lie
+    inside it (plus the pixels under its corners)."""
+    mask = np.zeros((100, 100), bool)
+    K.fill_convex_polygon(mask, np.array([[1.0, 1.0], [3.0, 1.0], [3.0, 2.0], [1.0, 2.0]]), 0.0, 0.0, 0.05)
+    xs = (np.arange(100) + 0.5) * 0.05
+    X, Y = np.meshgrid(xs, xs, indexing="ij")
+    inside = (X >= 1) & (X <= 3) & (Y >= 1) & (Y <= 2)
+    assert not (inside & ~mask).any() and (mask & ~inside).sum() <= 4
 
 
 def test_bad_height_map():
