@@ -181,7 +181,17 @@ class SceneArrays:
         itself; False is certified free (the kernel is conservative)."""
         Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
         return K.configs_may_collide(Q, *self.chain, self.shapes, self.shape_body, self.verts, self.obstacles,
-                                     self.obstacle_aabb, self.self_pairs, self.moved_by.any(axis=0))
+                                     self.obstacle_aabb, self.shape_pairs, self.moved_by.any(axis=0))
+
+    @property
+    def shape_pairs(self) -> np.ndarray:
+        """(P, 2) robot shape pairs of the body pairs Drake does not filter."""
+        body_pairs = {(int(a), int(b)) for a, b in self.self_pairs}
+        S = len(self.shapes)
+        pairs = [(a, b) for a in range(S) for b in range(a + 1, S)
+                 if (int(self.shape_body[a]), int(self.shape_body[b])) in body_pairs
+                 or (int(self.shape_body[b]), int(self.shape_body[a])) in body_pairs]
+        return np.array(pairs, np.int64).reshape(-1, 2)
 
     @property
     def chain(self) -> tuple:

@@ -695,9 +695,10 @@ def _object_vs_scene(obj, aabb, verts, obstacles, obs_aabb, table, ox, oy, side,
 
 @njit(cache=True, parallel=True)
 def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
-                        obstacles, obs_aabb, pairs, movable):
+                        obstacles, obs_aabb, shape_pairs, movable):
     """(N,) True where a configuration may collide with the obstacles or
-    itself (the unfiltered body pairs); False is certified free. Bodies
+    itself; False is certified free. ``shape_pairs`` (P, 2) are the robot
+    shape pairs to test (those of body pairs Drake does not filter). Bodies
     that no joint moves (``movable`` False) are welded to the world, like
     the obstacles: Drake filters those pairs, and so does this."""
     N = Q.shape[0]
@@ -705,40 +706,37 @@ def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, sh
     S = shapes.shape[0]
     out = np.zeros(N, np.bool_)
     empty_table = np.zeros((1, 1, 0, 0))
-    for n in prange(N):
+    chunk = 256
+    n_chunks = (N + chunk - 1) // chunk
+    for c in prange(n_chunks):
         ws, stack, box, tmp6 = new_workspace()
         R_WB = np.empty((B, 3, 3))
         p_WB = np.empty((B, 3))
-        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
         objs = np.empty((S, 1, SHAPE_W))
         aabbs = np.empty((S, 6))
-        _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
-        for s in range(S):
-            row_aabb(objs[s, 0], verts, aabbs[s])
-        hit = False
-        for s in range(S):
-            if not movable[shape_body[s]]:
-                continue
-            if _object_vs_scene(objs[s], aabbs[s], verts, obstacles, obs_aabb, empty_table, 0.0, 0.0, 1.0,
-                                ws, stack, box):
-                hit = True
-                break
-        if not hit:
-            for p in range(pairs.shape[0]):
-                for sa in range(S):
-                    if shape_body[sa] != pairs[p, 0]:
-                        continue
-                    for sb in range(S):
-                        if shape_body[sb] != pairs[p, 1] or _aabb_apart(aabbs[sa], aabbs[sb]):
-                            continue
-                        if _gjk(objs[sa], verts, objs[sb], verts, 64, ws):
-                            hit = True
-                            break
-                    if hit:
-                        break
-                if hit:
+        for n in range(c * chunk, min(N, (c + 1) * chunk)):
+            fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+            _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
+            for s in range(S):
+                row_aabb(objs[s, 0], verts, aabbs[s])
+            hit = False
+            for s in range(S):
+                if not movable[shape_body[s]]:
+                    continue
+                if _object_vs_scene(objs[s], aabbs[s], verts, obstacles, obs_aabb, empty_table, 0.0, 0.0, 1.0,
+                                    ws, stack, box):
+                    hit = True
                     break
-        out[n] = hit
+            if not hit:
+                for p in range(shape_pairs.shape[0]):
+                    sa = shape_pairs[p, 0]
+                    sb = shape_pairs[p, 1]
+                    if _aabb_apart(aabbs[sa], aabbs[sb]):
+                        continue
+                    if _gjk(objs[sa], verts, objs[sb], verts, 64, ws):
+                        hit = True
+                        break
+            out[n] = hit
     return out
 
 

@@ -29,6 +29,8 @@ class CFResult:
         samples: total number of samples (N_tw N_m).
         colliding: how many collided.
         seed: the seed used.
+        drake_checked: how many samples Drake's checker judged (the rest the
+            kernel certified free).
     """
 
     percent: float
@@ -36,16 +38,20 @@ class CFResult:
     samples: int
     colliding: int
     seed: int
+    drake_checked: int = 0
 
 
 def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, samples: int = 10000,
-                      seed: int = 0, checker=None) -> CFResult:
+                      seed: int = 0, checker=None, prefilter: bool = True) -> CFResult:
     """The paper's Confidence Factor (eq. 3-4, SPEC 8).
 
     The path parameter s in [0, g-1] is split into ``windows`` equal windows;
     in each, ``samples`` draws of s uniform in the window and q uniform in
     the box at s are checked against the real scene (obstacles + self, not the
-    volume) with Drake.
+    volume). Drake's checker is the judge: with ``prefilter`` the compiled
+    kernel first certifies the samples it can prove free (it never calls a
+    colliding configuration free), and Drake judges the rest, so the result
+    is Drake's, sample by sample, at a fraction of the cost.
 
     Args:
         workcell: the workcell.
@@ -54,24 +60,31 @@ def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, sampl
         samples: N_m, per window.
         seed: random seed.
         checker: a Drake collision checker (default: the workcell's).
+        prefilter: let the kernel certify free samples first.
     """
     if windows < 1 or samples < 1:
         raise ParameterError(f"windows and samples must be >= 1, got {windows} and {samples}.")
     if bounds.k != workcell.num_joints:
         raise DimensionError("the bounds' joints", workcell.num_joints, bounds.k)
     checker = checker or workcell.checker
+    arrays = workcell.scene_arrays() if prefilter else None
     rng = np.random.default_rng(seed)
     edges = np.linspace(0.0, bounds.g - 1, windows + 1)
     per = np.empty(windows)
     colliding = 0
+    judged = 0
     for w in range(windows):
         s = rng.uniform(edges[w], edges[w + 1], samples)
         Q = sample_boxes(bounds, s, rng)
-        free = np.array(checker.CheckConfigsCollisionFree(Q, parallelize=True), bool)
+        free = np.ones(len(Q), bool)
+        maybe = arrays.may_collide(Q) if arrays is not None else np.ones(len(Q), bool)
+        if maybe.any():
+            free[maybe] = np.array(checker.CheckConfigsCollisionFree(Q[maybe], parallelize=True), bool)
+        judged += int(maybe.sum())
         per[w] = 100.0 * free.mean()
         colliding += int((~free).sum())
     total = windows * samples
-    return CFResult(100.0 * (total - colliding) / total, per, total, colliding, seed)
+    return CFResult(100.0 * (total - colliding) / total, per, total, colliding, seed, judged)
 
 
 @dataclasses.dataclass
