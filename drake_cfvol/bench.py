@@ -76,6 +76,8 @@ class BenchConfig:
         iris_samples: samples per region for its collision share.
         certify_resolutions: R at which certified bounds are also computed.
         certify_epsilon, certify_confidence: the certificate.
+        engine: also measure the kernel's compile time on a fresh cache and
+            the ``cfvol bounds`` command's wall time (fresh processes).
     """
 
     cells: list = dataclasses.field(default_factory=lambda: ["automotive", "aerospace"])
@@ -93,6 +95,7 @@ class BenchConfig:
     certify_resolutions: list = dataclasses.field(default_factory=lambda: [1000, 5000])
     certify_epsilon: float = 1e-3
     certify_confidence: float = 0.99
+    engine: bool = True
 
     @classmethod
     def quick(cls) -> "BenchConfig":
@@ -185,14 +188,21 @@ def run_bench(cfg: BenchConfig, *, progress: bool = True) -> dict:
                                    **{f"{k}_ms": v for k, v in table.timing_ms.items()},
                                    "n_boxes": table.info["n_boxes"], "g": path.g})
                     bar.step(f"{cell} {label} R={R} trial {trial + 1}")
+                t_cf = time.perf_counter()
                 cf_res = confidence_factor(wc, table, windows=cfg.cf_windows, samples=cfg.cf_samples, seed=cfg.seed)
+                cf_s = time.perf_counter() - t_cf
                 fr = freedom(table, wc.revolute)
+                volume_ms = [t["volume_ms"] for t in trials if t["cell"] == cell and t["path"] == label
+                             and t["resolution"] == R and t["backend"] == "fast"]
                 bar.step(f"{cell} {label} R={R} CF")
                 paper_t, paper_cf = PAPER.get((cell, label), {}).get(R, (None, None))
                 floor_ms = table.info["region_tests"] * t_check * 1e3
                 row = {"cell": cell, "path": label, "resolution": R, "g": path.g,
                        "time_ms_median": float(np.median(times)), "time_ms_mean": float(np.mean(times)),
                        "cf_percent": cf_res.percent, "cf_colliding": cf_res.colliding, "cf_samples": cf_res.samples,
+                       "cf_time_s": cf_s, "cf_drake_checked": cf_res.drake_checked,
+                       "volume_ms_median": float(np.median(volume_ms)),
+                       "region_tests_per_ms": table.info["region_tests"] / max(float(np.median(times)), 1e-9),
                        "freedom": fr.mean, "n_boxes": table.info["n_boxes"],
                        "lowered_columns": table.info["lowered_columns"], "dropped_columns": table.info["dropped_columns"],
                        "region_tests": table.info["region_tests"], "floor_ms": floor_ms,
@@ -230,7 +240,35 @@ def run_bench(cfg: BenchConfig, *, progress: bool = True) -> dict:
                 iris.append(_iris(wc, path, cfg))
                 bar.step(f"{cell} IrisZo")
     return {"config": dataclasses.asdict(cfg), "rows": rows, "trials": trials, "reference": reference,
-            "iris": iris, "paths": paths, "wall_s": time.perf_counter() - t_start, "machine": machine_info()}
+            "iris": iris, "paths": paths, "engine": engine_costs() if cfg.engine else {}, "wall_s": time.perf_counter() - t_start,
+            "machine": machine_info()}
+
+
+def engine_costs() -> dict:
+    """The compiled kernel's one-off costs, never inside the paper's time:
+    compiling on a fresh numba cache, loading a warm cache, and the whole
+    ``cfvol bounds automotive --path 1 -R 1000 --json`` command (Python and
+    Drake import, planning, bounds and CF included) with a warm cache. Each
+    in a fresh process."""
+    import tempfile
+
+    code = "import time; t = time.perf_counter(); from drake_cfvol import kernel; print(kernel.warm_up())"
+    out = {}
+    with tempfile.TemporaryDirectory() as fresh:
+        env = dict(os.environ, NUMBA_CACHE_DIR=fresh)
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+        out["compile_fresh_cache_s"] = float(r.stdout.strip().splitlines()[-1]) if r.returncode == 0 else None
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    out["load_warm_cache_s"] = float(r.stdout.strip().splitlines()[-1]) if r.returncode == 0 else None
+    walls = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        r = subprocess.run([sys.executable, "-m", "drake_cfvol", "bounds", "automotive", "--path", "1", "-R", "1000",
+                            "--json"], capture_output=True, text=True, timeout=600)
+        if r.returncode == 0:
+            walls.append(time.perf_counter() - t0)
+    out["cli_bounds_wall_s_median"] = float(np.median(walls)) if walls else None
+    return out
 
 
 def machine_info() -> dict:
@@ -321,10 +359,42 @@ def markdown(result: dict) -> str:
     return "\n".join(out)
 
 
+ENGINE_TARGETS_MS = {("automotive", "path1", 1000): 17, ("automotive", "path1", 20000): 115,
+                     ("aerospace", "path1", 5000): 77}
+
+
 def targets(result: dict) -> list[str]:
-    """The issue's targets, met or missed, with figures."""
+    """The issues' targets, met or missed, with figures and the reason."""
     rows = result["rows"]
     lines = []
+    for (cell, label, R), limit in ENGINE_TARGETS_MS.items():
+        r = next((x for x in rows if (x["cell"], x["path"], x["resolution"]) == (cell, label, R)), None)
+        if r is None:
+            continue
+        t = r["time_ms_median"]
+        lines.append(f"- {cell} {label} R = {R}: {t:.0f} ms (target <= {limit} ms, paper {r['paper_time_ms']} ms) -> "
+                     + ("met." if t <= limit else f"MISSED by {t / limit:.1f}x: {r['region_tests']} region tests "
+                        f"at {t * 1e3 / max(r['region_tests'], 1):.1f} us each (wall, 2 threads); "
+                        f"volume {r['volume_ms_median']:.1f} ms."))
+    for R, limit in ((1000, 5), (20000, 30)):
+        vs = [r["volume_ms_median"] for r in rows if r["resolution"] == R and "volume_ms_median" in r]
+        if vs:
+            lines.append(f"- Volume build at R = {R}: {min(vs):.1f} .. {max(vs):.1f} ms (target <= {limit} ms) -> "
+                         f"{'met' if max(vs) <= limit else 'MISSED'}.")
+    cfs = [r for r in rows if "cf_time_s" in r and r["cf_samples"] >= 300000]
+    if cfs:
+        worst = max(r["cf_time_s"] for r in cfs)
+        lines.append(f"- CF with {cfs[0]['cf_samples']} samples: {min(r['cf_time_s'] for r in cfs):.2f} .. {worst:.2f} s "
+                     f"per path (target <= 1 s) -> {'met' if worst <= 1 else 'MISSED'}; Drake judged "
+                     f"{min(r['cf_drake_checked'] for r in cfs)} .. {max(r['cf_drake_checked'] for r in cfs)} samples "
+                     "per path (the kernel certified the rest free), so the answer is Drake's, sample by sample.")
+    eng = result.get("engine") or {}
+    if eng:
+        lines.append(f"- Kernel compile on a fresh cache: {eng.get('compile_fresh_cache_s') or float('nan'):.1f} s; "
+                     f"loading a warm cache: {eng.get('load_warm_cache_s') or float('nan'):.2f} s (both outside the "
+                     "paper's time). `cfvol bounds automotive --path 1 -R 1000 --json` with a warm cache: "
+                     f"{eng.get('cli_bounds_wall_s_median') or float('nan'):.1f} s wall (target <= 5 s) -> "
+                     f"{'met' if (eng.get('cli_bounds_wall_s_median') or 99) <= 5 else 'MISSED'}.")
     ratios = [r["paper_over_ours"] for r in rows if r["paper_over_ours"]]
     if ratios:
         lines.append(f"- Time at least 10x below the paper's: paper/ours ranges {min(ratios):.3f} .. "

@@ -140,6 +140,8 @@ def cmd_bench(args) -> int:
         cfg.cf_samples = args.cf_samples
     if args.no_iris:
         cfg.iris = False
+    if args.no_engine:
+        cfg.engine = False
     result = run_bench(cfg, progress=not args.json)
     files = write_outputs(result, args.out)
     if args.json:
@@ -204,6 +206,8 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--trials", type=int, help="timed trials per row (default 20)")
     n.add_argument("--cf-samples", type=int, help="CF samples per window N_m (default 10000)")
     n.add_argument("--no-iris", action="store_true", help="skip Drake's IrisZo comparison")
+    n.add_argument("--no-engine", action="store_true",
+                   help="skip the kernel's fresh-cache compile and command wall-time measurements")
     n.add_argument("--out", default="out/bench", help="output folder (default out/bench)")
     n.add_argument("--report-only", action="store_true",
                    help="rewrite tables and plots from --out/results.json without running")

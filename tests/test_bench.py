@@ -11,7 +11,8 @@ from drake_cfvol.bench import PAPER, BenchConfig, markdown, run_bench, write_out
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     cfg = BenchConfig(cells=["automotive"], paths=["path1"], resolutions=[100, 500], trials=2, cf_windows=3,
-                      cf_samples=100, reference_resolutions=[], iris=False, certify_resolutions=[])
+                      cf_samples=100, reference_resolutions=[], iris=False, certify_resolutions=[],
+                      engine=False)
     result = run_bench(cfg, progress=False)
     out = tmp_path_factory.mktemp("bench")
     return result, write_outputs(result, out)

@@ -72,7 +72,7 @@ def test_bounds_certify_json(capsys):
 def test_bench_quick_flags(tmp_path, capsys):
     """cfvol bench parses its flags and writes its tables (tiny run)."""
     assert main(["bench", "--quick", "--cells", "automotive", "--resolutions", "200", "--trials", "1",
-                 "--cf-samples", "20", "--no-iris", "--out", str(tmp_path), "--json"]) == 0
+                 "--cf-samples", "20", "--no-iris", "--no-engine", "--out", str(tmp_path), "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     assert [r["resolution"] for r in d["rows"]] == [200]
     assert (tmp_path / "results.md").is_file() and (tmp_path / "trials.csv").is_file()
