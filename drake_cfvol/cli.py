@@ -102,6 +102,7 @@ def cmd_bounds(args) -> int:
         "out": str(out) if out else None, "files": files,
     }
     if certify is not None:
+        summary["certify_ms"] = round(table.timing_ms["certify"], 3)
         summary["certificate"] = table.info["certificate"]
     _emit(summary, args.json)
     return 0
@@ -183,7 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--cf-samples", type=int, default=10000, help="CF samples per window N_m (default 10000)")
     b.add_argument("--certify", action="store_true",
                    help="shrink the boxes until each stretch holds a sampled safety certificate")
-    b.add_argument("--epsilon", type=float, default=1e-3, help="certificate: colliding share allowed (1e-3)")
+    b.add_argument("--epsilon", type=float, default=1e-5, help="certificate: colliding share allowed (1e-5)")
     b.add_argument("--confidence", type=float, default=0.99, help="certificate: confidence (0.99)")
     b.add_argument("--out", help="folder for bounds (.npz, .json), path and plot")
     b.add_argument("--plot", action="store_true", help="write a PNG of the bounds (needs --out)")

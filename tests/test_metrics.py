@@ -68,3 +68,15 @@ def test_bad_cf_arguments(wall_arm):
     """Windows or samples below 1 are refused."""
     with pytest.raises(cf.ParameterError, match="windows"):
         cf.confidence_factor(wall_arm, _table(0, 0.1), windows=0)
+
+
+def test_cf_with_kernel_prefilter_is_drakes_answer(automotive, bounded):
+    """The kernel only certifies free samples; Drake judges the rest: the
+    result equals Drake judging every sample, window by window, on the same
+    draws, and Drake judged only a fraction of them."""
+    table = bounded("automotive", "path1", 1000)
+    fast = cf.confidence_factor(automotive, table, windows=6, samples=1500, seed=3)
+    full = cf.confidence_factor(automotive, table, windows=6, samples=1500, seed=3, prefilter=False)
+    assert fast.colliding == full.colliding > 0
+    np.testing.assert_array_equal(fast.per_window, full.per_window)
+    assert full.drake_checked == full.samples and fast.drake_checked < 0.5 * fast.samples
