@@ -92,8 +92,8 @@ class BenchConfig:
     iris: bool = True
     iris_regions: int = 12
     iris_samples: int = 2000
-    certify_resolutions: list = dataclasses.field(default_factory=lambda: [1000, 5000])
-    certify_epsilon: float = 1e-3
+    certify_resolutions: list = dataclasses.field(default_factory=lambda: [1000])
+    certify_epsilon: float = 1e-5
     certify_confidence: float = 0.99
     engine: bool = True
 
