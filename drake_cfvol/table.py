@@ -76,6 +76,19 @@ def _envelopes(U: np.ndarray, rate: np.ndarray, sign: float) -> tuple[np.ndarray
     return A, Bv
 
 
+def _stretch_rule(stretch_lower: np.ndarray, stretch_upper: np.ndarray, rate: np.ndarray, s: np.ndarray,
+                  i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rate-limited stretch bounds at path parameters s, each in stretch
+    i (before the nominal is added; see :func:`box_at`)."""
+    Au, Bu = _envelopes(stretch_upper, rate, 1.0)
+    Al, Bl = _envelopes(stretch_lower, rate, -1.0)
+    r = np.where(np.isfinite(rate), rate, 0.0)
+    sc = s[:, None]
+    hi = np.minimum(np.minimum(stretch_upper[i], Au[i] + r * sc), Bu[i] - r * sc)
+    lo = -np.minimum(np.minimum(-stretch_lower[i], Al[i] + r * sc), Bl[i] - r * sc)
+    return lo, hi
+
+
 def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
            stretch_lower: np.ndarray | None = None, stretch_upper: np.ndarray | None = None,
            rate: np.ndarray | None = None, trajectory: PiecewisePolynomial | None = None
@@ -116,13 +129,7 @@ def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
         if stretch_lower is None or stretch_upper is None:
             stretch_lower, stretch_upper = intersection_stretches(lower, upper)
         rate = np.full(k, np.inf) if rate is None else np.asarray(rate, float)
-        i = np.clip(np.floor(s).astype(int), 0, g - 2)
-        Au, Bu = _envelopes(stretch_upper, rate, 1.0)
-        Al, Bl = _envelopes(stretch_lower, rate, -1.0)
-        r = np.where(np.isfinite(rate), rate, 0.0)
-        sc = s[:, None]
-        hi = np.minimum(np.minimum(stretch_upper[i], Au[i] + r * sc), Bu[i] - r * sc)
-        lo = -np.minimum(np.minimum(-stretch_lower[i], Al[i] + r * sc), Bl[i] - r * sc)
+        lo, hi = _stretch_rule(stretch_lower, stretch_upper, rate, s, np.clip(np.floor(s).astype(int), 0, g - 2))
         lo, hi = np.minimum(lo, nom), np.maximum(hi, nom)
         at = s == np.floor(s)
         w = s[at].astype(int)
@@ -137,21 +144,12 @@ def waypoint_boxes(stretch_lower: np.ndarray, stretch_upper: np.ndarray, nominal
     """The waypoint boxes that the stretch rule gives at integer s (the limit
     from either side): both neighbouring stretches' bounds, rate-limited."""
     g = len(nominal)
-    rate = np.asarray(rate, float)
-    k = nominal.shape[1]
-    # Evaluate the stretch formula at every integer s (s = g-1 lies in the last stretch).
-    s = np.arange(g, dtype=float)
-    i = np.clip(np.arange(g), 0, g - 2)
-    Au, Bu = _envelopes(stretch_upper, rate, 1.0)
-    Al, Bl = _envelopes(stretch_lower, rate, -1.0)
-    r = np.where(np.isfinite(rate), rate, 0.0)
-    sc = s[:, None]
-    hi = np.minimum(np.minimum(stretch_upper[i], Au[i] + r * sc), Bu[i] - r * sc)
-    lo = -np.minimum(np.minimum(-stretch_lower[i], Al[i] + r * sc), Bl[i] - r * sc)
+    # The stretch rule at every integer s (s = g-1 lies in the last stretch).
+    lo, hi = _stretch_rule(stretch_lower, stretch_upper, np.asarray(rate, float), np.arange(g, dtype=float),
+                           np.clip(np.arange(g), 0, g - 2))
     # At an interior waypoint the previous stretch's cap also applies.
     hi[1:g - 1] = np.minimum(hi[1:g - 1], stretch_upper[: g - 2])
     lo[1:g - 1] = np.maximum(lo[1:g - 1], stretch_lower[: g - 2])
-    assert hi.shape == (g, k)
     return np.minimum(lo, nominal), np.maximum(hi, nominal)
 
 
