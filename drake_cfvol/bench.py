@@ -288,7 +288,7 @@ def machine_info() -> dict:
         commit = ""
     versions = {"python": platform.python_version(), "numpy": np.__version__, "drake_cfvol": __version__}
     try:
-        versions.update({"drake": version("drake"), "ompl": version("ompl"), "scipy": version("scipy")})
+        versions.update({"drake": version("drake"), "ompl": version("ompl"), "numba": version("numba")})
     except Exception:
         pass
     return {"cpu": cpu, "cores": os.cpu_count(), "platform": platform.platform(), "commit": commit,
