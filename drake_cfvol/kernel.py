@@ -1024,10 +1024,11 @@ def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, 
 
 @njit(cache=True)
 def lower_columns_under(Q, e_body, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body,
-                        verts, heights, ox, oy, side, clearance):
+                        verts, heights, ox, oy, side, clearance, movable):
     """Lowers every column under the robot at configurations Q (each body
     grown by e_body[n, b], a ball) to ``clearance`` below the lowest point of
-    any shape whose footprint's bounding rectangle covers it. In place."""
+    any shape whose footprint's bounding rectangle covers it (bodies that
+    never move: once). In place."""
     B = parent.shape[0]
     S = shapes.shape[0]
     m, nn = heights.shape
@@ -1039,6 +1040,8 @@ def lower_columns_under(Q, e_body, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, 
         fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
         for s in range(S):
             b = shape_body[s]
+            if n > 0 and not movable[b]:
+                continue
             pose_shape(shapes[s], R_WB[b], p_WB[b], row)
             set_motion(row, e_body[n, b], 0.0, 0.0, 1.0, 0.0, 0.0)
             row_aabb(row, verts, box)
@@ -1120,7 +1123,7 @@ def obstacle_distances(Q, hi, tol, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, 
 # -- footprints and distance maps for the height function -------------------------
 
 #: Directions sampled around a shape for its xy footprint polygon.
-FOOTPRINT_DIRECTIONS = 16
+FOOTPRINT_DIRECTIONS = 8
 
 
 @njit(cache=True)
@@ -1310,7 +1313,7 @@ def warm_up() -> float:
                  obs_aabb, np.zeros((0, 2), np.int64), moved, reach, curvature, revolute, joint_body, table,
                  -1.0, -1.0, 1.0)
     lower_columns_under(Q, np.zeros((2, 1)), *chain, shapes, shape_body, verts, heights.copy(), -1.0, -1.0, 1.0,
-                        0.0)
+                        0.0, movable)
     obstacle_distances(Q, 0.5, 1e-3, *chain, shapes, shape_body, verts, obstacles, obs_aabb, movable)
     mask = np.zeros((8, 8), np.bool_)
     robot_footprint(Q, *chain, shapes, shape_body, verts, movable, mask, -2.0, -2.0, 0.5)

@@ -178,7 +178,7 @@ def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
     X, Y = hm.centres()
     ix = np.clip(np.floor((X - x0) / pixel).astype(int), 0, shape[0] - 1)
     iy = np.clip(np.floor((Y - y0) / pixel).astype(int), 0, shape[1] - 1)
-    d = {c: K.distance_map(m)[ix, iy] * pixel for c, m in masks.items()}
+    d = {c: (K.distance_map(m)[ix, iy] * pixel if m.any() else np.full(hm.shape, np.inf)) for c, m in masks.items()}
     reach = params.reach if params.reach is not None else workcell.reach
     active = reach_activation(workcell, path, hm, reach) if reach and reach > 0 else np.ones(hm.shape, bool)
     raw = height_function(d["trail"], d["goal"], d["no_goal"], active, params)
@@ -203,21 +203,22 @@ def lower_along_path(vol: Volume, arrays, waypoints: np.ndarray, clearance: floa
     rev = arrays.revolute
     motion = np.where(rev[None, :, None], dq[:, :, None] * arrays.reach[None],
                       dq[:, :, None] * arrays.moved_by[None]).sum(axis=1)  # (g-1, B)
-    pieces = np.maximum(1, np.ceil(motion.max(axis=1) / (2 * LOWERING_MOTION))).astype(int)
-    Q, E = [], []
-    for i, n in enumerate(pieces):
-        t = (np.arange(n) + 0.5) / n
-        Q.append(W[i] + t[:, None] * (W[i + 1] - W[i]))
-        E.append(np.repeat(motion[i][None] / (2 * n), n, axis=0))
-    if not Q:
+    if not len(dq):
         return
+    pieces = np.maximum(1, np.ceil(motion.max(axis=1) / (2 * LOWERING_MOTION))).astype(int)
+    # Piece centres t = (m + 0.5) / n of every stretch, all at once.
+    stretch = np.repeat(np.arange(len(pieces)), pieces)
+    m = np.arange(len(stretch)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    t = (m + 0.5) / pieces[stretch]
+    Q = W[stretch] + t[:, None] * (W[stretch + 1] - W[stretch])
+    E = motion[stretch] / (2 * pieces[stretch])[:, None]
     hm = vol.heightmap
     heights = np.ascontiguousarray(vol.heights, dtype=np.float64)
     a = arrays
-    K.lower_columns_under(np.ascontiguousarray(np.concatenate(Q)), np.ascontiguousarray(np.concatenate(E)),
-                          a.parent, a.jtype, a.qidx, a.axis, a.R_PF, a.p_PF, a.R_MB, a.p_MB, a.shapes,
-                          a.shape_body, a.verts, heights, float(hm.origin[0]), float(hm.origin[1]),
-                          float(hm.side), float(clearance))
+    K.lower_columns_under(np.ascontiguousarray(Q), np.ascontiguousarray(E), a.parent, a.jtype, a.qidx, a.axis,
+                          a.R_PF, a.p_PF, a.R_MB, a.p_MB, a.shapes, a.shape_body, a.verts, heights,
+                          float(hm.origin[0]), float(hm.origin[1]), float(hm.side), float(clearance),
+                          a.moved_by.any(axis=0))
     vol.heights = heights
     vol.changed()
     changed = vol.heights < vol.raw_heights
