@@ -1317,6 +1317,10 @@ def warm_up() -> float:
     obstacle_distances(Q, 0.5, 1e-3, *chain, shapes, shape_body, verts, obstacles, obs_aabb, movable)
     mask = np.zeros((8, 8), np.bool_)
     robot_footprint(Q, *chain, shapes, shape_body, verts, movable, mask, -2.0, -2.0, 0.5)
+    poly = np.empty((FOOTPRINT_DIRECTIONS, 2))
+    shape_footprint(obstacles[0], verts, poly)
+    fill_convex_polygon(mask, poly, -2.0, -2.0, 0.5)
     distance_map(mask)
     gjk_intersect(shapes, verts, obstacles, verts)
+    row_aabb(obstacles[0], verts, np.empty(6))
     return time.perf_counter() - t0
