@@ -9,10 +9,12 @@ Public API (re-exported here): :func:`load_workcell`, :func:`plan_nominal_path`,
 Layers (each module imports only from the layers below it; a test checks):
 
 1. data and settings: ``exceptions``, ``params``, ``style``, ``_records``,
+   ``kernel`` (the compiled collision kernel, plain arrays only),
    ``heightmap`` (height map, eq. 1, the volume V), ``table`` (BoundsTable,
    the box-at-s rule);
-2. geometry and the scene: ``collision`` (fast conservative checks),
-   ``workcell`` (typed workcell files, Drake scene, cached models);
+2. geometry and the scene: ``geometry`` (the robot chain and shapes as
+   kernel arrays, read from Drake), ``workcell`` (typed workcell files, Drake
+   scene, its cached arrays and distance queries);
 3. algorithm steps: ``planning`` (RRT-Connect), ``volume`` (categorization,
    growing V), ``sweep`` (joint bounding), ``reference`` (Drake backend),
    ``metrics`` (CF, freedom), ``certify``;
