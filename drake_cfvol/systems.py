@@ -161,9 +161,12 @@ class AdmittanceDeformation(LeafSystem):
         self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
         self._guard_state = self.DeclareDiscreteState(1)
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
+        # The output depends on the state and the nominal and bounds only, not
+        # on the human's push: a co-worker model fed from it forms no loop.
         self.commanded_position_output = self.DeclareVectorOutputPort(
             name="commanded_position", size=k, calc=self._calc_commanded,
-            prerequisites_of_calc={self.all_sources_ticket()})
+            prerequisites_of_calc={self.xd_ticket(), self.nominal_input.ticket(), self.lower_input.ticket(),
+                                   self.upper_input.ticket()})
         self.deviation_output = self.DeclareVectorOutputPort(
             name="deviation", size=k,
             calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._state).value()[:self.k]),

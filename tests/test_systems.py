@@ -200,3 +200,37 @@ def test_bad_gains():
         AdmittanceDeformation(2, period=0.0)
     with pytest.raises(cf.ParameterError, match="stiffness"):
         AdmittanceDeformation(2, stiffness=[-1.0, 1.0])
+
+
+def test_reactive_coworker_forms_no_algebraic_loop():
+    """A co-worker who pushes with 5 N m and yields 20 N m/rad to the
+    commanded position (a gain from commanded_position back to
+    human_torque) builds and simulates: commanded_position does not depend
+    on the push directly. With no stiffness toward the nominal the joints
+    settle where the push balances: q = 5 / 20 = 0.25 rad."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import Adder, ConstantVectorSource, Gain
+
+    k = 2
+    builder = DiagramBuilder()
+    adm = builder.AddSystem(AdmittanceDeformation(k, mass=1.0, damping=10.0, stiffness=0.0, period=0.01))
+    nominal = builder.AddSystem(ConstantVectorSource(np.zeros(k)))
+    lower = builder.AddSystem(ConstantVectorSource(np.full(k, -1.0)))
+    upper = builder.AddSystem(ConstantVectorSource(np.full(k, 1.0)))
+    push = builder.AddSystem(ConstantVectorSource(np.array([5.0, -5.0])))
+    yielding = builder.AddSystem(Gain(-20.0, k))
+    total = builder.AddSystem(Adder(2, k))
+    builder.Connect(nominal.get_output_port(), adm.nominal_input)
+    builder.Connect(lower.get_output_port(), adm.lower_input)
+    builder.Connect(upper.get_output_port(), adm.upper_input)
+    builder.Connect(adm.commanded_position_output, yielding.get_input_port())
+    builder.Connect(yielding.get_output_port(), total.get_input_port(0))
+    builder.Connect(push.get_output_port(), total.get_input_port(1))
+    builder.Connect(total.get_output_port(), adm.human_torque_input)
+    builder.ExportOutput(adm.commanded_position_output, "q")
+    diagram = builder.Build()
+    sim = Simulator(diagram)
+    sim.AdvanceTo(6.0)
+    q = diagram.GetOutputPort("q").Eval(sim.get_context())
+    np.testing.assert_allclose(q, [0.25, -0.25], atol=5e-3)
