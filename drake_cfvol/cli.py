@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from drake_cfvol._version import __version__
 from drake_cfvol.exceptions import CfvolError
 
 
@@ -62,7 +63,7 @@ def cmd_bounds(args) -> int:
     from drake_cfvol.workcell import load_workcell
 
     if args.plot and not args.out:
-        print("cfvol: --plot needs --out DIR", file=sys.stderr)
+        print("cfvol: error: --plot needs --out DIR (the folder to write the plot to)", file=sys.stderr)
         return 2
     wc = load_workcell(args.cell)
     label = _path_name(args.path)
@@ -161,6 +162,7 @@ def cmd_demo(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="cfvol", description=__doc__)
+    p.add_argument("--version", action="version", version=f"cfvol (drake_cfvol) {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     q = sub.add_parser("plan", help="plan a nominal path (RRT-Connect) for a named start/goal pair")

@@ -2,7 +2,9 @@
 
 import json
 
+import pytest
 
+import drake_cfvol as cf
 from drake_cfvol.cli import main
 
 
@@ -76,3 +78,11 @@ def test_bench_quick_flags(tmp_path, capsys):
     d = json.loads(capsys.readouterr().out)
     assert [r["resolution"] for r in d["rows"]] == [200]
     assert (tmp_path / "results.md").is_file() and (tmp_path / "trials.csv").is_file()
+
+
+def test_version(capsys):
+    """--version prints the package's one version."""
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0
+    assert cf.__version__ in capsys.readouterr().out
