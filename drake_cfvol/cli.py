@@ -58,8 +58,10 @@ def cmd_plan(args) -> int:
 
 def cmd_bounds(args) -> int:
     from drake_cfvol.metrics import confidence_factor, freedom
+    from drake_cfvol.params import VolumeParams
     from drake_cfvol.pipeline import estimate_bounds
     from drake_cfvol.planning import plan_nominal_path
+    from drake_cfvol.volume import height_map_of
     from drake_cfvol.workcell import load_workcell
 
     if args.plot and not args.out:
@@ -67,6 +69,8 @@ def cmd_bounds(args) -> int:
         return 2
     wc = load_workcell(args.cell)
     label = _path_name(args.path)
+    # Check the resolution (and its memory) before planning.
+    height_map_of(wc, VolumeParams.for_workcell(wc, resolution=args.resolution))
     path = plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label)
     certify = None
     if args.certify:

@@ -18,6 +18,10 @@ from drake_cfvol.params import VolumeParams
 __all__ = ["HeightMap", "height_function", "Volume"]
 
 
+#: The volume's tables may take at most this much memory (bytes).
+MAX_VOLUME_BYTES = 2 * 1024**3
+
+
 @dataclasses.dataclass(frozen=True)
 class HeightMap:
     """A height map: origin O_h on the floor, sides x_dim, y_dim, at most R
@@ -43,6 +47,19 @@ class HeightMap:
         if self.m < 1 or self.n < 1:
             raise ParameterError(
                 f"R = {self.resolution} gives no whole cell on a {self.x_dim} x {self.y_dim} m map; raise R.")
+        if self.memory_bytes > MAX_VOLUME_BYTES:
+            raise ParameterError(
+                f"R = {self.resolution} would need about {self.memory_bytes / 1e9:.1f} GB for the volume's tables "
+                f"(at most {MAX_VOLUME_BYTES / 1e9:.1f} GB allowed); lower R (the paper uses up to 20000).")
+
+    @property
+    def memory_bytes(self) -> float:
+        """Memory the volume's tables need at this R: the heights (twice),
+        three distance maps and the range-maximum table, 8 bytes a cell."""
+        m = self.x_dim / self.side
+        n = self.y_dim / self.side
+        levels = (np.floor(np.log2(max(m, 1.0))) + 1) * (np.floor(np.log2(max(n, 1.0))) + 1)
+        return float(8.0 * m * n * (5 + levels))
 
     @property
     def side(self) -> float:

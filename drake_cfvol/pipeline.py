@@ -25,7 +25,7 @@ from drake_cfvol.table import (
     intersection_stretches,
     waypoint_boxes,
 )
-from drake_cfvol.volume import build_volume, categorize
+from drake_cfvol.volume import build_volume, categorize, height_map_of
 
 __all__ = ["estimate_bounds", "BACKENDS", "warm_up"]
 
@@ -84,6 +84,7 @@ def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = N
         raise ParameterError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {backend!r}.")
     if certify is not None and not isinstance(certify, Certify):
         raise ParameterError(f"certify must be a drake_cfvol.Certify or None, got {type(certify).__name__}.")
+    height_map_of(workcell, params)  # checks R (memory) before any work
     jit_ms = warm_up() if backend == "fast" else 0.0
     workcell.scene_arrays()  # read from Drake once per workcell, like loading it
     t0 = time.perf_counter()

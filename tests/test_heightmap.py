@@ -95,3 +95,20 @@ def test_bad_height_map():
         HeightMap((0, 0), 0.0, 1.0, 10)
     with pytest.raises(cf.ParameterError, match="positive"):
         HeightMap((0, 0), 1.0, 1.0, 0)
+
+
+def test_huge_resolution_is_refused_up_front():
+    """A resolution whose tables would not fit in memory is refused when the
+    height map is made, with the estimate; the paper's largest R is fine."""
+    assert HeightMap((0, 0), 5.6, 5.6, 20000).memory_bytes < 50e6
+    with pytest.raises(cf.ParameterError, match=r"R = 1000000000 would need about \d+\.\d GB"):
+        HeightMap((0, 0), 5.6, 5.6, 10**9)
+
+
+def test_cli_refuses_huge_resolution_before_planning(capsys):
+    """cfvol bounds with an absurd R stops with one error line, exit code 2."""
+    from drake_cfvol.cli import main
+
+    assert main(["bounds", "automotive", "-R", "1000000000", "--json"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("cfvol: error: R = 1000000000 would need")
