@@ -8,8 +8,8 @@
   sphere, capsule, cylinder, ellipsoid) or, for a mesh or convex shape, its
   convex hull (what Drake uses for a mesh in point-pair queries). Nothing is
   approximated, so no excess needs reporting.
-- Bounding spheres per shape and per body, the self-collision pairs Drake
-  does not filter, which joints move which bodies, and a bound on how far
+- Axis-aligned boxes of the obstacles, the self-collision pairs Drake does
+  not filter, which joints move which bodies, and a bound on how far
   any point of a body can be from each joint's axis (``reach``), the same at
   every configuration.
 """
@@ -121,11 +121,8 @@ class SceneArrays:
         R_MB, p_MB: the body in the joint's child frame M.
         shapes (S, SHAPE_W): robot shapes in their body's frame.
         shape_body (S,): their body.
-        shape_bc (S, 3), shape_br (S,): bounding spheres (body frame).
-        body_bc (B, 3), body_br (B,): bounding spheres of each body's shapes.
         obstacles (O, SHAPE_W): obstacle shapes in the world.
         obstacle_names (O,): the obstacle each belongs to.
-        obstacle_bc (O, 3), obstacle_br (O,): their bounding spheres.
         obstacle_aabb (O, 6): their axis-aligned boxes [min xyz, max xyz].
         verts (V, 3): hull vertices (shape frames) of every hull.
         self_pairs (P, 2): robot body pairs that Drake does not filter.
@@ -150,14 +147,8 @@ class SceneArrays:
     p_MB: np.ndarray
     shapes: np.ndarray
     shape_body: np.ndarray
-    shape_bc: np.ndarray
-    shape_br: np.ndarray
-    body_bc: np.ndarray
-    body_br: np.ndarray
     obstacles: np.ndarray
     obstacle_names: list
-    obstacle_bc: np.ndarray
-    obstacle_br: np.ndarray
     obstacle_aabb: np.ndarray
     verts: np.ndarray
     self_pairs: np.ndarray
@@ -287,27 +278,14 @@ def scene_arrays(workcell) -> SceneArrays:
     shapes = np.array(rows)
     shape_body = np.array(bodies, np.int64)
     shape_bc, shape_br = np.array(bcs), np.array(brs)
-    body_bc = np.zeros((B, 3))
-    body_br = np.zeros(B)
-    for b in range(B):
-        sel = shape_body == b
-        if not sel.any():
-            continue
-        lo = (shape_bc[sel] - shape_br[sel, None]).min(0)
-        hi = (shape_bc[sel] + shape_br[sel, None]).max(0)
-        body_bc[b] = (lo + hi) / 2
-        body_br[b] = (np.linalg.norm(shape_bc[sel] - body_bc[b], axis=1) + shape_br[sel]).max() + 1e-9
 
-    obs_rows, obs_names, obs_bc, obs_br = [], [], [], []
+    obs_rows, obs_names = [], []
     sg_ctx = workcell.scene_graph.GetMyContextFromRoot(workcell.context)
     query = workcell.scene_graph.get_query_output_port().Eval(sg_ctx)
     for obs in workcell.obstacles.values():
         for gid in obs.geometry_ids:
-            row, radius, centre = shape_row(inspector.GetShape(gid), *_pose(query.GetPoseInWorld(gid)), verts)
-            obs_rows.append(row)
+            obs_rows.append(shape_row(inspector.GetShape(gid), *_pose(query.GetPoseInWorld(gid)), verts)[0])
             obs_names.append(obs.name)
-            obs_bc.append(centre)
-            obs_br.append(radius)
 
     checker = workcell.checker
     has_geometry = [bool((shape_body == b).any()) for b in range(B)]
@@ -332,8 +310,7 @@ def scene_arrays(workcell) -> SceneArrays:
                    workcell.position_lower, workcell.position_upper, qidx)
     return SceneArrays(
         [b.name() for b in order], [b.index() for b in order], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
-        shapes, shape_body, shape_bc, shape_br, body_bc, body_br,
-        obstacles, obs_names, np.array(obs_bc).reshape(-1, 3), np.array(obs_br), obs_aabb,
+        shapes, shape_body, obstacles, obs_names, obs_aabb,
         all_verts, np.array(pairs, np.int64).reshape(-1, 2), moved,
         reach, _curvature(reach, moved, np.asarray(workcell.revolute, bool)), np.asarray(workcell.revolute, bool),
         joint_body)

@@ -1,8 +1,7 @@
 """Height map, height function (paper eq. 1) and the volume V (SPEC 5).
 
-Everything is vectorised over cells with numpy. Distances to footprints come
-from distance maps on a fine raster (``VolumeParams.raster``, independent of
-R), sampled at the cell centres, so their cost does not grow with R.
+Data and the height function, vectorised over cells with numpy; the
+footprint distances that feed it are computed in :mod:`drake_cfvol.volume`.
 """
 
 from __future__ import annotations

@@ -488,19 +488,17 @@ def _log2floor(x):
     return r
 
 
+@njit(cache=True, inline="always")
+def _clip_block(i0, i1, j0, j1, m, n):
+    """A cell block [i0, i1] x [j0, j1] clipped to an m x n grid (it may come
+    out empty: i1 < i0 or j1 < j0)."""
+    return max(i0, 0), min(i1, m - 1), max(j0, 0), min(j1, n - 1)
+
+
 @njit(cache=True)
 def range_max(t, i0, i1, j0, j1):
     """Max over cells [i0, i1] x [j0, j1] (clipped); -inf if empty."""
-    m = t.shape[2]
-    n = t.shape[3]
-    if i0 < 0:
-        i0 = 0
-    if j0 < 0:
-        j0 = 0
-    if i1 > m - 1:
-        i1 = m - 1
-    if j1 > n - 1:
-        j1 = n - 1
+    i0, i1, j0, j1 = _clip_block(i0, i1, j0, j1, t.shape[2], t.shape[3])
     if i1 < i0 or j1 < j0:
         return -np.inf
     a = _log2floor(i1 - i0 + 1)
@@ -602,20 +600,9 @@ def object_hits_columns(obj, verts, aabb, table, ox, oy, side, ws, stack, box):
     the block's bounding box) or a single cell, tested exactly against its
     column."""
     zmin = aabb[2]
-    i0 = int(np.floor((aabb[0] - ox) / side))
-    i1 = int(np.floor((aabb[3] - ox) / side))
-    j0 = int(np.floor((aabb[1] - oy) / side))
-    j1 = int(np.floor((aabb[4] - oy) / side))
-    m = table.shape[2]
-    n = table.shape[3]
-    if i0 < 0:
-        i0 = 0
-    if j0 < 0:
-        j0 = 0
-    if i1 > m - 1:
-        i1 = m - 1
-    if j1 > n - 1:
-        j1 = n - 1
+    i0, i1, j0, j1 = _clip_block(int(np.floor((aabb[0] - ox) / side)), int(np.floor((aabb[3] - ox) / side)),
+                                 int(np.floor((aabb[1] - oy) / side)), int(np.floor((aabb[4] - oy) / side)),
+                                 table.shape[2], table.shape[3])
     if i1 < i0 or j1 < j0:
         return False
     stack[0, 0] = i0
@@ -1048,10 +1035,9 @@ def lower_columns_under(Q, e_body, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, 
             cap = box[2] - clearance
             if cap < 0:
                 cap = 0.0
-            i0 = max(int(np.floor((box[0] - ox) / side)), 0)
-            i1 = min(int(np.floor((box[3] - ox) / side)), m - 1)
-            j0 = max(int(np.floor((box[1] - oy) / side)), 0)
-            j1 = min(int(np.floor((box[4] - oy) / side)), nn - 1)
+            i0, i1, j0, j1 = _clip_block(int(np.floor((box[0] - ox) / side)), int(np.floor((box[3] - ox) / side)),
+                                         int(np.floor((box[1] - oy) / side)), int(np.floor((box[4] - oy) / side)),
+                                         m, nn)
             for a in range(i0, i1 + 1):
                 for c in range(j0, j1 + 1):
                     if heights[a, c] > cap:

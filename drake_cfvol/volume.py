@@ -12,7 +12,7 @@ from drake_cfvol.heightmap import HeightMap, Volume, height_function
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import NominalPath
 
-__all__ = ["Categories", "VolumeBuild", "categorize", "build_volume", "ground_obstacles", "footprint_polygon"]
+__all__ = ["Categories", "VolumeBuild", "categorize", "build_volume", "ground_obstacles"]
 
 #: An obstacle whose top is at most this high is ground (the floor).
 GROUND_TOP = 1e-3
@@ -86,14 +86,6 @@ def ground_obstacles(workcell) -> set[str]:
     for name, box in zip(a.obstacle_names, a.obstacle_aabb):
         tops[name] = max(tops.get(name, -np.inf), box[5])
     return {n for n, t in tops.items() if t <= GROUND_TOP}
-
-
-def footprint_polygon(row: np.ndarray, verts: np.ndarray) -> np.ndarray:
-    """The xy footprint of a kernel shape row: a convex polygon (n, 2) of its
-    support points (the corners, for a box standing upright)."""
-    out = np.empty((K.FOOTPRINT_DIRECTIONS, 2))
-    K.shape_footprint(np.ascontiguousarray(row, dtype=np.float64), verts, out)
-    return out
 
 
 def reach_activation(workcell, path: NominalPath, hm: HeightMap, reach: float) -> np.ndarray:
