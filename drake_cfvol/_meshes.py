@@ -5,6 +5,7 @@ hash; the user's files are never modified."""
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import re
 import struct
@@ -69,14 +70,57 @@ def stl_to_obj(stl: Path) -> Path:
     return out
 
 
+def package_url_error(url: str, error: Exception, package_map) -> str:
+    """A one-line explanation of a ``package://`` URL that does not resolve,
+    with the right fix: name the package's folder, or the file is missing
+    from a folder that is known."""
+    rest = url[len("package://"):]
+    name, _, rel = rest.partition("/")
+    if package_map.Contains(name):
+        folder = package_map.GetPath(name)
+        return (f"cannot resolve '{url}': the package '{name}' is the folder {folder}, but it has no file "
+                f"'{rel}'. Check the file name and where it lies in the package")
+    reason = str(error).strip().rstrip(".")
+    return (f"cannot resolve '{url}': the package '{name}' is not known ({reason}). Name its folder in the "
+            f"workcell's cfvol.package_paths (for example '{name}: path/to/{name}') or put a package.xml in it "
+            "next to the workcell file")
+
+
+#: Converted copies in the cache -> the user's own file (for messages).
+_ORIGINALS: dict[str, str] = {}
+
+
+class _UserFileNames(logging.Filter):
+    """Rewrites Drake's messages about a converted copy in the cache so
+    that they name the user's own file."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if _ORIGINALS:
+            msg = record.getMessage()
+            new = msg
+            for cached, original in _ORIGINALS.items():
+                new = new.replace(cached, original)
+            if new != msg:
+                record.msg, record.args = new, None
+        return True
+
+
+_FILTER = _UserFileNames()
+
+
+def _remember(cached: Path, original: Path) -> None:
+    _ORIGINALS[str(cached)] = str(original)
+    logger = logging.getLogger("drake")
+    if _FILTER not in logger.filters:
+        logger.addFilter(_FILTER)
+
+
 def _resolve(uri: str, model_file: Path, package_map) -> Path | None:
     if uri.startswith("package://"):
         try:
             return Path(package_map.ResolveUrl(uri))
         except Exception as e:
-            raise WorkcellFormatError(
-                str(model_file), f"cannot resolve mesh '{uri}': {e}. Name the package's folder "
-                "in the workcell's cfvol.package_paths.") from e
+            raise WorkcellFormatError(str(model_file), package_url_error(uri, e, package_map) + ".") from None
     if uri.startswith("file://"):
         return Path(uri[len("file://"):])
     if "://" in uri:
@@ -110,7 +154,9 @@ def convert_stl_references(model_file: Path, package_map) -> tuple[Path, list[st
         if path.suffix.lower() == ".stl":
             if not path.is_file():
                 raise WorkcellFormatError(str(model_file), f"mesh '{uri}' not found (looked at {path}).")
-            path = stl_to_obj(path)
+            obj = stl_to_obj(path)
+            _remember(obj, path)
+            path = obj
             converted.append(uri)
         return m.group(1) + "file://" + str(path) + m.group(3)
 
@@ -122,6 +168,7 @@ def convert_stl_references(model_file: Path, package_map) -> tuple[Path, list[st
     out.parent.mkdir(parents=True, exist_ok=True)
     if not out.is_file():
         out.write_text(new_text)
+    _remember(out, model_file.resolve())
     note = (f"{model_file.name}: converted {len(converted)} STL mesh(es) to OBJ because Drake 1.51 "
             f"refuses STL collision meshes; cached in {cache_dir()} (your files are unchanged).")
     return out, [note]

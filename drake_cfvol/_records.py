@@ -2,43 +2,107 @@
 readable ``.json``, shared by NominalPath and BoundsTable."""
 
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.exceptions import OutputExistsError, OutputPathError, ParameterError, RecordFormatError
+
+#: The ``format`` tag each kind of record carries.
+FORMATS = {"path": "drake_cfvol.NominalPath", "bounds": "drake_cfvol.BoundsTable"}
+
+
+def output_stem(cell: str, label: str, resolution: int | None = None) -> str:
+    """The one naming scheme of output files: ``<cell>_<path>[_R<R>]``,
+    followed by ``_<kind>.<ext>`` (``automotive_path1_R1000_bounds.npz``)."""
+    return f"{cell}_{label}" + (f"_R{resolution}" if resolution is not None else "")
+
+
+def prepare_output(path, *, overwrite: bool, folder: bool = False) -> Path:
+    """Checks that ``path`` can be written before any work starts: creates
+    its folder (or ``path`` itself when ``folder``) and refuses an existing
+    file unless ``overwrite``.
+
+    Raises:
+        OutputExistsError: the file exists and ``overwrite`` is False.
+        OutputPathError: the folder cannot be created or written to.
+    """
+    path = Path(path)
+    target = path if folder else path.parent
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise OutputPathError(target, e.strerror or str(e)) from None
+    if not target.is_dir():
+        raise OutputPathError(target, "it is a file, not a folder")
+    if not folder and path.exists() and not overwrite:
+        raise OutputExistsError(f"{path} exists; pass overwrite=True (CLI: --force) to replace it.")
+    return path
 
 
 def save_record(path, record: dict, array_keys: tuple, what: str, *, overwrite: bool) -> Path:
     """Writes ``record`` (JSON-ready; the ``array_keys`` entries are arrays).
 
     Raises:
-        FileExistsError: the file exists and ``overwrite`` is False.
+        OutputExistsError: the file exists and ``overwrite`` is False.
+        OutputPathError: the file cannot be written.
         ParameterError: the suffix is neither .npz nor .json.
     """
     path = Path(path)
     if path.suffix not in (".npz", ".json"):
-        raise ParameterError(f"unknown {what} file type '{path.suffix}': use .npz or .json.")
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path} exists; pass overwrite=True (CLI: --force) to replace it.")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.suffix == ".json":
-        path.write_text(json.dumps({k: (np.asarray(v).tolist() if k in array_keys else v)
-                                    for k, v in record.items()}, indent=1))
-    else:
-        meta = {k: v for k, v in record.items() if k not in array_keys}
-        np.savez(path, **{k: np.asarray(record[k]) for k in array_keys}, meta=json.dumps(meta))
+        raise ParameterError(f"unknown {what} file type '{path.suffix}' in '{path}': use .npz or .json.")
+    prepare_output(path, overwrite=overwrite)
+    try:
+        if path.suffix == ".json":
+            path.write_text(json.dumps({k: (np.asarray(v).tolist() if k in array_keys else v)
+                                        for k, v in record.items()}, indent=1))
+        else:
+            meta = {k: v for k, v in record.items() if k not in array_keys}
+            with open(path, "wb") as f:
+                np.savez(f, **{k: np.asarray(record[k]) for k in array_keys}, meta=json.dumps(meta))
+    except OSError as e:
+        raise OutputPathError(path, e.strerror or str(e)) from None
     return path
 
 
-def load_record(path, array_keys: tuple, what: str, optional: tuple = ()) -> tuple[dict, dict]:
+def load_record(path, array_keys: tuple, what: str, optional: tuple = (), required: tuple = ()
+                ) -> tuple[dict, dict]:
     """Reads a record saved by :func:`save_record`: (metadata, float arrays);
-    the ``optional`` arrays are left out where the file lacks them."""
+    the ``optional`` arrays are left out where the file lacks them.
+
+    Raises:
+        RecordFormatError: the file is missing, empty, truncated, of another
+            kind (a bounds file given as a path, say) or lacks a field.
+        ParameterError: the suffix is neither .npz nor .json.
+    """
     path = Path(path)
-    if path.suffix == ".json":
-        d = json.loads(path.read_text())
-        return d, {k: np.array(d[k], dtype=np.float64) for k in array_keys + optional if k in d}
-    if path.suffix == ".npz":
-        with np.load(path) as z:
-            return json.loads(str(z["meta"])), {k: z[k] for k in array_keys + optional if k in z.files}
-    raise ParameterError(f"unknown {what} file type '{path.suffix}': use .npz or .json.")
+    if path.suffix not in (".npz", ".json"):
+        raise ParameterError(f"unknown {what} file type '{path.suffix}' in '{path}': use .npz or .json.")
+    if not path.is_file():
+        raise RecordFormatError(path, what, "no such file" if not path.exists() else "it is not a file")
+    try:
+        if path.suffix == ".json":
+            d = json.loads(path.read_text())
+            if not isinstance(d, dict):
+                raise RecordFormatError(path, what, "it holds no JSON object")
+            arrays = {k: np.array(d[k], dtype=np.float64) for k in array_keys + optional if k in d}
+        else:
+            with np.load(path, allow_pickle=False) as z:
+                if "meta" not in z.files:
+                    raise RecordFormatError(path, what, "it has no 'meta' entry")
+                d = json.loads(str(z["meta"]))
+                arrays = {k: np.asarray(z[k], dtype=np.float64) for k in array_keys + optional if k in z.files}
+    except RecordFormatError:
+        raise
+    except (OSError, EOFError, zipfile.BadZipFile) as e:
+        raise RecordFormatError(path, what, f"it is empty or truncated ({type(e).__name__}: {e})") from None
+    except (ValueError, TypeError) as e:  # JSONDecodeError is a ValueError
+        raise RecordFormatError(path, what, f"it is not valid ({type(e).__name__}: {e})") from None
+    fmt = d.get("format")
+    if fmt is not None and fmt != FORMATS[what]:
+        raise RecordFormatError(path, what, f"it is a '{fmt}' file, not a {FORMATS[what]}")
+    missing = [k for k in array_keys if k not in arrays] + [k for k in required if k not in d]
+    if missing:
+        raise RecordFormatError(path, what, f"it lacks {', '.join(repr(m) for m in missing)}")
+    return d, arrays

@@ -1,5 +1,6 @@
 """The ``cfvol`` command line: thin wrappers over library functions."""
 
+
 from __future__ import annotations
 
 import argparse
@@ -7,8 +8,12 @@ import json
 import sys
 from pathlib import Path
 
+from drake_cfvol._records import output_stem, prepare_output
 from drake_cfvol._version import __version__
-from drake_cfvol.exceptions import CfvolError
+from drake_cfvol.exceptions import CfvolError, ParameterError
+
+_DESCRIPTION = ("Joint bounds that tell a robot how far a co-worker may push it off its planned path "
+                "without hitting anything (plan, bound, simulate, benchmark).")
 
 
 def _quiet_drake() -> None:
@@ -24,27 +29,89 @@ def _path_name(n: str) -> str:
     return n if n.startswith("path") or not n.isdigit() else f"path{n}"
 
 
+#: Plain-output labels: what each summary key means, with its unit.
+_LABELS = {
+    "cell": "cell", "path": "path", "seed": "seed", "g": "waypoints (g)", "k": "joints (k)",
+    "plan_time_ms": "planning time", "total_time_ms": "planning + checks", "attempts": "planner attempts",
+    "path_length": "path length (joint space)", "waypoints_sha256": "waypoints sha256", "out": "written to",
+    "resolution": "height-map cells (R)", "backend": "backend", "time_ms": "time to compute the bounds",
+    "timing_ms": "time per step", "cf_percent": "confidence factor (CF)", "cf_samples": "CF samples",
+    "cf_colliding": "CF samples colliding", "freedom": "freedom (mean geometric width share)",
+    "median_width": "median width per joint", "n_boxes": "volume columns", "lowered_columns": "columns lowered",
+    "dropped_columns": "columns dropped", "categories": "obstacle categories", "files": "files",
+    "certify_ms": "certification time", "certificate": "certificate",
+}
+_UNITS = {"plan_time_ms": " ms", "total_time_ms": " ms", "time_ms": " ms", "certify_ms": " ms", "cf_percent": " %",
+          "sim_wall_s": " s", "duration_s": " s", "min_clearance_m": " m", "bounds_time_ms": " ms", "build_ms": " ms",
+          "max_bound_violation": " rad/m", "max_deviation": " rad/m", "path_length": " rad/m"}
+
+
+def _fmt(v, unit: str = "") -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.4g}{unit}" if abs(v) < 1e4 else f"{v:.0f}{unit}"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_fmt(x) for x in v) or "-"
+    return f"{v}{unit}"
+
+
 def _emit(summary: dict, as_json: bool) -> None:
-    """Prints a command's summary: one JSON object, or aligned key: value lines."""
+    """Prints a command's summary: one JSON object, or one line per fact
+    for people (names, units, no Python reprs)."""
     if as_json:
         print(json.dumps(summary, default=float))
         return
-    width = max(len(k) for k in summary) + 2
-    for k, v in summary.items():
-        print(f"{k:>{width}}: {v}")
+    units = summary.pop("median_width_units", None)
+    lines = []
+    for key, v in summary.items():
+        label = _LABELS.get(key, key.replace("_", " "))
+        if key == "timing_ms" and isinstance(v, dict):
+            text = ", ".join(f"{n} {x:.1f} ms" for n, x in v.items())
+        elif key == "median_width" and isinstance(v, dict):
+            text = ", ".join(f"{n} {x:.3g} {(units or {}).get(n, '')}".rstrip() for n, x in v.items())
+        elif key == "categories" and isinstance(v, dict):
+            text = "; ".join(f"{n.replace('_', '-')}: {', '.join(x) or '-'}" for n, x in v.items())
+        elif key == "certificate" and isinstance(v, dict):
+            lines.append(("certificate", f"{v.get('shrinks', 0)} cuts, freedom {v.get('freedom_before', 0):.3f} -> "
+                                         f"{v.get('freedom_after', 0):.3f}"))
+            lines.append(("  proven", v.get("proven", "")))
+            lines.append(("  sampled", v.get("sampled", "")))
+            continue
+        elif key == "files" and isinstance(v, dict):
+            for n, f in v.items():
+                lines.append((f"  {n.replace('_', ' ')}", f))
+            continue
+        elif isinstance(v, dict):
+            text = ", ".join(f"{n} {_fmt(x)}" for n, x in v.items()) or "-"
+        else:
+            text = _fmt(v, _UNITS.get(key, ""))
+        lines.append((label, text))
+    width = max(len(a) for a, _ in lines) + 1
+    for a, b in lines:
+        print(f"{a:<{width}} {b}")
+
+
+def _out_path(p: str | None) -> Path | None:
+    """A path the user gave, resolved against their current folder."""
+    return Path(p).expanduser().resolve() if p else None
 
 
 def cmd_plan(args) -> int:
     from drake_cfvol.planning import plan_nominal_path
     from drake_cfvol.workcell import load_workcell
 
+    out = _out_path(args.out)
+    if out is not None:
+        prepare_output(out, overwrite=args.force)
     wc = load_workcell(args.cell)
     label = _path_name(args.path)
     start, goal = wc.configuration(label)
     path = plan_nominal_path(wc, start, goal, seed=args.seed, time_limit=args.time_limit, label=label)
-    out = None
-    if args.out:
-        out = str(path.save(args.out, overwrite=args.force))
+    if out is not None:
+        out = str(path.save(out, overwrite=args.force))
     summary = {
         "cell": wc.name, "path": label, "seed": args.seed, "g": path.g, "k": path.k,
         "plan_time_ms": round(path.stats["plan_time_ms"], 3),
@@ -65,11 +132,20 @@ def cmd_bounds(args) -> int:
     from drake_cfvol.workcell import load_workcell
 
     if args.plot and not args.out:
-        print("cfvol: error: --plot needs --out DIR (the folder to write the plot to)", file=sys.stderr)
-        return 2
+        raise ParameterError("--plot needs --out DIR (the folder to write the plot to).")
+    if args.cf_windows < 1 or args.cf_samples < 1:
+        raise ParameterError(f"--cf-windows and --cf-samples must be >= 1, got {args.cf_windows} and "
+                             f"{args.cf_samples}.")
+    out = _out_path(args.out)
     wc = load_workcell(args.cell)
     label = _path_name(args.path)
-    # Check the resolution (and its memory) before planning.
+    stem = output_stem(wc.name, label, args.resolution)
+    if out is not None:
+        prepare_output(out, overwrite=args.force, folder=True)
+        for kind, ext in (("bounds", ".npz"), ("bounds", ".json"), ("path", ".json")):
+            prepare_output(out / f"{stem}_{kind}{ext}", overwrite=args.force)
+    # Check the configuration pair and the resolution (and its memory) before planning.
+    wc.configuration(label)
     height_map_of(wc, VolumeParams.for_workcell(wc, resolution=args.resolution))
     path = plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label)
     certify = None
@@ -80,11 +156,8 @@ def cmd_bounds(args) -> int:
     table = estimate_bounds(wc, path, resolution=args.resolution, backend=args.backend, certify=certify)
     cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed)
     fr = freedom(table, wc.revolute)
-    out = None
     files = {}
-    if args.out:
-        out = Path(args.out)
-        stem = f"{wc.name}_{label}_R{args.resolution}"
+    if out is not None:
         files["bounds_npz"] = str(table.save(out / f"{stem}_bounds.npz", overwrite=args.force))
         files["bounds_json"] = str(table.save(out / f"{stem}_bounds.json", overwrite=args.force))
         files["path_json"] = str(path.save(out / f"{stem}_path.json", overwrite=args.force))
@@ -114,10 +187,14 @@ def cmd_bounds(args) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from drake_cfvol.comanip import run_scenario
+    from drake_cfvol.comanip import load_scenario, run_scenario
 
-    out = Path(args.out) if args.out else Path("out") / Path(args.scenario).stem
+    load_scenario(args.scenario)  # every field checked before anything is planned
+    out = _out_path(args.out) or Path("out").resolve() / Path(args.scenario).stem
+    prepare_output(out, overwrite=True, folder=True)
     summary = run_scenario(args.scenario, out, record=not args.no_record)
+    for note in summary.get("notices", []):
+        print(f"cfvol: note: {note}", file=sys.stderr)
     _emit(summary, args.json)
     return 0
 
@@ -133,6 +210,7 @@ def cmd_bench(args) -> int:
         files = write_outputs(json.loads(saved.read_text()), args.out)
         print(f"Rewrote {', '.join(Path(f).name for f in files.values())} in {Path(args.out).resolve()}")
         return 0
+    prepare_output(_out_path(args.out), overwrite=True, folder=True)
     cfg = BenchConfig.quick() if args.quick else BenchConfig()
     if args.cells:
         cfg.cells = args.cells
@@ -161,11 +239,13 @@ def cmd_bench(args) -> int:
 def cmd_demo(args) -> int:
     from drake_cfvol.demo import run_demo
 
-    return run_demo(out_dir=Path(args.out), seed=args.seed, quick=args.quick)
+    out = _out_path(args.out)
+    prepare_output(out, overwrite=True, folder=True)
+    return run_demo(out_dir=out, seed=args.seed, quick=args.quick)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="cfvol", description=__doc__)
+    p = argparse.ArgumentParser(prog="cfvol", description=_DESCRIPTION)
     p.add_argument("--version", action="version", version=f"cfvol (drake_cfvol) {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -237,8 +317,9 @@ def main(argv: list[str] | None = None) -> int:
     except CfvolError as e:
         print(f"cfvol: error: {e}", file=sys.stderr)
         return 2
-    except FileExistsError as e:
-        print(f"cfvol: error: {e}", file=sys.stderr)
+    except OSError as e:  # a file system error the library did not name itself
+        where = f" '{e.filename}'" if getattr(e, "filename", None) else ""
+        print(f"cfvol: error: {e.strerror or e}{where}.", file=sys.stderr)
         return 2
 
 

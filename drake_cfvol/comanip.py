@@ -21,10 +21,12 @@ import json
 import logging
 import subprocess
 import time
+import typing
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
+import yaml
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.geometry import (
     Box,
@@ -45,7 +47,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import LogVectorOutput
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from drake_cfvol.exceptions import CfvolError, ParameterError
+from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.pipeline import estimate_bounds
 from drake_cfvol.planning import NominalPath, plan_nominal_path
@@ -61,11 +63,11 @@ from drake_cfvol.systems import (
     ScriptedHuman,
 )
 from drake_cfvol.viz import show_tool_path
-from drake_cfvol.volume import build_volume
+from drake_cfvol.volume import build_volume, height_map_of
 from drake_cfvol.workcell import builtin_cells, load_workcell
 
 __all__ = ["AdmittanceGains", "RandomPushes", "Scenario", "load_scenario", "Comanipulation",
-           "build_comanipulation_diagram", "run_scenario", "CATEGORY_COLOURS", "diagrams_dir"]
+           "build_comanipulation_diagram", "run_scenario", "validate_scenario", "CATEGORY_COLOURS", "diagrams_dir"]
 
 #: Columns registered as proximity geometry up to this count (SceneGraph's
 #: cost grows quadratically with the number of proximity geometries).
@@ -153,25 +155,121 @@ class Scenario:
         return self.start_time + self.path_duration + self.end_hold
 
 
+def _type_name(t) -> str:
+    return {int: "an integer", float: "a number", bool: "true or false", str: "a string"}.get(t, str(t))
+
+
+def _check_fields(raw, schema, where: str, file: Path) -> None:
+    """Checks a scenario mapping against its dataclass before Drake reads
+    it: unknown keys and scalar fields of the wrong type are named with the
+    file, the field and the fix."""
+    if raw is None:
+        return
+    if not isinstance(raw, dict):
+        raise ScenarioError(file, where or "the file", f"must be a mapping of fields, got {raw!r}")
+    fields = {f.name: f for f in dataclasses.fields(schema)}
+    hints = typing.get_type_hints(schema)
+    for key, value in raw.items():
+        name = f"{where}.{key}" if where else str(key)
+        if key not in fields:
+            raise ScenarioError(file, name, f"is not a field of {schema.__name__}; known fields: "
+                                f"{', '.join(fields)}")
+        t = hints[key]
+        if dataclasses.is_dataclass(t):
+            _check_fields(value, t, name, file)
+        elif t in (int, float, bool, str):
+            ok = (isinstance(value, bool) if t is bool else
+                  isinstance(value, int) and not isinstance(value, bool) if t is int else
+                  isinstance(value, (int, float)) and not isinstance(value, bool) if t is float else
+                  isinstance(value, str))
+            if not ok:
+                raise ScenarioError(file, name, f"must be {_type_name(t)}, got {value!r}")
+
+
+def validate_scenario(scenario: Scenario, file: Path | None = None) -> None:
+    """Checks a scenario's values before any planning or bounding: positive
+    durations and periods, a resolution whose volume fits in memory, known
+    volume parameters, a cell that exists.
+
+    Raises:
+        ScenarioError: naming the file, the field and the fix.
+    """
+    where = file if file is not None else "scenario"
+    for name in ("path_duration", "log_period"):
+        if not getattr(scenario, name) > 0:
+            raise ScenarioError(where, name, f"must be > 0 s, got {getattr(scenario, name)!r}")
+    for name in ("start_time", "end_hold"):
+        if not getattr(scenario, name) >= 0:
+            raise ScenarioError(where, name, f"must be >= 0 s, got {getattr(scenario, name)!r}")
+    a = scenario.admittance
+    for name in ("mass", "damping", "period"):
+        if not getattr(a, name) > 0:
+            raise ScenarioError(where, f"admittance.{name}", f"must be > 0, got {getattr(a, name)!r}")
+    if not a.stiffness >= 0:
+        raise ScenarioError(where, "admittance.stiffness", f"must be >= 0, got {a.stiffness!r}")
+    if scenario.random_pushes.count < 0:
+        raise ScenarioError(where, "random_pushes.count", f"must be >= 0, got {scenario.random_pushes.count}")
+    known = {f.name for f in dataclasses.fields(VolumeParams)}
+    unknown = sorted(set(scenario.params) - known)
+    if unknown:
+        raise ScenarioError(where, f"params.{unknown[0]}", f"is not a VolumeParams field; known: "
+                            f"{', '.join(sorted(known))}")
+    if not scenario.resolution > 0:
+        raise ScenarioError(where, "resolution", f"must be a positive integer, got {scenario.resolution!r}")
+    cell = scenario.cell
+    if cell not in builtin_cells() and not _looks_like_path(cell):
+        raise ScenarioError(where, "cell", f"is '{cell}', neither a built-in cell "
+                            f"({', '.join(sorted(builtin_cells()))}) nor a workcell YAML path")
+    if _looks_like_path(cell):
+        p = _cell_path(cell, file.parent if file is not None else None)
+        if not p.is_file():
+            raise ScenarioError(where, "cell", f"names the workcell file '{p}', which does not exist (a relative "
+                                "path starts from the scenario file's folder)")
+
+
+def _looks_like_path(cell: str) -> bool:
+    return cell not in builtin_cells() and (Path(cell).suffix.lower() in (".yaml", ".yml") or "/" in cell
+                                            or "\\" in cell)
+
+
+def _cell_path(cell: str, base_dir: Path | None) -> Path:
+    p = Path(cell)
+    if base_dir is not None and not p.is_absolute():
+        p = (base_dir / p).resolve()
+    return p
+
+
 def load_scenario(name_or_path: str | Path) -> tuple[Scenario, Path | None]:
-    """Loads a scenario by bundled name (``automotive_push``) or file path.
+    """Loads a scenario by bundled name (``automotive_push``) or file path,
+    and checks it (:func:`validate_scenario`) before anything is planned.
 
     Returns:
         (scenario, its file)
+
+    Raises:
+        ScenarioError: an unknown name, a missing file, or a field that is
+            unknown, of the wrong type or out of range (named in the message).
     """
     p = Path(name_or_path)
     if not p.is_file():
         cand = diagrams_dir() / f"{name_or_path}.yaml"
-        if cand.is_file():
+        if cand.is_file() and not _looks_like_path(str(name_or_path)):
             p = cand
         else:
             known = sorted(x.stem for x in diagrams_dir().glob("*.yaml"))
-            raise CfvolError(f"Unknown scenario '{name_or_path}'. Bundled: {', '.join(known)}; or pass a "
-                             "scenario YAML file.")
+            what = "does not exist" if _looks_like_path(str(name_or_path)) else "is not a bundled scenario"
+            raise ScenarioError(name_or_path, None, f"{what}. Bundled: {', '.join(known)}; or pass the path of a "
+                                "scenario YAML file")
+    try:
+        raw = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise ScenarioError(p, None, f"cannot be read as YAML ({e})") from None
+    _check_fields(raw, Scenario, "", p)
     try:
         scenario = yaml_load_typed(schema=Scenario, filename=str(p))
     except Exception as e:
-        raise CfvolError(f"{p}: not a valid scenario: {e}") from e
+        raise ScenarioError(p, None, f"not a valid scenario: {e}") from None
+    validate_scenario(scenario, p.resolve())
     return scenario, p.resolve()
 
 
@@ -249,13 +347,14 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     Returns:
         The :class:`Comanipulation`.
     """
-    if scenario.path_duration <= 0 or scenario.log_period <= 0:
-        raise ParameterError("scenario path_duration and log_period must be > 0 s.")
+    validate_scenario(scenario)
     t0 = time.perf_counter()
     cell = scenario.cell
-    if cell not in builtin_cells() and base_dir is not None and not Path(cell).is_absolute():
-        cell = str((base_dir / cell).resolve())
+    if _looks_like_path(cell):
+        cell = str(_cell_path(cell, base_dir))
     wc = load_workcell(cell)
+    wc.configuration(scenario.path)  # an unknown path name fails here, before planning
+    height_map_of(wc, VolumeParams.for_workcell(wc, resolution=scenario.resolution, **dict(scenario.params)))
     if path is None:
         path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path)
     t1 = time.perf_counter()
@@ -407,7 +506,10 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "bounds_time_ms": cm.bounds.timing_ms["total"], "build_ms": cm.build_ms,
         "recording_html": files.get("recording_html"), "plot_png": files.get("plot_png"),
         "diagram_svg": files.get("diagram_svg"), "diagram_dot": files.get("diagram_dot"),
+        "notices": [],
     }
+    if svg and files.get("diagram_svg") is None:
+        summary["notices"].append(missing_dot_notice(out / "diagram"))
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
 
@@ -441,6 +543,13 @@ def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def missing_dot_notice(stem: Path) -> str:
+    """The one-line notice when Graphviz is missing: what was skipped, where
+    the source is, how to get the SVG."""
+    return (f"Graphviz 'dot' was not found, so {stem.with_suffix('.svg')} was not drawn (its source is in "
+            f"{stem.with_suffix('.dot')}). Install Graphviz to get it (Debian/Ubuntu: sudo apt install graphviz).")
 
 
 def write_diagram_svg(diagram, stem: Path) -> dict:

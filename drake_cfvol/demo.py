@@ -1,9 +1,11 @@
 """``cfvol demo``: the main job, end to end on the automotive cell."""
 
 import json
+import sys
 import time
 from pathlib import Path
 
+from drake_cfvol._records import output_stem
 from drake_cfvol.comanip import load_scenario, run_scenario
 from drake_cfvol.metrics import confidence_factor, freedom
 from drake_cfvol.pipeline import estimate_bounds
@@ -32,7 +34,7 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
     paths = {}
     for label in wc.configurations:
         p = plan_nominal_path(wc, *wc.configuration(label), seed=seed, label=label)
-        p.save(out_dir / f"{label}.json", overwrite=True)
+        p.save(out_dir / f"{output_stem(wc.name, label)}_path.json", overwrite=True)
         paths[label] = p
         print(f"   {label:<6} {p.g:>4} {p.length:>8.3f} {p.stats['plan_time_ms']:>8.1f} "
               f"{p.stats['total_time_ms']:>9.1f}  {p.sha256[:12]}")
@@ -45,8 +47,9 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
     table = estimate_bounds(wc, path, resolution=resolution)
     cf = confidence_factor(wc, table, samples=2000 if quick else 10000, seed=seed)
     fr = freedom(table, wc.revolute)
-    table.save(out_dir / f"bounds_{path.label}_R{resolution}.npz", overwrite=True)
-    plot_bounds(table, out_dir / f"bounds_{path.label}_R{resolution}.png", revolute=wc.revolute,
+    stem = output_stem(wc.name, path.label, resolution)
+    table.save(out_dir / f"{stem}_bounds.npz", overwrite=True)
+    plot_bounds(table, out_dir / f"{stem}_bounds.png", revolute=wc.revolute,
                 title=f"{wc.name} {path.label}, R = {resolution}")
     t = table.timing_ms
     print(f"   time {t['total']:.0f} ms (categorize {t['categorize']:.0f}, volume {t['volume']:.0f}, "
@@ -62,6 +65,8 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
     print(f"   {s['steps']} logged steps over {s['duration_s']:.1f} s (simulated in {s['sim_wall_s']:.2f} s)")
     print(f"   min clearance {s['min_clearance_m'] * 100:.1f} cm, collisions {s['collisions']}, "
           f"bound violation {s['max_bound_violation']:.1e}, guard acted on {s['guard_steps']} steps")
+    for note in s.get("notices", []):
+        print(f"cfvol: note: {note}", file=sys.stderr)
     summary = {"cf_percent": cf.percent, "freedom": fr.mean, "bounds_time_ms": t["total"], "run": s}
     (out_dir / "demo_summary.json").write_text(json.dumps(summary, indent=1))
     print(f"\nEverything is in {out_dir.resolve()}:")

@@ -29,6 +29,18 @@ class UnknownCellError(WorkcellError):
         )
 
 
+class WorkcellFileNotFoundError(UnknownCellError):
+    """A workcell given as a file path does not exist."""
+
+    def __init__(self, path: str, known: Iterable[str]):
+        self.name = str(path)
+        self.known = sorted(known)
+        CfvolError.__init__(
+            self,
+            f"workcell file '{path}' does not exist. Check the path (relative paths start from the current "
+            f"folder), or use a built-in cell: {', '.join(self.known)}.")
+
+
 class WorkcellFormatError(WorkcellError):
     """A workcell YAML file is malformed."""
 
@@ -105,3 +117,38 @@ class PlanningError(CfvolError):
 
 class ParameterError(CfvolError, ValueError):
     """A method parameter is invalid."""
+
+
+class FileError(CfvolError, OSError):
+    """A file cannot be read or written (missing, unreadable, not ours)."""
+
+
+class RecordFormatError(FileError, ValueError):
+    """A saved path or bounds file is empty, truncated or of another kind."""
+
+    def __init__(self, path, what: str, reason: str):
+        self.path = str(path)
+        super().__init__(f"cannot read {what} file '{path}': {reason}. Expected a file written by drake_cfvol "
+                         f"({what} .npz or .json); write it again with its save() or the cfvol command.")
+
+
+class OutputExistsError(FileError, FileExistsError):
+    """An output file exists and overwriting was not allowed."""
+
+
+class OutputPathError(FileError):
+    """An output file or folder cannot be created."""
+
+    def __init__(self, path, reason: str):
+        self.path = str(path)
+        super().__init__(f"cannot write '{path}': {reason}. Choose a folder you can write to (--out).")
+
+
+class ScenarioError(CfvolError, ValueError):
+    """A co-manipulation scenario file or value is invalid."""
+
+    def __init__(self, file, field: str | None, message: str):
+        self.file = str(file)
+        self.field = field
+        where = f"{file}: field '{field}'" if field else f"scenario '{file}'"
+        super().__init__(f"{where} {message}.")

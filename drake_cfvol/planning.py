@@ -97,14 +97,20 @@ class NominalPath:
         """Saves as ``.npz`` or readable ``.json`` (by the suffix).
 
         Raises:
-            FileExistsError: the file exists and ``overwrite`` is False.
+            OutputExistsError: (a FileExistsError) the file exists and
+                ``overwrite`` is False.
+            OutputPathError: the file cannot be written.
         """
         return save_record(path, self.to_dict(), ("waypoints",), "path", overwrite=overwrite)
 
     @classmethod
     def load(cls, path: str | Path) -> "NominalPath":
-        """Loads a path saved by :meth:`save`."""
-        d, arrays = load_record(path, ("waypoints",), "path")
+        """Loads a path saved by :meth:`save`.
+
+        Raises:
+            RecordFormatError: the file is missing, empty, truncated or not a path.
+        """
+        d, arrays = load_record(path, ("waypoints",), "path", required=("joint_names",))
         return cls(arrays["waypoints"], d["joint_names"], d.get("cell", ""), d.get("label", ""), d.get("seed", 0),
                    d.get("stats", {}))
 

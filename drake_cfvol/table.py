@@ -256,8 +256,13 @@ class BoundsTable:
 
     @classmethod
     def load(cls, path: str | Path) -> "BoundsTable":
-        """Loads a table saved by :meth:`save` (``volume`` is None)."""
-        d, a = load_record(path, _ARRAYS, "bounds", optional=_STRETCH_ARRAYS)
+        """Loads a table saved by :meth:`save` (``volume`` is None).
+
+        Raises:
+            RecordFormatError: the file is missing, empty, truncated or not a table.
+        """
+        d, a = load_record(path, _ARRAYS, "bounds", optional=_STRETCH_ARRAYS,
+                           required=("joint_names", "limit_lower", "limit_upper"))
         rate = d.get("rate")
         return cls(a["lower"], a["upper"], a["nominal"], d["joint_names"],
                    np.array(d["limit_lower"], float), np.array(d["limit_upper"], float),

@@ -56,10 +56,12 @@ from pydrake.planning import RobotDiagramBuilder, SceneGraphCollisionChecker
 from drake_cfvol import _meshes
 from drake_cfvol.exceptions import (
     CollisionError,
+    ConfigurationError,
     DimensionError,
     JointLimitError,
     MissingJointLimitsError,
     UnknownCellError,
+    WorkcellFileNotFoundError,
     WorkcellError,
     WorkcellFormatError,
 )
@@ -422,9 +424,8 @@ class Workcell:
                     try:
                         resolved = Path(package_map.ResolveUrl(url))
                     except Exception as e:
-                        raise WorkcellFormatError(
-                            str(path), f"cannot resolve '{url}': {e} Name the package's folder in "
-                            "cfvol.package_paths.", self._lines.get("directives")) from e
+                        raise WorkcellFormatError(str(path), _meshes.package_url_error(url, e, package_map) + ".",
+                                                  self._lines.get("directives")) from None
                 elif url.startswith("file://"):
                     resolved = Path(url[len("file://"):])
                 else:
@@ -571,7 +572,9 @@ class Workcell:
                 what, self.num_joints, q.shape[0] if q.ndim == 1 else q.shape,
                 f"The robot's joints are {', '.join(self.joint_names)}.")
         if not np.all(np.isfinite(q)):
-            raise DimensionError(what, "finite values", q.tolist())
+            bad = [f"{n} = {v}" for n, v in zip(self.joint_names, q) if not np.isfinite(v)]
+            raise ConfigurationError(f"{what} has a value that is not a finite number: {', '.join(bad)}. Give every "
+                                     "joint a finite position (rad or m).")
         if check_limits:
             for n, v, lo, hi in zip(self.joint_names, q, self.position_lower, self.position_upper):
                 if v < lo - tolerance or v > hi + tolerance:
@@ -627,7 +630,8 @@ def load_workcell(name_or_path: str | Path, **kwargs) -> Workcell:
         **kwargs: Passed to :class:`Workcell` (``edge_step``).
 
     Raises:
-        UnknownCellError: neither a built-in name nor an existing file.
+        UnknownCellError: neither a built-in name nor a file path.
+        WorkcellFileNotFoundError: a file path that does not exist.
         WorkcellFormatError: the file is malformed (file and line in the message).
     """
     cells = builtin_cells()
@@ -635,8 +639,8 @@ def load_workcell(name_or_path: str | Path, **kwargs) -> Workcell:
     if key in cells:
         return Workcell(cells[key], **kwargs)
     path = Path(key)
-    if path.suffix.lower() in (".yaml", ".yml") or path.exists():
+    if path.suffix.lower() in (".yaml", ".yml") or path.exists() or "/" in key or "\\" in key:
         if not path.is_file():
-            raise UnknownCellError(key, cells)
+            raise WorkcellFileNotFoundError(key, cells)
         return Workcell(path, **kwargs)
     raise UnknownCellError(key, cells)

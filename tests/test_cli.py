@@ -86,3 +86,69 @@ def test_version(capsys):
         main(["--version"])
     assert e.value.code == 0
     assert cf.__version__ in capsys.readouterr().out
+
+
+def test_help_has_no_markup(capsys):
+    """--help reads as plain text (no reST double backquotes)."""
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    assert "``" not in out and "co-worker" in out
+
+
+def test_unwritable_out_before_planning(capsys):
+    """--out in a folder that cannot exist: one line, exit 2, no traceback."""
+    assert main(["plan", "automotive", "--out", "/proc/nope/p.json"]) == 2
+    assert main(["bounds", "automotive", "--out", "/proc/nope"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(e.startswith("cfvol: error: cannot write '/proc/nope") for e in err)
+
+
+def test_missing_workcell_file(tmp_path, capsys):
+    """A workcell path that does not exist is reported as a missing file."""
+    assert main(["bounds", str(tmp_path / "nope.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert "does not exist" in err and "Unknown cell" not in err
+
+
+def test_bad_cf_samples_before_planning(capsys):
+    """A CF sample count of 0 is refused before any planning."""
+    assert main(["bounds", "automotive", "--cf-samples", "0"]) == 2
+    assert "--cf-samples must be >= 1" in capsys.readouterr().err
+
+
+def test_plot_without_out(capsys):
+    """--plot without --out has the same error: prefix as every message."""
+    assert main(["bounds", "automotive", "--plot"]) == 2
+    assert capsys.readouterr().err.startswith("cfvol: error: --plot needs --out")
+
+
+def test_relative_out_from_caller_folder(tmp_path, monkeypatch, capsys):
+    """A relative --out is written under the caller's folder and printed in full."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["plan", "automotive", "--out", "rel/p.json", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["out"] == str(tmp_path / "rel" / "p.json") and (tmp_path / "rel" / "p.json").is_file()
+
+
+def test_plain_output_reads_well(capsys):
+    """Plain output: one labelled fact per line, units, no Python reprs."""
+    assert main(["plan", "automotive"]) == 0
+    out = capsys.readouterr().out
+    assert "waypoints (g)" in out and "joints (k)" in out and " ms" in out
+    for repr_ in ("None", "{", "}", "[", "'"):
+        assert repr_ not in out
+    assert all(":" not in line.split()[0] for line in out.splitlines())
+
+
+def test_saved_table_error_one_line(tmp_path, capsys):
+    """A library error about a broken file reaches the CLI as one line."""
+    from drake_cfvol.cli import _emit
+
+    f = tmp_path / "t.npz"
+    f.write_bytes(b"")
+    with pytest.raises(cf.CfvolError):
+        cf.BoundsTable.load(f)
+    _emit({"g": 3, "timing_ms": {"total": 1.0}, "out": None}, False)
+    out = capsys.readouterr().out
+    assert "total 1.0 ms" in out and "written to" in out and "-" in out

@@ -113,3 +113,44 @@ def test_unknown_scenario():
     """An unknown scenario lists the bundled ones."""
     with pytest.raises(cf.CfvolError, match="automotive_push"):
         load_scenario("nope")
+
+
+@pytest.mark.parametrize("text, field, says", [
+    ("resolution: abc\n", "resolution", "must be an integer, got 'abc'"),
+    ("cell: nocell\n", "cell", "neither a built-in cell"),
+    ("cell: ../nope.yaml\n", "cell", "does not exist"),
+    ("admittance:\n  mass: x\n", "admittance.mass", "must be a number"),
+    ("resolutoin: 5\n", "resolutoin", "not a field of Scenario"),
+    ("log_period: 0\n", "log_period", "must be > 0"),
+    ("params:\n  h_maks: 1.0\n", "params.h_maks", "not a VolumeParams field"),
+])
+def test_scenario_field_errors(tmp_path, text, field, says):
+    """Each bad scenario field is named with its file and the fix, at load time
+    (before anything is planned)."""
+    f = tmp_path / "s.yaml"
+    f.write_text(text)
+    with pytest.raises(cf.ScenarioError, match=says) as e:
+        load_scenario(f)
+    assert e.value.field == field and str(f) in str(e.value)
+
+
+def test_scenario_missing_file(tmp_path):
+    """A scenario path that does not exist is named as a missing file."""
+    with pytest.raises(cf.ScenarioError, match="does not exist"):
+        load_scenario(tmp_path / "nope.yaml")
+
+
+def test_missing_dot_notice(tmp_path, monkeypatch):
+    """Without Graphviz the diagram's source is written and a one-line
+    notice names what was skipped and how to get it."""
+    from drake_cfvol.comanip import missing_dot_notice, write_diagram_svg
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import ConstantVectorSource
+
+    b = DiagramBuilder()
+    b.AddSystem(ConstantVectorSource([1.0]))
+    monkeypatch.setenv("PATH", str(tmp_path))  # no dot here
+    files = write_diagram_svg(b.Build(), tmp_path / "diagram")
+    assert "diagram_svg" not in files and (tmp_path / "diagram.dot").is_file()
+    note = missing_dot_notice(tmp_path / "diagram")
+    assert "\n" not in note and "diagram.svg" in note and "install graphviz" in note.lower()

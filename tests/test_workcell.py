@@ -147,3 +147,55 @@ def test_typed_file_is_kept_and_not_changed_by_loading(tmp_path, monkeypatch):
     wc = cf.load_workcell(path)
     assert wc.spec.directives[0].add_model.file == "package://toy_description/urdf/toy.urdf"
     assert wc.spec.cfvol.robot == "toy" and wc.spec.cfvol.reach == 3.0
+
+
+def test_nan_configuration_named(automotive):
+    """A NaN is reported as a value that is not a number, naming the joint."""
+    q = np.zeros(6)
+    q[2] = np.nan
+    with pytest.raises(cf.ConfigurationError, match="not a finite number: joint_3 = nan"):
+        automotive.validate_configuration(q, "start configuration")
+
+
+def test_missing_workcell_file_named(tmp_path):
+    """A workcell path that does not exist is a missing file, not an unknown cell."""
+    with pytest.raises(cf.WorkcellFileNotFoundError, match="does not exist"):
+        cf.load_workcell(tmp_path / "nope.yaml")
+    with pytest.raises(cf.UnknownCellError, match="Built-in cells"):
+        cf.load_workcell("nocell")
+
+
+def _mesh_cell(folder):
+    path = write_arm_cell(folder, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+                          obstacles={}, mesh_links=True)
+    return path, folder / "toy_description" / "urdf" / "toy.urdf"
+
+
+def test_package_url_messages(tmp_path, monkeypatch):
+    """A missing file in a known package and an unknown package get different,
+    correct hints, without a doubled period."""
+    monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path / "cache"))
+    path, urdf = _mesh_cell(tmp_path)
+    text = urdf.read_text()
+    urdf.write_text(text.replace("meshes/link1.stl", "meshes/linkX.stl"))
+    with pytest.raises(cf.WorkcellFormatError, match="is the folder .*toy_description, but it has no file "
+                                                     "'meshes/linkX.stl'") as e:
+        cf.load_workcell(path)
+    assert ".." not in str(e.value).replace("../", "")
+    urdf.write_text(text.replace("package://toy_description", "package://nopkg"))
+    with pytest.raises(cf.WorkcellFormatError, match="package 'nopkg' is not known.*cfvol.package_paths") as e:
+        cf.load_workcell(path)
+    assert ".." not in str(e.value)
+
+
+def test_converted_model_warnings_name_user_file(tmp_path, monkeypatch, caplog):
+    """Drake's warnings about a model whose STL meshes were converted name the
+    user's file, not the converted copy in the cache."""
+    monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path / "cache"))
+    path, urdf = _mesh_cell(tmp_path)
+    urdf.write_text(urdf.read_text().replace(
+        '<axis xyz="0 0 1"/>', '<axis xyz="0 0 1"/><dynamics damping="0.1" friction="1"/>'))
+    with caplog.at_level("WARNING", logger="drake"):
+        cf.load_workcell(path)
+    msgs = [r.getMessage() for r in caplog.records if "friction" in r.getMessage()]
+    assert msgs and all(str(urdf) in m and str(tmp_path / "cache") not in m for m in msgs)
