@@ -31,6 +31,7 @@ import numpy as np
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.metrics import freedom
+from drake_cfvol.progress import Progress
 from drake_cfvol.table import box_at, waypoint_boxes
 
 __all__ = ["Certify", "CertificateReport", "certify_bounds", "certification_rng"]
@@ -105,7 +106,7 @@ def certification_rng(seed: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_CERT_STREAM,)))
 
 
-def certify_bounds(workcell, table, certify: Certify):
+def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False):
     """Shrinks a bounds table's stretch boxes until N consecutive samples of
     the whole box are free (see the module docs).
 
@@ -114,6 +115,10 @@ def certify_bounds(workcell, table, certify: Certify):
         stretch boxes (the waypoint boxes follow from them,
         :func:`drake_cfvol.table.waypoint_boxes`); the input table is not
         changed.
+
+    With ``progress``, a bar on a terminal shows the run of consecutive
+    free samples against N and the cuts so far; the run restarts after a
+    cut, so the bar shows no time-left estimate.
     """
     t0 = time.perf_counter()
     arrays = workcell.scene_arrays()
@@ -131,6 +136,7 @@ def certify_bounds(workcell, table, certify: Certify):
 
     samples = shrinks = run = 0
     batch = min(certify.batch, N)
+    bar = Progress(N, "Certifying whole boxes", enabled=progress, unit="free samples in a row", eta=False)
     while run < N and g > 1:
         n = min(batch, N - run)
         s = rng.uniform(0.0, g - 1, n)
@@ -141,6 +147,7 @@ def certify_bounds(workcell, table, certify: Certify):
         batch = min(2 * batch, N)
         if not len(flagged):
             run += n
+            bar.set(run, cuts=shrinks)
             continue
         run = 0
         for m in flagged:
@@ -194,6 +201,8 @@ def certify_bounds(workcell, table, certify: Certify):
             else:
                 st_lo[i, j] = max(st_lo[i, j], cut)
             shrinks += 1
+        bar.set(0, cuts=shrinks)
+    bar.close()
     w_lo, w_hi = waypoint_boxes(st_lo, st_hi, nominal, rate)
     before = freedom(table).mean
     after = freedom(dataclasses.replace(table, lower=w_lo, upper=w_hi, stretch_lower=st_lo,

@@ -148,13 +148,16 @@ def cmd_bounds(args) -> int:
     wc.configuration(label)
     height_map_of(wc, VolumeParams.for_workcell(wc, resolution=args.resolution))
     path = plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label)
+    bars = not args.json
     certify = None
     if args.certify:
         from drake_cfvol.certify import Certify
 
         certify = Certify(epsilon=args.epsilon, confidence=args.confidence, seed=args.seed)
-    table = estimate_bounds(wc, path, resolution=args.resolution, backend=args.backend, certify=certify)
-    cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed)
+    table = estimate_bounds(wc, path, resolution=args.resolution, backend=args.backend, certify=certify,
+                            progress=bars)
+    cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
+                           progress=bars)
     fr = freedom(table, wc.revolute)
     files = {}
     if out is not None:
@@ -192,7 +195,7 @@ def cmd_simulate(args) -> int:
     load_scenario(args.scenario)  # every field checked before anything is planned
     out = _out_path(args.out) or Path("out").resolve() / Path(args.scenario).stem
     prepare_output(out, overwrite=True, folder=True)
-    summary = run_scenario(args.scenario, out, record=not args.no_record)
+    summary = run_scenario(args.scenario, out, record=not args.no_record, progress=not args.json)
     for note in summary.get("notices", []):
         print(f"cfvol: note: {note}", file=sys.stderr)
     _emit(summary, args.json)

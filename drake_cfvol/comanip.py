@@ -52,6 +52,7 @@ from drake_cfvol.params import VolumeParams
 from drake_cfvol.pipeline import estimate_bounds
 from drake_cfvol.planning import NominalPath, plan_nominal_path
 from drake_cfvol.plotting import _pyplot
+from drake_cfvol.progress import Progress
 from drake_cfvol.reference import register_volume_boxes
 from drake_cfvol.style import CATEGORY_COLOURS, FLOOR_COLOUR, VOLUME_COLOUR
 from drake_cfvol.systems import (
@@ -450,9 +451,11 @@ def _log(sim_context, logger):
 
 
 def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = True, plot: bool = True,
-                 svg: bool = True, path=None, bounds=None) -> dict:
+                 svg: bool = True, path=None, bounds=None, progress: bool = False) -> dict:
     """Loads a scenario, builds its diagram, simulates it and writes the
     recording (self-contained HTML), plots and a summary.
+
+    With ``progress``, a bar on a terminal counts simulated seconds.
 
     Returns:
         The summary dict (also written as ``summary.json``).
@@ -471,7 +474,12 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         meshcat.StartRecording(frames_per_second=1.0 / scenario.log_period,
                                set_visualizations_while_recording=False)
     t0 = time.perf_counter()
-    sim.AdvanceTo(scenario.duration)
+    with Progress(scenario.duration, "Simulating", enabled=progress, unit="simulated s") as bar:
+        steps = 100
+        for n in range(1, steps + 1):
+            t_next = scenario.duration * n / steps
+            sim.AdvanceTo(t_next)
+            bar.update(scenario.duration / steps)
     sim_s = time.perf_counter() - t0
     logs = {name: _log(ctx, lg) for name, lg in cm.loggers.items()}
     t, q = logs["commanded_position"]

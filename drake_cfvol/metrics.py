@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.progress import Progress
 from drake_cfvol.table import BoundsTable
 
 __all__ = ["CFResult", "Freedom", "confidence_factor", "freedom", "sample_boxes"]
@@ -42,7 +43,7 @@ class CFResult:
 
 
 def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, samples: int = 10000,
-                      seed: int = 0, checker=None, prefilter: bool = True) -> CFResult:
+                      seed: int = 0, checker=None, prefilter: bool = True, progress: bool = False) -> CFResult:
     """The paper's Confidence Factor (eq. 3-4, SPEC 8).
 
     The path parameter s in [0, g-1] is split into ``windows`` equal windows;
@@ -61,6 +62,7 @@ def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, sampl
         seed: random seed.
         checker: a Drake collision checker (default: the workcell's).
         prefilter: let the kernel certify free samples first.
+        progress: show a progress bar on a terminal (one unit per window).
     """
     if windows < 1 or samples < 1:
         raise ParameterError(f"windows and samples must be >= 1, got {windows} and {samples}.")
@@ -73,6 +75,7 @@ def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, sampl
     per = np.empty(windows)
     colliding = 0
     judged = 0
+    bar = Progress(windows, "Confidence Factor", enabled=progress, unit="window")
     for w in range(windows):
         s = rng.uniform(edges[w], edges[w + 1], samples)
         Q = sample_boxes(bounds, s, rng)
@@ -83,6 +86,8 @@ def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, sampl
         judged += int(maybe.sum())
         per[w] = 100.0 * free.mean()
         colliding += int((~free).sum())
+        bar.update(1)
+    bar.close()
     total = windows * samples
     return CFResult(100.0 * (total - colliding) / total, per, total, colliding, seed, judged)
 

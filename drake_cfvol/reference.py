@@ -19,6 +19,7 @@ from pydrake.planning import SceneGraphCollisionChecker
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.heightmap import Volume
 from drake_cfvol.params import VolumeParams
+from drake_cfvol.progress import Progress
 from drake_cfvol.table import absolute_bounds
 
 __all__ = ["VOLUME_BOX_PREFIX", "register_volume_boxes", "ReferenceScene", "drake_sweep_bounds"]
@@ -108,13 +109,18 @@ class ReferenceScene:
 
 
 def drake_sweep_bounds(workcell, waypoints: np.ndarray, volume: Volume, params: VolumeParams,
-                       *, scene: ReferenceScene | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+                       *, scene: ReferenceScene | None = None,
+                       progress: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:
     """Joint bounds by Drake alone: each single-joint motion is sampled every
     ``delta`` (the checker's resolution) from the nominal outwards; the bound
-    is the last free sample before the first collision."""
-    scene = scene or ReferenceScene(workcell, volume)
+    is the last free sample before the first collision.
+
+    With ``progress``, a bar on a terminal counts the waypoints (building
+    the scene is ~1 % of the time at R = 1000)."""
     waypoints = np.asarray(waypoints, float)
     g, k = waypoints.shape
+    scene = scene or ReferenceScene(workcell, volume)
+    bar = Progress(g, "Reference bounds (Drake)", enabled=progress, unit="waypoint")
     lower = waypoints.copy()
     upper = waypoints.copy()
     checks = 0
@@ -142,5 +148,7 @@ def drake_sweep_bounds(workcell, waypoints: np.ndarray, volume: Volume, params: 
                     upper[i, j] = q[j] + best
                 else:
                     lower[i, j] = q[j] - best
+        bar.update(1)
+    bar.close()
     return lower, upper, {"drake_checks": checks, "scene_build_s": scene.build_s,
                           "checker_build_s": scene.checker_s}

@@ -57,3 +57,39 @@ def test_markdown_table_matches_rows(tiny):
         assert float(cells[4]) == pytest.approx(r["paper_time_ms"] / r["time_ms_median"], abs=1e-3)
     assert json.load(open(files["machine"]))["cores"] >= 1
     assert open(files["plot_0"], "rb").read(4) == b"\x89PNG"
+
+
+def test_step_plan_matches_the_run(tiny):
+    """The progress clock's step list is the run's: every finished step was
+    planned (else ``done`` would fail) and none is left over."""
+    from drake_cfvol.bench import _bench_steps
+
+    result, _ = tiny
+    cfg = BenchConfig(**result["config"])
+    kinds = [k for k, _ in _bench_steps(cfg)]
+    assert kinds == [("plan",)] + ([("trial", 100)] * 2 + [("cf",)]) + ([("trial", 500)] * 2 + [("cf",)])
+    assert set(result["progress"]["eta_error"]) <= {0.25, 0.5, 0.75}
+
+
+def test_clock_uses_measured_time_of_a_kind(monkeypatch):
+    """After one step of a kind has run, the steps left of that kind are
+    estimated by its measured time, not by the prior."""
+    import drake_cfvol.bench as B
+
+    cfg = BenchConfig(cells=["automotive"], paths=["path1"], resolutions=[100], trials=3, cf_windows=1,
+                      cf_samples=1, reference_resolutions=[], iris=False, certify_resolutions=[], engine=False)
+    now = [100.0]
+    monkeypatch.setattr(B.time, "perf_counter", lambda: now[0])
+    clock = B._BenchClock(cfg, enabled=False, tick_s=3600)
+    try:
+        prior_trial = dict(B._bench_steps(cfg))[("trial", 100)]
+        now[0] += 1.0
+        clock.done(("plan",))
+        now[0] += 2.0  # one trial took 2 s
+        clock.done(("trial", 100))
+        cf_prior = dict(B._bench_steps(cfg))[("cf",)]
+        # spent 3 s; left: two trials of 2 s each and the CF's prior
+        assert clock.bar.total == pytest.approx(3.0 + 2 * 2.0 + cf_prior)
+        assert prior_trial != pytest.approx(2.0)
+    finally:
+        clock.close()
