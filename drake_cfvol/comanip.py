@@ -335,7 +335,7 @@ def _assign_colours(plant, scene_graph, workcell, categories):
 
 
 def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: Path | None = None,
-                                 path=None, bounds=None) -> Comanipulation:
+                                 path=None, bounds=None, progress: bool = False) -> Comanipulation:
     """Builds a co-manipulation diagram from a scenario.
 
     Args:
@@ -344,6 +344,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         base_dir: folder that relative cell paths are taken from.
         path, bounds: a precomputed nominal path and bounds table (otherwise
             planned and estimated here).
+        progress: progress bars on a terminal for long steps (the kernel's
+            first compile).
 
     Returns:
         The :class:`Comanipulation`.
@@ -360,7 +362,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path)
     t1 = time.perf_counter()
     if bounds is None:
-        bounds = estimate_bounds(wc, path, resolution=scenario.resolution, **dict(scenario.params))
+        bounds = estimate_bounds(wc, path, resolution=scenario.resolution, progress=progress,
+                                 **dict(scenario.params))
     t2 = time.perf_counter()
     vb = bounds.volume
     if vb is None:  # a table loaded from disk: grow its volume again
@@ -467,7 +470,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     if record:
         meshcat = Meshcat(MeshcatParams(host="localhost"))
     cm = build_comanipulation_diagram(scenario, meshcat=meshcat, base_dir=file.parent if file else None,
-                                      path=path, bounds=bounds)
+                                      path=path, bounds=bounds, progress=progress)
     sim = Simulator(cm.diagram)
     ctx = sim.get_mutable_context()
     if meshcat is not None:

@@ -44,8 +44,8 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
     if path is None:
         path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path)
     print(f"\n2. Bounds for {path.label} at R = {resolution}")
-    table = estimate_bounds(wc, path, resolution=resolution)
-    cf = confidence_factor(wc, table, samples=2000 if quick else 10000, seed=seed)
+    table = estimate_bounds(wc, path, resolution=resolution, progress=True)
+    cf = confidence_factor(wc, table, samples=2000 if quick else 10000, seed=seed, progress=True)
     fr = freedom(table, wc.revolute)
     stem = output_stem(wc.name, path.label, resolution)
     table.save(out_dir / f"{stem}_bounds.npz", overwrite=True)
@@ -61,7 +61,7 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
 
     print("\n3. Co-manipulation run (scenario automotive_push), recorded offscreen")
     s = run_scenario("automotive_push", out_dir, path=path,
-                     bounds=table if scenario.resolution == resolution else None)
+                     bounds=table if scenario.resolution == resolution else None, progress=True)
     print(f"   {s['steps']} logged steps over {s['duration_s']:.1f} s (simulated in {s['sim_wall_s']:.2f} s)")
     print(f"   min clearance {s['min_clearance_m'] * 100:.1f} cm, collisions {s['collisions']}, "
           f"bound violation {s['max_bound_violation']:.1e}, guard acted on {s['guard_steps']} steps")

@@ -15,10 +15,12 @@ seconds) or weigh unequal tasks by a cost model (:mod:`drake_cfvol.bench`).
 from __future__ import annotations
 
 import collections
+import contextlib
 import sys
+import threading
 import time
 
-__all__ = ["Progress", "DEFAULT_DELAY_S", "eta_errors", "finished"]
+__all__ = ["Progress", "DEFAULT_DELAY_S", "eta_errors", "finished", "timed"]
 
 #: (description, history) of the last enabled bars, newest last.
 _FINISHED: collections.deque = collections.deque(maxlen=32)
@@ -62,7 +64,7 @@ class Progress:
             from tqdm import tqdm
 
             left = ", {remaining} left" if eta else ""
-            shown_total = int(self.total) if float(self.total).is_integer() else self.total
+            shown_total = int(self.total) if float(self.total).is_integer() else round(self.total, 1)
             self._bar = tqdm(total=shown_total, desc=desc, unit=unit, file=stream, delay=delay, smoothing=0.0,
                              mininterval=mininterval, dynamic_ncols=True, leave=False,
                              bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} "
@@ -87,7 +89,7 @@ class Progress:
         if bar is not None:
             if postfix:
                 bar.set_postfix(postfix, refresh=False)
-            bar.n = int(self.n) if self.n.is_integer() else self.n
+            bar.n = int(self.n) if self.n.is_integer() else round(self.n, 1)
             due = now - self._last_draw >= self._mininterval or self.n >= self.total
             if due and now - self.t0 >= self._delay:
                 self._last_draw = now
@@ -98,12 +100,12 @@ class Progress:
         """Changes the total (work re-estimated as it goes)."""
         self.total = max(float(total), self.n, 1e-12)
         if self._bar is not None:
-            self._bar.total = self.total
+            self._bar.total = int(self.total) if self.total.is_integer() else round(self.total, 1)
 
     def set_description(self, desc: str) -> None:
         """Changes what the bar says is being done."""
         if self._bar is not None:
-            self._bar.set_description(desc, refresh=False)
+            self._bar.set_description_str(desc, refresh=False)
 
     def close(self) -> None:
         if self.enabled and not self._closed:
@@ -118,6 +120,34 @@ class Progress:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+@contextlib.contextmanager
+def timed(expected_s: float, desc: str, *, enabled: bool = True, file=None, tick_s: float = 0.25,
+          delay: float = DEFAULT_DELAY_S):
+    """A bar for one call that cannot report progress (e.g. compiling the
+    kernel): in seconds, done = elapsed, capped at 99 % of ``expected_s`` (a
+    measured cost) until the call returns; then complete. The time left
+    shown is ``expected_s`` - elapsed.
+    """
+    bar = Progress(expected_s, desc, enabled=enabled, unit="s", file=file, delay=delay)
+    stop = threading.Event()
+
+    def tick():
+        while not stop.wait(tick_s):
+            bar.set(min(time.perf_counter() - bar.t0, 0.99 * bar.total))
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    if bar.enabled:
+        ticker.start()
+    try:
+        yield bar
+    finally:
+        stop.set()
+        if ticker.is_alive():
+            ticker.join()
+        bar.set(bar.total)
+        bar.close()
 
 
 def finished() -> list[tuple[str, list]]:

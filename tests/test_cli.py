@@ -152,3 +152,23 @@ def test_saved_table_error_one_line(tmp_path, capsys):
     _emit({"g": 3, "timing_ms": {"total": 1.0}, "out": None}, False)
     out = capsys.readouterr().out
     assert "total 1.0 ms" in out and "written to" in out and "-" in out
+
+
+@pytest.mark.parametrize("json_flag, expected", [([], True), (["--json"], False)])
+def test_bars_asked_for_unless_json(monkeypatch, capsys, json_flag, expected):
+    """Plain output asks for progress bars (drawn only on a terminal);
+    --json never does."""
+    import drake_cfvol.metrics as metrics
+    from drake_cfvol.progress import Progress
+
+    asked = []
+
+    class Recorder(Progress):
+        def __init__(self, *a, enabled=True, **kw):
+            asked.append(enabled)
+            super().__init__(*a, enabled=enabled, **kw)
+
+    monkeypatch.setattr(metrics, "Progress", Recorder)
+    assert main(["bounds", "automotive", "-R", "100", "--cf-windows", "2", "--cf-samples", "20", *json_flag]) == 0
+    assert asked == [expected]
+    assert capsys.readouterr().err == ""  # not a terminal: nothing drawn either way

@@ -55,6 +55,7 @@ def _chromium():
     return None
 
 
+@pytest.mark.slow  # headless Chromium takes 5-35 s per recording on 2 cores
 def test_recording_renders_in_headless_chromium(run):
     """The recording, opened offline in headless Chromium, shows a non-blank
     scene (many distinct colours, not one background)."""

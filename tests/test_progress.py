@@ -91,3 +91,20 @@ def test_library_is_quiet_by_default(capfd):
     capfd.readouterr()
     confidence_factor(wc, table, windows=2, samples=50, seed=0)
     assert capfd.readouterr().err == ""
+
+
+def test_timed_bar_counts_seconds_up_to_the_expected_cost():
+    """A call that cannot report progress: the bar advances with elapsed
+    time, never past 99 % of the expected cost before the call returns, and
+    ends complete."""
+    import time
+
+    from drake_cfvol.progress import timed
+
+    out = _Terminal()
+    with timed(10.0, "Compiling", file=out, tick_s=0.02, delay=0) as bar:
+        time.sleep(0.2)
+    ticks = [n for _, n, _ in bar.history]
+    assert len(ticks) >= 3 and all(n <= 9.9 for n in ticks[:-1]) and ticks[-1] == 10.0
+    assert 0.1 <= ticks[-2] <= 1.0  # elapsed seconds, not work units
+    assert "Compiling" in out.getvalue()
