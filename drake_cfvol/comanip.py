@@ -62,6 +62,7 @@ from drake_cfvol.systems import (
     PathProgress,
     Push,
     ScriptedHuman,
+    safe_path_rate,
 )
 from drake_cfvol.viz import show_tool_path
 from drake_cfvol.volume import build_volume, height_map_of
@@ -134,6 +135,10 @@ class Scenario:
         params: VolumeParams overrides.
         collision_guard: scale pushes back where the clamped configuration
             would collide with the real scene (see AdmittanceDeformation).
+        path_velocity_share: share of each joint's velocity limit that the
+            path's own motion (nominal and bounds) may use; the push gets
+            the rest. Path progress slows below ``path_duration`` when needed
+            (:func:`drake_cfvol.systems.safe_path_rate`); in (0, 1).
     """
 
     cell: str = "automotive"
@@ -149,10 +154,12 @@ class Scenario:
     log_period: float = 0.02
     params: dict[str, float] = dataclasses.field(default_factory=dict)
     collision_guard: bool = True
+    path_velocity_share: float = 0.5
 
     @property
     def duration(self) -> float:
-        """Total simulated time, s."""
+        """Total simulated time at the requested path duration, s (a run
+        whose path had to slow down lasts longer: ``Comanipulation.duration``)."""
         return self.start_time + self.path_duration + self.end_hold
 
 
@@ -208,6 +215,8 @@ def validate_scenario(scenario: Scenario, file: Path | None = None) -> None:
             raise ScenarioError(where, f"admittance.{name}", f"must be > 0, got {getattr(a, name)!r}")
     if not a.stiffness >= 0:
         raise ScenarioError(where, "admittance.stiffness", f"must be >= 0, got {a.stiffness!r}")
+    if not 0.0 < scenario.path_velocity_share < 1.0:
+        raise ScenarioError(where, "path_velocity_share", f"must lie in (0, 1), got {scenario.path_velocity_share!r}")
     if scenario.random_pushes.count < 0:
         raise ScenarioError(where, "random_pushes.count", f"must be >= 0, got {scenario.random_pushes.count}")
     known = {f.name for f in dataclasses.fields(VolumeParams)}
@@ -286,7 +295,8 @@ class Comanipulation:
         scenario, workcell, path, bounds: the inputs.
         plant, scene_graph: the visual/kinematic plant and its SceneGraph.
         loggers: VectorLogSinks by name.
-        progress: the PathProgress system.
+        progress: the PathProgress system (its ``rate`` may be below the
+            scenario's: see ``Scenario.path_velocity_share``).
         meshcat: the Meshcat instance, if any.
         volume_in_proximity: whether the columns are proximity geometry.
     """
@@ -303,6 +313,12 @@ class Comanipulation:
     meshcat: object = None
     volume_in_proximity: bool = False
     build_ms: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def duration(self) -> float:
+        """Simulated time of the run, s: start, the path at its (possibly
+        slowed) progress, and the hold at the goal."""
+        return self.progress.duration + self.scenario.end_hold
 
 
 def _colour_obstacles(plant, scene_graph, workcell, categories) -> None:
@@ -392,13 +408,15 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     _colour_obstacles(plant, scene_graph, wc, vb.categories)
 
     a = scenario.admittance
-    progress = builder.AddNamedSystem("path_progress", PathProgress(
-        g, rate=(g - 1) / scenario.path_duration, start_time=scenario.start_time))
+    share = scenario.path_velocity_share
+    rate = min((g - 1) / scenario.path_duration, safe_path_rate(bounds, wc.velocity_limits, share=share))
+    progress = builder.AddNamedSystem("path_progress", PathProgress(g, rate=rate, start_time=scenario.start_time))
     source = builder.AddNamedSystem("joint_bounds", JointBoundsSource(bounds))
     adm = builder.AddNamedSystem("admittance", AdmittanceDeformation(
         k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=a.period, plant=plant,
         tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot),
-        collision_guard=wc.is_free if scenario.collision_guard else None))
+        collision_guard=wc.is_free if scenario.collision_guard else None,
+        velocity_limits=wc.velocity_limits, path_share=share))
     pushes = list(scenario.pushes)
     rp = scenario.random_pushes
     if rp.count > 0:
@@ -448,6 +466,17 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
                                          "diagram": (t3 - t2) * 1e3})
 
 
+def volume_penetrations(workcell, volume, Q) -> int | None:
+    """How many of the configurations Q touch a column of the volume V
+    (Drake's penetration query on the real robot geometry; the reference
+    scene). None if V has more columns than the reference scene holds."""
+    from drake_cfvol.reference import MAX_REFERENCE_BOXES, ReferenceScene
+
+    if volume.n_boxes > MAX_REFERENCE_BOXES or not len(Q):
+        return None if len(Q) else 0
+    return int(ReferenceScene(workcell, volume).volume_hits(np.asarray(Q)).sum())
+
+
 def _log(sim_context, logger):
     log = logger.FindLog(sim_context)
     return log.sample_times().copy(), log.data().T.copy()
@@ -477,12 +506,13 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         meshcat.StartRecording(frames_per_second=1.0 / scenario.log_period,
                                set_visualizations_while_recording=False)
     t0 = time.perf_counter()
-    with Progress(scenario.duration, "Simulating", enabled=progress, unit="simulated s") as bar:
+    duration = cm.duration
+    with Progress(duration, "Simulating", enabled=progress, unit="simulated s") as bar:
         steps = 100
         for n in range(1, steps + 1):
-            t_next = scenario.duration * n / steps
+            t_next = duration * n / steps
             sim.AdvanceTo(t_next)
-            bar.update(scenario.duration / steps)
+            bar.update(duration / steps)
     sim_s = time.perf_counter() - t0
     logs = {name: _log(ctx, lg) for name, lg in cm.loggers.items()}
     t, q = logs["commanded_position"]
@@ -492,6 +522,13 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     _, dist = logs["min_distance"]
     _, coll = logs["in_collision"]
     violation = float(np.max(np.maximum(np.maximum(lo - q, q - hi), 0.0))) if len(q) else 0.0
+    vmax = np.asarray(cm.workcell.velocity_limits, float)
+    if len(t) > 1:
+        speed = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]
+        velocity_ratio = float(np.max(np.where(np.isfinite(vmax), speed / vmax, 0.0)))
+    else:
+        velocity_ratio = 0.0
+    penetrations = volume_penetrations(cm.workcell, cm.bounds.volume.volume, q)
     files = {}
     if meshcat is not None:
         meshcat.StopRecording()
@@ -507,8 +544,10 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     summary = {
         "scenario": str(file) if file else str(scenario_name_or_path), "cell": cm.workcell.name,
         "path": scenario.path, "resolution": scenario.resolution, "g": cm.path.g, "steps": int(len(t)),
-        "duration_s": scenario.duration, "sim_wall_s": sim_s,
+        "duration_s": duration, "path_duration_s": cm.progress.duration - scenario.start_time,
+        "sim_wall_s": sim_s,
         "min_clearance_m": float(dist.min()) if len(dist) else None,
+        "max_velocity_ratio": velocity_ratio, "volume_penetrations": penetrations,
         "collisions": int(coll.sum()), "max_bound_violation": violation,
         "guard_steps": int(logs["guard_active"][1].sum()),
         "collision_guard": scenario.collision_guard,

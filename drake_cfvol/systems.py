@@ -22,7 +22,7 @@ from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.table import BoundsTable
 
 __all__ = ["JointBoundsSource", "AdmittanceDeformation", "PathProgress", "Push", "ScriptedHuman",
-           "ClearanceMonitor"]
+           "ClearanceMonitor", "safe_path_rate"]
 
 
 def _vector(value, k: int, name: str, *, positive: bool = False, nonnegative: bool = False) -> np.ndarray:
@@ -134,10 +134,19 @@ class AdmittanceDeformation(LeafSystem):
             tool frame.
         collision_guard: callable q -> True if q is free, or None (off).
         guard_iterations: bisection steps of the guard's scale-back.
+        velocity_limits: (k,) joint velocity limits, rad/s (m/s), or None
+            (no limit). With them the deviation's rate is held to
+            ``1 - path_share`` of each limit, so that with a path whose
+            nominal and bounds move at most ``path_share`` of the limits
+            (:func:`safe_path_rate`) the commanded position never moves a
+            joint faster than its limit: clamping is 1-Lipschitz in the
+            nominal, the deviation and the bounds.
+        path_share: see ``velocity_limits``; in (0, 1).
     """
 
     def __init__(self, k: int, *, mass=10.0, damping=200.0, stiffness=400.0, period: float = 0.01,
-                 plant=None, tool_frame=None, collision_guard=None, guard_iterations: int = 10):
+                 plant=None, tool_frame=None, collision_guard=None, guard_iterations: int = 10,
+                 velocity_limits=None, path_share: float = 0.5):
         super().__init__()
         if not period > 0:
             raise ParameterError(f"period must be > 0 s, got {period}.")
@@ -146,6 +155,17 @@ class AdmittanceDeformation(LeafSystem):
         self.D = _vector(damping, k, "damping", nonnegative=True)
         self.K = _vector(stiffness, k, "stiffness", nonnegative=True)
         self.period = float(period)
+        if not 0.0 < path_share < 1.0:
+            raise ParameterError(f"path_share must lie in (0, 1), got {path_share}.")
+        self.path_share = float(path_share)
+        self.max_rate = None
+        if velocity_limits is not None:
+            vl = np.asarray(velocity_limits, float).reshape(-1)
+            if vl.shape != (self.k,):
+                raise DimensionError("velocity_limits", self.k, vl.shape)
+            if np.any(np.isnan(vl)) or np.any(vl <= 0):
+                raise ParameterError(f"velocity_limits must be > 0 (inf: no limit), got {vl.tolist()}.")
+            self.max_rate = (1.0 - self.path_share) * vl
         self._plant = plant
         self._tool = tool_frame
         self._plant_context = plant.CreateDefaultContext() if plant is not None else None
@@ -219,6 +239,8 @@ class AdmittanceDeformation(LeafSystem):
         tau = self._push(context, q)
         h = self.period
         v = v + h * (tau - self.D * v - self.K * d) / self.M
+        if self.max_rate is not None:
+            v = np.clip(v, -self.max_rate, self.max_rate)
         d = d + h * v
         # No wind-up: keep nominal + d inside [lower, upper]; stop outward rates.
         lo, hi = lower - nominal, upper - nominal
@@ -244,6 +266,32 @@ class AdmittanceDeformation(LeafSystem):
         nominal, lower, upper = self._inputs(context)
         d = context.get_discrete_state(self._state).value()[:self.k]
         output.SetFromVector(np.clip(nominal + d, lower, upper))
+
+
+def safe_path_rate(bounds: BoundsTable, velocity_limits, *, share: float = 0.5) -> float:
+    """The fastest path progress, in waypoints per second, at which the
+    nominal and the bounds move no joint faster than ``share`` of its
+    velocity limit.
+
+    The bounds change by at most ``bounds.rate`` per unit s (SPEC 7) and
+    the nominal, linear between waypoints, by at most its largest step,
+    which the rate already covers. A table without a rate (the reference
+    backend, or saved without one) uses its largest change between
+    neighbouring waypoints; its bounds may still jump within a stretch.
+
+    Returns:
+        The rate (inf if no joint has a velocity limit).
+    """
+    vmax = np.asarray(velocity_limits, float)
+    if bounds.g > 1:
+        steps = np.max([np.abs(np.diff(a, axis=0)).max(axis=0) for a in (bounds.nominal, bounds.lower, bounds.upper)],
+                       axis=0)
+    else:
+        steps = np.zeros(bounds.k)
+    rate = np.asarray(bounds.rate, float)
+    per_s = np.where(np.isfinite(rate), rate, steps)
+    ok = np.isfinite(vmax) & (vmax > 0) & (per_s > 0)
+    return float(np.min(share * vmax[ok] / per_s[ok])) if ok.any() else float("inf")
 
 
 class PathProgress(Diagram):
@@ -368,8 +416,10 @@ class ScriptedHuman(LeafSystem):
 
 
 class ClearanceMonitor(LeafSystem):
-    """The robot's smallest signed distance to the real obstacles (not the
-    volume) and whether it collides with the real scene (obstacles + self).
+    """The smallest signed distance from the robot's moving links to the
+    real obstacles (not the volume; a fixed base on its pedestal is left
+    out) and whether the robot collides with the real scene (obstacles +
+    self).
 
     .. pydrake_system::
 
@@ -398,5 +448,5 @@ class ClearanceMonitor(LeafSystem):
                 not self._wc.is_free(self.position_input.Eval(c)))))
 
     def min_distance(self, q) -> float:
-        d = self._wc.obstacle_distances(np.asarray(q, float), self._max)
+        d = self._wc.obstacle_distances(np.asarray(q, float), self._max, moving_only=True)
         return float(min(d.values())) if d else self._max

@@ -507,21 +507,40 @@ class Workcell:
             self._scene_arrays = scene_arrays(self)
         return self._scene_arrays
 
-    def obstacle_distances(self, q, max_distance: float) -> dict[str, float]:
+    def obstacle_distances(self, q, max_distance: float, *, moving_only: bool = False) -> dict[str, float]:
         """Smallest signed distance per obstacle to the robot at ``q`` (real
-        geometry, Drake), for the obstacles within ``max_distance``, m."""
+        geometry, Drake), for the obstacles within ``max_distance``, m. With
+        ``moving_only``, only the robot's links that its joints move count
+        (a fixed base resting on its pedestal says nothing about a push)."""
         self.plant_context(q)
         sg = self.scene_graph
         query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
         owner = self._geometry_owner
+        fixed = self.fixed_robot_geometries() if moving_only else frozenset()
         out: dict[str, float] = {}
         for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=max_distance):
             a, b = owner.get(pair.id_A), owner.get(pair.id_B)
             if (a is None) == (b is None):
                 continue  # robot-robot or obstacle-obstacle
+            if (pair.id_B if a is not None else pair.id_A) in fixed:
+                continue
             name = a if a is not None else b
             out[name] = min(out.get(name, np.inf), pair.distance)
         return out
+
+    def fixed_robot_geometries(self) -> frozenset:
+        """Proximity geometry ids of the robot's bodies that no joint moves
+        (e.g. a base welded to its pedestal)."""
+        if getattr(self, "_fixed_ids", None) is None:
+            plant = self.plant
+            moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(self.robot))))
+            inspector = self.scene_graph.model_inspector()
+            ids = set()
+            for b in plant.GetBodyIndices(self.robot):
+                if b not in moved:
+                    ids.update(plant.GetCollisionGeometriesForBody(plant.get_body(b)))
+            self._fixed_ids = frozenset(g for g in ids if inspector.GetProximityProperties(g) is not None)
+        return self._fixed_ids
 
     # -- queries ---------------------------------------------------------
 

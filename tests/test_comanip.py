@@ -36,6 +36,41 @@ def test_run_inside_bounds_and_free(run):
     assert summary["max_deviation"] > 0.2
 
 
+def test_run_within_velocity_limits(run):
+    """No joint of the commanded motion moves faster than its velocity
+    limit (from the logs, against the workcell's limits), the summary says
+    the same, and the path slowed down rather than let the bounds race."""
+    name, out, summary = run
+    logs = np.load(out / "logs.npz")
+    t, q = logs["commanded_position_t"], logs["commanded_position"]
+    wc = cf.load_workcell(summary["cell"])
+    ratio = (np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None] / wc.velocity_limits).max()
+    assert ratio == pytest.approx(summary["max_velocity_ratio"]) and ratio <= 1.0
+    scenario, _ = load_scenario(name)
+    assert summary["path_duration_s"] >= scenario.path_duration - 1e-9
+    assert summary["duration_s"] == pytest.approx(scenario.start_time + summary["path_duration_s"]
+                                                  + scenario.end_hold)
+
+
+def test_run_reports_volume_and_clearance(run):
+    """The summary counts logged configurations inside the volume (Drake's
+    reference scene, recounted here) and the clearance of the moving links
+    only, which the logged trace matches."""
+    from drake_cfvol.reference import ReferenceScene
+
+    name, out, summary = run
+    logs = np.load(out / "logs.npz")
+    wc = cf.load_workcell(summary["cell"])
+    scenario, file = load_scenario(name)
+    cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
+    hits = ReferenceScene(wc, cm.bounds.volume.volume).volume_hits(logs["commanded_position"])
+    assert summary["volume_penetrations"] == int(hits.sum())
+    assert summary["min_clearance_m"] == pytest.approx(float(logs["min_distance"].min()))
+    q = logs["commanded_position"][int(np.argmin(logs["min_distance"][:, 0]))]
+    moving = min(wc.obstacle_distances(q, 2.0, moving_only=True).values())
+    assert summary["min_clearance_m"] == pytest.approx(moving, abs=1e-9)
+
+
 def test_outputs_written(run):
     """The run writes a self-contained HTML, a PNG plot and the diagram."""
     name, out, summary = run

@@ -234,3 +234,51 @@ def test_reactive_coworker_forms_no_algebraic_loop():
     sim.AdvanceTo(6.0)
     q = diagram.GetOutputPort("q").Eval(sim.get_context())
     np.testing.assert_allclose(q, [0.25, -0.25], atol=5e-3)
+
+
+def test_velocity_limits_hold_the_deviation_rate():
+    """With velocity limits, a huge push moves the commanded position by at
+    most (1 - path_share) x limit x period per update (fixed nominal and
+    bounds), and the steady state is unchanged: d = K^-1 tau."""
+    vmax = np.array([1.0, 2.0])
+    K = np.array([100.0, 100.0])
+    adm, ctx = _admittance(mass=0.1, damping=1.0, stiffness=K, period=0.01, velocity_limits=vmax,
+                           path_share=0.5)
+    tau = np.array([80.0, -90.0])
+    _fix(adm, ctx, [0.0, 0.0], [-2, -2], [2, 2], tau)
+    sim = Simulator(adm, ctx)
+    qs = []
+    for n in range(1, 301):
+        sim.AdvanceTo(0.01 * n)
+        qs.append(adm.commanded_position_output.Eval(ctx).copy())
+    steps = np.abs(np.diff(np.array(qs), axis=0))
+    assert np.all(steps <= 0.5 * vmax * 0.01 + 1e-12)
+    assert steps.max(axis=0) == pytest.approx(0.5 * vmax * 0.01)  # the limit is reached, not just respected
+    np.testing.assert_allclose(qs[-1], tau / K, atol=1e-3)
+
+
+def test_velocity_limits_checked():
+    """Velocity limits of the wrong size, zero or NaN, or a share outside
+    (0, 1), are refused with the argument's name."""
+    with pytest.raises(cf.DimensionError, match="velocity_limits"):
+        AdmittanceDeformation(2, velocity_limits=[1.0, 1.0, 1.0])
+    with pytest.raises(cf.ParameterError, match="velocity_limits"):
+        AdmittanceDeformation(2, velocity_limits=[1.0, 0.0])
+    with pytest.raises(cf.ParameterError, match="path_share"):
+        AdmittanceDeformation(2, velocity_limits=[1.0, 1.0], path_share=1.0)
+
+
+def test_safe_path_rate_by_hand():
+    """The bounds' rate r (per unit s) and a velocity limit v give at most
+    share x v / r waypoints per second; the slowest joint sets it. Without
+    a rate the largest change between neighbouring waypoints stands in."""
+    from drake_cfvol.systems import safe_path_rate
+
+    t = _table()
+    rated = BoundsTable(t.lower, t.upper, t.nominal, t.joint_names, t.limit_lower, t.limit_upper,
+                        rate=np.array([0.5, 0.2]))
+    assert safe_path_rate(rated, [1.0, 1.0], share=0.5) == pytest.approx(min(0.5 / 0.5, 0.5 / 0.2))
+    # No rate: the largest neighbour change per joint is joint a's upper 2.0 -> 0.3 (1.7) and
+    # joint b's upper 1.0 -> 0.4 (0.6); the rate is min(0.5 / 1.7, 0.5 / 0.6).
+    assert safe_path_rate(t, [1.0, 1.0], share=0.5) == pytest.approx(0.5 / 1.7)
+    assert safe_path_rate(t, [np.inf, np.inf]) == np.inf

@@ -199,3 +199,24 @@ def test_converted_model_warnings_name_user_file(tmp_path, monkeypatch, caplog):
         cf.load_workcell(path)
     msgs = [r.getMessage() for r in caplog.records if "friction" in r.getMessage()]
     assert msgs and all(str(urdf) in m and str(tmp_path / "cache") not in m for m in msgs)
+
+
+def test_fixed_links_left_out_of_moving_clearance():
+    """The robot's fixed geometries are exactly those on bodies no joint
+    moves (the root welded to the world); leaving them out never lowers the
+    clearance."""
+    wc = cf.load_workcell("automotive")
+    plant = wc.plant
+    moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(wc.robot))))
+    fixed = wc.fixed_robot_geometries()
+    assert fixed
+    for gid in fixed:
+        body = plant.GetBodyFromFrameId(wc.scene_graph.model_inspector().GetFrameId(gid))
+        assert body.index() not in moved and body.model_instance() == wc.robot
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = rng.uniform(wc.position_lower, wc.position_upper)
+        every = wc.obstacle_distances(q, 2.0)
+        moving = wc.obstacle_distances(q, 2.0, moving_only=True)
+        assert set(moving) <= set(every)
+        assert all(moving[n] >= every[n] - 1e-12 for n in moving)
