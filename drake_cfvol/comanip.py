@@ -8,11 +8,13 @@ bounds and wires::
     PathProgress -> JointBoundsSource -> AdmittanceDeformation <- ScriptedHuman
                                                |
                          commanded_position -> MultibodyPositionToGeometryPose -> SceneGraph
-                                            -> ClearanceMonitor
+                                                                    query_object -> ClearanceMonitor
 
-The robot follows ``commanded_position`` kinematically. SceneGraph holds the
-robot, the obstacles (coloured by category) and the volume's columns (as
-proximity geometry while Drake can hold them, illustration only beyond).
+The robot follows ``commanded_position`` kinematically. The diagram's own
+SceneGraph holds the robot, the obstacles (coloured by category) and the
+volume (its columns merged, conservatively, into at most 1500 boxes at any
+R), all as proximity geometry; the clearance monitor asks it through its
+query port, which the diagram also exports (``query_object``).
 """
 
 
@@ -73,7 +75,7 @@ __all__ = ["AdmittanceGains", "RandomPushes", "Scenario", "load_scenario", "Coma
 
 #: Columns registered as proximity geometry up to this count (SceneGraph's
 #: cost grows quadratically with the number of proximity geometries).
-MAX_PROXIMITY_COLUMNS = 1500
+MAX_PROXIMITY_BOXES = 1500
 
 
 def diagrams_dir() -> Path:
@@ -298,7 +300,10 @@ class Comanipulation:
         progress: the PathProgress system (its ``rate`` may be below the
             scenario's: see ``Scenario.path_velocity_share``).
         meshcat: the Meshcat instance, if any.
-        volume_in_proximity: whether the columns are proximity geometry.
+        volume_boxes: the volume's boxes in the diagram's SceneGraph (columns
+            merged, :meth:`~drake_cfvol.heightmap.Volume.merged_boxes`):
+            ``{"count": ..., "block": ..., "height_step_m": ...,
+            "added_volume_m3": ..., "column_volume_m3": ...}``.
     """
 
     diagram: object
@@ -311,7 +316,7 @@ class Comanipulation:
     loggers: dict
     progress: PathProgress
     meshcat: object = None
-    volume_in_proximity: bool = False
+    volume_boxes: dict = dataclasses.field(default_factory=dict)
     build_ms: dict = dataclasses.field(default_factory=dict)
 
     @property
@@ -319,6 +324,19 @@ class Comanipulation:
         """Simulated time of the run, s: start, the path at its (possibly
         slowed) progress, and the hold at the goal."""
         return self.progress.duration + self.scenario.end_hold
+
+
+def _robot_geometries(plant, robot) -> tuple[set, set]:
+    """Proximity geometry ids of the robot's links, and of those its joints
+    move."""
+    moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(robot))))
+    every, moving = set(), set()
+    for b in plant.GetBodyIndices(robot):
+        ids = plant.GetCollisionGeometriesForBody(plant.get_body(b))
+        every.update(ids)
+        if b in moved:
+            moving.update(ids)
+    return every, moving
 
 
 def _colour_obstacles(plant, scene_graph, workcell, categories) -> None:
@@ -395,14 +413,10 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     plant = MultibodyPlant(0.0)
     plant.RegisterAsSourceForSceneGraph(scene_graph)
     robot = wc.add_to_plant(plant)
-    in_proximity = vb.volume.n_boxes <= MAX_PROXIMITY_COLUMNS
-    if in_proximity:
-        register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR)
-    else:
-        centres, sizes = vb.volume.boxes()
-        for i, (c, s) in enumerate(zip(centres, sizes)):
-            plant.RegisterVisualGeometry(plant.world_body(), RigidTransform(c), Box(*s),
-                                         f"cfvol_volume_visual_{i}", np.asarray(VOLUME_COLOUR))
+    # The volume in the diagram's own scene, as proximity geometry at any R:
+    # columns merged (conservatively) into at most MAX_PROXIMITY_BOXES boxes.
+    centres, sizes, merge_info = vb.volume.merged_boxes(MAX_PROXIMITY_BOXES)
+    volume_ids = register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR, boxes=(centres, sizes))
     plant.Finalize()
     assert plant.num_positions() == k and robot is not None
     _colour_obstacles(plant, scene_graph, wc, vb.categories)
@@ -423,7 +437,9 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         pushes += ScriptedHuman.random_pushes(k, count=rp.count, seed=rp.seed, duration=scenario.duration,
                                               max_torque=rp.max_torque, mean_duration=rp.mean_duration)
     human = builder.AddNamedSystem("human", ScriptedHuman(k, pushes))
-    monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(wc))
+    robot_ids, moving_ids = _robot_geometries(plant, robot)
+    monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
+        robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids))
     to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
 
     builder.Connect(progress.path_index_output, source.path_index_input)
@@ -434,7 +450,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     builder.Connect(human.human_wrench_output, adm.human_wrench_input)
     builder.Connect(adm.commanded_position_output, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
-    builder.Connect(adm.commanded_position_output, monitor.position_input)
+    builder.Connect(scene_graph.get_query_output_port(), monitor.query_object_input)
 
     exported = {
         "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
@@ -442,11 +458,14 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         "deviation": adm.deviation_output, "guard_active": adm.guard_active_output,
         "human_torque": human.human_torque_output,
         "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
+        "in_volume": monitor.in_volume_output,
     }
     loggers = {}
     for name, port in exported.items():
         builder.ExportOutput(port, name)
         loggers[name] = LogVectorOutput(port, builder, publish_period=scenario.log_period)
+        loggers[name].set_name(f"log_{name}")
+    builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
 
     if meshcat is not None:
         params = MeshcatVisualizerParams(publish_period=scenario.log_period, role=Role.kIllustration)
@@ -462,19 +481,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     diagram.set_name("comanipulation")
     t3 = time.perf_counter()
     return Comanipulation(diagram, scenario, wc, path, bounds, plant, scene_graph, loggers, progress, meshcat,
-                          in_proximity, {"plan": (t1 - t0) * 1e3, "bounds": (t2 - t1) * 1e3,
+                          {"count": len(volume_ids), **merge_info}, {"plan": (t1 - t0) * 1e3, "bounds": (t2 - t1) * 1e3,
                                          "diagram": (t3 - t2) * 1e3})
-
-
-def volume_penetrations(workcell, volume, Q) -> int | None:
-    """How many of the configurations Q touch a column of the volume V
-    (Drake's penetration query on the real robot geometry; the reference
-    scene). None if V has more columns than the reference scene holds."""
-    from drake_cfvol.reference import MAX_REFERENCE_BOXES, ReferenceScene
-
-    if volume.n_boxes > MAX_REFERENCE_BOXES or not len(Q):
-        return None if len(Q) else 0
-    return int(ReferenceScene(workcell, volume).volume_hits(np.asarray(Q)).sum())
 
 
 def _log(sim_context, logger):
@@ -528,7 +536,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         velocity_ratio = float(np.max(np.where(np.isfinite(vmax), speed / vmax, 0.0)))
     else:
         velocity_ratio = 0.0
-    penetrations = volume_penetrations(cm.workcell, cm.bounds.volume.volume, q)
+    penetrations = int(logs["in_volume"][1].sum())
     files = {}
     if meshcat is not None:
         meshcat.StopRecording()
@@ -552,7 +560,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "guard_steps": int(logs["guard_active"][1].sum()),
         "collision_guard": scenario.collision_guard,
         "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
-        "volume_in_proximity": cm.volume_in_proximity, "n_boxes": cm.bounds.info["n_boxes"],
+        "n_boxes": cm.bounds.info["n_boxes"], "volume_boxes_in_scene": cm.volume_boxes["count"],
         "bounds_time_ms": cm.bounds.timing_ms["total"], "build_ms": cm.build_ms,
         "recording_html": files.get("recording_html"), "plot_png": files.get("plot_png"),
         "diagram_svg": files.get("diagram_svg"), "diagram_dot": files.get("diagram_dot"),

@@ -163,3 +163,90 @@ class Volume:
         centres = np.stack([X[on], Y[on], h / 2], axis=1)
         sizes = np.stack([np.full_like(h, s), np.full_like(h, s), h], axis=1)
         return centres, sizes
+
+    def merged_boxes(self, max_boxes: int = 1500) -> tuple[np.ndarray, np.ndarray, dict]:
+        """The columns merged into at most ``max_boxes`` boxes,
+        conservatively: every merged box contains each of its columns.
+
+        Two coarsenings, each conservative: blocks of b x b cells become one
+        cell of their largest height, and heights are rounded up to a step q
+        (0: exact). Then equal-height runs of cells along x merge, and equal
+        runs in neighbouring rows along y. Of the (b, q) that fit in
+        ``max_boxes``, the one adding the least volume is kept.
+
+        Returns:
+            (centres (N, 3), sizes (N, 3), info): boxes standing on the floor,
+            m, and ``{"block": b, "height_step_m": q, "added_volume_m3": ...,
+            "column_volume_m3": ...}``.
+
+        Raises:
+            ValueError: ``max_boxes`` < 1.
+        """
+        if max_boxes < 1:
+            raise ValueError(f"max_boxes must be >= 1, got {max_boxes}.")
+        H = np.asarray(self.heights, float)
+        m, n = H.shape
+        side = self.heightmap.side
+        base = float(H.sum()) * side * side
+        steps = [0.0] + [f * 10.0 ** e for e in range(-3, 2) for f in (1, 2, 5)]
+        best = None
+        for blk in (1, 2, 3, 4, 6, 8, 12, 16):
+            mb, nb = -(-m // blk), -(-n // blk)
+            P = np.zeros((mb * blk, nb * blk))
+            P[:m, :n] = H
+            Hb = P.reshape(mb, blk, nb, blk).max(axis=(1, 3))
+            for q in steps:
+                Hq = Hb if q == 0 else np.where(Hb > 0, np.ceil(Hb / q - 1e-12) * q, 0.0)
+                rects = _merge_equal(Hq)
+                if len(rects) > max_boxes:
+                    continue
+                r = np.array(rects, float).reshape(-1, 5) * [blk, blk, blk, blk, 1]
+                r[:, 1] = np.minimum(r[:, 1], m)  # a partial block at the edge covers only real cells
+                r[:, 3] = np.minimum(r[:, 3], n)
+                vol = float(np.sum((r[:, 1] - r[:, 0]) * (r[:, 3] - r[:, 2]) * r[:, 4])) * side * side
+                if best is None or vol < best[0]:
+                    best = (vol, r, blk, q)
+                break  # a larger q only adds volume at this block size
+            if best is not None and blk > 1 and len(_merge_equal(Hb)) <= max_boxes:
+                break  # exact heights fit: coarser blocks only add volume
+        if best is None:
+            raise ValueError(f"the volume cannot be merged into {max_boxes} boxes; raise max_boxes.")
+        vol, r, blk, q = best
+        x0, y0 = self.heightmap.origin[0], self.heightmap.origin[1]
+        centres = np.stack([x0 + (r[:, 0] + r[:, 1]) / 2 * side, y0 + (r[:, 2] + r[:, 3]) / 2 * side, r[:, 4] / 2],
+                           axis=1)
+        sizes = np.stack([(r[:, 1] - r[:, 0]) * side, (r[:, 3] - r[:, 2]) * side, r[:, 4]], axis=1)
+        return centres, sizes, {"block": blk, "height_step_m": q, "added_volume_m3": vol - base,
+                                "column_volume_m3": base}
+
+
+def _merge_equal(H: np.ndarray) -> list[tuple[int, int, int, int, float]]:
+    """Rectangles [i0, i1) x [j0, j1) of equal positive value covering every
+    positive cell of H exactly once: runs along the first axis per column j,
+    extended over consecutive j with the same run."""
+    m, n = H.shape
+    open_: dict = {}  # (i0, i1, h) -> j0 of the rectangle growing in j
+    out = []
+    for j in range(n + 1):
+        runs = set()
+        if j < n:
+            col = H[:, j]
+            i = 0
+            while i < m:
+                h = col[i]
+                if h > 0:
+                    i1 = i + 1
+                    while i1 < m and col[i1] == h:
+                        i1 += 1
+                    runs.add((i, i1, float(h)))
+                    i = i1
+                else:
+                    i += 1
+        for key in list(open_):
+            if key not in runs:
+                i0, i1, h = key
+                out.append((i0, i1, open_.pop(key), j, h))
+        for key in runs:
+            open_.setdefault(key, j)
+    return out
+

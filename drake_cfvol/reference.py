@@ -31,14 +31,19 @@ VOLUME_BOX_PREFIX = "cfvol_volume_"
 MAX_REFERENCE_BOXES = 3000
 
 
-def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35), visual: bool = True) -> list:
+def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35), visual: bool = True,
+                          boxes=None) -> list:
     """Registers the volume's columns on the world body of a plant (before
     ``Finalize``): proximity geometry, and an illustration if ``visual``.
 
+    Args:
+        boxes: (centres, sizes) to register instead of one box per column
+            (e.g. :meth:`Volume.merged_boxes`).
+
     Returns:
-        The proximity ``GeometryId`` of each column.
+        The proximity ``GeometryId`` of each box.
     """
-    centres, sizes = volume.boxes()
+    centres, sizes = volume.boxes() if boxes is None else boxes[:2]
     world = plant.world_body()
     ids = []
     for i, (c, s) in enumerate(zip(centres, sizes)):

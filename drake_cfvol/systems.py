@@ -14,6 +14,8 @@ import dataclasses
 
 import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
 from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
@@ -416,37 +418,71 @@ class ScriptedHuman(LeafSystem):
 
 
 class ClearanceMonitor(LeafSystem):
-    """The smallest signed distance from the robot's moving links to the
-    real obstacles (not the volume; a fixed base on its pedestal is left
-    out) and whether the robot collides with the real scene (obstacles +
-    self).
+    """Clearance, collision and volume contact of the robot, queried from
+    the diagram's own SceneGraph through its ``query_object`` port.
 
     .. pydrake_system::
 
         name: ClearanceMonitor
         input_ports:
-        - position
+        - query_object
         output_ports:
         - min_distance
         - in_collision
+        - in_volume
+
+    ``min_distance`` is the smallest signed distance from the robot's moving
+    links to the real obstacles (not the volume; a fixed base resting on its
+    pedestal says nothing about a push), capped at ``max_distance``.
+    ``in_collision`` is 1 where the robot penetrates an obstacle or itself
+    (the plant's collision filters apply), ``in_volume`` 1 where it
+    penetrates a box of the volume V. The system keeps no state and writes
+    nothing outside its context.
 
     Args:
-        workcell: the workcell (its own scene is queried).
+        robot_ids: proximity geometry ids of the robot (all links).
+        moving_ids: the subset on links the joints move.
+        volume_ids: the volume's boxes; every other proximity geometry is an
+            obstacle.
         max_distance: distances beyond this are reported as this, m.
     """
 
-    def __init__(self, workcell, *, max_distance: float = 2.0):
+    def __init__(self, *, robot_ids, moving_ids, volume_ids, max_distance: float = 2.0):
         super().__init__()
-        self._wc = workcell
+        self._robot = frozenset(robot_ids)
+        self._moving = frozenset(moving_ids)
+        self._volume = frozenset(volume_ids)
+        if not self._moving <= self._robot:
+            raise ParameterError("ClearanceMonitor: moving_ids must be a subset of robot_ids.")
         self._max = float(max_distance)
-        self.position_input = self.DeclareVectorInputPort(name="position", size=workcell.num_joints)
+        self.query_object_input = self.DeclareAbstractInputPort(
+            name="query_object", model_value=AbstractValue.Make(QueryObject()))
         self.min_distance_output = self.DeclareVectorOutputPort(
-            name="min_distance", size=1, calc=lambda c, o: o.SetAtIndex(0, self.min_distance(
-                self.position_input.Eval(c))))
+            name="min_distance", size=1, calc=lambda c, o: o.SetAtIndex(0, self.min_distance(c)))
         self.in_collision_output = self.DeclareVectorOutputPort(
-            name="in_collision", size=1, calc=lambda c, o: o.SetAtIndex(0, float(
-                not self._wc.is_free(self.position_input.Eval(c)))))
+            name="in_collision", size=1, calc=lambda c, o: o.SetAtIndex(0, float(self._contacts(c)[0])))
+        self.in_volume_output = self.DeclareVectorOutputPort(
+            name="in_volume", size=1, calc=lambda c, o: o.SetAtIndex(0, float(self._contacts(c)[1])))
 
-    def min_distance(self, q) -> float:
-        d = self._wc.obstacle_distances(np.asarray(q, float), self._max, moving_only=True)
-        return float(min(d.values())) if d else self._max
+    def min_distance(self, context) -> float:
+        """Smallest signed distance, moving links to obstacles, m."""
+        query = self.query_object_input.Eval(context)
+        best = self._max
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=self._max):
+            a, b = pair.id_A, pair.id_B
+            if a in self._volume or b in self._volume:
+                continue
+            if (a in self._moving and b not in self._robot) or (b in self._moving and a not in self._robot):
+                best = min(best, pair.distance)
+        return best
+
+    def _contacts(self, context) -> tuple[bool, bool]:
+        query = self.query_object_input.Eval(context)
+        collides = touches_volume = False
+        for pp in query.ComputePointPairPenetration():
+            a, b = pp.id_A, pp.id_B
+            if a in self._volume or b in self._volume:
+                touches_volume |= (a in self._robot or b in self._robot)
+            elif a in self._robot or b in self._robot:
+                collides = True
+        return collides, touches_volume

@@ -112,3 +112,52 @@ def test_cli_refuses_huge_resolution_before_planning(capsys):
     assert main(["bounds", "automotive", "-R", "1000000000", "--json"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("cfvol: error: R = 1000000000 would need")
+
+
+def _volume(heights, side=0.1, origin=(1.0, -2.0)):
+    from drake_cfvol.heightmap import Volume
+
+    m, n = heights.shape
+    hm = HeightMap(np.array([origin[0], origin[1]]), m * side, n * side, m * n)
+    assert hm.shape == (m, n) and hm.side == pytest.approx(side)
+    return Volume(hm, heights, heights.copy())
+
+
+def _contained(centres, sizes, vol):
+    """Each column's eight corners lie in one merged box (a box holds its
+    corners' hull)."""
+    cc, cs = vol.boxes()
+    lo, hi = centres - sizes / 2, centres + sizes / 2
+    for c, s in zip(cc, cs):
+        a, b = c - s / 2, c + s / 2
+        inside = np.all((lo <= a + 1e-9) & (hi >= b - 1e-9), axis=1)
+        if not inside.any():
+            return False
+    return True
+
+
+def test_merged_boxes_exact_when_they_fit():
+    """Equal neighbours merge, nothing is added: two plateaus by hand."""
+    H = np.zeros((4, 3))
+    H[0:2, 0:3] = 0.5  # one 2 x 3 plateau
+    H[3, 1] = 0.2      # a single column
+    c, s, info = _volume(H).merged_boxes(10)
+    assert len(c) == 2 and info["added_volume_m3"] == pytest.approx(0.0)
+    order = np.argsort(s[:, 2])
+    np.testing.assert_allclose(s[order], [[0.1, 0.1, 0.2], [0.2, 0.3, 0.5]])
+    np.testing.assert_allclose(c[order][1], [1.0 + 0.1, -2.0 + 0.15, 0.25])
+
+
+def test_merged_boxes_fit_and_contain_their_columns():
+    """A rough random height map merged into few boxes: the count fits,
+    every column lies inside a box, and the volume only grows."""
+    rng = np.random.default_rng(0)
+    H = np.where(rng.random((40, 30)) < 0.7, rng.uniform(0.1, 1.0, (40, 30)), 0.0)
+    vol = _volume(H)
+    for limit in (1000, 200, 40):
+        c, s, info = vol.merged_boxes(limit)
+        assert len(c) <= limit and _contained(c, s, vol)
+        assert np.prod(s, axis=1).sum() == pytest.approx(info["column_volume_m3"] + info["added_volume_m3"])
+        assert info["added_volume_m3"] >= -1e-9
+    with pytest.raises(ValueError, match="max_boxes"):
+        vol.merged_boxes(0)

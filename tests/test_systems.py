@@ -282,3 +282,48 @@ def test_safe_path_rate_by_hand():
     # joint b's upper 1.0 -> 0.4 (0.6); the rate is min(0.5 / 1.7, 0.5 / 0.6).
     assert safe_path_rate(t, [1.0, 1.0], share=0.5) == pytest.approx(0.5 / 1.7)
     assert safe_path_rate(t, [np.inf, np.inf]) == np.inf
+
+
+def test_clearance_monitor_agrees_with_the_workcell():
+    """Through the query port of a diagram holding the workcell and one
+    volume box: the moving links' clearance and the collision flag equal the
+    workcell's own (second) Drake scene at random configurations, and the
+    volume flag is 1 exactly when the box is placed around the tool."""
+    from pydrake.geometry import Box
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, CoulombFriction
+    from pydrake.systems.framework import DiagramBuilder
+
+    from drake_cfvol.comanip import _robot_geometries
+    from drake_cfvol.systems import ClearanceMonitor
+
+    wc = cf.load_workcell("automotive")
+    q_tool = np.asarray(wc.configuration("path1")[0])
+    X_WT = wc.plant.CalcRelativeTransform(wc.plant_context(q_tool), wc.plant.world_frame(), wc.tool_frame)
+    builder = DiagramBuilder()
+    plant, sg = AddMultibodyPlantSceneGraph(builder, 0.0)
+    robot = wc.add_to_plant(plant)
+    box = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(X_WT.translation()), Box(0.05, 0.05, 0.05),
+                                          "volume_box", CoulombFriction(0.5, 0.5))
+    plant.Finalize()
+    every, moving = _robot_geometries(plant, robot)
+    mon = builder.AddSystem(ClearanceMonitor(robot_ids=every, moving_ids=moving, volume_ids=[box]))
+    builder.Connect(sg.get_query_output_port(), mon.query_object_input)
+    diagram = builder.Build()
+    ctx = diagram.CreateDefaultContext()
+    mctx = mon.GetMyContextFromRoot(ctx)
+    pctx = plant.GetMyMutableContextFromRoot(ctx)
+    plant.SetPositions(pctx, robot, q_tool)
+    assert mon.in_volume_output.Eval(mctx)[0] == 1.0
+    rng = np.random.default_rng(7)
+    seen_collision = seen_free = 0
+    for _ in range(25):
+        q = rng.uniform(wc.position_lower, wc.position_upper)
+        plant.SetPositions(pctx, robot, q)
+        expected = min(wc.obstacle_distances(q, 2.0, moving_only=True).values(), default=2.0)
+        assert mon.min_distance_output.Eval(mctx)[0] == pytest.approx(min(expected, 2.0), abs=1e-9)
+        collides = mon.in_collision_output.Eval(mctx)[0] == 1.0
+        assert collides == (not wc.is_free(q))
+        seen_collision += collides
+        seen_free += not collides
+    assert seen_collision and seen_free
