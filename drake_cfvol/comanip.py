@@ -326,6 +326,19 @@ class Comanipulation:
         return self.progress.duration + self.scenario.end_hold
 
 
+def _kernel_guard(workcell):
+    """The collision guard's test, q -> True if certified free: the compiled
+    kernel on arrays read from Drake once (conservative: it never calls a
+    colliding configuration free), a pure function that touches no Drake
+    context."""
+    arrays = workcell.scene_arrays()
+
+    def is_free(q) -> bool:
+        return not bool(arrays.may_collide(np.asarray(q, float)[None])[0])
+
+    return is_free
+
+
 def _robot_geometries(plant, robot) -> tuple[set, set]:
     """Proximity geometry ids of the robot's links, and of those its joints
     move."""
@@ -429,7 +442,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     adm = builder.AddNamedSystem("admittance", AdmittanceDeformation(
         k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=a.period, plant=plant,
         tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot),
-        collision_guard=wc.is_free if scenario.collision_guard else None,
+        collision_guard=_kernel_guard(wc) if scenario.collision_guard else None,
         velocity_limits=wc.velocity_limits, path_share=share))
     pushes = list(scenario.pushes)
     rp = scenario.random_pushes

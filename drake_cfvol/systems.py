@@ -14,16 +14,18 @@ import dataclasses
 
 import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
-from pydrake.systems.framework import Diagram, DiagramBuilder, LeafSystem
+from pydrake.systems.framework import BasicVector_, Diagram, DiagramBuilder, LeafSystem, LeafSystem_, ValueProducer
+from pydrake.systems.scalar_conversion import TemplateSystem
 from pydrake.systems.primitives import TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.table import BoundsTable
 
-__all__ = ["JointBoundsSource", "AdmittanceDeformation", "PathProgress", "Push", "ScriptedHuman",
+__all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
            "ClearanceMonitor", "safe_path_rate"]
 
 
@@ -40,234 +42,345 @@ def _vector(value, k: int, name: str, *, positive: bool = False, nonnegative: bo
     return v
 
 
-class JointBoundsSource(LeafSystem):
-    """Joint bounds for the current path index.
-
-    .. pydrake_system::
-
-        name: JointBoundsSource
-        input_ports:
-        - path_index
-        output_ports:
-        - lower
-        - upper
-        - nominal
-
-    ``path_index`` is the path parameter s in [0, g-1] (a float; integer s is
-    a waypoint). Between waypoints the bounds follow SPEC 7: the intersection
-    of the neighbours' boxes, widened to hold the interpolated nominal.
-
-    Args:
-        bounds: the bounds table.
-        clamp: clamp s into [0, g-1] instead of raising (default False: an
-            s outside raises :class:`~drake_cfvol.ParameterError`).
-    """
-
-    def __init__(self, bounds: BoundsTable, *, clamp: bool = False):
-        super().__init__()
-        self._bounds = bounds
-        self._clamp = clamp
-        k = bounds.k
-        self.path_index_input = self.DeclareVectorInputPort(name="path_index", size=1)
-        self.lower_output = self.DeclareVectorOutputPort(
-            name="lower", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[0]))
-        self.upper_output = self.DeclareVectorOutputPort(
-            name="upper", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[1]))
-        self.nominal_output = self.DeclareVectorOutputPort(
-            name="nominal", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[2]))
-
-    @property
-    def bounds(self) -> BoundsTable:
-        return self._bounds
-
-    def _at(self, context):
-        s = float(self.path_index_input.Eval(context)[0])
-        if self._clamp:
-            s = min(max(s, 0.0), self._bounds.g - 1.0) if np.isfinite(s) else s
-        return self._bounds.at(s)
+def _values(x) -> np.ndarray:
+    """Float values of a float, AutoDiffXd or Expression array (derivatives
+    dropped)."""
+    x = np.asarray(x)
+    if x.dtype == object:
+        return np.array([float(e.value()) if hasattr(e, "value") else float(e.Evaluate()) for e in x.ravel()]
+                        ).reshape(x.shape)
+    return x.astype(float)
 
 
-class AdmittanceDeformation(LeafSystem):
-    """Admittance-controlled deformation of the nominal, clamped in bounds.
+def _clip(x, lo, hi):
+    """Elementwise clip for float or AutoDiffXd arrays (the derivative is
+    that of the active argument)."""
+    x = np.asarray(x)
+    if x.dtype != object:
+        return np.clip(x, lo, hi)
+    xv, lov, hiv = _values(x), _values(lo), _values(hi)
+    lo, hi = np.asarray(lo, dtype=object), np.asarray(hi, dtype=object)
+    return np.where(xv < lov, lo, np.where(xv > hiv, hi, x))
 
-    .. pydrake_system::
 
-        name: AdmittanceDeformation
-        input_ports:
-        - nominal
-        - lower
-        - upper
-        - human_torque
-        - human_wrench
-        output_ports:
-        - commanded_position
-        - deviation
-        - guard_active
+@TemplateSystem.define("JointBoundsSource_", T_list=(float, AutoDiffXd))
+def JointBoundsSource_(T):
 
-    Per joint, the deviation d from the nominal obeys
-    M d'' + D d' + K d = tau_h + J(q)^T w_h, integrated every ``period``
-    seconds (semi-implicit Euler). ``human_torque`` is a joint torque (N m, or
-    N for prismatic joints); ``human_wrench`` is the spatial force
-    [torque (N m); force (N)] at the tool frame's origin, expressed in the
-    world frame, mapped through the tool's spatial Jacobian at the current
-    commanded configuration. Either may be left unconnected (zero).
+    class Impl(LeafSystem_[T]):
+        """Joint bounds for the current path index.
 
-    The output is ``commanded_position = clamp(nominal + d, lower, upper)``.
-    No wind-up: after each update the state itself is clamped so that
-    nominal + d stays inside the bounds, and a rate pushing outward at a bound
-    is zeroed; releasing a push at a bound leaves it on the next step.
+        .. pydrake_system::
 
-    Collision guard (optional, beyond the paper): per-joint bounds found with
-    the other joints at nominal do not make their whole box collision-free
-    (the paper's CF < 100 %). If ``collision_guard(q)`` reports the clamped
-    configuration in collision, the deviation is scaled back towards the
-    (collision-free) nominal by bisection to the largest free fraction, and
-    the rate is zeroed. ``guard_active`` is 1 after an update where the guard
-    acted, so runs show how often the bounds alone were not enough.
+            name: JointBoundsSource
+            input_ports:
+            - path_index
+            output_ports:
+            - lower
+            - upper
+            - nominal
 
-    Args:
-        k: number of joints.
-        mass: M, kg m^2 per joint (kg for prismatic); scalar or (k,); > 0.
-        damping: D, N m s/rad (N s/m); >= 0.
-        stiffness: K, N m/rad (N/m) towards the nominal; >= 0.
-        period: update period, s; > 0.
-        plant, tool_frame: needed only when ``human_wrench`` is connected: the
-            robot's plant (finalized; its positions are the k joints) and the
-            tool frame.
-        collision_guard: callable q -> True if q is free, or None (off).
-        guard_iterations: bisection steps of the guard's scale-back.
-        velocity_limits: (k,) joint velocity limits, rad/s (m/s), or None
-            (no limit). With them the deviation's rate is held to
-            ``1 - path_share`` of each limit, so that with a path whose
-            nominal and bounds move at most ``path_share`` of the limits
-            (:func:`safe_path_rate`) the commanded position never moves a
-            joint faster than its limit: clamping is 1-Lipschitz in the
-            nominal, the deviation and the bounds.
-        path_share: see ``velocity_limits``; in (0, 1).
-    """
+        ``path_index`` is the path parameter s in [0, g-1] (a float; integer
+        s is a waypoint). Between waypoints the bounds follow SPEC 7: the
+        certified stretch box, changing at most at the table's rate per
+        unit s and widened to hold the interpolated nominal.
 
-    def __init__(self, k: int, *, mass=10.0, damping=200.0, stiffness=400.0, period: float = 0.01,
-                 plant=None, tool_frame=None, collision_guard=None, guard_iterations: int = 10,
-                 velocity_limits=None, path_share: float = 0.5):
-        super().__init__()
-        if not period > 0:
-            raise ParameterError(f"period must be > 0 s, got {period}.")
-        self.k = int(k)
-        self.M = _vector(mass, k, "mass", positive=True)
-        self.D = _vector(damping, k, "damping", nonnegative=True)
-        self.K = _vector(stiffness, k, "stiffness", nonnegative=True)
-        self.period = float(period)
-        if not 0.0 < path_share < 1.0:
-            raise ParameterError(f"path_share must lie in (0, 1), got {path_share}.")
-        self.path_share = float(path_share)
-        self.max_rate = None
-        if velocity_limits is not None:
-            vl = np.asarray(velocity_limits, float).reshape(-1)
-            if vl.shape != (self.k,):
-                raise DimensionError("velocity_limits", self.k, vl.shape)
-            if np.any(np.isnan(vl)) or np.any(vl <= 0):
-                raise ParameterError(f"velocity_limits must be > 0 (inf: no limit), got {vl.tolist()}.")
-            self.max_rate = (1.0 - self.path_share) * vl
-        self._plant = plant
-        self._tool = tool_frame
-        self._plant_context = plant.CreateDefaultContext() if plant is not None else None
-        if plant is not None and plant.num_positions() != k:
-            raise DimensionError("the plant's positions", k, plant.num_positions())
-        self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=k)
-        self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
-        self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
-        self.human_torque_input = self.DeclareVectorInputPort(name="human_torque", size=k)
-        self.human_wrench_input = self.DeclareVectorInputPort(name="human_wrench", size=6)
-        self._guard = collision_guard
-        self._guard_iterations = int(guard_iterations)
-        self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
-        self._guard_state = self.DeclareDiscreteState(1)
-        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
-        # The output depends on the state and the nominal and bounds only, not
-        # on the human's push: a co-worker model fed from it forms no loop.
-        self.commanded_position_output = self.DeclareVectorOutputPort(
-            name="commanded_position", size=k, calc=self._calc_commanded,
-            prerequisites_of_calc={self.xd_ticket(), self.nominal_input.ticket(), self.lower_input.ticket(),
-                                   self.upper_input.ticket()})
-        self.deviation_output = self.DeclareVectorOutputPort(
-            name="deviation", size=k,
-            calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._state).value()[:self.k]),
-            prerequisites_of_calc={self.xd_ticket()})
-        self.guard_active_output = self.DeclareVectorOutputPort(
-            name="guard_active", size=1,
-            calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._guard_state).value()),
-            prerequisites_of_calc={self.xd_ticket()})
+        Scalar types: float and AutoDiffXd (``ToAutoDiffXd()``). With
+        AutoDiffXd the outputs carry their derivative with respect to s:
+        the nominal's exactly (linear between waypoints), the bounds' by a
+        central difference of width 1e-7 (they are piecewise linear in s).
+        Not Symbolic: the table is a lookup in s.
 
-    def _inputs(self, context):
-        nominal = self.nominal_input.Eval(context)
-        lower = self.lower_input.Eval(context)
-        upper = self.upper_input.Eval(context)
-        for name, v in (("nominal", nominal), ("lower", lower), ("upper", upper)):
-            if not np.all(np.isfinite(v)):
-                raise ParameterError(f"AdmittanceDeformation: input '{name}' holds a non-finite value "
-                                     f"{np.asarray(v).tolist()}; connect a valid source.")
-        if np.any(lower > upper):
-            raise ParameterError(f"AdmittanceDeformation: lower > upper at joint(s) "
-                                 f"{np.flatnonzero(lower > upper).tolist()}.")
-        return nominal, lower, upper
+        Args:
+            bounds: the bounds table.
+            clamp: clamp s into [0, g-1] instead of raising (default False:
+                an s outside raises :class:`~drake_cfvol.ParameterError`).
+        """
 
-    def _push(self, context, q) -> np.ndarray:
-        tau = np.zeros(self.k)
-        if self.human_torque_input.HasValue(context):
-            t = self.human_torque_input.Eval(context)
-            if not np.all(np.isfinite(t)):
-                raise ParameterError(f"AdmittanceDeformation: 'human_torque' holds a non-finite value {t.tolist()}.")
-            tau += t
-        if self.human_wrench_input.HasValue(context):
-            w = self.human_wrench_input.Eval(context)
-            if not np.all(np.isfinite(w)):
-                raise ParameterError(f"AdmittanceDeformation: 'human_wrench' holds a non-finite value {w.tolist()}.")
-            if np.any(w != 0):
-                if self._plant is None:
-                    raise ParameterError("AdmittanceDeformation: 'human_wrench' is connected but no plant and "
-                                         "tool_frame were given to map it through the Jacobian.")
-                self._plant.SetPositions(self._plant_context, q)
-                J = self._plant.CalcJacobianSpatialVelocity(
-                    self._plant_context, JacobianWrtVariable.kQDot, self._tool, np.zeros(3),
-                    self._plant.world_frame(), self._plant.world_frame())
-                tau += J.T @ w
-        return tau
+        def _construct(self, bounds: BoundsTable, *, clamp: bool = False, converter=None):
+            LeafSystem_[T].__init__(self, converter)
+            self._bounds = bounds
+            self._clamp = clamp
+            k = bounds.k
+            self.path_index_input = self.DeclareVectorInputPort(name="path_index", size=1)
+            self.lower_output = self.DeclareVectorOutputPort(
+                name="lower", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[0]))
+            self.upper_output = self.DeclareVectorOutputPort(
+                name="upper", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[1]))
+            self.nominal_output = self.DeclareVectorOutputPort(
+                name="nominal", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[2]))
 
-    def _update(self, context, discrete_state):
-        nominal, lower, upper = self._inputs(context)
-        x = context.get_discrete_state(self._state).value()
-        d, v = x[:self.k].copy(), x[self.k:].copy()
-        q = np.clip(nominal + d, lower, upper)
-        tau = self._push(context, q)
-        h = self.period
-        v = v + h * (tau - self.D * v - self.K * d) / self.M
-        if self.max_rate is not None:
-            v = np.clip(v, -self.max_rate, self.max_rate)
-        d = d + h * v
-        # No wind-up: keep nominal + d inside [lower, upper]; stop outward rates.
-        lo, hi = lower - nominal, upper - nominal
-        at_hi, at_lo = d >= hi, d <= lo
-        d = np.clip(d, lo, hi)
-        v = np.where((at_hi & (v > 0)) | (at_lo & (v < 0)), 0.0, v)
-        acted = 0.0
-        if self._guard is not None and np.any(d != 0) and not self._guard(nominal + d):
-            free, bad = 0.0, 1.0
-            for _ in range(self._guard_iterations):
-                mid = (free + bad) / 2
-                if self._guard(nominal + mid * d):
-                    free = mid
-                else:
-                    bad = mid
-            d = free * d
-            v = np.zeros_like(v)
-            acted = 1.0
-        discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
-        discrete_state.get_mutable_vector(self._guard_state).SetFromVector([acted])
+        def _construct_copy(self, other, converter=None):
+            Impl._construct(self, other._bounds, clamp=other._clamp, converter=converter)
 
-    def _calc_commanded(self, context, output):
-        nominal, lower, upper = self._inputs(context)
-        d = context.get_discrete_state(self._state).value()[:self.k]
-        output.SetFromVector(np.clip(nominal + d, lower, upper))
+        @property
+        def bounds(self) -> BoundsTable:
+            return self._bounds
+
+        def _lookup(self, s: float):
+            if self._clamp:
+                s = min(max(s, 0.0), self._bounds.g - 1.0) if np.isfinite(s) else s
+            return self._bounds.at(s)
+
+        def _at(self, context):
+            s_in = self.path_index_input.Eval(context)[0]
+            if T is float:
+                return self._lookup(float(s_in))
+            s = float(s_in.value())
+            lo, hi, nom = self._lookup(s)
+            ds = s_in.derivatives()
+            g = self._bounds.g
+            h = 1e-7
+            a, b = max(s - h, 0.0), min(s + h, g - 1.0)
+            if b > a:
+                lo_a, hi_a, nom_a = self._lookup(a)
+                lo_b, hi_b, nom_b = self._lookup(b)
+                slopes = [(lo_b - lo_a) / (b - a), (hi_b - hi_a) / (b - a)]
+                i = min(int(np.floor(s)), g - 2)
+                slopes.append(self._bounds.nominal[i + 1] - self._bounds.nominal[i] if g > 1 else 0 * nom)
+            else:
+                slopes = [0 * lo, 0 * hi, 0 * nom]
+            return tuple(np.array([AutoDiffXd(float(v), float(dv) * ds) for v, dv in zip(val, slope)], dtype=object)
+                         for val, slope in zip((lo, hi, nom), slopes))
+
+    return Impl
+
+
+#: The float instantiation (``JointBoundsSource_[AutoDiffXd]`` by conversion).
+JointBoundsSource = JointBoundsSource_[None]
+
+
+@TemplateSystem.define("AdmittanceDeformation_", T_list=(float, AutoDiffXd))
+def AdmittanceDeformation_(T):
+
+    class Impl(LeafSystem_[T]):
+        """Admittance-controlled deformation of the nominal, clamped in bounds.
+
+        .. pydrake_system::
+
+            name: AdmittanceDeformation
+            input_ports:
+            - nominal
+            - lower
+            - upper
+            - human_torque
+            - human_wrench
+            output_ports:
+            - commanded_position
+            - deviation
+            - guard_active
+
+        Per joint, the deviation d from the nominal obeys
+        M d'' + D d' + K d = tau_h + J(q)^T w_h, integrated every ``period``
+        seconds (semi-implicit Euler). ``human_torque`` is a joint torque
+        (N m, or N for prismatic joints); ``human_wrench`` is the spatial
+        force [torque (N m); force (N)] at the tool frame's origin, expressed
+        in the world frame, mapped through the tool's spatial Jacobian at the
+        current commanded configuration. Either may be left unconnected.
+
+        The output is ``commanded_position = clamp(nominal + d, lower,
+        upper)``; it depends on the state and the nominal and bounds only, so
+        a co-worker model fed from it forms no algebraic loop. No wind-up:
+        after each update the state itself is clamped so that nominal + d
+        stays inside the bounds, and a rate pushing outward at a bound is
+        zeroed; releasing a push at a bound leaves it on the next step.
+
+        M, D and K are Drake numeric parameters (``mass``, ``damping``,
+        ``stiffness``, each of size k): set them per context with
+        ``get_mutable_numeric_parameter``; the constructor's values are the
+        defaults.
+
+        Velocity limits: with them the deviation's rate is held to
+        ``1 - path_share`` of each limit, so that with a path whose nominal
+        and bounds move at most ``path_share`` of the limits
+        (:func:`safe_path_rate`) the commanded position never moves a joint
+        faster than its limit (clamping is 1-Lipschitz in its inputs).
+
+        Collision guard (optional, beyond the paper): if
+        ``collision_guard(q)`` reports the clamped configuration in collision,
+        the deviation is scaled back towards the (collision-free) nominal by
+        bisection to the largest free fraction, and the rate is zeroed.
+        ``guard_active`` is 1 after an update where the guard acted. The
+        guard should be a pure function of q (the co-manipulation diagram
+        uses the compiled kernel's conservative test, which touches no Drake
+        context).
+
+        Scalar types: float and AutoDiffXd (``ToAutoDiffXd()``); with
+        AutoDiffXd, derivatives flow through the dynamics, the clamp and the
+        parameters, while the guard and the wrench's Jacobian are evaluated on
+        values.
+
+        Args:
+            k: number of joints.
+            mass: M, kg m^2 per joint (kg for prismatic); scalar or (k,); > 0.
+            damping: D, N m s/rad (N s/m); >= 0.
+            stiffness: K, N m/rad (N/m) towards the nominal; >= 0.
+            period: update period, s; > 0.
+            plant, tool_frame: needed only when ``human_wrench`` is
+                connected: the robot's plant (finalized; its positions are the
+                k joints) and the tool frame. The Jacobian is computed in a
+                plant context kept in this system's own context (a cache
+                entry used as scratch).
+            collision_guard: callable q -> True if q is free, or None (off).
+            guard_iterations: bisection steps of the guard's scale-back.
+            velocity_limits: (k,) joint velocity limits, rad/s (m/s; inf: no
+                limit), or None (no limit).
+            path_share: see above; in (0, 1).
+        """
+
+        def _construct(self, k: int, *, mass=10.0, damping=200.0, stiffness=400.0, period: float = 0.01,
+                       plant=None, tool_frame=None, collision_guard=None, guard_iterations: int = 10,
+                       velocity_limits=None, path_share: float = 0.5, converter=None):
+            LeafSystem_[T].__init__(self, converter)
+            if not period > 0:
+                raise ParameterError(f"period must be > 0 s, got {period}.")
+            if not 0.0 < path_share < 1.0:
+                raise ParameterError(f"path_share must lie in (0, 1), got {path_share}.")
+            self.k = int(k)
+            self.M = _vector(mass, k, "mass", positive=True)
+            self.D = _vector(damping, k, "damping", nonnegative=True)
+            self.K = _vector(stiffness, k, "stiffness", nonnegative=True)
+            self.period = float(period)
+            self.path_share = float(path_share)
+            self.max_rate = None
+            self._velocity_limits = velocity_limits
+            if velocity_limits is not None:
+                vl = np.asarray(velocity_limits, float).reshape(-1)
+                if vl.shape != (self.k,):
+                    raise DimensionError("velocity_limits", self.k, vl.shape)
+                if np.any(np.isnan(vl)) or np.any(vl <= 0):
+                    raise ParameterError(f"velocity_limits must be > 0 (inf: no limit), got {vl.tolist()}.")
+                self.max_rate = (1.0 - self.path_share) * vl
+            if plant is not None and plant.num_positions() != k:
+                raise DimensionError("the plant's positions", k, plant.num_positions())
+            self._plant = plant
+            self._tool = tool_frame
+            self._guard = collision_guard
+            self._guard_iterations = int(guard_iterations)
+            self.mass_parameter = self.DeclareNumericParameter(BasicVector_[T](self.M))
+            self.damping_parameter = self.DeclareNumericParameter(BasicVector_[T](self.D))
+            self.stiffness_parameter = self.DeclareNumericParameter(BasicVector_[T](self.K))
+            self._scratch = None
+            if plant is not None:
+                self._scratch = self.DeclareCacheEntry(
+                    description="plant context (scratch for the wrench's Jacobian)",
+                    value_producer=ValueProducer(allocate=lambda: AbstractValue.Make(plant.CreateDefaultContext()),
+                                                 calc=lambda context, value: None),
+                    prerequisites_of_calc={self.nothing_ticket()})
+            self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=k)
+            self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
+            self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
+            self.human_torque_input = self.DeclareVectorInputPort(name="human_torque", size=k)
+            self.human_wrench_input = self.DeclareVectorInputPort(name="human_wrench", size=6)
+            self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
+            self._guard_state = self.DeclareDiscreteState(1)
+            self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
+            self.commanded_position_output = self.DeclareVectorOutputPort(
+                name="commanded_position", size=k, calc=self._calc_commanded,
+                prerequisites_of_calc={self.xd_ticket(), self.nominal_input.ticket(), self.lower_input.ticket(),
+                                       self.upper_input.ticket()})
+            self.deviation_output = self.DeclareVectorOutputPort(
+                name="deviation", size=k,
+                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._state).CopyToVector()[:self.k]),
+                prerequisites_of_calc={self.xd_ticket()})
+            self.guard_active_output = self.DeclareVectorOutputPort(
+                name="guard_active", size=1,
+                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._guard_state).CopyToVector()),
+                prerequisites_of_calc={self.xd_ticket()})
+
+        def _construct_copy(self, other, converter=None):
+            Impl._construct(self, other.k, mass=other.M, damping=other.D, stiffness=other.K, period=other.period,
+                            plant=other._plant, tool_frame=other._tool, collision_guard=other._guard,
+                            guard_iterations=other._guard_iterations, velocity_limits=other._velocity_limits,
+                            path_share=other.path_share, converter=converter)
+
+        def gains(self, context) -> tuple:
+            """(M, D, K) of this context (the numeric parameters)."""
+            return tuple(context.get_numeric_parameter(i).CopyToVector() for i in
+                         (self.mass_parameter, self.damping_parameter, self.stiffness_parameter))
+
+        def _inputs(self, context):
+            nominal = self.nominal_input.Eval(context)
+            lower = self.lower_input.Eval(context)
+            upper = self.upper_input.Eval(context)
+            for name, v in (("nominal", nominal), ("lower", lower), ("upper", upper)):
+                if not np.all(np.isfinite(_values(v))):
+                    raise ParameterError(f"AdmittanceDeformation: input '{name}' holds a non-finite value "
+                                         f"{_values(v).tolist()}; connect a valid source.")
+            if np.any(_values(lower) > _values(upper)):
+                raise ParameterError(f"AdmittanceDeformation: lower > upper at joint(s) "
+                                     f"{np.flatnonzero(_values(lower) > _values(upper)).tolist()}.")
+            return nominal, lower, upper
+
+        def _push(self, context, q):
+            tau = 0 * q
+            if self.human_torque_input.HasValue(context):
+                t = self.human_torque_input.Eval(context)
+                if not np.all(np.isfinite(_values(t))):
+                    raise ParameterError(f"AdmittanceDeformation: 'human_torque' holds a non-finite value "
+                                         f"{_values(t).tolist()}.")
+                tau = tau + t
+            if self.human_wrench_input.HasValue(context):
+                w = _values(self.human_wrench_input.Eval(context))
+                if not np.all(np.isfinite(w)):
+                    raise ParameterError(f"AdmittanceDeformation: 'human_wrench' holds a non-finite value "
+                                         f"{w.tolist()}.")
+                if np.any(w != 0):
+                    if self._plant is None:
+                        raise ParameterError("AdmittanceDeformation: 'human_wrench' is connected but no plant and "
+                                             "tool_frame were given to map it through the Jacobian.")
+                    pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
+                    self._plant.SetPositions(pctx, _values(q))
+                    J = self._plant.CalcJacobianSpatialVelocity(
+                        pctx, JacobianWrtVariable.kQDot, self._tool, np.zeros(3),
+                        self._plant.world_frame(), self._plant.world_frame())
+                    tau = tau + J.T @ w
+            return tau
+
+        def _update(self, context, discrete_state):
+            nominal, lower, upper = self._inputs(context)
+            M, D, K = self.gains(context)
+            x = context.get_discrete_state(self._state).CopyToVector()
+            d, v = x[:self.k].copy(), x[self.k:].copy()
+            q = _clip(nominal + d, lower, upper)
+            tau = self._push(context, q)
+            h = self.period
+            v = v + h * (tau - D * v - K * d) / M
+            if self.max_rate is not None:
+                v = _clip(v, -self.max_rate, self.max_rate)
+            d = d + h * v
+            # No wind-up: keep nominal + d inside [lower, upper]; stop outward rates.
+            lo, hi = lower - nominal, upper - nominal
+            dv, vv = _values(d), _values(v)
+            at_hi, at_lo = dv >= _values(hi), dv <= _values(lo)
+            d = _clip(d, lo, hi)
+            v = np.where((at_hi & (vv > 0)) | (at_lo & (vv < 0)), 0 * v, v)
+            acted = 0.0
+            if self._guard is not None and np.any(_values(d) != 0) and not self._guard(_values(nominal + d)):
+                free, bad = 0.0, 1.0
+                nv, dvals = _values(nominal), _values(d)
+                for _ in range(self._guard_iterations):
+                    mid = (free + bad) / 2
+                    if self._guard(nv + mid * dvals):
+                        free = mid
+                    else:
+                        bad = mid
+                d = free * d
+                v = 0 * v
+                acted = 1.0
+            discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
+            discrete_state.get_mutable_vector(self._guard_state).SetFromVector([0 * d[0] + acted] if self.k else
+                                                                              [acted])
+
+        def _calc_commanded(self, context, output):
+            nominal, lower, upper = self._inputs(context)
+            d = context.get_discrete_state(self._state).CopyToVector()[:self.k]
+            output.SetFromVector(_clip(nominal + d, lower, upper))
+
+    return Impl
+
+
+#: The float instantiation (``AdmittanceDeformation_[AutoDiffXd]`` by conversion).
+AdmittanceDeformation = AdmittanceDeformation_[None]
 
 
 def safe_path_rate(bounds: BoundsTable, velocity_limits, *, share: float = 0.5) -> float:

@@ -327,3 +327,56 @@ def test_clearance_monitor_agrees_with_the_workcell():
         seen_collision += collides
         seen_free += not collides
     assert seen_collision and seen_free
+
+
+def test_gains_are_numeric_parameters():
+    """M, D, K live in the context: a context with a stiffer K settles at
+    tau / K_new while the system's defaults stay as constructed."""
+    adm, ctx = _admittance(mass=1.0, damping=20.0, stiffness=100.0, period=0.005)
+    ctx.get_mutable_numeric_parameter(adm.stiffness_parameter).SetFromVector([400.0, 50.0])
+    tau = np.array([8.0, -2.0])
+    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], tau)
+    Simulator(adm, ctx).AdvanceTo(4.0)
+    np.testing.assert_allclose(adm.deviation_output.Eval(ctx), tau / [400.0, 50.0], atol=1e-6)
+    np.testing.assert_array_equal(adm.gains(adm.CreateDefaultContext())[2], [100.0, 100.0])
+
+
+def test_admittance_autodiff_derivative_by_hand():
+    """ToAutoDiffXd: one update from d = 0.1, v = 0, no push gives
+    v' = -h K d / M and d' = d + h v'; the derivative with respect to K is
+    -h d / M for v' and -h^2 d / M for d' (seeded on joint 0's K)."""
+    from pydrake.autodiffutils import AutoDiffXd
+
+    adm = AdmittanceDeformation(2, mass=2.0, damping=0.0, stiffness=50.0, period=0.01)
+    ad = adm.ToAutoDiffXd()
+    ctx = ad.CreateDefaultContext()
+    K = [AutoDiffXd(50.0, np.array([1.0])), AutoDiffXd(50.0, np.array([0.0]))]
+    ctx.get_mutable_numeric_parameter(ad.stiffness_parameter).SetFromVector(K)
+    ctx.SetDiscreteState(0, [AutoDiffXd(0.1, np.zeros(1)), AutoDiffXd(0.0, np.zeros(1)),
+                             AutoDiffXd(0.0, np.zeros(1)), AutoDiffXd(0.0, np.zeros(1))])
+    for port, value in ((ad.nominal_input, [0.0, 0.0]), (ad.lower_input, [-1.0, -1.0]),
+                        (ad.upper_input, [1.0, 1.0])):
+        port.FixValue(ctx, [AutoDiffXd(x, np.zeros(1)) for x in value])
+    x = ad.EvalUniquePeriodicDiscreteUpdate(ctx).get_vector(0).CopyToVector()
+    h, d, M = 0.01, 0.1, 2.0
+    assert x[2].value() == pytest.approx(-h * 50.0 * d / M)
+    assert x[2].derivatives()[0] == pytest.approx(-h * d / M)
+    assert x[0].derivatives()[0] == pytest.approx(-h * h * d / M)
+    q = ad.commanded_position_output.Eval(ctx)
+    assert q[0].value() == pytest.approx(0.1)
+
+
+def test_bounds_source_autodiff_slope():
+    """ToAutoDiffXd: at s = 0.25 (seeded ds = 1) the nominal's derivative
+    is the first segment's slope, and values equal the float system's."""
+    from pydrake.autodiffutils import AutoDiffXd
+
+    t = _table()
+    ad = JointBoundsSource(t).ToAutoDiffXd()
+    ctx = ad.CreateDefaultContext()
+    ad.path_index_input.FixValue(ctx, [AutoDiffXd(0.25, np.array([1.0]))])
+    nom = ad.nominal_output.Eval(ctx)
+    np.testing.assert_allclose([n.derivatives()[0] for n in nom], t.nominal[1] - t.nominal[0])
+    lo_f, hi_f, nom_f = _eval(JointBoundsSource(t), 0.25)
+    np.testing.assert_allclose([x.value() for x in ad.lower_output.Eval(ctx)], lo_f)
+    np.testing.assert_allclose([x.value() for x in nom], nom_f)
