@@ -480,7 +480,7 @@ def targets(result: dict) -> list[str]:
     eta = (result.get("progress") or {}).get("eta_error") or {}
     if eta:
         worst = max(eta.values())
-        lines.append(f"- The progress bar's time-left estimate (cost model, average rate): off by "
+        lines.append("- The progress bar's time-left estimate (measured step costs, average rate): off by "
                      + ", ".join(f"{100 * e:.0f} % at {100 * float(f):.0f} %" for f, e in eta.items())
                      + f" of the run; wall time {result.get('wall_s', float('nan')):.0f} s (target within 30 %) -> "
                      f"{'met' if worst <= 0.3 else 'MISSED'}.")

@@ -192,10 +192,11 @@ def cmd_bounds(args) -> int:
 def cmd_simulate(args) -> int:
     from drake_cfvol.comanip import load_scenario, run_scenario
 
-    load_scenario(args.scenario)  # every field checked before anything is planned
+    load_scenario(args.scenario, scenario_text=args.scenario_text)  # every field checked before planning
     out = _out_path(args.out) or Path("out").resolve() / Path(args.scenario).stem
     prepare_output(out, overwrite=True, folder=True)
-    summary = run_scenario(args.scenario, out, record=not args.no_record, progress=not args.json)
+    summary = run_scenario(args.scenario, out, record=not args.no_record, progress=not args.json,
+                           scenario_text=args.scenario_text)
     for note in summary.get("notices", []):
         print(f"cfvol: note: {note}", file=sys.stderr)
     _emit(summary, args.json)
@@ -285,6 +286,8 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("scenario", help="bundled scenario name (automotive_push, aerospace_push) or a YAML path")
     m.add_argument("--out", help="output folder (default out/<scenario>)")
     m.add_argument("--no-record", action="store_true", help="skip the Meshcat recording")
+    m.add_argument("--scenario-text", help="YAML overriding the scenario's fields, e.g. "
+                   "'{resolution: 2000, random_pushes: {seed: 3}}'")
     m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=cmd_simulate)
 

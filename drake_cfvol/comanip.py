@@ -31,7 +31,6 @@ import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.geometry import (
-    Box,
     IllustrationProperties,
     Meshcat,
     MeshcatParams,
@@ -42,11 +41,12 @@ from pydrake.geometry import (
     RoleAssign,
     SceneGraph,
 )
-from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.systems.analysis import Simulator
+from pydrake.common import RandomDistribution, RandomGenerator
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import LogVectorOutput
+from pydrake.systems.primitives import Adder, LogVectorOutput, RandomSource
+from pydrake.visualization import VisualizationConfig
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_cfvol.exceptions import ScenarioError
@@ -63,6 +63,7 @@ from drake_cfvol.systems import (
     JointBoundsSource,
     PathProgress,
     Push,
+    RandomPushShaper,
     ScriptedHuman,
     safe_path_rate,
 )
@@ -102,13 +103,16 @@ class AdmittanceGains:
 
 @dataclasses.dataclass
 class RandomPushes:
-    """Seeded random joint-torque pushes (count 0: none).
+    """Random joint-torque pushes (count 0: none), drawn by Drake's
+    ``RandomSource`` and seeded through the context: the run calls
+    ``diagram.SetRandomContext(context, RandomGenerator(seed))``.
 
     Attributes:
-        count: number of pushes.
-        seed: their seed.
+        count: expected number of pushes over the run.
+        seed: the generator's seed (same seed, same pushes).
         max_torque: N m (N), per joint.
-        mean_duration: s.
+        mean_duration: s, the length of one push (the source's sampling
+            interval).
     """
 
     count: int = 0
@@ -137,6 +141,10 @@ class Scenario:
         params: VolumeParams overrides.
         collision_guard: scale pushes back where the clamped configuration
             would collide with the real scene (see AdmittanceDeformation).
+        simulator_config: Drake's simulator settings (``ApplySimulatorConfig``).
+        visualization: Drake's visualization settings for the recording
+            (illustration and proximity layers, publish period, colours;
+            see :func:`meshcat_params`).
         path_velocity_share: share of each joint's velocity limit that the
             path's own motion (nominal and bounds) may use; the push gets
             the rest. Path progress slows below ``path_duration`` when needed
@@ -157,6 +165,9 @@ class Scenario:
     params: dict[str, float] = dataclasses.field(default_factory=dict)
     collision_guard: bool = True
     path_velocity_share: float = 0.5
+    simulator_config: SimulatorConfig = dataclasses.field(default_factory=SimulatorConfig)
+    visualization: VisualizationConfig = dataclasses.field(default_factory=lambda: VisualizationConfig(
+        publish_period=0.02, publish_proximity=False, publish_contacts=False, publish_inertia=False))
 
     @property
     def duration(self) -> float:
@@ -187,6 +198,14 @@ def _check_fields(raw, schema, where: str, file: Path) -> None:
         t = hints[key]
         if dataclasses.is_dataclass(t):
             _check_fields(value, t, name, file)
+        elif hasattr(t, "__fields__"):  # a Drake config struct (SimulatorConfig, ...)
+            known = [f.name for f in t.__fields__]
+            if not isinstance(value, dict):
+                raise ScenarioError(file, name, f"must be a mapping of {t.__name__} fields, got {value!r}")
+            for sub in value:
+                if sub not in known:
+                    raise ScenarioError(file, f"{name}.{sub}", f"is not a field of {t.__name__}; known fields: "
+                                        f"{', '.join(known)}")
         elif t in (int, float, bool, str):
             ok = (isinstance(value, bool) if t is bool else
                   isinstance(value, int) and not isinstance(value, bool) if t is int else
@@ -219,6 +238,13 @@ def validate_scenario(scenario: Scenario, file: Path | None = None) -> None:
         raise ScenarioError(where, "admittance.stiffness", f"must be >= 0, got {a.stiffness!r}")
     if not 0.0 < scenario.path_velocity_share < 1.0:
         raise ScenarioError(where, "path_velocity_share", f"must lie in (0, 1), got {scenario.path_velocity_share!r}")
+    vis = scenario.visualization
+    for name in ("publish_contacts", "publish_inertia"):
+        if getattr(vis, name):
+            raise ScenarioError(where, f"visualization.{name}", "must be false: the run moves the robot "
+                                "kinematically, so there are no contact forces or inertias to show")
+    if not vis.publish_period > 0:
+        raise ScenarioError(where, "visualization.publish_period", f"must be > 0 s, got {vis.publish_period!r}")
     if scenario.random_pushes.count < 0:
         raise ScenarioError(where, "random_pushes.count", f"must be >= 0, got {scenario.random_pushes.count}")
     known = {f.name for f in dataclasses.fields(VolumeParams)}
@@ -251,9 +277,14 @@ def _cell_path(cell: str, base_dir: Path | None) -> Path:
     return p
 
 
-def load_scenario(name_or_path: str | Path) -> tuple[Scenario, Path | None]:
+def load_scenario(name_or_path: str | Path, *, scenario_text: str | None = None) -> tuple[Scenario, Path | None]:
     """Loads a scenario by bundled name (``automotive_push``) or file path,
     and checks it (:func:`validate_scenario`) before anything is planned.
+
+    As in Drake's ``hardware_sim``: the file is read over the defaults
+    (``yaml_load_typed(defaults=Scenario())``), and ``scenario_text``, YAML
+    text such as ``"{resolution: 2000, simulator_config: {target_realtime_rate:
+    1.0}}"``, is read over the file's values.
 
     Returns:
         (scenario, its file)
@@ -278,9 +309,20 @@ def load_scenario(name_or_path: str | Path) -> tuple[Scenario, Path | None]:
         raise ScenarioError(p, None, f"cannot be read as YAML ({e})") from None
     _check_fields(raw, Scenario, "", p)
     try:
-        scenario = yaml_load_typed(schema=Scenario, filename=str(p))
+        scenario = yaml_load_typed(schema=Scenario, filename=str(p), defaults=Scenario())
     except Exception as e:
         raise ScenarioError(p, None, f"not a valid scenario: {e}") from None
+    if scenario_text:
+        where = Path("--scenario-text")
+        try:
+            extra = yaml.safe_load(scenario_text)
+        except yaml.YAMLError as e:
+            raise ScenarioError(where, None, f"cannot be read as YAML ({e})") from None
+        _check_fields(extra, Scenario, "", where)
+        try:
+            scenario = yaml_load_typed(schema=Scenario, data=scenario_text, defaults=scenario)
+        except Exception as e:
+            raise ScenarioError(where, None, f"not a valid scenario override: {e}") from None
     validate_scenario(scenario, p.resolve())
     return scenario, p.resolve()
 
@@ -324,6 +366,26 @@ class Comanipulation:
         """Simulated time of the run, s: start, the path at its (possibly
         slowed) progress, and the hold at the goal."""
         return self.progress.duration + self.scenario.end_hold
+
+
+def meshcat_params(config: VisualizationConfig) -> list[MeshcatVisualizerParams]:
+    """Meshcat visualizer settings from Drake's ``VisualizationConfig``, as
+    Drake's ``ApplyVisualizationConfig`` makes them (illustration and
+    proximity layers). No LCM publishers: the recording is Meshcat's own.
+    Contacts and inertia need a simulated plant, which a kinematic run has
+    not; the scenario check refuses them."""
+    out = []
+    for on, role, colour, prefix, alpha in (
+            (config.publish_illustration, Role.kIllustration, config.default_illustration_color, "illustration", 1.0),
+            (config.publish_proximity, Role.kProximity, config.default_proximity_color, "proximity",
+             config.initial_proximity_alpha)):
+        if on:
+            out.append(MeshcatVisualizerParams(
+                role=role, publish_period=config.publish_period, default_color=colour, prefix=prefix,
+                delete_on_initialization_event=config.delete_on_initialization_event,
+                enable_alpha_slider=config.enable_alpha_sliders, initial_alpha_slider_value=alpha,
+                visible_by_default=role == Role.kIllustration))
+    return out
 
 
 def _kernel_guard(workcell):
@@ -422,7 +484,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     k, g = wc.num_joints, path.g
 
     builder = DiagramBuilder()
-    scene_graph = builder.AddSystem(SceneGraph())
+    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
     plant = MultibodyPlant(0.0)
     plant.RegisterAsSourceForSceneGraph(scene_graph)
     robot = wc.add_to_plant(plant)
@@ -446,9 +508,6 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         velocity_limits=wc.velocity_limits, path_share=share))
     pushes = list(scenario.pushes)
     rp = scenario.random_pushes
-    if rp.count > 0:
-        pushes += ScriptedHuman.random_pushes(k, count=rp.count, seed=rp.seed, duration=scenario.duration,
-                                              max_torque=rp.max_torque, mean_duration=rp.mean_duration)
     human = builder.AddNamedSystem("human", ScriptedHuman(k, pushes))
     robot_ids, moving_ids = _robot_geometries(plant, robot)
     monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
@@ -459,7 +518,21 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     builder.Connect(source.nominal_output, adm.nominal_input)
     builder.Connect(source.lower_output, adm.lower_input)
     builder.Connect(source.upper_output, adm.upper_input)
-    builder.Connect(human.human_torque_output, adm.human_torque_input)
+    torque_port = human.human_torque_output
+    if rp.count > 0:
+        # Random pushes: Drake's RandomSource (its state is the randomness,
+        # seeded with SetRandomContext) shaped into torques, added to the
+        # scripted ones.
+        noise = builder.AddNamedSystem("random_numbers", RandomSource(
+            RandomDistribution.kUniform, k + 1, sampling_interval_sec=rp.mean_duration))
+        shaper = builder.AddNamedSystem("random_pushes", RandomPushShaper(
+            k, probability=min(1.0, rp.count * rp.mean_duration / scenario.duration), max_torque=rp.max_torque))
+        total = builder.AddNamedSystem("push_sum", Adder(2, k))
+        builder.Connect(noise.get_output_port(), shaper.uniform_input)
+        builder.Connect(human.human_torque_output, total.get_input_port(0))
+        builder.Connect(shaper.human_torque_output, total.get_input_port(1))
+        torque_port = total.get_output_port()
+    builder.Connect(torque_port, adm.human_torque_input)
     builder.Connect(human.human_wrench_output, adm.human_wrench_input)
     builder.Connect(adm.commanded_position_output, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
@@ -469,7 +542,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
         "nominal": source.nominal_output, "commanded_position": adm.commanded_position_output,
         "deviation": adm.deviation_output, "guard_active": adm.guard_active_output,
-        "human_torque": human.human_torque_output,
+        "human_torque": torque_port,
         "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
         "in_volume": monitor.in_volume_output,
     }
@@ -481,8 +554,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
 
     if meshcat is not None:
-        params = MeshcatVisualizerParams(publish_period=scenario.log_period, role=Role.kIllustration)
-        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
+        for params in meshcat_params(scenario.visualization):
+            MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
         show_tool_path(meshcat, wc, path)
         # An overview camera: above a corner of the height map, looking at its centre.
         hm = vb.volume.heightmap
@@ -504,16 +577,18 @@ def _log(sim_context, logger):
 
 
 def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = True, plot: bool = True,
-                 svg: bool = True, path=None, bounds=None, progress: bool = False) -> dict:
+                 svg: bool = True, path=None, bounds=None, progress: bool = False,
+                 scenario_text: str | None = None) -> dict:
     """Loads a scenario, builds its diagram, simulates it and writes the
     recording (self-contained HTML), plots and a summary.
 
     With ``progress``, a bar on a terminal counts simulated seconds.
+    ``scenario_text`` overrides fields (see :func:`load_scenario`).
 
     Returns:
         The summary dict (also written as ``summary.json``).
     """
-    scenario, file = load_scenario(scenario_name_or_path)
+    scenario, file = load_scenario(scenario_name_or_path, scenario_text=scenario_text)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meshcat = None
@@ -522,9 +597,12 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     cm = build_comanipulation_diagram(scenario, meshcat=meshcat, base_dir=file.parent if file else None,
                                       path=path, bounds=bounds, progress=progress)
     sim = Simulator(cm.diagram)
+    ApplySimulatorConfig(scenario.simulator_config, sim)
     ctx = sim.get_mutable_context()
+    # The random pushes' numbers live in the context: seed them (Drake's way).
+    cm.diagram.SetRandomContext(ctx, RandomGenerator(scenario.random_pushes.seed))
     if meshcat is not None:
-        meshcat.StartRecording(frames_per_second=1.0 / scenario.log_period,
+        meshcat.StartRecording(frames_per_second=1.0 / scenario.visualization.publish_period,
                                set_visualizations_while_recording=False)
     t0 = time.perf_counter()
     duration = cm.duration

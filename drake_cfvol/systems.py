@@ -26,7 +26,7 @@ from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.table import BoundsTable
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
-           "ClearanceMonitor", "safe_path_rate"]
+           "ClearanceMonitor", "RandomPushShaper", "safe_path_rate"]
 
 
 def _vector(value, k: int, name: str, *, positive: bool = False, nonnegative: bool = False) -> np.ndarray:
@@ -197,6 +197,8 @@ def AdmittanceDeformation_(T):
 
         Collision guard (optional, beyond the paper): if
         ``collision_guard(q)`` reports the clamped configuration in collision,
+        now or at the nominal one period ahead (extrapolated from the last
+        update: the output holds the deviation while the nominal moves on),
         the deviation is scaled back towards the (collision-free) nominal by
         bisection to the largest free fraction, and the rate is zeroed.
         ``guard_active`` is 1 after an update where the guard acted. The
@@ -273,6 +275,9 @@ def AdmittanceDeformation_(T):
             self.human_wrench_input = self.DeclareVectorInputPort(name="human_wrench", size=6)
             self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
             self._guard_state = self.DeclareDiscreteState(1)
+            # The nominal at the last update (NaN before the first), for the
+            # guard's look-ahead.
+            self._previous_nominal = self.DeclareDiscreteState(np.full(k, np.nan))
             self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
             self.commanded_position_output = self.DeclareVectorOutputPort(
                 name="commanded_position", size=k, calc=self._calc_commanded,
@@ -355,18 +360,29 @@ def AdmittanceDeformation_(T):
             d = _clip(d, lo, hi)
             v = np.where((at_hi & (vv > 0)) | (at_lo & (vv < 0)), 0 * v, v)
             acted = 0.0
-            if self._guard is not None and np.any(_values(d) != 0) and not self._guard(_values(nominal + d)):
-                free, bad = 0.0, 1.0
-                nv, dvals = _values(nominal), _values(d)
-                for _ in range(self._guard_iterations):
-                    mid = (free + bad) / 2
-                    if self._guard(nv + mid * dvals):
-                        free = mid
-                    else:
-                        bad = mid
-                d = free * d
-                v = 0 * v
-                acted = 1.0
+            nv, dvals = _values(nominal), _values(d)
+            if self._guard is not None and np.any(dvals != 0):
+                # The output holds this deviation until the next update while
+                # the nominal moves on: check it at the nominal now and at the
+                # nominal one period ahead (extrapolated from the last update).
+                prev = _values(context.get_discrete_state(self._previous_nominal).CopyToVector())
+                ahead = nv + (nv - prev) if np.all(np.isfinite(prev)) else nv
+
+                def free_at(frac):
+                    return self._guard(nv + frac * dvals) and self._guard(ahead + frac * dvals)
+
+                if not free_at(1.0):
+                    free, bad = 0.0, 1.0
+                    for _ in range(self._guard_iterations):
+                        mid = (free + bad) / 2
+                        if free_at(mid):
+                            free = mid
+                        else:
+                            bad = mid
+                    d = free * d
+                    v = 0 * v
+                    acted = 1.0
+            discrete_state.get_mutable_vector(self._previous_nominal).SetFromVector(nominal)
             discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
             discrete_state.get_mutable_vector(self._guard_state).SetFromVector([0 * d[0] + acted] if self.k else
                                                                               [acted])
@@ -528,6 +544,50 @@ class ScriptedHuman(LeafSystem):
             start = float(rng.uniform(0.0, max(duration - d, 0.0)))
             out.append(Push(start, d, (rng.uniform(-1, 1, k) * mt).tolist(), []))
         return out
+
+
+class RandomPushShaper(LeafSystem):
+    """Turns uniform random numbers into joint-torque pushes.
+
+    .. pydrake_system::
+
+        name: RandomPushShaper
+        input_ports:
+        - uniform
+        output_ports:
+        - human_torque
+
+    Fed by Drake's ``RandomSource`` (uniform in [0, 1], held for one
+    sampling interval): with u = [u_0, u_1 .. u_k], a push acts in that
+    interval when u_0 < ``probability``, with joint torques
+    (2 u_j - 1) x ``max_torque``; else the torque is zero. Randomness thus
+    lives in the source's state, seeded through the context
+    (``diagram.SetRandomContext(context, RandomGenerator(seed))``).
+
+    Args:
+        k: number of joints.
+        probability: chance that an interval holds a push, in [0, 1].
+        max_torque: N m (N) per joint; scalar or (k,); >= 0.
+    """
+
+    def __init__(self, k: int, *, probability: float, max_torque):
+        super().__init__()
+        if not 0.0 <= probability <= 1.0:
+            raise ParameterError(f"probability must lie in [0, 1], got {probability}.")
+        self.k = int(k)
+        self.probability = float(probability)
+        self.max_torque = _vector(max_torque, k, "max_torque", nonnegative=True)
+        self.uniform_input = self.DeclareVectorInputPort(name="uniform", size=self.k + 1)
+        self.human_torque_output = self.DeclareVectorOutputPort(
+            name="human_torque", size=self.k, calc=lambda c, o: o.SetFromVector(self.torque(
+                self.uniform_input.Eval(c))))
+
+    def torque(self, u) -> np.ndarray:
+        """The push for random numbers u (k + 1,)."""
+        u = np.asarray(u, float)
+        if u[0] >= self.probability:
+            return np.zeros(self.k)
+        return (2.0 * u[1:] - 1.0) * self.max_torque
 
 
 class ClearanceMonitor(LeafSystem):

@@ -217,3 +217,55 @@ def test_missing_dot_notice(tmp_path, monkeypatch):
     assert "diagram_svg" not in files and (tmp_path / "diagram.dot").is_file()
     note = missing_dot_notice(tmp_path / "diagram")
     assert "\n" not in note and "diagram.svg" in note and "install graphviz" in note.lower()
+
+
+def test_scenario_text_overrides_the_file():
+    """--scenario-text is read over the file (Drake's yaml_load_typed with
+    defaults): the named fields change, every other field keeps the file's
+    value, nested configs merge."""
+    base, _ = load_scenario("automotive_push")
+    s, _ = load_scenario("automotive_push", scenario_text="{resolution: 2000, simulator_config: "
+                                                          "{target_realtime_rate: 0.5}, random_pushes: {seed: 11}}")
+    assert s.resolution == 2000 and s.simulator_config.target_realtime_rate == 0.5
+    assert s.random_pushes.seed == 11 and s.random_pushes.count == base.random_pushes.count
+    assert s.pushes == base.pushes and s.path == base.path
+    assert s.simulator_config.integration_scheme == base.simulator_config.integration_scheme
+
+
+def test_minimal_scenario_gets_the_defaults(tmp_path):
+    """A file naming only its cell gets every other field from Scenario()'s
+    defaults, including Drake's SimulatorConfig and our VisualizationConfig."""
+    from drake_cfvol.comanip import Scenario
+
+    f = tmp_path / "mini.yaml"
+    f.write_text("cell: aerospace\n")
+    s, _ = load_scenario(f)
+    d = Scenario()
+    assert s.cell == "aerospace" and s.resolution == d.resolution and s.pushes == []
+    assert s.simulator_config.max_step_size == d.simulator_config.max_step_size
+    assert s.visualization.publish_period == d.visualization.publish_period and not s.visualization.publish_contacts
+
+
+def test_random_pushes_seeded_through_the_context():
+    """The random pushes come from the context: the same generator seed gives
+    the same torques, another seed other torques, on one built diagram."""
+    from pydrake.common import RandomGenerator
+    from pydrake.systems.analysis import Simulator
+
+    scenario, file = load_scenario("automotive_push", scenario_text="{pushes: [], random_pushes: {count: 6}}")
+    cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
+    port = cm.diagram.GetOutputPort("human_torque")
+
+    def torques(seed):
+        sim = Simulator(cm.diagram)
+        ctx = sim.get_mutable_context()
+        cm.diagram.SetRandomContext(ctx, RandomGenerator(seed))
+        out = []
+        for t in np.arange(0.25, 6.0, 0.5):
+            sim.AdvanceTo(t)
+            out.append(port.Eval(ctx).copy())
+        return np.array(out)
+
+    a, b, c = torques(1), torques(1), torques(2)
+    np.testing.assert_array_equal(a, b)
+    assert np.abs(a).max() > 0 and not np.array_equal(a, c)

@@ -173,6 +173,25 @@ def test_collision_guard_scales_back():
     assert adm.guard_active_output.Eval(ctx)[0] == 1.0
 
 
+def test_collision_guard_looks_one_period_ahead():
+    """The output holds a deviation while the nominal moves on: with the
+    nominal moving +0.01 per update towards a wall at q_1 = 0.05, the guard
+    keeps nominal + d free at the next update's nominal too, so the output
+    never enters the wall at any update time."""
+    adm = AdmittanceDeformation(2, mass=1.0, damping=20.0, stiffness=100.0, period=0.01,
+                                collision_guard=lambda q: q[1] <= 0.05)
+    ctx = adm.CreateDefaultContext()
+    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], [0.0, 50.0])
+    sim = Simulator(adm, ctx)
+    worst = -np.inf
+    for n in range(1, 5):
+        adm.nominal_input.FixValue(ctx, [0.0, 0.01 * (n - 1)])
+        sim.AdvanceTo(0.01 * n - 1e-9)  # the update at (n - 1) h has run
+        adm.nominal_input.FixValue(ctx, [0.0, 0.01 * n])  # where the nominal is at the next update
+        worst = max(worst, adm.commanded_position_output.Eval(ctx)[1])
+    assert adm.guard_active_output.Eval(ctx)[0] == 1.0 and worst <= 0.05 + 1e-12
+
+
 def test_path_progress_and_human():
     """Path index ramps at the rate and holds at g-1; pushes act in their window."""
     pp = PathProgress(11, rate=2.0, start_time=1.0)
