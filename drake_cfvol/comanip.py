@@ -41,6 +41,7 @@ from pydrake.geometry import (
     RoleAssign,
     SceneGraph,
 )
+from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.common import RandomDistribution, RandomGenerator
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
@@ -56,7 +57,7 @@ from drake_cfvol.planning import NominalPath, plan_nominal_path
 from drake_cfvol.plotting import _pyplot
 from drake_cfvol.progress import Progress
 from drake_cfvol.reference import register_volume_boxes
-from drake_cfvol.style import CATEGORY_COLOURS, FLOOR_COLOUR, VOLUME_COLOUR
+from drake_cfvol.style import CATEGORY_COLOURS, COLOUR_NAMES, FLOOR_COLOUR, ROBOT_COLOUR, VOLUME_COLOUR
 from drake_cfvol.systems import (
     AdmittanceDeformation,
     ClearanceMonitor,
@@ -368,6 +369,43 @@ class Comanipulation:
         return self.progress.duration + self.scenario.end_hold
 
 
+def frame_camera(meshcat, workcell, path) -> None:
+    """Points Meshcat's camera at the robot and its path: at the centre of
+    the box holding every link origin and the tool along the path, from a
+    distance that fits the box in view (from the front-right, above)."""
+    _, p_WB = workcell.scene_arrays().fk(path.waypoints)
+    p_WT = np.array([workcell.tool_position(q) for q in path.waypoints])
+    pts = np.concatenate([p_WB.reshape(-1, 3), p_WT])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = (lo + hi) / 2
+    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 0.5)
+    direction = np.array([0.55, -0.9, 1.1])
+    direction /= np.linalg.norm(direction)
+    # A 75 degree vertical field of view holds a sphere of this radius at
+    # radius / sin(37.5 deg) ~ 1.65 radius; a little margin on top.
+    meshcat.SetCameraPose(centre + 1.9 * radius * direction, centre)
+
+
+def show_category_legend(meshcat, workcell, categories, *, prefix: str = "/legend") -> None:
+    """Names the obstacle categories in Meshcat's scene tree (the controls
+    panel of the live view and of a recording): ``legend/goal (blue)/
+    pick_table`` and so on, each a small marker in its colour above the
+    obstacle's box, and ``legend/robot (violet)``."""
+    from pydrake.geometry import Sphere
+
+    arrays = workcell.scene_arrays()
+    for name in workcell.obstacles:
+        boxes = [b for n, b in zip(arrays.obstacle_names, arrays.obstacle_aabb) if n == name]
+        if not boxes:
+            continue
+        lo, hi = np.min([b[:3] for b in boxes], axis=0), np.max([b[3:] for b in boxes], axis=0)
+        cat = categories.of(name)
+        key = f"{prefix}/{cat.replace('_', '-')} ({COLOUR_NAMES[cat]})/{name}"
+        meshcat.SetObject(key, Sphere(0.04), Rgba(*CATEGORY_COLOURS[cat]))
+        meshcat.SetTransform(key, RigidTransform([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2] + 0.08]))
+    meshcat.SetObject(f"{prefix}/robot (violet)", Sphere(0.001), Rgba(*ROBOT_COLOUR))
+
+
 def meshcat_params(config: VisualizationConfig) -> list[MeshcatVisualizerParams]:
     """Meshcat visualizer settings from Drake's ``VisualizationConfig``, as
     Drake's ``ApplyVisualizationConfig`` makes them (illustration and
@@ -428,6 +466,15 @@ def _colour_obstacles(plant, scene_graph, workcell, categories) -> None:
 
 def _assign_colours(plant, scene_graph, workcell, categories):
     inspector = scene_graph.model_inspector()
+    robot = plant.GetModelInstanceByName(workcell.robot_name)
+    for b in plant.GetBodyIndices(robot):
+        frame = plant.GetBodyFrameIdIfExists(b)
+        if frame is None:
+            continue
+        for gid in inspector.GetGeometries(frame, Role.kIllustration):
+            props = IllustrationProperties(inspector.GetIllustrationProperties(gid))
+            props.UpdateProperty("phong", "diffuse", Rgba(*ROBOT_COLOUR))
+            scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
     for name, obs in workcell.obstacles.items():
         rgba = CATEGORY_COLOURS[categories.of(name)]
         if name in ("floor",):
@@ -542,7 +589,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
         "nominal": source.nominal_output, "commanded_position": adm.commanded_position_output,
         "deviation": adm.deviation_output, "guard_active": adm.guard_active_output,
-        "human_torque": torque_port,
+        "human_torque": torque_port, "human_wrench": human.human_wrench_output,
         "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
         "in_volume": monitor.in_volume_output,
     }
@@ -557,11 +604,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         for params in meshcat_params(scenario.visualization):
             MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
         show_tool_path(meshcat, wc, path)
-        # An overview camera: above a corner of the height map, looking at its centre.
-        hm = vb.volume.heightmap
-        centre = np.array([hm.origin[0] + hm.x_dim / 2, hm.origin[1] + hm.y_dim / 2, 1.0])
-        reach = 0.75 * max(hm.x_dim, hm.y_dim)
-        meshcat.SetCameraPose(centre + np.array([0.8 * reach, -1.1 * reach, 0.9 * reach]), centre)
+        show_category_legend(meshcat, wc, vb.categories)
+        frame_camera(meshcat, wc, path)
 
     diagram = builder.Build()
     diagram.set_name("comanipulation")
@@ -664,9 +708,16 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
 
 
 def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
-    """Per joint over time: nominal, bounds, commanded; and the clearance."""
+    """Per joint over time: nominal, bounds, commanded; and the clearance.
+    Shaded in every panel: when the co-worker pushes (joint torque or tool
+    wrench not zero); ticks on the clearance panel: when the guard acted."""
     plt = _pyplot()
     t, q = logs["commanded_position"]
+    pushing = np.zeros(len(t), bool)
+    for name in ("human_torque", "human_wrench"):
+        if name in logs and len(logs[name][1]) == len(t):
+            pushing |= np.any(logs[name][1] != 0, axis=1)
+    spans = _runs(t, pushing)
     _, lo = logs["lower"]
     _, hi = logs["upper"]
     _, nom = logs["nominal"]
@@ -682,8 +733,18 @@ def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
         ax.plot(t, f(q[:, j]), color="tab:blue", lw=1.4, label="commanded")
         ax.set_ylabel(f"{cm.workcell.joint_names[j]}\n[{'deg' if rev[j] else 'm'}]", fontsize=8)
         ax.grid(alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=7, ncol=3)
+    for ax in axes:
+        for n, (a, b) in enumerate(spans):
+            ax.axvspan(a, b, color="tab:orange", alpha=0.15, lw=0, label="push" if n == 0 else None)
+    axes[0].legend(loc="upper right", fontsize=7, ncol=4)
     axes[-1].plot(td, dist[:, 0], color="tab:red")
+    if "guard_active" in logs:
+        tg, g = logs["guard_active"]
+        acted = tg[g[:, 0] > 0]
+        if len(acted):
+            axes[-1].plot(acted, np.full(len(acted), float(dist[:, 0].min())), "|", color="k", ms=8,
+                          label="guard acted")
+            axes[-1].legend(loc="upper right", fontsize=7)
     axes[-1].set_ylabel("clearance\n[m]", fontsize=8)
     axes[-1].set_xlabel("time [s]")
     axes[-1].grid(alpha=0.3)
@@ -692,6 +753,20 @@ def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def _runs(t: np.ndarray, on: np.ndarray) -> list[tuple[float, float]]:
+    """[start, end) times of the runs where ``on`` holds (logged samples)."""
+    out, start = [], None
+    for i, flag in enumerate(on):
+        if flag and start is None:
+            start = t[i]
+        if not flag and start is not None:
+            out.append((start, t[i]))
+            start = None
+    if start is not None:
+        out.append((start, t[-1]))
+    return out
 
 
 def missing_dot_notice(stem: Path) -> str:

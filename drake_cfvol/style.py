@@ -13,3 +13,9 @@ FLOOR_COLOUR = (0.75, 0.75, 0.72, 1.0)
 VOLUME_COLOUR = (0.15, 0.80, 0.30, 0.30)
 #: The nominal tool path.
 PATH_COLOUR = (0.9, 0.1, 0.1, 1.0)
+#: The robot in co-manipulation recordings (violet: unlike every category,
+#: the floor, the volume and the path).
+ROBOT_COLOUR = (0.55, 0.30, 0.85, 1.0)
+#: Names of the category colours, for legends.
+COLOUR_NAMES = {"trail": "orange", "goal": "blue", "no_goal": "grey"}
+
