@@ -65,6 +65,7 @@ from drake_cfvol.systems import (
     PathProgress,
     Push,
     RandomPushShaper,
+    ReactiveCoworker,
     ScriptedHuman,
     safe_path_rate,
 )
@@ -72,7 +73,7 @@ from drake_cfvol.viz import show_tool_path
 from drake_cfvol.volume import build_volume, height_map_of
 from drake_cfvol.workcell import builtin_cells, load_workcell
 
-__all__ = ["AdmittanceGains", "RandomPushes", "Scenario", "load_scenario", "Comanipulation",
+__all__ = ["AdmittanceGains", "RandomPushes", "Reactive", "Scenario", "load_scenario", "Comanipulation",
            "build_comanipulation_diagram", "run_scenario", "validate_scenario", "CATEGORY_COLOURS", "diagrams_dir"]
 
 #: Columns registered as proximity geometry up to this count (SceneGraph's
@@ -123,6 +124,26 @@ class RandomPushes:
 
 
 @dataclasses.dataclass
+class Reactive:
+    """A co-worker who reacts to the robot's position (gain 0: none): see
+    :class:`drake_cfvol.systems.ReactiveCoworker`.
+
+    Attributes:
+        gain: N m/rad (N/m), per joint.
+        offset: rad (m) per joint from the nominal: the pose the person wants
+            (empty: zeros).
+        start, duration: the window, s.
+        max_torque: N m (N), per joint.
+    """
+
+    gain: float = 0.0
+    offset: list[float] = dataclasses.field(default_factory=list)
+    start: float = 0.0
+    duration: float = 1e9
+    max_torque: float = 400.0
+
+
+@dataclasses.dataclass
 class Scenario:
     """A co-manipulation run.
 
@@ -138,6 +159,7 @@ class Scenario:
         admittance: the gains.
         pushes: scripted pushes.
         random_pushes: seeded random pushes (added to ``pushes``).
+        reactive: a co-worker reacting to the robot's position (added).
         log_period: logging and recording period, s.
         params: VolumeParams overrides.
         collision_guard: scale pushes back where the clamped configuration
@@ -162,6 +184,7 @@ class Scenario:
     admittance: AdmittanceGains = dataclasses.field(default_factory=AdmittanceGains)
     pushes: list[Push] = dataclasses.field(default_factory=list)
     random_pushes: RandomPushes = dataclasses.field(default_factory=RandomPushes)
+    reactive: Reactive = dataclasses.field(default_factory=Reactive)
     log_period: float = 0.02
     params: dict[str, float] = dataclasses.field(default_factory=dict)
     collision_guard: bool = True
@@ -426,6 +449,29 @@ def meshcat_params(config: VisualizationConfig) -> list[MeshcatVisualizerParams]
     return out
 
 
+def _resolve_pushes(scenario: Scenario, workcell, path, progress) -> list[Push]:
+    """The scenario's pushes, with each ``toward_nearest_obstacle`` push
+    turned into a tool force towards the obstacle nearest the robot's moving
+    links at the nominal when the push starts."""
+    out = []
+    for i, p in enumerate(scenario.pushes):
+        if not p.toward_nearest_obstacle:
+            out.append(p)
+            continue
+        q = path.at(progress.index_at(p.start))
+        near = workcell.nearest_obstacle(q)
+        if near is None:
+            raise ScenarioError(Path("scenario"), f"pushes[{i}].toward_nearest_obstacle",
+                                "has no obstacle within 5 m of the robot at that time")
+        _, _, p_WR, p_WO = near
+        u = np.asarray(p_WO - p_WR, float)
+        u = u / max(np.linalg.norm(u), 1e-12)
+        w = np.zeros(6) if not len(p.wrench) else np.asarray(p.wrench, float).copy()
+        w[3:] += p.toward_nearest_obstacle * u
+        out.append(Push(p.start, p.duration, list(p.joint_torque), w.tolist()))
+    return out
+
+
 def _kernel_guard(workcell):
     """The collision guard's test, q -> True if certified free: the compiled
     kernel on arrays read from Drake once (conservative: it never calls a
@@ -553,7 +599,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot),
         collision_guard=_kernel_guard(wc) if scenario.collision_guard else None,
         velocity_limits=wc.velocity_limits, path_share=share))
-    pushes = list(scenario.pushes)
+    pushes = _resolve_pushes(scenario, wc, path, progress)
     rp = scenario.random_pushes
     human = builder.AddNamedSystem("human", ScriptedHuman(k, pushes))
     robot_ids, moving_ids = _robot_geometries(plant, robot)
@@ -565,19 +611,29 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     builder.Connect(source.nominal_output, adm.nominal_input)
     builder.Connect(source.lower_output, adm.lower_input)
     builder.Connect(source.upper_output, adm.upper_input)
-    torque_port = human.human_torque_output
+    torques = [human.human_torque_output]
     if rp.count > 0:
         # Random pushes: Drake's RandomSource (its state is the randomness,
-        # seeded with SetRandomContext) shaped into torques, added to the
-        # scripted ones.
+        # seeded with SetRandomContext) shaped into torques.
         noise = builder.AddNamedSystem("random_numbers", RandomSource(
             RandomDistribution.kUniform, k + 1, sampling_interval_sec=rp.mean_duration))
         shaper = builder.AddNamedSystem("random_pushes", RandomPushShaper(
             k, probability=min(1.0, rp.count * rp.mean_duration / scenario.duration), max_torque=rp.max_torque))
-        total = builder.AddNamedSystem("push_sum", Adder(2, k))
         builder.Connect(noise.get_output_port(), shaper.uniform_input)
-        builder.Connect(human.human_torque_output, total.get_input_port(0))
-        builder.Connect(shaper.human_torque_output, total.get_input_port(1))
+        torques.append(shaper.human_torque_output)
+    re = scenario.reactive
+    if re.gain > 0:
+        coworker = builder.AddNamedSystem("reactive_coworker", ReactiveCoworker(
+            k, gain=re.gain, offset=re.offset or np.zeros(k), start=re.start, duration=re.duration,
+            max_torque=re.max_torque))
+        builder.Connect(adm.commanded_position_output, coworker.commanded_position_input)
+        builder.Connect(source.nominal_output, coworker.nominal_input)
+        torques.append(coworker.human_torque_output)
+    torque_port = torques[0]
+    if len(torques) > 1:
+        total = builder.AddNamedSystem("push_sum", Adder(len(torques), k))
+        for i, port in enumerate(torques):
+            builder.Connect(port, total.get_input_port(i))
         torque_port = total.get_output_port()
     builder.Connect(torque_port, adm.human_torque_input)
     builder.Connect(human.human_wrench_output, adm.human_wrench_input)

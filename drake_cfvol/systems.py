@@ -26,7 +26,7 @@ from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.table import BoundsTable
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
-           "ClearanceMonitor", "RandomPushShaper", "safe_path_rate"]
+           "ClearanceMonitor", "RandomPushShaper", "ReactiveCoworker", "safe_path_rate"]
 
 
 def _vector(value, k: int, name: str, *, positive: bool = False, nonnegative: bool = False) -> np.ndarray:
@@ -197,10 +197,13 @@ def AdmittanceDeformation_(T):
 
         Collision guard (optional, beyond the paper): if
         ``collision_guard(q)`` reports the clamped configuration in collision,
-        now or at the nominal one period ahead (extrapolated from the last
-        update: the output holds the deviation while the nominal moves on),
-        the deviation is scaled back towards the (collision-free) nominal by
-        bisection to the largest free fraction, and the rate is zeroed.
+        now or one period ahead (nominal and bounds extrapolated from the
+        last update: the output holds the deviation while they move on),
+        the rate is zeroed and the last deviation is held, or else moved
+        towards the nominal as fast as the velocity limits allow; only if
+        that collides too is it scaled back towards the (collision-free)
+        nominal by bisection to the largest free fraction, a jump: safety
+        before smoothness.
         ``guard_active`` is 1 after an update where the guard acted. The
         guard should be a pure function of q (the co-manipulation diagram
         uses the compiled kernel's conservative test, which touches no Drake
@@ -275,9 +278,9 @@ def AdmittanceDeformation_(T):
             self.human_wrench_input = self.DeclareVectorInputPort(name="human_wrench", size=6)
             self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
             self._guard_state = self.DeclareDiscreteState(1)
-            # The nominal at the last update (NaN before the first), for the
-            # guard's look-ahead.
-            self._previous_nominal = self.DeclareDiscreteState(np.full(k, np.nan))
+            # The nominal and bounds at the last update (NaN before the first),
+            # for the guard's look-ahead.
+            self._previous_inputs = self.DeclareDiscreteState(np.full(3 * k, np.nan))
             self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
             self.commanded_position_output = self.DeclareVectorOutputPort(
                 name="commanded_position", size=k, calc=self._calc_commanded,
@@ -365,24 +368,45 @@ def AdmittanceDeformation_(T):
                 # The output holds this deviation until the next update while
                 # the nominal moves on: check it at the nominal now and at the
                 # nominal one period ahead (extrapolated from the last update).
-                prev = _values(context.get_discrete_state(self._previous_nominal).CopyToVector())
-                ahead = nv + (nv - prev) if np.all(np.isfinite(prev)) else nv
+                now = np.concatenate([nv, _values(lower), _values(upper)])
+                prev = _values(context.get_discrete_state(self._previous_inputs).CopyToVector())
+                ahead = now + (now - prev) if np.all(np.isfinite(prev)) else now
+                n_a, lo_a, hi_a = ahead[:self.k], ahead[self.k:2 * self.k], ahead[2 * self.k:]
+                lo_a, hi_a = np.minimum(lo_a, n_a), np.maximum(hi_a, n_a)
 
-                def free_at(frac):
-                    return self._guard(nv + frac * dvals) and self._guard(ahead + frac * dvals)
+                def free_with(dev):
+                    return self._guard(nv + dev) and self._guard(np.clip(n_a + dev, lo_a, hi_a))
 
-                if not free_at(1.0):
-                    free, bad = 0.0, 1.0
-                    for _ in range(self._guard_iterations):
-                        mid = (free + bad) / 2
-                        if free_at(mid):
-                            free = mid
-                        else:
-                            bad = mid
-                    d = free * d
-                    v = 0 * v
+                if not free_with(dvals):
                     acted = 1.0
-            discrete_state.get_mutable_vector(self._previous_nominal).SetFromVector(nominal)
+                    v = 0 * v
+                    # First hold the last deviation (kept inside today's bounds):
+                    # the commanded motion is then the nominal's own, within the
+                    # velocity limits. Only if that collides too, scale it back
+                    # towards the nominal by bisection (a jump: safety first).
+                    held = _clip(x[:self.k], lo, hi)
+                    hv = _values(held)
+                    step = None
+                    if self.max_rate is not None:
+                        # Or move it towards the nominal as fast as allowed.
+                        cap = np.where(np.isfinite(self.max_rate), self.max_rate * h, np.abs(hv))
+                        step = hv - np.clip(hv, -cap, cap)
+                    if free_with(hv):
+                        d = held
+                    elif step is not None and free_with(step):
+                        d = held * 0 + step
+                    else:
+                        hv = _values(held)
+                        free, bad = 0.0, 1.0
+                        for _ in range(self._guard_iterations):
+                            mid = (free + bad) / 2
+                            if free_with(mid * hv):
+                                free = mid
+                            else:
+                                bad = mid
+                        d = free * held
+            discrete_state.get_mutable_vector(self._previous_inputs).SetFromVector(
+                np.concatenate([nominal, lower, upper]))
             discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
             discrete_state.get_mutable_vector(self._guard_state).SetFromVector([0 * d[0] + acted] if self.k else
                                                                               [acted])
@@ -479,12 +503,17 @@ class Push:
         duration: how long it lasts, s.
         joint_torque: joint torque (N m / N), length k, or empty.
         wrench: [torque (N m); force (N)] at the tool in the world frame, or empty.
+        toward_nearest_obstacle: a force (N) at the tool, pointing from the
+            robot to the obstacle nearest its moving links at the nominal
+            when the push starts (the co-manipulation builder turns it into
+            a wrench); 0: none.
     """
 
     start: float = 0.0
     duration: float = 1.0
     joint_torque: list[float] = dataclasses.field(default_factory=list)
     wrench: list[float] = dataclasses.field(default_factory=list)
+    toward_nearest_obstacle: float = 0.0
 
 
 class ScriptedHuman(LeafSystem):
@@ -510,6 +539,9 @@ class ScriptedHuman(LeafSystem):
             if p.duration < 0:
                 raise ParameterError(f"push {i}: duration must be >= 0 s, got {p.duration}.")
             tau = np.asarray(p.joint_torque, float) if len(p.joint_torque) else np.zeros(self.k)
+            if p.toward_nearest_obstacle:
+                raise ParameterError(f"push {i}: toward_nearest_obstacle needs the workcell and the path; build "
+                                     "the diagram with drake_cfvol.comanip, which turns it into a wrench.")
             w = np.asarray(p.wrench, float) if len(p.wrench) else np.zeros(6)
             if tau.shape != (self.k,):
                 raise DimensionError(f"push {i} joint_torque", self.k, tau.shape)
@@ -544,6 +576,57 @@ class ScriptedHuman(LeafSystem):
             start = float(rng.uniform(0.0, max(duration - d, 0.0)))
             out.append(Push(start, d, (rng.uniform(-1, 1, k) * mt).tolist(), []))
         return out
+
+
+class ReactiveCoworker(LeafSystem):
+    """A co-worker who reacts to where the robot is: a spring pulling it
+    towards the nominal plus an offset (the pose the person wants), during
+    a time window.
+
+    .. pydrake_system::
+
+        name: ReactiveCoworker
+        input_ports:
+        - commanded_position
+        - nominal
+        output_ports:
+        - human_torque
+
+    human_torque = clip(gain (nominal + offset - commanded_position),
+    +-max_torque) for start <= t < start + duration, else 0. Fed from the
+    admittance system's output it forms no algebraic loop (that output does
+    not depend on the push).
+
+    Args:
+        k: number of joints.
+        gain: N m/rad (N/m) per joint; scalar or (k,); >= 0.
+        offset: rad (m) per joint; (k,).
+        start, duration: the window, s.
+        max_torque: N m (N) per joint; scalar or (k,); >= 0.
+    """
+
+    def __init__(self, k: int, *, gain, offset, start: float, duration: float, max_torque):
+        super().__init__()
+        self.k = int(k)
+        self.gain = _vector(gain, k, "gain", nonnegative=True)
+        self.offset = _vector(offset, k, "offset")
+        self.max_torque = _vector(max_torque, k, "max_torque", nonnegative=True)
+        if duration < 0:
+            raise ParameterError(f"duration must be >= 0 s, got {duration}.")
+        self.start, self.end = float(start), float(start + duration)
+        self.commanded_position_input = self.DeclareVectorInputPort(name="commanded_position", size=self.k)
+        self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=self.k)
+        self.human_torque_output = self.DeclareVectorOutputPort(
+            name="human_torque", size=self.k, calc=self._calc)
+
+    def _calc(self, context, output):
+        t = context.get_time()
+        if not self.start <= t < self.end:
+            output.SetFromVector(np.zeros(self.k))
+            return
+        q = self.commanded_position_input.Eval(context)
+        nominal = self.nominal_input.Eval(context)
+        output.SetFromVector(np.clip(self.gain * (nominal + self.offset - q), -self.max_torque, self.max_torque))
 
 
 class RandomPushShaper(LeafSystem):

@@ -528,6 +528,33 @@ class Workcell:
             out[name] = min(out.get(name, np.inf), pair.distance)
         return out
 
+    def nearest_obstacle(self, q, max_distance: float = 5.0):
+        """The obstacle nearest to the robot's moving links at ``q`` (Drake,
+        real geometry).
+
+        Returns:
+            (name, distance m, p_WR, p_WO): the witness points on the robot and
+            on the obstacle, world frame; None if nothing is within
+            ``max_distance``.
+        """
+        self.plant_context(q)
+        sg = self.scene_graph
+        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
+        owner, fixed = self._geometry_owner, self.fixed_robot_geometries()
+        best = None
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=max_distance):
+            a, b = owner.get(pair.id_A), owner.get(pair.id_B)
+            if (a is None) == (b is None):
+                continue
+            robot_id, p_R, name, obs_id, p_O = ((pair.id_B, pair.p_BCb, a, pair.id_A, pair.p_ACa) if a is not None
+                                                else (pair.id_A, pair.p_ACa, b, pair.id_B, pair.p_BCb))
+            if robot_id in fixed:
+                continue
+            if best is None or pair.distance < best[1]:
+                best = (name, pair.distance, query.GetPoseInWorld(robot_id) @ p_R,
+                        query.GetPoseInWorld(obs_id) @ p_O)
+        return best
+
     def fixed_robot_geometries(self) -> frozenset:
         """Proximity geometry ids of the robot's bodies that no joint moves
         (e.g. a base welded to its pedestal)."""

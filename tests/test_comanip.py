@@ -271,3 +271,42 @@ def test_random_pushes_seeded_through_the_context():
     a, b, c = torques(1), torques(1), torques(2)
     np.testing.assert_array_equal(a, b)
     assert np.abs(a).max() > 0 and not np.array_equal(a, c)
+
+
+_KEYS = ("max_velocity_ratio", "volume_penetrations", "guard_steps", "min_clearance_m")
+
+
+@pytest.mark.parametrize("name", ["automotive_random", "aerospace_random", "automotive_reactive",
+                                  "aerospace_reactive"])
+def test_every_bundled_scenario_runs_safely(name, tmp_path):
+    """The random and reactive scenarios of both cells (the push ones run in
+    the fixture): every logged configuration inside the bounds and free
+    (Drake, recounted), joint speeds within the limits, the summary's keys
+    reported; the co-worker really moves the robot."""
+    s = run_scenario(name, tmp_path, record=False, plot=False, svg=False)
+    assert all(k in s and s[k] is not None for k in _KEYS)
+    logs = np.load(tmp_path / "logs.npz")
+    q, lo, hi, t = logs["commanded_position"], logs["lower"], logs["upper"], logs["commanded_position_t"]
+    assert np.all(q >= lo) and np.all(q <= hi)
+    wc = cf.load_workcell(s["cell"])
+    assert np.array(wc.checker.CheckConfigsCollisionFree(q), bool).all()
+    assert (np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None] / wc.velocity_limits).max() <= 1.0
+    assert s["max_deviation"] > 0.05 and np.abs(logs["human_torque"]).max() > 0
+
+
+def test_push_toward_nearest_obstacle_points_at_it():
+    """A toward_nearest_obstacle push becomes a tool force of that size along
+    the line from the robot's witness point to the nearest obstacle's, at the
+    nominal when the push starts (recomputed here from the workcell)."""
+    from drake_cfvol.comanip import _resolve_pushes
+
+    scenario, file = load_scenario("automotive_push")
+    cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
+    i = next(n for n, p in enumerate(scenario.pushes) if p.toward_nearest_obstacle)
+    push = _resolve_pushes(scenario, cm.workcell, cm.path, cm.progress)[i]
+    q = cm.path.at(cm.progress.index_at(push.start))
+    _, dist, p_WR, p_WO = cm.workcell.nearest_obstacle(q)
+    f = np.asarray(push.wrench[3:])
+    assert np.linalg.norm(f) == pytest.approx(scenario.pushes[i].toward_nearest_obstacle)
+    np.testing.assert_allclose(f / np.linalg.norm(f), (p_WO - p_WR) / np.linalg.norm(p_WO - p_WR), atol=1e-9)
+    assert dist == pytest.approx(min(cm.workcell.obstacle_distances(q, 5.0, moving_only=True).values()))

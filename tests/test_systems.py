@@ -399,3 +399,18 @@ def test_bounds_source_autodiff_slope():
     lo_f, hi_f, nom_f = _eval(JointBoundsSource(t), 0.25)
     np.testing.assert_allclose([x.value() for x in ad.lower_output.Eval(ctx)], lo_f)
     np.testing.assert_allclose([x.value() for x in nom], nom_f)
+
+
+def test_reactive_coworker_spring_by_hand():
+    """Inside its window the co-worker's torque is gain x (nominal + offset -
+    q), clipped at max_torque; outside it, zero."""
+    from drake_cfvol.systems import ReactiveCoworker
+
+    c = ReactiveCoworker(2, gain=[100.0, 10.0], offset=[0.5, 0.0], start=1.0, duration=2.0, max_torque=20.0)
+    ctx = c.CreateDefaultContext()
+    c.commanded_position_input.FixValue(ctx, [0.1, 0.3])
+    c.nominal_input.FixValue(ctx, [0.0, 0.0])
+    ctx.SetTime(1.5)
+    np.testing.assert_allclose(c.human_torque_output.Eval(ctx), [20.0, -3.0])  # 40 clipped to 20; 10 x -0.3
+    ctx.SetTime(3.0)
+    np.testing.assert_array_equal(c.human_torque_output.Eval(ctx), [0.0, 0.0])
