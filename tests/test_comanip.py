@@ -146,6 +146,17 @@ def test_volume_in_the_diagrams_scene_at_r20000():
     assert "query_object" in ports
 
 
+def test_every_system_named():
+    """Every system of a built diagram (log sinks, adders, the visualizer,
+    SceneGraph) has a chosen name, so the diagram's SVG names them all."""
+    scenario, file = load_scenario("automotive_random", scenario_text="{reactive: {gain: 10.0}}")
+    cm = build_comanipulation_diagram(scenario, base_dir=file.parent, meshcat=None)
+    names = [sys.get_name() for sys in cm.diagram.GetSystems()]
+    assert len(names) == len(set(names)) and not any(n.startswith("drake/") or "@" in n for n in names)
+    assert {"admittance", "joint_bounds", "clearance_monitor", "reactive_coworker", "random_pushes", "push_sum",
+            "log_commanded_position", "scene_graph"} <= set(names)
+
+
 def test_diagram_ports_named():
     """The factory's diagram exports its ports by name."""
     scenario, file = load_scenario("automotive_push")
