@@ -50,6 +50,7 @@ from pydrake.systems.primitives import Adder, LogVectorOutput, RandomSource
 from pydrake.visualization import VisualizationConfig
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
+from drake_cfvol.certify import Certify
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.pipeline import estimate_bounds
@@ -168,6 +169,9 @@ class Scenario:
         visualization: Drake's visualization settings for the recording
             (illustration and proximity layers, publish period, colours;
             see :func:`meshcat_params`).
+        certify: use certified bounds (``drake_cfvol.Certify()`` at its
+            defaults: slower to build, tens of seconds per path today, and
+            the guard then rarely acts).
         path_velocity_share: share of each joint's velocity limit that the
             path's own motion (nominal and bounds) may use; the push gets
             the rest. Path progress slows below ``path_duration`` when needed
@@ -188,6 +192,7 @@ class Scenario:
     log_period: float = 0.02
     params: dict[str, float] = dataclasses.field(default_factory=dict)
     collision_guard: bool = True
+    certify: bool = False
     path_velocity_share: float = 0.5
     simulator_config: SimulatorConfig = dataclasses.field(default_factory=SimulatorConfig)
     visualization: VisualizationConfig = dataclasses.field(default_factory=lambda: VisualizationConfig(
@@ -565,6 +570,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     t1 = time.perf_counter()
     if bounds is None:
         bounds = estimate_bounds(wc, path, resolution=scenario.resolution, progress=progress,
+                                 certify=Certify(seed=scenario.seed) if scenario.certify else None,
                                  **dict(scenario.params))
     t2 = time.perf_counter()
     vb = bounds.volume

@@ -106,6 +106,11 @@ def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[n
     return row, radius, c
 
 
+#: Batches up to this size are checked on the calling thread (waking numba's
+#: thread pool costs about 4 ms here, ~500 serial checks).
+_SERIAL_MAX = 256
+
+
 @dataclasses.dataclass
 class SceneArrays:
     """Everything the kernel needs about a workcell.
@@ -158,6 +163,9 @@ class SceneArrays:
     revolute: np.ndarray
     joint_body: np.ndarray
 
+    def __post_init__(self):
+        self._pairs = self._movable = None  # may_collide's arguments, built once
+
     @property
     def num_bodies(self) -> int:
         return len(self.body_names)
@@ -171,8 +179,13 @@ class SceneArrays:
         """(N,) True where a configuration may collide with the obstacles or
         itself; False is certified free (the kernel is conservative)."""
         Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
-        return K.configs_may_collide(Q, *self.chain, self.shapes, self.shape_body, self.verts, self.obstacles,
-                                     self.obstacle_aabb, self.shape_pairs, self.moved_by.any(axis=0))
+        if self._pairs is None:
+            self._pairs, self._movable = self.shape_pairs, self.moved_by.any(axis=0)
+        # A few configurations (a guard's checks): on this thread, since
+        # waking numba's thread pool costs milliseconds.
+        fn = K.configs_may_collide_serial if len(Q) <= _SERIAL_MAX else K.configs_may_collide
+        return fn(Q, *self.chain, self.shapes, self.shape_body, self.verts, self.obstacles, self.obstacle_aabb,
+                  self._pairs, self._movable)
 
     @property
     def shape_pairs(self) -> np.ndarray:

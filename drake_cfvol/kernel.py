@@ -30,7 +30,7 @@ from numba import njit, prange
 
 __all__ = ["BOX", "SPHERE", "CAPSULE", "CYLINDER", "ELLIPSOID", "HULL", "SHAPE_W", "fk", "gjk_intersect",
            "range_max_table", "range_max", "object_hits_columns", "configs_may_collide", "sweep_chains",
-           "lower_columns_under", "obstacle_distances", "row_aabb"]
+           "lower_columns_under", "obstacle_distances", "row_aabb", "configs_may_collide_serial"]
 
 BOX, SPHERE, CAPSULE, CYLINDER, ELLIPSOID, HULL = 0, 1, 2, 3, 4, 5
 SHAPE_W = 25
@@ -680,6 +680,43 @@ def _object_vs_scene(obj, aabb, verts, obstacles, obs_aabb, table, ox, oy, side,
     return False
 
 
+@njit(cache=True)
+def _may_collide_range(Q, start, stop, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
+                       obstacles, obs_aabb, shape_pairs, movable, out):
+    """configs_may_collide for Q[start:stop], into out, on one thread."""
+    B = parent.shape[0]
+    S = shapes.shape[0]
+    empty_table = np.zeros((1, 1, 0, 0))
+    ws, stack, box, tmp6 = new_workspace()
+    R_WB = np.empty((B, 3, 3))
+    p_WB = np.empty((B, 3))
+    objs = np.empty((S, 1, SHAPE_W))
+    aabbs = np.empty((S, 6))
+    for n in range(start, stop):
+        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+        _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
+        for s in range(S):
+            row_aabb(objs[s, 0], verts, aabbs[s])
+        hit = False
+        for s in range(S):
+            if not movable[shape_body[s]]:
+                continue
+            if _object_vs_scene(objs[s], aabbs[s], verts, obstacles, obs_aabb, empty_table, 0.0, 0.0, 1.0,
+                                ws, stack, box):
+                hit = True
+                break
+        if not hit:
+            for p in range(shape_pairs.shape[0]):
+                sa = shape_pairs[p, 0]
+                sb = shape_pairs[p, 1]
+                if _aabb_apart(aabbs[sa], aabbs[sb]):
+                    continue
+                if _gjk(objs[sa], verts, objs[sb], verts, 64, ws):
+                    hit = True
+                    break
+        out[n] = hit
+
+
 @njit(cache=True, parallel=True)
 def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
                         obstacles, obs_aabb, shape_pairs, movable):
@@ -689,41 +726,24 @@ def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, sh
     that no joint moves (``movable`` False) are welded to the world, like
     the obstacles: Drake filters those pairs, and so does this."""
     N = Q.shape[0]
-    B = parent.shape[0]
-    S = shapes.shape[0]
     out = np.zeros(N, np.bool_)
-    empty_table = np.zeros((1, 1, 0, 0))
     chunk = 256
     n_chunks = (N + chunk - 1) // chunk
     for c in prange(n_chunks):
-        ws, stack, box, tmp6 = new_workspace()
-        R_WB = np.empty((B, 3, 3))
-        p_WB = np.empty((B, 3))
-        objs = np.empty((S, 1, SHAPE_W))
-        aabbs = np.empty((S, 6))
-        for n in range(c * chunk, min(N, (c + 1) * chunk)):
-            fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
-            _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
-            for s in range(S):
-                row_aabb(objs[s, 0], verts, aabbs[s])
-            hit = False
-            for s in range(S):
-                if not movable[shape_body[s]]:
-                    continue
-                if _object_vs_scene(objs[s], aabbs[s], verts, obstacles, obs_aabb, empty_table, 0.0, 0.0, 1.0,
-                                    ws, stack, box):
-                    hit = True
-                    break
-            if not hit:
-                for p in range(shape_pairs.shape[0]):
-                    sa = shape_pairs[p, 0]
-                    sb = shape_pairs[p, 1]
-                    if _aabb_apart(aabbs[sa], aabbs[sb]):
-                        continue
-                    if _gjk(objs[sa], verts, objs[sb], verts, 64, ws):
-                        hit = True
-                        break
-            out[n] = hit
+        _may_collide_range(Q, c * chunk, min(N, (c + 1) * chunk), parent, jtype, qidx, axis, R_PF, p_PF, R_MB,
+                           p_MB, shapes, shape_body, verts, obstacles, obs_aabb, shape_pairs, movable, out)
+    return out
+
+
+@njit(cache=True)
+def configs_may_collide_serial(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
+                               obstacles, obs_aabb, shape_pairs, movable):
+    """:func:`configs_may_collide` on the calling thread: for a few
+    configurations (a collision guard's checks), where waking the thread
+    pool costs more than the work."""
+    out = np.zeros(Q.shape[0], np.bool_)
+    _may_collide_range(Q, 0, Q.shape[0], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body,
+                       verts, obstacles, obs_aabb, shape_pairs, movable, out)
     return out
 
 
@@ -1287,6 +1307,8 @@ def warm_up() -> float:
     fk(Q, *chain)
     configs_may_collide(Q, *chain, shapes, shape_body, verts, obstacles, obs_aabb, np.zeros((0, 2), np.int64),
                         movable)
+    configs_may_collide_serial(Q, *chain, shapes, shape_body, verts, obstacles, obs_aabb,
+                               np.zeros((0, 2), np.int64), movable)
     heights = np.array([[0.0, 0.3], [0.2, 0.0]])
     table = range_max_table(heights)
     moved = np.array([[True]])

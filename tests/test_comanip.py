@@ -321,3 +321,23 @@ def test_push_toward_nearest_obstacle_points_at_it():
     assert np.linalg.norm(f) == pytest.approx(scenario.pushes[i].toward_nearest_obstacle)
     np.testing.assert_allclose(f / np.linalg.norm(f), (p_WO - p_WR) / np.linalg.norm(p_WO - p_WR), atol=1e-9)
     assert dist == pytest.approx(min(cm.workcell.obstacle_distances(q, 5.0, moving_only=True).values()))
+
+
+def test_scenario_certify_asks_for_certified_bounds(monkeypatch):
+    """certify: true builds the diagram on certified bounds (Certify at its
+    defaults, seeded with the scenario's seed); false, on the paper's."""
+    import drake_cfvol.comanip as C
+    from drake_cfvol.certify import Certify
+
+    asked = []
+    real = C.estimate_bounds
+
+    def spy(*a, certify=None, **kw):
+        asked.append(certify)
+        return real(*a, **kw)  # the uncertified table: only the request is under test
+
+    monkeypatch.setattr(C, "estimate_bounds", spy)
+    for flag in ("true", "false"):
+        scenario, file = load_scenario("automotive_reactive", scenario_text=f"{{certify: {flag}, resolution: 200}}")
+        build_comanipulation_diagram(scenario, base_dir=file.parent)
+    assert asked[0] == Certify(seed=scenario.seed) and asked[1] is None
