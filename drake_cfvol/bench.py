@@ -113,7 +113,7 @@ class BenchConfig:
 #: run.
 _PRIOR_S = {"plan": 0.5, "trial": 0.2, "trial_per_R": 1e-5, "cf": 0.4, "cf_per_sample": 3.5e-6, "reference": 5.5,
             "reference_per_R": 1.4e-3, "certify": 0.2, "certify_per_N": 7e-5, "iris_region": 1.0,
-            "iris_sample": 5e-5, "compile": 27.5, "warm_load": 1.0, "cli_bounds": 2.8}
+            "iris_sample": 5e-5, "compile": 30.0, "warm_load": 1.0, "cli_bounds": 2.8}
 
 
 def _bench_steps(cfg: "BenchConfig") -> list[tuple[tuple, float]]:

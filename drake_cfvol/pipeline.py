@@ -39,7 +39,7 @@ _warm_up_ms: float | None = None
 
 #: Compiling the kernel on a fresh numba cache, s (measured on 2 cores; a warm
 #: cache loads in ~0.3 s and shows no bar).
-COMPILE_S = 27.5
+COMPILE_S = 30.0
 
 
 def warm_up(*, progress: bool = False) -> float:

@@ -9,7 +9,7 @@ PY=${PYTHON:-python3}
 stamp="$ROOT/.venv/.installed-$(sha256sum "$ROOT/pyproject.toml" | cut -c1-16)"
 if [ ! -f "$stamp" ]; then
   # pip's and setuptools' chatter goes to a log, shown only if the install fails.
-  echo "dev.sh: installing drake_cfvol and its dependencies into $ROOT/.venv (once, about a minute)" >&2
+  echo "dev.sh: installing drake_cfvol and its dependencies into $ROOT/.venv (once: about 20 s with a local package index, longer when it downloads)" >&2
   [ -x "$ROOT/.venv/bin/python" ] || "$PY" -m venv "$ROOT/.venv"
   log="$ROOT/.venv/install.log"
   if ! { "$ROOT/.venv/bin/python" -m pip install -q --upgrade pip &&
