@@ -72,7 +72,7 @@ from drake_cfvol.systems import (
 )
 from drake_cfvol.viz import show_tool_path
 from drake_cfvol.volume import build_volume, height_map_of
-from drake_cfvol.workcell import builtin_cells, load_workcell
+from drake_cfvol.workcell import builtin_cells, load_workcell, robot_geometry_ids
 
 __all__ = ["AdmittanceGains", "RandomPushes", "Reactive", "Scenario", "load_scenario", "Comanipulation",
            "build_comanipulation_diagram", "run_scenario", "validate_scenario", "CATEGORY_COLOURS", "diagrams_dir"]
@@ -490,19 +490,6 @@ def _kernel_guard(workcell):
     return is_free
 
 
-def _robot_geometries(plant, robot) -> tuple[set, set]:
-    """Proximity geometry ids of the robot's links, and of those its joints
-    move."""
-    moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(robot))))
-    every, moving = set(), set()
-    for b in plant.GetBodyIndices(robot):
-        ids = plant.GetCollisionGeometriesForBody(plant.get_body(b))
-        every.update(ids)
-        if b in moved:
-            moving.update(ids)
-    return every, moving
-
-
 def _colour_obstacles(plant, scene_graph, workcell, categories) -> None:
     # Drake warns on every illustration update that it must precede the
     # visualizer's initialization: it does (no visualizer exists yet).
@@ -598,8 +585,11 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     a = scenario.admittance
     share = scenario.path_velocity_share
     rate = min((g - 1) / scenario.path_duration, safe_path_rate(bounds, wc.velocity_limits, share=share))
-    progress = builder.AddNamedSystem("path_progress", PathProgress(g, rate=rate, start_time=scenario.start_time))
+    progress = builder.AddNamedSystem("path_progress", PathProgress(g, rate=rate, start_time=scenario.start_time,
+                                                                    lead=scenario.admittance.period))
     source = builder.AddNamedSystem("joint_bounds", JointBoundsSource(bounds))
+    # The same bounds one controller period ahead, for the collision guard.
+    source_ahead = builder.AddNamedSystem("joint_bounds_ahead", JointBoundsSource(bounds, clamp=True))
     adm = builder.AddNamedSystem("admittance", AdmittanceDeformation(
         k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=a.period, plant=plant,
         tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot),
@@ -608,12 +598,16 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     pushes = _resolve_pushes(scenario, wc, path, progress)
     rp = scenario.random_pushes
     human = builder.AddNamedSystem("human", ScriptedHuman(k, pushes))
-    robot_ids, moving_ids = _robot_geometries(plant, robot)
+    robot_ids, moving_ids = robot_geometry_ids(plant, robot)
     monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
         robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids))
     to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
 
     builder.Connect(progress.path_index_output, source.path_index_input)
+    builder.Connect(progress.path_index_ahead_output, source_ahead.path_index_input)
+    builder.Connect(source_ahead.nominal_output, adm.nominal_ahead_input)
+    builder.Connect(source_ahead.lower_output, adm.lower_ahead_input)
+    builder.Connect(source_ahead.upper_output, adm.upper_ahead_input)
     builder.Connect(source.nominal_output, adm.nominal_input)
     builder.Connect(source.lower_output, adm.lower_input)
     builder.Connect(source.upper_output, adm.upper_input)
@@ -624,7 +618,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         noise = builder.AddNamedSystem("random_numbers", RandomSource(
             RandomDistribution.kUniform, k + 1, sampling_interval_sec=rp.mean_duration))
         shaper = builder.AddNamedSystem("random_pushes", RandomPushShaper(
-            k, probability=min(1.0, rp.count * rp.mean_duration / scenario.duration), max_torque=rp.max_torque))
+            k, probability=min(1.0, rp.count * rp.mean_duration / (progress.duration + scenario.end_hold)),
+            max_torque=rp.max_torque))
         builder.Connect(noise.get_output_port(), shaper.uniform_input)
         torques.append(shaper.human_torque_output)
     re = scenario.reactive

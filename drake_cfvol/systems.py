@@ -43,12 +43,10 @@ def _vector(value, k: int, name: str, *, positive: bool = False, nonnegative: bo
 
 
 def _values(x) -> np.ndarray:
-    """Float values of a float, AutoDiffXd or Expression array (derivatives
-    dropped)."""
+    """Float values of a float or AutoDiffXd array (derivatives dropped)."""
     x = np.asarray(x)
     if x.dtype == object:
-        return np.array([float(e.value()) if hasattr(e, "value") else float(e.Evaluate()) for e in x.ravel()]
-                        ).reshape(x.shape)
+        return np.array([float(e.value()) for e in x.ravel()]).reshape(x.shape)
     return x.astype(float)
 
 
@@ -164,6 +162,9 @@ def AdmittanceDeformation_(T):
             - upper
             - human_torque
             - human_wrench
+            - nominal_ahead
+            - lower_ahead
+            - upper_ahead
             output_ports:
             - commanded_position
             - deviation
@@ -197,8 +198,11 @@ def AdmittanceDeformation_(T):
 
         Collision guard (optional, beyond the paper): if
         ``collision_guard(q)`` reports the clamped configuration in collision,
-        now or one period ahead (nominal and bounds extrapolated from the
-        last update: the output holds the deviation while they move on),
+        now or one period ahead (the output holds the deviation while
+        nominal and bounds move on; their values ahead come from the
+        ``*_ahead`` inputs, e.g. a second JointBoundsSource fed with
+        PathProgress's ``path_index_ahead``, or are extrapolated from the last
+        update),
         the rate is zeroed and the last deviation is held, or else moved
         towards the nominal as fast as the velocity limits allow; only if
         that collides too is it scaled back towards the (collision-free)
@@ -276,6 +280,11 @@ def AdmittanceDeformation_(T):
             self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
             self.human_torque_input = self.DeclareVectorInputPort(name="human_torque", size=k)
             self.human_wrench_input = self.DeclareVectorInputPort(name="human_wrench", size=6)
+            # Optional: nominal and bounds one period ahead, for the guard
+            # (else extrapolated from the last update).
+            self.nominal_ahead_input = self.DeclareVectorInputPort(name="nominal_ahead", size=k)
+            self.lower_ahead_input = self.DeclareVectorInputPort(name="lower_ahead", size=k)
+            self.upper_ahead_input = self.DeclareVectorInputPort(name="upper_ahead", size=k)
             self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
             self._guard_state = self.DeclareDiscreteState(1)
             # The nominal and bounds at the last update (NaN before the first),
@@ -362,54 +371,63 @@ def AdmittanceDeformation_(T):
             at_hi, at_lo = dv >= _values(hi), dv <= _values(lo)
             d = _clip(d, lo, hi)
             v = np.where((at_hi & (vv > 0)) | (at_lo & (vv < 0)), 0 * v, v)
-            acted = 0.0
-            nv, dvals = _values(nominal), _values(d)
-            if self._guard is not None and np.any(dvals != 0):
-                # The output holds this deviation until the next update while
-                # the nominal moves on: check it at the nominal now and at the
-                # nominal one period ahead (extrapolated from the last update).
-                now = np.concatenate([nv, _values(lower), _values(upper)])
-                prev = _values(context.get_discrete_state(self._previous_inputs).CopyToVector())
-                ahead = now + (now - prev) if np.all(np.isfinite(prev)) else now
-                n_a, lo_a, hi_a = ahead[:self.k], ahead[self.k:2 * self.k], ahead[2 * self.k:]
-                lo_a, hi_a = np.minimum(lo_a, n_a), np.maximum(hi_a, n_a)
-
-                def free_with(dev):
-                    return self._guard(nv + dev) and self._guard(np.clip(n_a + dev, lo_a, hi_a))
-
-                if not free_with(dvals):
-                    acted = 1.0
-                    v = 0 * v
-                    # First hold the last deviation (kept inside today's bounds):
-                    # the commanded motion is then the nominal's own, within the
-                    # velocity limits. Only if that collides too, scale it back
-                    # towards the nominal by bisection (a jump: safety first).
-                    held = _clip(x[:self.k], lo, hi)
-                    hv = _values(held)
-                    step = None
-                    if self.max_rate is not None:
-                        # Or move it towards the nominal as fast as allowed.
-                        cap = np.where(np.isfinite(self.max_rate), self.max_rate * h, np.abs(hv))
-                        step = hv - np.clip(hv, -cap, cap)
-                    if free_with(hv):
-                        d = held
-                    elif step is not None and free_with(step):
-                        d = held * 0 + step
-                    else:
-                        hv = _values(held)
-                        free, bad = 0.0, 1.0
-                        for _ in range(self._guard_iterations):
-                            mid = (free + bad) / 2
-                            if free_with(mid * hv):
-                                free = mid
-                            else:
-                                bad = mid
-                        d = free * held
+            acted = False
+            if self._guard is not None and np.any(_values(d) != 0):
+                ahead = self._ahead(context, nominal, lower, upper)
+                guarded = self._guarded(d, _clip(x[:self.k], lo, hi), nominal, ahead)
+                if guarded is not None:
+                    d, v, acted = guarded, 0 * v, True
             discrete_state.get_mutable_vector(self._previous_inputs).SetFromVector(
                 np.concatenate([nominal, lower, upper]))
             discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
-            discrete_state.get_mutable_vector(self._guard_state).SetFromVector([0 * d[0] + acted] if self.k else
-                                                                              [acted])
+            discrete_state.get_mutable_vector(self._guard_state).SetFromVector([float(acted)])
+
+        def _ahead(self, context, nominal, lower, upper) -> np.ndarray:
+            """[nominal, lower, upper] one period ahead: the ``*_ahead``
+            inputs if connected, else extrapolated from the last update."""
+            ports = (self.nominal_ahead_input, self.lower_ahead_input, self.upper_ahead_input)
+            if all(p.HasValue(context) for p in ports):
+                return np.concatenate([_values(p.Eval(context)) for p in ports])
+            now = np.concatenate([_values(nominal), _values(lower), _values(upper)])
+            prev = _values(context.get_discrete_state(self._previous_inputs).CopyToVector())
+            return now + (now - prev) if np.all(np.isfinite(prev)) else now
+
+        def _guarded(self, d, held, nominal, ahead):
+            """The deviation the guard allows instead of ``d``, or None if
+            ``d`` is free. The output holds a deviation until the next update
+            while nominal and bounds move on: each candidate is checked now
+            and one period ahead (``ahead`` = [nominal, lower, upper] then).
+            Candidates: the last deviation ``held`` (the motion is then the
+            nominal's own, within the velocity limits); ``held`` moved towards
+            the nominal as fast as the limits allow; else the largest free
+            fraction of ``held`` by bisection (a jump: safety before
+            smoothness)."""
+            k = self.k
+            nv = _values(nominal)
+            n_a, lo_a, hi_a = ahead[:k], ahead[k:2 * k], ahead[2 * k:]
+            lo_a, hi_a = np.minimum(lo_a, n_a), np.maximum(hi_a, n_a)
+
+            def free_with(dev):
+                return self._guard(nv + dev) and self._guard(np.clip(n_a + dev, lo_a, hi_a))
+
+            if free_with(_values(d)):
+                return None
+            hv = _values(held)
+            if free_with(hv):
+                return held
+            if self.max_rate is not None:
+                cap = np.where(np.isfinite(self.max_rate), self.max_rate * self.period, np.abs(hv))
+                step = hv - np.clip(hv, -cap, cap)
+                if free_with(step):
+                    return held * 0 + step
+            free, bad = 0.0, 1.0
+            for _ in range(self._guard_iterations):
+                mid = (free + bad) / 2
+                if free_with(mid * hv):
+                    free = mid
+                else:
+                    bad = mid
+            return free * held
 
         def _calc_commanded(self, context, output):
             nominal, lower, upper = self._inputs(context)
@@ -458,14 +476,20 @@ class PathProgress(Diagram):
         name: PathProgress
         output_ports:
         - path_index
+        - path_index_ahead
+
+    ``path_index_ahead`` is s(t + lead): where the path will be one
+    controller period later (the collision guard checks the deviation it is
+    about to hold against the bounds there).
 
     Args:
         g: number of waypoints.
         rate: waypoints per second (> 0).
         start_time: when the robot starts along the path, s.
+        lead: the look-ahead of ``path_index_ahead``, s (>= 0).
     """
 
-    def __init__(self, g: int, *, rate: float, start_time: float = 0.0):
+    def __init__(self, g: int, *, rate: float, start_time: float = 0.0, lead: float = 0.0):
         super().__init__()
         if not rate > 0:
             raise ParameterError(f"rate must be > 0 waypoints/s, got {rate}.")
@@ -478,11 +502,19 @@ class PathProgress(Diagram):
         self.trajectory = PiecewisePolynomial.FirstOrderHold(
             [t0, max(self.duration, t0 + 1e-9)], np.array([[0.0, self.g - 1.0]]))
         builder = DiagramBuilder()
+        if not lead >= 0:
+            raise ParameterError(f"lead must be >= 0 s, got {lead}.")
+        self.lead = float(lead)
         source = builder.AddNamedSystem("trajectory", TrajectorySource(self.trajectory))
+        ahead = PiecewisePolynomial.FirstOrderHold(
+            [t0 - self.lead, max(self.duration, t0 + 1e-9) - self.lead], np.array([[0.0, self.g - 1.0]]))
+        source_ahead = builder.AddNamedSystem("trajectory_ahead", TrajectorySource(ahead))
         builder.ExportOutput(source.get_output_port(), "path_index")
+        builder.ExportOutput(source_ahead.get_output_port(), "path_index_ahead")
         builder.BuildInto(self)
         self.set_name("path_progress")
         self.path_index_output = self.GetOutputPort("path_index")
+        self.path_index_ahead_output = self.GetOutputPort("path_index_ahead")
 
     def index_at(self, t: float) -> float:
         """s at time t."""

@@ -165,6 +165,23 @@ class CfvolSection:
     configurations: dict[str, NamedConfiguration] = dataclasses.field(default_factory=dict)
 
 
+def robot_geometry_ids(plant, robot) -> tuple[set, set]:
+    """Proximity geometry ids of a robot's links in a finalized plant, and of
+    those its joints move.
+
+    Returns:
+        (every, moving)
+    """
+    moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(robot))))
+    every, moving = set(), set()
+    for b in plant.GetBodyIndices(robot):
+        ids = plant.GetCollisionGeometriesForBody(plant.get_body(b))
+        every.update(ids)
+        if b in moved:
+            moving.update(ids)
+    return every, moving
+
+
 @dataclasses.dataclass
 class WorkcellFile:
     """A workcell file: Drake model directives plus the ``cfvol:`` section
@@ -559,14 +576,8 @@ class Workcell:
         """Proximity geometry ids of the robot's bodies that no joint moves
         (e.g. a base welded to its pedestal)."""
         if getattr(self, "_fixed_ids", None) is None:
-            plant = self.plant
-            moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(self.robot))))
-            inspector = self.scene_graph.model_inspector()
-            ids = set()
-            for b in plant.GetBodyIndices(self.robot):
-                if b not in moved:
-                    ids.update(plant.GetCollisionGeometriesForBody(plant.get_body(b)))
-            self._fixed_ids = frozenset(g for g in ids if inspector.GetProximityProperties(g) is not None)
+            every, moving = robot_geometry_ids(self.plant, self.robot)
+            self._fixed_ids = frozenset(every - moving)
         return self._fixed_ids
 
     # -- queries ---------------------------------------------------------

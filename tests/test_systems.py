@@ -192,6 +192,32 @@ def test_collision_guard_looks_one_period_ahead():
     assert adm.guard_active_output.Eval(ctx)[0] == 1.0 and worst <= 0.05 + 1e-12
 
 
+def test_collision_guard_uses_the_inputs_ahead():
+    """With the nominal and bounds one period ahead connected, the guard
+    keeps the deviation free at those: a wall at q_1 = 0.05 and the nominal
+    ahead at 0.04 allow at most 0.01 of deviation, though the nominal now
+    is 0."""
+    adm = AdmittanceDeformation(2, mass=1.0, damping=20.0, stiffness=10.0, period=0.01,
+                                collision_guard=lambda q: q[1] <= 0.05)
+    ctx = adm.CreateDefaultContext()
+    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], [0.0, 50.0])
+    adm.nominal_ahead_input.FixValue(ctx, [0.0, 0.04])
+    adm.lower_ahead_input.FixValue(ctx, [-1, -1])
+    adm.upper_ahead_input.FixValue(ctx, [1, 1])
+    Simulator(adm, ctx).AdvanceTo(0.5)
+    d = adm.deviation_output.Eval(ctx)[1]
+    assert 0.0 < d <= 0.01 + 1e-12 and adm.guard_active_output.Eval(ctx)[0] == 1.0
+
+
+def test_path_index_ahead_leads_by_the_lead():
+    """PathProgress's path_index_ahead is s(t + lead)."""
+    p = PathProgress(11, rate=2.0, start_time=0.5, lead=0.25)
+    ctx = p.CreateDefaultContext()
+    for t in (0.0, 0.6, 3.0, 6.0):
+        ctx.SetTime(t)
+        assert p.path_index_ahead_output.Eval(ctx)[0] == pytest.approx(p.index_at(t + 0.25))
+
+
 def test_path_progress_and_human():
     """Path index ramps at the rate and holds at g-1; pushes act in their window."""
     pp = PathProgress(11, rate=2.0, start_time=1.0)
@@ -313,7 +339,7 @@ def test_clearance_monitor_agrees_with_the_workcell():
     from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, CoulombFriction
     from pydrake.systems.framework import DiagramBuilder
 
-    from drake_cfvol.comanip import _robot_geometries
+    from drake_cfvol.workcell import robot_geometry_ids
     from drake_cfvol.systems import ClearanceMonitor
 
     wc = cf.load_workcell("automotive")
@@ -325,7 +351,7 @@ def test_clearance_monitor_agrees_with_the_workcell():
     box = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(X_WT.translation()), Box(0.05, 0.05, 0.05),
                                           "volume_box", CoulombFriction(0.5, 0.5))
     plant.Finalize()
-    every, moving = _robot_geometries(plant, robot)
+    every, moving = robot_geometry_ids(plant, robot)
     mon = builder.AddSystem(ClearanceMonitor(robot_ids=every, moving_ids=moving, volume_ids=[box]))
     builder.Connect(sg.get_query_output_port(), mon.query_object_input)
     diagram = builder.Build()
