@@ -29,6 +29,11 @@ _FINISHED: collections.deque = collections.deque(maxlen=32)
 DEFAULT_DELAY_S = 1.5
 
 
+def _shown(x: float):
+    """A count as the bar prints it: whole numbers as integers, else 0.1."""
+    return int(x) if float(x).is_integer() else round(float(x), 1)
+
+
 class Progress:
     """A progress bar over ``total`` units of work, or nothing.
 
@@ -64,8 +69,7 @@ class Progress:
             from tqdm import tqdm
 
             left = ", {remaining} left" if eta else ""
-            shown_total = int(self.total) if float(self.total).is_integer() else round(self.total, 1)
-            self._bar = tqdm(total=shown_total, desc=desc, unit=unit, file=stream, delay=delay, smoothing=0.0,
+            self._bar = tqdm(total=_shown(self.total), desc=desc, unit=unit, file=stream, delay=delay, smoothing=0.0,
                              mininterval=mininterval, dynamic_ncols=True, leave=False,
                              bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} "
                                         "[{elapsed}" + left + "{postfix}]")
@@ -89,7 +93,7 @@ class Progress:
         if bar is not None:
             if postfix:
                 bar.set_postfix(postfix, refresh=False)
-            bar.n = int(self.n) if self.n.is_integer() else round(self.n, 1)
+            bar.n = _shown(self.n)
             due = now - self._last_draw >= self._mininterval or self.n >= self.total
             if due and now - self.t0 >= self._delay:
                 self._last_draw = now
@@ -100,7 +104,7 @@ class Progress:
         """Changes the total (work re-estimated as it goes)."""
         self.total = max(float(total), self.n, 1e-12)
         if self._bar is not None:
-            self._bar.total = int(self.total) if self.total.is_integer() else round(self.total, 1)
+            self._bar.total = _shown(self.total)
 
     def set_description(self, desc: str) -> None:
         """Changes what the bar says is being done."""
