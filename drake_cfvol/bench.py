@@ -162,7 +162,8 @@ class _BenchClock:
         # Measured beats prior. Priors are not rescaled by other kinds'
         # errors: small steps are dominated by fixed overheads, and scaling by
         # them made the quick run's estimates worse, not better.
-        return float(np.mean(self.seen[kind])) if kind in self.seen else prior
+        seen = self.seen.get(kind)
+        return seen[0] / seen[1] if seen else prior
 
     def _tick(self, period: float) -> None:
         while not self._stop.wait(period):
@@ -178,7 +179,8 @@ class _BenchClock:
             dt, self.t_last = now - self.t_last, now
             i = next(i for i, (k, _) in enumerate(self.pending) if k == kind)
             self.pending.pop(i)
-            self.seen.setdefault(kind, []).append(dt)
+            total, count = self.seen.get(kind, (0.0, 0))
+            self.seen[kind] = (total + dt, count + 1)  # running sum and count: the mean is O(1)
             self.actual_done += dt
             self.bar.set_total(self.actual_done + sum(self._estimate(k, p) for k, p in self.pending))
             self.bar.set(self.actual_done)

@@ -4,9 +4,12 @@
 - :class:`AdmittanceDeformation`: the human's push -> a deviation from the
   nominal, clamped inside the bounds without wind-up.
 - :class:`PathProgress`: the path index over time.
-- :class:`ScriptedHuman`: pushes with set magnitude, direction and timing, or
-  seeded random ones.
-- :class:`ClearanceMonitor`: the robot's distance to the real obstacles.
+- :class:`ScriptedHuman`: pushes with set magnitude, direction and timing.
+- :class:`RandomPushShaper`: random pushes from Drake's ``RandomSource``
+  (seeded through the context).
+- :class:`ReactiveCoworker`: a person reacting to the robot's position.
+- :class:`ClearanceMonitor`: clearance, collision and volume contact, through
+  a SceneGraph's query port.
 """
 
 
@@ -594,20 +597,6 @@ class ScriptedHuman(LeafSystem):
                 tau += a
                 w += b
         return tau, w
-
-    @staticmethod
-    def random_pushes(k: int, *, count: int, seed: int, duration: float, max_torque, mean_duration: float = 1.0,
-                      ) -> list[Push]:
-        """Seeded random joint-torque pushes within [0, duration] s, each joint's
-        torque uniform in +-max_torque (scalar or (k,))."""
-        rng = np.random.default_rng(seed)
-        mt = _vector(max_torque, k, "max_torque", nonnegative=True)
-        out = []
-        for _ in range(int(count)):
-            d = float(rng.uniform(0.3, 2.0) * mean_duration)
-            start = float(rng.uniform(0.0, max(duration - d, 0.0)))
-            out.append(Push(start, d, (rng.uniform(-1, 1, k) * mt).tolist(), []))
-        return out
 
 
 class ReactiveCoworker(LeafSystem):
