@@ -78,6 +78,10 @@ class BenchConfig:
         iris_samples: samples per region for its collision share.
         certify_resolutions: R at which certified bounds are also computed.
         certify_epsilon, certify_confidence: the certificate.
+        guard_runs: seeded random-push co-manipulation runs per cell (the
+            cell's ``<cell>_random`` scenario, push seeds 0 .. n-1), each on
+            uncertified and on certified bounds, counting the collision
+            guard's steps.
         engine: also measure the kernel's compile time on a fresh cache and
             the ``cfvol bounds`` command's wall time (fresh processes).
     """
@@ -94,9 +98,11 @@ class BenchConfig:
     iris: bool = True
     iris_regions: int = 12
     iris_samples: int = 2000
-    certify_resolutions: list = dataclasses.field(default_factory=lambda: [1000])
+    certify_resolutions: list = dataclasses.field(
+        default_factory=lambda: [100, 500, 1000, 2000, 5000, 10000, 15000, 20000])
     certify_epsilon: float = 1e-5
     certify_confidence: float = 0.99
+    guard_runs: int = 20
     engine: bool = True
 
     @classmethod
@@ -104,7 +110,7 @@ class BenchConfig:
         """A small run (minutes): path 1, three resolutions, 2 trials."""
         return cls(paths=["path1"], resolutions=[100, 1000, 20000], trials=2, cf_windows=30, cf_samples=300,
                    reference_resolutions=[100], reference_trials=1, iris_regions=2, iris_samples=500,
-                   certify_resolutions=[1000], certify_epsilon=1e-2)
+                   certify_resolutions=[1000], certify_epsilon=1e-2, guard_runs=0)
 
 
 #: Prior cost of each kind of bench step, seconds on the 2-core machine of
@@ -113,7 +119,8 @@ class BenchConfig:
 #: run.
 _PRIOR_S = {"plan": 0.5, "trial": 0.2, "trial_per_R": 1e-5, "cf": 0.4, "cf_per_sample": 3.5e-6, "reference": 5.5,
             "reference_per_R": 1.4e-3, "certify": 0.2, "certify_per_N": 7e-5, "iris_region": 1.0,
-            "iris_sample": 5e-5, "compile": 30.0, "warm_load": 1.0, "cli_bounds": 2.8}
+            "iris_sample": 5e-5, "compile": 30.0, "warm_load": 1.0, "cli_bounds": 2.8,
+            "guard_bounds": 25.0, "guard_run": 4.0}
 
 
 def _bench_steps(cfg: "BenchConfig") -> list[tuple[tuple, float]]:
@@ -134,6 +141,8 @@ def _bench_steps(cfg: "BenchConfig") -> list[tuple[tuple, float]]:
                     steps += [(("certify",), c["certify"] + n_cert * c["certify_per_N"]), (("cf",), cf)]
             if cfg.iris and label == "path1":
                 steps.append((("iris",), cfg.iris_regions * (c["iris_region"] + cfg.iris_samples * c["iris_sample"])))
+        if cfg.guard_runs:
+            steps += [(("guard_bounds",), c["guard_bounds"])] + [(("guard_run",), c["guard_run"])] * (2 * cfg.guard_runs)
     if cfg.engine:
         steps += [(("compile",), c["compile"]), (("warm_load",), c["warm_load"])] + [(("cli_bounds",), c["cli_bounds"])] * 3
     return steps
@@ -236,7 +245,7 @@ def run_bench(cfg: BenchConfig, *, progress: bool = True) -> dict:
     trials (one per timed run), reference, iris and floor results."""
 
     clock = _BenchClock(cfg, progress)
-    rows, trials, reference, iris, paths = [], [], [], [], {}
+    rows, trials, reference, iris, paths, guard = [], [], [], [], {}, []
     t_start = time.perf_counter()
     for cell in cfg.cells:
         wc = load_workcell(cell)
@@ -310,14 +319,50 @@ def run_bench(cfg: BenchConfig, *, progress: bool = True) -> dict:
                 clock.describe(f"{cell} IrisZo")
                 iris.append(_iris(wc, path, cfg))
                 clock.done(("iris",))
+        if cfg.guard_runs:
+            clock.describe(f"{cell} random-push runs")
+            guard += guard_runs(cell, cfg.guard_runs, on_step=clock.done)
     engine = {}
     if cfg.engine:
         clock.describe("kernel compile and command wall time")
         engine = engine_costs(on_step=clock.done)
     clock.close()
     return {"config": dataclasses.asdict(cfg), "rows": rows, "trials": trials, "reference": reference,
-            "iris": iris, "paths": paths, "engine": engine, "wall_s": time.perf_counter() - t_start,
+            "iris": iris, "paths": paths, "engine": engine, "guard": guard, "wall_s": time.perf_counter() - t_start,
             "machine": machine_info(), "progress": {"eta_error": eta_errors(clock.bar.history)}}
+
+
+def guard_runs(cell: str, runs: int, *, on_step=None) -> list[dict]:
+    """Seeded random-push co-manipulation runs (the ``<cell>_random``
+    scenario with push seeds 0 .. runs-1), each on the uncertified and on
+    the certified bounds of the scenario's path (``Certify()`` at its
+    defaults): how often the collision guard acts, and whether anything
+    collides. One row per run and kind."""
+    import tempfile
+
+    from drake_cfvol.comanip import load_scenario, run_scenario
+
+    on_step = on_step or (lambda kind: None)
+    name = f"{cell}_random"
+    scenario, _ = load_scenario(name)
+    wc = load_workcell(scenario.cell)
+    path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path)
+    tables = {"uncertified": estimate_bounds(wc, path, resolution=scenario.resolution),
+              "certified": estimate_bounds(wc, path, resolution=scenario.resolution, certify=Certify(seed=scenario.seed))}
+    on_step(("guard_bounds",))
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in range(runs):
+            for kind, table in tables.items():
+                s = run_scenario(name, tmp, record=False, plot=False, svg=False, path=path, bounds=table,
+                                 scenario_text=f"{{random_pushes: {{seed: {seed}}}, certify: {str(kind == 'certified').lower()}}}")
+                out.append({"cell": cell, "scenario": name, "push_seed": seed, "bounds": kind,
+                            "guard_steps": s["guard_steps"], "steps": s["steps"], "collisions": s["collisions"],
+                            "volume_penetrations": s["volume_penetrations"],
+                            "max_velocity_ratio": s["max_velocity_ratio"], "max_deviation": s["max_deviation"],
+                            "freedom": freedom(table).mean, "sim_wall_s": s["sim_wall_s"]})
+                on_step(("guard_run",))
+    return out
 
 
 def engine_costs(on_step=None) -> dict:
@@ -505,6 +550,16 @@ def targets(result: dict) -> list[str]:
     miss = [r for r in hi if r["cf_percent"] < 99.9]
     lines.append(f"- CF >= 99.9 % at R >= 1000: {len(hi) - len(miss)} of {len(hi)} rows -> "
                  f"{'met' if not miss else 'MISSED'} (uncertified).")
+    for cell in dict.fromkeys(g["cell"] for g in result.get("guard", [])):
+        sel = {k: [g for g in result["guard"] if g["cell"] == cell and g["bounds"] == k]
+               for k in ("uncertified", "certified")}
+        if sel["certified"]:
+            c, u = sel["certified"], sel["uncertified"]
+            lines.append(f"- Guard, {cell}: {len(c)} random-push runs; guard steps on certified bounds: "
+                         f"{sum(g['guard_steps'] == 0 for g in c)} runs with none, median "
+                         f"{np.median([g['guard_steps'] for g in c]):.0f}, max {max(g['guard_steps'] for g in c)} "
+                         f"(uncertified: median {np.median([g['guard_steps'] for g in u]):.0f}, max "
+                         f"{max(g['guard_steps'] for g in u)}); logged collisions {sum(g['collisions'] for g in c)}.")
     cert = [r for r in rows if "certified_cf_percent" in r]
     if cert:
         full = [r for r in cert if r["certified_cf_colliding"] == 0]

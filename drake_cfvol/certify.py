@@ -13,14 +13,22 @@ IrisZo uses): if the colliding share of that distribution were epsilon or
 more, N free samples in a row would occur with probability at most
 1 - confidence.
 
-A colliding sample is cut off as a region, not a point: each joint in turn
-is swept from the sample back towards the nominal until the configuration
-is free, and the one bound of the sample's stretch that excludes the sample
-and the colliding region beyond it along that axis, at the least loss of
-freedom (log of the joint's width), is moved there. Cuts only tighten, so the proven single-joint
-safety still holds. Samples are drawn in growing batches; the count of
-consecutive free samples restarts after every cut. Certification draws
-from a seed stream of its own, distinct from the CF evaluation's.
+How the boxes shrink (cuts only tighten, so the proven single-joint
+safety still holds):
+
+1. Search: rounds of samples stratified over the stretches (``batch`` per
+   stretch, doubling each round), a share of their coordinates drawn in
+   the outer tenth of the box, where several joints near their bounds
+   collide. All colliding samples of a round are cut at once, per stretch,
+   greedily: each cut moves one bound of one joint to a sample's value,
+   the one that loses the least log-width per colliding sample it removes.
+2. Certificate: N consecutive uniform samples of the whole path. A
+   colliding sample is cut the same way, its stretch is searched again
+   (``focus_samples`` per round until a round finds nothing), and the run
+   restarts.
+
+Certification draws from a seed stream of its own, distinct from the CF
+evaluation's.
 """
 
 import dataclasses
@@ -32,14 +40,12 @@ import numpy as np
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.metrics import freedom
 from drake_cfvol.progress import Progress
-from drake_cfvol.table import box_at, waypoint_boxes
+from drake_cfvol.table import waypoint_boxes
 
 __all__ = ["Certify", "CertificateReport", "certify_bounds", "certification_rng"]
 
 #: Spawn key that separates certification draws from CF draws of the same seed.
 _CERT_STREAM = 0xCE27
-#: Points checked along the segment from the nominal to a colliding sample.
-_LINE_STEPS = 16
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,13 +56,25 @@ class Certify:
         epsilon: the largest colliding share allowed, in (0, 1).
         confidence: probability that the certificate is right, in (0, 1).
         seed: seed of the certification samples (a stream distinct from CF's).
-        batch: samples in the first batch (batches double up to N).
+        batch: search samples per stretch in the first search round
+            (rounds double it).
+        search_rounds: search rounds before the certificate run.
+        edge_share: share of search coordinates drawn in the outer tenth
+            of their range.
+        focus_samples, focus_rounds: after a colliding sample in the
+            certificate run, its stretch is searched again with this many
+            samples per round, until a round finds nothing (at most
+            ``focus_rounds``).
     """
 
     epsilon: float = 1e-5
     confidence: float = 0.99
     seed: int = 0
-    batch: int = 20000
+    batch: int = 1000
+    search_rounds: int = 5
+    edge_share: float = 0.5
+    focus_samples: int = 20000
+    focus_rounds: int = 4
 
     def __post_init__(self):
         for name in ("epsilon", "confidence"):
@@ -65,6 +83,10 @@ class Certify:
                 raise ParameterError(f"Certify: {name} must lie in (0, 1), got {v!r}.")
         if self.batch < 1:
             raise ParameterError(f"Certify: batch must be >= 1, got {self.batch}.")
+        if self.search_rounds < 0:
+            raise ParameterError(f"Certify: search_rounds must be >= 0, got {self.search_rounds}.")
+        if not 0.0 <= self.edge_share <= 1.0:
+            raise ParameterError(f"Certify: edge_share must lie in [0, 1], got {self.edge_share!r}.")
 
     @property
     def n_samples(self) -> int:
@@ -106,9 +128,64 @@ def certification_rng(seed: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_CERT_STREAM,)))
 
 
+def _greedy_cut(X, N, L, U):
+    """Cuts one stretch's box [L, U] (in place) until no colliding sample X
+    (n, k) is left in it, each sample's box being [min(L, N), max(U, N)]
+    with N its nominal. Each cut moves one bound of one joint to a sample's
+    value (that sample and every one beyond it on that side go); the cut
+    chosen loses the least log-width per sample it removes. Returns the
+    number of cuts, or -1 if a sample cannot be cut (it lies at its own
+    nominal in every joint)."""
+    cuts = 0
+    while len(X):
+        inside = np.all((X >= np.minimum(L, N)) & (X <= np.maximum(U, N)), axis=1)
+        X, N = X[inside], N[inside]
+        if not len(X):
+            break
+        best = (np.inf, -1, 0, 0.0)
+        for j in range(X.shape[1]):
+            w = U[j] - L[j]
+            if w <= 0:
+                continue
+            for side in (1, -1):
+                sel = X[:, j] > N[:, j] if side > 0 else X[:, j] < N[:, j]
+                if not sel.any():
+                    continue
+                v = np.sort(X[sel, j])
+                if side > 0:
+                    v = v[::-1]
+                    new = v - L[j]
+                else:
+                    new = U[j] - v
+                score = np.log(w / np.maximum(new, 1e-12)) / np.arange(1, len(v) + 1)
+                m = int(np.argmin(score))
+                if score[m] < best[0]:
+                    best = (score[m], j, side, v[m])
+        _, j, side, c = best
+        if j < 0:
+            return -1
+        if side > 0:
+            U[j] = np.nextafter(c, -np.inf)
+        else:
+            L[j] = np.nextafter(c, np.inf)
+        cuts += 1
+    return cuts
+
+
+def _edge_biased(rng, shape, share):
+    """Unit-cube draws in which a ``share`` of the coordinates lie in the
+    outer tenth of their range (either end): where whole-box collisions
+    live, so the search finds them with fewer samples."""
+    U = rng.random(shape)
+    snap = rng.random(shape) < share
+    hi_end = rng.random(shape) < 0.5
+    tenth = 0.1 * rng.random(shape)
+    return np.where(snap, np.where(hi_end, 1.0 - tenth, tenth), U)
+
+
 def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False):
-    """Shrinks a bounds table's stretch boxes until N consecutive samples of
-    the whole box are free (see the module docs).
+    """Shrinks a bounds table's stretch boxes until N consecutive uniform
+    samples of the whole box are free (see the module docs).
 
     Returns:
         (stretch_lower, stretch_upper, CertificateReport): the certified
@@ -116,97 +193,87 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
         :func:`drake_cfvol.table.waypoint_boxes`); the input table is not
         changed.
 
-    With ``progress``, a bar on a terminal shows the run of consecutive
-    free samples against N and the cuts so far; the run restarts after a
-    cut, so the bar shows no time-left estimate.
+    With ``progress``, a bar on a terminal shows the search rounds, then
+    the run of consecutive free samples against N; the run restarts after
+    a cut, so the bar shows no time-left estimate.
     """
     t0 = time.perf_counter()
     arrays = workcell.scene_arrays()
-    lower, upper, nominal, rate = table.lower, table.upper, table.nominal, table.rate
+    nominal, rate = table.nominal, table.rate
     st_lo, st_hi = table.stretch_lower.copy(), table.stretch_upper.copy()
     g, k = nominal.shape
-    trajectory = table.trajectory
     rng = certification_rng(certify.seed)
     N = certify.n_samples
-    ts = np.arange(1, _LINE_STEPS + 1) / _LINE_STEPS
+    samples = shrinks = 0
+    current = table
 
-    def boxes(s):
-        return box_at(lower, upper, nominal, s, stretch_lower=st_lo, stretch_upper=st_hi, rate=rate,
-                      trajectory=trajectory)
+    def refresh():
+        w_lo, w_hi = waypoint_boxes(st_lo, st_hi, nominal, rate)
+        return dataclasses.replace(table, lower=w_lo, upper=w_hi, stretch_lower=st_lo, stretch_upper=st_hi)
 
-    samples = shrinks = run = 0
-    batch = min(certify.batch, N)
-    bar = Progress(N, "Certifying whole boxes", enabled=progress, unit="free samples in a row", eta=False)
-    while run < N and g > 1:
-        n = min(batch, N - run)
-        s = rng.uniform(0.0, g - 1, n)
-        lo, hi, _ = boxes(s)
-        Q = lo + rng.random(lo.shape) * (hi - lo)
-        flagged = np.flatnonzero(arrays.may_collide(Q))
-        samples += n
-        batch = min(2 * batch, N)
-        if not len(flagged):
-            run += n
-            bar.set(run, cuts=shrinks)
-            continue
-        run = 0
-        for m in flagged:
-            lo_m, hi_m, nom_m = boxes(s[m])
-            q = Q[m]
-            if np.any(q < lo_m - 1e-12) or np.any(q > hi_m + 1e-12):
-                continue  # an earlier cut already excluded it
-            i = min(int(np.floor(s[m])), g - 2)
-            # Sweep each joint from the sample back towards the nominal: how
-            # far must it move for the configuration to be free? Cutting that
-            # joint's bound there excludes the sample and the colliding region
-            # beyond it along that axis.
-            lines = np.repeat(q[None], k * _LINE_STEPS, axis=0).reshape(k, _LINE_STEPS, k)
-            for j in range(k):
-                lines[j, :, j] = q[j] + ts * (nom_m[j] - q[j])
-            hits = arrays.may_collide(lines.reshape(-1, k)).reshape(k, _LINE_STEPS)
-            samples += k * _LINE_STEPS
-            best = None
-            for j in range(k):
-                if q[j] == nom_m[j] or hits[j].all():
-                    continue
-                cut = lines[j, int(np.argmin(hits[j])), j]
-                if q[j] > nom_m[j]:
-                    old, new, side = st_hi[i, j] - st_lo[i, j], cut - st_lo[i, j], "upper"
-                else:
-                    old, new, side = st_hi[i, j] - st_lo[i, j], st_hi[i, j] - cut, "lower"
-                if old <= 0:
-                    continue
-                loss = math.log(old / max(new, 1e-12))
-                if best is None or loss < best[0]:
-                    best = (loss, j, side, cut)
-            if best is None:
-                # No single joint frees it: cut the joint whose bound moves least
-                # in log-width all the way to the nominal at s.
-                for j in range(k):
-                    if q[j] == nom_m[j]:
-                        continue
-                    side = "upper" if q[j] > nom_m[j] else "lower"
-                    old = st_hi[i, j] - st_lo[i, j]
-                    new = (nom_m[j] - st_lo[i, j]) if side == "upper" else (st_hi[i, j] - nom_m[j])
-                    loss = math.log(old / max(new, 1e-12)) if old > 0 else 0.0
-                    if best is None or loss < best[0]:
-                        best = (loss, j, side, nom_m[j])
-            if best is None:
+    def cut(s, Q, flagged):
+        nonlocal shrinks
+        _, _, nom = current.boxes_at(s[flagged])
+        i = np.minimum(np.floor(s[flagged]).astype(int), g - 2)
+        for st in np.unique(i):
+            sel = i == st
+            n = _greedy_cut(Q[flagged][sel], nom[sel], st_lo[st], st_hi[st])
+            if n < 0:
                 raise ParameterError(
-                    f"certification: the nominal at s = {s[m]:.4f} may collide; the path is not collision-free "
-                    "between waypoints (plan with a finer max_step).")
-            _, j, side, cut = best
-            if side == "upper":
-                st_hi[i, j] = min(st_hi[i, j], cut)
+                    f"certification: a configuration at the nominal of stretch {st} may collide; the path is not "
+                    "collision-free between waypoints (plan with a finer max_step).")
+            shrinks += n
+
+    bar = Progress(certify.search_rounds + N, "Certifying whole boxes", enabled=progress,
+                   unit="steps", eta=False)
+    if g > 1:
+        # Search: stratified over the stretches, edge-biased, every colliding
+        # sample of a round cut at once.
+        per = certify.batch
+        for _ in range(certify.search_rounds):
+            s = np.repeat(np.arange(g - 1), per) + rng.random((g - 1) * per)
+            lo, hi, _ = current.boxes_at(s)
+            Q = lo + _edge_biased(rng, lo.shape, certify.edge_share) * (hi - lo)
+            flagged = np.flatnonzero(arrays.may_collide(Q))
+            samples += len(Q)
+            if len(flagged):
+                cut(s, Q, flagged)
+                current = refresh()
+            per *= 2
+            bar.update(1)
+        # Certificate: N consecutive uniform samples of the whole path.
+        run = 0
+        batch = max(1, N // 4)
+        while run < N:
+            n = min(batch, N - run)
+            s = rng.uniform(0.0, g - 1, n)
+            lo, hi, _ = current.boxes_at(s)
+            Q = lo + rng.random(lo.shape) * (hi - lo)
+            flagged = np.flatnonzero(arrays.may_collide(Q))
+            samples += n
+            if len(flagged):
+                cut(s, Q, flagged)
+                current = refresh()
+                run = 0
+                # The stretches that still collide get a search of their own
+                # (cheaper than another run over the whole path).
+                hit = np.unique(np.minimum(np.floor(s[flagged]).astype(int), g - 2))
+                for _ in range(certify.focus_rounds):
+                    s2 = np.repeat(hit, certify.focus_samples) + rng.random(len(hit) * certify.focus_samples)
+                    lo, hi, _ = current.boxes_at(s2)
+                    Q2 = lo + _edge_biased(rng, lo.shape, certify.edge_share) * (hi - lo)
+                    f2 = np.flatnonzero(arrays.may_collide(Q2))
+                    samples += len(Q2)
+                    if not len(f2):
+                        break
+                    cut(s2, Q2, f2)
+                    current = refresh()
             else:
-                st_lo[i, j] = max(st_lo[i, j], cut)
-            shrinks += 1
-        bar.set(0, cuts=shrinks)
+                run += n
+            bar.set(certify.search_rounds + run, cuts=shrinks)
     bar.close()
-    w_lo, w_hi = waypoint_boxes(st_lo, st_hi, nominal, rate)
     before = freedom(table).mean
-    after = freedom(dataclasses.replace(table, lower=w_lo, upper=w_hi, stretch_lower=st_lo,
-                                        stretch_upper=st_hi)).mean
+    after = freedom(current).mean
     proven = ("Every single-joint motion from the nominal to that joint's bound, at every s along the path, is "
               "free of the obstacles, the robot itself and the volume (the kernel's region tests).")
     sampled = (f"The whole box, all joints at once: {N} consecutive samples (s uniform over the path, q uniform in "
@@ -214,4 +281,4 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
                f"{certify.epsilon:g} of such configurations collides (about {certify.epsilon * 3e5:g} of 300,000).")
     report = CertificateReport(certify.epsilon, certify.confidence, N, (time.perf_counter() - t0) * 1e3,
                                samples, shrinks, before, after, proven, sampled)
-    return st_lo, st_hi, report
+    return current.stretch_lower, current.stretch_upper, report

@@ -228,6 +228,15 @@ def cmd_bench(args) -> int:
         cfg.cf_samples = args.cf_samples
     if args.no_iris:
         cfg.iris = False
+    if args.no_reference:
+        cfg.reference_resolutions = []
+    if args.certify_resolutions is not None:
+        cfg.certify_resolutions = args.certify_resolutions
+    if args.guard_runs is not None:
+        if args.guard_runs < 0:
+            print(f"cfvol: error: --guard-runs must be >= 0, got {args.guard_runs}", file=sys.stderr)
+            return 2
+        cfg.guard_runs = args.guard_runs
     if args.no_engine:
         cfg.engine = False
     result = run_bench(cfg, progress=not args.json)
@@ -299,6 +308,10 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--trials", type=int, help="timed trials per row (default 20)")
     n.add_argument("--cf-samples", type=int, help="CF samples per window N_m (default 10000)")
     n.add_argument("--no-iris", action="store_true", help="skip Drake's IrisZo comparison")
+    n.add_argument("--no-reference", action="store_true", help="skip the reference (Drake) backend rows")
+    n.add_argument("--certify-resolutions", nargs="*", type=int,
+                   help="R values that also get certified bounds (default: every R; none: no certification)")
+    n.add_argument("--guard-runs", type=int, help="random-push runs per cell, uncertified and certified (default 20)")
     n.add_argument("--no-engine", action="store_true",
                    help="skip the kernel's fresh-cache compile and command wall-time measurements")
     n.add_argument("--out", default="out/bench", help="output folder (default out/bench)")

@@ -11,7 +11,7 @@ from drake_cfvol.bench import PAPER, BenchConfig, markdown, run_bench, write_out
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     cfg = BenchConfig(cells=["automotive"], paths=["path1"], resolutions=[100, 500], trials=2, cf_windows=3,
-                      cf_samples=100, reference_resolutions=[], iris=False, certify_resolutions=[],
+                      cf_samples=100, reference_resolutions=[], iris=False, certify_resolutions=[], guard_runs=0,
                       engine=False)
     result = run_bench(cfg, progress=False)
     out = tmp_path_factory.mktemp("bench")
@@ -77,7 +77,8 @@ def test_clock_uses_measured_time_of_a_kind(monkeypatch):
     import drake_cfvol.bench as B
 
     cfg = BenchConfig(cells=["automotive"], paths=["path1"], resolutions=[100], trials=3, cf_windows=1,
-                      cf_samples=1, reference_resolutions=[], iris=False, certify_resolutions=[], engine=False)
+                      cf_samples=1, reference_resolutions=[], iris=False, certify_resolutions=[], guard_runs=0,
+                      engine=False)
     now = [100.0]
     monkeypatch.setattr(B.time, "perf_counter", lambda: now[0])
     clock = B._BenchClock(cfg, enabled=False, tick_s=3600)
@@ -93,3 +94,22 @@ def test_clock_uses_measured_time_of_a_kind(monkeypatch):
         assert prior_trial != pytest.approx(2.0)
     finally:
         clock.close()
+
+
+@pytest.mark.slow  # certifies the scenario's path (~25 s) and simulates 4 runs
+def test_guard_runs_on_certified_bounds():
+    """Seeded random-push runs on the automotive scenario: each run is
+    reported for both kinds of bounds, the certified ones keep the nominal
+    inside and leave the guard no more work than the uncertified ones, and
+    nothing logged collides."""
+    from drake_cfvol.bench import guard_runs
+
+    rows = guard_runs("automotive", 2)
+    assert [(r["push_seed"], r["bounds"]) for r in rows] == [
+        (0, "uncertified"), (0, "certified"), (1, "uncertified"), (1, "certified")]
+    cert = [r for r in rows if r["bounds"] == "certified"]
+    unc = [r for r in rows if r["bounds"] == "uncertified"]
+    assert all(r["collisions"] == 0 for r in rows)
+    assert sum(r["guard_steps"] for r in cert) <= sum(r["guard_steps"] for r in unc)
+    assert all(r["freedom"] < u["freedom"] for r, u in zip(cert, unc))
+    assert all(r["max_velocity_ratio"] <= 1.0 + 1e-9 for r in rows)

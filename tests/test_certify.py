@@ -73,3 +73,71 @@ def test_invalid_certificate(kwargs):
     """epsilon or confidence outside (0, 1) raise a clear error."""
     with pytest.raises(cf.ParameterError, match="must lie in"):
         Certify(**kwargs)
+
+
+def test_greedy_cut_by_hand():
+    """One colliding sample at (0.9, 0.2) in [-1, 1]^2 around a nominal at the
+    origin: cutting joint 0's upper bound to 0.9 loses log(2 / 1.9), joint 1's
+    to 0.2 loses log(2 / 1.2); the cheaper cut is taken, and only it."""
+    from drake_cfvol.certify import _greedy_cut
+
+    L, U = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    n = _greedy_cut(np.array([[0.9, 0.2]]), np.zeros((1, 2)), L, U)
+    assert n == 1
+    assert U[0] < 0.9 and U[0] == pytest.approx(0.9) and U[1] == 1.0
+    np.testing.assert_array_equal(L, [-1.0, -1.0])
+
+
+def test_greedy_cut_removes_many_at_once():
+    """Ten samples at x = 0.5 .. 0.95 and one at y = -0.95: the ten go by
+    cuts of x's upper bound (the losses telescope to log(2 / 1.5), cheaper
+    than any cut of y that would remove them), the lone one by y's lower
+    bound to -0.95 (log(2 / 1.95), cheaper than x's lower bound to 0.05)."""
+    from drake_cfvol.certify import _greedy_cut
+
+    X = np.vstack([np.column_stack([np.linspace(0.5, 0.95, 10), np.full(10, 0.1)]), [[0.05, -0.95]]])
+    L, U = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    assert _greedy_cut(X, np.zeros_like(X), L, U) >= 2
+    assert U[0] == pytest.approx(0.5) and U[0] < 0.5
+    assert L[1] == pytest.approx(-0.95) and L[1] > -0.95
+    assert U[1] == 1.0 and L[0] == -1.0
+
+
+def test_greedy_cut_refuses_a_sample_at_its_nominal():
+    """A colliding sample at its own nominal cannot be cut away: -1."""
+    from drake_cfvol.certify import _greedy_cut
+
+    assert _greedy_cut(np.array([[0.3, 0.3]]), np.array([[0.3, 0.3]]), np.array([-1.0, -1.0]),
+                       np.array([1.0, 1.0])) == -1
+
+
+def test_edge_biased_share():
+    """With share s, a coordinate lies in the outer tenth with probability
+    s + 0.2 (1 - s) (the snapped ones plus uniform ones that land there)."""
+    from drake_cfvol.certify import _edge_biased
+
+    U = _edge_biased(np.random.default_rng(0), (200000, 2), 0.5)
+    outer = ((U < 0.1) | (U > 0.9)).mean()
+    assert abs(outer - (0.5 + 0.2 * 0.5)) < 0.005
+    assert U.min() >= 0.0 and U.max() <= 1.0
+
+
+@pytest.mark.parametrize("kwargs", [{"search_rounds": -1}, {"edge_share": 1.5}])
+def test_invalid_search_settings(kwargs):
+    """Search settings out of range raise a clear error."""
+    with pytest.raises(cf.ParameterError, match="Certify: "):
+        Certify(**kwargs)
+
+
+def test_certificate_run_is_n_consecutive(corner):
+    """The report counts at least N samples after the search, and the same
+    seed gives the same certified boxes."""
+    wc, path = corner
+    c = Certify(epsilon=1e-3, confidence=0.99, batch=200, search_rounds=2)
+    a = cf.estimate_bounds(wc, path, h_max=0.0, certify=c)
+    b = cf.estimate_bounds(wc, path, h_max=0.0, certify=c)
+    rep = a.info["certificate"]
+    search = (200 + 400) * (path.g - 1)
+    assert rep["samples"] >= search + rep["n_samples"]
+    np.testing.assert_array_equal(a.stretch_upper, b.stretch_upper)
+    np.testing.assert_array_equal(a.stretch_lower, b.stretch_lower)
