@@ -305,7 +305,7 @@ def run_bench(cfg: BenchConfig, *, progress: bool = True) -> dict:
                                       "time_ms_median": float(np.median(rt)), "trials": len(rt)})
                 if R in cfg.certify_resolutions:
                     cert = estimate_bounds(wc, path, resolution=R, certify=Certify(
-                        epsilon=cfg.certify_epsilon, confidence=cfg.certify_confidence, seed=cfg.seed))
+                        epsilon=cfg.certify_epsilon, confidence=cfg.certify_confidence, seed=cfg.seed, cache=False))
                     clock.done(("certify",))
                     ccf = confidence_factor(wc, cert, windows=cfg.cf_windows, samples=cfg.cf_samples, seed=cfg.seed)
                     rep = cert.info["certificate"]

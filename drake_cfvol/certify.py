@@ -32,8 +32,13 @@ evaluation's.
 """
 
 import dataclasses
+import hashlib
+import json
 import math
+import os
 import time
+import zipfile
+from pathlib import Path
 
 import numpy as np
 
@@ -42,7 +47,7 @@ from drake_cfvol.metrics import freedom
 from drake_cfvol.progress import Progress
 from drake_cfvol.table import waypoint_boxes
 
-__all__ = ["Certify", "CertificateReport", "certify_bounds", "certification_rng"]
+__all__ = ["Certify", "CertificateReport", "certify_bounds", "certification_rng", "cache_dir"]
 
 #: Spawn key that separates certification draws from CF draws of the same seed.
 _CERT_STREAM = 0xCE27
@@ -59,12 +64,19 @@ class Certify:
         batch: search samples per stretch in the first search round
             (rounds double it).
         search_rounds: search rounds before the certificate run.
+        search_factor: the search draws at most this many times N samples
+            in all (a small N needs little search).
         edge_share: share of search coordinates drawn in the outer tenth
             of their range.
         focus_samples, focus_rounds: after a colliding sample in the
             certificate run, its stretch is searched again with this many
             samples per round, until a round finds nothing (at most
             ``focus_rounds``).
+        cache: reuse a certificate computed before for exactly the same
+            inputs (scene, path, bounds, settings; see :func:`cache_dir`).
+            Certification is deterministic, so a cached result is the
+            result; the report says it was cached and how long the original
+            run took.
     """
 
     epsilon: float = 1e-5
@@ -75,6 +87,8 @@ class Certify:
     edge_share: float = 0.5
     focus_samples: int = 20000
     focus_rounds: int = 4
+    search_factor: float = 8.0
+    cache: bool = dataclasses.field(default=True, compare=False)
 
     def __post_init__(self):
         for name in ("epsilon", "confidence"):
@@ -85,6 +99,8 @@ class Certify:
             raise ParameterError(f"Certify: batch must be >= 1, got {self.batch}.")
         if self.search_rounds < 0:
             raise ParameterError(f"Certify: search_rounds must be >= 0, got {self.search_rounds}.")
+        if not self.search_factor >= 0.0:
+            raise ParameterError(f"Certify: search_factor must be >= 0, got {self.search_factor!r}.")
         if not 0.0 <= self.edge_share <= 1.0:
             raise ParameterError(f"Certify: edge_share must lie in [0, 1], got {self.edge_share!r}.")
 
@@ -118,6 +134,7 @@ class CertificateReport:
     freedom_after: float
     proven: str = ""
     sampled: str = ""
+    cached: bool = False
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -126,6 +143,50 @@ class CertificateReport:
 def certification_rng(seed: int) -> np.random.Generator:
     """The certification sampler (distinct from CF's ``default_rng(seed)``)."""
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_CERT_STREAM,)))
+
+
+def cache_dir() -> Path | None:
+    """Where certified boxes are kept: ``$DRAKE_CFVOL_CACHE`` (``off``
+    disables the cache), else ``$XDG_CACHE_HOME/drake_cfvol`` or
+    ``~/.cache/drake_cfvol``. Entries are named by a hash of every input,
+    so a changed scene, path, bound or setting never reuses a stale one;
+    delete the folder to clear it."""
+    env = os.environ.get("DRAKE_CFVOL_CACHE")
+    if env is not None:
+        return None if env.strip().lower() in ("", "off", "0", "no", "false") else Path(env).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "drake_cfvol"
+
+
+def _cache_key(arrays, table, certify: Certify) -> str:
+    from drake_cfvol._version import __version__
+
+    h = hashlib.sha256(f"certify/{__version__}/{certify!r}".encode())
+    for a in (table.nominal, table.stretch_lower, table.stretch_upper, table.rate, arrays.shapes, arrays.shape_body,
+              arrays.obstacles, arrays.verts, arrays.self_pairs, *arrays.chain):
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype}{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:32]
+
+
+def _cache_load(file: Path):
+    try:
+        with np.load(file, allow_pickle=False) as z:
+            report = CertificateReport(**json.loads(str(z["report"])))
+            return z["lower"].copy(), z["upper"].copy(), report
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):
+        return None  # missing or damaged: compute again
+
+
+def _cache_store(file: Path, lower, upper, report) -> None:
+    try:
+        file.parent.mkdir(parents=True, exist_ok=True)
+        tmp = file.with_suffix(f".{os.getpid()}.tmp.npz")
+        np.savez(tmp, lower=lower, upper=upper, report=json.dumps(report.to_dict()))
+        os.replace(tmp, file)
+    except OSError:
+        pass  # a read-only or full disk only costs the next run its time
 
 
 def _greedy_cut(X, N, L, U):
@@ -199,6 +260,13 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
     """
     t0 = time.perf_counter()
     arrays = workcell.scene_arrays()
+    folder = cache_dir() if certify.cache else None
+    file = folder / "certificates" / f"{_cache_key(arrays, table, certify)}.npz" if folder else None
+    if file is not None and file.is_file():
+        hit = _cache_load(file)
+        if hit is not None:
+            hit[2].cached = True
+            return hit
     nominal, rate = table.nominal, table.rate
     st_lo, st_hi = table.stretch_lower.copy(), table.stretch_upper.copy()
     g, k = nominal.shape
@@ -230,7 +298,12 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
         # Search: stratified over the stretches, edge-biased, every colliding
         # sample of a round cut at once.
         per = certify.batch
+        budget = certify.search_factor * N  # a search much longer than the certificate buys nothing
         for _ in range(certify.search_rounds):
+            per = min(per, int(budget // (g - 1)))
+            if per < 1:
+                break
+            budget -= per * (g - 1)
             s = np.repeat(np.arange(g - 1), per) + rng.random((g - 1) * per)
             lo, hi, _ = current.boxes_at(s)
             Q = lo + _edge_biased(rng, lo.shape, certify.edge_share) * (hi - lo)
@@ -258,8 +331,9 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
                 # The stretches that still collide get a search of their own
                 # (cheaper than another run over the whole path).
                 hit = np.unique(np.minimum(np.floor(s[flagged]).astype(int), g - 2))
+                focus = max(1, min(certify.focus_samples, N))
                 for _ in range(certify.focus_rounds):
-                    s2 = np.repeat(hit, certify.focus_samples) + rng.random(len(hit) * certify.focus_samples)
+                    s2 = np.repeat(hit, focus) + rng.random(len(hit) * focus)
                     lo, hi, _ = current.boxes_at(s2)
                     Q2 = lo + _edge_biased(rng, lo.shape, certify.edge_share) * (hi - lo)
                     f2 = np.flatnonzero(arrays.may_collide(Q2))
@@ -281,4 +355,6 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
                f"{certify.epsilon:g} of such configurations collides (about {certify.epsilon * 3e5:g} of 300,000).")
     report = CertificateReport(certify.epsilon, certify.confidence, N, (time.perf_counter() - t0) * 1e3,
                                samples, shrinks, before, after, proven, sampled)
+    if file is not None:
+        _cache_store(file, current.stretch_lower, current.stretch_upper, report)
     return current.stretch_lower, current.stretch_upper, report

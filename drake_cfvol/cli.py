@@ -75,8 +75,9 @@ def _emit(summary: dict, as_json: bool) -> None:
         elif key == "categories" and isinstance(v, dict):
             text = "; ".join(f"{n.replace('_', '-')}: {', '.join(x) or '-'}" for n, x in v.items())
         elif key == "certificate" and isinstance(v, dict):
-            lines.append(("certificate", f"{v.get('shrinks', 0)} cuts, freedom {v.get('freedom_before', 0):.3f} -> "
-                                         f"{v.get('freedom_after', 0):.3f}"))
+            lines.append(("certificate", ("cached; " if v.get("cached") else "")
+                          + f"{v.get('shrinks', 0)} cuts, freedom {v.get('freedom_before', 0):.3f} -> "
+                          f"{v.get('freedom_after', 0):.3f}"))
             lines.append(("  proven", v.get("proven", "")))
             lines.append(("  sampled", v.get("sampled", "")))
             continue
@@ -153,7 +154,7 @@ def cmd_bounds(args) -> int:
     if args.certify:
         from drake_cfvol.certify import Certify
 
-        certify = Certify(epsilon=args.epsilon, confidence=args.confidence, seed=args.seed)
+        certify = Certify(epsilon=args.epsilon, confidence=args.confidence, seed=args.seed, cache=not args.no_cache)
     table = estimate_bounds(wc, path, resolution=args.resolution, backend=args.backend, certify=certify,
                             progress=bars)
     cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
@@ -284,6 +285,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--certify", action="store_true",
                    help="shrink the boxes until each stretch holds a sampled safety certificate")
     b.add_argument("--epsilon", type=float, default=1e-5, help="certificate: colliding share allowed (1e-5)")
+    b.add_argument("--no-cache", action="store_true",
+                   help="certify again even if the same certificate is cached (see DRAKE_CFVOL_CACHE)")
     b.add_argument("--confidence", type=float, default=0.99, help="certificate: confidence (0.99)")
     b.add_argument("--out", help="folder for bounds (.npz, .json), path and plot")
     b.add_argument("--plot", action="store_true", help="write a PNG of the bounds (needs --out)")

@@ -14,6 +14,22 @@ import yaml
 import drake_cfvol as cf
 
 
+@pytest.fixture(scope="session", autouse=True)
+def certificate_cache(tmp_path_factory):
+    """Certificates computed by the tests go to a cache of the session's own
+    (never the user's ~/.cache), shared by the tests of one run."""
+    import os
+
+    folder = tmp_path_factory.mktemp("cfvol_cache")
+    old = os.environ.get("DRAKE_CFVOL_CACHE")
+    os.environ["DRAKE_CFVOL_CACHE"] = str(folder)
+    yield folder
+    if old is None:
+        os.environ.pop("DRAKE_CFVOL_CACHE", None)
+    else:
+        os.environ["DRAKE_CFVOL_CACHE"] = old
+
+
 @pytest.fixture(scope="session")
 def automotive():
     return cf.load_workcell("automotive")

@@ -137,7 +137,48 @@ def test_certificate_run_is_n_consecutive(corner):
     a = cf.estimate_bounds(wc, path, h_max=0.0, certify=c)
     b = cf.estimate_bounds(wc, path, h_max=0.0, certify=c)
     rep = a.info["certificate"]
-    search = (200 + 400) * (path.g - 1)
+    search = min((200 + 400) * (path.g - 1), 8 * rep["n_samples"])
     assert rep["samples"] >= search + rep["n_samples"]
     np.testing.assert_array_equal(a.stretch_upper, b.stretch_upper)
     np.testing.assert_array_equal(a.stretch_lower, b.stretch_lower)
+
+
+def test_cache_reuses_exact_inputs_only(corner, tmp_path, monkeypatch):
+    """A second identical certification loads the first one's boxes (same
+    arrays, report marked cached); another seed computes anew; cache=False
+    and DRAKE_CFVOL_CACHE=off never read the cache."""
+    from drake_cfvol.certify import cache_dir
+
+    wc, path = corner
+    monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path))
+    assert cache_dir() == tmp_path
+    c = Certify(epsilon=1e-3, confidence=0.99, batch=200, search_rounds=1)
+    a = cf.estimate_bounds(wc, path, h_max=0.0, certify=c)
+    b = cf.estimate_bounds(wc, path, h_max=0.0, certify=c)
+    assert not a.info["certificate"]["cached"] and b.info["certificate"]["cached"]
+    np.testing.assert_array_equal(a.stretch_upper, b.stretch_upper)
+    np.testing.assert_array_equal(a.upper, b.upper)
+    assert b.info["certificate"]["time_ms"] == a.info["certificate"]["time_ms"]  # the original run's
+    assert len(list((tmp_path / "certificates").glob("*.npz"))) == 1
+    other = cf.estimate_bounds(wc, path, h_max=0.0, certify=Certify(epsilon=1e-3, confidence=0.99, batch=200,
+                                                                      search_rounds=1, seed=5))
+    assert not other.info["certificate"]["cached"]
+    fresh = cf.estimate_bounds(wc, path, h_max=0.0, certify=Certify(epsilon=1e-3, confidence=0.99, batch=200,
+                                                                      search_rounds=1, cache=False))
+    assert not fresh.info["certificate"]["cached"]
+    monkeypatch.setenv("DRAKE_CFVOL_CACHE", "off")
+    assert cache_dir() is None
+    assert not cf.estimate_bounds(wc, path, h_max=0.0, certify=c).info["certificate"]["cached"]
+
+
+def test_damaged_cache_entry_is_recomputed(corner, tmp_path, monkeypatch):
+    """A truncated cache file is ignored and replaced, not an error."""
+    wc, path = corner
+    monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path))
+    c = Certify(epsilon=1e-3, confidence=0.99, batch=200, search_rounds=1)
+    a = cf.estimate_bounds(wc, path, h_max=0.0, certify=c)
+    (f,) = (tmp_path / "certificates").glob("*.npz")
+    f.write_bytes(f.read_bytes()[:50])
+    b = cf.estimate_bounds(wc, path, h_max=0.0, certify=c)
+    assert not b.info["certificate"]["cached"]
+    np.testing.assert_array_equal(a.stretch_upper, b.stretch_upper)

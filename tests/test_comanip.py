@@ -13,11 +13,15 @@ import pytest
 from drake_cfvol.comanip import build_comanipulation_diagram, load_scenario, run_scenario
 import drake_cfvol as cf
 
+#: Most tests run the bundled scenarios on uncertified bounds: certifying a
+#: path takes tens of seconds, and what they test does not depend on it.
+#: The scenarios' own default (certified) runs in the slow group.
+FAST = "{certify: false}"
 
 @pytest.fixture(scope="module", params=["automotive_push", "aerospace_push"])
 def run(request, tmp_path_factory):
     out = tmp_path_factory.mktemp(request.param)
-    return request.param, out, run_scenario(request.param, out)
+    return request.param, out, run_scenario(request.param, out, scenario_text=FAST)
 
 
 def test_run_inside_bounds_and_free(run):
@@ -62,7 +66,7 @@ def test_run_reports_volume_and_clearance(run):
     name, out, summary = run
     logs = np.load(out / "logs.npz")
     wc = cf.load_workcell(summary["cell"])
-    scenario, file = load_scenario(name)
+    scenario, file = load_scenario(name, scenario_text=FAST)
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     hits = ReferenceScene(wc, cm.bounds.volume.volume).volume_hits(logs["commanded_position"])
     assert summary["volume_penetrations"] >= int(hits.sum())
@@ -129,7 +133,7 @@ def test_volume_in_the_diagrams_scene_at_r20000():
 
     from pydrake.geometry import Role
 
-    scenario, file = load_scenario("aerospace_push")
+    scenario, file = load_scenario("aerospace_push", scenario_text=FAST)
     scenario = dataclasses.replace(scenario, resolution=20000)
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     vol = cm.bounds.volume.volume
@@ -149,7 +153,7 @@ def test_volume_in_the_diagrams_scene_at_r20000():
 def test_every_system_named():
     """Every system of a built diagram (log sinks, adders, the visualizer,
     SceneGraph) has a chosen name, so the diagram's SVG names them all."""
-    scenario, file = load_scenario("automotive_random", scenario_text="{reactive: {gain: 10.0}}")
+    scenario, file = load_scenario("automotive_random", scenario_text="{reactive: {gain: 10.0}, certify: false}")
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent, meshcat=None)
     names = [sys.get_name() for sys in cm.diagram.GetSystems()]
     assert len(names) == len(set(names)) and not any(n.startswith("drake/") or "@" in n for n in names)
@@ -159,7 +163,7 @@ def test_every_system_named():
 
 def test_diagram_ports_named():
     """The factory's diagram exports its ports by name."""
-    scenario, file = load_scenario("automotive_push")
+    scenario, file = load_scenario("automotive_push", scenario_text=FAST)
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     names = {cm.diagram.get_output_port(i).get_name() for i in range(cm.diagram.num_output_ports())}
     assert {"path_index", "lower", "upper", "nominal", "commanded_position", "min_distance"} <= names
@@ -170,7 +174,7 @@ def test_table_loaded_from_disk_builds_a_diagram(tmp_path):
     co-manipulation diagram: its volume is grown again, with the same columns."""
     from pydrake.systems.analysis import Simulator
 
-    scenario, file = load_scenario("automotive_push")
+    scenario, file = load_scenario("automotive_push", scenario_text=FAST)
     wc = cf.load_workcell(scenario.cell)
     path = cf.plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed)
     table = cf.estimate_bounds(wc, path, resolution=scenario.resolution)
@@ -265,7 +269,8 @@ def test_random_pushes_seeded_through_the_context():
     from pydrake.common import RandomGenerator
     from pydrake.systems.analysis import Simulator
 
-    scenario, file = load_scenario("automotive_push", scenario_text="{pushes: [], random_pushes: {count: 6}}")
+    scenario, file = load_scenario("automotive_push",
+                                   scenario_text="{pushes: [], random_pushes: {count: 6}, certify: false}")
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     port = cm.diagram.GetOutputPort("human_torque")
 
@@ -294,7 +299,7 @@ def test_every_bundled_scenario_runs_safely(name, tmp_path):
     the fixture): every logged configuration inside the bounds and free
     (Drake, recounted), joint speeds within the limits, the summary's keys
     reported; the co-worker really moves the robot."""
-    s = run_scenario(name, tmp_path, record=False, plot=False, svg=False)
+    s = run_scenario(name, tmp_path, record=False, plot=False, svg=False, scenario_text=FAST)
     assert all(k in s and s[k] is not None for k in _KEYS)
     logs = np.load(tmp_path / "logs.npz")
     q, lo, hi, t = logs["commanded_position"], logs["lower"], logs["upper"], logs["commanded_position_t"]
@@ -311,7 +316,7 @@ def test_push_toward_nearest_obstacle_points_at_it():
     nominal when the push starts (recomputed here from the workcell)."""
     from drake_cfvol.comanip import _resolve_pushes
 
-    scenario, file = load_scenario("automotive_push")
+    scenario, file = load_scenario("automotive_push", scenario_text=FAST)
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     i = next(n for n, p in enumerate(scenario.pushes) if p.toward_nearest_obstacle)
     push = _resolve_pushes(scenario, cm.workcell, cm.path, cm.progress)[i]
@@ -341,3 +346,20 @@ def test_scenario_certify_asks_for_certified_bounds(monkeypatch):
         scenario, file = load_scenario("automotive_reactive", scenario_text=f"{{certify: {flag}, resolution: 200}}")
         build_comanipulation_diagram(scenario, base_dir=file.parent)
     assert asked[0] == Certify(seed=scenario.seed) and asked[1] is None
+
+
+@pytest.mark.slow  # certifies both cells' path 1 (tens of seconds each, cached after)
+@pytest.mark.parametrize("name", ["automotive_push", "aerospace_push", "automotive_random", "aerospace_random"])
+def test_certified_scenarios_leave_the_guard_idle(name, tmp_path):
+    """The bundled scenarios as shipped run on certified bounds: the
+    collision guard never acts, and every logged configuration is inside
+    the bounds and free (Drake, recounted)."""
+    scenario, _ = load_scenario(name)
+    assert scenario.certify
+    s = run_scenario(name, tmp_path, record=False, plot=False, svg=False)
+    assert s["guard_steps"] == 0 and s["collisions"] == 0
+    logs = np.load(tmp_path / "logs.npz")
+    q = logs["commanded_position"]
+    assert np.all(q >= logs["lower"]) and np.all(q <= logs["upper"])
+    wc = cf.load_workcell(s["cell"])
+    assert np.array(wc.checker.CheckConfigsCollisionFree(q), bool).all()
