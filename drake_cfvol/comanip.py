@@ -43,6 +43,7 @@ from pydrake.geometry import (
 )
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.common import RandomDistribution, RandomGenerator
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorConfig
 from pydrake.systems.framework import DiagramBuilder
@@ -51,6 +52,7 @@ from pydrake.visualization import VisualizationConfig
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_cfvol.certify import Certify
+from drake_cfvol.ghosts import GhostGuard
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.pipeline import estimate_bounds
@@ -163,8 +165,11 @@ class Scenario:
         reactive: a co-worker reacting to the robot's position (added).
         log_period: logging and recording period, s.
         params: VolumeParams overrides.
-        collision_guard: scale pushes back where the clamped configuration
-            would collide with the real scene (see AdmittanceDeformation).
+        collision_guard: hold or scale back pushes where the commanded
+            configuration would collide with the real scene, checked through
+            the diagram's SceneGraph with ghost robots (see
+            AdmittanceDeformation's query guard and
+            :class:`drake_cfvol.ghosts.GhostGuard`).
         simulator_config: Drake's simulator settings (``ApplySimulatorConfig``).
         visualization: Drake's visualization settings for the recording
             (illustration and proximity layers, publish period, colours;
@@ -479,19 +484,6 @@ def _resolve_pushes(scenario: Scenario, workcell, path, progress) -> list[Push]:
     return out
 
 
-def _kernel_guard(workcell):
-    """The collision guard's test, q -> True if certified free: the compiled
-    kernel on arrays read from Drake once (conservative: it never calls a
-    colliding configuration free), a pure function that touches no Drake
-    context."""
-    arrays = workcell.scene_arrays()
-
-    def is_free(q) -> bool:
-        return not bool(arrays.may_collide(np.asarray(q, float)[None])[0])
-
-    return is_free
-
-
 def _colour_obstacles(plant, scene_graph, workcell, categories) -> None:
     # Drake warns on every illustration update that it must precede the
     # visualizer's initialization: it does (no visualizer exists yet).
@@ -594,15 +586,35 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     source_ahead = builder.AddNamedSystem("joint_bounds_ahead", JointBoundsSource(bounds, clamp=True))
     adm = builder.AddNamedSystem("admittance", AdmittanceDeformation(
         k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=a.period, plant=plant,
-        tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot),
-        collision_guard=_kernel_guard(wc) if scenario.collision_guard else None,
+        tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot), query_guard=scenario.collision_guard,
         velocity_limits=wc.velocity_limits, path_share=share))
     pushes = _resolve_pushes(scenario, wc, path, progress)
     rp = scenario.random_pushes
     human = builder.AddNamedSystem("human", ScriptedHuman(k, pushes))
     robot_ids, moving_ids = robot_geometry_ids(plant, robot)
+    ghosts = None
+    if scenario.collision_guard:
+        # The guard's checks, through this SceneGraph: ghost copies of the
+        # robot posed at the admittance's candidates, two poses each.
+        ghosts = builder.AddNamedSystem("ghost_guard", GhostGuard(
+            scene_graph, wc, 2 * AdmittanceDeformation.num_candidates, exclude_ids=set(robot_ids) | set(volume_ids)))
+        source_ahead2 = builder.AddNamedSystem("joint_bounds_ahead2", JointBoundsSource(bounds, clamp=True))
+        builder.Connect(progress.path_index_ahead2_output, source_ahead2.path_index_input)
+        builder.Connect(source_ahead2.nominal_output, adm.nominal_ahead2_input)
+        builder.Connect(source_ahead2.lower_output, adm.lower_ahead2_input)
+        builder.Connect(source_ahead2.upper_output, adm.upper_ahead2_input)
+        builder.Connect(adm.candidates_output, ghosts.configurations_input)
+        builder.Connect(ghosts.geometry_pose_output, scene_graph.get_source_pose_port(ghosts.source_id))
+        builder.Connect(scene_graph.get_query_output_port(), ghosts.query_object_input)
+        builder.Connect(ghosts.free_output, adm.candidates_free_input)
+    inspector = scene_graph.model_inspector()
+    obstacle_ids = [g for i in map(ModelInstanceIndex, range(plant.num_model_instances())) if i != robot
+                    for b in plant.GetBodyIndices(i) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]
+    not_obstacles = set(volume_ids) | set(robot_ids)
+    obstacle_ids = sorted({g for g in obstacle_ids if g not in not_obstacles
+                           and inspector.GetProximityProperties(g) is not None}, key=lambda g: g.get_value())
     monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
-        robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids))
+        robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids, obstacle_ids=obstacle_ids))
     to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
 
     builder.Connect(progress.path_index_output, source.path_index_input)

@@ -10,6 +10,9 @@
 - :class:`ReactiveCoworker`: a person reacting to the robot's position.
 - :class:`ClearanceMonitor`: clearance, collision and volume contact, through
   a SceneGraph's query port.
+
+The collision guard's ghost robots (checks of configurations the robot is
+about to take, through the same query port) are in :mod:`drake_cfvol.ghosts`.
 """
 
 
@@ -168,10 +171,15 @@ def AdmittanceDeformation_(T):
             - nominal_ahead
             - lower_ahead
             - upper_ahead
+            - nominal_ahead2 (query guard only)
+            - lower_ahead2 (query guard only)
+            - upper_ahead2 (query guard only)
+            - candidates_free (query guard only)
             output_ports:
             - commanded_position
             - deviation
             - guard_active
+            - candidates (query guard only)
 
         Per joint, the deviation d from the nominal obeys
         M d'' + D d' + K d = tau_h + J(q)^T w_h, integrated every ``period``
@@ -216,6 +224,21 @@ def AdmittanceDeformation_(T):
         uses the compiled kernel's conservative test, which touches no Drake
         context).
 
+        Query guard (``query_guard=True``, instead of a callable): the
+        collision checks go through the diagram's SceneGraph. Each update
+        proposes the next deviation and its fallbacks (held, eased towards
+        the nominal, half of it, none), and outputs them on ``candidates``
+        posed where they would be commanded: at the next update and one
+        period later (``*_ahead`` and ``*_ahead2``: nominal and bounds one
+        and two periods ahead), each a full configuration. A
+        :class:`drake_cfvol.ghosts.GhostGuard` poses ghost copies of the
+        robot there and answers ``candidates_free`` through the SceneGraph's
+        query port; the next update commands the first candidate whose two
+        poses are both free. The push thus acts one period later than with a
+        callable guard, and every commanded configuration at an update (and
+        the one it holds until the next) was checked in the diagram's own
+        scene.
+
         Scalar types: float and AutoDiffXd (``ToAutoDiffXd()``); with
         AutoDiffXd, derivatives flow through the dynamics, the clamp and the
         parameters, while the guard and the wrench's Jacobian are evaluated on
@@ -237,11 +260,13 @@ def AdmittanceDeformation_(T):
             velocity_limits: (k,) joint velocity limits, rad/s (m/s; inf: no
                 limit), or None (no limit).
             path_share: see above; in (0, 1).
+            query_guard: check through ghost robots in the SceneGraph (see
+                above) instead of ``collision_guard``.
         """
 
         def _construct(self, k: int, *, mass=10.0, damping=200.0, stiffness=400.0, period: float = 0.01,
                        plant=None, tool_frame=None, collision_guard=None, guard_iterations: int = 10,
-                       velocity_limits=None, path_share: float = 0.5, converter=None):
+                       velocity_limits=None, path_share: float = 0.5, query_guard: bool = False, converter=None):
             LeafSystem_[T].__init__(self, converter)
             if not period > 0:
                 raise ParameterError(f"period must be > 0 s, got {period}.")
@@ -268,6 +293,10 @@ def AdmittanceDeformation_(T):
             self._tool = tool_frame
             self._guard = collision_guard
             self._guard_iterations = int(guard_iterations)
+            self.query_guard = bool(query_guard)
+            if self.query_guard and collision_guard is not None:
+                raise ParameterError("AdmittanceDeformation: give either collision_guard (a callable) or "
+                                     "query_guard=True (ghosts in the SceneGraph), not both.")
             self.mass_parameter = self.DeclareNumericParameter(BasicVector_[T](self.M))
             self.damping_parameter = self.DeclareNumericParameter(BasicVector_[T](self.D))
             self.stiffness_parameter = self.DeclareNumericParameter(BasicVector_[T](self.K))
@@ -293,6 +322,17 @@ def AdmittanceDeformation_(T):
             # The nominal and bounds at the last update (NaN before the first),
             # for the guard's look-ahead.
             self._previous_inputs = self.DeclareDiscreteState(np.full(3 * k, np.nan))
+            if self.query_guard:
+                C = self.num_candidates
+                self.nominal_ahead2_input = self.DeclareVectorInputPort(name="nominal_ahead2", size=k)
+                self.lower_ahead2_input = self.DeclareVectorInputPort(name="lower_ahead2", size=k)
+                self.upper_ahead2_input = self.DeclareVectorInputPort(name="upper_ahead2", size=k)
+                self.candidates_free_input = self.DeclareVectorInputPort(name="candidates_free", size=2 * C)
+                # Candidate deviations, their poses (2 per candidate), and
+                # whether they were set (not before the first update).
+                self._cand = self.DeclareDiscreteState(C * k)
+                self._posed = self.DeclareDiscreteState(2 * C * k)
+                self._valid = self.DeclareDiscreteState(1)
             self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
             self.commanded_position_output = self.DeclareVectorOutputPort(
                 name="commanded_position", size=k, calc=self._calc_commanded,
@@ -306,12 +346,21 @@ def AdmittanceDeformation_(T):
                 name="guard_active", size=1,
                 calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._guard_state).CopyToVector()),
                 prerequisites_of_calc={self.xd_ticket()})
+            if self.query_guard:
+                self.candidates_output = self.DeclareVectorOutputPort(
+                    name="candidates", size=2 * self.num_candidates * k,
+                    calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._posed).CopyToVector()),
+                    prerequisites_of_calc={self.xd_ticket()})
+
+        #: Candidates of the query guard: the proposal, held, eased towards
+        #: the nominal, half of the held deviation, none.
+        num_candidates = 5
 
         def _construct_copy(self, other, converter=None):
             Impl._construct(self, other.k, mass=other.M, damping=other.D, stiffness=other.K, period=other.period,
                             plant=other._plant, tool_frame=other._tool, collision_guard=other._guard,
                             guard_iterations=other._guard_iterations, velocity_limits=other._velocity_limits,
-                            path_share=other.path_share, converter=converter)
+                            path_share=other.path_share, query_guard=other.query_guard, converter=converter)
 
         def gains(self, context) -> tuple:
             """(M, D, K) of this context (the numeric parameters)."""
@@ -357,17 +406,11 @@ def AdmittanceDeformation_(T):
             return tau
 
         def _update(self, context, discrete_state):
+            if self.query_guard:
+                return self._update_query(context, discrete_state)
             nominal, lower, upper = self._inputs(context)
-            M, D, K = self.gains(context)
             x = context.get_discrete_state(self._state).CopyToVector()
-            d, v = x[:self.k].copy(), x[self.k:].copy()
-            q = _clip(nominal + d, lower, upper)
-            tau = self._push(context, q)
-            h = self.period
-            v = v + h * (tau - D * v - K * d) / M
-            if self.max_rate is not None:
-                v = _clip(v, -self.max_rate, self.max_rate)
-            d = d + h * v
+            d, v = self._step(context, x[:self.k].copy(), x[self.k:].copy(), nominal, lower, upper)
             # No wind-up: keep nominal + d inside [lower, upper]; stop outward rates.
             lo, hi = lower - nominal, upper - nominal
             dv, vv = _values(d), _values(v)
@@ -384,6 +427,68 @@ def AdmittanceDeformation_(T):
                 np.concatenate([nominal, lower, upper]))
             discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
             discrete_state.get_mutable_vector(self._guard_state).SetFromVector([float(acted)])
+
+        def _step(self, context, d, v, nominal, lower, upper):
+            """One semi-implicit Euler step of the admittance from (d, v),
+            pushed at the configuration commanded now: the new (d, v)."""
+            M, D, K = self.gains(context)
+            tau = self._push(context, _clip(nominal + d, lower, upper))
+            h = self.period
+            v = v + h * (tau - D * v - K * d) / M
+            if self.max_rate is not None:
+                v = _clip(v, -self.max_rate, self.max_rate)
+            return d + h * v, v
+
+        def _update_query(self, context, discrete_state):
+            """The query guard's update (see the class docs)."""
+            k, C = self.k, self.num_candidates
+            nominal, lower, upper = self._inputs(context)
+            x = context.get_discrete_state(self._state).CopyToVector()
+            d, v = x[:k].copy(), x[k:].copy()
+            acted = False
+            if _values(context.get_discrete_state(self._valid).CopyToVector())[0] > 0.5:
+                flags = _values(self.candidates_free_input.Eval(context)) > 0.5
+                ok = flags[0::2] & flags[1::2]
+                cands = context.get_discrete_state(self._cand).CopyToVector().reshape(C, k)
+                c = int(np.argmax(ok)) if ok.any() else C - 1  # none free: the nominal
+                d = cands[c].copy()
+                if c > 0:
+                    v, acted = 0 * v, True
+            # The proposal for the next update, from the commanded state now.
+            proposal, v = self._step(context, d, v, nominal, lower, upper)
+            h = self.period
+            ahead = [self._require(p, context) for p in (self.nominal_ahead_input, self.lower_ahead_input,
+                                                         self.upper_ahead_input, self.nominal_ahead2_input,
+                                                         self.lower_ahead2_input, self.upper_ahead2_input)]
+            n1, lo1, hi1, n2, lo2, hi2 = ahead
+            lo1, hi1 = np.minimum(lo1, n1), np.maximum(hi1, n1)
+            lo2, hi2 = np.minimum(lo2, n2), np.maximum(hi2, n2)
+            pv, vv = _values(proposal), _values(v)
+            at_hi, at_lo = pv >= hi1 - n1, pv <= lo1 - n1
+            proposal = _clip(proposal, lo1 - n1, hi1 - n1)
+            v = np.where((at_hi & (vv > 0)) | (at_lo & (vv < 0)), 0 * v, v)
+            held = _clip(_values(d), lo1 - n1, hi1 - n1)
+            eased = held
+            if self.max_rate is not None:
+                cap = np.where(np.isfinite(self.max_rate), self.max_rate * h, np.abs(held))
+                eased = held - np.clip(held, -cap, cap)
+            devs = np.array([_values(proposal), held, eased, 0.5 * held, 0 * held])
+            posed = np.concatenate([np.concatenate([np.clip(n1 + e, lo1, hi1), np.clip(n2 + e, lo2, hi2)])
+                                    for e in devs])
+            discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
+            discrete_state.get_mutable_vector(self._guard_state).SetFromVector([float(acted)])
+            discrete_state.get_mutable_vector(self._cand).SetFromVector(devs.ravel())
+            discrete_state.get_mutable_vector(self._posed).SetFromVector(posed)
+            discrete_state.get_mutable_vector(self._valid).SetFromVector([1.0])
+            discrete_state.get_mutable_vector(self._previous_inputs).SetFromVector(
+                np.concatenate([nominal, lower, upper]))
+
+        def _require(self, port, context) -> np.ndarray:
+            if not port.HasValue(context):
+                raise ParameterError(f"AdmittanceDeformation: the query guard needs input '{port.get_name()}' "
+                                     "connected (nominal and bounds one and two periods ahead, and the ghosts' "
+                                     "answers; see build_comanipulation_diagram).")
+            return _values(port.Eval(context))
 
         def _ahead(self, context, nominal, lower, upper) -> np.ndarray:
             """[nominal, lower, upper] one period ahead: the ``*_ahead``
@@ -480,10 +585,12 @@ class PathProgress(Diagram):
         output_ports:
         - path_index
         - path_index_ahead
+        - path_index_ahead2
 
     ``path_index_ahead`` is s(t + lead): where the path will be one
     controller period later (the collision guard checks the deviation it is
-    about to hold against the bounds there).
+    about to hold against the bounds there); ``path_index_ahead2`` is
+    s(t + 2 lead) (the query guard poses its candidates one period further).
 
     Args:
         g: number of waypoints.
@@ -512,12 +619,17 @@ class PathProgress(Diagram):
         ahead = PiecewisePolynomial.FirstOrderHold(
             [t0 - self.lead, max(self.duration, t0 + 1e-9) - self.lead], np.array([[0.0, self.g - 1.0]]))
         source_ahead = builder.AddNamedSystem("trajectory_ahead", TrajectorySource(ahead))
+        ahead2 = PiecewisePolynomial.FirstOrderHold(
+            [t0 - 2 * self.lead, max(self.duration, t0 + 1e-9) - 2 * self.lead], np.array([[0.0, self.g - 1.0]]))
+        source_ahead2 = builder.AddNamedSystem("trajectory_ahead2", TrajectorySource(ahead2))
         builder.ExportOutput(source.get_output_port(), "path_index")
         builder.ExportOutput(source_ahead.get_output_port(), "path_index_ahead")
+        builder.ExportOutput(source_ahead2.get_output_port(), "path_index_ahead2")
         builder.BuildInto(self)
         self.set_name("path_progress")
         self.path_index_output = self.GetOutputPort("path_index")
         self.path_index_ahead_output = self.GetOutputPort("path_index_ahead")
+        self.path_index_ahead2_output = self.GetOutputPort("path_index_ahead2")
 
     def index_at(self, t: float) -> float:
         """s at time t."""
@@ -720,15 +832,22 @@ class ClearanceMonitor(LeafSystem):
         robot_ids: proximity geometry ids of the robot (all links).
         moving_ids: the subset on links the joints move.
         volume_ids: the volume's boxes; every other proximity geometry is an
-            obstacle.
+            obstacle, unless ``obstacle_ids`` names them.
         max_distance: distances beyond this are reported as this, m.
+        obstacle_ids: the obstacles, if known: ``min_distance`` then asks
+            for the moving links' distance to each of them only (cheaper in
+            a scene holding other geometry, such as a GhostGuard's ghosts);
+            ``in_collision`` ignores any other geometry.
     """
 
-    def __init__(self, *, robot_ids, moving_ids, volume_ids, max_distance: float = 2.0):
+    def __init__(self, *, robot_ids, moving_ids, volume_ids, max_distance: float = 2.0, obstacle_ids=None):
         super().__init__()
         self._robot = frozenset(robot_ids)
         self._moving = frozenset(moving_ids)
         self._volume = frozenset(volume_ids)
+        self._obstacles = None if obstacle_ids is None else frozenset(obstacle_ids)
+        self._pairs = None if obstacle_ids is None else [(a, b) for a in sorted(self._moving, key=lambda g: g.get_value())
+                                                          for b in sorted(self._obstacles, key=lambda g: g.get_value())]
         if not self._moving <= self._robot:
             raise ParameterError("ClearanceMonitor: moving_ids must be a subset of robot_ids.")
         self._max = float(max_distance)
@@ -745,6 +864,10 @@ class ClearanceMonitor(LeafSystem):
         """Smallest signed distance, moving links to obstacles, m."""
         query = self.query_object_input.Eval(context)
         best = self._max
+        if self._pairs is not None:
+            for a, b in self._pairs:
+                best = min(best, query.ComputeSignedDistancePairClosestPoints(a, b).distance)
+            return best
         for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=self._max):
             a, b = pair.id_A, pair.id_B
             if a in self._volume or b in self._volume:
@@ -761,5 +884,7 @@ class ClearanceMonitor(LeafSystem):
             if a in self._volume or b in self._volume:
                 touches_volume |= (a in self._robot or b in self._robot)
             elif a in self._robot or b in self._robot:
-                collides = True
+                other = b if a in self._robot else a
+                if self._obstacles is None or other in self._robot or other in self._obstacles:
+                    collides = True
         return collides, touches_volume
