@@ -326,11 +326,13 @@ def test_safe_path_rate_by_hand():
     assert safe_path_rate(t, [np.inf, np.inf]) == np.inf
 
 
-def test_clearance_monitor_agrees_with_the_workcell():
+@pytest.mark.parametrize("named_obstacles", [False, True])
+def test_clearance_monitor_agrees_with_the_workcell(named_obstacles):
     """Through the query port of a diagram holding the workcell and one
     volume box: the moving links' clearance and the collision flag equal the
     workcell's own (second) Drake scene at random configurations, and the
-    volume flag is 1 exactly when the box is placed around the tool."""
+    volume flag is 1 exactly when the box is placed around the tool; the
+    same whether the monitor asks all pairs or is given the obstacles."""
     from pydrake.geometry import Box
     from pydrake.math import RigidTransform
     from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, CoulombFriction
@@ -349,7 +351,13 @@ def test_clearance_monitor_agrees_with_the_workcell():
                                           "volume_box", CoulombFriction(0.5, 0.5))
     plant.Finalize()
     every, moving = robot_geometry_ids(plant, robot)
-    mon = builder.AddSystem(ClearanceMonitor(robot_ids=every, moving_ids=moving, volume_ids=[box]))
+    obstacles = None
+    if named_obstacles:
+        inspector = sg.model_inspector()
+        obstacles = [g for g in inspector.GetAllGeometryIds() if g not in every and g != box
+                     and inspector.GetProximityProperties(g) is not None]
+    mon = builder.AddSystem(ClearanceMonitor(robot_ids=every, moving_ids=moving, volume_ids=[box],
+                                             obstacle_ids=obstacles))
     builder.Connect(sg.get_query_output_port(), mon.query_object_input)
     diagram = builder.Build()
     ctx = diagram.CreateDefaultContext()
