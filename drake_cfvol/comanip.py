@@ -370,7 +370,7 @@ class Comanipulation:
     Attributes:
         diagram: the Drake diagram (exported ports: ``path_index``, ``lower``,
             ``upper``, ``nominal``, ``commanded_position``, ``deviation``,
-            ``guard_active``, ``human_torque``, ``min_distance``,
+            ``guard_active``, ``guard_count``, ``human_torque``, ``min_distance``,
             ``in_collision``).
         scenario, workcell, path, bounds: the inputs.
         plant, scene_graph: the visual/kinematic plant and its SceneGraph.
@@ -660,6 +660,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
         "nominal": source.nominal_output, "commanded_position": adm.commanded_position_output,
         "deviation": adm.deviation_output, "guard_active": adm.guard_active_output,
+        "guard_count": adm.guard_count_output,
         "human_torque": torque_port, "human_wrench": human.human_wrench_output,
         "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
         "in_volume": monitor.in_volume_output,
@@ -763,7 +764,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "min_clearance_m": float(dist.min()) if len(dist) else None,
         "max_velocity_ratio": velocity_ratio, "volume_penetrations": penetrations,
         "collisions": int(coll.sum()), "max_bound_violation": violation,
-        "guard_steps": int(logs["guard_active"][1].sum()),
+        "guard_steps": int(logs["guard_count"][1][-1, 0]) if len(logs["guard_count"][1]) else 0,
         "collision_guard": scenario.collision_guard,
         "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
         "n_boxes": cm.bounds.info["n_boxes"], "volume_boxes_in_scene": cm.volume_boxes["count"],

@@ -179,6 +179,7 @@ def AdmittanceDeformation_(T):
             - commanded_position
             - deviation
             - guard_active
+            - guard_count
             - candidates (query guard only)
 
         Per joint, the deviation d from the nominal obeys
@@ -219,7 +220,9 @@ def AdmittanceDeformation_(T):
         that collides too is it scaled back towards the (collision-free)
         nominal by bisection to the largest free fraction, a jump: safety
         before smoothness.
-        ``guard_active`` is 1 after an update where the guard acted. The
+        ``guard_active`` is 1 after an update where the guard acted;
+        ``guard_count`` counts such updates since the start (a log sampled
+        slower than the updates would miss some of the former). The
         guard should be a pure function of q (the co-manipulation diagram
         uses the compiled kernel's conservative test, which touches no Drake
         context).
@@ -227,7 +230,7 @@ def AdmittanceDeformation_(T):
         Query guard (``query_guard=True``, instead of a callable): the
         collision checks go through the diagram's SceneGraph. Each update
         proposes the next deviation and its fallbacks (held, eased towards
-        the nominal, half of it, none), and outputs them on ``candidates``
+        the nominal, 3/4, 1/2, 1/4 of it, none), and outputs them on ``candidates``
         posed where they would be commanded: at the next update and one
         period later (``*_ahead`` and ``*_ahead2``: nominal and bounds one
         and two periods ahead), each a full configuration. A
@@ -318,7 +321,7 @@ def AdmittanceDeformation_(T):
             self.lower_ahead_input = self.DeclareVectorInputPort(name="lower_ahead", size=k)
             self.upper_ahead_input = self.DeclareVectorInputPort(name="upper_ahead", size=k)
             self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
-            self._guard_state = self.DeclareDiscreteState(1)
+            self._guard_state = self.DeclareDiscreteState(2)  # [acted at the last update, updates it acted]
             # The nominal and bounds at the last update (NaN before the first),
             # for the guard's look-ahead.
             self._previous_inputs = self.DeclareDiscreteState(np.full(3 * k, np.nan))
@@ -344,7 +347,11 @@ def AdmittanceDeformation_(T):
                 prerequisites_of_calc={self.xd_ticket()})
             self.guard_active_output = self.DeclareVectorOutputPort(
                 name="guard_active", size=1,
-                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._guard_state).CopyToVector()),
+                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._guard_state).CopyToVector()[:1]),
+                prerequisites_of_calc={self.xd_ticket()})
+            self.guard_count_output = self.DeclareVectorOutputPort(
+                name="guard_count", size=1,
+                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._guard_state).CopyToVector()[1:]),
                 prerequisites_of_calc={self.xd_ticket()})
             if self.query_guard:
                 self.candidates_output = self.DeclareVectorOutputPort(
@@ -353,8 +360,8 @@ def AdmittanceDeformation_(T):
                     prerequisites_of_calc={self.xd_ticket()})
 
         #: Candidates of the query guard: the proposal, held, eased towards
-        #: the nominal, half of the held deviation, none.
-        num_candidates = 5
+        #: the nominal, 3/4, 1/2 and 1/4 of the held deviation, none.
+        num_candidates = 7
 
         def _construct_copy(self, other, converter=None):
             Impl._construct(self, other.k, mass=other.M, damping=other.D, stiffness=other.K, period=other.period,
@@ -426,7 +433,11 @@ def AdmittanceDeformation_(T):
             discrete_state.get_mutable_vector(self._previous_inputs).SetFromVector(
                 np.concatenate([nominal, lower, upper]))
             discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
-            discrete_state.get_mutable_vector(self._guard_state).SetFromVector([float(acted)])
+            self._set_guard(context, discrete_state, acted)
+
+        def _set_guard(self, context, discrete_state, acted: bool) -> None:
+            count = context.get_discrete_state(self._guard_state).CopyToVector()[1]
+            discrete_state.get_mutable_vector(self._guard_state).SetFromVector([float(acted), count + float(acted)])
 
         def _step(self, context, d, v, nominal, lower, upper):
             """One semi-implicit Euler step of the admittance from (d, v),
@@ -472,11 +483,11 @@ def AdmittanceDeformation_(T):
             if self.max_rate is not None:
                 cap = np.where(np.isfinite(self.max_rate), self.max_rate * h, np.abs(held))
                 eased = held - np.clip(held, -cap, cap)
-            devs = np.array([_values(proposal), held, eased, 0.5 * held, 0 * held])
+            devs = np.array([_values(proposal), held, eased, 0.75 * held, 0.5 * held, 0.25 * held, 0 * held])
             posed = np.concatenate([np.concatenate([np.clip(n1 + e, lo1, hi1), np.clip(n2 + e, lo2, hi2)])
                                     for e in devs])
             discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
-            discrete_state.get_mutable_vector(self._guard_state).SetFromVector([float(acted)])
+            self._set_guard(context, discrete_state, acted)
             discrete_state.get_mutable_vector(self._cand).SetFromVector(devs.ravel())
             discrete_state.get_mutable_vector(self._posed).SetFromVector(posed)
             discrete_state.get_mutable_vector(self._valid).SetFromVector([1.0])

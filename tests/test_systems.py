@@ -173,6 +173,53 @@ def test_collision_guard_scales_back():
     assert adm.guard_active_output.Eval(ctx)[0] == 1.0
 
 
+def test_guard_count_counts_every_update_it_acted():
+    """A guard that forbids any deviation of the second joint acts at every
+    update while the push lasts: guard_count is the number of updates."""
+    adm = AdmittanceDeformation(2, mass=1.0, damping=20.0, stiffness=100.0, period=0.01,
+                                collision_guard=lambda q: q[1] <= 0.0)
+    ctx = adm.CreateDefaultContext()
+    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], [0.0, 10.0])
+    Simulator(adm, ctx).AdvanceTo(0.1 + 1e-9)  # updates at 0, 0.01, .., 0.1
+    assert adm.guard_count_output.Eval(ctx)[0] == 11.0
+    assert adm.deviation_output.Eval(ctx)[1] <= 0.0
+
+
+def test_query_guard_commands_only_candidates_answered_free():
+    """The query guard with a hand-made answer in place of the ghosts: the
+    candidates are posed at the nominal and bounds one and two periods
+    ahead; answered all free, the proposal is taken (one period late);
+    answered "only the last candidate (none) free", the output returns to
+    the nominal and the guard counts it."""
+    adm = AdmittanceDeformation(2, mass=1.0, damping=20.0, stiffness=100.0, period=0.01, query_guard=True)
+    C = AdmittanceDeformation.num_candidates
+    ctx = adm.CreateDefaultContext()
+    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], [0.0, 10.0])
+    for port, value in ((adm.nominal_ahead_input, [0.0, 0.1]), (adm.nominal_ahead2_input, [0.0, 0.2])):
+        port.FixValue(ctx, value)
+    for port in (adm.lower_ahead_input, adm.lower_ahead2_input):
+        port.FixValue(ctx, [-1, -1])
+    for port in (adm.upper_ahead_input, adm.upper_ahead2_input):
+        port.FixValue(ctx, [1, 1])
+    adm.candidates_free_input.FixValue(ctx, np.ones(2 * C))
+    sim = Simulator(adm, ctx)
+    sim.AdvanceTo(0.05 + 1e-9)
+    cand = adm.candidates_output.Eval(ctx).reshape(C, 2, 2)
+    d = adm.deviation_output.Eval(ctx)
+    assert d[1] > 0 and adm.guard_count_output.Eval(ctx)[0] == 0.0
+    # Candidate poses: nominal ahead + deviation; the held one is d itself.
+    np.testing.assert_allclose(cand[1, 0], [0.0, 0.1] + d)
+    np.testing.assert_allclose(cand[1, 1], [0.0, 0.2] + d)
+    np.testing.assert_allclose(cand[C - 1], [[0.0, 0.1], [0.0, 0.2]])  # none: the nominal
+    assert cand[0, 0, 1] - 0.1 > d[1]  # the proposal goes further
+    free = np.zeros(2 * C)
+    free[-2:] = 1.0
+    adm.candidates_free_input.FixValue(ctx, free)
+    sim.AdvanceTo(0.06 + 1e-9)
+    np.testing.assert_allclose(adm.deviation_output.Eval(ctx), [0.0, 0.0])
+    assert adm.guard_active_output.Eval(ctx)[0] == 1.0 and adm.guard_count_output.Eval(ctx)[0] == 1.0
+
+
 def test_collision_guard_looks_one_period_ahead():
     """The output holds a deviation while the nominal moves on: with the
     nominal moving +0.01 per update towards a wall at q_1 = 0.05, the guard
