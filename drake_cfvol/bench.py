@@ -559,7 +559,13 @@ def targets(result: dict) -> list[str]:
                          f"{sum(g['guard_steps'] == 0 for g in c)} runs with none, median "
                          f"{np.median([g['guard_steps'] for g in c]):.0f}, max {max(g['guard_steps'] for g in c)} "
                          f"(uncertified: median {np.median([g['guard_steps'] for g in u]):.0f}, max "
-                         f"{max(g['guard_steps'] for g in u)}); logged collisions {sum(g['collisions'] for g in c)}.")
+                         f"{max(g['guard_steps'] for g in u)}); logged collisions {sum(g['collisions'] for g in c)}; "
+                         f"velocity ratio > 1 in {sum(g['max_velocity_ratio'] > 1 for g in c)} runs (uncertified "
+                         f"{sum(g['max_velocity_ratio'] > 1 for g in u)}), at most "
+                         f"{max(g['max_velocity_ratio'] for g in c):.2f} ({max(g['max_velocity_ratio'] for g in u):.2f}).")
+    if result.get("guard_commit"):
+        lines.append(f"- (The random-push runs above were re-run at commit `{result['guard_commit']}`, after the "
+                     "guard's count was fixed to count every update it acted.)")
     cert = [r for r in rows if "certified_cf_percent" in r]
     if cert:
         full = [r for r in cert if r["certified_cf_colliding"] == 0]
