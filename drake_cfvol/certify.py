@@ -148,9 +148,10 @@ def certification_rng(seed: int) -> np.random.Generator:
 def cache_dir() -> Path | None:
     """Where certified boxes are kept: ``$DRAKE_CFVOL_CACHE`` (``off``
     disables the cache), else ``$XDG_CACHE_HOME/drake_cfvol`` or
-    ``~/.cache/drake_cfvol``. Entries are named by a hash of every input,
-    so a changed scene, path, bound or setting never reuses a stale one;
-    delete the folder to clear it."""
+    ``~/.cache/drake_cfvol``. Entries are named by a hash of every input
+    (and of the certifier's and kernel's source), so a changed scene, path,
+    bound, setting or method never reuses a stale one; delete the folder to
+    clear it."""
     env = os.environ.get("DRAKE_CFVOL_CACHE")
     if env is not None:
         return None if env.strip().lower() in ("", "off", "0", "no", "false") else Path(env).expanduser()
@@ -159,11 +160,19 @@ def cache_dir() -> Path | None:
 
 
 def _cache_key(arrays, table, certify: Certify) -> str:
-    from drake_cfvol._version import __version__
+    """A hash of everything the result depends on: the settings, the bounds
+    and path, the scene's arrays, and the source of this module and of the
+    kernel (a changed method never reuses an old entry)."""
+    from drake_cfvol import kernel
 
-    h = hashlib.sha256(f"certify/{__version__}/{certify!r}".encode())
+    h = hashlib.sha256(f"certify/{certify!r}".encode())
+    for module in (__file__, kernel.__file__):
+        h.update(Path(module).read_bytes())
     for a in (table.nominal, table.stretch_lower, table.stretch_upper, table.rate, arrays.shapes, arrays.shape_body,
               arrays.obstacles, arrays.verts, arrays.self_pairs, *arrays.chain):
+        if a is None:
+            h.update(b"none")
+            continue
         a = np.ascontiguousarray(a)
         h.update(f"{a.dtype}{a.shape}".encode())
         h.update(a.tobytes())

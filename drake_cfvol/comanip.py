@@ -592,7 +592,6 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     rp = scenario.random_pushes
     human = builder.AddNamedSystem("human", ScriptedHuman(k, pushes))
     robot_ids, moving_ids = robot_geometry_ids(plant, robot)
-    ghosts = None
     if scenario.collision_guard:
         # The guard's checks, through this SceneGraph: ghost copies of the
         # robot posed at the admittance's candidates, two poses each.

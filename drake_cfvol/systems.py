@@ -106,12 +106,21 @@ def JointBoundsSource_(T):
             self._clamp = clamp
             k = bounds.k
             self.path_index_input = self.DeclareVectorInputPort(name="path_index", size=1)
+            # The three outputs share one lookup per path index (a cache entry).
+            self._box = self.DeclareCacheEntry(
+                description="(lower, upper, nominal) at the path index",
+                value_producer=ValueProducer(allocate=lambda: AbstractValue.Make(object()),
+                                             calc=lambda ctx, value: value.set_value(self._at(ctx))),
+                prerequisites_of_calc={self.path_index_input.ticket()})
             self.lower_output = self.DeclareVectorOutputPort(
-                name="lower", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[0]))
+                name="lower", size=k, calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[0]),
+                prerequisites_of_calc={self.path_index_input.ticket()})
             self.upper_output = self.DeclareVectorOutputPort(
-                name="upper", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[1]))
+                name="upper", size=k, calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[1]),
+                prerequisites_of_calc={self.path_index_input.ticket()})
             self.nominal_output = self.DeclareVectorOutputPort(
-                name="nominal", size=k, calc=lambda ctx, out: out.SetFromVector(self._at(ctx)[2]))
+                name="nominal", size=k, calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[2]),
+                prerequisites_of_calc={self.path_index_input.ticket()})
 
         def _construct_copy(self, other, converter=None):
             Impl._construct(self, other._bounds, clamp=other._clamp, converter=converter)
@@ -866,10 +875,18 @@ class ClearanceMonitor(LeafSystem):
             name="query_object", model_value=AbstractValue.Make(QueryObject()))
         self.min_distance_output = self.DeclareVectorOutputPort(
             name="min_distance", size=1, calc=lambda c, o: o.SetAtIndex(0, self.min_distance(c)))
+        # One penetration query serves both contact outputs (a cache entry).
+        self._contact_cache = self.DeclareCacheEntry(
+            description="(robot collides, robot touches V)",
+            value_producer=ValueProducer(allocate=lambda: AbstractValue.Make(object()),
+                                         calc=lambda c, value: value.set_value(self._contacts(c))),
+            prerequisites_of_calc={self.query_object_input.ticket()})
         self.in_collision_output = self.DeclareVectorOutputPort(
-            name="in_collision", size=1, calc=lambda c, o: o.SetAtIndex(0, float(self._contacts(c)[0])))
+            name="in_collision", size=1, calc=lambda c, o: o.SetAtIndex(0, float(self._contact_cache.Eval(c)[0])),
+            prerequisites_of_calc={self.query_object_input.ticket()})
         self.in_volume_output = self.DeclareVectorOutputPort(
-            name="in_volume", size=1, calc=lambda c, o: o.SetAtIndex(0, float(self._contacts(c)[1])))
+            name="in_volume", size=1, calc=lambda c, o: o.SetAtIndex(0, float(self._contact_cache.Eval(c)[1])),
+            prerequisites_of_calc={self.query_object_input.ticket()})
 
     def min_distance(self, context) -> float:
         """Smallest signed distance, moving links to obstacles, m."""

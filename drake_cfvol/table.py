@@ -76,12 +76,31 @@ def _envelopes(U: np.ndarray, rate: np.ndarray, sign: float) -> tuple[np.ndarray
     return A, Bv
 
 
+#: The last envelopes computed, with copies of their inputs: a system
+#: looking up one s at a time asks for the same table's again and again.
+_LAST_ENVELOPES: list = []
+
+
+def _stretch_envelopes(stretch_lower, stretch_upper, rate):
+    """(Au, Bu, Al, Bl) of :func:`_envelopes`, reused while the inputs are
+    equal to the last call's (compared by value, so an array changed in
+    place is never served stale envelopes)."""
+    if _LAST_ENVELOPES:
+        (lo, hi, r), out = _LAST_ENVELOPES[0]
+        if (lo.shape == stretch_lower.shape and np.array_equal(lo, stretch_lower) and np.array_equal(hi, stretch_upper)
+                and np.array_equal(r, rate)):
+            return out
+    Au, Bu = _envelopes(stretch_upper, rate, 1.0)
+    Al, Bl = _envelopes(stretch_lower, rate, -1.0)
+    _LAST_ENVELOPES[:] = [((stretch_lower.copy(), stretch_upper.copy(), np.array(rate, float)), (Au, Bu, Al, Bl))]
+    return Au, Bu, Al, Bl
+
+
 def _stretch_rule(stretch_lower: np.ndarray, stretch_upper: np.ndarray, rate: np.ndarray, s: np.ndarray,
                   i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The rate-limited stretch bounds at path parameters s, each in stretch
     i (before the nominal is added; see :func:`box_at`)."""
-    Au, Bu = _envelopes(stretch_upper, rate, 1.0)
-    Al, Bl = _envelopes(stretch_lower, rate, -1.0)
+    Au, Bu, Al, Bl = _stretch_envelopes(stretch_lower, stretch_upper, rate)
     r = np.where(np.isfinite(rate), rate, 0.0)
     sc = s[:, None]
     hi = np.minimum(np.minimum(stretch_upper[i], Au[i] + r * sc), Bu[i] - r * sc)

@@ -144,3 +144,22 @@ def test_save_load(tmp_path):
         assert back.params == table.params and back.joint_names == table.joint_names
         with pytest.raises(FileExistsError):
             table.save(f)
+
+
+def test_box_at_sees_stretch_bounds_changed_in_place():
+    """The rate rule's envelopes are reused between lookups of the same
+    bounds, compared by value: tightening a stretch bound in place changes
+    the next lookup exactly as a fresh table would."""
+    from drake_cfvol.table import box_at
+
+    g, k = 6, 2
+    nominal = np.zeros((g, k))
+    st_lo, st_hi = np.full((g - 1, k), -1.0), np.full((g - 1, k), 1.0)
+    rate = np.array([0.1, 0.1])
+    lower, upper = np.full((g, k), -1.0), np.full((g, k), 1.0)
+    before = box_at(lower, upper, nominal, 2.5, stretch_lower=st_lo, stretch_upper=st_hi, rate=rate)
+    assert before[1][0] == 1.0
+    st_hi[3, 0] = 0.5  # stretch [3, 4]: s = 2.5 lies 0.5 before it, so the cap is 0.5 + 0.1 * 0.5
+    after = box_at(lower, upper, nominal, 2.5, stretch_lower=st_lo, stretch_upper=st_hi, rate=rate)
+    fresh = box_at(lower, upper, nominal, 2.5, stretch_lower=st_lo.copy(), stretch_upper=st_hi.copy(), rate=rate)
+    assert after[1][0] == pytest.approx(0.55) and after[1][0] == fresh[1][0]

@@ -53,7 +53,7 @@ def test_bounds_json_and_files(tmp_path, capsys):
 
 def test_simulate_json(tmp_path, capsys):
     """cfvol simulate --json prints the run's summary with the promised keys."""
-    assert main(["simulate", "aerospace_push", "--out", str(tmp_path), "--json",
+    assert main(["simulate", "automotive_push", "--out", str(tmp_path), "--json",
                  "--scenario-text", "{certify: false}"]) == 0
     d = json.loads(capsys.readouterr().out)
     for key in ("scenario", "steps", "min_clearance_m", "max_bound_violation", "recording_html", "plot_png"):
