@@ -108,8 +108,9 @@ class GhostGuard(LeafSystem):
             others = [g for m in range(self.count) if m != n for g in self.ghost_ids[m]]
             if others:
                 decl.ExcludeBetween(mine, GeometrySet(others))
-            for i, (a, ga) in enumerate(per_body[n].items()):
-                for b, gb in list(per_body[n].items())[i:]:
+            items = list(per_body[n].items())
+            for i, (a, ga) in enumerate(items):
+                for b, gb in items[i:]:
                     if a == b or (a, b) not in allowed:
                         decl.ExcludeBetween(GeometrySet(ga), GeometrySet(gb))
             fm.Apply(decl)
