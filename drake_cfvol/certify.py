@@ -303,6 +303,20 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
 
     bar = Progress(certify.search_rounds + N, "Certifying whole boxes", enabled=progress,
                    unit="steps", eta=False)
+    def search(stretches, per) -> int:
+        """One edge-biased search round, ``per`` samples in each of the
+        stretches, every colliding sample cut. Returns how many collided."""
+        nonlocal current, samples
+        s = np.repeat(stretches, per) + rng.random(len(stretches) * per)
+        lo, hi, _ = current.boxes_at(s)
+        Q = lo + _edge_biased(rng, lo.shape, certify.edge_share) * (hi - lo)
+        flagged = np.flatnonzero(arrays.may_collide(Q))
+        samples += len(Q)
+        if len(flagged):
+            cut(s, Q, flagged)
+            current = refresh()
+        return len(flagged)
+
     if g > 1:
         # Search: stratified over the stretches, edge-biased, every colliding
         # sample of a round cut at once.
@@ -313,14 +327,7 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             if per < 1:
                 break
             budget -= per * (g - 1)
-            s = np.repeat(np.arange(g - 1), per) + rng.random((g - 1) * per)
-            lo, hi, _ = current.boxes_at(s)
-            Q = lo + _edge_biased(rng, lo.shape, certify.edge_share) * (hi - lo)
-            flagged = np.flatnonzero(arrays.may_collide(Q))
-            samples += len(Q)
-            if len(flagged):
-                cut(s, Q, flagged)
-                current = refresh()
+            search(np.arange(g - 1), per)
             per *= 2
             bar.update(1)
         # Certificate: N consecutive uniform samples of the whole path.
@@ -342,15 +349,8 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
                 hit = np.unique(np.minimum(np.floor(s[flagged]).astype(int), g - 2))
                 focus = max(1, min(certify.focus_samples, N))
                 for _ in range(certify.focus_rounds):
-                    s2 = np.repeat(hit, focus) + rng.random(len(hit) * focus)
-                    lo, hi, _ = current.boxes_at(s2)
-                    Q2 = lo + _edge_biased(rng, lo.shape, certify.edge_share) * (hi - lo)
-                    f2 = np.flatnonzero(arrays.may_collide(Q2))
-                    samples += len(Q2)
-                    if not len(f2):
+                    if not search(hit, focus):
                         break
-                    cut(s2, Q2, f2)
-                    current = refresh()
             else:
                 run += n
             bar.set(certify.search_rounds + run, cuts=shrinks)

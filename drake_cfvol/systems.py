@@ -500,8 +500,6 @@ def AdmittanceDeformation_(T):
             discrete_state.get_mutable_vector(self._cand).SetFromVector(devs.ravel())
             discrete_state.get_mutable_vector(self._posed).SetFromVector(posed)
             discrete_state.get_mutable_vector(self._valid).SetFromVector([1.0])
-            discrete_state.get_mutable_vector(self._previous_inputs).SetFromVector(
-                np.concatenate([nominal, lower, upper]))
 
         def _require(self, port, context) -> np.ndarray:
             if not port.HasValue(context):
