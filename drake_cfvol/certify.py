@@ -42,9 +42,11 @@ from pathlib import Path
 
 import numpy as np
 
+from drake_cfvol.edges import corner_pass, prove_edges
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.metrics import freedom
 from drake_cfvol.progress import Progress
+from drake_cfvol.sweep import stretch_margins
 from drake_cfvol.table import waypoint_boxes
 
 __all__ = ["Certify", "CertificateReport", "certify_bounds", "certification_rng", "cache_dir"]
@@ -135,6 +137,10 @@ class CertificateReport:
     proven: str = ""
     sampled: str = ""
     cached: bool = False
+    clearance_m: float = 0.0
+    edge_tests: int = 0
+    edge_cuts: int = 0
+    edges_unproven: int = 0
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -159,15 +165,24 @@ def cache_dir() -> Path | None:
     return Path(base) / "drake_cfvol"
 
 
-def _cache_key(arrays, table, certify: Certify) -> str:
-    """A hash of everything the result depends on: the settings, the bounds
-    and path, the scene's arrays, and the source of this module and of the
-    kernel (a changed method never reuses an old entry)."""
-    from drake_cfvol import kernel
+def _versions() -> str:
+    """The versions of what a certificate's result depends on."""
+    import numba
+    import pydrake
 
-    h = hashlib.sha256(f"certify/{certify!r}".encode())
-    for module in (__file__, kernel.__file__):
+    return f"numpy {np.__version__}, numba {numba.__version__}, drake {getattr(pydrake, '__version__', '?')}"
+
+
+def _cache_key(arrays, table, certify: Certify) -> str:
+    """A hash of everything the result depends on: the settings and the
+    clearance, the bounds and path, the scene's arrays, the source of every
+    module of the package (the box-at-s rule, the kernel, the certifier...)
+    and the versions of numpy, numba and drake (a changed method or
+    dependency never reuses an old entry)."""
+    h = hashlib.sha256(f"certify/{certify!r}/{table.params.get('clearance', 0.0)!r}".encode())
+    for module in sorted(Path(__file__).parent.glob("*.py")):
         h.update(Path(module).read_bytes())
+    h.update(_versions().encode())
     for a in (table.nominal, table.stretch_lower, table.stretch_upper, table.rate, arrays.shapes, arrays.shape_body,
               arrays.obstacles, arrays.verts, arrays.self_pairs, *arrays.chain):
         if a is None:
@@ -253,6 +268,18 @@ def _edge_biased(rng, shape, share):
     return np.where(snap, np.where(hi_end, 1.0 - tenth, tenth), U)
 
 
+def clamp_draws(rng, lo, hi, nom):
+    """Where a clamp lands: the nominal pushed on a random subset of the
+    joints (each with probability 1/2) by up to twice the box's extent on
+    the push's side, clamped to the box (about half the pushed joints end
+    on a bound)."""
+    pushed = rng.random(lo.shape) < 0.5
+    up = rng.random(lo.shape) < 0.5
+    mag = 2.0 * rng.random(lo.shape)
+    target = np.where(up, nom + mag * (hi - nom), nom - mag * (nom - lo))
+    return np.where(pushed, np.clip(target, lo, hi), nom)
+
+
 def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False):
     """Shrinks a bounds table's stretch boxes until N consecutive uniform
     samples of the whole box are free (see the module docs).
@@ -277,8 +304,33 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             hit[2].cached = True
             return hit
     nominal, rate = table.nominal, table.rate
+    if rate is None:
+        rate = np.full(nominal.shape[1], np.inf)
     st_lo, st_hi = table.stretch_lower.copy(), table.stretch_upper.copy()
     g, k = nominal.shape
+    clearance = float(table.params.get("clearance", 0.0) or 0.0)
+    margins = stretch_margins(arrays, nominal, clearance)
+    proven: dict = {}
+    edge_stats = {"edge_tests": 0, "edge_cuts": 0, "edge_rounds": 0, "edge_unproven": []}
+
+    def flagged_of(s, Q):
+        """Indices of the samples that may collide or come nearer than
+        their stretch's margin."""
+        i = np.minimum(np.floor(s).astype(int), g - 2)
+        pads = margins[i]
+        out = np.zeros(len(Q), bool)
+        for p in np.unique(pads):
+            sel = pads == p
+            out[sel] = arrays.may_collide(Q[sel], p)
+        return np.flatnonzero(out)
+
+    def edges():
+        st = corner_pass(workcell, arrays, st_lo, st_hi, rate, nominal, margins)
+        edge_stats["corner_cuts"] = edge_stats.get("corner_cuts", 0) + st["corner_cuts"]
+        st = prove_edges(workcell, arrays, st_lo, st_hi, rate, nominal, margins, proven)
+        for key in ("edge_tests", "edge_cuts", "edge_rounds"):
+            edge_stats[key] += st[key]
+        edge_stats["edge_unproven"] = sorted(set(edge_stats["edge_unproven"]) | set(st["edge_unproven"]))
     rng = certification_rng(certify.seed)
     N = certify.n_samples
     samples = shrinks = 0
@@ -295,6 +347,11 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
         for st in np.unique(i):
             sel = i == st
             n = _greedy_cut(Q[flagged][sel], nom[sel], st_lo[st], st_hi[st])
+            if n < 0 and margins[st] > 0:
+                # The nominal itself comes nearer than this stretch's margin
+                # between the points stretch_margins looked at: lower it.
+                margins[st] = 0.5 * margins[st] if margins[st] > 1e-4 else 0.0
+                continue
             if n < 0:
                 raise ParameterError(
                     f"certification: a configuration at the nominal of stretch {st} may collide; the path is not "
@@ -310,7 +367,7 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
         s = np.repeat(stretches, per) + rng.random(len(stretches) * per)
         lo, hi, _ = current.boxes_at(s)
         Q = lo + _edge_biased(rng, lo.shape, certify.edge_share) * (hi - lo)
-        flagged = np.flatnonzero(arrays.may_collide(Q))
+        flagged = flagged_of(s, Q)
         samples += len(Q)
         if len(flagged):
             cut(s, Q, flagged)
@@ -330,18 +387,25 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             search(np.arange(g - 1), per)
             per *= 2
             bar.update(1)
-        # Certificate: N consecutive uniform samples of the whole path.
+        # The box's boundary: every edge and corner at every s, proven.
+        edges()
+        current = refresh()
+        # Certificate: N consecutive samples of each distribution: uniform
+        # in the box at s, and where a clamp lands (the nominal pushed on a
+        # random subset of joints, clamped to the box: faces and edges).
         run = 0
         batch = max(1, N // 4)
         while run < N:
             n = min(batch, N - run)
-            s = rng.uniform(0.0, g - 1, n)
-            lo, hi, _ = current.boxes_at(s)
-            Q = lo + rng.random(lo.shape) * (hi - lo)
-            flagged = np.flatnonzero(arrays.may_collide(Q))
-            samples += n
+            s = rng.uniform(0.0, g - 1, 2 * n)
+            lo, hi, nom = current.boxes_at(s)
+            Q = np.concatenate([lo[:n] + rng.random(lo[:n].shape) * (hi[:n] - lo[:n]),
+                                clamp_draws(rng, lo[n:], hi[n:], nom[n:])])
+            flagged = flagged_of(s, Q)
+            samples += 2 * n
             if len(flagged):
                 cut(s, Q, flagged)
+                edges()
                 current = refresh()
                 run = 0
                 # The stretches that still collide get a search of their own
@@ -351,19 +415,32 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
                 for _ in range(certify.focus_rounds):
                     if not search(hit, focus):
                         break
+                edges()
+                current = refresh()
             else:
                 run += n
             bar.set(certify.search_rounds + run, cuts=shrinks)
     bar.close()
     before = freedom(table).mean
     after = freedom(current).mean
-    proven = ("Every single-joint motion from the nominal to that joint's bound, at every s along the path, is "
-              "free of the obstacles, the robot itself and the volume (the kernel's region tests).")
-    sampled = (f"The whole box, all joints at once: {N} consecutive samples (s uniform over the path, q uniform in "
-               f"the box at s) were all free, so with probability {certify.confidence:g} at most a share "
-               f"{certify.epsilon:g} of such configurations collides (about {certify.epsilon * 3e5:g} of 300,000).")
+    margin = (f"{clearance * 1e3:g} mm from the obstacles and the robot itself (less only where the nominal "
+              f"itself is nearer: {int((margins < clearance).sum())} of {len(margins)} stretches)"
+              if clearance > 0 else "free of collision with the obstacles and the robot itself (clearance 0)")
+    unproven = edge_stats["edge_unproven"]
+    proven = ("Every single-joint motion from the nominal to that joint's bound, at every s along the path, keeps "
+              f"{margin} and the volume (the kernel's region tests). Every edge of the box at every s (one joint "
+              "over its whole range, every other joint at one of its bounds), and so every corner, keeps the same "
+              f"margin ({edge_stats['edge_tests']} region tests, {edge_stats['edge_cuts']} cuts)"
+              + (f", except stretches {unproven} where no cut could help." if unproven else "."))
+    sampled = (f"Faces and interior, all joints at once: {N} consecutive samples from each of two distributions "
+               "(s uniform over the path; q uniform in the box at s, and q where a clamp lands: the nominal pushed "
+               "on a random half of the joints, clamped to the box) were all free, so with probability "
+               f"{certify.confidence:g} at most a share {certify.epsilon:g} of either distribution's "
+               f"configurations comes nearer than the margin (about {certify.epsilon * 3e5:g} of 300,000).")
     report = CertificateReport(certify.epsilon, certify.confidence, N, (time.perf_counter() - t0) * 1e3,
-                               samples, shrinks, before, after, proven, sampled)
+                               samples, shrinks, before, after, proven, sampled, clearance_m=clearance,
+                               edge_tests=edge_stats["edge_tests"], edge_cuts=edge_stats["edge_cuts"],
+                               edges_unproven=len(unproven))
     if file is not None:
         _cache_store(file, current.stretch_lower, current.stretch_upper, report)
     return current.stretch_lower, current.stretch_upper, report

@@ -110,11 +110,13 @@ def cmd_plan(args) -> int:
     wc = load_workcell(args.cell)
     label = _path_name(args.path)
     start, goal = wc.configuration(label)
-    path = plan_nominal_path(wc, start, goal, seed=args.seed, time_limit=args.time_limit, label=label)
+    path = plan_nominal_path(wc, start, goal, seed=args.seed, time_limit=args.time_limit, label=label,
+                             clearance=args.clearance)
     if out is not None:
         out = str(path.save(out, overwrite=args.force))
     summary = {
         "cell": wc.name, "path": label, "seed": args.seed, "g": path.g, "k": path.k,
+        "clearance_m": path.stats["clearance_m"],
         "plan_time_ms": round(path.stats["plan_time_ms"], 3),
         "total_time_ms": round(path.stats["total_time_ms"], 3),
         "attempts": path.stats["attempts"], "path_length": round(path.length, 6),
@@ -125,7 +127,7 @@ def cmd_plan(args) -> int:
 
 
 def cmd_bounds(args) -> int:
-    from drake_cfvol.metrics import confidence_factor, freedom
+    from drake_cfvol.metrics import confidence_factor, freedom, shown_percent
     from drake_cfvol.params import VolumeParams
     from drake_cfvol.pipeline import estimate_bounds
     from drake_cfvol.planning import plan_nominal_path
@@ -134,6 +136,11 @@ def cmd_bounds(args) -> int:
 
     if args.plot and not args.out:
         raise ParameterError("--plot needs --out DIR (the folder to write the plot to).")
+    lonely = [f"--{n.replace('_', '-')}" for n in ("epsilon", "confidence", "no_cache")
+              if getattr(args, n) not in (None, False)]
+    if lonely and not args.certify:
+        raise ParameterError(f"{', '.join(lonely)} only apply{'s' if len(lonely) == 1 else ''} to certified bounds: "
+                             "add --certify, or leave them out.")
     if args.cf_windows < 1 or args.cf_samples < 1:
         raise ParameterError(f"--cf-windows and --cf-samples must be >= 1, got {args.cf_windows} and "
                              f"{args.cf_samples}.")
@@ -147,16 +154,17 @@ def cmd_bounds(args) -> int:
             prepare_output(out / f"{stem}_{kind}{ext}", overwrite=args.force)
     # Check the configuration pair and the resolution (and its memory) before planning.
     wc.configuration(label)
-    height_map_of(wc, VolumeParams.for_workcell(wc, resolution=args.resolution))
-    path = plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label)
+    params = VolumeParams.for_workcell(wc, resolution=args.resolution, clearance=args.clearance)
+    height_map_of(wc, params)
+    path = plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label, clearance=params.clearance)
     bars = not args.json
     certify = None
     if args.certify:
         from drake_cfvol.certify import Certify
 
-        certify = Certify(epsilon=args.epsilon, confidence=args.confidence, seed=args.seed, cache=not args.no_cache)
-    table = estimate_bounds(wc, path, resolution=args.resolution, backend=args.backend, certify=certify,
-                            progress=bars)
+        given = {n: getattr(args, n) for n in ("epsilon", "confidence") if getattr(args, n) is not None}
+        certify = Certify(**given, seed=args.seed, cache=not args.no_cache)
+    table = estimate_bounds(wc, path, params, backend=args.backend, certify=certify, progress=bars)
     cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
                            progress=bars)
     fr = freedom(table, wc.revolute)
@@ -175,7 +183,9 @@ def cmd_bounds(args) -> int:
         "backend": args.backend, "g": table.g, "k": table.k,
         "time_ms": round(table.timing_ms["total"], 3),
         "timing_ms": {k: round(v, 3) for k, v in table.timing_ms.items()},
-        "cf_percent": round(cf.percent, 4), "cf_samples": cf.samples, "cf_colliding": cf.colliding,
+        "certified": certify is not None, "clearance_m": params.clearance,
+        "cf_percent": shown_percent(cf.percent, cf.colliding, 4), "cf_samples": cf.samples,
+        "cf_colliding": cf.colliding,
         "freedom": round(fr.mean, 5),
         "median_width": dict(zip(table.joint_names, [round(float(x), 3) for x in fr.median_width])),
         "median_width_units": dict(zip(table.joint_names, fr.units)),
@@ -268,6 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--path", default="1", help="configuration pair: 1, 2, 3 or a name (default 1)")
     q.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     q.add_argument("--time-limit", type=float, default=10.0, help="planning time limit, s (default 10)")
+    q.add_argument("--clearance", type=float, default=None,
+                   help="margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)")
     q.add_argument("--out", help="save the path (.npz or .json)")
     q.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     q.add_argument("--json", action="store_true", help="print one JSON object")
@@ -284,10 +296,13 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--cf-samples", type=int, default=10000, help="CF samples per window N_m (default 10000)")
     b.add_argument("--certify", action="store_true",
                    help="shrink the boxes until each stretch holds a sampled safety certificate")
-    b.add_argument("--epsilon", type=float, default=1e-5, help="certificate: colliding share allowed (1e-5)")
+    b.add_argument("--epsilon", type=float, default=None,
+                   help="certificate: colliding share allowed (1e-5; needs --certify)")
     b.add_argument("--no-cache", action="store_true",
-                   help="certify again even if the same certificate is cached (see DRAKE_CFVOL_CACHE)")
-    b.add_argument("--confidence", type=float, default=0.99, help="certificate: confidence (0.99)")
+                   help="certify again even if the same certificate is cached (see DRAKE_CFVOL_CACHE; needs --certify)")
+    b.add_argument("--confidence", type=float, default=None, help="certificate: confidence (0.99; needs --certify)")
+    b.add_argument("--clearance", type=float, default=None,
+                   help="safety margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)")
     b.add_argument("--out", help="folder for bounds (.npz, .json), path and plot")
     b.add_argument("--plot", action="store_true", help="write a PNG of the bounds (needs --out)")
     b.add_argument("--force", action="store_true", help="overwrite existing files in --out")

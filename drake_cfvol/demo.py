@@ -8,7 +8,7 @@ from pathlib import Path
 from drake_cfvol._records import output_stem
 from drake_cfvol.certify import Certify
 from drake_cfvol.comanip import load_scenario, run_scenario
-from drake_cfvol.metrics import confidence_factor, freedom
+from drake_cfvol.metrics import confidence_factor, freedom, shown_percent
 from drake_cfvol.pipeline import estimate_bounds
 from drake_cfvol.planning import plan_nominal_path
 from drake_cfvol.plotting import plot_bounds
@@ -63,7 +63,7 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
         print(f"   certified whole boxes ({how}): freedom {rep['freedom_before']:.3f} -> {rep['freedom_after']:.3f}; "
               f"{rep['n_samples']} consecutive samples free (epsilon {rep['epsilon']:g}, confidence "
               f"{rep['confidence']:g})")
-    print(f"   CF {cf.percent:.3f} % ({cf.colliding} of {cf.samples} samples collide); freedom {fr.mean:.3f}")
+    print(f"   CF {shown_percent(cf.percent, cf.colliding, 3):.3f} % ({cf.colliding} of {cf.samples} samples collide); freedom {fr.mean:.3f}")
     cats = table.info["categories"]
     print(f"   trail: {', '.join(cats['trail']) or '-'} | goal: {', '.join(cats['goal']) or '-'} | "
           f"no-goal: {', '.join(cats['no_goal'])}")

@@ -175,9 +175,10 @@ class SceneArrays:
         Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
         return K.fk(Q, self.parent, self.jtype, self.qidx, self.axis, self.R_PF, self.p_PF, self.R_MB, self.p_MB)
 
-    def may_collide(self, Q: np.ndarray) -> np.ndarray:
+    def may_collide(self, Q: np.ndarray, pad: float = 0.0) -> np.ndarray:
         """(N,) True where a configuration may collide with the obstacles or
-        itself; False is certified free (the kernel is conservative)."""
+        itself, or come nearer to them than ``pad`` (m); False is certified
+        free (the kernel is conservative)."""
         Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
         if self._pairs is None:
             self._pairs, self._movable = self.shape_pairs, self.moved_by.any(axis=0)
@@ -185,7 +186,7 @@ class SceneArrays:
         # waking numba's thread pool costs milliseconds.
         fn = K.configs_may_collide_serial if len(Q) <= _SERIAL_MAX else K.configs_may_collide
         return fn(Q, *self.chain, self.shapes, self.shape_body, self.verts, self.obstacles, self.obstacle_aabb,
-                  self._pairs, self._movable)
+                  self._pairs, self._movable, float(pad))
 
     @property
     def shape_pairs(self) -> np.ndarray:

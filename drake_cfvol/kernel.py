@@ -30,7 +30,7 @@ from numba import njit, prange
 
 __all__ = ["BOX", "SPHERE", "CAPSULE", "CYLINDER", "ELLIPSOID", "HULL", "SHAPE_W", "fk", "gjk_intersect",
            "range_max_table", "range_max", "object_hits_columns", "configs_may_collide", "sweep_chains",
-           "lower_columns_under", "obstacle_distances", "row_aabb", "configs_may_collide_serial"]
+           "lower_columns_under", "obstacle_distances", "row_aabb", "configs_may_collide_serial", "regions_hit"]
 
 BOX, SPHERE, CAPSULE, CYLINDER, ELLIPSOID, HULL = 0, 1, 2, 3, 4, 5
 SHAPE_W = 25
@@ -682,7 +682,7 @@ def _object_vs_scene(obj, aabb, verts, obstacles, obs_aabb, table, ox, oy, side,
 
 @njit(cache=True)
 def _may_collide_range(Q, start, stop, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
-                       obstacles, obs_aabb, shape_pairs, movable, out):
+                       obstacles, obs_aabb, shape_pairs, movable, pad, out):
     """configs_may_collide for Q[start:stop], into out, on one thread."""
     B = parent.shape[0]
     S = shapes.shape[0]
@@ -696,6 +696,7 @@ def _may_collide_range(Q, start, stop, parent, jtype, qidx, axis, R_PF, p_PF, R_
         fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
         _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
         for s in range(S):
+            objs[s, 0, _EI] = shapes[s, _EI] + pad  # the margin against the scene
             row_aabb(objs[s, 0], verts, aabbs[s])
         hit = False
         for s in range(S):
@@ -706,6 +707,9 @@ def _may_collide_range(Q, start, stop, parent, jtype, qidx, axis, R_PF, p_PF, R_
                 hit = True
                 break
         if not hit:
+            if pad > 0.0:  # half the margin on each shape of a pair
+                for s in range(S):
+                    objs[s, 0, _EI] = shapes[s, _EI] + 0.5 * pad
             for p in range(shape_pairs.shape[0]):
                 sa = shape_pairs[p, 0]
                 sb = shape_pairs[p, 1]
@@ -719,9 +723,10 @@ def _may_collide_range(Q, start, stop, parent, jtype, qidx, axis, R_PF, p_PF, R_
 
 @njit(cache=True, parallel=True)
 def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
-                        obstacles, obs_aabb, shape_pairs, movable):
+                        obstacles, obs_aabb, shape_pairs, movable, pad):
     """(N,) True where a configuration may collide with the obstacles or
-    itself; False is certified free. ``shape_pairs`` (P, 2) are the robot
+    itself, or come closer to them than ``pad`` (m); False is certified free
+    (farther than ``pad`` from everything). ``shape_pairs`` (P, 2) are the robot
     shape pairs to test (those of body pairs Drake does not filter). Bodies
     that no joint moves (``movable`` False) are welded to the world, like
     the obstacles: Drake filters those pairs, and so does this."""
@@ -731,19 +736,19 @@ def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, sh
     n_chunks = (N + chunk - 1) // chunk
     for c in prange(n_chunks):
         _may_collide_range(Q, c * chunk, min(N, (c + 1) * chunk), parent, jtype, qidx, axis, R_PF, p_PF, R_MB,
-                           p_MB, shapes, shape_body, verts, obstacles, obs_aabb, shape_pairs, movable, out)
+                           p_MB, shapes, shape_body, verts, obstacles, obs_aabb, shape_pairs, movable, pad, out)
     return out
 
 
 @njit(cache=True)
 def configs_may_collide_serial(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
-                               obstacles, obs_aabb, shape_pairs, movable):
+                               obstacles, obs_aabb, shape_pairs, movable, pad):
     """:func:`configs_may_collide` on the calling thread: for a few
     configurations (a collision guard's checks), where waking the thread
     pool costs more than the work."""
     out = np.zeros(Q.shape[0], np.bool_)
     _may_collide_range(Q, 0, Q.shape[0], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body,
-                       verts, obstacles, obs_aabb, shape_pairs, movable, out)
+                       verts, obstacles, obs_aabb, shape_pairs, movable, pad, out)
     return out
 
 
@@ -779,8 +784,8 @@ MAX_V_SAMPLES = 9
 def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
                  shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
                  curvature, revolute, joint_body, table, ox, oy, side,
-                 RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6):
-    """May the robot collide anywhere in the region R = {nom(i + t) with
+                 RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6, pad):
+    """May the robot collide (or come closer than ``pad``, m) anywhere in the region R = {nom(i + t) with
     joint j replaced by v : t in [ta, tb], v in [va, vb]}?
 
     R is the image of a rectangle under an affine map into configuration
@@ -868,7 +873,7 @@ def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_P
         grow = _relative_growth(W, i, j, -1, b, L_t, L_v, moved, curvature, reach, revolute)
         for c in range(P):
             pose_shape(shapes[s], RP[c, b], pP[c, b], objs[s, c])
-            set_motion(objs[s, c], grow, 0.0, 0.0, 1.0, 0.0, 0.0)
+            set_motion(objs[s, c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
         obj = objs[s, :P]
         object_aabb(obj, verts, aabbs[s], tmp6)
         if _object_vs_scene(obj, aabbs[s], verts, obstacles, obs_aabb, table, ox, oy, side, ws, stack, box):
@@ -899,7 +904,7 @@ def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_P
                 for r in range(3):
                     p_fm[r] = Rf[0, r] * dp[0] + Rf[1, r] * dp[1] + Rf[2, r] * dp[2]
                 pose_shape(shapes[sm], R_fm, p_fm, relP[c])
-                set_motion(relP[c], grow, 0.0, 0.0, 1.0, 0.0, 0.0)
+                set_motion(relP[c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
             object_aabb(relP, verts, rel_aabb, tmp6)
             for sf in range(S):
                 if shape_body[sf] != f:
@@ -916,7 +921,7 @@ def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_P
 @njit(cache=True)
 def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtype, qidx, axis, R_PF, p_PF,
             R_MB, p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute,
-            joint_body, table, ox, oy, side, RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6):
+            joint_body, table, ox, oy, side, RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6, pad):
     """The bound v of joint j over stretch i (upper for sgn +1, lower for
     -1): for every t in [0, 1], moving joint j alone from nom(i + t) to v is
     free. An adaptive search from the stretch's nominal range outwards:
@@ -965,7 +970,7 @@ def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtyp
         hit = _region_hits(W, i, j, 0.0, 1.0, nt, va, vb, nv, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
                            shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
                            curvature, revolute, joint_body, table, ox, oy, side,
-                           RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6)
+                           RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6, pad)
         if not hit:
             F = X
             if F >= T:
@@ -987,8 +992,9 @@ def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtyp
 @njit(cache=True, parallel=True)
 def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, qidx, axis, R_PF, p_PF, R_MB,
                  p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute,
-                 joint_body, table, ox, oy, side):
-    """Certified single-joint bounds of every stretch (:func:`_search`).
+                 joint_body, table, ox, oy, side, pads):
+    """Certified single-joint bounds of every stretch (:func:`_search`),
+    keeping stretch i at least ``pads[i]`` (m) from the scene and itself.
     Chain n = (j, sign) walks the stretches in order, each search starting
     from the previous stretch's bound; the chains run in parallel.
 
@@ -1021,12 +1027,57 @@ def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, 
                                qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts, obstacles, obs_aabb,
                                pairs, moved, reach, curvature, revolute, joint_body, table, ox, oy, side, RP, pP,
                                objs, aabbs,
-                               rel, rel_aabb, q_c, ws, stack, box, tmp6)
+                               rel, rel_aabb, q_c, ws, stack, box, tmp6, pads[i])
             out[n, i] = bound
             count += c
             guess = bound
         tests[n] = count
     return out, tests
+
+
+@njit(cache=True, parallel=True)
+def regions_hit(A, B, js, va, vb, nts, nvs, pads, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes,
+                shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute, joint_body):
+    """Region tests of many straight pieces (the certificate's box edges).
+
+    Task n is the region {c(t) with joint js[n] replaced by v : t in [0, 1],
+    v in [va[n], vb[n]]}, where c(t) = A[n] + t (B[n] - A[n]), tested as in
+    :func:`_region_hits` (nts[n] x nvs[n] grid poses, second-order growth)
+    against the obstacles and the robot itself, kept ``pads[n]`` (m) away;
+    no volume V. As there, only what joint js[n] moves relative to the rest
+    is tested: the rest is the pose at c(t), proven by the other joints'
+    tasks.
+
+    Returns:
+        (n,) True where the region may collide (False: proven free).
+    """
+    n_tasks = A.shape[0]
+    out = np.zeros(n_tasks, np.bool_)
+    B_n = parent.shape[0]
+    S = shapes.shape[0]
+    k = A.shape[1]
+    empty_table = np.zeros((1, 1, 0, 0))
+    n_chunks = (n_tasks + 63) // 64
+    for c in prange(n_chunks):
+        ws, stack, box, tmp6 = new_workspace()
+        P = MAX_T_SAMPLES * MAX_V_SAMPLES
+        RP = np.empty((P, B_n, 3, 3))
+        pP = np.empty((P, B_n, 3))
+        objs = np.empty((S, P, SHAPE_W))
+        aabbs = np.empty((S, 6))
+        rel = np.empty((P, SHAPE_W))
+        rel_aabb = np.empty(6)
+        q_c = np.empty(k)
+        W = np.empty((2, k))
+        for n in range(c * 64, min(n_tasks, (c + 1) * 64)):
+            W[0] = A[n]
+            W[1] = B[n]
+            out[n] = _region_hits(W, 0, js[n], 0.0, 1.0, min(nts[n], MAX_T_SAMPLES), va[n], vb[n],
+                                  min(nvs[n], MAX_V_SAMPLES), parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
+                                  shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature,
+                                  revolute, joint_body, empty_table, 0.0, 0.0, 1.0, RP, pP, objs, aabbs, rel,
+                                  rel_aabb, q_c, ws, stack, box, tmp6, pads[n])
+    return out
 
 
 @njit(cache=True)
@@ -1306,9 +1357,9 @@ def warm_up() -> float:
     Q = np.ascontiguousarray(W)
     fk(Q, *chain)
     configs_may_collide(Q, *chain, shapes, shape_body, verts, obstacles, obs_aabb, np.zeros((0, 2), np.int64),
-                        movable)
+                        movable, 0.0)
     configs_may_collide_serial(Q, *chain, shapes, shape_body, verts, obstacles, obs_aabb,
-                               np.zeros((0, 2), np.int64), movable)
+                               np.zeros((0, 2), np.int64), movable, 0.0)
     heights = np.array([[0.0, 0.3], [0.2, 0.0]])
     table = range_max_table(heights)
     moved = np.array([[True]])
@@ -1319,7 +1370,11 @@ def warm_up() -> float:
     sweep_chains(np.array([[0, 1], [0, -1]], np.int64), np.array([0.01]), np.array([[-3.0]]), np.array([[3.0]]),
                  np.array([[2]], np.int64), np.array([0.2]), W, *chain, shapes, shape_body, verts, obstacles,
                  obs_aabb, np.zeros((0, 2), np.int64), moved, reach, curvature, revolute, joint_body, table,
-                 -1.0, -1.0, 1.0)
+                 -1.0, -1.0, 1.0, np.zeros(1))
+    regions_hit(W[:1].copy(), W[1:].copy(), np.array([0], np.int64), np.array([-0.1]), np.array([0.1]),
+                np.array([2], np.int64), np.array([2], np.int64), np.array([0.01]), *chain, shapes, shape_body,
+                verts, obstacles, obs_aabb, np.zeros((0, 2), np.int64), moved, reach, curvature, revolute,
+                joint_body)
     lower_columns_under(Q, np.zeros((2, 1)), *chain, shapes, shape_body, verts, heights.copy(), -1.0, -1.0, 1.0,
                         0.0, movable)
     obstacle_distances(Q, 0.5, 1e-3, *chain, shapes, shape_body, verts, obstacles, obs_aabb, movable)

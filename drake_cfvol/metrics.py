@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -10,7 +11,7 @@ from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.progress import Progress
 from drake_cfvol.table import BoundsTable
 
-__all__ = ["CFResult", "Freedom", "confidence_factor", "freedom", "sample_boxes"]
+__all__ = ["shown_percent", "CFResult", "Freedom", "confidence_factor", "freedom", "sample_boxes"]
 
 
 def sample_boxes(bounds: BoundsTable, s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -122,3 +123,11 @@ def freedom(bounds: BoundsTable, revolute=None) -> Freedom:
     med = np.median(bounds.widths(), axis=0)
     med = np.where(revolute, np.degrees(med), med)
     return Freedom(float(gm.mean()), gm, med, ["deg" if r else "m" for r in revolute])
+
+
+def shown_percent(percent: float, colliding: int, digits: int = 4) -> float:
+    """A percentage rounded for people, never to 100 when a sample
+    collided (rounded down then), so "CF 100 %" always means none did."""
+    if colliding > 0:
+        return math.floor(percent * 10 ** digits) / 10 ** digits
+    return round(percent, digits)

@@ -39,7 +39,16 @@ class VolumeParams:
         raster: pixel size of the footprint distance maps, m.
         waypoint_time: nominal seconds per waypoint, for the bounds' rate
             limit (each joint's velocity limit times this, per unit s). None:
-            the nominal at full speed (its slowest joint at its limit).
+            the nominal at NOMINAL_SPEED_FRACTION (25 %) of the velocity
+            limits (:func:`drake_cfvol.sweep.default_rate`).
+        clearance: the safety margin, m: no configuration the bounds allow
+            (and none the runtime safety filter commands) comes nearer to an
+            obstacle or to the robot itself than min(clearance, the
+            nominal's own clearance at s); planning keeps it too. The
+            default, 0.02 m, covers the models' tolerance against the real
+            cell (a few mm), a tracking error of a few mm at the tool and a
+            margin left to stop in; 0 is the paper's setting (touching
+            allowed), which the benchmark's paper tables use.
     """
 
     resolution: int = 1000
@@ -60,6 +69,7 @@ class VolumeParams:
     column_clearance: float = 0.0
     raster: float = 0.04
     waypoint_time: float | None = None
+    clearance: float = 0.02
 
     def __post_init__(self):
         def bad(msg):
@@ -88,9 +98,11 @@ class VolumeParams:
             bad(f"h_max must be >= 0 m, got {self.h_max}.")
         if self.reach is not None and self.reach <= 0:
             bad(f"reach must be > 0 m, got {self.reach}.")
-        for name in ("trail_radius", "goal_radius", "column_clearance"):
+        for name in ("trail_radius", "goal_radius", "column_clearance", "clearance"):
             if getattr(self, name) < 0:
                 bad(f"{name} must be >= 0 m, got {getattr(self, name)}.")
+        if self.clearance > 0.5:
+            bad(f"clearance must be at most 0.5 m (a safety margin of a few cm), got {self.clearance} m.")
         if self.waypoint_time is not None and self.waypoint_time <= 0:
             bad(f"waypoint_time must be > 0 s, got {self.waypoint_time}.")
         for name in ("delta", "delta_prismatic", "raster"):

@@ -122,6 +122,7 @@ def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = N
         rate = None
     t3 = time.perf_counter()
     lim_lo, lim_hi = absolute_bounds(workcell.position_lower, workcell.position_upper, W[0])
+    stats.setdefault("clearance_m", float(params.clearance))
     info = {"cell": workcell.name, "path": path.label, "seed": path.seed, "backend": backend,
             "resolution": params.resolution, "n_boxes": vb.volume.n_boxes,
             "lowered_columns": vb.volume.lowered, "dropped_columns": vb.volume.dropped,

@@ -170,6 +170,7 @@ def plan_nominal_path(
     singular_threshold: float = 1e-3,
     shortcut_iterations: int = 60,
     label: str = "",
+    clearance: float | None = None,
 ) -> NominalPath:
     """Plans a collision-free nominal path with RRT-Connect.
 
@@ -183,6 +184,11 @@ def plan_nominal_path(
             Jacobian at any waypoint.
         shortcut_iterations: random shortcut attempts (seeded).
         label: stored on the path (e.g. ``"path1"``).
+        clearance: the margin every waypoint and edge keeps from the
+            obstacles and the robot itself, m (None: the workcell's
+            ``VolumeParams`` value, 0.02 by default). A start or goal nearer
+            than that lowers it for this path to 0.9 x its own clearance;
+            ``stats["clearance_m"]`` is the margin the path keeps.
 
     Raises:
         DimensionError, JointLimitError: bad start/goal.
@@ -209,7 +215,17 @@ def plan_nominal_path(
                 f"The {what} configuration is singular: the tool Jacobian's smallest singular value is "
                 f"{sv:.2e} <= {singular_threshold:.1e}. Move the wrist off the singularity (e.g. a "
                 "non-zero wrist bend).")
-    checker = workcell.checker
+    if clearance is None:
+        from drake_cfvol.params import VolumeParams
+
+        clearance = VolumeParams.for_workcell(workcell).clearance
+    if not (np.isfinite(clearance) and 0.0 <= clearance <= 0.5):
+        raise ParameterError(f"clearance must be in [0, 0.5] m, got {clearance!r}.")
+    margin = float(clearance)
+    if margin > 0:
+        ends = min(workcell.clearance(start, margin), workcell.clearance(goal, margin))
+        margin = min(margin, 0.9 * ends)
+    checker = workcell.padded_checker(margin)
     is_free = checker.CheckConfigCollisionFree
     edge_free = checker.CheckEdgeCollisionFree
 
@@ -253,6 +269,7 @@ def plan_nominal_path(
             "raw_vertices": int(ostats.get("raw_vertices", 0)), "simplified_vertices": len(verts),
             "state_checks": ostats["state_checks"], "motion_checks": ostats["motion_checks"],
             "min_singular_value": float(sv.min()), "max_step": max_step, "rejected": list(failures),
+            "clearance_m": margin,
         }
         return NominalPath(wp, list(workcell.joint_names), workcell.name, label, int(seed), stats)
     why = "; ".join(failures[-3:]) or "no attempt could start"

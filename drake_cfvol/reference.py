@@ -65,10 +65,12 @@ class ReferenceScene:
         edge_step: Drake's edge-check step, rad or m.
         max_boxes: refuse volumes with more columns than this (Drake needs
             ~1-2 s per 1000 boxes, 12 GB and a minute at 5000).
+        clearance: Drake's collision padding, m: a configuration nearer than
+            this to the volume, an obstacle or itself counts as colliding.
     """
 
     def __init__(self, workcell, volume: Volume, *, edge_step: float = 0.01,
-                 max_boxes: int = MAX_REFERENCE_BOXES):
+                 max_boxes: int = MAX_REFERENCE_BOXES, clearance: float = 0.0):
         if volume.n_boxes > max_boxes:
             raise ParameterError(
                 f"the reference backend holds one SceneGraph box per column; {volume.n_boxes} columns "
@@ -86,7 +88,7 @@ class ReferenceScene:
         t1 = time.perf_counter()
         self.checker = SceneGraphCollisionChecker(
             model=self.diagram, robot_model_instances=[self.robot], edge_step_size=edge_step,
-            env_collision_padding=0.0, self_collision_padding=0.0)
+            env_collision_padding=clearance, self_collision_padding=clearance)
         self.checker_s = time.perf_counter() - t1
         self._context = self.diagram.CreateDefaultContext()
 
@@ -118,13 +120,14 @@ def drake_sweep_bounds(workcell, waypoints: np.ndarray, volume: Volume, params: 
                        progress: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:
     """Joint bounds by Drake alone: each single-joint motion is sampled every
     ``delta`` (the checker's resolution) from the nominal outwards; the bound
-    is the last free sample before the first collision.
+    is the last free sample before the first collision (a sample nearer
+    than ``params.clearance`` counts as one).
 
     With ``progress``, a bar on a terminal counts the waypoints (building
     the scene is ~1 % of the time at R = 1000)."""
     waypoints = np.asarray(waypoints, float)
     g, k = waypoints.shape
-    scene = scene or ReferenceScene(workcell, volume)
+    scene = scene or ReferenceScene(workcell, volume, clearance=params.clearance)
     bar = Progress(g, "Reference bounds (Drake)", enabled=progress, unit="waypoint")
     lower = waypoints.copy()
     upper = waypoints.copy()

@@ -29,7 +29,7 @@ from drake_cfvol.geometry import SceneArrays
 from drake_cfvol.heightmap import Volume
 from drake_cfvol.params import VolumeParams
 
-__all__ = ["stretch_bounds", "volume_table", "nominal_growth", "default_rate"]
+__all__ = ["stretch_bounds", "volume_table", "nominal_growth", "default_rate", "stretch_margins"]
 
 #: Poses are sampled along the stretch (up to kernel.MAX_T_SAMPLES) until
 #: the nominal's own motion grows a body by at most this much between
@@ -60,8 +60,40 @@ def nominal_growth(arrays: SceneArrays, waypoints: np.ndarray) -> np.ndarray:
     return out
 
 
+#: Margins tried (as fractions of ``clearance``) when the nominal itself is
+#: nearer than the clearance somewhere: the largest the kernel proves free
+#: at both waypoints and the midpoint of a stretch is that stretch's margin.
+MARGIN_LADDER = (1.0, 0.95, 0.9, 0.85, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.0)
+
+
+def stretch_margins(arrays: SceneArrays, waypoints: np.ndarray, clearance: float) -> np.ndarray:
+    """(g-1,) the margin each stretch keeps, m: ``clearance`` where the
+    nominal itself keeps it (planning does, except near a start or goal the
+    user placed nearer), else the largest rung of MARGIN_LADDER x clearance
+    at which the compiled kernel (conservative: its "free" means farther
+    than the margin) finds the stretch's two waypoints and its midpoint
+    free. So no box comes nearer than min(clearance, about the nominal's
+    own clearance). A stretch whose nominal dips below its margin between
+    those samples keeps its single-joint bounds at the nominal (the region
+    tests fail there): never unsafe, only narrow."""
+    W = np.ascontiguousarray(waypoints, dtype=np.float64)
+    g = len(W)
+    if g < 2:
+        return np.zeros(0)
+    if clearance <= 0:
+        return np.zeros(g - 1)
+    Q = np.concatenate([W, 0.5 * (W[:-1] + W[1:])])
+    kept = np.zeros(len(Q))
+    for rung in MARGIN_LADDER[::-1]:  # from 0 up: a rung that holds at q is kept
+        ok = ~arrays.may_collide(Q, rung * clearance)
+        kept = np.where(ok, rung * clearance, kept)
+    per_wp, mid = kept[:g], kept[g:]
+    return np.minimum(np.minimum(per_wp[:-1], per_wp[1:]), mid)
+
+
 def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | None, params: VolumeParams,
-                   lower_limit: np.ndarray, upper_limit: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict]:
+                   lower_limit: np.ndarray, upper_limit: np.ndarray, margins: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Certified per-stretch joint bounds.
 
     Args:
@@ -70,6 +102,9 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
         volume: V (None: obstacles and self only).
         params: ``delta`` / ``delta_prismatic`` tolerances.
         lower_limit, upper_limit: (g-1, k) absolute bounds per stretch (finite).
+        margins: (g-1,) the margin each stretch keeps from the obstacles,
+            V and itself, m (None: :func:`stretch_margins` of
+            ``params.clearance``).
 
     Returns:
         (lower (g-1, k), upper (g-1, k), stats). A bound may lie inside the
@@ -93,8 +128,11 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     lim_lo = np.ascontiguousarray(lower_limit, dtype=np.float64)
     lim_hi = np.ascontiguousarray(upper_limit, dtype=np.float64)
 
+    if margins is None:
+        margins = stretch_margins(arrays, W, params.clearance)
     chains = np.array([(j, sgn) for j in range(k) for sgn in (1, -1)], np.int64)
-    bounds, tests = K.sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, *common)
+    bounds, tests = K.sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, *common,
+                                   np.ascontiguousarray(margins, dtype=np.float64))
     lo_nom = np.minimum(W[:-1], W[1:])
     hi_nom = np.maximum(W[:-1], W[1:])
     upper = bounds[0::2].T.copy()
@@ -106,7 +144,8 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     stats = {"region_tests": tests, "searches": 2 * n_st * k,
              "pinned": int((upper < hi_nom).sum() + (lower > lo_nom).sum()),
              "max_t_samples": int(nts.max()) if nts.size else 0,
-             "motion_tolerance_m": MOTION_TOLERANCE}
+             "motion_tolerance_m": MOTION_TOLERANCE, "clearance_m": float(params.clearance),
+             "stretches_below_clearance": int((margins < params.clearance).sum())}
     return lower, upper, stats
 
 

@@ -607,6 +607,27 @@ class Workcell:
             model=self.diagram, robot_model_instances=[self.robot],
             edge_step_size=self._edge_step, env_collision_padding=0.0, self_collision_padding=0.0)
 
+    def padded_checker(self, clearance: float):
+        """A ``SceneGraphCollisionChecker`` that calls a configuration nearer
+        than ``clearance`` (m) to an obstacle or to the robot itself
+        colliding (Drake's collision padding); one per distinct value."""
+        clearance = float(clearance)
+        if clearance == 0.0:
+            return self.checker
+        cache = self.__dict__.setdefault("_padded_checkers", {})
+        if clearance not in cache:
+            cache[clearance] = SceneGraphCollisionChecker(
+                model=self.diagram, robot_model_instances=[self.robot], edge_step_size=self._edge_step,
+                env_collision_padding=clearance, self_collision_padding=clearance)
+        return cache[clearance]
+
+    def clearance(self, q, influence: float = 1.0) -> float:
+        """The robot's signed distance to the obstacles and to itself at
+        ``q`` (m; the smallest pair, by Drake; ``influence`` if none is
+        nearer)."""
+        d = np.asarray(self.checker.CalcRobotClearance(np.asarray(q, float), influence).distances())
+        return float(d.min()) if d.size else float(influence)
+
     def finite_limits(self, needed_for: str) -> tuple[np.ndarray, np.ndarray]:
         """Returns the position limits, raising if any is infinite."""
         bad = [n for n, lo, hi in zip(self.joint_names, self.position_lower, self.position_upper)
