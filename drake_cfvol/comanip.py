@@ -712,7 +712,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     if safety is not None:
         exported.update({"filter_active": safety.filter_active_output, "filter_count": safety.filter_count_output,
                          "filter_fallbacks": safety.fallback_count_output,
-                         "filter_damper_misses": safety.damper_misses_output})
+                         "filter_damper_misses": safety.damper_misses_output,
+                         "filter_box_exits": safety.box_exits_output})
     loggers = {}
     for name, port in exported.items():
         builder.ExportOutput(port, name)
@@ -813,7 +814,8 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "collisions": rates["collisions"], "max_bound_violation": violation,
         "filter_steps": _last(logs, "filter_count"), "guard_steps": _last(logs, "filter_count"),
         "filter_fallbacks": _last(logs, "filter_fallbacks"),
-        "filter_damper_misses": _last(logs, "filter_damper_misses"), "faults": _last(logs, "fault_count"),
+        "filter_damper_misses": _last(logs, "filter_damper_misses"),
+        "filter_box_exits": _last(logs, "filter_box_exits"), "faults": _last(logs, "fault_count"),
         "collision_guard": scenario.collision_guard, "filter_clearance_m": cm.filter_clearance,
         "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
         "n_boxes": cm.bounds.info["n_boxes"], "volume_boxes_in_scene": cm.volume_boxes["count"],

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import QueryObject
+from pydrake.geometry import Box, Capsule, Convex, Cylinder, Mesh, QueryObject
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.solvers import ClarabelSolver, MathematicalProgram
 from pydrake.systems.framework import LeafSystem, ValueProducer
@@ -20,12 +20,45 @@ __all__ = ["SafetyFilter"]
 #: Status state layout: [acted at the last update, updates it acted,
 #: smallest signed distance seen at the last update (m), largest
 #: |v_j| / limit_j of the last update, updates that used the fallback,
-#: updates that had to miss a damper row].
-_ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES = range(6)
+#: updates that had to miss a damper row, updates whose command left the
+#: box].
+_ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS = range(7)
 
 #: A command counts as changed when it differs from the request by more
 #: than this, rad (m).
 _CHANGED = 1e-9
+
+
+#: Points sampled on each rim of a cylinder (probe points).
+_RIM_POINTS = 12
+
+
+def _probes(shape) -> tuple[np.ndarray, np.ndarray]:
+    """Probe spheres of a shape, in its frame: centres (3 x m) and radii
+    (m,). Their lowest points along a direction reach the shape's support
+    there wherever the support set may be flat (a face, an edge, a rim, a
+    capsule's side), so rows at them see a face tilt towards an obstacle;
+    smooth, strictly convex shapes (sphere, ellipsoid) need none."""
+    if isinstance(shape, Box):
+        half = np.array([shape.width(), shape.depth(), shape.height()]) / 2
+        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
+        return corners.T, np.zeros(8)
+    if isinstance(shape, Cylinder):
+        a = np.linspace(0.0, 2 * np.pi, _RIM_POINTS, endpoint=False)
+        ring = np.stack([shape.radius() * np.cos(a), shape.radius() * np.sin(a)], axis=1)
+        rims = [np.column_stack([ring, np.full(len(a), z)]) for z in (-shape.length() / 2, shape.length() / 2)]
+        return np.concatenate(rims).T, np.zeros(2 * _RIM_POINTS)
+    if isinstance(shape, Capsule):
+        ends = np.array([[0.0, 0.0, -shape.length() / 2], [0.0, 0.0, shape.length() / 2]])
+        return ends.T, np.full(2, shape.radius())
+    if isinstance(shape, (Convex, Mesh)):
+        try:
+            hull = shape.GetConvexHull()
+            pts = np.array([hull.vertex(i) for i in range(hull.num_vertices())], float).reshape(-1, 3)
+            return pts.T, np.zeros(len(pts))
+        except Exception:  # no hull: the witness row alone
+            return np.zeros((3, 0)), np.zeros(0)
+    return np.zeros((3, 0)), np.zeros(0)  # smooth (sphere, ellipsoid): the witness row suffices
 
 
 def _limits(value, k: int, name: str) -> np.ndarray:
@@ -58,6 +91,7 @@ class SafetyFilter(LeafSystem):
         - velocity_ratio
         - fallback_count
         - damper_misses
+        - box_exits
 
     The discrete state is the commanded position q_c (rad, or m for a
     prismatic joint); ``commanded_position`` outputs it, so it depends on no
@@ -171,6 +205,10 @@ class SafetyFilter(LeafSystem):
     #: no choice.
     SLACK_WEIGHT = 1e6
 
+    #: Weight of a step out of the box against the request's, both (s/rad)^2:
+    #: the box gives way only to a damper row.
+    BOX_WEIGHT = 1e3
+
     def __init__(self, plant, scene_graph, robot, *, velocity_limits=None, obstacle_ids=None,
                  clearance: float = 0.0, influence_distance: float = 0.15, damper_gain: float = 1.0,
                  period: float = 0.01, acceleration_limits=None, initial_position=None, allowance: float = 0.001):
@@ -220,7 +258,7 @@ class SafetyFilter(LeafSystem):
             name="query_object", model_value=AbstractValue.Make(QueryObject()))
         self._position = self.DeclareDiscreteState(q0)
         self._velocity = self.DeclareDiscreteState(k)  # the last commanded velocity
-        self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0]))
+        self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0]))
         # A plant context used as scratch for the Jacobians (never a context
         # outside this system's own).
         self._scratch = self.DeclareCacheEntry(
@@ -231,7 +269,8 @@ class SafetyFilter(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
         self.commanded_position_output = self.DeclareStateOutputPort("commanded_position", self._position)
         status = [("filter_active", _ACTIVE), ("filter_count", _COUNT), ("min_distance", _MIN_DISTANCE),
-                  ("velocity_ratio", _RATIO), ("fallback_count", _FALLBACKS), ("damper_misses", _MISSES)]
+                  ("velocity_ratio", _RATIO), ("fallback_count", _FALLBACKS), ("damper_misses", _MISSES),
+                  ("box_exits", _EXITS)]
         for name, i in status:
             port = self.DeclareVectorOutputPort(
                 name=name, size=1, calc=lambda ctx, out, i=i: out.SetAtIndex(
@@ -245,8 +284,9 @@ class SafetyFilter(LeafSystem):
     def _make_pairs(plant, scene_graph, robot, obstacle_ids) -> list[tuple]:
         """The geometry pairs the damper watches: the robot's moving links
         against every obstacle, and the robot's own unfiltered pairs with at
-        least one moving link. Each: (id_A, id_B, body_A or None, X_BA,
-        body_B or None, X_BB), a body None where no joint moves it."""
+        least one moving link. Each: (id_A, id_B, side_A, side_B), a side
+        (body or None where no joint moves it, X_BG, probe centres in the
+        body frame, probe radii)."""
         inspector = scene_graph.model_inspector()
         moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(robot))))
         robot_ids, moving = [], set()
@@ -265,12 +305,22 @@ class SafetyFilter(LeafSystem):
         pairs += [(a, b) for i, a in enumerate(ordered) for b in ordered[i + 1:]
                   if (a in moving or b in moving) and not inspector.CollisionFiltered(a, b)]
 
-        def side(gid):
-            body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
-            moving_body = body is not None and body.index() in moved
-            return (body if moving_body else None), inspector.GetPoseInFrame(gid)
+        sides = {}
 
-        return [(a, b, *side(a), *side(b)) for a, b in pairs]
+        def side(gid):
+            """(moving body or None, X_BG, probe centres in the body frame
+            (3 x m), probe radii)."""
+            if gid not in sides:
+                body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
+                X_BG = inspector.GetPoseInFrame(gid)
+                if body is None or body.index() not in moved:
+                    sides[gid] = (None, X_BG, np.zeros((3, 0)), np.zeros(0))
+                else:
+                    centres, radii = _probes(inspector.GetShape(gid))
+                    sides[gid] = (body, X_BG, X_BG.multiply(centres) if centres.shape[1] else centres, radii)
+            return sides[gid]
+
+        return [(a, b, side(a), side(b)) for a, b in pairs]
 
     @property
     def num_pairs(self) -> int:
@@ -303,7 +353,7 @@ class SafetyFilter(LeafSystem):
         plant.SetPositions(pctx, q)
         world = plant.world_frame()
         rows, rhs, dists = [], [], []
-        for id_a, id_b, body_a, X_A, body_b, X_B in self._pairs:
+        for id_a, id_b, side_a, side_b in self._pairs:
             try:
                 pair = query.ComputeSignedDistancePairClosestPoints(id_a, id_b)
             except RuntimeError:  # a shape pair Drake cannot measure: not watched
@@ -312,17 +362,40 @@ class SafetyFilter(LeafSystem):
             dists.append(d)
             if d >= self.influence_distance:
                 continue
-            J = np.zeros((3, self.k))
-            if body_a is not None:
-                J += plant.CalcJacobianTranslationalVelocity(pctx, JacobianWrtVariable.kV, body_a.body_frame(),
-                                                             X_A @ pair.p_ACa, world, world)
-            if body_b is not None:
-                J -= plant.CalcJacobianTranslationalVelocity(pctx, JacobianWrtVariable.kV, body_b.body_frame(),
-                                                             X_B @ pair.p_BCb, world, world)
-            rows.append(np.asarray(pair.nhat_BA_W).reshape(3) @ J)
+            n = np.asarray(pair.nhat_BA_W, float).reshape(3)
+            # Points on A and on B: the witness first, then the probes.
+            pts_a, J_a, w_a = self._points(pctx, side_a, pair.p_ACa, query.GetPoseInWorld(id_a))
+            pts_b, J_b, w_b = self._points(pctx, side_b, pair.p_BCb, query.GetPoseInWorld(id_b))
+            rows.append(n @ (J_a[0] - J_b[0]))
             rhs.append(-self.rate * (d - self.target_distance))
+            # A's probes against the plane through B's witness (normal n),
+            # and B's against the plane through A's (normal -n): a face
+            # tilting towards the other shape shows at its corners.
+            for pts, J, radii, sign, other, J_other in ((pts_a, J_a, w_a, 1.0, pts_b[0], J_b[0]),
+                                                       (pts_b, J_b, w_b, -1.0, pts_a[0], J_a[0])):
+                for i in range(1, len(pts)):
+                    gap = sign * n @ (pts[i] - other) - radii[i - 1]
+                    if gap < self.influence_distance:
+                        rows.append(sign * n @ (J[i] - J_other))
+                        rhs.append(-self.rate * (gap - self.target_distance))
         A = np.array(rows).reshape(-1, self.k)
         return A, np.array(rhs, float), np.array(dists, float)
+
+    def _points(self, pctx, side, p_GC, X_WG):
+        """World positions (m x 3) and translational Jacobians (m x 3 x k)
+        of a pair's witness point (given in the geometry's frame G, posed at
+        X_WG) and, on a moving body, its probe centres; and the probes'
+        radii."""
+        body, X_BG, centres, radii = side
+        plant, world = self._plant, self._plant.world_frame()
+        p_GC = np.asarray(p_GC, float).reshape(3)
+        if body is None:  # welded: fixed in the world
+            return np.array([X_WG.multiply(p_GC)]), np.zeros((1, 3, self.k)), radii[:0]
+        P = np.column_stack([X_BG.multiply(p_GC), centres])
+        frame = body.body_frame()
+        p_W = plant.CalcPointsPositions(pctx, frame, P, world).T
+        J = plant.CalcJacobianTranslationalVelocity(pctx, JacobianWrtVariable.kV, frame, P, world, world)
+        return p_W, J.reshape(P.shape[1], 3, self.k), radii
 
     def _interval(self, q, lower, upper):
         """Per joint, the velocities within the limits that land in the box;
@@ -352,6 +425,7 @@ class SafetyFilter(LeafSystem):
             ok = np.isfinite(lower) & np.isfinite(upper) & (lower <= upper)
             lo, hi = self._interval(q, np.where(ok, lower, q), np.where(ok, upper, q))
             v, fallback, dmin, missed = np.clip(np.zeros(k), lo, hi), True, status[_MIN_DISTANCE], False
+            v = np.clip(v, lo, hi)
         else:
             lo, hi = self._interval(q, lower, upper)
             target = (desired - q) / h
@@ -372,17 +446,18 @@ class SafetyFilter(LeafSystem):
                 v = self._solve(v_t, lo, hi, A, b)
                 if v is None:
                     v, fallback = np.clip(np.zeros(k), lo, hi), True
-            missed = bool(len(b) and np.any(A @ np.clip(v, lo, hi) < b - 1e-6))
-        v = np.clip(v, lo, hi)
-        q_next = q + v * h
+            missed = bool(len(b) and np.any(A @ v < b - 1e-6))
         vmax = self.velocity_limits
+        v = np.clip(v, -vmax, vmax)
+        exited = bool(np.any((v < lo - 1e-9) | (v > hi + 1e-9)))
+        q_next = q + v * h
         ratio = float(np.max(np.where(np.isfinite(vmax), np.abs(v) / vmax, 0.0))) if k else 0.0
         acted = (not sane) or bool(np.any(np.abs(q_next - desired) > _CHANGED))
         discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
         discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
         discrete_state.get_mutable_vector(self._status).SetFromVector(
             [float(acted), status[_COUNT] + acted, dmin, ratio, status[_FALLBACKS] + fallback,
-             status[_MISSES] + missed])
+             status[_MISSES] + missed, status[_EXITS] + exited])
 
     def _relax(self, q, nominal, lo, hi, A, b):
         """The damper's rows relaxed so that following the nominal stays
@@ -401,20 +476,40 @@ class SafetyFilter(LeafSystem):
         return b + w * np.minimum(0.0, A @ v_ref - b)
 
     def _solve(self, v_t, lo, hi, A, b):
-        """argmin |v - v_t|^2 s.t. lo <= v <= hi, A v >= b; where no v
-        meets every row, argmin |v - v_t|^2 + W |s|^2 s.t. lo <= v <= hi,
-        A v + s >= b, s >= 0 (W = ``SLACK_WEIGHT``): the rows are missed as
-        little as the limits and the box allow. None if the solver fails."""
-        v = self._qp(v_t, lo, hi, A, b, slack=False)
-        return v if v is not None else self._qp(v_t, lo, hi, A, b, slack=True)
+        """The QP, in stages by priority (the velocity limits always hard):
 
-    def _qp(self, v_t, lo, hi, A, b, *, slack: bool):
-        m = len(b)
+        1. the box and the damper's rows hard: argmin |v - v_t|^2 s.t.
+           lo <= v <= hi, A v >= b;
+        2. if no v meets both, the rows hard and the box soft: the command
+           leaves the box (an uncertified box's corner sweeping into an
+           obstacle) as little as it must, weight ``BOX_WEIGHT``;
+        3. if the limits leave no v that meets the rows, both soft, the rows
+           weighted ``SLACK_WEIGHT``: missed as little as possible.
+
+        None if the solver fails."""
+        for box_soft, rows_soft in ((False, False), (True, False), (True, True)):
+            v = self._qp(v_t, lo, hi, A, b, box_soft=box_soft, rows_soft=rows_soft)
+            if v is not None:
+                return v
+        return None
+
+    def _qp(self, v_t, lo, hi, A, b, *, box_soft: bool, rows_soft: bool):
+        m, k = len(b), self.k
         prog = MathematicalProgram()
-        v = prog.NewContinuousVariables(self.k, "v")
-        prog.AddQuadraticCost(2.0 * np.eye(self.k), -2.0 * v_t, v, is_convex=True)
-        prog.AddBoundingBoxConstraint(lo, hi, v)
-        if slack:
+        v = prog.NewContinuousVariables(k, "v")
+        prog.AddQuadraticCost(2.0 * np.eye(k), -2.0 * v_t, v, is_convex=True)
+        vmax = self.velocity_limits
+        if box_soft:
+            prog.AddBoundingBoxConstraint(-vmax, vmax, v)
+            e = prog.NewContinuousVariables(k, "e")
+            prog.AddQuadraticCost(2.0 * self.BOX_WEIGHT * np.eye(k), np.zeros(k), e, is_convex=True)
+            prog.AddBoundingBoxConstraint(0.0, np.inf, e)
+            eye = np.eye(k)
+            prog.AddLinearConstraint(np.hstack([eye, eye]), lo, np.full(k, np.inf), np.concatenate([v, e]))
+            prog.AddLinearConstraint(np.hstack([eye, -eye]), np.full(k, -np.inf), hi, np.concatenate([v, e]))
+        else:
+            prog.AddBoundingBoxConstraint(lo, hi, v)
+        if rows_soft:
             s = prog.NewContinuousVariables(m, "s")
             prog.AddQuadraticCost(2.0 * self.SLACK_WEIGHT * np.eye(m), np.zeros(m), s, is_convex=True)
             prog.AddBoundingBoxConstraint(0.0, np.inf, s)
@@ -427,4 +522,5 @@ class SafetyFilter(LeafSystem):
             return None
         if not result.is_success():
             return None
-        return np.clip(result.GetSolution(v), lo, hi)
+        x = np.clip(result.GetSolution(v), -vmax, vmax)
+        return x if box_soft else np.clip(x, lo, hi)

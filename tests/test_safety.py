@@ -226,6 +226,30 @@ def test_a_box_out_of_reach_is_approached_at_the_limit(wall):
     assert sf.velocity_ratio_output.Eval(sctx)[0] == pytest.approx(1.0)
 
 
+def test_the_box_gives_way_to_the_damper(wall):
+    """A box (uncertified) whose upper bound on the first joint sweeps
+    through the wall at 0.5 rad/s, the elbow's box a point at 0: the
+    filter leaves the box rather than follow it into the wall (Drake's
+    distance never below the margin), reports it (``box_exits``), and never
+    exceeds a velocity limit."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    sf.set_initial_position(sctx, [1.3, 0.0])
+    sim = Simulator(diagram, ctx)
+    q_prev, worst = np.array([1.3, 0.0]), np.inf
+    for n in range(1, 301):
+        hi = max(1.3 - 0.5 * n * H, -0.9)
+        _fix(diagram, ctx, [hi, 0.0], [-1.2, 0.0], [hi, 0.0], nominal=[-1.0, 0.0])
+        sim.AdvanceTo((n - 1) * H + H / 2)
+        q = sf.commanded_position_output.Eval(sctx)
+        assert np.all(np.abs(q - q_prev) <= VMAX * H + 1e-12)
+        worst = min(worst, _drake_distance(diagram, ctx, tip, wall_id))
+        q_prev = q.copy()
+    assert worst >= 0.02 - 1e-3
+    assert sf.box_exits_output.Eval(sctx)[0] > 0
+
+
 def test_bad_inputs_hold_without_raising(wall):
     """A NaN request or crossed bounds hold the command (no exception) and
     count as fallbacks."""
@@ -268,8 +292,10 @@ def arm_with_accel():
        accel=st.booleans())
 def test_never_faster_than_the_limits(wall, arm_with_accel, q, desired, centre, width, nominal_at, accel):
     """Random states, requests, boxes and nominals (the arm may start in
-    the wall): no update moves a joint more than limit x period, and the
-    command lands in the box wherever the box is within one step."""
+    the wall): no update moves a joint more than limit x period; the
+    command lands in the box wherever the box is within one step, unless
+    the filter reports leaving it (``box_exits``), which it does only with
+    the wall inside the influence distance (a damper row needed the room)."""
     diagram, sf, tip, wall_id = arm_with_accel if accel else wall
     ctx = diagram.CreateDefaultContext()
     sctx = sf.GetMyContextFromRoot(ctx)
@@ -279,7 +305,13 @@ def test_never_faster_than_the_limits(wall, arm_with_accel, q, desired, centre, 
     nominal = lower + np.array(nominal_at) * (upper - lower)
     sf.set_initial_position(sctx, q)
     _fix(diagram, ctx, desired, lower, upper, nominal=nominal)
-    x = sf.EvalUniquePeriodicDiscreteUpdate(sctx).get_vector(0).CopyToVector()
+    update = sf.EvalUniquePeriodicDiscreteUpdate(sctx)
+    x = update.get_vector(0).CopyToVector()
     assert np.all(np.abs(x - q) <= VMAX * H + 1e-12)
     reachable = (lower - q <= VMAX * H) & (q - upper <= VMAX * H)
-    assert np.all(~reachable | ((x >= lower - 1e-12) & (x <= upper + 1e-12)))
+    inside = np.all(~reachable | ((x >= lower - 1e-12) & (x <= upper + 1e-12)))
+    status = update.get_vector(2).CopyToVector()
+    exited = status[-1] > 0
+    assert inside or exited
+    if exited:
+        assert status[2] < sf.influence_distance
