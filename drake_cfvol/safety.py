@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import Box, Capsule, Convex, Cylinder, Mesh, QueryObject
+from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, QueryObject, Sphere
 from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.solvers import ClarabelSolver, MathematicalProgram
 from pydrake.systems.framework import LeafSystem, ValueProducer
@@ -248,6 +248,10 @@ class SafetyFilter(LeafSystem):
             raise DimensionError("initial_position", k, q0.shape)
         self._plant = plant
         self._pairs = self._make_pairs(plant, scene_graph, robot, obstacle_ids)
+        inspector = scene_graph.model_inspector()
+        #: Geometries Drake's point query measures (ComputeSignedDistanceToPoint).
+        self._point_query = {g: isinstance(inspector.GetShape(g), (Box, Capsule, Cylinder, Sphere, Ellipsoid))
+                             for a, b, _, _ in self._pairs for g in (a, b)}
         self._solver = ClarabelSolver()
 
         self.desired_position_input = self.DeclareVectorInputPort(name="desired_position", size=k)
@@ -368,16 +372,39 @@ class SafetyFilter(LeafSystem):
             pts_b, J_b, w_b = self._points(pctx, side_b, pair.p_BCb, query.GetPoseInWorld(id_b))
             rows.append(n @ (J_a[0] - J_b[0]))
             rhs.append(-self.rate * (d - self.target_distance))
-            # A's probes against the plane through B's witness (normal n),
-            # and B's against the plane through A's (normal -n): a face
-            # tilting towards the other shape shows at its corners.
-            for pts, J, radii, sign, other, J_other in ((pts_a, J_a, w_a, 1.0, pts_b[0], J_b[0]),
-                                                       (pts_b, J_b, w_b, -1.0, pts_a[0], J_a[0])):
+            # A's probes against B, and B's against A: a face tilting
+            # towards the other shape shows at its corners. The plane
+            # through the other's witness (normal n, resp. -n) bounds from
+            # below the distance of every point of a probing shape from a
+            # static shape (an obstacle), to first order in the motion:
+            # those rows are the plane's. Against a moving shape (a robot
+            # link) the plane moves too, so a probe gets its own distance
+            # from Drake's point query and its gradient instead; a probe
+            # whose plane gap exceeds the influence distance is skipped
+            # either way (the plane gap is a lower bound).
+            for pts, J, radii, sign, id_other, side_other in ((pts_a, J_a, w_a, 1.0, id_b, side_b),
+                                                             (pts_b, J_b, w_b, -1.0, id_a, side_a)):
+                other = pts_b[0] if sign > 0 else pts_a[0]
+                J_other = J_b[0] if sign > 0 else J_a[0]
+                moving_other = side_other[0] is not None
                 for i in range(1, len(pts)):
-                    gap = sign * n @ (pts[i] - other) - radii[i - 1]
-                    if gap < self.influence_distance:
-                        rows.append(sign * n @ (J[i] - J_other))
-                        rhs.append(-self.rate * (gap - self.target_distance))
+                    rho = radii[i - 1]
+                    gap = sign * n @ (pts[i] - other) - rho
+                    if gap >= self.influence_distance:
+                        continue
+                    grad, J_near = sign * n, J_other
+                    if moving_other and self._point_query[id_other]:
+                        near = [r for r in query.ComputeSignedDistanceToPoint(pts[i], self.influence_distance + rho)
+                                if r.id_G == id_other]
+                        if not near:
+                            continue
+                        gap = near[0].distance - rho
+                        if gap >= self.influence_distance:
+                            continue
+                        grad = np.asarray(near[0].grad_W, float).reshape(3)
+                        J_near = self._points(pctx, side_other, near[0].p_GN, query.GetPoseInWorld(id_other))[1][0]
+                    rows.append(grad @ (J[i] - J_near))
+                    rhs.append(-self.rate * (gap - self.target_distance))
         A = np.array(rows).reshape(-1, self.k)
         return A, np.array(rhs, float), np.array(dists, float)
 
