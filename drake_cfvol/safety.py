@@ -313,15 +313,16 @@ class SafetyFilter(LeafSystem):
 
         def side(gid):
             """(moving body or None, X_BG, probe centres in the body frame
-            (3 x m), probe radii)."""
+            (m x 3), probe radii)."""
             if gid not in sides:
                 body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
                 X_BG = inspector.GetPoseInFrame(gid)
                 if body is None or body.index() not in moved:
-                    sides[gid] = (None, X_BG, np.zeros((3, 0)), np.zeros(0))
+                    sides[gid] = (None, X_BG, np.zeros((0, 3)), np.zeros(0))
                 else:
                     centres, radii = _probes(inspector.GetShape(gid))
-                    sides[gid] = (body, X_BG, X_BG.multiply(centres) if centres.shape[1] else centres, radii)
+                    P_B = X_BG.multiply(centres).T if centres.shape[1] else np.zeros((0, 3))
+                    sides[gid] = (body, X_BG, P_B, radii)
             return sides[gid]
 
         return [(a, b, side(a), side(b)) for a, b in pairs]
@@ -357,6 +358,39 @@ class SafetyFilter(LeafSystem):
         plant.SetPositions(pctx, q)
         world = plant.world_frame()
         rows, rhs, dists = [], [], []
+        kin = {}  # per moving body at q: (R_WB, p_WBo, J_w, J_v), its Jacobian at Bo
+
+        def points(side, P_B):
+            """World positions (m x 3) and translational Jacobians
+            (m x 3 x k) of points given in a moving body's frame."""
+            body = side[0]
+            if body.index() not in kin:
+                X_WB = plant.EvalBodyPoseInWorld(pctx, body)
+                J = plant.CalcJacobianSpatialVelocity(pctx, JacobianWrtVariable.kV, body.body_frame(), np.zeros(3),
+                                                      world, world)
+                kin[body.index()] = (X_WB.rotation().matrix(), X_WB.translation(), J[:3], J[3:])
+            R, o, J_w, J_v = kin[body.index()]
+            p_W = P_B @ R.T + o
+            # v_P = v_Bo + w x r, r = p_P - p_Bo: J_P = J_v + [w x r] = J_v - [r x J_w].
+            r = p_W - o
+            rxw = np.stack([r[:, 1, None] * J_w[2] - r[:, 2, None] * J_w[1],
+                            r[:, 2, None] * J_w[0] - r[:, 0, None] * J_w[2],
+                            r[:, 0, None] * J_w[1] - r[:, 1, None] * J_w[0]], axis=1)
+            J = J_v[None] - rxw
+            return p_W, J
+
+        def witness(side, p_GC, X_WG, probes: bool = False):
+            """A witness point (in the geometry frame G, posed at X_WG) and,
+            if asked, the side's probe centres: world positions (m x 3) and
+            translational Jacobians (m x 3 x k; zero on a welded body),
+            the witness first."""
+            body, X_BG = side[0], side[1]
+            p_GC = np.asarray(p_GC, float).reshape(1, 3)
+            if body is None:
+                return X_WG.multiply(p_GC.T).T, np.zeros((1, 3, self.k))
+            P_B = X_BG.multiply(p_GC.T).T
+            return points(side, np.vstack([P_B, side[2]]) if probes and len(side[2]) else P_B)
+
         for id_a, id_b, side_a, side_b in self._pairs:
             try:
                 pair = query.ComputeSignedDistancePairClosestPoints(id_a, id_b)
@@ -367,9 +401,8 @@ class SafetyFilter(LeafSystem):
             if d >= self.influence_distance:
                 continue
             n = np.asarray(pair.nhat_BA_W, float).reshape(3)
-            # Points on A and on B: the witness first, then the probes.
-            pts_a, J_a, w_a = self._points(pctx, side_a, pair.p_ACa, query.GetPoseInWorld(id_a))
-            pts_b, J_b, w_b = self._points(pctx, side_b, pair.p_BCb, query.GetPoseInWorld(id_b))
+            P_a, J_a = witness(side_a, pair.p_ACa, query.GetPoseInWorld(id_a), probes=True)
+            P_b, J_b = witness(side_b, pair.p_BCb, query.GetPoseInWorld(id_b), probes=True)
             rows.append(n @ (J_a[0] - J_b[0]))
             rhs.append(-self.rate * (d - self.target_distance))
             # A's probes against B, and B's against A: a face tilting
@@ -382,47 +415,33 @@ class SafetyFilter(LeafSystem):
             # from Drake's point query and its gradient instead; a probe
             # whose plane gap exceeds the influence distance is skipped
             # either way (the plane gap is a lower bound).
-            for pts, J, radii, sign, id_other, side_other in ((pts_a, J_a, w_a, 1.0, id_b, side_b),
-                                                             (pts_b, J_b, w_b, -1.0, id_a, side_a)):
-                other = pts_b[0] if sign > 0 else pts_a[0]
-                J_other = J_b[0] if sign > 0 else J_a[0]
-                moving_other = side_other[0] is not None
-                for i in range(1, len(pts)):
-                    rho = radii[i - 1]
-                    gap = sign * n @ (pts[i] - other) - rho
-                    if gap >= self.influence_distance:
+            for side, sign, id_other, side_other, P, J_P, other, J_other in (
+                    (side_a, 1.0, id_b, side_b, P_a, J_a, P_b[0], J_b[0]),
+                    (side_b, -1.0, id_a, side_a, P_b, J_b, P_a[0], J_a[0])):
+                if len(P) < 2:
+                    continue
+                radii = side[3]
+                gaps = sign * (P[1:] - other) @ n - radii
+                near = np.flatnonzero(gaps < self.influence_distance)
+                if not len(near):
+                    continue
+                if side_other[0] is None:  # a static obstacle: the plane's rows
+                    rows.extend((sign * n) @ (J_P[1 + near] - J_other))
+                    rhs.extend(-self.rate * (gaps[near] - self.target_distance))
+                    continue
+                if not self._point_query[id_other]:
+                    continue  # a moving shape without a point query: the witness row only
+                X_WO = query.GetPoseInWorld(id_other)
+                for i in near:
+                    found = [r for r in query.ComputeSignedDistanceToPoint(P[1 + i], self.influence_distance + radii[i])
+                             if r.id_G == id_other]
+                    if not found or found[0].distance - radii[i] >= self.influence_distance:
                         continue
-                    grad, J_near = sign * n, J_other
-                    if moving_other and self._point_query[id_other]:
-                        near = [r for r in query.ComputeSignedDistanceToPoint(pts[i], self.influence_distance + rho)
-                                if r.id_G == id_other]
-                        if not near:
-                            continue
-                        gap = near[0].distance - rho
-                        if gap >= self.influence_distance:
-                            continue
-                        grad = np.asarray(near[0].grad_W, float).reshape(3)
-                        J_near = self._points(pctx, side_other, near[0].p_GN, query.GetPoseInWorld(id_other))[1][0]
-                    rows.append(grad @ (J[i] - J_near))
-                    rhs.append(-self.rate * (gap - self.target_distance))
+                    _, J_near = witness(side_other, found[0].p_GN, X_WO)
+                    rows.append(np.asarray(found[0].grad_W, float).reshape(3) @ (J_P[1 + i] - J_near[0]))
+                    rhs.append(-self.rate * (found[0].distance - radii[i] - self.target_distance))
         A = np.array(rows).reshape(-1, self.k)
         return A, np.array(rhs, float), np.array(dists, float)
-
-    def _points(self, pctx, side, p_GC, X_WG):
-        """World positions (m x 3) and translational Jacobians (m x 3 x k)
-        of a pair's witness point (given in the geometry's frame G, posed at
-        X_WG) and, on a moving body, its probe centres; and the probes'
-        radii."""
-        body, X_BG, centres, radii = side
-        plant, world = self._plant, self._plant.world_frame()
-        p_GC = np.asarray(p_GC, float).reshape(3)
-        if body is None:  # welded: fixed in the world
-            return np.array([X_WG.multiply(p_GC)]), np.zeros((1, 3, self.k)), radii[:0]
-        P = np.column_stack([X_BG.multiply(p_GC), centres])
-        frame = body.body_frame()
-        p_W = plant.CalcPointsPositions(pctx, frame, P, world).T
-        J = plant.CalcJacobianTranslationalVelocity(pctx, JacobianWrtVariable.kV, frame, P, world, world)
-        return p_W, J.reshape(P.shape[1], 3, self.k), radii
 
     def _interval(self, q, lower, upper):
         """Per joint, the velocities within the limits that land in the box;
