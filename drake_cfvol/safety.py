@@ -29,6 +29,13 @@ _ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS = range(7)
 _CHANGED = 1e-9
 
 
+#: The Levi-Civita symbol arranged so that (r @ _EPS).reshape(3, 3) is the
+#: cross-product matrix [r]x of a vector r.
+_EPS = np.zeros((3, 3, 3))
+_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
+_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
+_EPS = _EPS.transpose(1, 0, 2).reshape(3, 9)
+
 #: Points sampled on each rim of a cylinder (probe points).
 _RIM_POINTS = 12
 
@@ -59,6 +66,28 @@ def _probes(shape) -> tuple[np.ndarray, np.ndarray]:
         except Exception:  # no hull: the witness row alone
             return np.zeros((3, 0)), np.zeros(0)
     return np.zeros((3, 0)), np.zeros(0)  # smooth (sphere, ellipsoid): the witness row suffices
+
+
+def _radius(shape) -> float:
+    """The radius of a ball about the shape's frame origin that holds the
+    shape, m (inf if unknown)."""
+    if isinstance(shape, Box):
+        return 0.5 * float(np.linalg.norm([shape.width(), shape.depth(), shape.height()]))
+    if isinstance(shape, Sphere):
+        return shape.radius()
+    if isinstance(shape, Capsule):
+        return shape.radius() + shape.length() / 2
+    if isinstance(shape, Cylinder):
+        return float(np.hypot(shape.radius(), shape.length() / 2))
+    if isinstance(shape, Ellipsoid):
+        return max(shape.a(), shape.b(), shape.c())
+    if isinstance(shape, (Convex, Mesh)):
+        try:
+            hull = shape.GetConvexHull()
+            return max(float(np.linalg.norm(hull.vertex(i))) for i in range(hull.num_vertices()))
+        except Exception:
+            return np.inf
+    return np.inf
 
 
 def _limits(value, k: int, name: str) -> np.ndarray:
@@ -170,7 +199,10 @@ class SafetyFilter(LeafSystem):
     request (the commanded position differs from ``desired_position`` by
     more than 1e-9); ``filter_count`` counts such updates; ``min_distance``
     is the smallest signed distance over the filter's pairs at the last
-    update (m; self pairs included; inf with none);  ``velocity_ratio`` is
+    update (m; self pairs included; inf with none; a pair known to lie
+    beyond the influence distance is not measured again until the robot's
+    motion could have brought it within, so above the influence distance
+    this is a lower bound);  ``velocity_ratio`` is
     max_j |v_j| / velocity_limit_j of the last update.
 
     Scalar type: float only.
@@ -198,6 +230,12 @@ class SafetyFilter(LeafSystem):
             the linearisation's second-order error (a link turning while it
             slides along an obstacle); measured under 0.35 mm on the bundled
             push scenarios.
+        skip_far_pairs: measure a pair again only once the commanded motion
+            (body displacements bounded from the poses at both ends of each
+            step) could have brought it within the influence distance. Valid
+            when the SceneGraph is posed from this filter's output (as in
+            the co-manipulation diagram); set False when it is posed from
+            anything else (a measured state).
     """
 
     #: Weight of a damper row's miss (slack) against the request's, (s/m)^2
@@ -211,7 +249,8 @@ class SafetyFilter(LeafSystem):
 
     def __init__(self, plant, scene_graph, robot, *, velocity_limits=None, obstacle_ids=None,
                  clearance: float = 0.0, influence_distance: float = 0.15, damper_gain: float = 1.0,
-                 period: float = 0.01, acceleration_limits=None, initial_position=None, allowance: float = 0.001):
+                 period: float = 0.01, acceleration_limits=None, initial_position=None, allowance: float = 0.001,
+                 skip_far_pairs: bool = True):
         super().__init__()
         k = plant.num_positions()
         if plant.num_velocities() != k or plant.num_positions(robot) != k:
@@ -253,6 +292,24 @@ class SafetyFilter(LeafSystem):
         self._point_query = {g: isinstance(inspector.GetShape(g), (Box, Capsule, Cylinder, Sphere, Ellipsoid))
                              for a, b, _, _ in self._pairs for g in (a, b)}
         self._solver = ClarabelSolver()
+        # For skipping far pairs: the moving bodies, the radius of a ball
+        # about each one's origin holding its geometry, and each pair's
+        # bodies (-1: welded).
+        self.skip_far_pairs = bool(skip_far_pairs)
+        bodies = sorted({side[0].index(): side[0] for _, _, sa, sb in self._pairs for side in (sa, sb)
+                         if side[0] is not None}.items())
+        self._bodies = [b for _, b in bodies]
+        slot = {i: n for n, (i, _) in enumerate(bodies)}
+        self._body_radius = np.zeros(len(self._bodies))
+        for a, b, sa, sb in self._pairs:
+            for gid, side in ((a, sa), (b, sb)):
+                if side[0] is not None:
+                    n = slot[side[0].index()]
+                    r = float(np.linalg.norm(side[1].translation())) + _radius(inspector.GetShape(gid))
+                    self._body_radius[n] = max(self._body_radius[n], r)
+        self._pair_bodies = np.array([[slot[sa[0].index()] if sa[0] is not None else -1,
+                                       slot[sb[0].index()] if sb[0] is not None else -1]
+                                      for _, _, sa, sb in self._pairs], dtype=int).reshape(-1, 2)
 
         self.desired_position_input = self.DeclareVectorInputPort(name="desired_position", size=k)
         self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
@@ -263,6 +320,9 @@ class SafetyFilter(LeafSystem):
         self._position = self.DeclareDiscreteState(q0)
         self._velocity = self.DeclareDiscreteState(k)  # the last commanded velocity
         self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0]))
+        # Per pair, how far it is known to lie beyond the influence distance
+        # (m; negative: measure it at the next update).
+        self._budget = self.DeclareDiscreteState(np.full(max(len(self._pairs), 1), -1.0))
         # A plant context used as scratch for the Jacobians (never a context
         # outside this system's own).
         self._scratch = self.DeclareCacheEntry(
@@ -339,14 +399,20 @@ class SafetyFilter(LeafSystem):
         if q.shape != (self.k,):
             raise DimensionError("q", self.k, q.shape)
         context.get_mutable_discrete_state(self._position).SetFromVector(q)
+        context.get_mutable_discrete_state(self._budget).SetFromVector(
+            np.full(max(len(self._pairs), 1), -1.0))
 
     # -- the update ----------------------------------------------------------
 
-    def damper_rows(self, context) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def damper_rows(self, context, measure=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The damper's rows at the commanded position of ``context``: for
         the pairs closer than the influence distance, A (m x k) and b (m,)
         with the constraint A v >= b (before the relaxation towards the
         nominal), and every watched pair's signed distance (m,).
+
+        Args:
+            measure: (pairs,) bools, the pairs to measure (default all);
+                the others' distances are NaN.
 
         Returns:
             (A, b, distances of all pairs)
@@ -357,7 +423,8 @@ class SafetyFilter(LeafSystem):
         pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
         plant.SetPositions(pctx, q)
         world = plant.world_frame()
-        rows, rhs, dists = [], [], []
+        rows, rhs = [], []
+        dists = np.full(len(self._pairs), np.nan)
         kin = {}  # per moving body at q: (R_WB, p_WBo, J_w, J_v), its Jacobian at Bo
 
         def points(side, P_B):
@@ -370,13 +437,11 @@ class SafetyFilter(LeafSystem):
                                                       world, world)
                 kin[body.index()] = (X_WB.rotation().matrix(), X_WB.translation(), J[:3], J[3:])
             R, o, J_w, J_v = kin[body.index()]
-            p_W = P_B @ R.T + o
-            # v_P = v_Bo + w x r, r = p_P - p_Bo: J_P = J_v + [w x r] = J_v - [r x J_w].
-            r = p_W - o
-            rxw = np.stack([r[:, 1, None] * J_w[2] - r[:, 2, None] * J_w[1],
-                            r[:, 2, None] * J_w[0] - r[:, 0, None] * J_w[2],
-                            r[:, 0, None] * J_w[1] - r[:, 1, None] * J_w[0]], axis=1)
-            J = J_v[None] - rxw
+            # v_P = v_Bo + w x r, r = p_P - p_Bo: J_P = J_v - [r]x J_w, with
+            # [r]x = r . eps (the Levi-Civita symbol) for all points at once.
+            r = P_B @ R.T
+            p_W = r + o
+            J = J_v[None] - (r @ _EPS).reshape(-1, 3, 3) @ J_w
             return p_W, J
 
         def witness(side, p_GC, X_WG, probes: bool = False):
@@ -391,13 +456,15 @@ class SafetyFilter(LeafSystem):
             P_B = X_BG.multiply(p_GC.T).T
             return points(side, np.vstack([P_B, side[2]]) if probes and len(side[2]) else P_B)
 
-        for id_a, id_b, side_a, side_b in self._pairs:
+        for index, (id_a, id_b, side_a, side_b) in enumerate(self._pairs):
+            if measure is not None and not measure[index]:
+                continue
             try:
                 pair = query.ComputeSignedDistancePairClosestPoints(id_a, id_b)
             except RuntimeError:  # a shape pair Drake cannot measure: not watched
                 continue
             d = pair.distance
-            dists.append(d)
+            dists[index] = d
             if d >= self.influence_distance:
                 continue
             n = np.asarray(pair.nhat_BA_W, float).reshape(3)
@@ -441,7 +508,7 @@ class SafetyFilter(LeafSystem):
                     rows.append(np.asarray(found[0].grad_W, float).reshape(3) @ (J_P[1 + i] - J_near[0]))
                     rhs.append(-self.rate * (found[0].distance - radii[i] - self.target_distance))
         A = np.array(rows).reshape(-1, self.k)
-        return A, np.array(rhs, float), np.array(dists, float)
+        return A, np.array(rhs, float), dists
 
     def _interval(self, q, lower, upper):
         """Per joint, the velocities within the limits that land in the box;
@@ -479,12 +546,16 @@ class SafetyFilter(LeafSystem):
                 step = self.acceleration_limits * h
                 target = np.clip(target, v_last - step, v_last + step)
             v_t = np.clip(target, lo, hi)
+            budget = context.get_discrete_state(self._budget).CopyToVector()[:len(self._pairs)]
+            measure = budget < 0 if self.skip_far_pairs else np.ones(len(self._pairs), bool)
             try:
-                A, b, dists = self.damper_rows(context)
+                A, b, dists = self.damper_rows(context, measure)
             except RuntimeError:
-                A, b, dists = np.zeros((0, k)), np.zeros(0), np.zeros(0)
+                A, b, dists = np.zeros((0, k)), np.zeros(0), np.full(len(self._pairs), np.nan)
                 fallback = True
-            dmin = float(dists.min()) if len(dists) else np.inf
+            # Skipped pairs lie at least their budget beyond the influence distance.
+            known = np.where(np.isnan(dists), self.influence_distance + np.maximum(budget, 0.0), dists)
+            dmin = float(known.min()) if len(known) else np.inf
             if nominal is not None and np.all(np.isfinite(nominal)) and len(b):
                 b = self._relax(q, nominal, lo, hi, A, b)
             v = v_t
@@ -501,9 +572,38 @@ class SafetyFilter(LeafSystem):
         acted = (not sane) or bool(np.any(np.abs(q_next - desired) > _CHANGED))
         discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
         discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
+        if sane and len(self._pairs):
+            discrete_state.get_mutable_vector(self._budget).SetFromVector(
+                self._next_budget(context, q, q_next, budget, dists))
+        else:  # measure every pair at the next update
+            discrete_state.get_mutable_vector(self._budget).SetFromVector(np.full(max(len(self._pairs), 1), -1.0))
         discrete_state.get_mutable_vector(self._status).SetFromVector(
             [float(acted), status[_COUNT] + acted, dmin, ratio, status[_FALLBACKS] + fallback,
              status[_MISSES] + missed, status[_EXITS] + exited])
+
+    def _next_budget(self, context, q, q_next, budget, dists):
+        """Each pair's distance beyond the influence distance that is still
+        certain after this step: the measured one (or the last budget) less
+        how far the step can have moved the pair's bodies, every point of a
+        body's geometry within its radius r of the body's origin o:
+        |o' - o| + theta r for a turn by theta. Distances are asked for only
+        at updates, so the poses at both ends bound it. Negative: measure
+        at the next update. (Valid while the SceneGraph is posed from this
+        filter's output; else construct with ``skip_far_pairs=False``.)"""
+        if not self.skip_far_pairs:
+            return np.full(max(len(self._pairs), 1), -1.0)
+        plant = self._plant
+        pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
+        moved = np.zeros(len(self._bodies) + 1)  # the last slot: welded, 0
+        plant.SetPositions(pctx, q)
+        before = [plant.EvalBodyPoseInWorld(pctx, body) for body in self._bodies]
+        plant.SetPositions(pctx, q_next)
+        for n, body in enumerate(self._bodies):
+            after = plant.EvalBodyPoseInWorld(pctx, body)
+            turn = before[n].rotation().InvertAndCompose(after.rotation()).ToAngleAxis().angle()
+            moved[n] = np.linalg.norm(after.translation() - before[n].translation()) + turn * self._body_radius[n]
+        left = np.where(np.isnan(dists), budget, dists - self.influence_distance)
+        return left - moved[self._pair_bodies[:, 0]] - moved[self._pair_bodies[:, 1]]
 
     def _relax(self, q, nominal, lo, hi, A, b):
         """The damper's rows relaxed so that following the nominal stays
