@@ -24,6 +24,9 @@ __all__ = ["SafetyFilter"]
 #: box].
 _ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS = range(7)
 
+#: The share of the velocity limits the filter keeps below them.
+_HAIR = 1e-9
+
 #: A command counts as changed when it differs from the request by more
 #: than this, rad (m).
 _CHANGED = 1e-9
@@ -136,7 +139,9 @@ class SafetyFilter(LeafSystem):
           n_i^T (J_Bi - J_Ai) v >= -rate (d_i - d_s)              (each pair i with d_i < d_inf)
 
     **Velocity limits** are hard: no update moves joint j by more than
-    ``velocity_limit_j`` x dt, whatever the inputs (no jumps, ever).
+    ``velocity_limit_j`` x dt, whatever the inputs (no jumps, ever); the
+    filter commands at most (1 - 1e-9) of each limit, so that rounding in
+    q_c + v dt never shows a step above it.
     ``acceleration_limits``, where given, shape the request instead (v_des
     is held within a_j dt of the last velocity): the hard constraints always
     win over them, so a braking damper is never overruled by them.
@@ -280,6 +285,9 @@ class SafetyFilter(LeafSystem):
         self.rate = min(self.damper_gain / (self.influence_distance - self.target_distance), 1.0 / self.period)
         self.velocity_limits = _limits(plant.GetVelocityUpperLimits() if velocity_limits is None
                                        else velocity_limits, k, "velocity_limits")
+        # Commanded at most this: a hair (1e-9) under the limits, so that
+        # rounding in q + v dt never shows a step above them.
+        self._vmax = self.velocity_limits * (1.0 - _HAIR)
         self.acceleration_limits = (None if acceleration_limits is None
                                     else _limits(acceleration_limits, k, "acceleration_limits"))
         q0 = np.zeros(k) if initial_position is None else np.asarray(initial_position, float)
@@ -514,7 +522,7 @@ class SafetyFilter(LeafSystem):
         """Per joint, the velocities within the limits that land in the box;
         where the box lies farther than one step, the step towards it at the
         limit."""
-        h, vmax = self.period, self.velocity_limits
+        h, vmax = self.period, self._vmax
         to_lo, to_hi = (lower - q) / h, (upper - q) / h
         lo, hi = np.maximum(-vmax, to_lo), np.minimum(vmax, to_hi)
         lo = np.where(to_lo > vmax, vmax, lo)
@@ -564,11 +572,12 @@ class SafetyFilter(LeafSystem):
                 if v is None:
                     v, fallback = np.clip(np.zeros(k), lo, hi), True
             missed = bool(len(b) and np.any(A @ v < b - 1e-6))
-        vmax = self.velocity_limits
+        vmax = self._vmax
         v = np.clip(v, -vmax, vmax)
         exited = bool(np.any((v < lo - 1e-9) | (v > hi + 1e-9)))
         q_next = q + v * h
-        ratio = float(np.max(np.where(np.isfinite(vmax), np.abs(v) / vmax, 0.0))) if k else 0.0
+        limits = self.velocity_limits
+        ratio = float(np.max(np.where(np.isfinite(limits), np.abs(v) / limits, 0.0))) if k else 0.0
         acted = (not sane) or bool(np.any(np.abs(q_next - desired) > _CHANGED))
         discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
         discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
@@ -644,7 +653,7 @@ class SafetyFilter(LeafSystem):
         prog = MathematicalProgram()
         v = prog.NewContinuousVariables(k, "v")
         prog.AddQuadraticCost(2.0 * np.eye(k), -2.0 * v_t, v, is_convex=True)
-        vmax = self.velocity_limits
+        vmax = self._vmax
         if box_soft:
             prog.AddBoundingBoxConstraint(-vmax, vmax, v)
             e = prog.NewContinuousVariables(k, "e")

@@ -183,7 +183,7 @@ def test_far_from_obstacles_the_filter_is_the_identity(wall):
     sctx = sf.GetMyContextFromRoot(ctx)
     sf.set_initial_position(sctx, [2.0, 0.5])
     sim = Simulator(diagram, ctx)
-    for n, dq in enumerate(([0.005, -0.01], [0.01, 0.0], [-0.002, 0.014])):
+    for n, dq in enumerate(([0.005, -0.01], [0.009, 0.0], [-0.002, 0.014])):
         q = sf.commanded_position_output.Eval(sctx) + dq
         _fix(diagram, ctx, q, [1.0, -1.0], [3.0, 1.0])
         sim.AdvanceTo(n * H + H / 2)
