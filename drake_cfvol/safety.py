@@ -134,17 +134,17 @@ class SafetyFilter(LeafSystem):
 
         minimise  |v - v_des|^2,   v_des = (desired_position - q_c) / dt
         subject to
-          |v_j| <= velocity_limit_j                               (always)
-          lower_j <= q_c,j + v_j dt <= upper_j                    (the box ahead)
-          n_i^T (J_Bi - J_Ai) v >= -rate (d_i - d_s)              (each pair i with d_i < d_inf)
+          |v_j| <= velocity_limit_j                           (hard, always)
+          lower_j <= q_c,j + v_j dt <= upper_j                (the box ahead)
+          n_i^T (J_Ai - J_Bi) v >= -rate (d_i - d_t)          (each row i of the damper)
 
     **Velocity limits** are hard: no update moves joint j by more than
     ``velocity_limit_j`` x dt, whatever the inputs (no jumps, ever); the
     filter commands at most (1 - 1e-9) of each limit, so that rounding in
-    q_c + v dt never shows a step above it.
-    ``acceleration_limits``, where given, shape the request instead (v_des
-    is held within a_j dt of the last velocity): the hard constraints always
-    win over them, so a braking damper is never overruled by them.
+    q_c + v dt never shows a step above it. ``acceleration_limits``, where
+    given, shape the request instead (v_des is held within a_j dt of the
+    last velocity): the hard constraints always win over them, so a braking
+    damper is never overruled by them.
 
     **The box**: ``lower`` and ``upper`` are the bounds at the next path
     position (where the command takes effect: a second JointBoundsSource fed
@@ -152,63 +152,76 @@ class SafetyFilter(LeafSystem):
     rate-limited (:func:`~drake_cfvol.systems.safe_path_rate`), so the box
     moves by a share of the velocity limit per update and stays reachable;
     should q_c lie farther outside it than one step at the limit, the joint
-    moves towards it at the limit rather than jumping.
+    moves towards it at the limit rather than jumping. The box gives way to
+    the damper only (see Solver): an uncertified box whose corner sweeps
+    into an obstacle is left rather than followed in (``box_exits``).
 
     **The damper** (Faverjon and Tournassoud's velocity damper; Drake's
     ``DifferentialInverseKinematicsSystem.CollisionConstraint`` is its
     discrete limit): for every pair of geometries (the robot's moving links
     against the obstacles, and the robot's pairs not filtered against each
-    other), Drake's signed distance d_i, its unit normal n_i (``nhat_BA_W``,
-    from B to A) and witness points come through ``query_object`` at the
-    robot's present configuration. Within the influence distance d_inf the
-    distance may shrink only as fast as still lets it stop at the margin d_s
-    (``clearance``): its rate n_i^T (J_Ai - J_Bi) v, with J the translational
-    Jacobians (world frame, ``CalcJacobianTranslationalVelocity``) of the
-    witness points on their bodies, is held above -rate (d_i - d_s), where
-    rate = min(xi / (d_inf - d_s), 1 / dt) and xi is ``damper_gain`` (m/s:
-    the approach speed allowed at the edge of the influence zone). Since
-    rate dt <= 1 the linearised next distance d_i + dt x rate stays >= d_s;
-    the approach slows smoothly (exponentially, time constant 1 / rate) to
-    the margin: a soft wall, not a hold and a snap. A pair already below
-    the margin must move apart at rate (d_s - d_i). Witness points come from
-    ``p_ACa``/``p_BCb`` in the geometry frames, moved into the body frames
-    with the SceneGraph inspector's ``GetPoseInFrame``.
+    other; never the volume V, which is virtual), Drake's signed distance
+    d_i, its unit normal n_i (``nhat_BA_W``, from B to A) and witness points
+    (``p_ACa``/``p_BCb``, moved into the body frames with the inspector's
+    ``GetPoseInFrame``) come through ``query_object`` at the robot's present
+    configuration. Within the influence distance d_inf the distance may
+    shrink only as fast as still lets it stop at d_t = ``clearance`` +
+    ``allowance``: its rate n_i^T (J_Ai - J_Bi) v, J the translational
+    Jacobians (world frame) of the witness points, is held above
+    -rate (d_i - d_t), rate = min(xi / (d_inf - d_t), 1 / dt), xi the
+    ``damper_gain`` (m/s: the approach speed allowed at the edge of the
+    influence zone). With rate dt <= 1 the linearised next distance stays
+    >= d_t; the approach slows smoothly (exponentially, time constant
+    1 / rate) to the margin: a soft wall, not a hold and a snap. A pair
+    below it must move apart at rate (d_t - d_i).
 
-    **Feasibility, and the nominal**: every damper row is relaxed to
-    b_i' = min(b_i, a_i v_ref), where v_ref is the step towards the nominal
-    at the next path position (input ``nominal``; holding still when it is
-    not connected) clipped to the velocity limits and the box. v_ref meets
-    every constraint, so the problem is always feasible; at zero deviation
-    v_ref is the nominal's own motion, so the nominal is always admissible
-    (also where its own clearance is below the margin, near a goal); and a
-    row is relaxed only as far as going back to the nominal would shrink its
-    distance, so, to first order, a distance falls below the margin only
-    where the way back to the nominal does. This was chosen over a slack
-    variable (which lets a strong push trade margin for tracking) and over
-    freezing pairs below the margin (which deadlocks where the nominal
-    itself approaches an obstacle).
+    One witness row sees only the closest features: a face tilting towards
+    an obstacle brings its corners closer faster than its witness point.
+    So each pair also has rows at probe points of its moving shapes (box
+    corners, cylinder rims, capsule end spheres, convex hull vertices):
+    against a static obstacle, a probe's distance from the plane through the
+    obstacle's witness (normal n_i), a lower bound of its distance from the
+    obstacle; against another moving link, the probe's own distance from it
+    (Drake's ``ComputeSignedDistanceToPoint``) and its gradient.
+
+    **The nominal**: within two steps (at the velocity limits) of the nominal
+    at the next path position (input ``nominal``), each row is relaxed to
+    b_i' = min(b_i, a_i v_ref), v_ref the step to that nominal (clipped to
+    the limits and the box), fully within one step and fading out by two:
+    at zero deviation v_ref is the nominal's own motion, so the nominal is
+    always admissible, also where its own clearance is below the margin
+    (near a goal), and a row is relaxed only as far as following the
+    nominal shrinks it. Farther out no row is relaxed: there a row's
+    linearisation says nothing reliable about the nominal's distances (a
+    straight joint-space line back to the nominal may cross an obstacle).
 
     **Solver**: where the request (clipped to the velocity limits and the
     box) meets every damper row, it is commanded as is: away from obstacles
     the filter is the identity and ``filter_active`` is 0. Otherwise a small
-    QP (k variables) through Drake's ``MathematicalProgram`` and
-    ``ClarabelSolver`` (0.1 ms on this machine; OSQP is as fast but prints
-    polishing notes and lands 1e-5 away); its answer is clipped to the
-    velocity limits and the box exactly. Should the solver fail, or its
-    answer miss a damper row by more than 1e-6 m/s, v_ref is commanded and
-    ``fallback_count`` counts it. Nothing raises inside a simulation: a
-    non-finite or crossed input holds q_c (as far as the box allows) and
-    counts as a fallback.
+    QP through Drake's ``MathematicalProgram`` and ``ClarabelSolver``
+    (about 0.1 ms; OSQP is as fast but prints polishing notes and lands
+    1e-5 away), in stages by priority, the velocity limits hard in all:
+    (1) the box and the rows hard; (2) if nothing meets both, the rows hard
+    and the box soft (weight ``BOX_WEIGHT``: left as little as it must be);
+    (3) if the limits leave nothing that meets the rows, the rows soft too
+    (weight ``SLACK_WEIGHT``: missed as little as possible,
+    ``damper_misses``). Should the solver fail, the filter holds (as far as
+    the box allows) and ``fallback_count`` counts it. Nothing raises inside
+    a simulation: a non-finite or crossed input holds q_c the same way.
+
+    Cost: a pair known to lie beyond the influence distance is measured
+    again only once the commanded motion could have brought it within
+    (``skip_far_pairs``).
 
     Outputs: ``filter_active`` is 1 after an update that changed the
     request (the commanded position differs from ``desired_position`` by
     more than 1e-9); ``filter_count`` counts such updates; ``min_distance``
     is the smallest signed distance over the filter's pairs at the last
-    update (m; self pairs included; inf with none; a pair known to lie
-    beyond the influence distance is not measured again until the robot's
-    motion could have brought it within, so above the influence distance
-    this is a lower bound);  ``velocity_ratio`` is
-    max_j |v_j| / velocity_limit_j of the last update.
+    update (m; self pairs included; inf with none; a skipped pair counts
+    with its lower bound, so above the influence distance this is a lower
+    bound); ``velocity_ratio`` is max_j |v_j| / velocity_limit_j of the last
+    update; ``fallback_count``, ``damper_misses``, ``box_exits`` count
+    updates (see above).
 
     Scalar type: float only.
 
@@ -223,9 +236,9 @@ class SafetyFilter(LeafSystem):
         obstacle_ids: the real obstacles' geometry ids (default: every
             proximity geometry not on the robot; pass them to leave out
             virtual geometry such as the volume V's boxes).
-        clearance: the margin d_s, m (>= 0).
-        influence_distance: d_inf, m (> clearance): pairs farther apart
-            than this do not constrain.
+        clearance: the margin, m (>= 0).
+        influence_distance: d_inf, m (> clearance + allowance): pairs
+            farther apart than this do not constrain.
         damper_gain: xi, m/s (> 0).
         period: update period dt, s (> 0).
         acceleration_limits: (k,) rad/s^2 (m/s^2), or None.
