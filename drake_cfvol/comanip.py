@@ -812,10 +812,10 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "min_clearance_m": rates["min_clearance_m"],
         "max_velocity_ratio": rates["max_velocity_ratio"], "volume_penetrations": penetrations,
         "collisions": rates["collisions"], "max_bound_violation": violation,
-        "filter_steps": _last(logs, "filter_count"), "guard_steps": _last(logs, "filter_count"),
-        "filter_fallbacks": _last(logs, "filter_fallbacks"),
-        "filter_damper_misses": _last(logs, "filter_damper_misses"),
-        "filter_box_exits": _last(logs, "filter_box_exits"), "faults": _last(logs, "fault_count"),
+        "filter_steps": _count(cm, ctx, "filter_count"), "guard_steps": _count(cm, ctx, "filter_count"),
+        "filter_fallbacks": _count(cm, ctx, "filter_fallbacks"),
+        "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
+        "filter_box_exits": _count(cm, ctx, "filter_box_exits"), "faults": _count(cm, ctx, "fault_count"),
         "collision_guard": scenario.collision_guard, "filter_clearance_m": cm.filter_clearance,
         "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
         "n_boxes": cm.bounds.info["n_boxes"], "volume_boxes_in_scene": cm.volume_boxes["count"],
@@ -830,11 +830,12 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     return summary
 
 
-def _last(logs: dict, name: str) -> int:
-    """The last logged value of a counter (0 if it is not logged)."""
-    if name not in logs or not len(logs[name][1]):
+def _count(cm: Comanipulation, context, name: str) -> int:
+    """A counter exported by the diagram, at the end of the run (0 if the
+    diagram has no such port: the filter is off)."""
+    if not cm.diagram.HasOutputPort(name):
         return 0
-    return int(logs[name][1][-1, 0])
+    return int(cm.diagram.GetOutputPort(name).Eval(context)[0])
 
 
 def update_rate_figures(logs: dict, cm: Comanipulation) -> dict:
