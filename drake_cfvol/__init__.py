@@ -19,8 +19,8 @@ Layers (each module imports only from the layers below it; a test checks):
    growing V), ``sweep`` (joint bounding), ``reference`` (Drake backend),
    ``metrics`` (CF, freedom), ``certify``;
 4. the orchestrator: ``pipeline`` (Algorithm 1: ``estimate_bounds``);
-5. Drake systems and runs: ``systems``, ``ghosts`` (the collision guard's
-   ghost robots in a SceneGraph), ``viz``, ``comanip``;
+5. Drake systems and runs: ``systems``, ``safety`` (the runtime safety
+   filter), ``viz``, ``comanip``;
 6. front ends: ``demo``, ``bench``, ``cli``.
 """
 

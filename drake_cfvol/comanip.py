@@ -5,12 +5,14 @@ cell and path, the volume's resolution, the admittance gains and the human's
 pushes. :func:`build_comanipulation_diagram` plans the path, estimates the
 bounds and wires::
 
-    PathProgress -> JointBoundsSource -> AdmittanceDeformation <- ScriptedHuman
-                                               |
-                         commanded_position -> MultibodyPositionToGeometryPose -> SceneGraph
-                                                                    query_object -> ClearanceMonitor
+    PathProgress -> JointBoundsSource (ahead) -> AdmittanceDeformation <- ScriptedHuman
+                              |                       | commanded_position
+                              +-----------------> SafetyFilter <- query_object --+
+                                                      | commanded_position        |
+                              MultibodyPositionToGeometryPose -> SceneGraph ------+-> ClearanceMonitor
 
-The robot follows ``commanded_position`` kinematically. The diagram's own
+The robot follows the safety filter's ``commanded_position`` kinematically
+(with ``collision_guard: false``, the admittance's, fed the bounds now). The diagram's own
 SceneGraph holds the robot, the obstacles (coloured by category) and the
 volume (its columns merged, conservatively, into at most 1500 boxes at any
 R), all as proximity geometry; the clearance monitor asks it through its
@@ -52,7 +54,6 @@ from pydrake.visualization import VisualizationConfig
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_cfvol.certify import Certify
-from drake_cfvol.ghosts import GhostGuard
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.pipeline import estimate_bounds
@@ -69,6 +70,7 @@ from drake_cfvol.systems import (
     Push,
     RandomPushShaper,
     ReactiveCoworker,
+    SafetyFilter,
     ScriptedHuman,
     safe_path_rate,
 )
@@ -76,8 +78,11 @@ from drake_cfvol.viz import show_tool_path
 from drake_cfvol.volume import build_volume, height_map_of
 from drake_cfvol.workcell import builtin_cells, load_workcell, robot_geometry_ids
 
-__all__ = ["AdmittanceGains", "RandomPushes", "Reactive", "Scenario", "load_scenario", "Comanipulation",
+__all__ = ["AdmittanceGains", "RandomPushes", "Reactive", "SafetyFilterConfig", "Scenario", "load_scenario", "Comanipulation",
            "build_comanipulation_diagram", "run_scenario", "validate_scenario", "CATEGORY_COLOURS", "diagrams_dir"]
+
+#: Signals also logged at the control update rate (``update_<name>``).
+UPDATE_RATE_LOGS = ("commanded_position", "min_distance", "in_collision")
 
 #: Columns registered as proximity geometry up to this count (SceneGraph's
 #: cost grows quadratically with the number of proximity geometries).
@@ -147,6 +152,26 @@ class Reactive:
 
 
 @dataclasses.dataclass
+class SafetyFilterConfig:
+    """The runtime safety filter's settings (see
+    :class:`drake_cfvol.safety.SafetyFilter`).
+
+    Attributes:
+        clearance: the margin kept from the obstacles and between the
+            robot's own links, m; None (the default): the bounds' own
+            margin, ``bounds.params["clearance"]`` (0 if the table has none).
+        influence_distance: pairs farther apart than this do not constrain
+            the motion, m.
+        damper_gain: the approach speed allowed at the influence distance,
+            m/s; it falls to 0 at the margin.
+    """
+
+    clearance: typing.Optional[float] = None
+    influence_distance: float = 0.15
+    damper_gain: float = 1.0
+
+
+@dataclasses.dataclass
 class Scenario:
     """A co-manipulation run.
 
@@ -165,11 +190,12 @@ class Scenario:
         reactive: a co-worker reacting to the robot's position (added).
         log_period: logging and recording period, s.
         params: VolumeParams overrides.
-        collision_guard: hold or scale back pushes where the commanded
-            configuration would collide with the real scene, checked through
-            the diagram's SceneGraph with ghost robots (see
-            AdmittanceDeformation's query guard and
-            :class:`drake_cfvol.ghosts.GhostGuard`).
+        collision_guard: the runtime safety filter between the admittance
+            and the robot (:class:`drake_cfvol.safety.SafetyFilter`): the
+            motion closest to the push's that keeps the velocity limits, the
+            box and the clearance margin, through the diagram's SceneGraph;
+            false: the admittance drives the robot directly.
+        safety_filter: the filter's settings.
         simulator_config: Drake's simulator settings (``ApplySimulatorConfig``).
         visualization: Drake's visualization settings for the recording
             (illustration and proximity layers, publish period, colours;
@@ -177,7 +203,7 @@ class Scenario:
         certify: use certified bounds (``drake_cfvol.Certify()`` at its
             defaults; the default). The first build of a path takes tens of
             seconds more, later ones load the certificate from the cache
-            (:func:`drake_cfvol.certify.cache_dir`); the collision guard
+            (:func:`drake_cfvol.certify.cache_dir`); the safety filter
             then rarely acts. False: the paper's per-joint bounds.
         path_velocity_share: share of each joint's velocity limit that the
             path's own motion (nominal and bounds) may use; the push gets
@@ -199,6 +225,7 @@ class Scenario:
     log_period: float = 0.02
     params: dict[str, float] = dataclasses.field(default_factory=dict)
     collision_guard: bool = True
+    safety_filter: SafetyFilterConfig = dataclasses.field(default_factory=SafetyFilterConfig)
     certify: bool = True
     path_velocity_share: float = 0.5
     simulator_config: SimulatorConfig = dataclasses.field(default_factory=SimulatorConfig)
@@ -272,6 +299,15 @@ def validate_scenario(scenario: Scenario, file: Path | None = None) -> None:
             raise ScenarioError(where, f"admittance.{name}", f"must be > 0, got {getattr(a, name)!r}")
     if not a.stiffness >= 0:
         raise ScenarioError(where, "admittance.stiffness", f"must be >= 0, got {a.stiffness!r}")
+    f = scenario.safety_filter
+    if f.clearance is not None and not f.clearance >= 0:
+        raise ScenarioError(where, "safety_filter.clearance", f"must be >= 0 m (or null: the bounds' own), got "
+                            f"{f.clearance!r}")
+    if not f.influence_distance > (f.clearance or 0.0):
+        raise ScenarioError(where, "safety_filter.influence_distance", f"must exceed the clearance, got "
+                            f"{f.influence_distance!r}")
+    if not f.damper_gain > 0:
+        raise ScenarioError(where, "safety_filter.damper_gain", f"must be > 0 m/s, got {f.damper_gain!r}")
     if not 0.0 < scenario.path_velocity_share < 1.0:
         raise ScenarioError(where, "path_velocity_share", f"must lie in (0, 1), got {scenario.path_velocity_share!r}")
     vis = scenario.visualization
@@ -369,12 +405,17 @@ class Comanipulation:
 
     Attributes:
         diagram: the Drake diagram (exported ports: ``path_index``, ``lower``,
-            ``upper``, ``nominal``, ``commanded_position``, ``deviation``,
-            ``guard_active``, ``guard_count``, ``human_torque``, ``min_distance``,
-            ``in_collision``).
+            ``upper``, ``nominal``, ``commanded_position`` (the safety
+            filter's, or with ``collision_guard`` false the admittance's),
+            ``deviation``, ``fault``, ``fault_count``, ``human_torque``,
+            ``human_wrench``, ``min_distance``, ``in_collision``,
+            ``in_volume``, ``query_object``; with the filter also
+            ``filter_active``, ``filter_count``, ``filter_fallbacks``).
         scenario, workcell, path, bounds: the inputs.
         plant, scene_graph: the visual/kinematic plant and its SceneGraph.
-        loggers: VectorLogSinks by name.
+        loggers: VectorLogSinks by name, every exported vector port at the
+            scenario's ``log_period``, and ``update_<name>`` for
+            :data:`UPDATE_RATE_LOGS` at the admittance's period.
         progress: the PathProgress system (its ``rate`` may be below the
             scenario's: see ``Scenario.path_velocity_share``).
         meshcat: the Meshcat instance, if any.
@@ -382,6 +423,8 @@ class Comanipulation:
             merged, :meth:`~drake_cfvol.heightmap.Volume.merged_boxes`):
             ``{"count": ..., "block": ..., "height_step_m": ...,
             "added_volume_m3": ..., "column_volume_m3": ...}``.
+        build_ms: the build's steps' wall times, ms.
+        filter_clearance: the safety filter's margin, m (None without it).
     """
 
     diagram: object
@@ -396,6 +439,7 @@ class Comanipulation:
     meshcat: object = None
     volume_boxes: dict = dataclasses.field(default_factory=dict)
     build_ms: dict = dataclasses.field(default_factory=dict)
+    filter_clearance: float | None = None
 
     @property
     def duration(self) -> float:
@@ -582,30 +626,14 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     progress = builder.AddNamedSystem("path_progress", PathProgress(g, rate=rate, start_time=scenario.start_time,
                                                                     lead=scenario.admittance.period))
     source = builder.AddNamedSystem("joint_bounds", JointBoundsSource(bounds))
-    # The same bounds one controller period ahead, for the collision guard.
-    source_ahead = builder.AddNamedSystem("joint_bounds_ahead", JointBoundsSource(bounds, clamp=True))
     adm = builder.AddNamedSystem("admittance", AdmittanceDeformation(
         k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=a.period, plant=plant,
-        tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot), query_guard=scenario.collision_guard,
-        velocity_limits=wc.velocity_limits, path_share=share))
+        tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot), velocity_limits=wc.velocity_limits,
+        path_share=share))
     pushes = _resolve_pushes(scenario, wc, path, progress)
     rp = scenario.random_pushes
     human = builder.AddNamedSystem("human", ScriptedHuman(k, pushes))
     robot_ids, moving_ids = robot_geometry_ids(plant, robot)
-    if scenario.collision_guard:
-        # The guard's checks, through this SceneGraph: ghost copies of the
-        # robot posed at the admittance's candidates, two poses each.
-        ghosts = builder.AddNamedSystem("ghost_guard", GhostGuard(
-            scene_graph, wc, 2 * AdmittanceDeformation.num_candidates, exclude_ids=set(robot_ids) | set(volume_ids)))
-        source_ahead2 = builder.AddNamedSystem("joint_bounds_ahead2", JointBoundsSource(bounds, clamp=True))
-        builder.Connect(progress.path_index_ahead2_output, source_ahead2.path_index_input)
-        builder.Connect(source_ahead2.nominal_output, adm.nominal_ahead2_input)
-        builder.Connect(source_ahead2.lower_output, adm.lower_ahead2_input)
-        builder.Connect(source_ahead2.upper_output, adm.upper_ahead2_input)
-        builder.Connect(adm.candidates_output, ghosts.configurations_input)
-        builder.Connect(ghosts.geometry_pose_output, scene_graph.get_source_pose_port(ghosts.source_id))
-        builder.Connect(scene_graph.get_query_output_port(), ghosts.query_object_input)
-        builder.Connect(ghosts.free_output, adm.candidates_free_input)
     inspector = scene_graph.model_inspector()
     obstacle_ids = [g for i in map(ModelInstanceIndex, range(plant.num_model_instances())) if i != robot
                     for b in plant.GetBodyIndices(i) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]
@@ -617,13 +645,31 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
 
     builder.Connect(progress.path_index_output, source.path_index_input)
-    builder.Connect(progress.path_index_ahead_output, source_ahead.path_index_input)
-    builder.Connect(source_ahead.nominal_output, adm.nominal_ahead_input)
-    builder.Connect(source_ahead.lower_output, adm.lower_ahead_input)
-    builder.Connect(source_ahead.upper_output, adm.upper_ahead_input)
-    builder.Connect(source.nominal_output, adm.nominal_input)
-    builder.Connect(source.lower_output, adm.lower_input)
-    builder.Connect(source.upper_output, adm.upper_input)
+    safety = None
+    if scenario.collision_guard:
+        # The runtime safety filter between the admittance and the robot. A
+        # command computed at an update takes effect until the next one, so
+        # the admittance and the filter work on the bounds one period ahead
+        # (the filter's output is its state: at the next update it is what
+        # the robot holds, inside the box there).
+        f = scenario.safety_filter
+        margin = f.clearance if f.clearance is not None else float(bounds.params.get("clearance", 0.0))
+        source_ahead = builder.AddNamedSystem("joint_bounds_ahead", JointBoundsSource(bounds, clamp=True))
+        builder.Connect(progress.path_index_ahead_output, source_ahead.path_index_input)
+        safety = builder.AddNamedSystem("safety_filter", SafetyFilter(
+            plant, scene_graph, robot, velocity_limits=wc.velocity_limits, obstacle_ids=obstacle_ids,
+            clearance=margin, influence_distance=f.influence_distance, damper_gain=f.damper_gain,
+            period=a.period, initial_position=path.waypoints[0]))
+        for name in ("nominal", "lower", "upper"):
+            builder.Connect(source_ahead.GetOutputPort(name), adm.GetInputPort(name))
+            builder.Connect(source_ahead.GetOutputPort(name), safety.GetInputPort(name))
+        builder.Connect(adm.commanded_position_output, safety.desired_position_input)
+        builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
+        commanded = safety.commanded_position_output
+    else:
+        for name in ("nominal", "lower", "upper"):
+            builder.Connect(source.GetOutputPort(name), adm.GetInputPort(name))
+        commanded = adm.commanded_position_output
     torques = [human.human_torque_output]
     if rp.count > 0:
         # Random pushes: Drake's RandomSource (its state is the randomness,
@@ -640,7 +686,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         coworker = builder.AddNamedSystem("reactive_coworker", ReactiveCoworker(
             k, gain=re.gain, offset=re.offset or np.zeros(k), start=re.start, duration=re.duration,
             max_torque=re.max_torque))
-        builder.Connect(adm.commanded_position_output, coworker.commanded_position_input)
+        builder.Connect(commanded, coworker.commanded_position_input)
         builder.Connect(source.nominal_output, coworker.nominal_input)
         torques.append(coworker.human_torque_output)
     torque_port = torques[0]
@@ -651,24 +697,33 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         torque_port = total.get_output_port()
     builder.Connect(torque_port, adm.human_torque_input)
     builder.Connect(human.human_wrench_output, adm.human_wrench_input)
-    builder.Connect(adm.commanded_position_output, to_pose.get_input_port())
+    builder.Connect(commanded, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
     builder.Connect(scene_graph.get_query_output_port(), monitor.query_object_input)
 
     exported = {
         "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
-        "nominal": source.nominal_output, "commanded_position": adm.commanded_position_output,
-        "deviation": adm.deviation_output, "guard_active": adm.guard_active_output,
-        "guard_count": adm.guard_count_output,
+        "nominal": source.nominal_output, "commanded_position": commanded,
+        "deviation": adm.deviation_output, "fault": adm.fault_output, "fault_count": adm.fault_count_output,
         "human_torque": torque_port, "human_wrench": human.human_wrench_output,
         "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
         "in_volume": monitor.in_volume_output,
     }
+    if safety is not None:
+        exported.update({"filter_active": safety.filter_active_output, "filter_count": safety.filter_count_output,
+                         "filter_fallbacks": safety.fallback_count_output,
+                         "filter_damper_misses": safety.damper_misses_output,
+                         "filter_box_exits": safety.box_exits_output})
     loggers = {}
     for name, port in exported.items():
         builder.ExportOutput(port, name)
         loggers[name] = LogVectorOutput(port, builder, publish_period=scenario.log_period)
         loggers[name].set_name(f"log_{name}")
+    # Speed, clearance and collisions at the control update rate too (the
+    # log period may be coarser: a step between two updates must not hide).
+    for name in UPDATE_RATE_LOGS:
+        loggers[f"update_{name}"] = LogVectorOutput(exported[name], builder, publish_period=a.period)
+        loggers[f"update_{name}"].set_name(f"log_update_{name}")
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
 
     if meshcat is not None:
@@ -683,7 +738,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     t3 = time.perf_counter()
     return Comanipulation(diagram, scenario, wc, path, bounds, plant, scene_graph, loggers, progress, meshcat,
                           {"count": len(volume_ids), **merge_info}, {"plan": (t1 - t0) * 1e3, "bounds": (t2 - t1) * 1e3,
-                                         "diagram": (t3 - t2) * 1e3})
+                                         "diagram": (t3 - t2) * 1e3},
+                          safety.clearance if safety is not None else None)
 
 
 def _log(sim_context, logger):
@@ -733,15 +789,8 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     _, lo = logs["lower"]
     _, hi = logs["upper"]
     _, nom = logs["nominal"]
-    _, dist = logs["min_distance"]
-    _, coll = logs["in_collision"]
     violation = float(np.max(np.maximum(np.maximum(lo - q, q - hi), 0.0))) if len(q) else 0.0
-    vmax = np.asarray(cm.workcell.velocity_limits, float)
-    if len(t) > 1:
-        speed = np.abs(np.diff(q, axis=0)) / np.diff(t)[:, None]
-        velocity_ratio = float(np.max(np.where(np.isfinite(vmax), speed / vmax, 0.0)))
-    else:
-        velocity_ratio = 0.0
+    rates = update_rate_figures(logs, cm)
     penetrations = int(logs["in_volume"][1].sum())
     files = {}
     if meshcat is not None:
@@ -760,11 +809,14 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "path": scenario.path, "resolution": scenario.resolution, "g": cm.path.g, "steps": int(len(t)),
         "duration_s": duration, "path_duration_s": cm.progress.duration - scenario.start_time,
         "sim_wall_s": sim_s,
-        "min_clearance_m": float(dist.min()) if len(dist) else None,
-        "max_velocity_ratio": velocity_ratio, "volume_penetrations": penetrations,
-        "collisions": int(coll.sum()), "max_bound_violation": violation,
-        "guard_steps": int(logs["guard_count"][1][-1, 0]) if len(logs["guard_count"][1]) else 0,
-        "collision_guard": scenario.collision_guard,
+        "min_clearance_m": rates["min_clearance_m"],
+        "max_velocity_ratio": rates["max_velocity_ratio"], "volume_penetrations": penetrations,
+        "collisions": rates["collisions"], "max_bound_violation": violation,
+        "filter_steps": _count(cm, ctx, "filter_count"), "guard_steps": _count(cm, ctx, "filter_count"),
+        "filter_fallbacks": _count(cm, ctx, "filter_fallbacks"),
+        "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
+        "filter_box_exits": _count(cm, ctx, "filter_box_exits"), "faults": _count(cm, ctx, "fault_count"),
+        "collision_guard": scenario.collision_guard, "filter_clearance_m": cm.filter_clearance,
         "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
         "n_boxes": cm.bounds.info["n_boxes"], "volume_boxes_in_scene": cm.volume_boxes["count"],
         "bounds_time_ms": cm.bounds.timing_ms["total"], "build_ms": cm.build_ms,
@@ -778,10 +830,39 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     return summary
 
 
+def _count(cm: Comanipulation, context, name: str) -> int:
+    """A counter exported by the diagram, at the end of the run (0 if the
+    diagram has no such port: the filter is off)."""
+    if not cm.diagram.HasOutputPort(name):
+        return 0
+    return int(cm.diagram.GetOutputPort(name).Eval(context)[0])
+
+
+def update_rate_figures(logs: dict, cm: Comanipulation) -> dict:
+    """Speed, clearance and collisions from the logs at the control update
+    rate (``update_*``): the largest |dq_j| / (period x velocity_limit_j)
+    between consecutive updates (one update period apart by construction,
+    so the period is the time step, not the difference of two rounded
+    sample times), the smallest clearance (moving links to the obstacles,
+    m) and the number of updates in collision."""
+    _, q = logs["update_commanded_position"]
+    _, dist = logs["update_min_distance"]
+    _, coll = logs["update_in_collision"]
+    h = cm.scenario.admittance.period
+    vmax = np.asarray(cm.workcell.velocity_limits, float)
+    ratio = 0.0
+    if len(q) > 1:
+        speed = np.abs(np.diff(q, axis=0)) / h
+        ratio = float(np.max(np.where(np.isfinite(vmax), speed / vmax, 0.0)))
+    return {"max_velocity_ratio": ratio, "min_clearance_m": float(dist.min()) if len(dist) else None,
+            "collisions": int(coll.sum())}
+
+
 def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
     """Per joint over time: nominal, bounds, commanded; and the clearance.
     Shaded in every panel: when the co-worker pushes (joint torque or tool
-    wrench not zero); ticks on the clearance panel: when the guard acted."""
+    wrench not zero); ticks on the clearance panel: when the safety filter
+    acted (at the logged samples)."""
     plt = _pyplot()
     t, q = logs["commanded_position"]
     pushing = np.zeros(len(t), bool)
@@ -809,12 +890,12 @@ def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
             ax.axvspan(a, b, color="tab:orange", alpha=0.15, lw=0, label="push" if n == 0 else None)
     axes[0].legend(loc="upper right", fontsize=7, ncol=4)
     axes[-1].plot(td, dist[:, 0], color="tab:red")
-    if "guard_active" in logs:
-        tg, g = logs["guard_active"]
+    if "filter_active" in logs:
+        tg, g = logs["filter_active"]
         acted = tg[g[:, 0] > 0]
         if len(acted):
             axes[-1].plot(acted, np.full(len(acted), float(dist[:, 0].min())), "|", color="k", ms=8,
-                          label="guard acted")
+                          label="filter acted")
             axes[-1].legend(loc="upper right", fontsize=7)
     axes[-1].set_ylabel("clearance\n[m]", fontsize=8)
     axes[-1].set_xlabel("time [s]")

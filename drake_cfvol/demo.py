@@ -73,7 +73,7 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
                      bounds=table if scenario.resolution == resolution else None, progress=True)
     print(f"   {s['steps']} logged steps over {s['duration_s']:.1f} s (simulated in {s['sim_wall_s']:.2f} s)")
     print(f"   min clearance {s['min_clearance_m'] * 100:.1f} cm, collisions {s['collisions']}, "
-          f"bound violation {s['max_bound_violation']:.1e}, guard acted on {s['guard_steps']} steps")
+          f"bound violation {s['max_bound_violation']:.1e}, safety filter acted on {s['filter_steps']} updates")
     for note in s.get("notices", []):
         print(f"cfvol: note: {note}", file=sys.stderr)
     summary = {"cf_percent": cf.percent, "freedom": fr.mean, "bounds_time_ms": t["total"], "run": s}

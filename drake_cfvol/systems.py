@@ -2,7 +2,12 @@
 
 - :class:`JointBoundsSource`: the bounds table as a system of the path index.
 - :class:`AdmittanceDeformation`: the human's push -> a deviation from the
-  nominal, clamped inside the bounds without wind-up.
+  nominal, clamped inside the bounds without wind-up; sensor faults hold
+  the last safe command.
+- :class:`SafetyFilter` (from :mod:`drake_cfvol.safety`): between the
+  admittance and the robot, the motion closest to the one asked for that
+  keeps the velocity limits, the box ahead and a clearance margin (a
+  velocity damper on the SceneGraph's signed distances).
 - :class:`PathProgress`: the path index over time.
 - :class:`ScriptedHuman`: pushes with set magnitude, direction and timing.
 - :class:`RandomPushShaper`: random pushes from Drake's ``RandomSource``
@@ -10,9 +15,6 @@
 - :class:`ReactiveCoworker`: a person reacting to the robot's position.
 - :class:`ClearanceMonitor`: clearance, collision and volume contact, through
   a SceneGraph's query port.
-
-The collision guard's ghost robots (checks of configurations the robot is
-about to take, through the same query port) are in :mod:`drake_cfvol.ghosts`.
 """
 
 
@@ -29,10 +31,11 @@ from pydrake.systems.primitives import TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.safety import SafetyFilter
 from drake_cfvol.table import BoundsTable
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
-           "ClearanceMonitor", "RandomPushShaper", "ReactiveCoworker", "safe_path_rate"]
+           "ClearanceMonitor", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate"]
 
 
 def _vector(value, k: int, name: str, *, positive: bool = False, nonnegative: bool = False) -> np.ndarray:
@@ -177,19 +180,11 @@ def AdmittanceDeformation_(T):
             - upper
             - human_torque
             - human_wrench
-            - nominal_ahead
-            - lower_ahead
-            - upper_ahead
-            - nominal_ahead2 (query guard only)
-            - lower_ahead2 (query guard only)
-            - upper_ahead2 (query guard only)
-            - candidates_free (query guard only)
             output_ports:
             - commanded_position
             - deviation
-            - guard_active
-            - guard_count
-            - candidates (query guard only)
+            - fault
+            - fault_count
 
         Per joint, the deviation d from the nominal obeys
         M d'' + D d' + K d = tau_h + J(q)^T w_h, integrated every ``period``
@@ -217,44 +212,24 @@ def AdmittanceDeformation_(T):
         (:func:`safe_path_rate`) the commanded position never moves a joint
         faster than its limit (clamping is 1-Lipschitz in its inputs).
 
-        Collision guard (optional, beyond the paper): if
-        ``collision_guard(q)`` reports the clamped configuration in collision,
-        now or one period ahead (the output holds the deviation while
-        nominal and bounds move on; their values ahead come from the
-        ``*_ahead`` inputs, e.g. a second JointBoundsSource fed with
-        PathProgress's ``path_index_ahead``, or are extrapolated from the last
-        update),
-        the rate is zeroed and the last deviation is held, or else moved
-        towards the nominal as fast as the velocity limits allow; only if
-        that collides too is it scaled back towards the (collision-free)
-        nominal by bisection to the largest free fraction, a jump: safety
-        before smoothness.
-        ``guard_active`` is 1 after an update where the guard acted;
-        ``guard_count`` counts such updates since the start (a log sampled
-        slower than the updates would miss some of the former). The
-        guard should be a pure function of q (the co-manipulation diagram
-        uses the compiled kernel's conservative test, which touches no Drake
-        context).
+        Sensor faults: an update whose ``human_torque`` or ``human_wrench``
+        holds a non-finite value, or one beyond its plausibility limit
+        (``max_torque``, ``max_wrench``), holds the last safe command: the
+        deviation and its rate are kept as they are (so ``commanded_position``
+        = clamp(nominal + held deviation, lower, upper) follows the path), and
+        ``fault`` is 1 until an update reads plausible inputs again;
+        ``fault_count`` counts the faulted updates. Nothing raises in the
+        control loop for a sensor input. (Non-finite ``nominal``, ``lower``
+        or ``upper`` come from the planner, not a sensor: they raise a
+        :class:`~drake_cfvol.ParameterError` naming the port.)
 
-        Query guard (``query_guard=True``, instead of a callable): the
-        collision checks go through the diagram's SceneGraph. Each update
-        proposes the next deviation and its fallbacks (held, eased towards
-        the nominal, 3/4, 1/2, 1/4 of it, none), and outputs them on ``candidates``
-        posed where they would be commanded: at the next update and one
-        period later (``*_ahead`` and ``*_ahead2``: nominal and bounds one
-        and two periods ahead), each a full configuration. A
-        :class:`drake_cfvol.ghosts.GhostGuard` poses ghost copies of the
-        robot there and answers ``candidates_free`` through the SceneGraph's
-        query port; the next update commands the first candidate whose two
-        poses are both free. The push thus acts one period later than with a
-        callable guard, and every commanded configuration at an update (and
-        the one it holds until the next) was checked in the diagram's own
-        scene.
+        The collision checks are not here: a :class:`drake_cfvol.safety.SafetyFilter`
+        between this system and the robot keeps the clearance.
 
         Scalar types: float and AutoDiffXd (``ToAutoDiffXd()``); with
         AutoDiffXd, derivatives flow through the dynamics, the clamp and the
-        parameters, while the guard and the wrench's Jacobian are evaluated on
-        values.
+        parameters, while the fault checks and the wrench's Jacobian are
+        evaluated on values.
 
         Args:
             k: number of joints.
@@ -267,18 +242,22 @@ def AdmittanceDeformation_(T):
                 k joints) and the tool frame. The Jacobian is computed in a
                 plant context kept in this system's own context (a cache
                 entry used as scratch).
-            collision_guard: callable q -> True if q is free, or None (off).
-            guard_iterations: bisection steps of the guard's scale-back.
             velocity_limits: (k,) joint velocity limits, rad/s (m/s; inf: no
                 limit), or None (no limit).
             path_share: see above; in (0, 1).
-            query_guard: check through ghost robots in the SceneGraph (see
-                above) instead of ``collision_guard``.
+            max_torque: the largest plausible |human_torque_j|, N m (N);
+                scalar or (k,); > 0. Default 2000 N m: beyond any person's
+                push through the arm's levers (the adversarial pushes of
+                ``tools/adversarial_runs.py`` use 1500 N m).
+            max_wrench: the largest plausible |human_wrench_i|, [torque N m
+                x3; force N x3]; scalar or (6,); > 0. Default 500 N m and
+                1500 N (a person pushes with a few hundred newtons).
         """
 
         def _construct(self, k: int, *, mass=10.0, damping=200.0, stiffness=400.0, period: float = 0.01,
-                       plant=None, tool_frame=None, collision_guard=None, guard_iterations: int = 10,
-                       velocity_limits=None, path_share: float = 0.5, query_guard: bool = False, converter=None):
+                       plant=None, tool_frame=None, velocity_limits=None, path_share: float = 0.5,
+                       max_torque=2000.0, max_wrench=(500.0, 500.0, 500.0, 1500.0, 1500.0, 1500.0),
+                       converter=None):
             LeafSystem_[T].__init__(self, converter)
             if not period > 0:
                 raise ParameterError(f"period must be > 0 s, got {period}.")
@@ -288,6 +267,8 @@ def AdmittanceDeformation_(T):
             self.M = _vector(mass, k, "mass", positive=True)
             self.D = _vector(damping, k, "damping", nonnegative=True)
             self.K = _vector(stiffness, k, "stiffness", nonnegative=True)
+            self.max_torque = _vector(max_torque, k, "max_torque", positive=True)
+            self.max_wrench = _vector(max_wrench, 6, "max_wrench", positive=True)
             self.period = float(period)
             self.path_share = float(path_share)
             self.max_rate = None
@@ -303,12 +284,6 @@ def AdmittanceDeformation_(T):
                 raise DimensionError("the plant's positions", k, plant.num_positions())
             self._plant = plant
             self._tool = tool_frame
-            self._guard = collision_guard
-            self._guard_iterations = int(guard_iterations)
-            self.query_guard = bool(query_guard)
-            if self.query_guard and collision_guard is not None:
-                raise ParameterError("AdmittanceDeformation: give either collision_guard (a callable) or "
-                                     "query_guard=True (ghosts in the SceneGraph), not both.")
             self.mass_parameter = self.DeclareNumericParameter(BasicVector_[T](self.M))
             self.damping_parameter = self.DeclareNumericParameter(BasicVector_[T](self.D))
             self.stiffness_parameter = self.DeclareNumericParameter(BasicVector_[T](self.K))
@@ -324,27 +299,8 @@ def AdmittanceDeformation_(T):
             self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
             self.human_torque_input = self.DeclareVectorInputPort(name="human_torque", size=k)
             self.human_wrench_input = self.DeclareVectorInputPort(name="human_wrench", size=6)
-            # Optional: nominal and bounds one period ahead, for the guard
-            # (else extrapolated from the last update).
-            self.nominal_ahead_input = self.DeclareVectorInputPort(name="nominal_ahead", size=k)
-            self.lower_ahead_input = self.DeclareVectorInputPort(name="lower_ahead", size=k)
-            self.upper_ahead_input = self.DeclareVectorInputPort(name="upper_ahead", size=k)
             self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
-            self._guard_state = self.DeclareDiscreteState(2)  # [acted at the last update, updates it acted]
-            # The nominal and bounds at the last update (NaN before the first),
-            # for the guard's look-ahead.
-            self._previous_inputs = self.DeclareDiscreteState(np.full(3 * k, np.nan))
-            if self.query_guard:
-                C = self.num_candidates
-                self.nominal_ahead2_input = self.DeclareVectorInputPort(name="nominal_ahead2", size=k)
-                self.lower_ahead2_input = self.DeclareVectorInputPort(name="lower_ahead2", size=k)
-                self.upper_ahead2_input = self.DeclareVectorInputPort(name="upper_ahead2", size=k)
-                self.candidates_free_input = self.DeclareVectorInputPort(name="candidates_free", size=2 * C)
-                # Candidate deviations, their poses (2 per candidate), and
-                # whether they were set (not before the first update).
-                self._cand = self.DeclareDiscreteState(C * k)
-                self._posed = self.DeclareDiscreteState(2 * C * k)
-                self._valid = self.DeclareDiscreteState(1)
+            self._fault_state = self.DeclareDiscreteState(2)  # [faulted at the last update, faulted updates]
             self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
             self.commanded_position_output = self.DeclareVectorOutputPort(
                 name="commanded_position", size=k, calc=self._calc_commanded,
@@ -354,29 +310,20 @@ def AdmittanceDeformation_(T):
                 name="deviation", size=k,
                 calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._state).CopyToVector()[:self.k]),
                 prerequisites_of_calc={self.xd_ticket()})
-            self.guard_active_output = self.DeclareVectorOutputPort(
-                name="guard_active", size=1,
-                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._guard_state).CopyToVector()[:1]),
+            self.fault_output = self.DeclareVectorOutputPort(
+                name="fault", size=1,
+                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._fault_state).CopyToVector()[:1]),
                 prerequisites_of_calc={self.xd_ticket()})
-            self.guard_count_output = self.DeclareVectorOutputPort(
-                name="guard_count", size=1,
-                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._guard_state).CopyToVector()[1:]),
+            self.fault_count_output = self.DeclareVectorOutputPort(
+                name="fault_count", size=1,
+                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._fault_state).CopyToVector()[1:]),
                 prerequisites_of_calc={self.xd_ticket()})
-            if self.query_guard:
-                self.candidates_output = self.DeclareVectorOutputPort(
-                    name="candidates", size=2 * self.num_candidates * k,
-                    calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._posed).CopyToVector()),
-                    prerequisites_of_calc={self.xd_ticket()})
-
-        #: Candidates of the query guard: the proposal, held, eased towards
-        #: the nominal, 3/4, 1/2 and 1/4 of the held deviation, none.
-        num_candidates = 7
 
         def _construct_copy(self, other, converter=None):
             Impl._construct(self, other.k, mass=other.M, damping=other.D, stiffness=other.K, period=other.period,
-                            plant=other._plant, tool_frame=other._tool, collision_guard=other._guard,
-                            guard_iterations=other._guard_iterations, velocity_limits=other._velocity_limits,
-                            path_share=other.path_share, query_guard=other.query_guard, converter=converter)
+                            plant=other._plant, tool_frame=other._tool, velocity_limits=other._velocity_limits,
+                            path_share=other.path_share, max_torque=other.max_torque, max_wrench=other.max_wrench,
+                            converter=converter)
 
         def gains(self, context) -> tuple:
             """(M, D, K) of this context (the numeric parameters)."""
@@ -396,164 +343,62 @@ def AdmittanceDeformation_(T):
                                      f"{np.flatnonzero(_values(lower) > _values(upper)).tolist()}.")
             return nominal, lower, upper
 
-        def _push(self, context, q):
-            tau = 0 * q
+        def _sensors(self, context):
+            """The human's joint torque and tool wrench (zeros where not
+            connected), and whether they are plausible: finite and within
+            ``max_torque`` and ``max_wrench``."""
+            tau = np.zeros(self.k, dtype=object if T is AutoDiffXd else float)
+            w = np.zeros(6)
+            ok = True
             if self.human_torque_input.HasValue(context):
-                t = self.human_torque_input.Eval(context)
-                if not np.all(np.isfinite(_values(t))):
-                    raise ParameterError(f"AdmittanceDeformation: 'human_torque' holds a non-finite value "
-                                         f"{_values(t).tolist()}.")
-                tau = tau + t
+                tau = self.human_torque_input.Eval(context)
+                tv = _values(tau)
+                ok &= bool(np.all(np.isfinite(tv)) and np.all(np.abs(tv) <= self.max_torque))
             if self.human_wrench_input.HasValue(context):
                 w = _values(self.human_wrench_input.Eval(context))
-                if not np.all(np.isfinite(w)):
-                    raise ParameterError(f"AdmittanceDeformation: 'human_wrench' holds a non-finite value "
-                                         f"{w.tolist()}.")
-                if np.any(w != 0):
-                    if self._plant is None:
-                        raise ParameterError("AdmittanceDeformation: 'human_wrench' is connected but no plant and "
-                                             "tool_frame were given to map it through the Jacobian.")
-                    pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
-                    self._plant.SetPositions(pctx, _values(q))
-                    J = self._plant.CalcJacobianSpatialVelocity(
-                        pctx, JacobianWrtVariable.kQDot, self._tool, np.zeros(3),
-                        self._plant.world_frame(), self._plant.world_frame())
-                    tau = tau + J.T @ w
+                ok &= bool(np.all(np.isfinite(w)) and np.all(np.abs(w) <= self.max_wrench))
+            return tau, w, ok
+
+        def _push(self, context, tau, w, q):
+            """The joint torque of the push: tau + J(q)^T w."""
+            tau = 0 * q + tau
+            if np.any(w != 0):
+                if self._plant is None:
+                    raise ParameterError("AdmittanceDeformation: 'human_wrench' is connected but no plant and "
+                                         "tool_frame were given to map it through the Jacobian.")
+                pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
+                self._plant.SetPositions(pctx, _values(q))
+                J = self._plant.CalcJacobianSpatialVelocity(
+                    pctx, JacobianWrtVariable.kQDot, self._tool, np.zeros(3),
+                    self._plant.world_frame(), self._plant.world_frame())
+                tau = tau + J.T @ w
             return tau
 
         def _update(self, context, discrete_state):
-            if self.query_guard:
-                return self._update_query(context, discrete_state)
             nominal, lower, upper = self._inputs(context)
             x = context.get_discrete_state(self._state).CopyToVector()
-            d, v = self._step(context, x[:self.k].copy(), x[self.k:].copy(), nominal, lower, upper)
+            faults = context.get_discrete_state(self._fault_state).CopyToVector()
+            tau, w, plausible = self._sensors(context)
+            if not plausible:
+                # Hold the last safe command: deviation and rate as they are.
+                discrete_state.get_mutable_vector(self._fault_state).SetFromVector([1.0, faults[1] + 1.0])
+                return
+            d, v = x[:self.k].copy(), x[self.k:].copy()
+            M, D, K = self.gains(context)
+            tau = self._push(context, tau, w, _clip(nominal + d, lower, upper))
+            h = self.period
+            v = v + h * (tau - D * v - K * d) / M
+            if self.max_rate is not None:
+                v = _clip(v, -self.max_rate, self.max_rate)
+            d = d + h * v
             # No wind-up: keep nominal + d inside [lower, upper]; stop outward rates.
             lo, hi = lower - nominal, upper - nominal
             dv, vv = _values(d), _values(v)
             at_hi, at_lo = dv >= _values(hi), dv <= _values(lo)
             d = _clip(d, lo, hi)
             v = np.where((at_hi & (vv > 0)) | (at_lo & (vv < 0)), 0 * v, v)
-            acted = False
-            if self._guard is not None and np.any(_values(d) != 0):
-                ahead = self._ahead(context, nominal, lower, upper)
-                guarded = self._guarded(d, _clip(x[:self.k], lo, hi), nominal, ahead)
-                if guarded is not None:
-                    d, v, acted = guarded, 0 * v, True
-            discrete_state.get_mutable_vector(self._previous_inputs).SetFromVector(
-                np.concatenate([nominal, lower, upper]))
             discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
-            self._set_guard(context, discrete_state, acted)
-
-        def _set_guard(self, context, discrete_state, acted: bool) -> None:
-            count = context.get_discrete_state(self._guard_state).CopyToVector()[1]
-            discrete_state.get_mutable_vector(self._guard_state).SetFromVector([float(acted), count + float(acted)])
-
-        def _step(self, context, d, v, nominal, lower, upper):
-            """One semi-implicit Euler step of the admittance from (d, v),
-            pushed at the configuration commanded now: the new (d, v)."""
-            M, D, K = self.gains(context)
-            tau = self._push(context, _clip(nominal + d, lower, upper))
-            h = self.period
-            v = v + h * (tau - D * v - K * d) / M
-            if self.max_rate is not None:
-                v = _clip(v, -self.max_rate, self.max_rate)
-            return d + h * v, v
-
-        def _update_query(self, context, discrete_state):
-            """The query guard's update (see the class docs)."""
-            k, C = self.k, self.num_candidates
-            nominal, lower, upper = self._inputs(context)
-            x = context.get_discrete_state(self._state).CopyToVector()
-            d, v = x[:k].copy(), x[k:].copy()
-            acted = False
-            if _values(context.get_discrete_state(self._valid).CopyToVector())[0] > 0.5:
-                flags = _values(self.candidates_free_input.Eval(context)) > 0.5
-                ok = flags[0::2] & flags[1::2]
-                cands = context.get_discrete_state(self._cand).CopyToVector().reshape(C, k)
-                c = int(np.argmax(ok)) if ok.any() else C - 1  # none free: the nominal
-                d = cands[c].copy()
-                if c > 0:
-                    v, acted = 0 * v, True
-            # The proposal for the next update, from the commanded state now.
-            proposal, v = self._step(context, d, v, nominal, lower, upper)
-            h = self.period
-            ahead = [self._require(p, context) for p in (self.nominal_ahead_input, self.lower_ahead_input,
-                                                         self.upper_ahead_input, self.nominal_ahead2_input,
-                                                         self.lower_ahead2_input, self.upper_ahead2_input)]
-            n1, lo1, hi1, n2, lo2, hi2 = ahead
-            lo1, hi1 = np.minimum(lo1, n1), np.maximum(hi1, n1)
-            lo2, hi2 = np.minimum(lo2, n2), np.maximum(hi2, n2)
-            pv, vv = _values(proposal), _values(v)
-            at_hi, at_lo = pv >= hi1 - n1, pv <= lo1 - n1
-            proposal = _clip(proposal, lo1 - n1, hi1 - n1)
-            v = np.where((at_hi & (vv > 0)) | (at_lo & (vv < 0)), 0 * v, v)
-            held = _clip(_values(d), lo1 - n1, hi1 - n1)
-            eased = held
-            if self.max_rate is not None:
-                cap = np.where(np.isfinite(self.max_rate), self.max_rate * h, np.abs(held))
-                eased = held - np.clip(held, -cap, cap)
-            devs = np.array([_values(proposal), held, eased, 0.75 * held, 0.5 * held, 0.25 * held, 0 * held])
-            posed = np.concatenate([np.concatenate([np.clip(n1 + e, lo1, hi1), np.clip(n2 + e, lo2, hi2)])
-                                    for e in devs])
-            discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
-            self._set_guard(context, discrete_state, acted)
-            discrete_state.get_mutable_vector(self._cand).SetFromVector(devs.ravel())
-            discrete_state.get_mutable_vector(self._posed).SetFromVector(posed)
-            discrete_state.get_mutable_vector(self._valid).SetFromVector([1.0])
-
-        def _require(self, port, context) -> np.ndarray:
-            if not port.HasValue(context):
-                raise ParameterError(f"AdmittanceDeformation: the query guard needs input '{port.get_name()}' "
-                                     "connected (nominal and bounds one and two periods ahead, and the ghosts' "
-                                     "answers; see build_comanipulation_diagram).")
-            return _values(port.Eval(context))
-
-        def _ahead(self, context, nominal, lower, upper) -> np.ndarray:
-            """[nominal, lower, upper] one period ahead: the ``*_ahead``
-            inputs if connected, else extrapolated from the last update."""
-            ports = (self.nominal_ahead_input, self.lower_ahead_input, self.upper_ahead_input)
-            if all(p.HasValue(context) for p in ports):
-                return np.concatenate([_values(p.Eval(context)) for p in ports])
-            now = np.concatenate([_values(nominal), _values(lower), _values(upper)])
-            prev = _values(context.get_discrete_state(self._previous_inputs).CopyToVector())
-            return now + (now - prev) if np.all(np.isfinite(prev)) else now
-
-        def _guarded(self, d, held, nominal, ahead):
-            """The deviation the guard allows instead of ``d``, or None if
-            ``d`` is free. The output holds a deviation until the next update
-            while nominal and bounds move on: each candidate is checked now
-            and one period ahead (``ahead`` = [nominal, lower, upper] then).
-            Candidates: the last deviation ``held`` (the motion is then the
-            nominal's own, within the velocity limits); ``held`` moved towards
-            the nominal as fast as the limits allow; else the largest free
-            fraction of ``held`` by bisection (a jump: safety before
-            smoothness)."""
-            k = self.k
-            nv = _values(nominal)
-            n_a, lo_a, hi_a = ahead[:k], ahead[k:2 * k], ahead[2 * k:]
-            lo_a, hi_a = np.minimum(lo_a, n_a), np.maximum(hi_a, n_a)
-
-            def free_with(dev):
-                return self._guard(nv + dev) and self._guard(np.clip(n_a + dev, lo_a, hi_a))
-
-            if free_with(_values(d)):
-                return None
-            hv = _values(held)
-            if free_with(hv):
-                return held
-            if self.max_rate is not None:
-                cap = np.where(np.isfinite(self.max_rate), self.max_rate * self.period, np.abs(hv))
-                step = hv - np.clip(hv, -cap, cap)
-                if free_with(step):
-                    return held * 0 + step
-            free, bad = 0.0, 1.0
-            for _ in range(self._guard_iterations):
-                mid = (free + bad) / 2
-                if free_with(mid * hv):
-                    free = mid
-                else:
-                    bad = mid
-            return free * held
+            discrete_state.get_mutable_vector(self._fault_state).SetFromVector([0.0, faults[1]])
 
         def _calc_commanded(self, context, output):
             nominal, lower, upper = self._inputs(context)
@@ -603,12 +448,11 @@ class PathProgress(Diagram):
         output_ports:
         - path_index
         - path_index_ahead
-        - path_index_ahead2
 
     ``path_index_ahead`` is s(t + lead): where the path will be one
-    controller period later (the collision guard checks the deviation it is
-    about to hold against the bounds there); ``path_index_ahead2`` is
-    s(t + 2 lead) (the query guard poses its candidates one period further).
+    controller period later, when a command computed now takes effect (the
+    co-manipulation diagram feeds the admittance and the safety filter the
+    bounds there).
 
     Args:
         g: number of waypoints.
@@ -637,17 +481,12 @@ class PathProgress(Diagram):
         ahead = PiecewisePolynomial.FirstOrderHold(
             [t0 - self.lead, max(self.duration, t0 + 1e-9) - self.lead], np.array([[0.0, self.g - 1.0]]))
         source_ahead = builder.AddNamedSystem("trajectory_ahead", TrajectorySource(ahead))
-        ahead2 = PiecewisePolynomial.FirstOrderHold(
-            [t0 - 2 * self.lead, max(self.duration, t0 + 1e-9) - 2 * self.lead], np.array([[0.0, self.g - 1.0]]))
-        source_ahead2 = builder.AddNamedSystem("trajectory_ahead2", TrajectorySource(ahead2))
         builder.ExportOutput(source.get_output_port(), "path_index")
         builder.ExportOutput(source_ahead.get_output_port(), "path_index_ahead")
-        builder.ExportOutput(source_ahead2.get_output_port(), "path_index_ahead2")
         builder.BuildInto(self)
         self.set_name("path_progress")
         self.path_index_output = self.GetOutputPort("path_index")
         self.path_index_ahead_output = self.GetOutputPort("path_index_ahead")
-        self.path_index_ahead2_output = self.GetOutputPort("path_index_ahead2")
 
     def index_at(self, t: float) -> float:
         """s at time t."""
@@ -854,7 +693,7 @@ class ClearanceMonitor(LeafSystem):
         max_distance: distances beyond this are reported as this, m.
         obstacle_ids: the obstacles, if known: ``min_distance`` then asks
             for the moving links' distance to each of them only (cheaper in
-            a scene holding other geometry, such as a GhostGuard's ghosts);
+            a scene holding other geometry, such as the volume V's boxes);
             ``in_collision`` ignores any other geometry.
     """
 

@@ -76,7 +76,7 @@ def test_cycle_finder_finds_a_planted_cycle():
 def test_data_types_sit_below_the_pipeline():
     """The data modules import nothing from the algorithm or the systems."""
     graph = _import_graph()
-    upper = {"pipeline", "sweep", "volume", "certify", "metrics", "reference", "systems", "ghosts", "comanip", "viz",
+    upper = {"pipeline", "sweep", "volume", "certify", "metrics", "reference", "systems", "safety", "comanip", "viz",
              "demo", "bench", "cli", "planning", "workcell", "collision"}
     for low in ("table", "heightmap", "params", "exceptions", "style", "_records"):
         assert not graph[low] & upper, f"{low} imports {graph[low] & upper}"

@@ -56,9 +56,13 @@ def test_simulate_json(tmp_path, capsys):
     assert main(["simulate", "automotive_push", "--out", str(tmp_path), "--json",
                  "--scenario-text", "{certify: false}"]) == 0
     d = json.loads(capsys.readouterr().out)
-    for key in ("scenario", "steps", "min_clearance_m", "max_bound_violation", "recording_html", "plot_png"):
+    for key in ("scenario", "steps", "min_clearance_m", "max_bound_violation", "recording_html", "plot_png",
+                "max_velocity_ratio", "collisions", "filter_steps", "guard_steps", "faults"):
         assert key in d
-    assert d["steps"] > 100 and d["max_bound_violation"] == 0.0
+    # Inside the bounds to rounding (the filter set each command against the
+    # bounds one period ahead, at a path index rounded differently).
+    assert d["steps"] > 100 and d["max_bound_violation"] <= 1e-12
+    assert d["collisions"] == 0 and d["max_velocity_ratio"] <= 1.0 and d["faults"] == 0
     assert (tmp_path / "recording.html").stat().st_size > 100_000
 
 

@@ -1,0 +1,159 @@
+"""Adversarial co-manipulation runs: steady corner-seeking pushes.
+
+A constant joint torque of the same size on every joint, with seeded random
+signs, for the whole run, drives the admittance into a corner of the box at
+every path position; on uncertified bounds the corners often collide, so
+what keeps the robot safe there is the runtime safety filter. Each run is
+recounted against independent facts: Drake's collision checker of the
+workcell's own scene at every update, and the nominal's own clearance
+(Drake's distances) at the same path positions.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from drake_cfvol.certify import Certify
+from drake_cfvol.comanip import load_scenario, run_scenario
+from drake_cfvol.pipeline import estimate_bounds
+from drake_cfvol.planning import plan_nominal_path
+from drake_cfvol.workcell import load_workcell
+
+__all__ = ["steady_push_runs", "summarize_runs", "MARGIN_TOLERANCE"]
+
+#: How far below min(margin, the nominal's own clearance) a run may dip
+#: and still count as keeping the margin, m.
+MARGIN_TOLERANCE = 0.002
+
+
+def _signs(seed: int, k: int) -> np.ndarray:
+    return np.random.default_rng(seed).choice([-1.0, 1.0], size=k)
+
+
+def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safety_filter: bool = True,
+                     certify: bool = False, clearance: float | None = None, seeds=None, path=None, bounds=None,
+                     on_run=None) -> list[dict]:
+    """Steady corner-seeking pushes on a cell's ``<cell>_push`` scenario
+    (its defaults, its scripted pushes replaced): joint torque ``torque``
+    x random signs (seed n: ``numpy.random.default_rng(n)``) on every
+    joint, from t = 0 to the end of the run.
+
+    Args:
+        cell: ``automotive`` or ``aerospace`` (the scenario ``<cell>_push``).
+        runs: seeds 0 .. runs-1 (unless ``seeds`` is given).
+        torque: N m (N for a prismatic joint) per joint.
+        safety_filter: the scenario's ``collision_guard`` (the runtime
+            safety filter on or off).
+        certify: certified bounds (the scenario's default) or not.
+        clearance: the filter's margin, m (None: the bounds' own).
+        seeds: explicit push seeds.
+        path, bounds: a planned path and its bounds (else planned and
+            estimated here, once for all runs).
+        on_run: called with each row as it is done.
+
+    Returns:
+        One row per run: ``cell``, ``seed``, ``signs``, ``safety_filter``,
+        ``certify``, ``margin_m`` (the filter's margin; for a run without
+        the filter, the margin it would have kept), ``collisions`` (updates
+        in collision, the run's own monitor), ``drake_colliding_updates``
+        (the workcell's Drake checker on every update's configuration,
+        self-collision included), ``min_clearance_m`` (moving links to the
+        obstacles, every update), ``nominal_min_clearance_m`` (the nominal's
+        own at the same path positions), ``worst_shortfall_m`` (the largest
+        amount, over the updates, by which the clearance fell below
+        min(margin, the nominal's own clearance there); <= 0 if never),
+        ``margin_kept`` (shortfall <= ``MARGIN_TOLERANCE``),
+        ``max_velocity_ratio`` (every update), ``filter_steps``,
+        ``filter_damper_misses``, ``filter_fallbacks``, ``faults``,
+        ``max_deviation`` (rad or m, from the nominal), ``sim_wall_s``.
+    """
+    name = f"{cell}_push"
+    scenario, _ = load_scenario(name)
+    wc = load_workcell(scenario.cell)
+    if path is None:
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path)
+    if bounds is None:
+        bounds = estimate_bounds(wc, path, resolution=scenario.resolution, **dict(scenario.params),
+                                 certify=Certify(seed=scenario.seed) if certify else None)
+    k = wc.num_joints
+    seeds = list(range(runs)) if seeds is None else list(seeds)
+    margin_default = float(bounds.params.get("clearance", 0.0)) if clearance is None else float(clearance)
+    nominal_clearance: dict[float, float] = {}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            signs = _signs(seed, k)
+            tau = ", ".join(f"{x:.6g}" for x in torque * signs)
+            text = (f"{{certify: {str(certify).lower()}, collision_guard: {str(safety_filter).lower()}, "
+                    f"pushes: [{{start: 0.0, duration: 1.0e9, joint_torque: [{tau}]}}]")
+            if clearance is not None:
+                text += f", safety_filter: {{clearance: {float(clearance)!r}}}"
+            text += "}"
+            s = run_scenario(name, tmp, record=False, plot=False, svg=False, path=path, bounds=bounds,
+                             scenario_text=text)
+            logs = np.load(Path(tmp) / "logs.npz")
+            t = logs["update_commanded_position_t"]
+            q = logs["update_commanded_position"]
+            dist = logs["update_min_distance"][:, 0]
+            # The path index at each update, as PathProgress has it.
+            rate = (path.g - 1) / s["path_duration_s"] if s["path_duration_s"] > 0 else np.inf
+            s_at = np.clip((t - scenario.start_time) * rate, 0.0, path.g - 1.0)
+            nom = np.empty(len(t))
+            for i, si in enumerate(np.round(s_at, 9)):
+                if si not in nominal_clearance:
+                    qn = bounds.at(float(si))[2]
+                    nominal_clearance[si] = min(wc.obstacle_distances(qn, 2.0, moving_only=True).values(),
+                                                default=2.0)
+                nom[i] = nominal_clearance[si]
+            margin = s["filter_clearance_m"] if s["filter_clearance_m"] is not None else margin_default
+            shortfall = float(np.max(np.minimum(margin, nom) - dist)) if len(t) else 0.0
+            free = np.array(wc.checker.CheckConfigsCollisionFree(q), bool)
+            row = {"cell": cell, "seed": seed, "signs": signs.tolist(), "torque": float(torque),
+                   "safety_filter": bool(safety_filter), "certify": bool(certify), "margin_m": margin,
+                   "collisions": s["collisions"], "drake_colliding_updates": int((~free).sum()),
+                   "min_clearance_m": s["min_clearance_m"], "nominal_min_clearance_m": float(nom.min()),
+                   "worst_shortfall_m": shortfall, "margin_kept": shortfall <= MARGIN_TOLERANCE,
+                   "max_velocity_ratio": s["max_velocity_ratio"], "filter_steps": s["filter_steps"],
+                   "filter_damper_misses": s.get("filter_damper_misses", 0),
+                   "filter_fallbacks": s["filter_fallbacks"], "faults": s["faults"],
+                   "filter_box_exits": s.get("filter_box_exits", 0),
+                   "max_bound_violation": s["max_bound_violation"],
+                   "max_deviation": s["max_deviation"], "updates": int(len(t)), "sim_wall_s": s["sim_wall_s"]}
+            rows.append(row)
+            if on_run is not None:
+                on_run(row)
+    return rows
+
+
+def summarize_runs(rows: list[dict]) -> list[dict]:
+    """Per (cell, filter on/off, margin): runs, runs with collisions (the
+    run's monitor or Drake's checker), runs that kept the margin, the
+    smallest clearance, the largest velocity ratio, filter steps (median and
+    largest), damper misses, and the largest and median deviation."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        groups.setdefault((r["cell"], r["safety_filter"], r["margin_m"]), []).append(r)
+    out = []
+    for (cell, on, margin), g in groups.items():
+        out.append({
+            "cell": cell, "safety_filter": on, "margin_m": margin, "runs": len(g),
+            "runs_with_collisions": sum(r["collisions"] > 0 or r["drake_colliding_updates"] > 0 for r in g),
+            "runs_margin_kept": sum(r["margin_kept"] for r in g),
+            "min_clearance_m": min(r["min_clearance_m"] for r in g),
+            "nominal_min_clearance_m": min(r["nominal_min_clearance_m"] for r in g),
+            "worst_shortfall_m": max(r["worst_shortfall_m"] for r in g),
+            "max_velocity_ratio": max(r["max_velocity_ratio"] for r in g),
+            "filter_steps_median": float(np.median([r["filter_steps"] for r in g])),
+            "filter_steps_max": max(r["filter_steps"] for r in g),
+            "damper_misses_max": max(r["filter_damper_misses"] for r in g),
+            "box_exits_max": max(r["filter_box_exits"] for r in g),
+            "max_bound_violation": max(r["max_bound_violation"] for r in g),
+            "fallbacks_max": max(r["filter_fallbacks"] for r in g),
+            "max_deviation": max(r["max_deviation"] for r in g),
+            "median_max_deviation": float(np.median([r["max_deviation"] for r in g])),
+            "sim_wall_s_median": float(np.median([r["sim_wall_s"] for r in g])),
+        })
+    return out

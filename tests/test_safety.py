@@ -1,0 +1,317 @@
+"""The runtime safety filter against independent facts: a two-link planar
+arm worked by hand, Drake's own signed distances (the oracle), and random
+inputs (hypothesis)."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+from pydrake.geometry import Box, Cylinder, SceneGraph, Sphere
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
+from pydrake.multibody.tree import FixedOffsetFrame, RevoluteJoint, SpatialInertia
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+
+import drake_cfvol as cf
+from drake_cfvol.systems import SafetyFilter
+
+L1, L2, R = 0.5, 0.4, 0.05  # link lengths and the tip sphere's radius, m
+VMAX = np.array([1.0, 1.5])  # rad/s
+H = 0.01  # s
+
+
+def _arm(obstacle: str, **kw):
+    """A planar two-link arm (revolute joints about z, the second at x = L1
+    on the first link) whose only collision geometry is a sphere of radius
+    R at its tip (x = L2 on the second link), and one obstacle: ``wall``,
+    a box whose face x = 0.8 faces the arm, or ``column``, a cylinder of
+    radius 0.2 about the z axis. The filter's inputs are exported; its
+    output poses the plant in the SceneGraph."""
+    builder = DiagramBuilder()
+    sg = builder.AddSystem(SceneGraph())
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(sg)
+    arm = plant.AddModelInstance("arm")
+    inertia = SpatialInertia.SolidSphereWithMass(1.0, 0.05)
+    link1 = plant.AddRigidBody("link1", arm, inertia)
+    link2 = plant.AddRigidBody("link2", arm, inertia)
+    plant.AddJoint(RevoluteJoint("j1", plant.world_frame(), link1.body_frame(), [0, 0, 1]))
+    elbow = plant.AddFrame(FixedOffsetFrame("elbow", link1.body_frame(), RigidTransform([L1, 0, 0])))
+    plant.AddJoint(RevoluteJoint("j2", elbow, link2.body_frame(), [0, 0, 1]))
+    friction = CoulombFriction(0.5, 0.5)
+    tip = plant.RegisterCollisionGeometry(link2, RigidTransform([L2, 0, 0]), Sphere(R), "tip", friction)
+    if obstacle == "wall":
+        obs = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([1.3, 0, 0]), Box(1.0, 4.0, 1.0),
+                                              "wall", friction)
+    else:
+        obs = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), Cylinder(0.2, 1.0), "column",
+                                              friction)
+    plant.Finalize()
+    sf = builder.AddSystem(SafetyFilter(plant, sg, arm, velocity_limits=VMAX, period=H, **kw))
+    to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
+    builder.Connect(sf.commanded_position_output, to_pose.get_input_port())
+    builder.Connect(to_pose.get_output_port(), sg.get_source_pose_port(plant.get_source_id()))
+    builder.Connect(sg.get_query_output_port(), sf.query_object_input)
+    for port in (sf.desired_position_input, sf.lower_input, sf.upper_input, sf.nominal_input):
+        builder.ExportInput(port, port.get_name())
+    builder.ExportOutput(sg.get_query_output_port(), "query_object")
+    diagram = builder.Build()
+    return diagram, sf, tip, obs
+
+
+def _fix(diagram, ctx, desired, lower=(-10, -10), upper=(10, 10), nominal=None):
+    diagram.GetInputPort("desired_position").FixValue(ctx, np.asarray(desired, float))
+    diagram.GetInputPort("lower").FixValue(ctx, np.asarray(lower, float))
+    diagram.GetInputPort("upper").FixValue(ctx, np.asarray(upper, float))
+    if nominal is not None:
+        diagram.GetInputPort("nominal").FixValue(ctx, np.asarray(nominal, float))
+
+
+def _tip(q):
+    """The tip sphere's centre, by hand."""
+    return np.array([L1 * np.cos(q[0]) + L2 * np.cos(q[0] + q[1]), L1 * np.sin(q[0]) + L2 * np.sin(q[0] + q[1])])
+
+
+def _drake_distance(diagram, ctx, a, b):
+    return diagram.GetOutputPort("query_object").Eval(ctx).ComputeSignedDistancePairClosestPoints(a, b).distance
+
+
+@pytest.fixture(scope="module")
+def wall():
+    return _arm("wall", clearance=0.02, influence_distance=0.15, damper_gain=1.0)
+
+
+def test_damper_row_by_hand(wall):
+    """Near the wall (face x = 0.8) the tip's distance is d = 0.8 - x_tip - R
+    and its rate -dx_tip/dt: the filter's one row is a = (L1 s1 + L2 s12,
+    L2 s12) and b = -rate (d - d_s - allowance), worked by hand."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    q = np.array([0.85, -0.3])
+    sf.set_initial_position(sctx, q)
+    A, b, dists = sf.damper_rows(sctx)
+    d = 0.8 - _tip(q)[0] - R
+    assert 0.02 < d < 0.15
+    s1, s12 = np.sin(q[0]), np.sin(q[0] + q[1])
+    np.testing.assert_allclose(dists, [d], atol=1e-9)
+    np.testing.assert_allclose(A, [[L1 * s1 + L2 * s12, L2 * s12]], atol=1e-9)
+    rate = min(1.0 / (0.15 - 0.021), 1.0 / H)
+    np.testing.assert_allclose(b, [-rate * (d - 0.021)], atol=1e-9)
+    assert sf.rate == pytest.approx(rate)
+
+
+def test_damper_row_is_drakes_distance_rate(wall):
+    """Drake as the oracle: at random configurations near the wall, a v
+    equals the central difference of Drake's signed distance along v."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    rng = np.random.default_rng(3)
+    checked = 0
+    while checked < 10:
+        q = rng.uniform([-0.6, -1.2], [0.6, 1.2])
+        sf.set_initial_position(sctx, q)
+        A, b, dists = sf.damper_rows(sctx)
+        if len(b) == 0 or abs(_tip(q)[1]) > 1.5:
+            continue
+        v = rng.normal(size=2)
+        eps = 1e-6
+        sf.set_initial_position(sctx, q + eps * v)
+        d_plus = _drake_distance(diagram, ctx, tip, wall_id)
+        sf.set_initial_position(sctx, q - eps * v)
+        d_minus = _drake_distance(diagram, ctx, tip, wall_id)
+        assert A[0] @ v == pytest.approx((d_plus - d_minus) / (2 * eps), abs=1e-6)
+        checked += 1
+
+
+def test_push_into_the_wall_stops_at_the_margin(wall):
+    """Asked to swing straight through the wall, the tip approaches it ever
+    slower and stops at the margin: Drake's distance (and the hand formula)
+    never below 0.02 m, and within 3 mm of it at the end; no update moves a
+    joint faster than its limit."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    sf.set_initial_position(sctx, [1.2, 0.0])
+    _fix(diagram, ctx, [-0.3, 0.0])
+    sim = Simulator(diagram, ctx)
+    q_prev, dists = np.array([1.2, 0.0]), []
+    for n in range(1, 401):
+        sim.AdvanceTo(n * H)
+        q = sf.commanded_position_output.Eval(sctx)
+        assert np.all(np.abs(q - q_prev) <= VMAX * H + 1e-12)
+        d = _drake_distance(diagram, ctx, tip, wall_id)
+        assert d == pytest.approx(0.8 - _tip(q)[0] - R, abs=1e-9) or _tip(q)[0] < 0.3
+        dists.append(d)
+        q_prev = q.copy()
+    assert min(dists) >= 0.02 - 1e-6
+    assert dists[-1] <= 0.023
+    assert sf.filter_count_output.Eval(sctx)[0] > 0 and sf.fallback_count_output.Eval(sctx)[0] == 0
+
+
+def test_motion_along_an_obstacle_is_not_slowed():
+    """The tip circling a column at a constant 5 cm (only the first joint
+    turns: the distance does not change) inside the influence zone moves at
+    the velocity limit, not slowed; with the elbow turning towards the
+    column it is slowed."""
+    diagram, sf, tip, col = _arm("column", clearance=0.02, influence_distance=0.15)
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    q2 = np.arccos(((0.2 + R + 0.05) ** 2 - L1 ** 2 - L2 ** 2) / (2 * L1 * L2))  # |p_tip| = 0.3
+    sf.set_initial_position(sctx, [0.0, q2])
+    assert _drake_distance(diagram, ctx, tip, col) == pytest.approx(0.05, abs=1e-9)
+    _fix(diagram, ctx, [3.0, q2])
+    sim = Simulator(diagram, ctx)
+    sim.AdvanceTo(0.5 + H / 2)
+    q = sf.commanded_position_output.Eval(sctx)
+    assert q[0] == pytest.approx(VMAX[0] * 0.51, abs=1e-9) and q[1] == pytest.approx(q2, abs=1e-9)
+    assert _drake_distance(diagram, ctx, tip, col) == pytest.approx(0.05, abs=1e-9)
+    # Folding the elbow brings the tip towards the column: slowed by the damper.
+    _fix(diagram, ctx, [q[0], q2 + 1.0])
+    sim.AdvanceTo(0.5 + 2 * H + H / 2)
+    step = sf.commanded_position_output.Eval(sctx)[1] - q2
+    assert 0 < step < 2 * VMAX[1] * H - 1e-3
+
+
+def test_far_from_obstacles_the_filter_is_the_identity(wall):
+    """Out of the influence zone and within the limits and the box, the
+    command is the request, and filter_active stays 0."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    sf.set_initial_position(sctx, [2.0, 0.5])
+    sim = Simulator(diagram, ctx)
+    for n, dq in enumerate(([0.005, -0.01], [0.009, 0.0], [-0.002, 0.014])):
+        q = sf.commanded_position_output.Eval(sctx) + dq
+        _fix(diagram, ctx, q, [1.0, -1.0], [3.0, 1.0])
+        sim.AdvanceTo(n * H + H / 2)
+        np.testing.assert_array_equal(sf.commanded_position_output.Eval(sctx), q)
+        assert sf.filter_active_output.Eval(sctx)[0] == 0.0
+    assert sf.filter_count_output.Eval(sctx)[0] == 0.0
+
+
+def test_the_nominal_is_admissible_below_the_margin(wall):
+    """A nominal that passes the wall closer than the margin (1 cm, margin
+    2 cm, approaching) is followed exactly at zero deviation: the filter
+    does not act."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    # q1 sweeps towards the wall with the elbow straight: x_tip = 0.9 cos q1.
+    x_at = lambda q1: 0.9 * np.cos(q1)  # noqa: E731
+    q1_end = np.arccos((0.8 - R - 0.01) / 0.9)
+    nominal = [np.array([q1_end + 0.004 * (20 - n), 0.0]) for n in range(21)]
+    sf.set_initial_position(sctx, nominal[0])
+    sim = Simulator(diagram, ctx)
+    for n in range(1, 21):
+        _fix(diagram, ctx, nominal[n], nominal[n] - 0.1, nominal[n] + 0.1, nominal=nominal[n])
+        sim.AdvanceTo((n - 1) * H + H / 2)
+        np.testing.assert_allclose(sf.commanded_position_output.Eval(sctx), nominal[n], atol=1e-12)
+    assert 0.8 - x_at(nominal[-1][0]) - R == pytest.approx(0.01)
+    assert sf.filter_count_output.Eval(sctx)[0] == 0.0
+
+
+def test_a_box_out_of_reach_is_approached_at_the_limit(wall):
+    """A box farther than one step at the velocity limits is approached at
+    the limits, not jumped to."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    sf.set_initial_position(sctx, [2.0, 0.0])
+    _fix(diagram, ctx, [2.5, -0.5], [2.4, -0.6], [2.6, -0.4])
+    Simulator(diagram, ctx).AdvanceTo(H / 2)
+    np.testing.assert_allclose(sf.commanded_position_output.Eval(sctx), [2.0 + VMAX[0] * H, -VMAX[1] * H])
+    assert sf.velocity_ratio_output.Eval(sctx)[0] == pytest.approx(1.0)
+
+
+def test_the_box_gives_way_to_the_damper(wall):
+    """A box (uncertified) whose upper bound on the first joint sweeps
+    through the wall at 0.5 rad/s, the elbow's box a point at 0: the
+    filter leaves the box rather than follow it into the wall (Drake's
+    distance never below the margin), reports it (``box_exits``), and never
+    exceeds a velocity limit."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    sf.set_initial_position(sctx, [1.3, 0.0])
+    sim = Simulator(diagram, ctx)
+    q_prev, worst = np.array([1.3, 0.0]), np.inf
+    for n in range(1, 301):
+        hi = max(1.3 - 0.5 * n * H, -0.9)
+        _fix(diagram, ctx, [hi, 0.0], [-1.2, 0.0], [hi, 0.0], nominal=[-1.0, 0.0])
+        sim.AdvanceTo((n - 1) * H + H / 2)
+        q = sf.commanded_position_output.Eval(sctx)
+        assert np.all(np.abs(q - q_prev) <= VMAX * H + 1e-12)
+        worst = min(worst, _drake_distance(diagram, ctx, tip, wall_id))
+        q_prev = q.copy()
+    assert worst >= 0.02 - 1e-3
+    assert sf.box_exits_output.Eval(sctx)[0] > 0
+
+
+def test_bad_inputs_hold_without_raising(wall):
+    """A NaN request or crossed bounds hold the command (no exception) and
+    count as fallbacks."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    sf.set_initial_position(sctx, [2.0, 0.3])
+    _fix(diagram, ctx, [np.nan, 0.0])
+    sim = Simulator(diagram, ctx)
+    sim.AdvanceTo(H / 2)
+    np.testing.assert_array_equal(sf.commanded_position_output.Eval(sctx), [2.0, 0.3])
+    _fix(diagram, ctx, [2.1, 0.3], [3.0, 0.0], [2.0, 1.0])
+    sim.AdvanceTo(H + H / 2)
+    np.testing.assert_array_equal(sf.commanded_position_output.Eval(sctx), [2.0, 0.3])
+    assert sf.fallback_count_output.Eval(sctx)[0] == 2.0
+
+
+def test_constructor_checks(wall):
+    """Margins and rates out of range are refused, naming the argument."""
+    diagram, sf, tip, wall_id = wall
+    plant = sf._plant
+    with pytest.raises(cf.ParameterError, match="influence_distance"):
+        SafetyFilter(plant, SceneGraph(), plant.GetModelInstanceByName("arm"), clearance=0.2,
+                     influence_distance=0.1)
+    with pytest.raises(cf.DimensionError, match="velocity_limits"):
+        SafetyFilter(plant, SceneGraph(), plant.GetModelInstanceByName("arm"), velocity_limits=[1.0, 1.0, 1.0])
+
+
+@pytest.fixture(scope="module")
+def arm_with_accel():
+    return _arm("wall", clearance=0.02, acceleration_limits=[20.0, 30.0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(q=st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=2),
+       desired=st.lists(st.floats(-5.0, 5.0), min_size=2, max_size=2),
+       centre=st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=2),
+       width=st.lists(st.floats(0.0, 1.0), min_size=2, max_size=2),
+       nominal_at=st.lists(st.floats(0.0, 1.0), min_size=2, max_size=2),
+       accel=st.booleans())
+def test_never_faster_than_the_limits(wall, arm_with_accel, q, desired, centre, width, nominal_at, accel):
+    """Random states, requests, boxes and nominals (the arm may start in
+    the wall): no update moves a joint more than limit x period; the
+    command lands in the box wherever the box is within one step, unless
+    the filter reports leaving it (``box_exits``), which it does only with
+    the wall inside the influence distance (a damper row needed the room)."""
+    diagram, sf, tip, wall_id = arm_with_accel if accel else wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    q = np.array(q)
+    lower = np.array(centre) - np.array(width) / 2
+    upper = lower + np.array(width)
+    nominal = lower + np.array(nominal_at) * (upper - lower)
+    sf.set_initial_position(sctx, q)
+    _fix(diagram, ctx, desired, lower, upper, nominal=nominal)
+    update = sf.EvalUniquePeriodicDiscreteUpdate(sctx)
+    x = update.get_vector(0).CopyToVector()
+    assert np.all(np.abs(x - q) <= VMAX * H + 1e-12)
+    reachable = (lower - q <= VMAX * H) & (q - upper <= VMAX * H)
+    inside = np.all(~reachable | ((x >= lower - 1e-12) & (x <= upper + 1e-12)))
+    status = update.get_vector(2).CopyToVector()
+    exited = status[-1] > 0
+    assert inside or exited
+    if exited:
+        assert status[2] < sf.influence_distance
