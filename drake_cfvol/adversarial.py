@@ -19,6 +19,7 @@ import numpy as np
 from drake_cfvol.certify import Certify
 from drake_cfvol.comanip import load_scenario, run_scenario
 from drake_cfvol.pipeline import estimate_bounds
+from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import plan_nominal_path
 from drake_cfvol.workcell import load_workcell
 
@@ -74,7 +75,8 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
     scenario, _ = load_scenario(name)
     wc = load_workcell(scenario.cell)
     if path is None:
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path)
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
+                             clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
     if bounds is None:
         bounds = estimate_bounds(wc, path, resolution=scenario.resolution, **dict(scenario.params),
                                  certify=Certify(seed=scenario.seed) if certify else None)

@@ -22,10 +22,15 @@ safety still holds):
    collide. All colliding samples of a round are cut at once, per stretch,
    greedily: each cut moves one bound of one joint to a sample's value,
    the one that loses the least log-width per colliding sample it removes.
-2. Certificate: N consecutive uniform samples of the whole path. A
-   colliding sample is cut the same way, its stretch is searched again
-   (``focus_samples`` per round until a round finds nothing), and the run
-   restarts.
+2. Certificate: N consecutive samples of the whole path from each of two
+   distributions: uniform in the box at s, and where a clamp lands (the
+   nominal pushed on a random half of the joints, clamped: faces and
+   edges). A colliding sample is cut the same way, its stretch is searched
+   again (``focus_samples`` per round until a round finds nothing), and the
+   run restarts.
+
+Every test keeps the table's ``clearance`` margin (per stretch: less only
+where the nominal itself is nearer, :func:`drake_cfvol.sweep.stretch_margins`).
 
 Certification draws from a seed stream of its own, distinct from the CF
 evaluation's.
@@ -42,7 +47,6 @@ from pathlib import Path
 
 import numpy as np
 
-from drake_cfvol.edges import corner_pass, prove_edges
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.metrics import freedom
 from drake_cfvol.progress import Progress
@@ -138,9 +142,6 @@ class CertificateReport:
     sampled: str = ""
     cached: bool = False
     clearance_m: float = 0.0
-    edge_tests: int = 0
-    edge_cuts: int = 0
-    edges_unproven: int = 0
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -310,8 +311,10 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
     g, k = nominal.shape
     clearance = float(table.params.get("clearance", 0.0) or 0.0)
     margins = stretch_margins(arrays, nominal, clearance)
-    proven: dict = {}
-    edge_stats = {"edge_tests": 0, "edge_cuts": 0, "edge_rounds": 0, "edge_unproven": []}
+    rng = certification_rng(certify.seed)
+    N = certify.n_samples
+    samples = shrinks = 0
+    current = table
 
     def flagged_of(s, Q):
         """Indices of the samples that may collide or come nearer than
@@ -323,18 +326,6 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             sel = pads == p
             out[sel] = arrays.may_collide(Q[sel], p)
         return np.flatnonzero(out)
-
-    def edges():
-        st = corner_pass(workcell, arrays, st_lo, st_hi, rate, nominal, margins)
-        edge_stats["corner_cuts"] = edge_stats.get("corner_cuts", 0) + st["corner_cuts"]
-        st = prove_edges(workcell, arrays, st_lo, st_hi, rate, nominal, margins, proven)
-        for key in ("edge_tests", "edge_cuts", "edge_rounds"):
-            edge_stats[key] += st[key]
-        edge_stats["edge_unproven"] = sorted(set(edge_stats["edge_unproven"]) | set(st["edge_unproven"]))
-    rng = certification_rng(certify.seed)
-    N = certify.n_samples
-    samples = shrinks = 0
-    current = table
 
     def refresh():
         w_lo, w_hi = waypoint_boxes(st_lo, st_hi, nominal, rate)
@@ -387,9 +378,6 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             search(np.arange(g - 1), per)
             per *= 2
             bar.update(1)
-        # The box's boundary: every edge and corner at every s, proven.
-        edges()
-        current = refresh()
         # Certificate: N consecutive samples of each distribution: uniform
         # in the box at s, and where a clamp lands (the nominal pushed on a
         # random subset of joints, clamped to the box: faces and edges).
@@ -405,7 +393,6 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             samples += 2 * n
             if len(flagged):
                 cut(s, Q, flagged)
-                edges()
                 current = refresh()
                 run = 0
                 # The stretches that still collide get a search of their own
@@ -415,8 +402,6 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
                 for _ in range(certify.focus_rounds):
                     if not search(hit, focus):
                         break
-                edges()
-                current = refresh()
             else:
                 run += n
             bar.set(certify.search_rounds + run, cuts=shrinks)
@@ -426,21 +411,16 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
     margin = (f"{clearance * 1e3:g} mm from the obstacles and the robot itself (less only where the nominal "
               f"itself is nearer: {int((margins < clearance).sum())} of {len(margins)} stretches)"
               if clearance > 0 else "free of collision with the obstacles and the robot itself (clearance 0)")
-    unproven = edge_stats["edge_unproven"]
     proven = ("Every single-joint motion from the nominal to that joint's bound, at every s along the path, keeps "
-              f"{margin} and the volume (the kernel's region tests). Every edge of the box at every s (one joint "
-              "over its whole range, every other joint at one of its bounds), and so every corner, keeps the same "
-              f"margin ({edge_stats['edge_tests']} region tests, {edge_stats['edge_cuts']} cuts)"
-              + (f", except stretches {unproven} where no cut could help." if unproven else "."))
+              f"{margin} and the volume (the kernel's region tests). The box's edges and corners are not proven: "
+              "the runtime safety filter keeps the margin where a clamp lands.")
     sampled = (f"Faces and interior, all joints at once: {N} consecutive samples from each of two distributions "
                "(s uniform over the path; q uniform in the box at s, and q where a clamp lands: the nominal pushed "
                "on a random half of the joints, clamped to the box) were all free, so with probability "
                f"{certify.confidence:g} at most a share {certify.epsilon:g} of either distribution's "
                f"configurations comes nearer than the margin (about {certify.epsilon * 3e5:g} of 300,000).")
     report = CertificateReport(certify.epsilon, certify.confidence, N, (time.perf_counter() - t0) * 1e3,
-                               samples, shrinks, before, after, proven, sampled, clearance_m=clearance,
-                               edge_tests=edge_stats["edge_tests"], edge_cuts=edge_stats["edge_cuts"],
-                               edges_unproven=len(unproven))
+                               samples, shrinks, before, after, proven, sampled, clearance_m=clearance)
     if file is not None:
         _cache_store(file, current.stretch_lower, current.stretch_upper, report)
     return current.stretch_lower, current.stretch_upper, report

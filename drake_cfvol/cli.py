@@ -211,6 +211,9 @@ def cmd_simulate(args) -> int:
     for note in summary.get("notices", []):
         print(f"cfvol: note: {note}", file=sys.stderr)
     _emit(summary, args.json)
+    if summary.get("problems"):
+        print(f"cfvol: unsafe run: {'; '.join(summary['problems'])}.", file=sys.stderr)
+        return 1
     return 0
 
 

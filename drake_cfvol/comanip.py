@@ -591,7 +591,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     wc.configuration(scenario.path)  # an unknown path name fails here, before planning
     height_map_of(wc, VolumeParams.for_workcell(wc, resolution=scenario.resolution, **dict(scenario.params)))
     if path is None:
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path)
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
+                                 clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
     t1 = time.perf_counter()
     if bounds is None:
         bounds = estimate_bounds(wc, path, resolution=scenario.resolution, progress=progress,
@@ -824,10 +825,42 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "diagram_svg": files.get("diagram_svg"), "diagram_dot": files.get("diagram_dot"),
         "notices": [],
     }
+    # The margin in force, and the nominal's own clearance (moving links
+    # against the obstacles, Drake, at every waypoint): a run keeps the
+    # margin if it never comes nearer than min(margin, the nominal's own).
+    margin = cm.filter_clearance if scenario.collision_guard else float(cm.bounds.params.get("clearance", 0.0) or 0.0)
+    nominal_own = min((min(d.values(), default=1.0) for d in
+                       (cm.workcell.obstacle_distances(qn, 1.0, moving_only=True) for qn in cm.path.waypoints)),
+                      default=1.0)
+    summary["clearance_m"] = margin
+    summary["nominal_min_clearance_m"] = float(nominal_own)
+    summary["problems"] = run_problems(summary)
     if svg and files.get("diagram_svg") is None:
         summary["notices"].append(missing_dot_notice(out / "diagram"))
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
+
+
+#: A run may come this much nearer than min(margin, the nominal's own
+#: clearance) before it counts as below the margin, m.
+MARGIN_TOLERANCE = 0.002
+
+
+def run_problems(summary: dict) -> list[str]:
+    """What went wrong in a run, one sentence each (empty: nothing): it
+    collided, came nearer than min(margin, the nominal's own clearance) -
+    MARGIN_TOLERANCE, or moved a joint faster than its limit (measured at
+    the control update rate)."""
+    out = []
+    if summary.get("collisions", 0) > 0:
+        out.append(f"the robot collided at {summary['collisions']} update(s)")
+    need = min(summary.get("clearance_m", 0.0), summary.get("nominal_min_clearance_m", 0.0))
+    low = summary.get("min_clearance_m")
+    if low is not None and low < need - MARGIN_TOLERANCE:
+        out.append(f"the clearance fell to {low * 1e3:.1f} mm, below the margin of {need * 1e3:.1f} mm")
+    if summary.get("max_velocity_ratio", 0.0) > 1.0 + 1e-9:
+        out.append(f"a joint moved at {summary['max_velocity_ratio']:.2f} x its velocity limit")
+    return out
 
 
 def _count(cm: Comanipulation, context, name: str) -> int:

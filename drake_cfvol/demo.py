@@ -10,6 +10,7 @@ from drake_cfvol.certify import Certify
 from drake_cfvol.comanip import load_scenario, run_scenario
 from drake_cfvol.metrics import confidence_factor, freedom, shown_percent
 from drake_cfvol.pipeline import estimate_bounds
+from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import plan_nominal_path
 from drake_cfvol.plotting import plot_bounds
 from drake_cfvol.workcell import load_workcell
@@ -44,7 +45,8 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
     scenario, _ = load_scenario("automotive_push")
     path = paths[scenario.path] if scenario.seed == seed else None
     if path is None:
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path)
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
+                             clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
     print(f"\n2. Bounds for {path.label} at R = {resolution}" + (", certified" if scenario.certify else ""))
     table = estimate_bounds(wc, path, resolution=resolution, progress=True,
                             certify=Certify(seed=scenario.seed) if scenario.certify else None)

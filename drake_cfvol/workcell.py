@@ -614,7 +614,9 @@ class Workcell:
         clearance = float(clearance)
         if clearance == 0.0:
             return self.checker
-        cache = self.__dict__.setdefault("_padded_checkers", {})
+        if getattr(self, "_padded_checkers", None) is None:
+            self._padded_checkers = {}
+        cache = self._padded_checkers
         if clearance not in cache:
             cache[clearance] = SceneGraphCollisionChecker(
                 model=self.diagram, robot_model_instances=[self.robot], edge_step_size=self._edge_step,

@@ -21,18 +21,23 @@ def still_path(wc, theta):
     return cf.NominalPath(np.array([[theta], [theta]]), wc.joint_names, wc.name)
 
 
-def test_wall_at_known_distance(tmp_path):
-    """A wall at y = d stops the link when its far corner reaches it:
-    L sin(t) + W cos(t) = d; the bound is within delta below that angle."""
+@pytest.mark.parametrize("clearance", [0.0, 0.02, 0.05])
+def test_wall_at_known_distance(tmp_path, clearance):
+    """A wall at y = d stops the link when its far corner comes within the
+    clearance c of it: L sin(t) + W cos(t) = d - c; the bound is within
+    delta below that angle."""
     d = 0.6
     wc = arm(tmp_path, {"wall": ((1.8, 0.2, 1.0), (1.1, d + 0.1, Z))})
-    table = estimate_bounds(wc, still_path(wc, 0.0), h_max=0.0)
-    theta = np.arcsin(d / np.hypot(L, W)) - np.arctan2(W, L)
+    table = estimate_bounds(wc, still_path(wc, 0.0), h_max=0.0, clearance=clearance)
+    theta = np.arcsin((d - clearance) / np.hypot(L, W)) - np.arctan2(W, L)
     delta = table.params["delta"]
     assert theta - delta <= table.upper[0, 0] <= theta
     assert table.lower[0, 0] == pytest.approx(-3.0)  # nothing on the other side
-    # Drake agrees: free just below the bound, colliding just past theta.
-    assert wc.is_free([table.upper[0, 0]]) and not wc.is_free([theta + 1e-3])
+    # Drake agrees (its collision padding is the margin): free just below
+    # the bound, "colliding" just past theta.
+    checker = wc.padded_checker(clearance)
+    assert checker.CheckConfigCollisionFree([table.upper[0, 0]])
+    assert not checker.CheckConfigCollisionFree([theta + 1e-3])
 
 
 def _paper_bisection(wc, q0, limit, delta):
@@ -55,7 +60,7 @@ def test_no_jump_over(tmp_path):
     wc = arm(tmp_path, {"post": ((0.1, 0.1, 1.0), (0.0, 0.7, Z))})
     assert wc.is_free([3.0])  # the limit itself is free
     assert _paper_bisection(wc, 0.0, 3.0, 0.01) == 3.0
-    table = estimate_bounds(wc, still_path(wc, 0.0), h_max=0.0)
+    table = estimate_bounds(wc, still_path(wc, 0.0), h_max=0.0, clearance=0.0)  # the paper's checks: no padding
     # The link's upper edge (offset W) meets the post's corner (0.05, 0.65).
     r = np.hypot(0.05, 0.65)
     contact = np.arctan2(0.65, 0.05) - np.arcsin(W / r)

@@ -133,6 +133,7 @@ def test_recording_renders_in_headless_chromium(run):
     assert np.count_nonzero(violet) > 0.01 * violet.size
 
 
+@pytest.mark.slow
 def test_volume_in_the_diagrams_scene_at_r20000():
     """At R = 20000 the whole volume is proximity geometry of the diagram's
     own SceneGraph, merged into at most 1500 boxes that hold every column,
@@ -271,6 +272,7 @@ def test_minimal_scenario_gets_the_defaults(tmp_path):
     assert s.visualization.publish_period == d.visualization.publish_period and not s.visualization.publish_contacts
 
 
+@pytest.mark.slow
 def test_random_pushes_seeded_through_the_context():
     """The random pushes come from the context: the same generator seed gives
     the same torques, another seed other torques, on one built diagram."""
@@ -300,6 +302,7 @@ def test_random_pushes_seeded_through_the_context():
 _KEYS = ("max_velocity_ratio", "volume_penetrations", "filter_steps", "guard_steps", "faults", "min_clearance_m")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["automotive_random", "aerospace_random", "automotive_reactive",
                                   "aerospace_reactive"])
 def test_every_bundled_scenario_runs_safely(name, tmp_path):

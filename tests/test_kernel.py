@@ -159,7 +159,7 @@ def test_mesh_robot_compact_wrist_keeps_its_freedom(mesh_cell):
             continue
         checked += 1
         path = cf.NominalPath(np.array([q, q]), mesh_cell.joint_names, mesh_cell.name)
-        table = cf.estimate_bounds(mesh_cell, path, h_max=0.0)
+        table = cf.estimate_bounds(mesh_cell, path, h_max=0.0, clearance=0.0)  # Drake's extents: no padding
         for j in range(mesh_cell.num_joints):
             true_width = _drake_extent(mesh_cell, q, j, +1) + _drake_extent(mesh_cell, q, j, -1)
             width = table.upper[0, j] - table.lower[0, j]
