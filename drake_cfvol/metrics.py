@@ -11,7 +11,7 @@ from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.progress import Progress
 from drake_cfvol.table import BoundsTable
 
-__all__ = ["shown_percent", "CFResult", "Freedom", "confidence_factor", "freedom", "sample_boxes"]
+__all__ = ["shown_percent", "BoundaryCheck", "boundary_check", "CFResult", "Freedom", "confidence_factor", "freedom", "sample_boxes"]
 
 
 def sample_boxes(bounds: BoundsTable, s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -131,3 +131,50 @@ def shown_percent(percent: float, colliding: int, digits: int = 4) -> float:
     if colliding > 0:
         return math.floor(percent * 10 ** digits) / 10 ** digits
     return round(percent, digits)
+
+
+@dataclasses.dataclass
+class BoundaryCheck:
+    """Where a clamp lands, judged by Drake: the box's corners and edge
+    points at every waypoint and stretch midpoint.
+
+    Attributes:
+        positions: path positions checked (waypoints and midpoints).
+        corners, corners_colliding: corner configurations (2^k per
+            position) and how many Drake finds nearer than the margin.
+        edge_points, edges_colliding: edge points (one joint uniform in its
+            range, every other joint at a random one of its bounds) and how
+            many collide.
+        clearance: Drake's padding used, m (0: plain collision).
+    """
+
+    positions: int
+    corners: int
+    corners_colliding: int
+    edge_points: int
+    edges_colliding: int
+    clearance: float
+
+
+def boundary_check(workcell, bounds: BoundsTable, *, clearance: float = 0.0, edge_points: int = 64,
+                   seed: int = 0) -> BoundaryCheck:
+    """Checks the box's corners and edge points at every waypoint and
+    stretch midpoint with Drake's checker, padded by ``clearance`` (m; a
+    configuration nearer than that to an obstacle or to the robot itself
+    counts as colliding). Seeded."""
+    rng = np.random.default_rng(seed)
+    checker = workcell.padded_checker(clearance)
+    s = np.arange(0, bounds.g - 0.5, 0.5) if bounds.g > 1 else np.zeros(1)
+    lo, hi, _ = bounds.boxes_at(s)
+    k = bounds.k
+    pattern = (np.arange(2 ** k)[:, None] >> np.arange(k)[None, :]) & 1
+    corners = bad_c = bad_e = 0
+    for a in range(len(s)):
+        C = np.where(pattern == 1, hi[a], lo[a])
+        corners += len(C)
+        bad_c += int(np.sum(~np.asarray(checker.CheckConfigsCollisionFree(C, parallelize=True), bool)))
+        E = C[rng.integers(0, len(C), edge_points)]
+        j = rng.integers(0, k, edge_points)
+        E[np.arange(edge_points), j] = lo[a, j] + rng.random(edge_points) * (hi[a, j] - lo[a, j])
+        bad_e += int(np.sum(~np.asarray(checker.CheckConfigsCollisionFree(E, parallelize=True), bool)))
+    return BoundaryCheck(len(s), corners, bad_c, edge_points * len(s), bad_e, float(clearance))

@@ -145,7 +145,8 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
              "pinned": int((upper < hi_nom).sum() + (lower > lo_nom).sum()),
              "max_t_samples": int(nts.max()) if nts.size else 0,
              "motion_tolerance_m": MOTION_TOLERANCE, "clearance_m": float(params.clearance),
-             "stretches_below_clearance": int((margins < params.clearance).sum())}
+             "stretches_below_clearance": int((margins < params.clearance).sum()),
+             "min_margin_m": float(margins.min()) if len(margins) else float(params.clearance)}
     return lower, upper, stats
 
 

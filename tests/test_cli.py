@@ -122,6 +122,14 @@ def test_bad_cf_samples_before_planning(capsys):
     assert "--cf-samples must be >= 1" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("flag", [["--epsilon", "1e-4"], ["--confidence", "0.9"], ["--no-cache"]])
+def test_certificate_options_need_certify(flag, capsys):
+    """An option that does nothing without --certify is refused, not ignored."""
+    assert main(["bounds", "automotive", *flag]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("cfvol: error: ") and "--certify" in err and flag[0] in err
+
+
 def test_plot_without_out(capsys):
     """--plot without --out has the same error: prefix as every message."""
     assert main(["bounds", "automotive", "--plot"]) == 2

@@ -434,3 +434,17 @@ def test_steady_corner_pushes_keep_the_margin():
             assert r["margin_kept"] and r["max_velocity_ratio"] <= 1.0, r
     off = steady_push_runs("automotive", seeds=[0], safety_filter=False)
     assert off[0]["drake_colliding_updates"] > 0
+
+
+def test_run_problems_name_what_went_wrong():
+    """A run is unsafe when it collided, came nearer than min(margin, the
+    nominal's own) - 2 mm, or exceeded a velocity limit; otherwise nothing."""
+    from drake_cfvol.comanip import run_problems
+
+    ok = {"collisions": 0, "clearance_m": 0.02, "nominal_min_clearance_m": 0.05, "min_clearance_m": 0.0185,
+          "max_velocity_ratio": 1.0}
+    assert run_problems(ok) == []
+    assert run_problems({**ok, "nominal_min_clearance_m": 0.01, "min_clearance_m": 0.0085}) == []
+    assert "collided" in run_problems({**ok, "collisions": 3})[0]
+    assert "below the margin" in run_problems({**ok, "min_clearance_m": 0.0175})[0]
+    assert "velocity limit" in run_problems({**ok, "max_velocity_ratio": 1.01})[0]

@@ -132,3 +132,25 @@ def test_path_index_outside_range(automotive):
     np.testing.assert_allclose(p.at(1.5), (p.waypoints[1] + p.waypoints[2]) / 2)
     with pytest.raises(cf.ParameterError, match="outside"):
         p.at(p.g)
+
+
+def test_planning_keeps_the_clearance(automotive):
+    """Every waypoint of a path planned with a margin keeps it, by Drake's
+    own distance query; the margin in force is lowered only to 0.9 x a
+    start or goal that is nearer (the automotive start: 19.2 mm)."""
+    for name in ("path1", "path2"):
+        s, g = automotive.configuration(name)
+        p = plan_nominal_path(automotive, s, g, seed=0, clearance=0.02)
+        ends = min(automotive.clearance(s), automotive.clearance(g))
+        assert p.stats["clearance_m"] == pytest.approx(min(0.02, 0.9 * ends))
+        d = np.array([automotive.clearance(q) for q in p.waypoints])
+        assert d.min() >= p.stats["clearance_m"] - 1e-9
+
+
+def test_bad_clearance(automotive):
+    """A negative or huge margin is refused with a clear message."""
+    s, g = automotive.configuration("path1")
+    with pytest.raises(cf.ParameterError, match="clearance"):
+        plan_nominal_path(automotive, s, g, seed=0, clearance=-0.01)
+    with pytest.raises(cf.ParameterError, match="clearance"):
+        cf.VolumeParams(clearance=2.0)
