@@ -13,10 +13,11 @@ from drake_cfvol.exceptions import OutputExistsError, OutputPathError, Parameter
 FORMATS = {"path": "drake_cfvol.NominalPath", "bounds": "drake_cfvol.BoundsTable"}
 
 
-def output_stem(cell: str, label: str, resolution: int | None = None) -> str:
-    """The one naming scheme of output files: ``<cell>_<path>[_R<R>]``,
-    followed by ``_<kind>.<ext>`` (``automotive_path1_R1000_bounds.npz``)."""
-    return f"{cell}_{label}" + (f"_R{resolution}" if resolution is not None else "")
+def output_stem(cell: str, label: str, resolution: int | None = None, *, certified: bool = False) -> str:
+    """The one naming scheme of output files: ``<cell>_<path>[_R<R>][_certified]``,
+    followed by ``_<kind>.<ext>`` (``automotive_path1_R1000_bounds.npz``,
+    ``automotive_path1_R1000_certified_bounds.npz``)."""
+    return f"{cell}_{label}" + (f"_R{resolution}" if resolution is not None else "") + ("_certified" if certified else "")
 
 
 def prepare_output(path, *, overwrite: bool, folder: bool = False) -> Path:

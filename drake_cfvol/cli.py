@@ -147,7 +147,7 @@ def cmd_bounds(args) -> int:
     out = _out_path(args.out)
     wc = load_workcell(args.cell)
     label = _path_name(args.path)
-    stem = output_stem(wc.name, label, args.resolution)
+    stem = output_stem(wc.name, label, args.resolution, certified=args.certify)
     if out is not None:
         prepare_output(out, overwrite=args.force, folder=True)
         for kind, ext in (("bounds", ".npz"), ("bounds", ".json"), ("path", ".json")):
@@ -177,7 +177,8 @@ def cmd_bounds(args) -> int:
             from drake_cfvol.plotting import plot_bounds
 
             files["plot_png"] = str(plot_bounds(table, out / f"{stem}_bounds.png", revolute=wc.revolute,
-                                                title=f"{wc.name} {label}, R = {args.resolution}"))
+                                                title=f"{wc.name} {label}, R = {args.resolution}"
+                                                + (", certified" if args.certify else "")))
     summary = {
         "cell": wc.name, "path": label, "seed": args.seed, "resolution": args.resolution,
         "backend": args.backend, "g": table.g, "k": table.k,

@@ -52,10 +52,10 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
                             certify=Certify(seed=scenario.seed) if scenario.certify else None)
     cf = confidence_factor(wc, table, samples=2000 if quick else 10000, seed=seed, progress=True)
     fr = freedom(table, wc.revolute)
-    stem = output_stem(wc.name, path.label, resolution)
+    stem = output_stem(wc.name, path.label, resolution, certified=scenario.certify)
     table.save(out_dir / f"{stem}_bounds.npz", overwrite=True)
     plot_bounds(table, out_dir / f"{stem}_bounds.png", revolute=wc.revolute,
-                title=f"{wc.name} {path.label}, R = {resolution}")
+                title=f"{wc.name} {path.label}, R = {resolution}" + (", certified" if scenario.certify else ""))
     t = table.timing_ms
     print(f"   time {t['total']:.0f} ms (categorize {t['categorize']:.0f}, volume {t['volume']:.0f}, "
           f"bounding {t['bounding']:.0f}); {table.info['n_boxes']} columns")

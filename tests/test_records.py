@@ -94,3 +94,11 @@ def test_output_stem():
     assert output_stem("automotive", "path1", 1000) == "automotive_path1_R1000"
     assert output_stem("automotive", "path1") == "automotive_path1"
     assert json.dumps(output_stem("a", "b"))  # a plain string
+
+
+def test_certified_outputs_say_so():
+    """Certified bounds get their own file names, never an uncertified one's."""
+    from drake_cfvol._records import output_stem
+
+    assert output_stem("automotive", "path1", 1000) == "automotive_path1_R1000"
+    assert output_stem("automotive", "path1", 1000, certified=True) == "automotive_path1_R1000_certified"
