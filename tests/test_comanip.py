@@ -5,6 +5,7 @@ import re
 import shutil
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -104,7 +105,36 @@ def _chromium():
     return None
 
 
-@pytest.mark.slow  # headless Chromium takes 5-35 s per recording on 2 cores
+def _screenshot(cmd, shot, *, tries=3, timeout_s=90.0):
+    """Runs headless Chromium until it has written ``shot``. Chromium on a
+    loaded 2-core machine sometimes writes the screenshot and then never
+    exits, or hangs before it: the file is taken once its size is steady,
+    the process is killed, and a hung try is repeated with a fresh profile."""
+    for _ in range(tries):
+        shot.unlink(missing_ok=True)
+        profile = tempfile.mkdtemp()
+        proc = subprocess.Popen([c if not c.startswith("--user-data-dir=") else f"--user-data-dir={profile}"
+                                 for c in cmd], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline, last = time.monotonic() + timeout_s, -1
+        try:
+            while time.monotonic() < deadline:
+                exited = proc.poll() is not None
+                size = shot.stat().st_size if shot.is_file() else -1
+                if size > 0 and (size == last or exited):
+                    return True
+                if exited and size <= 0:
+                    break
+                last = size
+                time.sleep(0.5)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait()
+            shutil.rmtree(profile, ignore_errors=True)
+    return False
+
+
+@pytest.mark.slow  # headless Chromium: 5-10 s per recording at 400 x 300 (50-150 s at 800 x 600)
 def test_recording_renders_in_headless_chromium(run):
     """The recording, opened offline in headless Chromium, shows a non-blank
     scene (many distinct colours, not one background)."""
@@ -117,10 +147,9 @@ def test_recording_renders_in_headless_chromium(run):
     shot = out / "shot.png"
     cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
            "--disable-background-networking", "--disable-component-update", "--disable-sync",
-           "--enable-unsafe-swiftshader", f"--user-data-dir={tempfile.mkdtemp()}", "--window-size=800,600",
-           "--virtual-time-budget=3000", f"--screenshot={shot}", Path(summary["recording_html"]).as_uri()]
-    subprocess.run(cmd, capture_output=True, timeout=120)
-    assert shot.is_file()
+           "--enable-unsafe-swiftshader", f"--user-data-dir={tempfile.mkdtemp()}", "--window-size=400,300",
+           "--virtual-time-budget=1000", f"--screenshot={shot}", Path(summary["recording_html"]).as_uri()]
+    assert _screenshot(cmd, shot), f"headless Chromium wrote no screenshot in 3 tries: {' '.join(cmd)}"
     from matplotlib.image import imread
 
     img = imread(shot)[..., :3]
