@@ -3,29 +3,38 @@
 The paper's bounds are per-joint extents, each found with the other joints
 at nominal; moving several joints at once can still collide. What is
 *proven* already (SPEC 6-7, by the kernel's region tests): every single-joint
-motion from the nominal to its bound, at every s. Certification adds a
-*sampled* guarantee for the whole box: it shrinks the stretch boxes until N
-consecutive samples, drawn as the Confidence Factor draws them (s uniform
-over the path, q uniform in the box at s), are all certified free by the
-compiled kernel, which never calls a configuration free where Drake finds a
-collision. With N >= ln(1 / (1 - confidence)) / epsilon (the test Drake's
-IrisZo uses): if the colliding share of that distribution were epsilon or
-more, N free samples in a row would occur with probability at most
-1 - confidence.
+motion from the nominal to its bound, at every s. Certification makes the
+table "linear" (each bound linear in s between its waypoints,
+:func:`drake_cfvol.table.box_at`) and adds, for the whole box:
+
+- a *proof* where a clamp lands: every edge and corner of the box at every
+  s is free by the kernel's region tests (:mod:`drake_cfvol.boundary`);
+- a *sampled* guarantee for the faces and the interior: N consecutive
+  samples, drawn as the Confidence Factor draws them (s uniform over the
+  path, q uniform in the box at s), are all certified free by the compiled
+  kernel, which never calls a configuration free where Drake finds a
+  collision. With N >= ln(1 / (1 - confidence)) / epsilon (the test Drake's
+  IrisZo uses): if the colliding share of that distribution were epsilon or
+  more, N free samples in a row would occur with probability at most
+  1 - confidence.
 
 How the boxes shrink (cuts only tighten, so the proven single-joint
-safety still holds):
+safety still holds; after every cut the waypoint boxes are rate-limited
+again, :func:`drake_cfvol.table.rate_limited`):
 
 1. Search: rounds of samples stratified over the stretches (``batch`` per
    stretch, doubling each round), a share of their coordinates drawn in
    the outer tenth of the box, where several joints near their bounds
    collide. All colliding samples of a round are cut at once, per stretch,
-   greedily: each cut moves one bound of one joint to a sample's value,
-   the one that loses the least log-width per colliding sample it removes.
-2. Certificate: N consecutive uniform samples of the whole path. A
+   greedily: each cut scales one joint's deviation from the nominal on one
+   side at both ends of the stretch, the one that loses the least
+   log-width per colliding sample it removes.
+2. Proof of the boundary (edges and corners), cutting where a region may
+   collide (:func:`drake_cfvol.boundary.prove_boundary`).
+3. Certificate: N consecutive uniform samples of the whole path. A
    colliding sample is cut the same way, its stretch is searched again
-   (``focus_samples`` per round until a round finds nothing), and the run
-   restarts.
+   (``focus_samples`` per round until a round finds nothing), the changed
+   stretches are proven again, and the run restarts.
 
 Every test keeps the table's ``clearance`` margin (per stretch: less only
 where the nominal itself is nearer, :func:`drake_cfvol.sweep.stretch_margins`).
@@ -45,13 +54,14 @@ from pathlib import Path
 
 import numpy as np
 
+from drake_cfvol.boundary import prove_boundary
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.metrics import freedom
 from drake_cfvol.progress import Progress
 from drake_cfvol.sweep import stretch_margins
-from drake_cfvol.table import waypoint_boxes
+from drake_cfvol.table import rate_limited
 
-__all__ = ["Certify", "CertificateReport", "certify_bounds", "certification_rng", "cache_dir"]
+__all__ = ["Certify", "CertificateReport", "certify_bounds", "certified_table", "certification_rng", "cache_dir"]
 
 #: Spawn key that separates certification draws from CF draws of the same seed.
 _CERT_STREAM = 0xCE27
@@ -76,6 +86,13 @@ class Certify:
             certificate run, its stretch is searched again with this many
             samples per round, until a round finds nothing (at most
             ``focus_rounds``).
+        boundary: also prove every edge and corner of the box at every s
+            (:mod:`drake_cfvol.boundary`), where a clamp pushed steadily
+            lands. Off by default: on the built-in cells at a 2 cm margin
+            it costs 20-60 s per path and most of the freedom (automotive
+            path 1: 0.39 -> 0.14), because many edges of the sampled
+            certificate's boxes really come nearer than the margin; the
+            runtime safety filter keeps the margin there instead.
         cache: reuse a certificate computed before for exactly the same
             inputs (scene, path, bounds, settings; see :func:`cache_dir`).
             Certification is deterministic, so a cached result is the
@@ -92,6 +109,7 @@ class Certify:
     focus_samples: int = 20000
     focus_rounds: int = 4
     search_factor: float = 8.0
+    boundary: bool = False
     cache: bool = dataclasses.field(default=True, compare=False)
 
     def __post_init__(self):
@@ -105,6 +123,8 @@ class Certify:
             raise ParameterError(f"Certify: search_rounds must be >= 0, got {self.search_rounds}.")
         if not self.search_factor >= 0.0:
             raise ParameterError(f"Certify: search_factor must be >= 0, got {self.search_factor!r}.")
+        if not isinstance(self.boundary, bool):
+            raise ParameterError(f"Certify: boundary must be True or False, got {self.boundary!r}.")
         if not 0.0 <= self.edge_share <= 1.0:
             raise ParameterError(f"Certify: edge_share must lie in [0, 1], got {self.edge_share!r}.")
 
@@ -126,6 +146,10 @@ class CertificateReport:
         freedom_before, freedom_after: mean freedom (SPEC 8).
         proven: what holds for certain.
         sampled: what the sampled certificate says.
+        cached: the result was read from the cache.
+        clearance_m: the margin certified, m.
+        boundary: the boundary proof's figures (region tests, cuts,
+            rounds, stretches whose margin was lowered, unproven stretches).
     """
 
     epsilon: float
@@ -140,6 +164,7 @@ class CertificateReport:
     sampled: str = ""
     cached: bool = False
     clearance_m: float = 0.0
+    boundary: dict = dataclasses.field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -212,46 +237,52 @@ def _cache_store(file: Path, lower, upper, report) -> None:
         pass  # a read-only or full disk only costs the next run its time
 
 
-def _greedy_cut(X, N, L, U):
-    """Cuts one stretch's box [L, U] (in place) until no colliding sample X
-    (n, k) is left in it, each sample's box being [min(L, N), max(U, N)]
-    with N its nominal. Each cut moves one bound of one joint to a sample's
-    value (that sample and every one beyond it on that side go); the cut
-    chosen loses the least log-width per sample it removes. Returns the
-    number of cuts, or -1 if a sample cannot be cut (it lies at its own
-    nominal in every joint)."""
+def _greedy_cut(X, t, lower, upper, nominal, i):
+    """Cuts stretch i of a linear table (its waypoint boxes ``lower[i:i+2]``,
+    ``upper[i:i+2]``, in place) until no colliding sample X (n, k), at
+    fractions t (n,) of the stretch, is left in its box. Each cut scales
+    one joint's deviation from the nominal on one side, at both ends, by a
+    factor lam (the box's bound at every s moves to nom + lam (bound - nom)),
+    just enough to drop some samples: the cut chosen loses the least
+    log-width per sample it removes. Returns the number of cuts, or -1 if
+    a sample cannot be cut (it lies at its own nominal in every joint)."""
     cuts = 0
+    n2 = nominal[i:i + 2]
     while len(X):
-        inside = np.all((X >= np.minimum(L, N)) & (X <= np.maximum(U, N)), axis=1)
-        X, N = X[inside], N[inside]
+        T = t[:, None]
+        lo = (1 - T) * lower[i] + T * lower[i + 1]
+        hi = (1 - T) * upper[i] + T * upper[i + 1]
+        nom = (1 - T) * n2[0] + T * n2[1]
+        inside = np.all((X >= np.minimum(lo, nom)) & (X <= np.maximum(hi, nom)), axis=1)
+        X, t = X[inside], t[inside]
         if not len(X):
             break
-        best = (np.inf, -1, 0, 0.0)
+        lo, hi, nom = lo[inside], hi[inside], nom[inside]
+        w0 = upper[i:i + 2] - lower[i:i + 2]
+        best = (np.inf, -1, 0, 1.0)
         for j in range(X.shape[1]):
-            w = U[j] - L[j]
-            if w <= 0:
-                continue
             for side in (1, -1):
-                sel = X[:, j] > N[:, j] if side > 0 else X[:, j] < N[:, j]
+                D = (hi[:, j] - nom[:, j]) if side > 0 else (nom[:, j] - lo[:, j])
+                e = (X[:, j] - nom[:, j]) if side > 0 else (nom[:, j] - X[:, j])
+                sel = (e > 0) & (D > 0)
                 if not sel.any():
                     continue
-                v = np.sort(X[sel, j])
-                if side > 0:
-                    v = v[::-1]
-                    new = v - L[j]
-                else:
-                    new = U[j] - v
-                score = np.log(w / np.maximum(new, 1e-12)) / np.arange(1, len(v) + 1)
+                lam = np.sort(np.minimum(e[sel] / D[sel], 1.0))[::-1]
+                dev = (upper[i:i + 2, j] - n2[:, j]) if side > 0 else (n2[:, j] - lower[i:i + 2, j])
+                w1 = np.maximum(w0[:, j][None] - (1 - lam[:, None]) * dev[None], 1e-12)
+                loss = np.log(np.maximum(w0[:, j], 1e-12)[None] / w1).sum(axis=1)
+                score = loss / np.arange(1, len(lam) + 1)
                 m = int(np.argmin(score))
                 if score[m] < best[0]:
-                    best = (score[m], j, side, v[m])
-        _, j, side, c = best
+                    best = (score[m], j, side, lam[m])
+        _, j, side, lam = best
         if j < 0:
             return -1
+        lam = max(0.0, np.nextafter(lam, -np.inf) * (1 - 1e-12))
         if side > 0:
-            U[j] = np.nextafter(c, -np.inf)
+            upper[i:i + 2, j] = n2[:, j] + lam * (upper[i:i + 2, j] - n2[:, j])
         else:
-            L[j] = np.nextafter(c, np.inf)
+            lower[i:i + 2, j] = n2[:, j] - lam * (n2[:, j] - lower[i:i + 2, j])
         cuts += 1
     return cuts
 
@@ -267,15 +298,24 @@ def _edge_biased(rng, shape, share):
     return np.where(snap, np.where(hi_end, 1.0 - tenth, tenth), U)
 
 
+def certified_table(table, lower, upper):
+    """The table with certified waypoint boxes and the "linear" rule; its
+    stretch boxes are the hulls of their two waypoint boxes (within the
+    sweep's, so its single-joint proof still holds)."""
+    return dataclasses.replace(table, lower=lower, upper=upper, interpolation="linear",
+                               stretch_lower=np.minimum(lower[:-1], lower[1:]),
+                               stretch_upper=np.maximum(upper[:-1], upper[1:]))
+
+
 def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False):
-    """Shrinks a bounds table's stretch boxes until N consecutive uniform
-    samples of the whole box are free (see the module docs).
+    """Shrinks a bounds table's boxes until every edge and corner of the box
+    at every s is proven free and N consecutive uniform samples of the whole
+    box are free (see the module docs).
 
     Returns:
-        (stretch_lower, stretch_upper, CertificateReport): the certified
-        stretch boxes (the waypoint boxes follow from them,
-        :func:`drake_cfvol.table.waypoint_boxes`); the input table is not
-        changed.
+        (lower, upper, CertificateReport): the certified waypoint boxes, for
+        the "linear" box-at-s rule (:func:`certified_table` makes the
+        table); the input table is not changed.
 
     With ``progress``, a bar on a terminal shows the search rounds, then
     the run of consecutive free samples against N; the run restarts after
@@ -293,14 +333,16 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
     nominal, rate = table.nominal, table.rate
     if rate is None:
         rate = np.full(nominal.shape[1], np.inf)
-    st_lo, st_hi = table.stretch_lower.copy(), table.stretch_upper.copy()
     g, k = nominal.shape
+    lower, upper = rate_limited(table.lower, table.upper, nominal, rate)
     clearance = float(table.params.get("clearance", 0.0) or 0.0)
     margins = stretch_margins(arrays, nominal, clearance)
     rng = certification_rng(certify.seed)
     N = certify.n_samples
     samples = shrinks = 0
-    current = table
+    proven: dict = {}
+    boundary = {"edge_tests": 0, "edge_cuts": 0, "edge_rounds": 0, "margins_lowered": 0, "unproven": []}
+    current = certified_table(table, lower, upper)
 
     def flagged_of(s, Q):
         """Indices of the samples that may collide or come nearer than
@@ -314,16 +356,16 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
         return np.flatnonzero(out)
 
     def refresh():
-        w_lo, w_hi = waypoint_boxes(st_lo, st_hi, nominal, rate)
-        return dataclasses.replace(table, lower=w_lo, upper=w_hi, stretch_lower=st_lo, stretch_upper=st_hi)
+        lower[:], upper[:] = rate_limited(lower, upper, nominal, rate)
+        return certified_table(table, lower.copy(), upper.copy())
 
     def cut(s, Q, flagged):
         nonlocal shrinks
-        _, _, nom = current.boxes_at(s[flagged])
         i = np.minimum(np.floor(s[flagged]).astype(int), g - 2)
+        t = s[flagged] - i
         for st in np.unique(i):
             sel = i == st
-            n = _greedy_cut(Q[flagged][sel], nom[sel], st_lo[st], st_hi[st])
+            n = _greedy_cut(Q[flagged][sel], t[sel], lower, upper, nominal, st)
             if n < 0 and margins[st] > 0:
                 # The nominal itself comes nearer than this stretch's margin
                 # between the points stretch_margins looked at: lower it.
@@ -334,6 +376,17 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
                     f"certification: a configuration at the nominal of stretch {st} may collide; the path is not "
                     "collision-free between waypoints (plan with a finer max_step).")
             shrinks += n
+
+    def prove():
+        nonlocal current
+        if not certify.boundary:
+            return 0
+        stats = prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, proven)
+        for key in ("edge_tests", "edge_cuts", "edge_rounds", "margins_lowered"):
+            boundary[key] += stats[key]
+        boundary["unproven"] = stats["unproven"]
+        current = refresh()
+        return stats["edge_cuts"]
 
     bar = Progress(certify.search_rounds + N, "Certifying whole boxes", enabled=progress,
                    unit="steps", eta=False)
@@ -364,6 +417,7 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             search(np.arange(g - 1), per)
             per *= 2
             bar.update(1)
+        prove()
         # Certificate: N consecutive uniform samples of the whole path.
         run = 0
         batch = max(1, N // 4)
@@ -385,25 +439,37 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
                 for _ in range(certify.focus_rounds):
                     if not search(hit, focus):
                         break
+                prove()
             else:
                 run += n
-            bar.set(certify.search_rounds + run, cuts=shrinks)
+            bar.set(certify.search_rounds + run, cuts=shrinks + boundary["edge_cuts"])
     bar.close()
+    shrinks += boundary["edge_cuts"]
     before = freedom(table).mean
     after = freedom(current).mean
     margin = (f"{clearance * 1e3:g} mm from the obstacles and the robot itself (less only where the nominal "
               f"itself is nearer: {int((margins < clearance).sum())} of {len(margins)} stretches)"
               if clearance > 0 else "free of collision with the obstacles and the robot itself (clearance 0)")
-    proven = ("Every single-joint motion from the nominal to that joint's bound, at every s along the path, keeps "
-              f"{margin} and the volume (the kernel's region tests). The box's edges and corners are not proven: "
-              "the runtime safety filter keeps the margin where a clamp lands.")
-    sampled = (f"The whole box, all joints at once: {N} consecutive samples (s uniform over the path, q uniform in "
-               f"the box at s) all kept the margin, so with probability {certify.confidence:g} at most a share "
-               f"{certify.epsilon:g} of such configurations comes nearer (about {certify.epsilon * 3e5:g} of "
-               "300,000). Where a clamp lands (faces, edges, corners) is not covered by this: the runtime safety "
-               "filter keeps the margin there.")
+    unproven = boundary["unproven"]
+    single = ("Every single-joint motion from the nominal to that joint's bound, at every s along the path, keeps "
+              f"{margin} and the volume.")
+    if not certify.boundary:
+        proven = single + (" The box's edges and corners are not proven (Certify(boundary=True) proves them); the "
+                           "runtime safety filter keeps the margin where a clamp lands.")
+    elif not unproven:
+        proven = single + (" So does every edge of the box (one joint over its whole width, every other joint at one "
+                           "of its bounds), and so every corner, at every s: the kernel's region tests "
+                           f"({boundary['edge_tests']} regions).")
+    else:
+        proven = single + (" So does every edge and corner of the box at every s except on stretches "
+                           f"{unproven}, where the proof ran out of rounds.")
+    sampled = (f"The faces and the interior, all joints at once: {N} consecutive samples (s uniform over the path, "
+               f"q uniform in the box at s) all kept the margin, so with probability {certify.confidence:g} at "
+               f"most a share {certify.epsilon:g} of such configurations comes nearer (about "
+               f"{certify.epsilon * 3e5:g} of 300,000). Beyond the box, the runtime safety filter keeps the margin.")
     report = CertificateReport(certify.epsilon, certify.confidence, N, (time.perf_counter() - t0) * 1e3,
-                               samples, shrinks, before, after, proven, sampled, clearance_m=clearance)
+                               samples, shrinks, before, after, proven, sampled, clearance_m=clearance,
+                               boundary=boundary)
     if file is not None:
-        _cache_store(file, current.stretch_lower, current.stretch_upper, report)
-    return current.stretch_lower, current.stretch_upper, report
+        _cache_store(file, current.lower, current.upper, report)
+    return current.lower, current.upper, report

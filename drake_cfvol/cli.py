@@ -136,7 +136,7 @@ def cmd_bounds(args) -> int:
 
     if args.plot and not args.out:
         raise ParameterError("--plot needs --out DIR (the folder to write the plot to).")
-    lonely = [f"--{n.replace('_', '-')}" for n in ("epsilon", "confidence", "no_cache")
+    lonely = [f"--{n.replace('_', '-')}" for n in ("epsilon", "confidence", "no_cache", "prove_boundary")
               if getattr(args, n) not in (None, False)]
     if lonely and not args.certify:
         raise ParameterError(f"{', '.join(lonely)} only apply{'s' if len(lonely) == 1 else ''} to certified bounds: "
@@ -163,7 +163,7 @@ def cmd_bounds(args) -> int:
         from drake_cfvol.certify import Certify
 
         given = {n: getattr(args, n) for n in ("epsilon", "confidence") if getattr(args, n) is not None}
-        certify = Certify(**given, seed=args.seed, cache=not args.no_cache)
+        certify = Certify(**given, seed=args.seed, cache=not args.no_cache, boundary=args.prove_boundary)
     table = estimate_bounds(wc, path, params, backend=args.backend, certify=certify, progress=bars)
     cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
                            progress=bars)
@@ -305,6 +305,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--no-cache", action="store_true",
                    help="certify again even if the same certificate is cached (see DRAKE_CFVOL_CACHE; needs --certify)")
     b.add_argument("--confidence", type=float, default=None, help="certificate: confidence (0.99; needs --certify)")
+    b.add_argument("--prove-boundary", action="store_true",
+                   help="certificate: also prove every edge and corner of the box at every s (slower, much less "
+                        "freedom; needs --certify)")
     b.add_argument("--clearance", type=float, default=None,
                    help="safety margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)")
     b.add_argument("--out", help="folder for bounds (.npz, .json), path and plot")

@@ -30,7 +30,7 @@ from numba import njit, prange
 
 __all__ = ["BOX", "SPHERE", "CAPSULE", "CYLINDER", "ELLIPSOID", "HULL", "SHAPE_W", "fk", "gjk_intersect",
            "range_max_table", "range_max", "object_hits_columns", "configs_may_collide", "sweep_chains",
-           "lower_columns_under", "obstacle_distances", "row_aabb", "configs_may_collide_serial"]
+           "lower_columns_under", "obstacle_distances", "row_aabb", "configs_may_collide_serial", "regions_hit"]
 
 BOX, SPHERE, CAPSULE, CYLINDER, ELLIPSOID, HULL = 0, 1, 2, 3, 4, 5
 SHAPE_W = 25
@@ -989,6 +989,15 @@ def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtyp
     return v0 + sgn * F, count
 
 
+@njit(cache=True)
+def _region_workspace(B, S, k):
+    """Scratch arrays of one thread's region tests (:func:`_region_hits`)
+    for B bodies, S shapes and k joints."""
+    P = MAX_T_SAMPLES * MAX_V_SAMPLES
+    return (np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
+            np.empty((P, SHAPE_W)), np.empty(6), np.empty(k))
+
+
 @njit(cache=True, parallel=True)
 def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, qidx, axis, R_PF, p_PF, R_MB,
                  p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute,
@@ -1012,14 +1021,7 @@ def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, 
         j = chains[n, 0]
         sgn = chains[n, 1]
         ws, stack, box, tmp6 = new_workspace()
-        P = MAX_T_SAMPLES * MAX_V_SAMPLES
-        RP = np.empty((P, B, 3, 3))
-        pP = np.empty((P, B, 3))
-        objs = np.empty((S, P, SHAPE_W))
-        aabbs = np.empty((S, 6))
-        rel = np.empty((P, SHAPE_W))
-        rel_aabb = np.empty(6)
-        q_c = np.empty(k)
+        RP, pP, objs, aabbs, rel, rel_aabb, q_c = _region_workspace(B, S, k)
         guess = np.nan
         count = 0
         for i in range(n_st):
@@ -1033,6 +1035,44 @@ def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, 
             guess = bound
         tests[n] = count
     return out, tests
+
+
+@njit(cache=True, parallel=True)
+def regions_hit(A, B, js, va, vb, nts, nvs, pads, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes,
+                shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute, joint_body):
+    """Region tests of many straight pieces (the certificate's box edges).
+
+    Task n is the region {c(t) with joint js[n] replaced by v : t in [0, 1],
+    v in [va[n], vb[n]]}, where c(t) = A[n] + t (B[n] - A[n]), tested as in
+    :func:`_region_hits` (nts[n] x nvs[n] grid poses, second-order growth)
+    against the obstacles and the robot itself, kept ``pads[n]`` (m) away;
+    no volume V. As there, only what joint js[n] moves relative to the rest
+    is tested: the rest is the pose at c(t), proven by the other joints'
+    tasks.
+
+    Returns:
+        (n,) True where the region may collide (False: proven free).
+    """
+    n_tasks = A.shape[0]
+    out = np.zeros(n_tasks, np.bool_)
+    B_n = parent.shape[0]
+    S = shapes.shape[0]
+    k = A.shape[1]
+    empty_table = np.zeros((1, 1, 0, 0))
+    n_chunks = (n_tasks + 63) // 64
+    for c in prange(n_chunks):
+        ws, stack, box, tmp6 = new_workspace()
+        RP, pP, objs, aabbs, rel, rel_aabb, q_c = _region_workspace(B_n, S, k)
+        W = np.empty((2, k))
+        for n in range(c * 64, min(n_tasks, (c + 1) * 64)):
+            W[0] = A[n]
+            W[1] = B[n]
+            out[n] = _region_hits(W, 0, js[n], 0.0, 1.0, min(nts[n], MAX_T_SAMPLES), va[n], vb[n],
+                                  min(nvs[n], MAX_V_SAMPLES), parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
+                                  shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature,
+                                  revolute, joint_body, empty_table, 0.0, 0.0, 1.0, RP, pP, objs, aabbs, rel,
+                                  rel_aabb, q_c, ws, stack, box, tmp6, pads[n])
+    return out
 
 
 @njit(cache=True)
@@ -1326,6 +1366,10 @@ def warm_up() -> float:
                  np.array([[2]], np.int64), np.array([0.2]), W, *chain, shapes, shape_body, verts, obstacles,
                  obs_aabb, np.zeros((0, 2), np.int64), moved, reach, curvature, revolute, joint_body, table,
                  -1.0, -1.0, 1.0, np.zeros(1))
+    regions_hit(W[:1].copy(), W[1:].copy(), np.array([0], np.int64), np.array([-0.1]), np.array([0.1]),
+                np.array([2], np.int64), np.array([2], np.int64), np.array([0.01]), *chain, shapes, shape_body,
+                verts, obstacles, obs_aabb, np.zeros((0, 2), np.int64), moved, reach, curvature, revolute,
+                joint_body)
     lower_columns_under(Q, np.zeros((2, 1)), *chain, shapes, shape_body, verts, heights.copy(), -1.0, -1.0, 1.0,
                         0.0, movable)
     obstacle_distances(Q, 0.5, 1e-3, *chain, shapes, shape_body, verts, obstacles, obs_aabb, movable)

@@ -13,7 +13,7 @@ import time
 import numpy as np
 
 from drake_cfvol import kernel as K
-from drake_cfvol.certify import Certify, certify_bounds
+from drake_cfvol.certify import Certify, certified_table, certify_bounds
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import NominalPath
@@ -139,8 +139,7 @@ def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = N
         t_c = time.perf_counter()
         c_lower, c_upper, report = certify_bounds(workcell, table, certify, progress=progress)
         certify_ms = (time.perf_counter() - t_c) * 1e3
-        w_lower, w_upper = waypoint_boxes(c_lower, c_upper, W, table.rate)
-        table = dataclasses.replace(table, lower=w_lower, upper=w_upper, stretch_lower=c_lower, stretch_upper=c_upper)
+        table = certified_table(table, c_lower, c_upper)
         table.info["certificate"] = report.to_dict()
         table.timing_ms["certify"] = certify_ms  # this call's (a cached certificate loads in ms)
     return table

@@ -16,11 +16,19 @@ import numpy as np
 from pydrake.trajectories import PiecewisePolynomial
 
 from drake_cfvol._records import load_record, save_record
-from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.exceptions import DimensionError, ParameterError, RecordFormatError
 
-__all__ = ["BoundsTable", "absolute_bounds", "box_at", "nominal_trajectory", "waypoint_boxes", "intersection_stretches"]
+__all__ = ["BoundsTable", "absolute_bounds", "box_at", "nominal_trajectory", "waypoint_boxes", "intersection_stretches",
+           "rate_limited", "INTERPOLATIONS"]
 
-FORMAT_VERSION = 2
+#: Version 3 added ``interpolation`` (a version-2 file is read as "stretch").
+FORMAT_VERSION = 3
+#: The box-at-s rules between waypoints (docs/spec.md, section 7):
+#: "stretch", the stretch box rate-limited (the paper's per-joint bounds);
+#: "linear", each bound linear between its waypoints (certified tables:
+#: every corner of the box moves on a straight segment over a stretch, so
+#: the certificate can prove the box's edges and corners).
+INTERPOLATIONS = ("stretch", "linear")
 _ARRAYS = ("lower", "upper", "nominal")
 _STRETCH_ARRAYS = ("stretch_lower", "stretch_upper")
 
@@ -110,16 +118,22 @@ def _stretch_rule(stretch_lower: np.ndarray, stretch_upper: np.ndarray, rate: np
 
 def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
            stretch_lower: np.ndarray | None = None, stretch_upper: np.ndarray | None = None,
-           rate: np.ndarray | None = None, trajectory: PiecewisePolynomial | None = None
-           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+           rate: np.ndarray | None = None, trajectory: PiecewisePolynomial | None = None,
+           interpolation: str = "stretch") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The box at path parameters s (docs/spec.md, section 7), vectorised.
 
-    At an integer s: the waypoint's box. In stretch [i, i+1]: its certified
-    stretch box, tightened so that no bound changes faster than ``rate`` per
-    unit s (the smallest of the stretch bounds plus rate times the distance
-    to their stretch), and widened where needed to hold the interpolated
-    nominal. Without stretch boxes they are the intersection of the two
-    waypoints' boxes; without a rate, no rate limit.
+    At an integer s: the waypoint's box. In stretch [i, i+1], by
+    ``interpolation``:
+
+    - "stretch": its certified stretch box, tightened so that no bound
+      changes faster than ``rate`` per unit s (the smallest of the stretch
+      bounds plus rate times the distance to their stretch), and widened
+      where needed to hold the interpolated nominal. Without stretch boxes
+      they are the intersection of the two waypoints' boxes; without a
+      rate, no rate limit.
+    - "linear": every bound linear from its value at waypoint i to its
+      value at i + 1 (holds the nominal, which is linear too; the rate
+      limit is the waypoints', :func:`rate_limited`).
 
     Args:
         lower, upper, nominal: (g, k) waypoint boxes and nominal.
@@ -134,6 +148,9 @@ def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
     Raises:
         ParameterError: an s outside [0, g-1] or not finite.
     """
+    if interpolation not in INTERPOLATIONS:
+        raise ParameterError(f"interpolation must be one of {', '.join(map(repr, INTERPOLATIONS))}, "
+                             f"got {interpolation!r}.")
     g, k = nominal.shape
     scalar = np.ndim(s) == 0
     s = np.atleast_1d(np.asarray(s, float))
@@ -144,6 +161,15 @@ def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
     nom = traj.vector_values(s).T if g > 1 else np.repeat(nominal[:1], len(s), axis=0)
     if g == 1:
         lo, hi = np.repeat(lower[:1], len(s), axis=0), np.repeat(upper[:1], len(s), axis=0)
+    elif interpolation == "linear":
+        i = np.clip(np.floor(s).astype(int), 0, g - 2)
+        t = (s - i)[:, None]
+        lo = (1.0 - t) * lower[i] + t * lower[i + 1]
+        hi = (1.0 - t) * upper[i] + t * upper[i + 1]
+        lo, hi = np.minimum(lo, nom), np.maximum(hi, nom)
+        at = s == np.floor(s)
+        w = s[at].astype(int)
+        lo[at], hi[at], nom[at] = lower[w], upper[w], nominal[w]
     else:
         if stretch_lower is None or stretch_upper is None:
             stretch_lower, stretch_upper = intersection_stretches(lower, upper)
@@ -172,6 +198,28 @@ def waypoint_boxes(stretch_lower: np.ndarray, stretch_upper: np.ndarray, nominal
     return np.minimum(lo, nominal), np.maximum(hi, nominal)
 
 
+def rate_limited(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, rate: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Waypoint boxes tightened (never widened) so that no bound changes
+    by more than ``rate`` from one waypoint to the next: the upper bound
+    becomes min over i' of (upper[i'] + rate |i - i'|), the lower bound the
+    mirror image; then held at the nominal (a no-op when the rate is at
+    least the nominal's own step, as :func:`drake_cfvol.sweep.default_rate`
+    makes it). The "linear" rule then never moves a bound faster than rate."""
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    rate = np.asarray(rate, float)
+    r = np.where(np.isfinite(rate), rate, 0.0)
+    lim = np.isfinite(rate)
+    hi, lo = upper.copy(), lower.copy()
+    for i in range(1, len(hi)):  # forward pass, then backward: the min over i' of U[i'] + rate |i - i'|
+        hi[i] = np.where(lim, np.minimum(hi[i], hi[i - 1] + r), hi[i])
+        lo[i] = np.where(lim, np.maximum(lo[i], lo[i - 1] - r), lo[i])
+    for i in range(len(hi) - 2, -1, -1):
+        hi[i] = np.where(lim, np.minimum(hi[i], hi[i + 1] + r), hi[i])
+        lo[i] = np.where(lim, np.maximum(lo[i], lo[i + 1] - r), lo[i])
+    return np.minimum(lo, nominal), np.maximum(hi, nominal)
+
+
 @dataclasses.dataclass
 class BoundsTable:
     """Per-waypoint joint bounds B = [b_1 .. b_g] along a nominal path.
@@ -192,6 +240,8 @@ class BoundsTable:
             stretch [i, i+1] (default: the intersection of its two waypoint
             boxes, as in format-1 files).
         rate: (k,) the largest change of a bound per unit s (inf: none).
+        interpolation: the box between waypoints, "stretch" or "linear"
+            (:func:`box_at`; certified tables are "linear").
     """
 
     lower: np.ndarray
@@ -207,6 +257,7 @@ class BoundsTable:
     stretch_lower: np.ndarray | None = None
     stretch_upper: np.ndarray | None = None
     rate: np.ndarray | None = None
+    interpolation: str = "stretch"
 
     def __post_init__(self):
         for name in ("lower", "upper", "nominal", "limit_lower", "limit_upper"):
@@ -223,6 +274,9 @@ class BoundsTable:
         if self.stretch_lower.shape != (max(g - 1, 0), k) or self.stretch_upper.shape != (max(g - 1, 0), k):
             raise DimensionError("stretch bounds", (g - 1, k), (self.stretch_lower.shape, self.stretch_upper.shape))
         self.rate = np.full(k, np.inf) if self.rate is None else np.asarray(self.rate, float).reshape(k)
+        if self.interpolation not in INTERPOLATIONS:
+            raise ParameterError(f"BoundsTable: interpolation must be one of {', '.join(map(repr, INTERPOLATIONS))}"
+                                 f", got {self.interpolation!r}.")
         self._trajectory = nominal_trajectory(self.nominal)
 
     @property
@@ -248,12 +302,14 @@ class BoundsTable:
     def at(self, s: float):
         """(lower, upper, nominal) at path parameter s in [0, g-1]."""
         return box_at(self.lower, self.upper, self.nominal, float(s), stretch_lower=self.stretch_lower,
-                      stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self._trajectory)
+                      stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self._trajectory,
+                      interpolation=self.interpolation)
 
     def boxes_at(self, s: np.ndarray):
         """:meth:`at` for many s at once: three (n, k) arrays."""
         return box_at(self.lower, self.upper, self.nominal, np.asarray(s, float), stretch_lower=self.stretch_lower,
-                      stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self._trajectory)
+                      stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self._trajectory,
+                      interpolation=self.interpolation)
 
     def widths(self) -> np.ndarray:
         """(g, k) upper - lower."""
@@ -266,6 +322,7 @@ class BoundsTable:
                 "limit_lower": self.limit_lower.tolist(), "limit_upper": self.limit_upper.tolist(),
                 "stretch_lower": self.stretch_lower.tolist(), "stretch_upper": self.stretch_upper.tolist(),
                 "rate": [v if np.isfinite(v) else None for v in self.rate.tolist()],
+                "interpolation": self.interpolation,
                 "params": self.params, "timing_ms": self.timing_ms, "info": _jsonable(self.info)}
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
@@ -282,12 +339,17 @@ class BoundsTable:
         """
         d, a = load_record(path, _ARRAYS, "bounds", optional=_STRETCH_ARRAYS,
                            required=("joint_names", "limit_lower", "limit_upper"))
+        version = d.get("version", 1)
+        if not isinstance(version, int) or version > FORMAT_VERSION:
+            raise RecordFormatError(path, "bounds", f"it is of format version {version!r} and this drake_cfvol "
+                                    f"reads versions up to {FORMAT_VERSION} (update drake_cfvol to read it)")
         rate = d.get("rate")
         return cls(a["lower"], a["upper"], a["nominal"], d["joint_names"],
                    np.array(d["limit_lower"], float), np.array(d["limit_upper"], float),
                    d.get("params", {}), d.get("timing_ms", {}), d.get("info", {}),
                    stretch_lower=a.get("stretch_lower"), stretch_upper=a.get("stretch_upper"),
-                   rate=None if rate is None else np.array([np.inf if v is None else v for v in rate], float))
+                   rate=None if rate is None else np.array([np.inf if v is None else v for v in rate], float),
+                   interpolation=d.get("interpolation", "stretch"))
 
 
 def _jsonable(obj):

@@ -168,3 +168,46 @@ def test_box_at_sees_stretch_bounds_changed_in_place():
     after = box_at(lower, upper, nominal, 2.5, stretch_lower=st_lo, stretch_upper=st_hi, rate=rate)
     fresh = box_at(lower, upper, nominal, 2.5, stretch_lower=st_lo.copy(), stretch_upper=st_hi.copy(), rate=rate)
     assert after[1][0] == pytest.approx(0.55) and after[1][0] == fresh[1][0]
+
+
+def test_linear_rule_by_hand():
+    """The "linear" rule: each bound linear between its waypoints (a quarter
+    of the way from [-1, 1] to [-2, 3] is [-1.25, 1.5]); waypoints exact."""
+    lower = np.array([[-1.0], [-2.0]])
+    upper = np.array([[1.0], [3.0]])
+    nominal = np.zeros((2, 1))
+    lo, hi, nom = box_at(lower, upper, nominal, np.array([0.0, 0.25, 1.0]), interpolation="linear")
+    np.testing.assert_allclose(lo[:, 0], [-1.0, -1.25, -2.0])
+    np.testing.assert_allclose(hi[:, 0], [1.0, 1.5, 3.0])
+    with pytest.raises(cf.ParameterError, match="interpolation"):
+        box_at(lower, upper, nominal, 0.5, interpolation="cubic")
+
+
+def test_rate_limited_by_hand():
+    """Upper bounds 1, 5, 1 with rate 1 become 1, 2, 1 (min over i' of
+    U[i'] + |i - i'|); lower bounds mirror; nothing widens; a joint without
+    a rate is left alone."""
+    from drake_cfvol.table import rate_limited
+
+    upper = np.array([[1.0, 1.0], [5.0, 5.0], [1.0, 1.0]])
+    lo, hi = rate_limited(-upper, upper, np.zeros((3, 2)), np.array([1.0, np.inf]))
+    np.testing.assert_allclose(hi[:, 0], [1.0, 2.0, 1.0])
+    np.testing.assert_allclose(lo[:, 0], [-1.0, -2.0, -1.0])
+    np.testing.assert_allclose(hi[:, 1], upper[:, 1])
+
+
+def test_linear_table_round_trips(tmp_path):
+    """A "linear" table saved and loaded keeps its rule; a file of a newer
+    format version is refused with a message that says so."""
+    import json
+
+    t = BoundsTable(np.array([[-1.0], [-2.0]]), np.array([[1.0], [3.0]]), np.zeros((2, 1)), ["j"],
+                    np.array([-3.0]), np.array([3.0]), interpolation="linear")
+    f = t.save(tmp_path / "b.json")
+    assert BoundsTable.load(f).interpolation == "linear"
+    np.testing.assert_allclose(BoundsTable.load(f).at(0.5)[1], [2.0])
+    d = json.loads(f.read_text())
+    d["version"] = 99
+    f.write_text(json.dumps(d))
+    with pytest.raises(cf.RecordFormatError, match="version 99"):
+        BoundsTable.load(f)

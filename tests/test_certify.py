@@ -75,17 +75,23 @@ def test_invalid_certificate(kwargs):
         Certify(**kwargs)
 
 
+def _stretch(lo, hi, nominal):
+    """A two-waypoint linear table's boxes: the same box at both ends."""
+    return np.array([lo, lo], float), np.array([hi, hi], float), np.array([nominal, nominal], float)
+
+
 def test_greedy_cut_by_hand():
     """One colliding sample at (0.9, 0.2) in [-1, 1]^2 around a nominal at the
-    origin: cutting joint 0's upper bound to 0.9 loses log(2 / 1.9), joint 1's
-    to 0.2 loses log(2 / 1.2); the cheaper cut is taken, and only it."""
+    origin (the same box at both ends of the stretch): cutting joint 0's
+    upper bound to 0.9 loses log(2 / 1.9) per end, joint 1's to 0.2 loses
+    log(2 / 1.2); the cheaper cut is taken, at both ends, and only it."""
     from drake_cfvol.certify import _greedy_cut
 
-    L, U = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
-    n = _greedy_cut(np.array([[0.9, 0.2]]), np.zeros((1, 2)), L, U)
+    L, U, N = _stretch([-1.0, -1.0], [1.0, 1.0], [0.0, 0.0])
+    n = _greedy_cut(np.array([[0.9, 0.2]]), np.array([0.5]), L, U, N, 0)
     assert n == 1
-    assert U[0] < 0.9 and U[0] == pytest.approx(0.9) and U[1] == 1.0
-    np.testing.assert_array_equal(L, [-1.0, -1.0])
+    assert np.all(U[:, 0] < 0.9) and U[:, 0] == pytest.approx([0.9, 0.9]) and np.all(U[:, 1] == 1.0)
+    np.testing.assert_array_equal(L, -np.ones((2, 2)))
 
 
 def test_greedy_cut_removes_many_at_once():
@@ -96,19 +102,33 @@ def test_greedy_cut_removes_many_at_once():
     from drake_cfvol.certify import _greedy_cut
 
     X = np.vstack([np.column_stack([np.linspace(0.5, 0.95, 10), np.full(10, 0.1)]), [[0.05, -0.95]]])
-    L, U = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
-    assert _greedy_cut(X, np.zeros_like(X), L, U) >= 2
-    assert U[0] == pytest.approx(0.5) and U[0] < 0.5
-    assert L[1] == pytest.approx(-0.95) and L[1] > -0.95
-    assert U[1] == 1.0 and L[0] == -1.0
+    L, U, N = _stretch([-1.0, -1.0], [1.0, 1.0], [0.0, 0.0])
+    assert _greedy_cut(X, np.full(len(X), 0.3), L, U, N, 0) >= 2
+    assert U[0, 0] == pytest.approx(0.5) and U[0, 0] < 0.5
+    assert L[0, 1] == pytest.approx(-0.95) and L[0, 1] > -0.95
+    assert U[0, 1] == 1.0 and L[0, 0] == -1.0
+
+
+def test_greedy_cut_in_a_changing_box_by_hand():
+    """A box that widens along the stretch, upper bound of joint 0 from 0.5
+    to 1.5 (nominal 0): a sample at x = 0.9, halfway (the bound there is
+    1.0), goes when joint 0's deviation is scaled below 0.9 at both ends:
+    0.45 and 1.35."""
+    from drake_cfvol.certify import _greedy_cut
+
+    L = np.array([[-1.0], [-1.0]])
+    U = np.array([[0.5], [1.5]])
+    N = np.zeros((2, 1))
+    assert _greedy_cut(np.array([[0.9]]), np.array([0.5]), L, U, N, 0) == 1
+    assert U[:, 0] == pytest.approx([0.45, 1.35]) and np.all(U[:, 0] < [0.45, 1.35])
 
 
 def test_greedy_cut_refuses_a_sample_at_its_nominal():
     """A colliding sample at its own nominal cannot be cut away: -1."""
     from drake_cfvol.certify import _greedy_cut
 
-    assert _greedy_cut(np.array([[0.3, 0.3]]), np.array([[0.3, 0.3]]), np.array([-1.0, -1.0]),
-                       np.array([1.0, 1.0])) == -1
+    L, U, N = _stretch([-1.0, -1.0], [1.0, 1.0], [0.3, 0.3])
+    assert _greedy_cut(np.array([[0.3, 0.3]]), np.array([0.5]), L, U, N, 0) == -1
 
 
 def test_edge_biased_share():
@@ -211,3 +231,37 @@ def test_independent_cf_of_certified_bounds(cell, bounded, planned, request):
     assert res.colliding <= 3
     assert np.all(cert.stretch_lower >= plain.stretch_lower) and np.all(cert.stretch_upper <= plain.stretch_upper)
     assert cert.info["certificate"]["freedom_after"] < cert.info["certificate"]["freedom_before"]
+
+
+def test_boundary_proof_frees_every_edge_by_drake(corner):
+    """With boundary=True every corner and edge of the certified box, at
+    every waypoint and stretch midpoint, keeps the margin by Drake's padded
+    checker (edges densely: 41 points along each), and the report says the
+    edges are proven."""
+    from drake_cfvol.metrics import boundary_check
+
+    wc, path = corner
+    cert = cf.estimate_bounds(wc, path, h_max=0.0,
+                              certify=Certify(epsilon=1e-3, confidence=0.99, boundary=True, cache=False))
+    assert cert.interpolation == "linear"
+    margin = cert.info["certificate"]["clearance_m"]
+    checker = wc.padded_checker(max(0.0, margin - 1e-3))
+    s = np.arange(0.0, cert.g - 1 + 1e-9, 0.25)
+    lo, hi, _ = cert.boxes_at(s)
+    u = np.linspace(0.0, 1.0, 41)
+    edges = []
+    for a in range(len(s)):
+        for j in range(2):
+            for other in (lo[a, 1 - j], hi[a, 1 - j]):
+                E = np.empty((len(u), 2))
+                E[:, j] = lo[a, j] + u * (hi[a, j] - lo[a, j])
+                E[:, 1 - j] = other
+                edges.append(E)
+    free = np.asarray(checker.CheckConfigsCollisionFree(np.concatenate(edges), parallelize=False), bool)
+    assert free.all()
+    assert boundary_check(wc, cert, clearance=max(0.0, margin - 1e-3)).corners_colliding == 0
+    rep = cert.info["certificate"]
+    assert "every edge of the box" in rep["proven"] and rep["boundary"]["edge_tests"] > 0
+    assert rep["boundary"]["unproven"] == []
+    # The corner that collides is excluded, and the box is not shrunk to nothing.
+    assert np.all(cert.upper[1] - cert.lower[1] > 0.1)
