@@ -48,7 +48,7 @@ S_SPLITS = 3
 #: Second-order growth allowed between grid poses, m (as in the sweep).
 MOTION_TOLERANCE = 0.01
 #: Scales of a bound's deviation tried by a cut, largest first.
-CUT_SCALES = (0.75, 0.5, 0.25, 0.0)
+CUT_SCALES = (0.95, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.0)
 
 
 def _signs(k: int, j: int) -> np.ndarray:
@@ -290,7 +290,7 @@ def cut_for(workcell, arrays, lower, upper, nominal, fail: _Item, margin: float,
             lam = float(np.min((nom_ab[:, j] - fail.vb) / np.maximum(dev, 1e-300)))
         else:
             continue
-        lam = float(np.clip(np.nextafter(lam, -np.inf) * (1 - 1e-9), 0.0, 1.0))
+        lam = float(np.clip(lam * (1 - 1e-6), 0.0, 1.0))
         lo, hi = _scaled(lower, upper, nominal, i, j, side, lam)
         options.append((_width_loss(lower, upper, i, lo, hi), lo, hi, (i, j, side)))
     # Another joint on its bound in the region: tried at a few scales.
@@ -350,18 +350,55 @@ def cut_for(workcell, arrays, lower, upper, nominal, fail: _Item, margin: float,
     return True
 
 
-def _cut_corner(workcell, arrays, lower, upper, nominal, i, s, pattern, q, margin, taken) -> None:
-    """Tightens stretch i (in place) so that the colliding corner q of the
-    box at s (its sign row ``pattern``) comes free: each joint whose motion
-    reaches the nearest pair, and all of them together, at CUT_SCALES of
-    their deviation (checked as points: scaling both ends' deviation by lam
-    scales it at every s by lam); the passing candidate that loses the
-    least width is applied, else the stretch's box moves halfway to the
-    nominal."""
+def _variants(lower, upper, nominal, i, t, moves):
+    """Ways to scale, at s = i + t, the deviations from the nominal of the
+    (joint, side, lam) ``moves`` (each deviation at s becomes lam times
+    what it was): both ends of stretch i scaled by lam, or only the nearer
+    end, moved just enough (when that is possible). Returns a list of
+    (lo, hi), stretch i's two waypoint boxes, (2, k) each."""
+    out = []
+    nom2 = nominal[i:i + 2]
+    for near_only in (False, True):
+        lo, hi = lower[i:i + 2].copy(), upper[i:i + 2].copy()
+        ok = True
+        for l, side, lam in moves:
+            d = (hi[:, l] - nom2[:, l]) if side > 0 else (nom2[:, l] - lo[:, l])
+            if near_only:
+                e = 0 if t <= 0.5 else 1
+                w = (1 - t) if e == 0 else t
+                dev = (1 - t) * d[0] + t * d[1]
+                new = d.copy()
+                new[e] = d[e] - (1 - lam) * dev / max(w, 1e-12)
+                if new[e] < 0:
+                    ok = False
+                    break
+            else:
+                new = lam * d
+            if side > 0:
+                hi[:, l] = nom2[:, l] + new
+            else:
+                lo[:, l] = nom2[:, l] - new
+        if ok:
+            out.append((lo, hi))
+    return out
+
+
+def _cut_corner(workcell, arrays, lower, upper, nominal, i, s, pattern, q, margin, taken, own=None) -> None:
+    """Tightens stretch i (in place) so that the colliding configuration q
+    of the box at s comes free. q is a corner (every joint on the bound of
+    ``pattern``) or, with ``own``, an edge point (joint ``own`` inside its
+    range, on the side ``pattern`` gives it). Candidates: each joint on a
+    bound whose motion reaches the nearest pair, and all of them together,
+    moved toward the nominal at CUT_SCALES (checked as points: scaling a
+    deviation by lam at both ends scales it at every s); and the edge's own
+    joint, its range cut just below q. Each at both ends of the stretch or
+    at the nearer end only; the cut that loses the least width is applied,
+    else the stretch's box moves halfway to the nominal."""
     t = s - i
     nom = (1 - t) * nominal[i] + t * nominal[i + 1]
     reach = np.flatnonzero(reaching_joints(workcell, arrays, q, margin) & (q != nom))
-    cands = [[int(l)] for l in reach] + ([[int(l) for l in reach]] if len(reach) > 1 else [])
+    reach = [int(l) for l in reach if l != own]
+    cands = [[l] for l in reach] + ([reach] if len(reach) > 1 else [])
     trials, Q = [], []
     for group in cands:
         for lam in CUT_SCALES:
@@ -369,20 +406,26 @@ def _cut_corner(workcell, arrays, lower, upper, nominal, i, s, pattern, q, margi
             x[group] = nom[group] + lam * (q[group] - nom[group])
             trials.append((group, lam))
             Q.append(x)
-    options = []
+    moves = []
     if Q:
         ok = ~arrays.may_collide(np.array(Q), margin)
         done = set()
         for (group, lam), good in zip(trials, ok):
-            key = tuple(group)
-            if good and key not in done:
-                done.add(key)
-                lo, hi = lower[i:i + 2].copy(), upper[i:i + 2].copy()
-                for l in group:
-                    side = 1 if pattern[l] else -1
-                    l_lo, l_hi = _scaled(lower, upper, nominal, i, l, side, lam)
-                    lo[:, l], hi[:, l] = l_lo[:, l], l_hi[:, l]
-                options.append((_width_loss(lower, upper, i, lo, hi), lo, hi, (i,) + key))
+            if good and tuple(group) not in done:  # scales run largest first
+                done.add(tuple(group))
+                moves.append((tuple(group), [(l, 1 if pattern[l] else -1, lam) for l in group]))
+    if own is not None and q[own] != nom[own]:
+        lo_s = (1 - t) * lower[i, own] + t * lower[i + 1, own]
+        hi_s = (1 - t) * upper[i, own] + t * upper[i + 1, own]
+        side = 1 if q[own] > nom[own] else -1
+        dev = (hi_s - nom[own]) if side > 0 else (nom[own] - lo_s)
+        if dev > 0:
+            lam = max(0.0, abs(q[own] - nom[own]) / dev * (1 - 1e-6))
+            moves.append(((own,), [(own, side, lam)]))
+    options = []
+    for key, mv in moves:
+        for lo, hi in _variants(lower, upper, nominal, i, t, mv):
+            options.append((_width_loss(lower, upper, i, lo, hi), lo, hi, (i,) + key))
     if not options:
         nom2 = nominal[i:i + 2]
         options.append((0.0, nom2 - 0.5 * (nom2 - lower[i:i + 2]), nom2 + 0.5 * (upper[i:i + 2] - nom2), (i, -1)))
@@ -520,7 +563,7 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
                 pattern = fail.S.astype(bool).copy()
                 pattern[fail.j] = q[fail.j] > nom_j
                 _cut_corner(workcell, arrays, lower, upper, nominal, fail.i, s_hit, pattern, q,
-                            float(margins[fail.i]), taken)
+                            float(margins[fail.i]), taken, own=fail.j)
             elif not cut_for(workcell, arrays, lower, upper, nominal, fail, float(margins[fail.i]), taken):
                 stuck.add(fail.i)
         for i in stuck:

@@ -59,7 +59,7 @@ from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.metrics import freedom
 from drake_cfvol.progress import Progress
 from drake_cfvol.sweep import stretch_margins
-from drake_cfvol.table import rate_limited
+from drake_cfvol.table import rate_limited, within_stretches
 
 __all__ = ["Certify", "CertificateReport", "certify_bounds", "certified_table", "certification_rng", "cache_dir"]
 
@@ -278,11 +278,18 @@ def _greedy_cut(X, t, lower, upper, nominal, i):
         _, j, side, lam = best
         if j < 0:
             return -1
-        lam = max(0.0, np.nextafter(lam, -np.inf) * (1 - 1e-12))
-        if side > 0:
-            upper[i:i + 2, j] = n2[:, j] + lam * (upper[i:i + 2, j] - n2[:, j])
-        else:
-            lower[i:i + 2, j] = n2[:, j] - lam * (n2[:, j] - lower[i:i + 2, j])
+        # Just below the sample's threshold, by a relative 1e-6: a cut of a
+        # deviation a few ulps wide must still move the bound.
+        lam = max(0.0, lam * (1 - 1e-6))
+        before = (upper if side > 0 else lower)[i:i + 2, j].copy()
+        while True:
+            if side > 0:
+                upper[i:i + 2, j] = n2[:, j] + lam * (before - n2[:, j])
+            else:
+                lower[i:i + 2, j] = n2[:, j] - lam * (n2[:, j] - before)
+            if lam == 0.0 or not np.array_equal((upper if side > 0 else lower)[i:i + 2, j], before):
+                break
+            lam = 0.5 * lam if lam > 1e-3 else 0.0
         cuts += 1
     return cuts
 
@@ -334,7 +341,8 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
     if rate is None:
         rate = np.full(nominal.shape[1], np.inf)
     g, k = nominal.shape
-    lower, upper = rate_limited(table.lower, table.upper, nominal, rate)
+    lower, upper = rate_limited(*within_stretches(table.lower, table.upper, nominal, table.stretch_lower,
+                                                  table.stretch_upper), nominal, rate)
     clearance = float(table.params.get("clearance", 0.0) or 0.0)
     margins = stretch_margins(arrays, nominal, clearance)
     rng = certification_rng(certify.seed)

@@ -19,7 +19,7 @@ from drake_cfvol._records import load_record, save_record
 from drake_cfvol.exceptions import DimensionError, ParameterError, RecordFormatError
 
 __all__ = ["BoundsTable", "absolute_bounds", "box_at", "nominal_trajectory", "waypoint_boxes", "intersection_stretches",
-           "rate_limited", "INTERPOLATIONS"]
+           "rate_limited", "within_stretches", "INTERPOLATIONS"]
 
 #: Version 3 added ``interpolation`` (a version-2 file is read as "stretch").
 FORMAT_VERSION = 3
@@ -218,6 +218,42 @@ def rate_limited(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, rate
         hi[i] = np.where(lim, np.minimum(hi[i], hi[i + 1] + r), hi[i])
         lo[i] = np.where(lim, np.maximum(lo[i], lo[i + 1] - r), lo[i])
     return np.minimum(lo, nominal), np.maximum(hi, nominal)
+
+
+def within_stretches(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, stretch_lower: np.ndarray,
+                     stretch_upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Waypoint boxes tightened (never widened) so that under the "linear"
+    rule no bound leaves what the stretch boxes prove: on stretch i, the
+    upper bound at s stays at most max(stretch_upper[i], nom(s)) (lower
+    mirrored). A waypoint's bound may sit at its nominal beyond the stretch
+    box (SPEC 7, rule 3); then the line to the other waypoint may pass
+    above both the stretch bound and the nominal where the nominal crosses
+    the stretch bound, at t*. There the other end is lowered just enough:
+    to the value whose line meets the stretch bound at t* (never below its
+    nominal)."""
+    lo, hi = np.array(lower, float), np.array(upper, float)
+    nom = np.asarray(nominal, float)
+    for sign, b, st in ((1.0, hi, stretch_upper), (-1.0, lo, stretch_lower)):
+        for i in range(len(nom) - 1):
+            a0, a1 = sign * b[i], sign * b[i + 1]
+            n0, n1 = sign * nom[i], sign * nom[i + 1]
+            cap = sign * st[i]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ts = (cap - n0) / (n1 - n0)
+            cross = np.isfinite(ts) & (ts > 0) & (ts < 1)
+            over = cross & ((1 - ts) * a0 + ts * a1 > cap)
+            if not over.any():
+                continue
+            # The end where the nominal lies below the cap is the one to lower.
+            lower_end1 = over & (n0 > cap)
+            lower_end0 = over & ~(n0 > cap)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                new1 = (cap - (1 - ts) * a0) / ts
+                new0 = (cap - ts * a1) / (1 - ts)
+            a1n = np.where(lower_end1, np.maximum(np.minimum(a1, new1), n1), a1)
+            a0n = np.where(lower_end0, np.maximum(np.minimum(a0, new0), n0), a0)
+            b[i], b[i + 1] = sign * a0n, sign * a1n
+    return np.minimum(lo, nom), np.maximum(hi, nom)
 
 
 @dataclasses.dataclass

@@ -211,3 +211,24 @@ def test_linear_table_round_trips(tmp_path):
     f.write_text(json.dumps(d))
     with pytest.raises(cf.RecordFormatError, match="version 99"):
         BoundsTable.load(f)
+
+
+def test_within_stretches_by_hand():
+    """Nominal from 2 to 0 over one stretch whose proven upper bound is 1:
+    the waypoint bounds 2 (held at the nominal) and 1.5 would put the line
+    at 1.75 where the nominal crosses 1 (t = 0.5), above what is proven; the
+    far end is lowered to the nominal (0), so the line is the nominal's own
+    and lies within max(1, nom(s)) everywhere. A stretch that needs nothing
+    is left as it is."""
+    from drake_cfvol.table import within_stretches
+
+    nominal = np.array([[2.0], [0.0]])
+    lo, hi = within_stretches(np.array([[-1.0], [-1.0]]), np.array([[2.0], [1.5]]), nominal,
+                              np.array([[-1.0]]), np.array([[1.0]]))
+    np.testing.assert_allclose(hi[:, 0], [2.0, 0.0])
+    np.testing.assert_allclose(lo[:, 0], [-1.0, -1.0])
+    t = np.linspace(0, 1, 11)
+    assert np.all((1 - t) * hi[0, 0] + t * hi[1, 0] <= np.maximum(1.0, 2.0 - 2.0 * t) + 1e-12)
+    lo2, hi2 = within_stretches(np.array([[-1.0], [-1.0]]), np.array([[0.5], [0.8]]), np.zeros((2, 1)),
+                                np.array([[-1.0]]), np.array([[1.0]]))
+    np.testing.assert_array_equal(hi2[:, 0], [0.5, 0.8])
