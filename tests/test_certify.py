@@ -8,6 +8,20 @@ from drake_cfvol.certify import Certify, certification_rng
 from conftest import write_arm_cell
 
 
+def _corner_cell(folder, mesh_links=False):
+    wc = cf.load_workcell(write_arm_cell(
+        folder, links=[{"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
+                       {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8}],
+        obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))}, base_z=0.5, mesh_links=mesh_links))
+    return wc, cf.NominalPath(np.zeros((3, 2)), wc.joint_names, wc.name)
+
+
+@pytest.fixture(scope="module")
+def corner_mesh(tmp_path_factory):
+    """The corner cell with STL mesh links behind package:// URIs."""
+    return _corner_cell(tmp_path_factory.mktemp("corner_mesh"), mesh_links=True)
+
+
 @pytest.fixture(scope="module")
 def corner(tmp_path_factory):
     """A 2-link planar arm (1.0 m + 0.8 m) at (0, 0) rad with a 0.3 m post at
@@ -18,13 +32,7 @@ def corner(tmp_path_factory):
     (1, 0), and the post's nearest corner is 0.85 m away. At the corner (0.4, 0.8) link 2 runs from
     (0.921, 0.389) to (1.211, 1.135) and crosses y = 1.0 at x = 1.158,
     inside the post."""
-    folder = tmp_path_factory.mktemp("corner")
-    wc = cf.load_workcell(write_arm_cell(
-        folder, links=[{"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
-                       {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8}],
-        obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))}, base_z=0.5))
-    path = cf.NominalPath(np.zeros((3, 2)), wc.joint_names, wc.name)
-    return wc, path
+    return _corner_cell(tmp_path_factory.mktemp("corner"))
 
 
 def test_corner_is_excluded(corner):
@@ -257,16 +265,19 @@ def test_independent_cf_of_certified_bounds(cell, bounded, planned, request):
     assert cert.info["certificate"]["freedom_after"] < cert.info["certificate"]["freedom_before"]
 
 
-def test_boundary_proof_frees_every_edge_by_drake(corner):
+@pytest.mark.parametrize("cell, sampled", [("corner", True), ("corner_mesh", True), ("corner", False)])
+def test_boundary_proof_frees_every_edge_by_drake(cell, sampled, request):
     """With boundary=True every corner and edge of the certified box, at
-    every waypoint and stretch midpoint, keeps the margin by Drake's padded
+    every quarter of every stretch, keeps the margin by Drake's padded
     checker (edges densely: 41 points along each), and the report says the
-    edges are proven."""
+    edges are proven; also on mesh links, and with no sampled search (the
+    proof's own cuts)."""
     from drake_cfvol.metrics import boundary_check
 
-    wc, path = corner
-    cert = cf.estimate_bounds(wc, path, h_max=0.0,
-                              certify=Certify(epsilon=1e-3, confidence=0.99, boundary=True, cache=False))
+    wc, path = request.getfixturevalue(cell)
+    # Without the sampled search (one sample in the run), the proof's own cuts do the work.
+    settings = dict(epsilon=1e-3, confidence=0.99) if sampled else dict(epsilon=0.5, confidence=0.1, search_rounds=0)
+    cert = cf.estimate_bounds(wc, path, h_max=0.0, certify=Certify(**settings, boundary=True, cache=False))
     assert cert.interpolation == "linear"
     margin = cert.info["certificate"]["clearance_m"]
     checker = wc.padded_checker(max(0.0, margin - 1e-3))
@@ -287,5 +298,7 @@ def test_boundary_proof_frees_every_edge_by_drake(corner):
     rep = cert.info["certificate"]
     assert "every edge of the box" in rep["proven"] and rep["boundary"]["edge_tests"] > 0
     assert rep["boundary"]["unproven"] == []
+    if not sampled:
+        assert rep["boundary"]["edge_cuts"] >= 1  # the colliding corner was the proof's to cut
     # The corner that collides is excluded, and the box is not shrunk to nothing.
     assert np.all(cert.upper[1] - cert.lower[1] > 0.1)
