@@ -17,13 +17,18 @@ from pathlib import Path
 import numpy as np
 
 from drake_cfvol.certify import Certify
+from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.comanip import load_scenario, run_scenario
 from drake_cfvol.pipeline import estimate_bounds
 from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import plan_nominal_path
 from drake_cfvol.workcell import load_workcell
 
-__all__ = ["steady_push_runs", "summarize_runs", "MARGIN_TOLERANCE"]
+__all__ = ["steady_push_runs", "summarize_runs", "nearest_obstacle_signs", "PATTERNS", "MARGIN_TOLERANCE"]
+
+#: Sign patterns of a steady push: "random" (seeded signs) or "nearest"
+#: (toward the nearest obstacle at a path position the seed picks).
+PATTERNS = ("random", "nearest")
 
 #: How far below min(margin, the nominal's own clearance) a run may dip
 #: and still count as keeping the margin, m.
@@ -34,9 +39,28 @@ def _signs(seed: int, k: int) -> np.ndarray:
     return np.random.default_rng(seed).choice([-1.0, 1.0], size=k)
 
 
+def nearest_obstacle_signs(workcell, q) -> np.ndarray:
+    """(k,) signs of a joint push that drives configuration q toward its
+    nearest obstacle (or the nearest pair of its own links) among the
+    distances a joint motion changes: minus the sign of that distance's
+    gradient by Drake's clearance query (a joint that does not change it
+    pushes +1)."""
+    rc = workcell.checker.CalcRobotClearance(np.asarray(q, float), 10.0)
+    d = np.asarray(rc.distances())
+    k = len(q)
+    if not d.size:
+        return np.ones(k)
+    J = np.asarray(rc.jacobians()).reshape(len(d), k)
+    movable = np.linalg.norm(J, axis=1) > 1e-9  # a distance no joint changes cannot be pushed closer
+    if not movable.any():
+        return np.ones(k)
+    grad = J[np.flatnonzero(movable)[int(np.argmin(d[movable]))]]
+    return np.where(grad > 0, -1.0, 1.0)
+
+
 def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safety_filter: bool = True,
                      certify: bool = False, clearance: float | None = None, seeds=None, path=None, bounds=None,
-                     on_run=None) -> list[dict]:
+                     on_run=None, pattern: str = "random") -> list[dict]:
     """Steady corner-seeking pushes on a cell's ``<cell>_push`` scenario
     (its defaults, its scripted pushes replaced): joint torque ``torque``
     x random signs (seed n: ``numpy.random.default_rng(n)``) on every
@@ -54,6 +78,10 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
         path, bounds: a planned path and its bounds (else planned and
             estimated here, once for all runs).
         on_run: called with each row as it is done.
+        pattern: "random" (seeded signs) or "nearest": seed n of ``runs``
+            pushes toward the nearest obstacle of the nominal at waypoint
+            round(n (g-1) / (runs-1)) (:func:`nearest_obstacle_signs`), the
+            push held for the whole run.
 
     Returns:
         One row per run: ``cell``, ``seed``, ``signs``, ``safety_filter``,
@@ -71,6 +99,8 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
         ``filter_damper_misses``, ``filter_fallbacks``, ``faults``,
         ``max_deviation`` (rad or m, from the nominal), ``sim_wall_s``.
     """
+    if pattern not in PATTERNS:
+        raise ParameterError(f"pattern must be one of {', '.join(map(repr, PATTERNS))}, got {pattern!r}.")
     name = f"{cell}_push"
     scenario, _ = load_scenario(name)
     wc = load_workcell(scenario.cell)
@@ -87,7 +117,11 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
-            signs = _signs(seed, k)
+            if pattern == "nearest":
+                at = int(round(seed * (path.g - 1) / max(len(seeds) - 1, 1))) % path.g
+                signs = nearest_obstacle_signs(wc, path.waypoints[at])
+            else:
+                signs = _signs(seed, k)
             tau = ", ".join(f"{x:.6g}" for x in torque * signs)
             text = (f"{{certify: {str(certify).lower()}, collision_guard: {str(safety_filter).lower()}, "
                     f"pushes: [{{start: 0.0, duration: 1.0e9, joint_torque: [{tau}]}}]")
@@ -113,7 +147,7 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
             margin = s["filter_clearance_m"] if s["filter_clearance_m"] is not None else margin_default
             shortfall = float(np.max(np.minimum(margin, nom) - dist)) if len(t) else 0.0
             free = np.array(wc.checker.CheckConfigsCollisionFree(q), bool)
-            row = {"cell": cell, "seed": seed, "signs": signs.tolist(), "torque": float(torque),
+            row = {"cell": cell, "seed": seed, "pattern": pattern, "signs": signs.tolist(), "torque": float(torque),
                    "safety_filter": bool(safety_filter), "certify": bool(certify), "margin_m": margin,
                    "collisions": s["collisions"], "drake_colliding_updates": int((~free).sum()),
                    "min_clearance_m": s["min_clearance_m"], "nominal_min_clearance_m": float(nom.min()),
@@ -131,17 +165,20 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
 
 
 def summarize_runs(rows: list[dict]) -> list[dict]:
-    """Per (cell, filter on/off, margin): runs, runs with collisions (the
+    """Per (cell, push pattern, certified or not, filter on/off, margin):
+    runs, runs with collisions (the
     run's monitor or Drake's checker), runs that kept the margin, the
     smallest clearance, the largest velocity ratio, filter steps (median and
     largest), damper misses, and the largest and median deviation."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
-        groups.setdefault((r["cell"], r["safety_filter"], r["margin_m"]), []).append(r)
+        groups.setdefault((r["cell"], r.get("pattern", "random"), r["certify"], r["safety_filter"], r["margin_m"]),
+                          []).append(r)
     out = []
-    for (cell, on, margin), g in groups.items():
+    for (cell, pattern, certified, on, margin), g in groups.items():
         out.append({
-            "cell": cell, "safety_filter": on, "margin_m": margin, "runs": len(g),
+            "cell": cell, "pattern": pattern, "certify": certified, "safety_filter": on, "margin_m": margin,
+            "runs": len(g),
             "runs_with_collisions": sum(r["collisions"] > 0 or r["drake_colliding_updates"] > 0 for r in g),
             "runs_margin_kept": sum(r["margin_kept"] for r in g),
             "min_clearance_m": min(r["min_clearance_m"] for r in g),

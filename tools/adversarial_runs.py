@@ -9,7 +9,7 @@ import json
 import sys
 import time
 
-from drake_cfvol.adversarial import steady_push_runs, summarize_runs
+from drake_cfvol.adversarial import PATTERNS, steady_push_runs, summarize_runs
 
 
 def main(argv=None) -> int:
@@ -21,6 +21,8 @@ def main(argv=None) -> int:
     p.add_argument("--clearance", type=float, nargs="+", default=[None],
                    help="the filter's margin(s), m (default: the bounds' own)")
     p.add_argument("--no-off", action="store_true", help="skip the runs without the filter")
+    p.add_argument("--pattern", choices=PATTERNS, default="random",
+                   help="push signs: random (seeded) or nearest (toward the nominal's nearest obstacle)")
     p.add_argument("--json", help="write every row and the summary to this file")
     a = p.parse_args(argv)
     rows = []
@@ -30,6 +32,7 @@ def main(argv=None) -> int:
         for on, clearance in kinds:
             rows += steady_push_runs(
                 cell, a.runs, torque=a.torque, safety_filter=on, certify=a.certify, clearance=clearance,
+                pattern=a.pattern,
                 on_run=lambda r: print(f"{r['cell']} seed {r['seed']:2d} filter {'on ' if r['safety_filter'] else 'off'}"
                                        f" margin {r['margin_m']:.3f}: collisions {r['collisions']:4d} (Drake "
                                        f"{r['drake_colliding_updates']:4d}), clearance {r['min_clearance_m']*1e3:7.1f} mm"
@@ -39,7 +42,8 @@ def main(argv=None) -> int:
     summary = summarize_runs(rows)
     print()
     for s in summary:
-        print(f"{s['cell']:10s} filter {'on ' if s['safety_filter'] else 'off'} margin {s['margin_m']:.3f} m: "
+        print(f"{s['cell']:10s} {s['pattern']} pushes, {'certified' if s['certify'] else 'uncertified'} bounds, "
+              f"filter {'on ' if s['safety_filter'] else 'off'} margin {s['margin_m']:.3f} m: "
               f"{s['runs']} runs, {s['runs_with_collisions']} with collisions, {s['runs_margin_kept']} kept the "
               f"margin (worst shortfall {s['worst_shortfall_m']*1e3:.1f} mm), smallest clearance "
               f"{s['min_clearance_m']*1e3:.1f} mm (nominal's own {s['nominal_min_clearance_m']*1e3:.1f}), "
