@@ -141,7 +141,7 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
             for i, si in enumerate(np.round(s_at, 9)):
                 if si not in nominal_clearance:
                     qn = bounds.at(float(si))[2]
-                    nominal_clearance[si] = min(wc.obstacle_distances(qn, 2.0, moving_only=True).values(),
+                    nominal_clearance[si] = min(wc.obstacle_distances(qn, 2.0, changeable_only=True).values(),
                                                 default=2.0)
                 nom[i] = nominal_clearance[si]
             margin = s["filter_clearance_m"] if s["filter_clearance_m"] is not None else margin_default

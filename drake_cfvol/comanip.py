@@ -76,7 +76,7 @@ from drake_cfvol.systems import (
 )
 from drake_cfvol.viz import show_tool_path
 from drake_cfvol.volume import build_volume, height_map_of
-from drake_cfvol.workcell import builtin_cells, load_workcell, robot_geometry_ids
+from drake_cfvol.workcell import builtin_cells, geometry_key, load_workcell, robot_geometry_ids
 
 __all__ = ["AdmittanceGains", "RandomPushes", "Reactive", "SafetyFilterConfig", "Scenario", "load_scenario", "Comanipulation",
            "build_comanipulation_diagram", "run_scenario", "validate_scenario", "CATEGORY_COLOURS", "diagrams_dir"]
@@ -641,8 +641,14 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     not_obstacles = set(volume_ids) | set(robot_ids)
     obstacle_ids = sorted({g for g in obstacle_ids if g not in not_obstacles
                            and inspector.GetProximityProperties(g) is not None}, key=lambda g: g.get_value())
+    # Pairs whose distance no joint motion changes (the workcell's own scene,
+    # matched by name): a push cannot bring them closer.
+    invariant = wc.invariant_pair_names()
+    ignored = [(a, b) for a in moving_ids for b in obstacle_ids
+               if (geometry_key(inspector, a), geometry_key(inspector, b)) in invariant]
     monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
-        robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids, obstacle_ids=obstacle_ids))
+        robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids, obstacle_ids=obstacle_ids,
+        ignored_pairs=ignored))
     to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
 
     builder.Connect(progress.path_index_output, source.path_index_input)
@@ -830,7 +836,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     # margin if it never comes nearer than min(margin, the nominal's own).
     margin = cm.filter_clearance if scenario.collision_guard else float(cm.bounds.params.get("clearance", 0.0) or 0.0)
     nominal_own = min((min(d.values(), default=1.0) for d in
-                       (cm.workcell.obstacle_distances(qn, 1.0, moving_only=True) for qn in cm.path.waypoints)),
+                       (cm.workcell.obstacle_distances(qn, 1.0, changeable_only=True) for qn in cm.path.waypoints)),
                       default=1.0)
     summary["clearance_m"] = margin
     summary["nominal_min_clearance_m"] = float(nominal_own)

@@ -679,7 +679,8 @@ class ClearanceMonitor(LeafSystem):
 
     ``min_distance`` is the smallest signed distance from the robot's moving
     links to the real obstacles (not the volume; a fixed base resting on its
-    pedestal says nothing about a push), capped at ``max_distance``.
+    pedestal says nothing about a push, nor do ``ignored_pairs``), capped at
+    ``max_distance``.
     ``in_collision`` is 1 where the robot penetrates an obstacle or itself
     (the plant's collision filters apply), ``in_volume`` 1 where it
     penetrates a box of the volume V. The system keeps no state and writes
@@ -695,16 +696,23 @@ class ClearanceMonitor(LeafSystem):
             for the moving links' distance to each of them only (cheaper in
             a scene holding other geometry, such as the volume V's boxes);
             ``in_collision`` ignores any other geometry.
+        ignored_pairs: (moving link geometry, obstacle geometry) pairs left
+            out of ``min_distance``: those whose distance no joint motion
+            changes (:meth:`drake_cfvol.workcell.Workcell.invariant_pairs`),
+            which a push cannot bring closer. ``in_collision`` still counts them.
     """
 
-    def __init__(self, *, robot_ids, moving_ids, volume_ids, max_distance: float = 2.0, obstacle_ids=None):
+    def __init__(self, *, robot_ids, moving_ids, volume_ids, max_distance: float = 2.0, obstacle_ids=None,
+                 ignored_pairs=()):
         super().__init__()
         self._robot = frozenset(robot_ids)
         self._moving = frozenset(moving_ids)
         self._volume = frozenset(volume_ids)
         self._obstacles = None if obstacle_ids is None else frozenset(obstacle_ids)
+        self._ignored = frozenset((a, b) for a, b in ignored_pairs) | frozenset((b, a) for a, b in ignored_pairs)
         self._pairs = None if obstacle_ids is None else [(a, b) for a in sorted(self._moving, key=lambda g: g.get_value())
-                                                          for b in sorted(self._obstacles, key=lambda g: g.get_value())]
+                                                          for b in sorted(self._obstacles, key=lambda g: g.get_value())
+                                                          if (a, b) not in self._ignored]
         if not self._moving <= self._robot:
             raise ParameterError("ClearanceMonitor: moving_ids must be a subset of robot_ids.")
         self._max = float(max_distance)
@@ -735,7 +743,7 @@ class ClearanceMonitor(LeafSystem):
             return best
         for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=self._max):
             a, b = pair.id_A, pair.id_B
-            if a in self._volume or b in self._volume:
+            if a in self._volume or b in self._volume or (a, b) in self._ignored:
                 continue
             if (a in self._moving and b not in self._robot) or (b in self._moving and a not in self._robot):
                 best = min(best, pair.distance)

@@ -165,6 +165,12 @@ class CfvolSection:
     configurations: dict[str, NamedConfiguration] = dataclasses.field(default_factory=dict)
 
 
+def geometry_key(inspector, geometry_id) -> tuple[str, str]:
+    """(frame name, geometry name): a geometry's name that holds across
+    plants built from the same models."""
+    return inspector.GetName(inspector.GetFrameId(geometry_id)), inspector.GetName(geometry_id)
+
+
 def robot_geometry_ids(plant, robot) -> tuple[set, set]:
     """Proximity geometry ids of a robot's links in a finalized plant, and of
     those its joints move.
@@ -524,22 +530,28 @@ class Workcell:
             self._scene_arrays = scene_arrays(self)
         return self._scene_arrays
 
-    def obstacle_distances(self, q, max_distance: float, *, moving_only: bool = False) -> dict[str, float]:
+    def obstacle_distances(self, q, max_distance: float, *, moving_only: bool = False,
+                           changeable_only: bool = False) -> dict[str, float]:
         """Smallest signed distance per obstacle to the robot at ``q`` (real
         geometry, Drake), for the obstacles within ``max_distance``, m. With
         ``moving_only``, only the robot's links that its joints move count
-        (a fixed base resting on its pedestal says nothing about a push)."""
+        (a fixed base resting on its pedestal says nothing about a push);
+        with ``changeable_only``, moreover only the pairs whose distance a
+        joint motion changes (:meth:`invariant_pairs`: a turret turning above
+        its round pedestal, a rail carriage gliding above the floor)."""
+        invariant = self.invariant_pairs() if changeable_only else frozenset()  # poses the context: first
         self.plant_context(q)
         sg = self.scene_graph
         query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
         owner = self._geometry_owner
-        fixed = self.fixed_robot_geometries() if moving_only else frozenset()
+        fixed = self.fixed_robot_geometries() if (moving_only or changeable_only) else frozenset()
         out: dict[str, float] = {}
         for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=max_distance):
             a, b = owner.get(pair.id_A), owner.get(pair.id_B)
             if (a is None) == (b is None):
                 continue  # robot-robot or obstacle-obstacle
-            if (pair.id_B if a is not None else pair.id_A) in fixed:
+            r, o = (pair.id_B, pair.id_A) if a is not None else (pair.id_A, pair.id_B)
+            if r in fixed or (r, o) in invariant:
                 continue
             name = a if a is not None else b
             out[name] = min(out.get(name, np.inf), pair.distance)
@@ -547,13 +559,15 @@ class Workcell:
 
     def nearest_obstacle(self, q, max_distance: float = 5.0):
         """The obstacle nearest to the robot's moving links at ``q`` (Drake,
-        real geometry).
+        real geometry), among the pairs whose distance a joint motion
+        changes (:meth:`invariant_pairs`).
 
         Returns:
             (name, distance m, p_WR, p_WO): the witness points on the robot and
             on the obstacle, world frame; None if nothing is within
             ``max_distance``.
         """
+        invariant = self.invariant_pairs()  # poses the context: first
         self.plant_context(q)
         sg = self.scene_graph
         query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
@@ -565,12 +579,51 @@ class Workcell:
                 continue
             robot_id, p_R, name, obs_id, p_O = ((pair.id_B, pair.p_BCb, a, pair.id_A, pair.p_ACa) if a is not None
                                                 else (pair.id_A, pair.p_ACa, b, pair.id_B, pair.p_BCb))
-            if robot_id in fixed:
+            if robot_id in fixed or (robot_id, obs_id) in invariant:
                 continue
             if best is None or pair.distance < best[1]:
                 best = (name, pair.distance, query.GetPoseInWorld(robot_id) @ p_R,
                         query.GetPoseInWorld(obs_id) @ p_O)
         return best
+
+    def invariant_pairs(self, *, samples: int = 12, seed: int = 0, tol: float = 1e-6) -> frozenset:
+        """(robot geometry id, obstacle geometry id) pairs, moving links only,
+        whose signed distance no joint motion changes: equal within ``tol``
+        (m) at the default configuration and ``samples`` seeded uniform
+        configurations within the position limits (nominal +- pi for a joint
+        without limits). A push cannot bring such a pair closer, so a run's
+        clearance leaves them out (:meth:`obstacle_distances`). Computed once."""
+        if getattr(self, "_invariant", None) is not None:
+            return self._invariant
+        k = self.num_joints
+        q0 = self.plant.GetPositions(self.plant.CreateDefaultContext(), self.robot)
+        lo = np.where(np.isfinite(self.position_lower), self.position_lower, q0 - np.pi)
+        hi = np.where(np.isfinite(self.position_upper), self.position_upper, q0 + np.pi)
+        Q = np.vstack([q0, np.random.default_rng(seed).uniform(lo, hi, (samples, k))])
+        _, moving = robot_geometry_ids(self.plant, self.robot)
+        pairs = [(r, o) for r in sorted(moving, key=lambda g: g.get_value())
+                 for o in sorted(self._geometry_owner, key=lambda g: g.get_value())]
+        sg = self.scene_graph
+        D = np.full((len(Q), len(pairs)), np.nan)
+        for n, q in enumerate(Q):
+            self.plant_context(q)
+            query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
+            for m, (r, o) in enumerate(pairs):
+                try:
+                    D[n, m] = query.ComputeSignedDistancePairClosestPoints(r, o).distance
+                except RuntimeError:
+                    pass  # a shape pair Drake cannot measure: never called invariant
+        spread = np.nanmax(D, axis=0) - np.nanmin(D, axis=0) if len(Q) else np.zeros(len(pairs))
+        ok = np.all(np.isfinite(D), axis=0) & (spread <= tol)
+        self._invariant = frozenset(p for p, keep in zip(pairs, ok) if keep)
+        return self._invariant
+
+    def invariant_pair_names(self) -> frozenset:
+        """:meth:`invariant_pairs` as ((frame name, geometry name) of the
+        robot's geometry, same of the obstacle's): names that hold in any
+        plant the workcell was added to (:meth:`add_to_plant`)."""
+        inspector = self.scene_graph.model_inspector()
+        return frozenset((geometry_key(inspector, r), geometry_key(inspector, o)) for r, o in self.invariant_pairs())
 
     def fixed_robot_geometries(self) -> frozenset:
         """Proximity geometry ids of the robot's bodies that no joint moves

@@ -82,7 +82,7 @@ def test_run_reports_volume_and_clearance(run):
     assert summary["min_clearance_m"] == pytest.approx(float(logs["update_min_distance"].min()))
     assert summary["min_clearance_m"] <= float(logs["min_distance"].min())
     q = logs["update_commanded_position"][int(np.argmin(logs["update_min_distance"][:, 0]))]
-    moving = min(wc.obstacle_distances(q, 2.0, moving_only=True).values())
+    moving = min(wc.obstacle_distances(q, 2.0, changeable_only=True).values())
     assert summary["min_clearance_m"] == pytest.approx(moving, abs=1e-9)
 
 
@@ -366,7 +366,7 @@ def test_push_toward_nearest_obstacle_points_at_it():
     f = np.asarray(push.wrench[3:])
     assert np.linalg.norm(f) == pytest.approx(scenario.pushes[i].toward_nearest_obstacle)
     np.testing.assert_allclose(f / np.linalg.norm(f), (p_WO - p_WR) / np.linalg.norm(p_WO - p_WR), atol=1e-9)
-    assert dist == pytest.approx(min(cm.workcell.obstacle_distances(q, 5.0, moving_only=True).values()))
+    assert dist == pytest.approx(min(cm.workcell.obstacle_distances(q, 5.0, changeable_only=True).values()))
 
 
 def test_scenario_certify_asks_for_certified_bounds(monkeypatch):

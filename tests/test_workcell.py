@@ -220,3 +220,24 @@ def test_fixed_links_left_out_of_moving_clearance():
         moving = wc.obstacle_distances(q, 2.0, moving_only=True)
         assert set(moving) <= set(every)
         assert all(moving[n] >= every[n] - 1e-12 for n in moving)
+
+
+def test_invariant_pairs_of_a_planar_arm(tmp_path):
+    """A two-link arm turning about vertical axes 0.5 m above the floor: its
+    links' distance to the floor is the same at every configuration (0.45 m,
+    by hand: 0.5 m less the 0.05 m half width), so those pairs are invariant
+    and left out of the changeable distances; the post's distance changes
+    with the joints and stays."""
+
+    wc = cf.load_workcell(write_arm_cell(
+        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
+                         {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8}],
+        obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))}, base_z=0.5))
+    owner = {o: name for name, ob in wc.obstacles.items() for o in ob.geometry_ids}
+    assert {owner[o] for _, o in wc.invariant_pairs()} == {"floor"}
+    rng = np.random.default_rng(5)
+    for q in rng.uniform(wc.position_lower, wc.position_upper, (4, 2)):
+        every = wc.obstacle_distances(q, 2.0, moving_only=True)
+        assert every["floor"] == pytest.approx(0.45, abs=1e-6)
+        changeable = wc.obstacle_distances(q, 2.0, changeable_only=True)
+        assert "floor" not in changeable and changeable["post"] == every["post"]
