@@ -241,6 +241,7 @@ def within_stretches(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, 
             with np.errstate(divide="ignore", invalid="ignore"):
                 ts = (cap - n0) / (n1 - n0)
             cross = np.isfinite(ts) & (ts > 0) & (ts < 1)
+            ts = np.where(cross, ts, 0.5)  # elsewhere unused (and inf - inf for a joint without limits)
             over = cross & ((1 - ts) * a0 + ts * a1 > cap)
             if not over.any():
                 continue
