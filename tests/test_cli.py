@@ -51,6 +51,7 @@ def test_bounds_json_and_files(tmp_path, capsys):
     assert open(d["files"]["plot_png"], "rb").read(8) == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow  # 5.5 s: a whole co-manipulation run through the CLI
 def test_simulate_json(tmp_path, capsys):
     """cfvol simulate --json prints the run's summary with the promised keys."""
     assert main(["simulate", "automotive_push", "--out", str(tmp_path), "--json",

@@ -16,6 +16,7 @@ def _fine_checker(wc):
                                       edge_step_size=0.0025)
 
 
+@pytest.mark.slow  # 4-5 s per cell; the default group stays under 90 s
 @pytest.mark.parametrize("cell", ["automotive", "aerospace"])
 def test_all_named_paths_plan_and_are_free(cell, request):
     """All named paths plan for seeds 0..4; every waypoint and every edge is

@@ -38,6 +38,7 @@ def single_joint_violations(wc, table, s_values, checker, step=CHECK_STEP):
     return [labels[i] for i in np.flatnonzero(~free)]
 
 
+@pytest.mark.slow  # 5 s; the slow group also checks all six paths
 def test_single_joint_safety_between_waypoints(automotive, bounded):
     """Moving one joint alone from the interpolated nominal to its bound is
     free at s = i + 1/2 for every stretch (every s = i + m/10 of all six
