@@ -239,16 +239,17 @@ def reaching_joints(workcell, arrays, q, margin) -> np.ndarray:
     return ma.copy()
 
 
-def _scaled(lower, upper, nominal, i, l, side, lam):
-    """Copies of stretch i's waypoint bounds with joint l's deviation on
-    ``side`` scaled by lam at both ends: ((lo_i, lo_i1), (hi_i, hi_i1))."""
-    lo = np.array([lower[i].copy(), lower[i + 1].copy()])
-    hi = np.array([upper[i].copy(), upper[i + 1].copy()])
-    nom = nominal[i:i + 2, l]
-    if side > 0:
-        hi[:, l] = nom + lam * (hi[:, l] - nom)
-    else:
-        lo[:, l] = nom - lam * (nom - lo[:, l])
+def _scaled(lower, upper, nominal, i, moves):
+    """Copies of stretch i's waypoint bounds with the deviation of each
+    (joint, side, lam) of ``moves`` scaled by lam at both ends:
+    ((lo_i, lo_i1), (hi_i, hi_i1))."""
+    lo, hi = lower[i:i + 2].copy(), upper[i:i + 2].copy()
+    nom = nominal[i:i + 2]
+    for l, side, lam in moves:
+        if side > 0:
+            hi[:, l] = nom[:, l] + lam * (hi[:, l] - nom[:, l])
+        else:
+            lo[:, l] = nom[:, l] - lam * (nom[:, l] - lo[:, l])
     return lo, hi
 
 
@@ -279,8 +280,7 @@ def cut_for(workcell, arrays, lower, upper, nominal, fail: _Item, margin: float,
     ss = np.array([fail.sa, fail.sb])
     options = []  # (loss, stretch-local lo, hi, key)
     # The edge's own joint: its failing range cut away where it lies off the nominal.
-    _, _, nom_ab = _box(lower, upper, nominal, i, ss)
-    lo_ab, hi_ab, _ = _box(lower, upper, nominal, i, ss)
+    lo_ab, hi_ab, nom_ab = _box(lower, upper, nominal, i, ss)
     for side in (1, -1):
         if side > 0 and fail.va > nom_ab[:, j].max():
             dev = hi_ab[:, j] - nom_ab[:, j]
@@ -291,33 +291,23 @@ def cut_for(workcell, arrays, lower, upper, nominal, fail: _Item, margin: float,
         else:
             continue
         lam = float(np.clip(lam * (1 - 1e-6), 0.0, 1.0))
-        lo, hi = _scaled(lower, upper, nominal, i, j, side, lam)
+        lo, hi = _scaled(lower, upper, nominal, i, [(j, side, lam)])
         options.append((_width_loss(lower, upper, i, lo, hi), lo, hi, (i, j, side)))
     # Another joint on its bound in the region: tried at a few scales.
+    # Another joint on its bound in the region, and all of them together (a
+    # collision that two bounds make at once), tried at a few scales.
+    group = [int(l) for l in np.flatnonzero(reach) if l != j]
+    sides = {l: 1 if fail.S[l] == 1 else -1 for l in group}
+    cands = [((l, sides[l]), [l]) for l in group] + ([((-1, 0), group)] if len(group) > 1 else [])
     trials = []
-    for l in np.flatnonzero(reach):
-        if l == j:
-            continue
-        side = 1 if fail.S[l] == 1 else -1
+    for (l, side), members in cands:
         for lam in CUT_SCALES:
-            lo, hi = _scaled(lower, upper, nominal, i, l, side, lam)
+            lo, hi = _scaled(lower, upper, nominal, i, [(m, sides[m], lam) for m in members])
             if np.array_equal(lo, lower[i:i + 2]) and np.array_equal(hi, upper[i:i + 2]):
                 continue
             a_lo, a_hi, _ = _box(lo, hi, nominal[i:i + 2], 0, ss - i)
             ca = np.where(fail.S == 1, a_hi, a_lo)
             trials.append((l, side, lam, lo, hi, _Item(i, fail.sa, fail.sb, j, fail.va, fail.vb, fail.S, ca[0], ca[1])))
-    group = [l for l in np.flatnonzero(reach) if l != j]
-    if len(group) > 1:
-        # All of them together (a collision that two bounds make at once).
-        for lam in CUT_SCALES:
-            lo, hi = lower[i:i + 2].copy(), upper[i:i + 2].copy()
-            for l in group:
-                side = 1 if fail.S[l] == 1 else -1
-                l_lo, l_hi = _scaled(lower, upper, nominal, i, l, side, lam)
-                lo[:, l], hi[:, l] = l_lo[:, l], l_hi[:, l]
-            a_lo, a_hi, _ = _box(lo, hi, nominal[i:i + 2], 0, ss - i)
-            ca = np.where(fail.S == 1, a_hi, a_lo)
-            trials.append((-1, 0, lam, lo, hi, _Item(i, fail.sa, fail.sb, j, fail.va, fail.vb, fail.S, ca[0], ca[1])))
     if trials:
         ok = ~_test(arrays, [t[5] for t in trials], {i: margin})
         best_l = {}
@@ -356,30 +346,21 @@ def _variants(lower, upper, nominal, i, t, moves):
     what it was): both ends of stretch i scaled by lam, or only the nearer
     end, moved just enough (when that is possible). Returns a list of
     (lo, hi), stretch i's two waypoint boxes, (2, k) each."""
-    out = []
+    out = [_scaled(lower, upper, nominal, i, moves)]
     nom2 = nominal[i:i + 2]
-    for near_only in (False, True):
-        lo, hi = lower[i:i + 2].copy(), upper[i:i + 2].copy()
-        ok = True
-        for l, side, lam in moves:
-            d = (hi[:, l] - nom2[:, l]) if side > 0 else (nom2[:, l] - lo[:, l])
-            if near_only:
-                e = 0 if t <= 0.5 else 1
-                w = (1 - t) if e == 0 else t
-                dev = (1 - t) * d[0] + t * d[1]
-                new = d.copy()
-                new[e] = d[e] - (1 - lam) * dev / max(w, 1e-12)
-                if new[e] < 0:
-                    ok = False
-                    break
-            else:
-                new = lam * d
-            if side > 0:
-                hi[:, l] = nom2[:, l] + new
-            else:
-                lo[:, l] = nom2[:, l] - new
-        if ok:
-            out.append((lo, hi))
+    e = 0 if t <= 0.5 else 1
+    w = max((1 - t) if e == 0 else t, 1e-12)
+    lo, hi = lower[i:i + 2].copy(), upper[i:i + 2].copy()
+    for l, side, lam in moves:
+        d = (hi[:, l] - nom2[:, l]) if side > 0 else (nom2[:, l] - lo[:, l])
+        new_e = d[e] - (1 - lam) * ((1 - t) * d[0] + t * d[1]) / w
+        if new_e < 0:
+            return out  # the nearer end alone cannot do it
+        if side > 0:
+            hi[e, l] = nom2[e, l] + new_e
+        else:
+            lo[e, l] = nom2[e, l] - new_e
+    out.append((lo, hi))
     return out
 
 

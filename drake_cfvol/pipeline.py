@@ -7,7 +7,6 @@ categorize -> grow the volume V -> bound every joint at every waypoint
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
 import numpy as np
