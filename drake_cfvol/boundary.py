@@ -39,7 +39,8 @@ from drake_cfvol import kernel as K
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.table import rate_limited
 
-__all__ = ["edge_tasks", "regions_may_collide", "prove_boundary", "corner_pass", "corner_points", "reaching_joints"]
+__all__ = ["edge_tasks", "regions_may_collide", "prove_boundary", "corner_pass", "corner_points", "reaching_joints",
+           "cut_point", "cut_slacks"]
 
 #: Halvings of a failing region before it is cut: along the joint, and in
 #: the last S_SPLITS of them in s too.
@@ -49,6 +50,11 @@ S_SPLITS = 3
 MOTION_TOLERANCE = 0.01
 #: Scales of a bound's deviation tried by a cut, largest first.
 CUT_SCALES = (0.95, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.0)
+#: Room a cut leaves beyond the margin, m, so the region tests (whose grid
+#: and growth bound need some clearance to prove anything) can pass.
+SLACK = 0.02
+#: Bisection steps that refine a cut's passing scale toward the failing one.
+REFINE_STEPS = 3
 
 
 def _signs(k: int, j: int) -> np.ndarray:
@@ -226,7 +232,12 @@ def reaching_joints(workcell, arrays, q, margin) -> np.ndarray:
     k = len(q)
     rc = workcell.checker.CalcRobotClearance(np.asarray(q, float), max(margin, 0.0) + 0.05)
     d = np.asarray(rc.distances())
-    if not d.size:
+    if d.size:
+        # A distance no joint changes (a rail carriage above the floor) is
+        # not what a cut can help.
+        J = np.asarray(rc.jacobians()).reshape(len(d), k)
+        d = np.where(np.linalg.norm(J, axis=1) > 1e-9, d, np.inf)
+    if not d.size or not np.isfinite(d).any():
         return np.ones(k, bool)
     n = int(np.argmin(d))
     plant = workcell.plant
@@ -253,14 +264,32 @@ def _scaled(lower, upper, nominal, i, moves):
     return lo, hi
 
 
-def _width_loss(lower, upper, i, lo, hi):
-    """Log-width lost by stretch i's two waypoint boxes if they became lo, hi."""
-    w0 = np.maximum(upper[i:i + 2] - lower[i:i + 2], 1e-12)
-    w1 = np.maximum(hi - lo, 1e-12)
+def _width_loss(lower, upper, nominal, rate, i, lo, hi):
+    """Log-width the whole table loses if stretch i's two waypoint boxes
+    became lo, hi: their own loss and what the rate limit then takes from
+    the waypoints around them (:func:`drake_cfvol.table.rate_limited`,
+    applied from the two changed rows; the rest is rate-limited already)."""
+    g = len(nominal)
+    lo_f = lower.copy()
+    hi_f = upper.copy()
+    lo_f[i:i + 2] = np.maximum(lo_f[i:i + 2], lo)
+    hi_f[i:i + 2] = np.minimum(hi_f[i:i + 2], hi)
+    lim = np.isfinite(rate)
+    if lim.any():
+        m = np.arange(g)[:, None]
+        for e in (i, i + 1):
+            d = np.abs(m - e) * np.where(lim, rate, 0.0)
+            hi_f = np.where(lim, np.minimum(hi_f, hi_f[e] + d), hi_f)
+            lo_f = np.where(lim, np.maximum(lo_f, lo_f[e] - d), lo_f)
+    lo_f = np.minimum(lo_f, nominal)
+    hi_f = np.maximum(hi_f, nominal)
+    w0 = np.maximum(upper - lower, 1e-12)
+    w1 = np.maximum(hi_f - lo_f, 1e-12)
     return float(np.sum(np.log(w0 / w1)))
 
 
-def cut_for(workcell, arrays, lower, upper, nominal, fail: _Item, margin: float, taken: set) -> bool:
+def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: float, slack: float,
+            taken: set) -> bool:
     """Tightens the waypoint boxes of a failing region's stretch (in place)
     so that the region, recomputed, passes: the candidates are the edge's
     own joint (its failing range off the nominal cut away) and every joint
@@ -292,7 +321,7 @@ def cut_for(workcell, arrays, lower, upper, nominal, fail: _Item, margin: float,
             continue
         lam = float(np.clip(lam * (1 - 1e-6), 0.0, 1.0))
         lo, hi = _scaled(lower, upper, nominal, i, [(j, side, lam)])
-        options.append((_width_loss(lower, upper, i, lo, hi), lo, hi, (i, j, side)))
+        options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i, j, side)))
     # Another joint on its bound in the region: tried at a few scales.
     # Another joint on its bound in the region, and all of them together (a
     # collision that two bounds make at once), tried at a few scales.
@@ -309,13 +338,13 @@ def cut_for(workcell, arrays, lower, upper, nominal, fail: _Item, margin: float,
             ca = np.where(fail.S == 1, a_hi, a_lo)
             trials.append((l, side, lam, lo, hi, _Item(i, fail.sa, fail.sb, j, fail.va, fail.vb, fail.S, ca[0], ca[1])))
     if trials:
-        ok = ~_test(arrays, [t[5] for t in trials], {i: margin})
+        ok = ~_test(arrays, [t[5] for t in trials], {i: margin + slack})
         best_l = {}
         for (l, side, lam, lo, hi, _), good in zip(trials, ok):
             if good and (l, side) not in best_l:  # scales run largest first: the first pass is the best
                 best_l[(l, side)] = (lo, hi)
         for (l, side), (lo, hi) in best_l.items():
-            options.append((_width_loss(lower, upper, i, lo, hi), lo, hi, (i, int(l), side) if l >= 0 else (i, -2, 0)))
+            options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i, int(l), side) if l >= 0 else (i, -2, 0)))
     options = [o for o in options if not (np.array_equal(o[1], lower[i:i + 2]) and np.array_equal(o[2], upper[i:i + 2]))]
     if not options:
         # No single bound clears it: if the nominal's own stretch keeps the
@@ -364,49 +393,79 @@ def _variants(lower, upper, nominal, i, t, moves):
     return out
 
 
-def _cut_corner(workcell, arrays, lower, upper, nominal, i, s, pattern, q, margin, taken, own=None) -> None:
+def cut_point(workcell, arrays, lower, upper, nominal, rate, i, s, q, margin, slack, taken, own=None) -> None:
     """Tightens stretch i (in place) so that the colliding configuration q
-    of the box at s comes free. q is a corner (every joint on the bound of
-    ``pattern``) or, with ``own``, an edge point (joint ``own`` inside its
-    range, on the side ``pattern`` gives it). Candidates: each joint on a
-    bound whose motion reaches the nearest pair, and all of them together,
-    moved toward the nominal at CUT_SCALES (checked as points: scaling a
-    deviation by lam at both ends scales it at every s); and the edge's own
-    joint, its range cut just below q. Each at both ends of the stretch or
-    at the nearer end only; the cut that loses the least width is applied,
-    else the stretch's box moves halfway to the nominal."""
+    of the box at s comes free, with ``slack`` (m) beyond the margin. q may
+    be a corner, an edge point (``own``: the edge's joint) or any point of
+    the box, such as where a clamp lands: each joint at its nominal, on a
+    bound, or inside. Candidates: each joint off its nominal whose motion
+    reaches the nearest pair (Drake), all of them together, and the edge's
+    own joint; each moves q's deviation toward the nominal by the largest
+    scale that frees it (CUT_SCALES, then REFINE_STEPS bisections; checked
+    as points), and the bound on that side is cut to match (a joint on its
+    bound moves with it; a joint inside is cut just below q). Each at both
+    ends of the stretch or at the nearer end only; the cut that loses the
+    least width, counting what the rate limit then takes from the
+    neighbours, is applied, else the stretch's box moves halfway to the
+    nominal. ``taken`` holds the cuts of this round (a key is cut once)."""
     t = s - i
     nom = (1 - t) * nominal[i] + t * nominal[i + 1]
-    reach = np.flatnonzero(reaching_joints(workcell, arrays, q, margin) & (q != nom))
-    reach = [int(l) for l in reach if l != own]
+    # Cuts only tighten: an earlier cut this round may have moved (or freed)
+    # the point already.
+    lo_s = (1 - t) * lower[i] + t * lower[i + 1]
+    hi_s = (1 - t) * upper[i] + t * upper[i + 1]
+    q_now = np.clip(q, np.minimum(lo_s, nom), np.maximum(hi_s, nom))
+    if not np.array_equal(q_now, q):
+        q = q_now
+        if not arrays.may_collide(q[None], margin + slack)[0]:
+            return
+    off = q != nom
+    reach = [int(l) for l in np.flatnonzero(reaching_joints(workcell, arrays, q, margin) & off) if l != own]
     cands = [[l] for l in reach] + ([reach] if len(reach) > 1 else [])
-    trials, Q = [], []
-    for group in cands:
-        for lam in CUT_SCALES:
-            x = q.copy()
-            x[group] = nom[group] + lam * (q[group] - nom[group])
-            trials.append((group, lam))
-            Q.append(x)
+    if own is not None and off[own]:
+        cands.append([own])
     moves = []
-    if Q:
-        ok = ~arrays.may_collide(np.array(Q), margin)
-        done = set()
-        for (group, lam), good in zip(trials, ok):
-            if good and tuple(group) not in done:  # scales run largest first
-                done.add(tuple(group))
-                moves.append((tuple(group), [(l, 1 if pattern[l] else -1, lam) for l in group]))
-    if own is not None and q[own] != nom[own]:
-        lo_s = (1 - t) * lower[i, own] + t * lower[i + 1, own]
-        hi_s = (1 - t) * upper[i, own] + t * upper[i + 1, own]
-        side = 1 if q[own] > nom[own] else -1
-        dev = (hi_s - nom[own]) if side > 0 else (nom[own] - lo_s)
-        if dev > 0:
-            lam = max(0.0, abs(q[own] - nom[own]) / dev * (1 - 1e-6))
-            moves.append(((own,), [(own, side, lam)]))
+    if cands:
+        trials, Q = [], []
+        for group in cands:
+            for lam in CUT_SCALES:
+                x = q.copy()
+                x[group] = nom[group] + lam * (q[group] - nom[group])
+                trials.append((tuple(group), lam))
+                Q.append(x)
+        ok = ~arrays.may_collide(np.array(Q), margin + slack)
+        bracket, failing = {}, {}  # group -> (largest failing scale, largest passing scale)
+        for (key, lam), good in zip(trials, ok):
+            if key in bracket:
+                continue
+            if good:  # scales run largest first
+                bracket[key] = (failing.get(key, 1.0), lam)
+            else:
+                failing[key] = lam
+        keys = list(bracket)
+        for _ in range(REFINE_STEPS if keys else 0):  # bisect each passing scale toward the failing one
+            X = []
+            for key in keys:
+                x = q.copy()
+                x[list(key)] = nom[list(key)] + 0.5 * sum(bracket[key]) * (q[list(key)] - nom[list(key)])
+                X.append(x)
+            good = ~arrays.may_collide(np.array(X), margin + slack)
+            for key, gd in zip(keys, good):
+                mid = 0.5 * sum(bracket[key])
+                bracket[key] = (bracket[key][0], mid) if gd else (mid, bracket[key][1])
+        for key, (_, lam) in bracket.items():
+            mv = []
+            for l in key:
+                side = 1 if q[l] > nom[l] else -1
+                dev = (hi_s[l] - nom[l]) if side > 0 else (nom[l] - lo_s[l])
+                if dev > 0:  # q's deviation scaled by lam is this share of the bound's
+                    mv.append((l, side, min(1.0, lam * abs(q[l] - nom[l]) / dev)))
+            if mv:
+                moves.append((key, mv))
     options = []
     for key, mv in moves:
         for lo, hi in _variants(lower, upper, nominal, i, t, mv):
-            options.append((_width_loss(lower, upper, i, lo, hi), lo, hi, (i,) + key))
+            options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i,) + key))
     if not options:
         nom2 = nominal[i:i + 2]
         options.append((0.0, nom2 - 0.5 * (nom2 - lower[i:i + 2]), nom2 + 0.5 * (upper[i:i + 2] - nom2), (i, -1)))
@@ -418,15 +477,16 @@ def _cut_corner(workcell, arrays, lower, upper, nominal, i, s, pattern, q, margi
     upper[i:i + 2] = np.minimum(upper[i:i + 2], hi)
 
 
-def corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, *, per_stretch: int = 4,
+def corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, slacks=None, *, per_stretch: int = 4,
                 max_rounds: int = 50) -> dict:
     """A cheap pass before the proof: the box's corners at every quarter of
     every stretch, checked as points by the kernel; colliding ones are cut
-    (:func:`_cut_corner`, at most ``per_stretch`` per stretch and round),
+    (:func:`cut_point`, at most ``per_stretch`` per stretch and round),
     round after round until none collides. It proves nothing (the region
     proof does) but removes what the proof would otherwise find one region
     at a time, with cuts chosen by exact point checks."""
     g, k = nominal.shape
+    slacks = np.zeros(g - 1) if slacks is None else slacks
     pat = np.array(list(itertools.product((0, 1), repeat=k)), bool)
     s = np.arange(0.0, g - 1 + 1e-9, 0.25)
     st = np.clip(np.floor(s).astype(int), 0, g - 2)
@@ -435,7 +495,7 @@ def corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, *, per_s
         rounds += 1
         Q = corner_points(lower, upper, nominal, s)
         rows_st = np.repeat(st, len(pat))
-        pads = margins[rows_st]
+        pads = margins[rows_st] + slacks[rows_st]
         bad = np.zeros(len(Q), bool)
         for p in np.unique(pads):
             sel = pads == p
@@ -446,14 +506,14 @@ def corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, *, per_s
         for i in np.unique(rows_st[bad]):
             rows = np.flatnonzero(bad & (rows_st == i))
             for r in rows[:: max(1, len(rows) // per_stretch)][:per_stretch]:
-                _cut_corner(workcell, arrays, lower, upper, nominal, int(i), float(s[r // len(pat)]),
-                            pat[r % len(pat)], Q[r], float(margins[i]), taken)
+                cut_point(workcell, arrays, lower, upper, nominal, rate, int(i), float(s[r // len(pat)]), Q[r],
+                          float(margins[i]), float(slacks[i]), taken)
         cuts += len(taken)
         lower[:], upper[:] = rate_limited(lower, upper, nominal, rate)
     return {"corner_rounds": rounds, "corner_cuts": cuts}
 
 
-def _colliding_points(arrays, lower, upper, nominal, fails, margins, n: int = 9):
+def _colliding_points(arrays, lower, upper, nominal, fails, margins, slacks, n: int = 9):
     """For each failing region, a configuration of the box's edge in it
     that may collide, (s, q), or None: an n x n grid over the region (s
     and joint j), points outside the box at their s left out."""
@@ -477,7 +537,7 @@ def _colliding_points(arrays, lower, upper, nominal, fails, margins, n: int = 9)
     if not Q:
         return out
     Q, owner, where = np.concatenate(Q), np.concatenate(owner), np.concatenate(where)
-    pads = np.array([margins[fails[r].i] for r in owner], float)
+    pads = np.array([margins[fails[r].i] + slacks[fails[r].i] for r in owner], float)
     bad = np.zeros(len(Q), bool)
     for p in np.unique(pads):
         sel = pads == p
@@ -485,6 +545,28 @@ def _colliding_points(arrays, lower, upper, nominal, fails, margins, n: int = 9)
     for m in np.flatnonzero(bad):
         if out[owner[m]] is None:
             out[owner[m]] = (float(where[m]), Q[m].copy())
+    return out
+
+
+def cut_slacks(arrays, nominal, margins, slack: float | None = None) -> np.ndarray:
+    """(g-1,) the room each stretch's cuts leave beyond its margin, m: the
+    largest of ``slack`` (default SLACK) halved up to three times, or 0, at
+    which the nominal's two waypoints and midpoint keep margin + room (a
+    cut can never clear more room than the nominal has)."""
+    slack = SLACK if slack is None else float(slack)
+    n_st = len(nominal) - 1
+    out = np.zeros(n_st)
+    if slack <= 0 or n_st < 1:
+        return out
+    Q = np.concatenate([nominal[:-1], nominal[1:], 0.5 * (nominal[:-1] + nominal[1:])])
+    pads = np.tile(np.asarray(margins, float), 3)
+    for rung in (0.125, 0.25, 0.5, 1.0):  # from small up: a rung that holds at every point is kept
+        room = rung * slack
+        free = np.zeros(len(Q), bool)
+        for p in np.unique(pads):
+            sel = pads == p
+            free[sel] = ~arrays.may_collide(Q[sel], float(p) + room)
+        out = np.where(free.reshape(3, n_st).all(axis=0), room, out)
     return out
 
 
@@ -516,13 +598,14 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
     """
     proven = {} if proven is None else proven
     n_st = len(nominal) - 1
+    slacks = cut_slacks(arrays, nominal, margins)
     tests = cuts = rounds = lowered = 0
     while rounds < max_rounds:
         todo = [i for i in range(n_st) if proven.get(i) != _signature(lower, upper, i)]
         if not todo:
             break
         rounds += 1
-        cp = corner_pass(workcell, arrays, lower, upper, nominal, rate, margins)
+        cp = corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, slacks)
         cuts += cp["corner_cuts"]
         todo = [i for i in range(n_st) if proven.get(i) != _signature(lower, upper, i)]
         fails, t = _failures(arrays, lower, upper, nominal, todo, margins)
@@ -531,7 +614,7 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
             proven[i] = _signature(lower, upper, i)
         taken: set = set()
         stuck = set()
-        points = _colliding_points(arrays, lower, upper, nominal, fails, margins)
+        points = _colliding_points(arrays, lower, upper, nominal, fails, margins, slacks)
         for fail, hit in zip(fails, points):
             if fail.i in stuck:
                 continue
@@ -539,13 +622,10 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
                 # A real collision on the edge: cut as at a corner, the edge's
                 # own joint one of the candidates.
                 s_hit, q = hit
-                t = s_hit - fail.i
-                nom_j = (1 - t) * nominal[fail.i, fail.j] + t * nominal[fail.i + 1, fail.j]
-                pattern = fail.S.astype(bool).copy()
-                pattern[fail.j] = q[fail.j] > nom_j
-                _cut_corner(workcell, arrays, lower, upper, nominal, fail.i, s_hit, pattern, q,
-                            float(margins[fail.i]), taken, own=fail.j)
-            elif not cut_for(workcell, arrays, lower, upper, nominal, fail, float(margins[fail.i]), taken):
+                cut_point(workcell, arrays, lower, upper, nominal, rate, fail.i, s_hit, q, float(margins[fail.i]),
+                          float(slacks[fail.i]), taken, own=fail.j)
+            elif not cut_for(workcell, arrays, lower, upper, nominal, rate, fail, float(margins[fail.i]),
+                             float(slacks[fail.i]), taken):
                 stuck.add(fail.i)
         for i in stuck:
             # Nothing cut passes: the region sits on the nominal, which comes

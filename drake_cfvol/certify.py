@@ -54,14 +54,23 @@ from pathlib import Path
 
 import numpy as np
 
-from drake_cfvol.boundary import prove_boundary
+from drake_cfvol.boundary import cut_point, cut_slacks, prove_boundary, reaching_joints
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.metrics import freedom
 from drake_cfvol.progress import Progress
 from drake_cfvol.sweep import stretch_margins
 from drake_cfvol.table import rate_limited, within_stretches
 
-__all__ = ["Certify", "CertificateReport", "certify_bounds", "certified_table", "certification_rng", "cache_dir"]
+__all__ = ["Certify", "CertificateReport", "certify_bounds", "certified_table", "certification_rng", "cache_dir",
+           "clamp_draws"]
+
+#: Drake queries per stretch for the joints a sampled cut may use.
+_REACH_QUERIES = 16
+#: Point cuts per stretch and round for samples on a bound.
+_POINT_CUTS = 16
+#: Room a point cut of the sampled search leaves beyond the margin, m (its
+#: neighbours on the same bound come free with it).
+_POINT_SLACK = 0.005
 
 #: Spawn key that separates certification draws from CF draws of the same seed.
 _CERT_STREAM = 0xCE27
@@ -72,7 +81,12 @@ class Certify:
     """Certificate settings.
 
     Attributes:
-        epsilon: the largest colliding share allowed, in (0, 1).
+        epsilon: the largest colliding share allowed, in (0, 1), of
+            configurations uniform in the box.
+        clamp_epsilon: the same for where a clamp lands
+            (:func:`clamp_draws`); None: 10 x epsilon (at most 0.5). The
+            boundary proof, when on, covers the box's edges and corners
+            for certain.
         confidence: probability that the certificate is right, in (0, 1).
         seed: seed of the certification samples (a stream distinct from CF's).
         batch: search samples per stretch in the first search round
@@ -88,11 +102,11 @@ class Certify:
             ``focus_rounds``).
         boundary: also prove every edge and corner of the box at every s
             (:mod:`drake_cfvol.boundary`), where a clamp pushed steadily
-            lands. Off by default: on the built-in cells at a 2 cm margin
-            it costs 20-60 s per path and most of the freedom (automotive
-            path 1: 0.39 -> 0.14), because many edges of the sampled
-            certificate's boxes really come nearer than the margin; the
-            runtime safety filter keeps the margin there instead.
+            lands. Off by default: on the built-in cells at the 2 cm margin
+            it costs 1-10 min per path (automotive path 1: 142 s, freedom
+            0.26; aerospace path 1: 608 s, 0.34); without it a corner may
+            come nearer than the margin and the runtime safety filter keeps
+            the margin there.
         cache: reuse a certificate computed before for exactly the same
             inputs (scene, path, bounds, settings; see :func:`cache_dir`).
             Certification is deterministic, so a cached result is the
@@ -101,6 +115,7 @@ class Certify:
     """
 
     epsilon: float = 1e-5
+    clamp_epsilon: float | None = None
     confidence: float = 0.99
     seed: int = 0
     batch: int = 1000
@@ -113,8 +128,10 @@ class Certify:
     cache: bool = dataclasses.field(default=True, compare=False)
 
     def __post_init__(self):
-        for name in ("epsilon", "confidence"):
+        for name in ("epsilon", "clamp_epsilon", "confidence"):
             v = getattr(self, name)
+            if name == "clamp_epsilon" and v is None:
+                continue
             if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
                 raise ParameterError(f"Certify: {name} must lie in (0, 1), got {v!r}.")
         if self.batch < 1:
@@ -132,6 +149,17 @@ class Certify:
     def n_samples(self) -> int:
         """N = ceil(ln(1 / (1 - confidence)) / epsilon)."""
         return int(math.ceil(math.log(1.0 / (1.0 - self.confidence)) / self.epsilon))
+
+    @property
+    def clamp_share(self) -> float:
+        """The clamp distribution's epsilon: ``clamp_epsilon``, by default
+        10 x epsilon (at most 0.5)."""
+        return self.clamp_epsilon if self.clamp_epsilon is not None else min(10.0 * self.epsilon, 0.5)
+
+    @property
+    def n_clamp_samples(self) -> int:
+        """N for the clamp distribution: ceil(ln(1 / (1 - confidence)) / clamp_share)."""
+        return int(math.ceil(math.log(1.0 / (1.0 - self.confidence)) / self.clamp_share))
 
 
 @dataclasses.dataclass
@@ -237,34 +265,40 @@ def _cache_store(file: Path, lower, upper, report) -> None:
         pass  # a read-only or full disk only costs the next run its time
 
 
-def _greedy_cut(X, t, lower, upper, nominal, i):
+def _greedy_cut(X, t, lower, upper, nominal, i, allowed=None):
     """Cuts stretch i of a linear table (its waypoint boxes ``lower[i:i+2]``,
     ``upper[i:i+2]``, in place) until no colliding sample X (n, k), at
     fractions t (n,) of the stretch, is left in its box. Each cut scales
     one joint's deviation from the nominal on one side, at both ends, by a
     factor lam (the box's bound at every s moves to nom + lam (bound - nom)),
     just enough to drop some samples: the cut chosen loses the least
-    log-width per sample it removes. Returns the number of cuts, or -1 if
-    a sample cannot be cut (it lies at its own nominal in every joint)."""
+    log-width per sample it removes. ``allowed`` (n, k) bool: the joints
+    that may cut each sample (those whose motion reaches its colliding
+    pair); a sample that no allowed joint can cut may be cut by any.
+    Returns the number of cuts, or -1 if a sample cannot be cut (it lies
+    at its own nominal in every joint)."""
     cuts = 0
     n2 = nominal[i:i + 2]
+    allowed = np.ones(X.shape, bool) if allowed is None else np.asarray(allowed, bool)
     while len(X):
         T = t[:, None]
         lo = (1 - T) * lower[i] + T * lower[i + 1]
         hi = (1 - T) * upper[i] + T * upper[i + 1]
         nom = (1 - T) * n2[0] + T * n2[1]
         inside = np.all((X >= np.minimum(lo, nom)) & (X <= np.maximum(hi, nom)), axis=1)
-        X, t = X[inside], t[inside]
+        X, t, allowed = X[inside], t[inside], allowed[inside]
         if not len(X):
             break
         lo, hi, nom = lo[inside], hi[inside], nom[inside]
+        off = X != nom
+        allowed = np.where((allowed & off).any(axis=1)[:, None], allowed, True)
         w0 = upper[i:i + 2] - lower[i:i + 2]
         best = (np.inf, -1, 0, 1.0)
         for j in range(X.shape[1]):
             for side in (1, -1):
                 D = (hi[:, j] - nom[:, j]) if side > 0 else (nom[:, j] - lo[:, j])
                 e = (X[:, j] - nom[:, j]) if side > 0 else (nom[:, j] - X[:, j])
-                sel = (e > 0) & (D > 0)
+                sel = (e > 0) & (D > 0) & allowed[:, j]
                 if not sel.any():
                     continue
                 lam = np.sort(np.minimum(e[sel] / D[sel], 1.0))[::-1]
@@ -303,6 +337,21 @@ def _edge_biased(rng, shape, share):
     hi_end = rng.random(shape) < 0.5
     tenth = 0.1 * rng.random(shape)
     return np.where(snap, np.where(hi_end, 1.0 - tenth, tenth), U)
+
+
+def clamp_draws(rng, lo, hi, nom) -> np.ndarray:
+    """Configurations where an admittance clamp lands: the nominal nom
+    (n, k) pushed on a random subset of its joints (each joint with
+    probability 1/2, to a random side, by up to twice its deviation to
+    that side's bound) and clamped into [lo, hi]; so about half of the
+    pushed joints sit on a bound, the others inside, the unpushed at the
+    nominal."""
+    n, k = nom.shape
+    pushed = rng.random((n, k)) < 0.5
+    up = rng.random((n, k)) < 0.5
+    amount = 2.0 * rng.random((n, k))
+    q = np.where(up, nom + amount * (hi - nom), nom - amount * (nom - lo))
+    return np.where(pushed, np.clip(q, lo, hi), nom)
 
 
 def certified_table(table, lower, upper):
@@ -345,8 +394,9 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
                                                   table.stretch_upper), nominal, rate)
     clearance = float(table.params.get("clearance", 0.0) or 0.0)
     margins = stretch_margins(arrays, nominal, clearance)
+    point_slacks = cut_slacks(arrays, nominal, margins, _POINT_SLACK)
     rng = certification_rng(certify.seed)
-    N = certify.n_samples
+    N, Nc = certify.n_samples, certify.n_clamp_samples
     samples = shrinks = 0
     proven: dict = {}
     boundary = {"edge_tests": 0, "edge_cuts": 0, "edge_rounds": 0, "margins_lowered": 0, "unproven": []}
@@ -371,9 +421,39 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
         nonlocal shrinks
         i = np.minimum(np.floor(s[flagged]).astype(int), g - 2)
         t = s[flagged] - i
+        X = Q[flagged]
+        # Samples on a bound (where a clamp lands) are cut as points: a cut
+        # just below them would barely move the bound they sit on.
+        T = t[:, None]
+        lo = (1 - T) * lower[i] + T * lower[i + 1]
+        hi = (1 - T) * upper[i] + T * upper[i + 1]
+        nom = (1 - T) * nominal[i] + T * nominal[i + 1]
+        off = X != nom
+        on_bound = (((X == lo) | (X == hi)) & off).any(axis=1)
+        taken: set = set()
+        for st in np.unique(i[on_bound]):
+            rows = np.flatnonzero(on_bound & (i == st))
+            for r in rows[:: max(1, len(rows) // _POINT_CUTS)][:_POINT_CUTS]:
+                cut_point(workcell, arrays, lower, upper, nominal, rate, int(st), float(s[flagged][r]), X[r],
+                          float(margins[st]), float(point_slacks[st]), taken)
+        shrinks += len(taken)
+        keep = ~on_bound
+        X, i, t = X[keep], i[keep], t[keep]
+        # Only joints whose motion reaches the colliding pair may cut a sample
+        # (Drake's nearest pair at it): a bare flange is not pinched for a
+        # collision of the forearm.
+        allowed = np.ones(X.shape, bool)
+        for st in np.unique(i):
+            rows = np.flatnonzero(i == st)
+            if len(rows) <= _REACH_QUERIES:
+                allowed[rows] = [reaching_joints(workcell, arrays, X[r], float(margins[st])) for r in rows]
+            else:  # many samples: the joints reaching any of a few of them
+                pick = rows[:: len(rows) // _REACH_QUERIES][:_REACH_QUERIES]
+                allowed[rows] = np.any([reaching_joints(workcell, arrays, X[r], float(margins[st])) for r in pick],
+                                       axis=0)
         for st in np.unique(i):
             sel = i == st
-            n = _greedy_cut(Q[flagged][sel], t[sel], lower, upper, nominal, st)
+            n = _greedy_cut(X[sel], t[sel], lower, upper, nominal, st, allowed[sel])
             if n < 0 and margins[st] > 0:
                 # The nominal itself comes nearer than this stretch's margin
                 # between the points stretch_margins looked at: lower it.
@@ -398,13 +478,17 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
 
     bar = Progress(certify.search_rounds + N, "Certifying whole boxes", enabled=progress,
                    unit="steps", eta=False)
-    def search(stretches, per) -> int:
+    def search(stretches, per, clamp=None) -> int:
         """One edge-biased search round, ``per`` samples in each of the
         stretches, every colliding sample cut. Returns how many collided."""
         nonlocal current, samples
         s = np.repeat(stretches, per) + rng.random(len(stretches) * per)
-        lo, hi, _ = current.boxes_at(s)
+        lo, hi, nom = current.boxes_at(s)
+        # Edge-biased in the box, and where a clamp lands in the share the
+        # certificate run draws them.
         Q = lo + _edge_biased(rng, lo.shape, certify.edge_share) * (hi - lo)
+        h = len(s) - int(round(len(s) * (Nc / (N + Nc) if clamp is None else clamp)))
+        Q[h:] = clamp_draws(rng, lo[h:], hi[h:], nom[h:])
         flagged = flagged_of(s, Q)
         samples += len(Q)
         if len(flagged):
@@ -426,26 +510,35 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             per *= 2
             bar.update(1)
         prove()
-        # Certificate: N consecutive uniform samples of the whole path.
+        # Certificate: N consecutive free samples of the whole path from each
+        # of two distributions, uniform in the box and where a clamp lands
+        # (drawn side by side; a cut restarts both runs).
         run = 0
-        batch = max(1, N // 4)
+        batch = max(1, N // 64)  # small after a cut (a restart costs the batch), doubling up to N / 4
+        share = Nc / N  # clamp draws per uniform draw: both runs end together
         while run < N:
             n = min(batch, N - run)
-            s = rng.uniform(0.0, g - 1, n)
-            lo, hi, _ = current.boxes_at(s)
-            Q = lo + rng.random(lo.shape) * (hi - lo)
+            batch = min(2 * batch, max(1, N // 4))
+            nc = int(math.ceil((run + n) * share)) - int(math.ceil(run * share))
+            s = rng.uniform(0.0, g - 1, n + nc)
+            lo, hi, nom = current.boxes_at(s)
+            Q = np.concatenate([lo[:n] + rng.random(lo[:n].shape) * (hi[:n] - lo[:n]),
+                                clamp_draws(rng, lo[n:], hi[n:], nom[n:])])
             flagged = flagged_of(s, Q)
-            samples += n
+            samples += n + nc
             if len(flagged):
                 cut(s, Q, flagged)
                 current = refresh()
-                run = 0
+                run, batch = 0, max(1, N // 64)
                 # The stretches that still collide get a search of their own
-                # (cheaper than another run over the whole path).
+                # (cheaper than another run over the whole path), from the
+                # distribution that collided: a clamp's landing has
+                # neighbours on the same bound.
                 hit = np.unique(np.minimum(np.floor(s[flagged]).astype(int), g - 2))
                 focus = max(1, min(certify.focus_samples, N))
+                clamp = 0.5 if (flagged >= n).any() else None
                 for _ in range(certify.focus_rounds):
-                    if not search(hit, focus):
+                    if not search(hit, focus, clamp):
                         break
                 prove()
             else:
@@ -471,10 +564,14 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
     else:
         proven = single + (" So does every edge and corner of the box at every s except on stretches "
                            f"{unproven}, where the proof ran out of rounds.")
-    sampled = (f"The faces and the interior, all joints at once: {N} consecutive samples (s uniform over the path, "
-               f"q uniform in the box at s) all kept the margin, so with probability {certify.confidence:g} at "
-               f"most a share {certify.epsilon:g} of such configurations comes nearer (about "
-               f"{certify.epsilon * 3e5:g} of 300,000). Beyond the box, the runtime safety filter keeps the margin.")
+    sampled = (f"The faces and the interior, all joints at once, sampled from two distributions (s uniform over "
+               f"the path): {N} consecutive samples uniform in the box at s, and alongside them {Nc} consecutive "
+               "samples where a clamp lands (the nominal pushed on a random half of its joints, clamped into the "
+               "box, so about half of the pushed joints on a bound), all kept the margin. So with probability "
+               f"{certify.confidence:g} at most a share {certify.epsilon:g} of the uniform configurations comes "
+               f"nearer (about {certify.epsilon * 3e5:g} of 300,000), and at most a share "
+               f"{certify.clamp_share:g} of the clamp's. Beyond the box, the runtime safety filter keeps the "
+               "margin.")
     report = CertificateReport(certify.epsilon, certify.confidence, N, (time.perf_counter() - t0) * 1e3,
                                samples, shrinks, before, after, proven, sampled, clearance_m=clearance,
                                boundary=boundary)

@@ -302,3 +302,51 @@ def test_boundary_proof_frees_every_edge_by_drake(cell, sampled, request):
         assert rep["boundary"]["edge_cuts"] >= 1  # the colliding corner was the proof's to cut
     # The corner that collides is excluded, and the box is not shrunk to nothing.
     assert np.all(cert.upper[1] - cert.lower[1] > 0.1)
+
+
+def test_greedy_cut_uses_only_allowed_joints():
+    """The by-hand sample (0.9, 0.2) whose colliding pair only joint 1
+    reaches: joint 0 (the cheaper cut) may not cut it, so joint 1's upper
+    bound goes to just below 0.2 and joint 0 keeps its width."""
+    from drake_cfvol.certify import _greedy_cut
+
+    L, U, N = _stretch([-1.0, -1.0], [1.0, 1.0], [0.0, 0.0])
+    assert _greedy_cut(np.array([[0.9, 0.2]]), np.array([0.5]), L, U, N, 0, np.array([[False, True]])) == 1
+    assert np.all(U[:, 0] == 1.0) and U[:, 1] == pytest.approx([0.2, 0.2], rel=1e-5) and np.all(U[:, 1] < 0.2)
+
+
+def test_greedy_cut_falls_back_when_no_allowed_joint_can_cut():
+    """A sample off the nominal only in joint 0 while only joint 1 is
+    allowed: it is still cut (by joint 0), never left in the box."""
+    from drake_cfvol.certify import _greedy_cut
+
+    L, U, N = _stretch([-1.0, -1.0], [1.0, 1.0], [0.0, 0.0])
+    assert _greedy_cut(np.array([[0.7, 0.0]]), np.array([0.5]), L, U, N, 0, np.array([[False, True]])) == 1
+    assert U[:, 0] == pytest.approx([0.7, 0.7], rel=1e-5) and np.all(U[:, 1] == 1.0)
+
+
+def test_clamp_draws_land_where_a_clamp_does():
+    """Clamp draws stay in the box; each joint sits at its nominal about half
+    the time (not pushed), on a bound about a quarter (pushed past it), and
+    strictly inside otherwise; both sides are pushed alike."""
+    from drake_cfvol.certify import clamp_draws
+
+    rng = np.random.default_rng(7)
+    n = 40000
+    lo, hi, nom = np.full((n, 3), -1.0), np.full((n, 3), 2.0), np.zeros((n, 3))
+    Q = clamp_draws(rng, lo, hi, nom)
+    assert np.all((Q >= lo) & (Q <= hi))
+    at_nom, on_bound = Q == nom, (Q == lo) | (Q == hi)
+    assert at_nom.mean() == pytest.approx(0.5, abs=0.01)
+    assert on_bound.mean() == pytest.approx(0.25, abs=0.01)
+    assert (Q == hi).mean() == pytest.approx((Q == lo).mean(), abs=0.01)
+
+
+def test_certificate_report_names_both_distributions(corner):
+    """The sampled certificate speaks of uniform samples and of where a clamp
+    lands, each N consecutive free."""
+    wc, path = corner
+    cert = cf.estimate_bounds(wc, path, h_max=0.0, certify=Certify(epsilon=1e-3, confidence=0.99, cache=False))
+    text = cert.info["certificate"]["sampled"]
+    assert "uniform in the box" in text and "where a clamp lands" in text
+    assert "4606 consecutive" in text and "461 consecutive" in text  # epsilon 1e-3 and the clamp's 1e-2

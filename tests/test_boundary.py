@@ -1,0 +1,84 @@
+"""The boundary proof's building blocks (cuts, their cost, their room)."""
+
+import numpy as np
+import pytest
+
+import drake_cfvol as cf
+from drake_cfvol import boundary as B
+from conftest import write_arm_cell
+
+
+@pytest.fixture(scope="module")
+def corner(tmp_path_factory):
+    """A 2-link planar arm (1.0 m + 0.8 m, 0.1 m thick, 0.5 m above the
+    floor) straight along x at (0, 0) rad, and a 0.3 m post at (1.15, 1.0):
+    the nominal keeps 0.45 m from the floor and 0.8 m from the post. At the
+    corner (0.4, 0.8) rad link 2 reaches into the post."""
+    wc = cf.load_workcell(write_arm_cell(
+        tmp_path_factory.mktemp("corner"),
+        links=[{"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
+               {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8}],
+        obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))}, base_z=0.5))
+    return wc, wc.scene_arrays()
+
+
+def test_width_loss_counts_what_the_rate_limit_takes():
+    """Cutting waypoint 1's upper bound of one joint from 1.0 to 0.2 on a
+    five-waypoint table at rate 0.3 per waypoint (nominal 0): waypoints 0
+    and 2 must drop to 0.5, 3 to 0.8, 4 stays (1.1 > 1). The loss is
+    log(2/1.2) + 2 log(2/1.5) + log(2/1.8), not the cut's own log(2/1.2)."""
+    lower, upper, nominal = -np.ones((5, 1)), np.ones((5, 1)), np.zeros((5, 1))
+    lo, hi = lower[1:3].copy(), upper[1:3].copy()
+    hi[0, 0] = 0.2
+    got = B._width_loss(lower, upper, nominal, np.array([0.3]), 1, lo, hi)
+    assert got == pytest.approx(np.log(2 / 1.2) + 2 * np.log(2 / 1.5) + np.log(2 / 1.8))
+    # Without a rate limit only the cut itself counts.
+    assert B._width_loss(lower, upper, nominal, np.array([np.inf]), 1, lo, hi) == pytest.approx(np.log(2 / 1.2))
+
+
+def test_cut_slacks_never_exceed_the_nominals_own_room(corner):
+    """The nominal keeps 0.45 m (the floor): asked for 1 m of room, each
+    stretch gets the largest rung that fits, 0.25 m; asked for 3 m, 0.375 m;
+    asked for 0.02 m, all of it; none beyond margin + room the nominal has."""
+    wc, arrays = corner
+    nominal = np.zeros((4, 2))
+    margins = np.zeros(3)
+    np.testing.assert_allclose(B.cut_slacks(arrays, nominal, margins, 1.0), 0.25)
+    np.testing.assert_allclose(B.cut_slacks(arrays, nominal, margins, 3.0), 0.375)
+    np.testing.assert_allclose(B.cut_slacks(arrays, nominal, margins, 0.02), 0.02)
+    np.testing.assert_allclose(B.cut_slacks(arrays, nominal, np.full(3, 0.3), 0.4), 0.1)
+
+
+@pytest.mark.parametrize("slack", [0.0, 0.05])
+def test_cut_point_frees_a_colliding_corner(corner, slack):
+    """The colliding corner (0.4, 0.8) of the box [-0.4, 0.4] x [-0.8, 0.8]:
+    one cut moves only upper bounds toward the nominal, and the corner of
+    the new box keeps the slack by Drake's padded checker."""
+    wc, arrays = corner
+    lower = np.array([[-0.4, -0.8], [-0.4, -0.8]])
+    upper = -lower
+    nominal = np.zeros((2, 2))
+    q = np.array([0.4, 0.8])
+    assert not wc.is_free(q)
+    lo0, hi0 = lower.copy(), upper.copy()
+    taken = set()
+    B.cut_point(wc, arrays, lower, upper, nominal, np.full(2, np.inf), 0, 0.5, q, 0.0, slack, taken)
+    assert len(taken) == 1
+    np.testing.assert_array_equal(lower, lo0)
+    assert np.all(upper <= hi0) and np.any(upper < hi0)
+    assert np.all(upper[0] == upper[1])  # the same box at both ends: the same cut at both
+    corner_now = upper[0]
+    assert np.asarray(wc.padded_checker(slack).CheckConfigsCollisionFree(corner_now[None], parallelize=False)).all()
+    if slack == 0.0:
+        # Not needlessly deep: at half their deviation either joint alone
+        # keeps link 2 >= 2 cm below the post (by hand), so the cut keeps more.
+        cut = np.flatnonzero(upper[0] < hi0[0])
+        assert np.all(upper[0, cut] >= 0.5 * hi0[0, cut])
+
+
+def test_reaching_joints_of_a_link_2_collision(corner):
+    """At the corner link 2 touches the post: both joints move link 2, so both
+    reach; at the nominal nothing is near and every joint counts."""
+    wc, arrays = corner
+    np.testing.assert_array_equal(B.reaching_joints(wc, arrays, np.array([0.4, 0.8]), 0.0), [True, True])
+    np.testing.assert_array_equal(B.reaching_joints(wc, arrays, np.zeros(2), 0.0), [True, True])
