@@ -17,12 +17,18 @@ path, which the other joints' edges check. An edge's ends are corners, so
 proving every edge proves every corner too.
 
 A region that may collide is halved (in s and along the joint) a few
-times; what still fails is cut (:func:`cut_for`) by scaling one bound's
-deviation from the nominal at both ends of the stretch: the edge's own
-joint if the failing part lies off the nominal, else one of the joints
-whose motion reaches the nearest pair (Drake's clearance query at the
-failing region's centre), each candidate tried at a few scales against the
-failing region and the one that loses the least width kept. Cuts only
+times. Where a configuration of the failing part really comes nearer than
+the margin (a 9 x 9 grid of kernel point checks) it is cut as a point
+(:func:`cut_point`); else the region is cut (:func:`cut_for`) by scaling
+one bound's deviation from the nominal at both ends of the stretch: the
+edge's own joint if the failing part lies off the nominal, else one of the
+joints whose motion reaches the nearest pair (Drake's clearance query at
+the failing region's centre), each candidate tried at a few scales against
+the failing region. Every cut aims SLACK beyond the margin (as far as the
+nominal has room, :func:`cut_slacks`), since a region test needs some
+clearance to prove anything, and the cut kept is the one that loses the
+least log-width, counting what the rate limit then takes from the
+neighbouring waypoints. Cuts only
 tighten: single-joint motions proven by the sweep stay proven. After the
 cuts the waypoint boxes are rate-limited again
 (:func:`drake_cfvol.table.rate_limited`), which may tighten neighbours;
@@ -322,7 +328,6 @@ def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: 
         lam = float(np.clip(lam * (1 - 1e-6), 0.0, 1.0))
         lo, hi = _scaled(lower, upper, nominal, i, [(j, side, lam)])
         options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i, j, side)))
-    # Another joint on its bound in the region: tried at a few scales.
     # Another joint on its bound in the region, and all of them together (a
     # collision that two bounds make at once), tried at a few scales.
     group = [int(l) for l in np.flatnonzero(reach) if l != j]
@@ -344,8 +349,10 @@ def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: 
             if good and (l, side) not in best_l:  # scales run largest first: the first pass is the best
                 best_l[(l, side)] = (lo, hi)
         for (l, side), (lo, hi) in best_l.items():
-            options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i, int(l), side) if l >= 0 else (i, -2, 0)))
-    options = [o for o in options if not (np.array_equal(o[1], lower[i:i + 2]) and np.array_equal(o[2], upper[i:i + 2]))]
+            key = (i, int(l), side) if l >= 0 else (i, -2, 0)
+            options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, key))
+    options = [o for o in options
+               if not (np.array_equal(o[1], lower[i:i + 2]) and np.array_equal(o[2], upper[i:i + 2]))]
     if not options:
         # No single bound clears it: if the nominal's own stretch keeps the
         # margin here, every bound of the stretch moves halfway to it (the

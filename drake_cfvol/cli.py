@@ -136,7 +136,8 @@ def cmd_bounds(args) -> int:
 
     if args.plot and not args.out:
         raise ParameterError("--plot needs --out DIR (the folder to write the plot to).")
-    lonely = [f"--{n.replace('_', '-')}" for n in ("epsilon", "confidence", "no_cache", "prove_boundary")
+    lonely = [f"--{n.replace('_', '-')}"
+              for n in ("epsilon", "clamp_epsilon", "confidence", "no_cache", "prove_boundary")
               if getattr(args, n) not in (None, False)]
     if lonely and not args.certify:
         raise ParameterError(f"{', '.join(lonely)} only apply{'s' if len(lonely) == 1 else ''} to certified bounds: "
@@ -162,7 +163,8 @@ def cmd_bounds(args) -> int:
     if args.certify:
         from drake_cfvol.certify import Certify
 
-        given = {n: getattr(args, n) for n in ("epsilon", "confidence") if getattr(args, n) is not None}
+        given = {n: getattr(args, n) for n in ("epsilon", "clamp_epsilon", "confidence")
+                 if getattr(args, n) is not None}
         certify = Certify(**given, seed=args.seed, cache=not args.no_cache, boundary=args.prove_boundary)
     table = estimate_bounds(wc, path, params, backend=args.backend, certify=certify, progress=bars)
     cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
@@ -302,6 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="shrink the boxes until each stretch holds a sampled safety certificate")
     b.add_argument("--epsilon", type=float, default=None,
                    help="certificate: colliding share allowed (1e-5; needs --certify)")
+    b.add_argument("--clamp-epsilon", type=float, default=None,
+                   help="certificate: colliding share allowed where a clamp lands (10 x epsilon; needs --certify)")
     b.add_argument("--no-cache", action="store_true",
                    help="certify again even if the same certificate is cached (see DRAKE_CFVOL_CACHE; needs --certify)")
     b.add_argument("--confidence", type=float, default=None, help="certificate: confidence (0.99; needs --certify)")

@@ -64,6 +64,13 @@ def test_certified_inside_uncertified(corner):
     assert np.all(cert.lower <= cert.nominal) and np.all(cert.nominal <= cert.upper)
 
 
+def test_clamp_samples_default_to_ten_times_epsilon():
+    """N_c = ceil(ln(100) / (10 epsilon)) by default, or for the clamp_epsilon given."""
+    assert Certify().n_clamp_samples == 46052
+    assert Certify(epsilon=1e-3).n_clamp_samples == 461
+    assert Certify(clamp_epsilon=1e-5).n_clamp_samples == Certify().n_samples
+
+
 def test_n_samples_formula():
     """N = ceil(ln(1 / (1 - C)) / epsilon): 4606 for 1e-3 at 99 %."""
     assert Certify(epsilon=1e-3, confidence=0.99).n_samples == 4606
@@ -76,9 +83,10 @@ def test_seed_stream_differs_from_cf():
 
 
 @pytest.mark.parametrize("kwargs", [{"epsilon": 0.0}, {"epsilon": 1.0}, {"confidence": 1.0},
-                                    {"confidence": -0.1}, {"epsilon": 2}])
+                                    {"confidence": -0.1}, {"epsilon": 2}, {"clamp_epsilon": 0.0},
+                                    {"clamp_epsilon": 1.5}])
 def test_invalid_certificate(kwargs):
-    """epsilon or confidence outside (0, 1) raise a clear error."""
+    """epsilon, clamp_epsilon or confidence outside (0, 1) raise a clear error."""
     with pytest.raises(cf.ParameterError, match="must lie in"):
         Certify(**kwargs)
 

@@ -123,7 +123,8 @@ def test_bad_cf_samples_before_planning(capsys):
     assert "--cf-samples must be >= 1" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("flag", [["--epsilon", "1e-4"], ["--confidence", "0.9"], ["--no-cache"]])
+@pytest.mark.parametrize("flag", [["--epsilon", "1e-4"], ["--clamp-epsilon", "1e-3"], ["--confidence", "0.9"],
+                                  ["--no-cache"]])
 def test_certificate_options_need_certify(flag, capsys):
     """An option that does nothing without --certify is refused, not ignored."""
     assert main(["bounds", "automotive", *flag]) == 2
