@@ -416,11 +416,9 @@ def cut_point(workcell, arrays, lower, upper, nominal, rate, i, s, q, margin, sl
     neighbours, is applied, else the stretch's box moves halfway to the
     nominal. ``taken`` holds the cuts of this round (a key is cut once)."""
     t = s - i
-    nom = (1 - t) * nominal[i] + t * nominal[i + 1]
+    (lo_s,), (hi_s,), (nom,) = _box(lower, upper, nominal, i, np.array([s]))
     # Cuts only tighten: an earlier cut this round may have moved (or freed)
     # the point already.
-    lo_s = (1 - t) * lower[i] + t * lower[i + 1]
-    hi_s = (1 - t) * upper[i] + t * upper[i + 1]
     q_now = np.clip(q, np.minimum(lo_s, nom), np.maximum(hi_s, nom))
     if not np.array_equal(q_now, q):
         q = q_now

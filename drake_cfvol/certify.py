@@ -420,8 +420,9 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
 
     def cut(s, Q, flagged):
         nonlocal shrinks
-        i = np.minimum(np.floor(s[flagged]).astype(int), g - 2)
-        t = s[flagged] - i
+        sf = s[flagged]
+        i = np.minimum(np.floor(sf).astype(int), g - 2)
+        t = sf - i
         X = Q[flagged]
         # Samples on a bound (where a clamp lands) are cut as points: a cut
         # just below them would barely move the bound they sit on.
@@ -435,7 +436,7 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
         for st in np.unique(i[on_bound]):
             rows = np.flatnonzero(on_bound & (i == st))
             for r in rows[:: max(1, len(rows) // _POINT_CUTS)][:_POINT_CUTS]:
-                cut_point(workcell, arrays, lower, upper, nominal, rate, int(st), float(s[flagged][r]), X[r],
+                cut_point(workcell, arrays, lower, upper, nominal, rate, int(st), float(sf[r]), X[r],
                           float(margins[st]), float(point_slacks[st]), taken)
         shrinks += len(taken)
         keep = ~on_bound
