@@ -1,4 +1,5 @@
-"""Adversarial co-manipulation runs: steady corner-seeking pushes.
+"""Adversarial co-manipulation runs: steady corner-seeking pushes, pushes
+toward the nearest obstacle, and seeded random push sequences.
 
 A constant joint torque of the same size on every joint, with seeded random
 signs, for the whole run, drives the admittance into a corner of the box at
@@ -7,6 +8,10 @@ what keeps the robot safe there is the runtime safety filter. Each run is
 recounted against independent facts: Drake's collision checker of the
 workcell's own scene at every update, and the nominal's own clearance
 (Drake's distances) at the same path positions.
+:func:`adversarial_suite` runs every pattern on certified and uncertified
+bounds with the filter on and off, and counts the colliding corners and
+edge points of both kinds of boxes by Drake (the benchmark's adversarial
+section).
 """
 
 from __future__ import annotations
@@ -24,11 +29,14 @@ from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import plan_nominal_path
 from drake_cfvol.workcell import load_workcell
 
-__all__ = ["steady_push_runs", "summarize_runs", "nearest_obstacle_signs", "PATTERNS", "MARGIN_TOLERANCE"]
+__all__ = ["steady_push_runs", "summarize_runs", "nearest_obstacle_signs", "adversarial_suite", "PATTERNS",
+           "MARGIN_TOLERANCE"]
 
-#: Sign patterns of a steady push: "random" (seeded signs) or "nearest"
-#: (toward the nearest obstacle at a path position the seed picks).
-PATTERNS = ("random", "nearest")
+#: Push patterns: "random" (a steady push with seeded signs: corner-seeking),
+#: "nearest" (a steady push toward the nearest obstacle at a path position
+#: the seed picks) or "random_pushes" (the ``<cell>_random`` scenario's
+#: seeded sequence of random pushes, push seed = the run's seed).
+PATTERNS = ("random", "nearest", "random_pushes")
 
 #: How far below min(margin, the nominal's own clearance) a run may dip
 #: and still count as keeping the margin, m.
@@ -81,7 +89,9 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
         pattern: "random" (seeded signs) or "nearest": seed n of ``runs``
             pushes toward the nearest obstacle of the nominal at waypoint
             round(n (g-1) / (runs-1)) (:func:`nearest_obstacle_signs`), the
-            push held for the whole run.
+            push held for the whole run; or "random_pushes": the
+            ``<cell>_random`` scenario (same cell, path and resolution) with
+            push seed n, ``torque`` unused.
 
     Returns:
         One row per run: ``cell``, ``seed``, ``signs``, ``safety_filter``,
@@ -97,11 +107,13 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
         ``margin_kept`` (shortfall <= ``MARGIN_TOLERANCE``),
         ``max_velocity_ratio`` (every update), ``filter_steps``,
         ``filter_damper_misses``, ``filter_fallbacks``, ``faults``,
-        ``max_deviation`` (rad or m, from the nominal), ``sim_wall_s``.
+        ``max_deviation`` (rad or m, from the nominal), ``mean_deviation``
+        (the largest joint's deviation from the nominal, averaged over the
+        updates: what the co-worker achieved), ``sim_wall_s``.
     """
     if pattern not in PATTERNS:
         raise ParameterError(f"pattern must be one of {', '.join(map(repr, PATTERNS))}, got {pattern!r}.")
-    name = f"{cell}_push"
+    name = f"{cell}_random" if pattern == "random_pushes" else f"{cell}_push"
     scenario, _ = load_scenario(name)
     wc = load_workcell(scenario.cell)
     if path is None:
@@ -117,14 +129,18 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
-            if pattern == "nearest":
-                at = int(round(seed * (path.g - 1) / max(len(seeds) - 1, 1))) % path.g
-                signs = nearest_obstacle_signs(wc, path.waypoints[at])
+            text = f"{{certify: {str(certify).lower()}, collision_guard: {str(safety_filter).lower()}, "
+            if pattern == "random_pushes":
+                signs = np.zeros(k)
+                text += f"random_pushes: {{seed: {int(seed)}}}"
             else:
-                signs = _signs(seed, k)
-            tau = ", ".join(f"{x:.6g}" for x in torque * signs)
-            text = (f"{{certify: {str(certify).lower()}, collision_guard: {str(safety_filter).lower()}, "
-                    f"pushes: [{{start: 0.0, duration: 1.0e9, joint_torque: [{tau}]}}]")
+                if pattern == "nearest":
+                    at = int(round(seed * (path.g - 1) / max(len(seeds) - 1, 1))) % path.g
+                    signs = nearest_obstacle_signs(wc, path.waypoints[at])
+                else:
+                    signs = _signs(seed, k)
+                tau = ", ".join(f"{x:.6g}" for x in torque * signs)
+                text += f"pushes: [{{start: 0.0, duration: 1.0e9, joint_torque: [{tau}]}}]"
             if clearance is not None:
                 text += f", safety_filter: {{clearance: {float(clearance)!r}}}"
             text += "}"
@@ -138,10 +154,11 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
             rate = (path.g - 1) / s["path_duration_s"] if s["path_duration_s"] > 0 else np.inf
             s_at = np.clip((t - scenario.start_time) * rate, 0.0, path.g - 1.0)
             nom = np.empty(len(t))
+            q_nom = np.empty_like(q)
             for i, si in enumerate(np.round(s_at, 9)):
+                q_nom[i] = bounds.at(float(si))[2]
                 if si not in nominal_clearance:
-                    qn = bounds.at(float(si))[2]
-                    nominal_clearance[si] = min(wc.obstacle_distances(qn, 2.0, changeable_only=True).values(),
+                    nominal_clearance[si] = min(wc.obstacle_distances(q_nom[i], 2.0, changeable_only=True).values(),
                                                 default=2.0)
                 nom[i] = nominal_clearance[si]
             margin = s["filter_clearance_m"] if s["filter_clearance_m"] is not None else margin_default
@@ -157,7 +174,9 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
                    "filter_fallbacks": s["filter_fallbacks"], "faults": s["faults"],
                    "filter_box_exits": s.get("filter_box_exits", 0),
                    "max_bound_violation": s["max_bound_violation"],
-                   "max_deviation": s["max_deviation"], "updates": int(len(t)), "sim_wall_s": s["sim_wall_s"]}
+                   "max_deviation": s["max_deviation"],
+                   "mean_deviation": float(np.mean(np.max(np.abs(q - q_nom), axis=1))) if len(t) else 0.0,
+                   "updates": int(len(t)), "sim_wall_s": s["sim_wall_s"]}
             rows.append(row)
             if on_run is not None:
                 on_run(row)
@@ -169,7 +188,8 @@ def summarize_runs(rows: list[dict]) -> list[dict]:
     runs, runs with collisions (the
     run's monitor or Drake's checker), runs that kept the margin, the
     smallest clearance, the largest velocity ratio, filter steps (median and
-    largest), damper misses, and the largest and median deviation."""
+    largest), damper misses, the largest and median largest deviation, and
+    the median mean deviation (what the co-worker achieved)."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
         groups.setdefault((r["cell"], r.get("pattern", "random"), r["certify"], r["safety_filter"], r["margin_m"]),
@@ -193,6 +213,64 @@ def summarize_runs(rows: list[dict]) -> list[dict]:
             "fallbacks_max": max(r["filter_fallbacks"] for r in g),
             "max_deviation": max(r["max_deviation"] for r in g),
             "median_max_deviation": float(np.median([r["max_deviation"] for r in g])),
+            "median_mean_deviation": float(np.median([r.get("mean_deviation", np.nan) for r in g])),
             "sim_wall_s_median": float(np.median([r["sim_wall_s"] for r in g])),
         })
+    return out
+
+
+def adversarial_suite(cell: str, runs: int = 16, patterns=PATTERNS, *, torque: float = 1500.0, on_run=None) -> dict:
+    """The benchmark's adversarial section for one cell: every push pattern
+    (``runs`` seeds each) on the uncertified and the certified bounds of the
+    ``<cell>_push`` scenario's path (its resolution, parameters and seed;
+    certified with ``Certify(seed=...)`` at its defaults), with the safety
+    filter on and off; and the colliding corners and edge points of both
+    kinds of boxes by Drake's checker, at the bounds' margin less 1 mm, at
+    every waypoint and stretch midpoint (:func:`~drake_cfvol.metrics.boundary_check`).
+
+    Args:
+        cell: ``automotive`` or ``aerospace``.
+        runs: seeds per (pattern, bounds, filter).
+        patterns: some of :data:`PATTERNS`.
+        torque: N m per joint of the steady pushes.
+        on_run: called with each run's row as it is done.
+
+    Returns:
+        ``{"cell", "clearance_m", "freedom": {kind: ...}, "certify_s",
+        "boundary": {kind: BoundaryCheck as a dict}, "rows", "summary"}``
+        with kind ``"uncertified"`` / ``"certified"``.
+    """
+    import dataclasses
+    import time
+
+    from drake_cfvol.metrics import boundary_check, freedom
+
+    unknown = [p for p in patterns if p not in PATTERNS]
+    if unknown:
+        raise ParameterError(f"unknown push pattern(s) {unknown}; choose from {', '.join(PATTERNS)}.")
+    if runs < 1:
+        raise ParameterError(f"runs must be >= 1, got {runs}.")
+    scenario, _ = load_scenario(f"{cell}_push")
+    wc = load_workcell(scenario.cell)
+    params = dict(scenario.params)
+    path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
+                             clearance=VolumeParams.for_workcell(wc, **params).clearance)
+    tables = {"uncertified": estimate_bounds(wc, path, resolution=scenario.resolution, **params)}
+    t0 = time.perf_counter()
+    tables["certified"] = estimate_bounds(wc, path, resolution=scenario.resolution, **params,
+                                          certify=Certify(seed=scenario.seed))
+    certify_s = time.perf_counter() - t0
+    out = {"cell": cell, "clearance_m": float(tables["certified"].params.get("clearance", 0.0)),
+           "certify_s": certify_s, "certificate_cached": bool(tables["certified"].info["certificate"].get("cached")),
+           "freedom": {kind: freedom(t).mean for kind, t in tables.items()}, "boundary": {}, "rows": []}
+    for kind, table in tables.items():
+        margin = float(table.info.get("min_margin_m", table.params.get("clearance", 0.0)))
+        out["boundary"][kind] = dataclasses.asdict(boundary_check(wc, table, clearance=max(0.0, margin - 1e-3)))
+    for pattern in patterns:
+        for kind, table in tables.items():
+            for on in (True, False):
+                out["rows"] += steady_push_runs(cell, runs, torque=torque, safety_filter=on,
+                                                certify=kind == "certified", path=path, bounds=table,
+                                                pattern=pattern, on_run=on_run)
+    out["summary"] = summarize_runs(out["rows"])
     return out

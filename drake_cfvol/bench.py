@@ -28,10 +28,10 @@ from pydrake.geometry.optimization import HPolyhedron, Hyperellipsoid
 from pydrake.planning import IrisZo, IrisZoOptions
 
 from drake_cfvol._version import __version__
+from drake_cfvol.adversarial import PATTERNS, adversarial_suite
 from drake_cfvol.certify import Certify
 from drake_cfvol.metrics import confidence_factor, freedom
 from drake_cfvol.pipeline import estimate_bounds
-from drake_cfvol.params import VolumeParams
 from drake_cfvol.planning import plan_nominal_path
 from drake_cfvol.plotting import _pyplot
 from drake_cfvol.progress import Progress, eta_errors
@@ -81,10 +81,14 @@ class BenchConfig:
         iris_samples: samples per region for its collision share.
         certify_resolutions: R at which certified bounds are also computed.
         certify_epsilon, certify_confidence: the certificate.
-        guard_runs: seeded random-push co-manipulation runs per cell (the
-            cell's ``<cell>_random`` scenario, push seeds 0 .. n-1), each on
-            uncertified and on certified bounds, counting the collision
-            guard's steps.
+        adversarial_runs: seeds per (push pattern, bounds, filter on/off) of
+            the adversarial section (:func:`drake_cfvol.adversarial.adversarial_suite`):
+            steady corner-seeking pushes, pushes toward the nearest obstacle
+            and random push sequences on the ``<cell>_push`` scenario's path,
+            on certified and uncertified bounds, the safety filter on and
+            off, logged at the update rate; and the colliding corners and
+            edge points of both kinds of boxes by Drake. 0: no section.
+        adversarial_patterns: the push patterns of that section.
         engine: also measure the kernel's compile time on a fresh cache and
             the ``cfvol bounds`` command's wall time (fresh processes).
     """
@@ -106,7 +110,8 @@ class BenchConfig:
         default_factory=lambda: [100, 500, 1000, 2000, 5000, 10000, 15000, 20000])
     certify_epsilon: float = 1e-5
     certify_confidence: float = 0.99
-    guard_runs: int = 20
+    adversarial_runs: int = 16
+    adversarial_patterns: list = dataclasses.field(default_factory=lambda: list(PATTERNS))
     engine: bool = True
 
     @classmethod
@@ -114,7 +119,7 @@ class BenchConfig:
         """A small run (minutes): path 1, three resolutions, 2 trials."""
         return cls(paths=["path1"], resolutions=[100, 1000, 20000], trials=2, cf_windows=30, cf_samples=300,
                    reference_resolutions=[100], reference_trials=1, iris_regions=2, iris_samples=500,
-                   certify_resolutions=[1000], certify_epsilon=1e-2, guard_runs=0)
+                   certify_resolutions=[1000], certify_epsilon=1e-2, adversarial_runs=0)
 
 
 #: Prior cost of each kind of bench step, seconds on the 2-core machine of
@@ -124,7 +129,7 @@ class BenchConfig:
 _PRIOR_S = {"plan": 0.5, "trial": 0.2, "trial_per_R": 1e-5, "cf": 0.4, "cf_per_sample": 3.5e-6, "reference": 5.5,
             "reference_per_R": 1.4e-3, "certify": 0.2, "certify_per_N": 7e-5, "iris_region": 1.0,
             "iris_sample": 5e-5, "compile": 30.0, "warm_load": 1.0, "cli_bounds": 2.8,
-            "guard_bounds": 25.0, "guard_run": 4.0}
+            "adversarial_bounds": 200.0, "adversarial_run": 4.0}
 
 
 def _bench_steps(cfg: "BenchConfig") -> list[tuple[tuple, float]]:
@@ -145,8 +150,9 @@ def _bench_steps(cfg: "BenchConfig") -> list[tuple[tuple, float]]:
                     steps += [(("certify",), c["certify"] + n_cert * c["certify_per_N"]), (("cf",), cf)]
             if cfg.iris and label == "path1":
                 steps.append((("iris",), cfg.iris_regions * (c["iris_region"] + cfg.iris_samples * c["iris_sample"])))
-        if cfg.guard_runs:
-            steps += [(("guard_bounds",), c["guard_bounds"])] + [(("guard_run",), c["guard_run"])] * (2 * cfg.guard_runs)
+        if cfg.adversarial_runs:
+            steps += [(("adversarial_bounds",), c["adversarial_bounds"])] + [(("adversarial_run",), c["adversarial_run"])] * (
+                4 * cfg.adversarial_runs * len(cfg.adversarial_patterns))
     if cfg.engine:
         steps += [(("compile",), c["compile"]), (("warm_load",), c["warm_load"])] + [(("cli_bounds",), c["cli_bounds"])] * 3
     return steps
@@ -249,7 +255,7 @@ def run_bench(cfg: BenchConfig, *, progress: bool = True) -> dict:
     trials (one per timed run), reference, iris and floor results."""
 
     clock = _BenchClock(cfg, progress)
-    rows, trials, reference, iris, paths, guard = [], [], [], [], {}, []
+    rows, trials, reference, iris, paths, adversarial = [], [], [], [], {}, []
     t_start = time.perf_counter()
     for cell in cfg.cells:
         wc = load_workcell(cell)
@@ -324,51 +330,26 @@ def run_bench(cfg: BenchConfig, *, progress: bool = True) -> dict:
                 clock.describe(f"{cell} IrisZo")
                 iris.append(_iris(wc, path, cfg))
                 clock.done(("iris",))
-        if cfg.guard_runs:
-            clock.describe(f"{cell} random-push runs")
-            guard += guard_runs(cell, cfg.guard_runs, on_step=clock.done)
+        if cfg.adversarial_runs:
+            clock.describe(f"{cell} certified bounds for the adversarial runs")
+            first = []
+
+            def on_run(row):
+                if not first:  # the bounds (certification included) came before the first run
+                    first.append(True)
+                    clock.done(("adversarial_bounds",))
+                    clock.describe(f"{cell} adversarial pushes")
+                clock.done(("adversarial_run",))
+
+            adversarial.append(adversarial_suite(cell, cfg.adversarial_runs, cfg.adversarial_patterns, on_run=on_run))
     engine = {}
     if cfg.engine:
         clock.describe("kernel compile and command wall time")
         engine = engine_costs(on_step=clock.done)
     clock.close()
     return {"config": dataclasses.asdict(cfg), "rows": rows, "trials": trials, "reference": reference,
-            "iris": iris, "paths": paths, "engine": engine, "guard": guard, "wall_s": time.perf_counter() - t_start,
+            "iris": iris, "paths": paths, "engine": engine, "adversarial": adversarial, "wall_s": time.perf_counter() - t_start,
             "machine": machine_info(), "progress": {"eta_error": eta_errors(clock.bar.history)}}
-
-
-def guard_runs(cell: str, runs: int, *, on_step=None) -> list[dict]:
-    """Seeded random-push co-manipulation runs (the ``<cell>_random``
-    scenario with push seeds 0 .. runs-1), each on the uncertified and on
-    the certified bounds of the scenario's path (``Certify()`` at its
-    defaults): how often the collision guard acts, and whether anything
-    collides. One row per run and kind."""
-    import tempfile
-
-    from drake_cfvol.comanip import load_scenario, run_scenario
-
-    on_step = on_step or (lambda kind: None)
-    name = f"{cell}_random"
-    scenario, _ = load_scenario(name)
-    wc = load_workcell(scenario.cell)
-    path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
-                             clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
-    tables = {"uncertified": estimate_bounds(wc, path, resolution=scenario.resolution),
-              "certified": estimate_bounds(wc, path, resolution=scenario.resolution, certify=Certify(seed=scenario.seed))}
-    on_step(("guard_bounds",))
-    out = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for seed in range(runs):
-            for kind, table in tables.items():
-                s = run_scenario(name, tmp, record=False, plot=False, svg=False, path=path, bounds=table,
-                                 scenario_text=f"{{random_pushes: {{seed: {seed}}}, certify: {str(kind == 'certified').lower()}}}")
-                out.append({"cell": cell, "scenario": name, "push_seed": seed, "bounds": kind,
-                            "guard_steps": s["guard_steps"], "steps": s["steps"], "collisions": s["collisions"],
-                            "volume_penetrations": s["volume_penetrations"],
-                            "max_velocity_ratio": s["max_velocity_ratio"], "max_deviation": s["max_deviation"],
-                            "freedom": freedom(table).mean, "sim_wall_s": s["sim_wall_s"]})
-                on_step(("guard_run",))
-    return out
 
 
 def engine_costs(on_step=None) -> dict:
@@ -486,6 +467,7 @@ def markdown(result: dict) -> str:
             out.append(f"| {it['cell']} | {it['regions']} of g = {it['g']} | {it['time_per_region_ms']:.0f} | "
                        f"{it['time_per_path_ms_extrapolated']:.0f} | {it['collision_percent']:.3f} |")
         out.append("")
+    out += adversarial_markdown(result.get("adversarial") or [])
     out += ["## Targets", ""] + targets(result) + [""]
     out += ["Columns: *tests* = region tests of the bounding (each tests the convex hull of the moving bodies' "
             "poses over a whole stretch and an interval of one joint, see README); "
@@ -494,6 +476,66 @@ def markdown(result: dict) -> str:
             f"certified bounds (epsilon = {result['config']['certify_epsilon']}, confidence = "
             f"{result['config']['certify_confidence']}), CF measured on a different seed stream.", ""]
     return "\n".join(out)
+
+
+def adversarial_markdown(sections: list[dict]) -> list[str]:
+    """The adversarial section's tables: per cell, the colliding corners and
+    edge points of both kinds of boxes by Drake, then one line per (push
+    pattern, bounds, filter)."""
+    if not sections:
+        return []
+    out = ["## Adversarial pushes", "",
+           "Steady pushes held for the whole run (*random*: every joint, seeded signs, which drives the clamp into "
+           "the box's corners; *nearest*: toward the nominal's nearest obstacle at a seeded waypoint) and seeded "
+           "random push sequences (*random_pushes*), on the `<cell>_push` scenario's path at its defaults, logged at "
+           "the admittance's update rate. Collisions: the run's monitor or Drake's checker at any update. Margin "
+           "kept: clearance never below min(margin, the nominal's own) - 2 mm. Deviation: the largest joint's "
+           "distance from the nominal (rad or m); *mean* averages it over the run (what the co-worker achieved).", ""]
+    for sec in sections:
+        out += [f"### {sec['cell']} (margin {sec['clearance_m']} m)", ""]
+        for kind, b in sec["boundary"].items():
+            out.append(f"- {kind} boxes (freedom {sec['freedom'][kind]:.3f}): {b['corners_colliding']} of "
+                       f"{b['corners']} corners and {b['edges_colliding']} of {b['edge_points']} edge points "
+                       f"collide by Drake (at {b['clearance'] * 1e3:.0f} mm, {b['positions']} path positions).")
+        out += ["", "| pattern | bounds | filter | runs | colliding | margin kept | min clearance mm | nominal's own mm "
+                "| max velocity ratio | filter steps (median) | mean deviation (median) | max deviation |",
+                "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        for r in sec["summary"]:
+            out.append(f"| {r['pattern']} | {'certified' if r['certify'] else 'uncertified'} | "
+                       f"{'on' if r['safety_filter'] else 'off'} | {r['runs']} | {r['runs_with_collisions']} | "
+                       f"{r['runs_margin_kept']} | {r['min_clearance_m'] * 1e3:.1f} | "
+                       f"{r['nominal_min_clearance_m'] * 1e3:.1f} | {r['max_velocity_ratio']:.3f} | "
+                       f"{r['filter_steps_median']:.0f} | {r['median_mean_deviation']:.3f} | {r['max_deviation']:.3f} |")
+        out.append("")
+    return out
+
+
+def adversarial_targets(sections: list[dict]) -> list[str]:
+    """The safety issue's targets, from the adversarial section."""
+    lines = []
+    for sec in sections:
+        cell = sec["cell"]
+        b = sec["boundary"]["certified"]
+        bad = b["corners_colliding"] + b["edges_colliding"]
+        lines.append(f"- Certified boxes, {cell}: {b['corners_colliding']} of {b['corners']} corners and "
+                     f"{b['edges_colliding']} of {b['edge_points']} edge points collide by Drake (target 0) -> "
+                     f"{'met' if bad == 0 else 'MISSED'}.")
+        on = [r for r in sec["summary"] if r["certify"] and r["safety_filter"] and r["pattern"] == "random"]
+        if on:
+            r = on[0]
+            ok = r["runs_with_collisions"] == 0 and r["runs_margin_kept"] == r["runs"] and r["max_velocity_ratio"] <= 1.0
+            lines.append(f"- Steady corner-seeking pushes, {cell}, scenario defaults (certified, filter on): "
+                         f"{r['runs']} runs, {r['runs_with_collisions']} colliding, {r['runs_margin_kept']} kept the "
+                         f"margin (worst shortfall {r['worst_shortfall_m'] * 1e3:.1f} mm), velocity ratio at most "
+                         f"{r['max_velocity_ratio']:.3f} (targets 0, all, <= 1.0) -> {'met' if ok else 'MISSED'}.")
+        for pattern in dict.fromkeys(r["pattern"] for r in sec["summary"]):
+            pair = {r["safety_filter"]: r for r in sec["summary"] if r["certify"] and r["pattern"] == pattern}
+            if True in pair and False in pair and pair[False]["median_mean_deviation"] > 0:
+                lines.append(f"- Freedom the filter leaves, {cell}, {pattern}, certified bounds: median mean "
+                             f"deviation {pair[True]['median_mean_deviation']:.3f} with the filter, "
+                             f"{pair[False]['median_mean_deviation']:.3f} without "
+                             f"({pair[True]['median_mean_deviation'] / pair[False]['median_mean_deviation']:.2f}x).")
+    return lines
 
 
 ENGINE_TARGETS_MS = {("automotive", "path1", 1000): 17, ("automotive", "path1", 20000): 115,
@@ -549,31 +591,17 @@ def targets(result: dict) -> list[str]:
             g = sel[20000]["time_ms_median"] / sel[100]["time_ms_median"]
             lines.append(f"- Growth {cell} {label}: t(20000) / t(100) = {g:.2f} -> {'met' if g <= 2 else 'MISSED'} "
                          f"(paper: {PAPER[(cell, label)][20000][0] / PAPER[(cell, label)][100][0]:.1f}).")
-    below = [r for r in rows if r["paper_cf_percent"] is not None and r["cf_percent"] < r["paper_cf_percent"]]
-    lines.append(f"- CF at least the paper's: {len(rows) - len(below)} of {len(rows)} rows -> "
-                 f"{'met' if not below else 'MISSED'}" + (f" (worst: {min(below, key=lambda r: r['cf_percent'] - r['paper_cf_percent'])['cell']} "
-                                                         f"{min(below, key=lambda r: r['cf_percent'] - r['paper_cf_percent'])['path']}, "
-                                                         f"{min(r['cf_percent'] - r['paper_cf_percent'] for r in below):.3f} points)" if below else "") + ".")
-    hi = [r for r in rows if r["resolution"] >= 1000]
-    miss = [r for r in hi if r["cf_percent"] < 99.9]
-    lines.append(f"- CF >= 99.9 % at R >= 1000: {len(hi) - len(miss)} of {len(hi)} rows -> "
-                 f"{'met' if not miss else 'MISSED'} (uncertified).")
-    for cell in dict.fromkeys(g["cell"] for g in result.get("guard", [])):
-        sel = {k: [g for g in result["guard"] if g["cell"] == cell and g["bounds"] == k]
-               for k in ("uncertified", "certified")}
-        if sel["certified"]:
-            c, u = sel["certified"], sel["uncertified"]
-            lines.append(f"- Guard, {cell}: {len(c)} random-push runs; guard steps on certified bounds: "
-                         f"{sum(g['guard_steps'] == 0 for g in c)} runs with none, median "
-                         f"{np.median([g['guard_steps'] for g in c]):.0f}, max {max(g['guard_steps'] for g in c)} "
-                         f"(uncertified: median {np.median([g['guard_steps'] for g in u]):.0f}, max "
-                         f"{max(g['guard_steps'] for g in u)}); logged collisions {sum(g['collisions'] for g in c)}; "
-                         f"velocity ratio > 1 in {sum(g['max_velocity_ratio'] > 1 for g in c)} runs (uncertified "
-                         f"{sum(g['max_velocity_ratio'] > 1 for g in u)}), at most "
-                         f"{max(g['max_velocity_ratio'] for g in c):.2f} ({max(g['max_velocity_ratio'] for g in u):.2f}).")
-    if result.get("guard_commit"):
-        lines.append(f"- (The random-push runs above were re-run at commit `{result['guard_commit']}`, after the "
-                     "guard's count was fixed to count every update it acted.)")
+    if rows:
+        below = [r for r in rows if r["paper_cf_percent"] is not None and r["cf_percent"] < r["paper_cf_percent"]]
+        lines.append(f"- CF at least the paper's: {len(rows) - len(below)} of {len(rows)} rows -> "
+                     f"{'met' if not below else 'MISSED'}" + (f" (worst: {min(below, key=lambda r: r['cf_percent'] - r['paper_cf_percent'])['cell']} "
+                                                             f"{min(below, key=lambda r: r['cf_percent'] - r['paper_cf_percent'])['path']}, "
+                                                             f"{min(r['cf_percent'] - r['paper_cf_percent'] for r in below):.3f} points)" if below else "") + ".")
+        hi = [r for r in rows if r["resolution"] >= 1000]
+        miss = [r for r in hi if r["cf_percent"] < 99.9]
+        lines.append(f"- CF >= 99.9 % at R >= 1000: {len(hi) - len(miss)} of {len(hi)} rows -> "
+                     f"{'met' if not miss else 'MISSED'} (uncertified).")
+    lines += adversarial_targets(result.get("adversarial") or [])
     cert = [r for r in rows if "certified_cf_percent" in r]
     if cert:
         full = [r for r in cert if r["certified_cf_colliding"] == 0]
@@ -626,14 +654,20 @@ def plots(result: dict, out: Path) -> list[Path]:
 
 
 def write_outputs(result: dict, out_dir: str | Path) -> dict:
-    """Writes results.md, trials.csv, rows.csv, results.json, machine.json
-    and the plots. Returns the files."""
+    """Writes results.md, trials.csv, rows.csv, results.json, machine.json,
+    adversarial.csv (one line per adversarial run, when the section ran) and
+    the plots. Returns the files."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = {"markdown": out / "results.md", "trials_csv": out / "trials.csv", "rows_csv": out / "rows.csv",
              "json": out / "results.json", "machine": out / "machine.json"}
     files["markdown"].write_text(markdown(result))
-    for key, items in (("trials_csv", result["trials"]), ("rows_csv", result["rows"])):
+    tables = [("trials_csv", result["trials"]), ("rows_csv", result["rows"])]
+    runs = [r for sec in result.get("adversarial") or [] for r in sec["rows"]]
+    if runs:
+        files["adversarial_csv"] = out / "adversarial.csv"
+        tables.append(("adversarial_csv", runs))
+    for key, items in tables:
         fields = list(dict.fromkeys(k for it in items for k in it))
         with open(files[key], "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=fields)

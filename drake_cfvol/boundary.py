@@ -149,10 +149,11 @@ class _Item:
     """A region of an edge: s in [sa, sb] of stretch i, joint j in
     [va, vb], the other joints on the bounds of sign row S."""
 
-    __slots__ = ("i", "sa", "sb", "j", "va", "vb", "S", "A", "B")
+    __slots__ = ("i", "sa", "sb", "j", "va", "vb", "S", "A", "B", "root")
 
-    def __init__(self, i, sa, sb, j, va, vb, S, A, B):
+    def __init__(self, i, sa, sb, j, va, vb, S, A, B, root=-1):
         self.i, self.sa, self.sb, self.j, self.va, self.vb, self.S, self.A, self.B = i, sa, sb, j, va, vb, S, A, B
+        self.root = root  # the whole edge this region was halved from (an index of _failures' edges)
 
     def ends(self, lower, upper):
         """Four configurations of the box's edge in this region: at either
@@ -181,15 +182,51 @@ def _test(arrays, items, margins):
     return regions_may_collide(arrays, A, B, js, va, vb, pads)
 
 
-def _failures(arrays, lower, upper, nominal, stretches, margins):
+def _edge_key(i, j, S, A, B) -> tuple:
+    """What fixes an edge region besides its joint's range: the stretch, the
+    joint, the other joints' bound pattern and their values at both ends."""
+    a, b = A.copy(), B.copy()
+    a[j] = b[j] = 0.0
+    return (i, j, S.tobytes(), a.tobytes(), b.tobytes())
+
+
+def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | None = None):
     """The edge regions of the given stretches that still may collide after
     MAX_SPLITS halvings (a region whose own corner configurations collide
-    is not halved further). Returns (failed items, region tests run)."""
-    items = []
+    is not halved further). Returns (failed items, region tests run).
+
+    ``memo`` (updated in place) holds the whole edges proven so far: an
+    edge whose other joints sit exactly where a proven edge's did, with its
+    own range inside that edge's and a margin no larger, is a subset of a
+    proven region and is not tested again (cuts only tighten, so after a
+    cut on one bound most of a stretch's edges are such subsets)."""
+    memo = {} if memo is None else memo
+    items, keys = [], []
     for i in stretches:
         A, B, js, va, vb, sig = edge_tasks(lower[i], upper[i], lower[i + 1], upper[i + 1])
-        items += [_Item(i, float(i), float(i + 1), int(js[n]), va[n], vb[n], sig[n], A[n], B[n])
-                  for n in range(len(js))]
+        for n in range(len(js)):
+            j = int(js[n])
+            key = _edge_key(i, j, sig[n], A[n], B[n])
+            # The joint's own range at both ends: the edge is a subset of a
+            # proven one if both ranges lie inside (the rule is linear in s).
+            lo_j, hi_j = lower[i:i + 2, j], upper[i:i + 2, j]
+            known = memo.get(key)
+            if (known is not None and np.all(known[0] <= lo_j) and np.all(hi_j <= known[1])
+                    and margins[i] <= known[2]):
+                continue
+            keys.append((key, lo_j.copy(), hi_j.copy(), float(margins[i])))
+            items.append(_Item(i, float(i), float(i + 1), j, va[n], vb[n], sig[n], A[n], B[n], root=len(keys) - 1))
+    failed, tests = _halvings(arrays, lower, upper, nominal, items, margins)
+    bad = {it.root for it in failed}
+    for r, (key, lo_j, hi_j, m) in enumerate(keys):
+        if r not in bad:
+            memo[key] = (lo_j, hi_j, m)
+    return failed, tests
+
+
+def _halvings(arrays, lower, upper, nominal, items, margins):
+    """Tests the regions, halving the failing ones (see :func:`_failures`).
+    Returns (failed items, region tests run)."""
     tests = 0
     failed: list = []
     for depth in range(MAX_SPLITS + 1):
@@ -215,8 +252,8 @@ def _failures(arrays, lower, upper, nominal, stretches, margins):
                 # Halved along the joint: the region's hull of poses bulges
                 # inwards by about reach * width^2 / 8, the usual false alarm.
                 vm = 0.5 * (it.va + it.vb)
-                items += [_Item(it.i, it.sa, it.sb, it.j, it.va, vm, it.S, it.A, it.B),
-                          _Item(it.i, it.sa, it.sb, it.j, vm, it.vb, it.S, it.A, it.B)]
+                items += [_Item(it.i, it.sa, it.sb, it.j, it.va, vm, it.S, it.A, it.B, it.root),
+                          _Item(it.i, it.sa, it.sb, it.j, vm, it.vb, it.S, it.A, it.B, it.root)]
                 continue
             ss = np.array([it.sa, 0.5 * (it.sa + it.sb), it.sb])
             lo, hi, _ = _box(lower, upper, nominal, it.i, ss)
@@ -226,7 +263,8 @@ def _failures(arrays, lower, upper, nominal, stretches, margins):
                 v_hi = min(max(hi[h, it.j], hi[h + 1, it.j]), it.vb)
                 vm = 0.5 * (v_lo + v_hi)
                 for u0, u1 in ((v_lo, vm), (vm, v_hi)):
-                    items.append(_Item(it.i, ss[h], ss[h + 1], it.j, u0, u1, it.S, c[h].copy(), c[h + 1].copy()))
+                    items.append(_Item(it.i, ss[h], ss[h + 1], it.j, u0, u1, it.S, c[h].copy(), c[h + 1].copy(),
+                                       it.root))
     return failed, tests
 
 
@@ -580,7 +618,7 @@ def _signature(lower, upper, i) -> bytes:
 
 
 def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, proven: dict | None = None, *,
-                   max_rounds: int = 200) -> dict:
+                   max_rounds: int = 200, memo: dict | None = None) -> dict:
     """Proves every edge (and corner) of the linear table's box at every s,
     cutting the waypoint boxes (in place) where a region may collide, until
     every stretch is proven as it is.
@@ -594,6 +632,10 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
         proven: stretch -> the box signature proven last time (updated in
             place): pass the same dict again after other cuts and only the
             stretches whose box changed are proven again.
+        max_rounds: rounds of proof and cuts before giving up.
+        memo: the whole edges proven so far (updated in place; pass the
+            same dict again): an edge inside a proven one is not tested
+            again.
 
     Returns:
         stats: ``edge_tests`` (region tests), ``edge_cuts``, ``edge_rounds``,
@@ -602,6 +644,7 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
         unless the proof ran out of rounds).
     """
     proven = {} if proven is None else proven
+    memo = {} if memo is None else memo
     n_st = len(nominal) - 1
     slacks = cut_slacks(arrays, nominal, margins)
     tests = cuts = rounds = lowered = 0
@@ -613,7 +656,7 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
         cp = corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, slacks)
         cuts += cp["corner_cuts"]
         todo = [i for i in range(n_st) if proven.get(i) != _signature(lower, upper, i)]
-        fails, t = _failures(arrays, lower, upper, nominal, todo, margins)
+        fails, t = _failures(arrays, lower, upper, nominal, todo, margins, memo)
         tests += t
         for i in todo:
             proven[i] = _signature(lower, upper, i)

@@ -12,6 +12,10 @@ from drake_cfvol._records import output_stem, prepare_output
 from drake_cfvol._version import __version__
 from drake_cfvol.exceptions import CfvolError, ParameterError
 
+#: drake_cfvol.adversarial.PATTERNS, spelled out so that ``cfvol --help``
+#: does not import Drake (tests/test_cli.py checks the two agree).
+PUSH_PATTERNS = ("random", "nearest", "random_pushes")
+
 _DESCRIPTION = ("Joint bounds that tell a robot how far a co-worker may push it off its planned path "
                 "without hitting anything (plan, bound, simulate, benchmark).")
 
@@ -137,7 +141,7 @@ def cmd_bounds(args) -> int:
     if args.plot and not args.out:
         raise ParameterError("--plot needs --out DIR (the folder to write the plot to).")
     lonely = [f"--{n.replace('_', '-')}"
-              for n in ("epsilon", "clamp_epsilon", "confidence", "no_cache", "prove_boundary")
+              for n in ("epsilon", "clamp_epsilon", "confidence", "no_cache", "no_boundary_proof")
               if getattr(args, n) not in (None, False)]
     if lonely and not args.certify:
         raise ParameterError(f"{', '.join(lonely)} only apply{'s' if len(lonely) == 1 else ''} to certified bounds: "
@@ -165,7 +169,8 @@ def cmd_bounds(args) -> int:
 
         given = {n: getattr(args, n) for n in ("epsilon", "clamp_epsilon", "confidence")
                  if getattr(args, n) is not None}
-        certify = Certify(**given, seed=args.seed, cache=not args.no_cache, boundary=args.prove_boundary)
+        certify = Certify(**given, seed=args.seed, cache=not args.no_cache,
+                          boundary=not args.no_boundary_proof)
     table = estimate_bounds(wc, path, params, backend=args.backend, certify=certify, progress=bars)
     cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
                            progress=bars)
@@ -249,11 +254,18 @@ def cmd_bench(args) -> int:
         cfg.reference_resolutions = []
     if args.certify_resolutions is not None:
         cfg.certify_resolutions = args.certify_resolutions
-    if args.guard_runs is not None:
-        if args.guard_runs < 0:
-            print(f"cfvol: error: --guard-runs must be >= 0, got {args.guard_runs}", file=sys.stderr)
+    if args.adversarial_runs is not None:
+        if args.adversarial_runs < 0:
+            print(f"cfvol: error: --adversarial-runs must be >= 0, got {args.adversarial_runs}", file=sys.stderr)
             return 2
-        cfg.guard_runs = args.guard_runs
+        cfg.adversarial_runs = args.adversarial_runs
+    if args.adversarial_patterns:
+        cfg.adversarial_patterns = args.adversarial_patterns
+    if args.adversarial_only:
+        if not cfg.adversarial_runs:
+            print("cfvol: error: --adversarial-only needs --adversarial-runs >= 1", file=sys.stderr)
+            return 2
+        cfg.paths, cfg.iris, cfg.engine = [], False, False
     if args.no_engine:
         cfg.engine = False
     result = run_bench(cfg, progress=not args.json)
@@ -309,9 +321,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--no-cache", action="store_true",
                    help="certify again even if the same certificate is cached (see DRAKE_CFVOL_CACHE; needs --certify)")
     b.add_argument("--confidence", type=float, default=None, help="certificate: confidence (0.99; needs --certify)")
-    b.add_argument("--prove-boundary", action="store_true",
-                   help="certificate: also prove every edge and corner of the box at every s (slower, much less "
-                        "freedom; needs --certify)")
+    b.add_argument("--no-boundary-proof", action="store_true",
+                   help="certificate: sampled only, without the proof of every edge and corner of the box (faster, "
+                        "but a clamp may land nearer than the margin; needs --certify)")
     b.add_argument("--clearance", type=float, default=None,
                    help="safety margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)")
     b.add_argument("--out", help="folder for bounds (.npz, .json), path and plot")
@@ -340,7 +352,13 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--no-reference", action="store_true", help="skip the reference (Drake) backend rows")
     n.add_argument("--certify-resolutions", nargs="*", type=int,
                    help="R values that also get certified bounds (default: every R; none: no certification)")
-    n.add_argument("--guard-runs", type=int, help="random-push runs per cell, uncertified and certified (default 20)")
+    n.add_argument("--adversarial-runs", type=int,
+                   help="adversarial push runs per cell, pattern, kind of bounds and filter on/off "
+                        "(default 16; --quick: 0)")
+    n.add_argument("--adversarial-patterns", nargs="+", choices=PUSH_PATTERNS,
+                   help=f"push patterns of the adversarial section (default all: {', '.join(PUSH_PATTERNS)})")
+    n.add_argument("--adversarial-only", action="store_true",
+                   help="run only the adversarial section (no paper tables, IrisZo or engine costs)")
     n.add_argument("--no-engine", action="store_true",
                    help="skip the kernel's fresh-cache compile and command wall-time measurements")
     n.add_argument("--out", default="out/bench", help="output folder (default out/bench)")

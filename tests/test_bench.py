@@ -11,7 +11,7 @@ from drake_cfvol.bench import PAPER, BenchConfig, markdown, run_bench, write_out
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     cfg = BenchConfig(cells=["automotive"], paths=["path1"], resolutions=[100, 500], trials=2, cf_windows=3,
-                      cf_samples=100, reference_resolutions=[], iris=False, certify_resolutions=[], guard_runs=0,
+                      cf_samples=100, reference_resolutions=[], iris=False, certify_resolutions=[], adversarial_runs=0,
                       engine=False)
     result = run_bench(cfg, progress=False)
     out = tmp_path_factory.mktemp("bench")
@@ -77,7 +77,7 @@ def test_clock_uses_measured_time_of_a_kind(monkeypatch):
     import drake_cfvol.bench as B
 
     cfg = BenchConfig(cells=["automotive"], paths=["path1"], resolutions=[100], trials=3, cf_windows=1,
-                      cf_samples=1, reference_resolutions=[], iris=False, certify_resolutions=[], guard_runs=0,
+                      cf_samples=1, reference_resolutions=[], iris=False, certify_resolutions=[], adversarial_runs=0,
                       engine=False)
     now = [100.0]
     monkeypatch.setattr(B.time, "perf_counter", lambda: now[0])
@@ -96,20 +96,55 @@ def test_clock_uses_measured_time_of_a_kind(monkeypatch):
         clock.close()
 
 
-@pytest.mark.slow  # certifies the scenario's path (~25 s) and simulates 4 runs
-def test_guard_runs_on_certified_bounds():
-    """Seeded random-push runs on the automotive scenario: each run is
-    reported for both kinds of bounds, the certified ones are narrower and
-    leave the guard no more work than the uncertified ones, nothing logged
-    collides, and no joint ever moves faster than its limit (the safety
-    filter holds the limits as a hard constraint)."""
-    from drake_cfvol.bench import guard_runs
+@pytest.mark.slow  # certifies the scenario's path (cached after the first run) and simulates 4 runs
+def test_adversarial_suite_on_automotive():
+    """One steady corner-seeking push per kind of bounds and filter setting:
+    four runs; with the filter on nothing collides by Drake's checker and no
+    joint ever moves faster than its limit; the certified boxes' corners and
+    edge points are all free by Drake (the boundary proof), and the
+    certified bounds are narrower than the uncertified ones."""
+    from drake_cfvol.adversarial import adversarial_suite
 
-    rows = guard_runs("automotive", 1)
-    assert [(r["push_seed"], r["bounds"]) for r in rows] == [(0, "uncertified"), (0, "certified")]
-    cert = [r for r in rows if r["bounds"] == "certified"]
-    unc = [r for r in rows if r["bounds"] == "uncertified"]
-    assert all(r["collisions"] == 0 for r in rows)
-    assert sum(r["guard_steps"] for r in cert) <= sum(r["guard_steps"] for r in unc)
-    assert all(r["freedom"] < u["freedom"] for r, u in zip(cert, unc))
-    assert all(r["max_velocity_ratio"] <= 1.0 + 1e-9 for r in rows)  # the filter holds the limits, always
+    sec = adversarial_suite("automotive", 1, ["random"])
+    rows = sec["rows"]
+    assert sorted((r["certify"], r["safety_filter"]) for r in rows) == [(False, False), (False, True),
+                                                                        (True, False), (True, True)]
+    for r in rows:
+        if r["safety_filter"]:
+            assert r["collisions"] == 0 and r["drake_colliding_updates"] == 0
+            assert r["max_velocity_ratio"] <= 1.0 + 1e-9
+    b = sec["boundary"]["certified"]
+    assert b["corners"] > 0 and b["corners_colliding"] == 0 and b["edges_colliding"] == 0
+    assert sec["freedom"]["certified"] < sec["freedom"]["uncertified"]
+    assert {(s["certify"], s["safety_filter"]) for s in sec["summary"]} == {(c, f) for c in (0, 1) for f in (0, 1)}
+
+
+def _section(corners_bad=0, collisions=0, ratio=0.9, kept=2):
+    def summ(certify, on, dev):
+        return {"cell": "automotive", "pattern": "random", "certify": certify, "safety_filter": on, "margin_m": 0.02,
+                "runs": 2, "runs_with_collisions": collisions if on else 1, "runs_margin_kept": kept,
+                "min_clearance_m": 0.019, "nominal_min_clearance_m": 0.05, "worst_shortfall_m": 0.001,
+                "max_velocity_ratio": ratio, "filter_steps_median": 3.0, "median_mean_deviation": dev,
+                "max_deviation": 0.4}
+    b = {"positions": 3, "corners": 192, "corners_colliding": corners_bad, "edge_points": 192, "edges_colliding": 0,
+         "clearance": 0.019}
+    return {"cell": "automotive", "clearance_m": 0.02, "freedom": {"certified": 0.3, "uncertified": 0.5},
+            "boundary": {"certified": b, "uncertified": dict(b, corners_colliding=50)},
+            "summary": [summ(True, True, 0.1), summ(True, False, 0.2), summ(False, True, 0.15)], "rows": []}
+
+
+def test_adversarial_targets_by_hand():
+    """The safety targets read met only when the certified corners and
+    edges are all free and the filter-on corner-seeking runs neither collide
+    nor lose the margin nor exceed a velocity limit; the filter's cost in
+    deviation is the ratio of the two medians."""
+    from drake_cfvol.bench import adversarial_markdown, adversarial_targets
+
+    good = adversarial_targets([_section()])
+    assert sum("-> met" in x for x in good) == 2 and not any("MISSED" in x for x in good)
+    assert any("0.100 with the filter, 0.200 without (0.50x)" in x for x in good)
+    assert "MISSED" in adversarial_targets([_section(corners_bad=1)])[0]
+    for bad in (_section(collisions=1), _section(ratio=1.01), _section(kept=1)):
+        assert "MISSED" in adversarial_targets([bad])[1]
+    md = "\n".join(adversarial_markdown([_section()]))
+    assert "| random | certified | on | 2 | 0 | 2 |" in md and "50 of 192 corners" in md

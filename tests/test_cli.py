@@ -69,7 +69,7 @@ def test_simulate_json(tmp_path, capsys):
 
 def test_bounds_certify_json(capsys):
     """cfvol bounds --certify reports the certificate it holds."""
-    assert main(["bounds", "automotive", "-R", "300", "--certify", "--epsilon", "0.05", "--confidence", "0.9",
+    assert main(["bounds", "automotive", "-R", "300", "--certify", "--no-boundary-proof", "--epsilon", "0.05", "--confidence", "0.9",
                  "--cf-windows", "3", "--cf-samples", "100", "--json"]) == 0
     d = json.loads(capsys.readouterr().out)
     c = d["certificate"]
@@ -84,6 +84,25 @@ def test_bench_quick_flags(tmp_path, capsys):
     d = json.loads(capsys.readouterr().out)
     assert [r["resolution"] for r in d["rows"]] == [200]
     assert (tmp_path / "results.md").is_file() and (tmp_path / "trials.csv").is_file()
+
+
+def test_push_patterns_agree():
+    """The CLI's push-pattern choices are the library's (spelled out in the
+    CLI so that --help does not import Drake)."""
+    from drake_cfvol.adversarial import PATTERNS
+    from drake_cfvol.cli import PUSH_PATTERNS
+
+    assert PUSH_PATTERNS == PATTERNS
+
+
+@pytest.mark.parametrize("flags, message", [(["--adversarial-runs", "-1"], "--adversarial-runs must be >= 0"),
+                                            (["--adversarial-only", "--adversarial-runs", "0"],
+                                             "--adversarial-only needs --adversarial-runs >= 1")])
+def test_bench_adversarial_flags_refused(tmp_path, flags, message, capsys):
+    """A negative run count, or an adversarial-only run with no runs, is
+    refused in one line before anything runs."""
+    assert main(["bench", *flags, "--out", str(tmp_path / "b")]) == 2
+    assert message in capsys.readouterr().err
 
 
 def test_version(capsys):
@@ -124,7 +143,7 @@ def test_bad_cf_samples_before_planning(capsys):
 
 
 @pytest.mark.parametrize("flag", [["--epsilon", "1e-4"], ["--clamp-epsilon", "1e-3"], ["--confidence", "0.9"],
-                                  ["--no-cache"]])
+                                  ["--no-cache"], ["--no-boundary-proof"]])
 def test_certificate_options_need_certify(flag, capsys):
     """An option that does nothing without --certify is refused, not ignored."""
     assert main(["bounds", "automotive", *flag]) == 2

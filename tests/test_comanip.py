@@ -389,8 +389,11 @@ def test_scenario_certify_asks_for_certified_bounds(monkeypatch):
     assert asked[0] == Certify(seed=scenario.seed) and asked[1] is None
 
 
-@pytest.mark.slow  # certifies both cells' path 1 (tens of seconds each, cached after)
-@pytest.mark.parametrize("name", ["automotive_push", "aerospace_random"])
+# Certifies automotive path 1 with the boundary proof (~170 s, shared within the
+# run); aerospace's proof takes ~8 min, so its certified runs are measured in the
+# benchmark's adversarial section instead.
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["automotive_push", "automotive_random"])
 def test_certified_scenarios_run_safely_with_the_filter(name, tmp_path):
     """The bundled scenarios as shipped run on certified bounds with the
     safety filter: it never falls back, never has to miss a damper row,
