@@ -415,6 +415,11 @@ def _fmt(v, spec):
 def markdown(result: dict) -> str:
     """The tables, shaped like the paper's, with its figures beside ours."""
     m = result["machine"]
+    if not result["rows"]:  # the adversarial section alone
+        out = ["# drake_cfvol benchmark: adversarial pushes", "",
+               f"{m['cpu']} ({m['cores']} cores, shared), {m['platform']}, commit `{m['commit']}`, {m['date']}.", ""]
+        out += adversarial_markdown(result.get("adversarial") or [])
+        return "\n".join(out + ["## Targets", ""] + targets(result) + [""])
     out = ["# drake_cfvol benchmark: the paper's Tables I and II, side by side", "",
            f"Ours: {m['cpu']} ({m['cores']} cores, shared), {m['platform']}, commit `{m['commit']}`, {m['date']}. "
            f"Paper: {PAPER_MACHINE}. Different hardware: ratios are indicative.",
@@ -668,6 +673,9 @@ def write_outputs(result: dict, out_dir: str | Path) -> dict:
         files["adversarial_csv"] = out / "adversarial.csv"
         tables.append(("adversarial_csv", runs))
     for key, items in tables:
+        if not items:  # an adversarial-only run has no paper tables
+            files.pop(key)
+            continue
         fields = list(dict.fromkeys(k for it in items for k in it))
         with open(files[key], "w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=fields)

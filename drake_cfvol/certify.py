@@ -103,7 +103,7 @@ class Certify:
         boundary: prove every edge and corner of the box at every s
             (:mod:`drake_cfvol.boundary`), where a clamp pushed steadily
             lands (default). False: the sampled certificate only, faster
-            (automotive path 1 at the 2 cm margin: 102 s against 153 s,
+            (automotive path 1 at the 2 cm margin: 102 s against 167 s,
             freedom 0.353 against 0.325) but a corner may then come nearer
             than the margin, and only the runtime safety filter keeps the
             margin there; the report says so.
