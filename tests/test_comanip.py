@@ -40,10 +40,9 @@ def test_run_inside_bounds_and_free(run):
     free = np.array(wc.checker.CheckConfigsCollisionFree(q_update), bool)
     assert free.all(), f"{(~free).sum()} steps collide at the update rate"
     assert summary["collisions"] == 0 and summary["max_bound_violation"] <= 1e-12
-    # The human really moved the robot off the nominal.
-    assert summary["max_deviation"] > 0.2
-    # Uncertified bounds, a push towards the nearest obstacle: the filter had work.
-    assert summary["filter_steps"] > 0 and summary["guard_steps"] == summary["filter_steps"]
+    # The human really moved the robot off the nominal (Drake-independent:
+    # the logged command against the logged nominal).
+    assert np.abs(q - logs["nominal"]).max() > 0.2
     assert summary["filter_fallbacks"] == 0 and summary["faults"] == 0
 
 
@@ -78,12 +77,32 @@ def test_run_reports_volume_and_clearance(run):
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     hits = ReferenceScene(wc, cm.bounds.volume.volume).volume_hits(logs["commanded_position"])
     assert summary["volume_penetrations"] >= int(hits.sum())
-    assert summary["volume_penetrations"] == int(logs["in_volume"].sum())
-    assert summary["min_clearance_m"] == pytest.approx(float(logs["update_min_distance"].min()))
-    assert summary["min_clearance_m"] <= float(logs["min_distance"].min())
-    q = logs["update_commanded_position"][int(np.argmin(logs["update_min_distance"][:, 0]))]
-    moving = min(wc.obstacle_distances(q, 2.0, changeable_only=True).values())
-    assert summary["min_clearance_m"] == pytest.approx(moving, abs=1e-9)
+    # The clearance, recounted by the workcell's own Drake scene at every
+    # update (not the diagram's monitor that the summary read).
+    recount = min(min(wc.obstacle_distances(q, 2.0, changeable_only=True).values())
+                  for q in logs["update_commanded_position"])
+    assert summary["min_clearance_m"] == pytest.approx(recount, abs=1e-9)
+
+
+def test_filter_changes_nothing_until_it_acts(tmp_path):
+    """A second method for the filter's activity: the same scenario with the
+    filter off commands the same motion (to rounding) up to the first update
+    the filter reports acting (its count at the update rate), and a
+    different one from there on if it acts."""
+    on = run_scenario("automotive_push", tmp_path / "on", record=False, plot=False, svg=False, scenario_text=FAST)
+    off = run_scenario("automotive_push", tmp_path / "off", record=False, plot=False, svg=False,
+                       scenario_text="{certify: false, collision_guard: false}")
+    a, b = (np.load(tmp_path / x / "logs.npz") for x in ("on", "off"))
+    qa, qb = a["update_commanded_position"], b["update_commanded_position"]
+    assert len(qa) == len(qb) and off["filter_steps"] == 0
+    differs = np.flatnonzero(np.abs(qa - qb).max(axis=1) > 1e-12)  # beyond rounding
+    acted = np.flatnonzero(np.diff(a["update_filter_count"][:, 0], prepend=0.0) > 0)
+    assert len(acted) == on["filter_steps"]
+    if not len(acted):
+        assert not len(differs)
+    else:
+        # The count's log lags the command's by at most one update.
+        assert len(differs) and acted[0] - 1 <= differs[0] <= acted[0]
 
 
 def test_outputs_written(run):
