@@ -122,65 +122,77 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
     if bounds is None:
         bounds = estimate_bounds(wc, path, resolution=scenario.resolution, **dict(scenario.params),
                                  certify=Certify(seed=scenario.seed) if certify else None)
-    k = wc.num_joints
     seeds = list(range(runs)) if seeds is None else list(seeds)
     margin_default = float(bounds.params.get("clearance", 0.0)) if clearance is None else float(clearance)
     nominal_clearance: dict[float, float] = {}
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
-            text = f"{{certify: {str(certify).lower()}, collision_guard: {str(safety_filter).lower()}, "
-            if pattern == "random_pushes":
-                signs = np.zeros(k)
-                text += f"random_pushes: {{seed: {int(seed)}}}"
-            else:
-                if pattern == "nearest":
-                    at = int(round(seed * (path.g - 1) / max(len(seeds) - 1, 1))) % path.g
-                    signs = nearest_obstacle_signs(wc, path.waypoints[at])
-                else:
-                    signs = _signs(seed, k)
-                tau = ", ".join(f"{x:.6g}" for x in torque * signs)
-                text += f"pushes: [{{start: 0.0, duration: 1.0e9, joint_torque: [{tau}]}}]"
-            if clearance is not None:
-                text += f", safety_filter: {{clearance: {float(clearance)!r}}}"
-            text += "}"
+            signs, text = _push_text(wc, path, pattern, seed, len(seeds), torque, certify, safety_filter, clearance)
             s = run_scenario(name, tmp, record=False, plot=False, svg=False, path=path, bounds=bounds,
                              scenario_text=text)
             logs = np.load(Path(tmp) / "logs.npz")
-            t = logs["update_commanded_position_t"]
-            q = logs["update_commanded_position"]
-            dist = logs["update_min_distance"][:, 0]
-            # The path index at each update, as PathProgress has it.
-            rate = (path.g - 1) / s["path_duration_s"] if s["path_duration_s"] > 0 else np.inf
-            s_at = np.clip((t - scenario.start_time) * rate, 0.0, path.g - 1.0)
-            nom = np.empty(len(t))
-            q_nom = np.empty_like(q)
-            for i, si in enumerate(np.round(s_at, 9)):
-                q_nom[i] = bounds.at(float(si))[2]
-                if si not in nominal_clearance:
-                    nominal_clearance[si] = min(wc.obstacle_distances(q_nom[i], 2.0, changeable_only=True).values(),
-                                                default=2.0)
-                nom[i] = nominal_clearance[si]
             margin = s["filter_clearance_m"] if s["filter_clearance_m"] is not None else margin_default
-            shortfall = float(np.max(np.minimum(margin, nom) - dist)) if len(t) else 0.0
-            free = np.array(wc.checker.CheckConfigsCollisionFree(q), bool)
             row = {"cell": cell, "seed": seed, "pattern": pattern, "signs": signs.tolist(), "torque": float(torque),
                    "safety_filter": bool(safety_filter), "certify": bool(certify), "margin_m": margin,
-                   "collisions": s["collisions"], "drake_colliding_updates": int((~free).sum()),
-                   "min_clearance_m": s["min_clearance_m"], "nominal_min_clearance_m": float(nom.min()),
-                   "worst_shortfall_m": shortfall, "margin_kept": shortfall <= MARGIN_TOLERANCE,
+                   "collisions": s["collisions"], "min_clearance_m": s["min_clearance_m"],
                    "max_velocity_ratio": s["max_velocity_ratio"], "filter_steps": s["filter_steps"],
                    "filter_damper_misses": s.get("filter_damper_misses", 0),
                    "filter_fallbacks": s["filter_fallbacks"], "faults": s["faults"],
                    "filter_box_exits": s.get("filter_box_exits", 0),
-                   "max_bound_violation": s["max_bound_violation"],
-                   "max_deviation": s["max_deviation"],
-                   "mean_deviation": float(np.mean(np.max(np.abs(q - q_nom), axis=1))) if len(t) else 0.0,
-                   "updates": int(len(t)), "sim_wall_s": s["sim_wall_s"]}
+                   "max_bound_violation": s["max_bound_violation"], "max_deviation": s["max_deviation"],
+                   "sim_wall_s": s["sim_wall_s"],
+                   **_recount(wc, path, bounds, scenario, s, logs, margin, nominal_clearance)}
             rows.append(row)
             if on_run is not None:
                 on_run(row)
     return rows
+
+
+def _push_text(wc, path, pattern, seed, n_seeds, torque, certify, safety_filter, clearance):
+    """(signs, scenario text) of one run: the push of its pattern and seed."""
+    k = wc.num_joints
+    text = f"{{certify: {str(certify).lower()}, collision_guard: {str(safety_filter).lower()}, "
+    if pattern == "random_pushes":
+        signs = np.zeros(k)
+        text += f"random_pushes: {{seed: {int(seed)}}}"
+    else:
+        if pattern == "nearest":
+            at = int(round(seed * (path.g - 1) / max(n_seeds - 1, 1))) % path.g
+            signs = nearest_obstacle_signs(wc, path.waypoints[at])
+        else:
+            signs = _signs(seed, k)
+        tau = ", ".join(f"{x:.6g}" for x in torque * signs)
+        text += f"pushes: [{{start: 0.0, duration: 1.0e9, joint_torque: [{tau}]}}]"
+    if clearance is not None:
+        text += f", safety_filter: {{clearance: {float(clearance)!r}}}"
+    return signs, text + "}"
+
+
+def _recount(wc, path, bounds, scenario, summary, logs, margin, nominal_clearance: dict) -> dict:
+    """A run recounted against independent facts at every update: Drake's
+    checker of the workcell's own scene, and the nominal's own clearance
+    (Drake's distances, cached by path position in ``nominal_clearance``)."""
+    t = logs["update_commanded_position_t"]
+    q = logs["update_commanded_position"]
+    dist = logs["update_min_distance"][:, 0]
+    # The path index at each update, as PathProgress has it.
+    rate = (path.g - 1) / summary["path_duration_s"] if summary["path_duration_s"] > 0 else np.inf
+    s_at = np.clip((t - scenario.start_time) * rate, 0.0, path.g - 1.0)
+    nom = np.empty(len(t))
+    q_nom = np.empty_like(q)
+    for i, si in enumerate(np.round(s_at, 9)):
+        q_nom[i] = bounds.at(float(si))[2]
+        if si not in nominal_clearance:
+            nominal_clearance[si] = min(wc.obstacle_distances(q_nom[i], 2.0, changeable_only=True).values(),
+                                        default=2.0)
+        nom[i] = nominal_clearance[si]
+    shortfall = float(np.max(np.minimum(margin, nom) - dist)) if len(t) else 0.0
+    free = np.array(wc.checker.CheckConfigsCollisionFree(q), bool)
+    return {"drake_colliding_updates": int((~free).sum()), "nominal_min_clearance_m": float(nom.min()),
+            "worst_shortfall_m": shortfall, "margin_kept": shortfall <= MARGIN_TOLERANCE,
+            "mean_deviation": float(np.mean(np.max(np.abs(q - q_nom), axis=1))) if len(t) else 0.0,
+            "updates": int(len(t))}
 
 
 def summarize_runs(rows: list[dict]) -> list[dict]:

@@ -386,198 +386,223 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
         if hit is not None:
             hit[2].cached = True
             return hit
-    nominal, rate = table.nominal, table.rate
-    if rate is None:
-        rate = np.full(nominal.shape[1], np.inf)
-    g, k = nominal.shape
-    lower, upper = rate_limited(*within_stretches(table.lower, table.upper, nominal, table.stretch_lower,
-                                                  table.stretch_upper), nominal, rate)
-    clearance = float(table.params.get("clearance", 0.0) or 0.0)
-    margins = stretch_margins(arrays, nominal, clearance)
-    point_slacks = cut_slacks(arrays, nominal, margins, _POINT_SLACK)
-    rng = certification_rng(certify.seed)
-    N, Nc = certify.n_samples, certify.n_clamp_samples
-    samples = shrinks = 0
-    proven: dict = {}
-    memo: dict = {}
-    boundary = {"edge_tests": 0, "edge_cuts": 0, "edge_rounds": 0, "margins_lowered": 0, "unproven": []}
-    current = certified_table(table, lower, upper)
+    job = _Certification(workcell, arrays, table, certify)
+    bar = Progress(certify.search_rounds + job.N, "Certifying whole boxes", enabled=progress, unit="steps", eta=False)
+    try:
+        if job.g > 1:
+            job.search_rounds(bar)
+            job.prove()
+            job.certificate_run(bar)
+    finally:
+        bar.close()
+    report = job.report((time.perf_counter() - t0) * 1e3)
+    if file is not None:
+        _cache_store(file, job.current.lower, job.current.upper, report)
+    return job.current.lower, job.current.upper, report
 
-    def flagged_of(s, Q):
+
+class _Certification:
+    """One certification's state: the waypoint boxes being cut (in place),
+    the stretches' margins, the sample stream and the counts."""
+
+    def __init__(self, workcell, arrays, table, certify: Certify):
+        self.workcell, self.arrays, self.table, self.certify = workcell, arrays, table, certify
+        nominal, rate = table.nominal, table.rate
+        self.nominal = nominal
+        self.rate = np.full(nominal.shape[1], np.inf) if rate is None else rate
+        self.g = nominal.shape[0]
+        self.lower, self.upper = rate_limited(*within_stretches(table.lower, table.upper, nominal,
+                                                                table.stretch_lower, table.stretch_upper),
+                                              nominal, self.rate)
+        self.clearance = float(table.params.get("clearance", 0.0) or 0.0)
+        self.margins = stretch_margins(arrays, nominal, self.clearance)
+        self.point_slacks = cut_slacks(arrays, nominal, self.margins, _POINT_SLACK)
+        self.rng = certification_rng(certify.seed)
+        self.N, self.Nc = certify.n_samples, certify.n_clamp_samples
+        self.samples = self.shrinks = 0
+        self.proven: dict = {}
+        self.memo: dict = {}
+        self.boundary = {"edge_tests": 0, "edge_cuts": 0, "edge_rounds": 0, "margins_lowered": 0, "unproven": []}
+        self.current = certified_table(table, self.lower, self.upper)
+
+    def _stretch_of(self, s):
+        return np.minimum(np.floor(s).astype(int), self.g - 2)
+
+    def flagged(self, s, Q) -> np.ndarray:
         """Indices of the samples that may collide or come nearer than
         their stretch's margin."""
-        i = np.minimum(np.floor(s).astype(int), g - 2)
-        pads = margins[i]
+        pads = self.margins[self._stretch_of(s)]
         out = np.zeros(len(Q), bool)
         for p in np.unique(pads):
             sel = pads == p
-            out[sel] = arrays.may_collide(Q[sel], p)
+            out[sel] = self.arrays.may_collide(Q[sel], p)
         return np.flatnonzero(out)
 
-    def refresh():
-        lower[:], upper[:] = rate_limited(lower, upper, nominal, rate)
-        return certified_table(table, lower.copy(), upper.copy())
+    def refresh(self):
+        """Rate-limits the waypoint boxes again and remakes the table."""
+        self.lower[:], self.upper[:] = rate_limited(self.lower, self.upper, self.nominal, self.rate)
+        self.current = certified_table(self.table, self.lower.copy(), self.upper.copy())
 
-    def cut(s, Q, flagged):
-        nonlocal shrinks
+    def cut(self, s, Q, flagged):
+        """Cuts the flagged samples away: those on a bound as points, the
+        others by the greedy cut."""
         sf = s[flagged]
-        i = np.minimum(np.floor(sf).astype(int), g - 2)
+        i = self._stretch_of(sf)
         t = sf - i
         X = Q[flagged]
         # Samples on a bound (where a clamp lands) are cut as points: a cut
         # just below them would barely move the bound they sit on.
         T = t[:, None]
-        lo = (1 - T) * lower[i] + T * lower[i + 1]
-        hi = (1 - T) * upper[i] + T * upper[i + 1]
-        nom = (1 - T) * nominal[i] + T * nominal[i + 1]
-        off = X != nom
-        on_bound = (((X == lo) | (X == hi)) & off).any(axis=1)
+        lo = (1 - T) * self.lower[i] + T * self.lower[i + 1]
+        hi = (1 - T) * self.upper[i] + T * self.upper[i + 1]
+        nom = (1 - T) * self.nominal[i] + T * self.nominal[i + 1]
+        on_bound = (((X == lo) | (X == hi)) & (X != nom)).any(axis=1)
         taken: set = set()
         for st in np.unique(i[on_bound]):
             rows = np.flatnonzero(on_bound & (i == st))
             for r in rows[:: max(1, len(rows) // _POINT_CUTS)][:_POINT_CUTS]:
-                cut_point(workcell, arrays, lower, upper, nominal, rate, int(st), float(sf[r]), X[r],
-                          float(margins[st]), float(point_slacks[st]), taken)
-        shrinks += len(taken)
+                cut_point(self.workcell, self.arrays, self.lower, self.upper, self.nominal, self.rate, int(st),
+                          float(sf[r]), X[r], float(self.margins[st]), float(self.point_slacks[st]), taken)
+        self.shrinks += len(taken)
         keep = ~on_bound
-        X, i, t = X[keep], i[keep], t[keep]
+        self._cut_inner(X[keep], i[keep], t[keep])
+
+    def _cut_inner(self, X, i, t):
         # Only joints whose motion reaches the colliding pair may cut a sample
         # (Drake's nearest pair at it): a bare flange is not pinched for a
         # collision of the forearm.
         allowed = np.ones(X.shape, bool)
+        reach = lambda r, st: reaching_joints(self.workcell, self.arrays, X[r], float(self.margins[st]))  # noqa: E731
         for st in np.unique(i):
             rows = np.flatnonzero(i == st)
             if len(rows) <= _REACH_QUERIES:
-                allowed[rows] = [reaching_joints(workcell, arrays, X[r], float(margins[st])) for r in rows]
+                allowed[rows] = [reach(r, st) for r in rows]
             else:  # many samples: the joints reaching any of a few of them
                 pick = rows[:: len(rows) // _REACH_QUERIES][:_REACH_QUERIES]
-                allowed[rows] = np.any([reaching_joints(workcell, arrays, X[r], float(margins[st])) for r in pick],
-                                       axis=0)
+                allowed[rows] = np.any([reach(r, st) for r in pick], axis=0)
         for st in np.unique(i):
             sel = i == st
-            n = _greedy_cut(X[sel], t[sel], lower, upper, nominal, st, allowed[sel])
-            if n < 0 and margins[st] > 0:
+            n = _greedy_cut(X[sel], t[sel], self.lower, self.upper, self.nominal, st, allowed[sel])
+            if n < 0 and self.margins[st] > 0:
                 # The nominal itself comes nearer than this stretch's margin
                 # between the points stretch_margins looked at: lower it.
-                margins[st] = 0.5 * margins[st] if margins[st] > 1e-4 else 0.0
+                self.margins[st] = 0.5 * self.margins[st] if self.margins[st] > 1e-4 else 0.0
                 continue
             if n < 0:
                 raise ParameterError(
                     f"certification: a configuration at the nominal of stretch {st} may collide; the path is not "
                     "collision-free between waypoints (plan with a finer max_step).")
-            shrinks += n
+            self.shrinks += n
 
-    def prove():
-        nonlocal current
-        if not certify.boundary:
-            return 0
-        stats = prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, proven, memo=memo)
+    def prove(self):
+        """The boundary proof (when asked), from where it stopped last."""
+        if not self.certify.boundary:
+            return
+        stats = prove_boundary(self.workcell, self.arrays, self.lower, self.upper, self.nominal, self.rate,
+                               self.margins, self.proven, memo=self.memo)
         for key in ("edge_tests", "edge_cuts", "edge_rounds", "margins_lowered"):
-            boundary[key] += stats[key]
-        boundary["unproven"] = stats["unproven"]
-        current = refresh()
-        return stats["edge_cuts"]
+            self.boundary[key] += stats[key]
+        self.boundary["unproven"] = stats["unproven"]
+        self.refresh()
 
-    bar = Progress(certify.search_rounds + N, "Certifying whole boxes", enabled=progress,
-                   unit="steps", eta=False)
-    def search(stretches, per, clamp=None) -> int:
+    def search(self, stretches, per, clamp=None) -> int:
         """One edge-biased search round, ``per`` samples in each of the
         stretches, every colliding sample cut. Returns how many collided."""
-        nonlocal current, samples
+        rng, N, Nc = self.rng, self.N, self.Nc
         s = np.repeat(stretches, per) + rng.random(len(stretches) * per)
-        lo, hi, nom = current.boxes_at(s)
+        lo, hi, nom = self.current.boxes_at(s)
         # Edge-biased in the box, and where a clamp lands in the share the
         # certificate run draws them.
-        Q = lo + _edge_biased(rng, lo.shape, certify.edge_share) * (hi - lo)
+        Q = lo + _edge_biased(rng, lo.shape, self.certify.edge_share) * (hi - lo)
         h = len(s) - int(round(len(s) * (Nc / (N + Nc) if clamp is None else clamp)))
         Q[h:] = clamp_draws(rng, lo[h:], hi[h:], nom[h:])
-        flagged = flagged_of(s, Q)
-        samples += len(Q)
+        flagged = self.flagged(s, Q)
+        self.samples += len(Q)
         if len(flagged):
-            cut(s, Q, flagged)
-            current = refresh()
+            self.cut(s, Q, flagged)
+            self.refresh()
         return len(flagged)
 
-    if g > 1:
-        # Search: stratified over the stretches, edge-biased, every colliding
-        # sample of a round cut at once.
-        per = certify.batch
-        budget = certify.search_factor * N  # a search much longer than the certificate buys nothing
-        for _ in range(certify.search_rounds):
-            per = min(per, int(budget // (g - 1)))
+    def search_rounds(self, bar):
+        """Search: stratified over the stretches, edge-biased, every
+        colliding sample of a round cut at once."""
+        per = self.certify.batch
+        budget = self.certify.search_factor * self.N  # a search much longer than the certificate buys nothing
+        for _ in range(self.certify.search_rounds):
+            per = min(per, int(budget // (self.g - 1)))
             if per < 1:
                 break
-            budget -= per * (g - 1)
-            search(np.arange(g - 1), per)
+            budget -= per * (self.g - 1)
+            self.search(np.arange(self.g - 1), per)
             per *= 2
             bar.update(1)
-        prove()
-        # Certificate: N consecutive free samples of the whole path from each
-        # of two distributions, uniform in the box and where a clamp lands
-        # (drawn side by side; a cut restarts both runs).
+
+    def certificate_run(self, bar):
+        """N consecutive free samples of the whole path from each of two
+        distributions, uniform in the box and where a clamp lands (drawn
+        side by side; a cut restarts both runs)."""
+        rng, N, certify = self.rng, self.N, self.certify
         run = 0
         batch = max(1, N // 64)  # small after a cut (a restart costs the batch), doubling up to N / 4
-        share = Nc / N  # clamp draws per uniform draw: both runs end together
+        share = self.Nc / N  # clamp draws per uniform draw: both runs end together
         while run < N:
             n = min(batch, N - run)
             batch = min(2 * batch, max(1, N // 4))
             nc = int(math.ceil((run + n) * share)) - int(math.ceil(run * share))
-            s = rng.uniform(0.0, g - 1, n + nc)
-            lo, hi, nom = current.boxes_at(s)
+            s = rng.uniform(0.0, self.g - 1, n + nc)
+            lo, hi, nom = self.current.boxes_at(s)
             Q = np.concatenate([lo[:n] + rng.random(lo[:n].shape) * (hi[:n] - lo[:n]),
                                 clamp_draws(rng, lo[n:], hi[n:], nom[n:])])
-            flagged = flagged_of(s, Q)
-            samples += n + nc
+            flagged = self.flagged(s, Q)
+            self.samples += n + nc
             if len(flagged):
-                cut(s, Q, flagged)
-                current = refresh()
+                self.cut(s, Q, flagged)
+                self.refresh()
                 run, batch = 0, max(1, N // 64)
                 # The stretches that still collide get a search of their own
                 # (cheaper than another run over the whole path), from the
                 # distribution that collided: a clamp's landing has
                 # neighbours on the same bound.
-                hit = np.unique(np.minimum(np.floor(s[flagged]).astype(int), g - 2))
+                hit = np.unique(self._stretch_of(s[flagged]))
                 focus = max(1, min(certify.focus_samples, N))
                 clamp = 0.5 if (flagged >= n).any() else None
                 for _ in range(certify.focus_rounds):
-                    if not search(hit, focus, clamp):
+                    if not self.search(hit, focus, clamp):
                         break
-                prove()
+                self.prove()
             else:
                 run += n
-            bar.set(certify.search_rounds + run, cuts=shrinks + boundary["edge_cuts"])
-    bar.close()
-    shrinks += boundary["edge_cuts"]
-    before = freedom(table).mean
-    after = freedom(current).mean
-    margin = (f"{clearance * 1e3:g} mm from the obstacles and the robot itself (less only where the nominal "
-              f"itself is nearer: {int((margins < clearance).sum())} of {len(margins)} stretches)"
-              if clearance > 0 else "free of collision with the obstacles and the robot itself (clearance 0)")
-    unproven = boundary["unproven"]
-    single = ("Every single-joint motion from the nominal to that joint's bound, at every s along the path, keeps "
-              f"{margin} and the volume.")
-    if not certify.boundary:
-        proven = single + (" The box's edges and corners are NOT proven (Certify(boundary=False) asked for the "
-                           "sampled certificate only); the runtime safety filter keeps the margin where a clamp "
-                           "lands.")
-    elif not unproven:
-        proven = single + (" So does every edge of the box (one joint over its whole width, every other joint at one "
-                           "of its bounds), and so every corner, at every s: the kernel's region tests "
-                           f"({boundary['edge_tests']} regions).")
-    else:
-        proven = single + (" So does every edge and corner of the box at every s except on stretches "
-                           f"{unproven}, where the proof ran out of rounds.")
-    sampled = (f"The faces and the interior, all joints at once, sampled from two distributions (s uniform over "
-               f"the path): {N} consecutive samples uniform in the box at s, and alongside them {Nc} consecutive "
-               "samples where a clamp lands (the nominal pushed on a random half of its joints, clamped into the "
-               "box, so about half of the pushed joints on a bound), all kept the margin. So with probability "
-               f"{certify.confidence:g} at most a share {certify.epsilon:g} of the uniform configurations comes "
-               f"nearer (about {certify.epsilon * 3e5:g} of 300,000), and at most a share "
-               f"{certify.clamp_share:g} of the clamp's. Beyond the box, the runtime safety filter keeps the "
-               "margin.")
-    report = CertificateReport(certify.epsilon, certify.confidence, N, (time.perf_counter() - t0) * 1e3,
-                               samples, shrinks, before, after, proven, sampled, clearance_m=clearance,
-                               boundary=boundary)
-    if file is not None:
-        _cache_store(file, current.lower, current.upper, report)
-    return current.lower, current.upper, report
+            bar.set(certify.search_rounds + run, cuts=self.shrinks + self.boundary["edge_cuts"])
+
+    def report(self, time_ms: float) -> "CertificateReport":
+        """The report, in words."""
+        certify, clearance, margins, boundary = self.certify, self.clearance, self.margins, self.boundary
+        margin = (f"{clearance * 1e3:g} mm from the obstacles and the robot itself (less only where the nominal "
+                  f"itself is nearer: {int((margins < clearance).sum())} of {len(margins)} stretches)"
+                  if clearance > 0 else "free of collision with the obstacles and the robot itself (clearance 0)")
+        unproven = boundary["unproven"]
+        single = ("Every single-joint motion from the nominal to that joint's bound, at every s along the path, "
+                  f"keeps {margin} and the volume.")
+        if not certify.boundary:
+            proven = single + (" The box's edges and corners are NOT proven (Certify(boundary=False) asked for the "
+                               "sampled certificate only); the runtime safety filter keeps the margin where a clamp "
+                               "lands.")
+        elif not unproven:
+            proven = single + (" So does every edge of the box (one joint over its whole width, every other joint at "
+                               "one of its bounds), and so every corner, at every s: the kernel's region tests "
+                               f"({boundary['edge_tests']} regions).")
+        else:
+            proven = single + (" So does every edge and corner of the box at every s except on stretches "
+                               f"{unproven}, where the proof ran out of rounds.")
+        sampled = (f"The faces and the interior, all joints at once, sampled from two distributions (s uniform over "
+                   f"the path): {self.N} consecutive samples uniform in the box at s, and alongside them {self.Nc} "
+                   "consecutive samples where a clamp lands (the nominal pushed on a random half of its joints, "
+                   "clamped into the box, so about half of the pushed joints on a bound), all kept the margin. So "
+                   f"with probability {certify.confidence:g} at most a share {certify.epsilon:g} of the uniform "
+                   f"configurations comes nearer (about {certify.epsilon * 3e5:g} of 300,000), and at most a share "
+                   f"{certify.clamp_share:g} of the clamp's. Beyond the box, the runtime safety filter keeps the "
+                   "margin.")
+        return CertificateReport(certify.epsilon, certify.confidence, self.N, time_ms, self.samples,
+                                 self.shrinks + boundary["edge_cuts"], freedom(self.table).mean,
+                                 freedom(self.current).mean, proven, sampled, clearance_m=clearance,
+                                 boundary=boundary)

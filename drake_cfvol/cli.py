@@ -130,6 +130,14 @@ def cmd_plan(args) -> int:
     return 0
 
 
+def _bundled_scenarios() -> list[str]:
+    """The bundled scenarios' names (the package's diagrams folder), read
+    without importing Drake."""
+    from importlib import resources
+
+    return sorted(p.name[:-5] for p in resources.files("drake_cfvol.diagrams").iterdir() if p.name.endswith(".yaml"))
+
+
 def cmd_bounds(args) -> int:
     from drake_cfvol.metrics import confidence_factor, freedom, shown_percent
     from drake_cfvol.params import VolumeParams
@@ -333,7 +341,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.set_defaults(func=cmd_bounds)
 
     m = sub.add_parser("simulate", help="run a co-manipulation scenario and record it")
-    m.add_argument("scenario", help="bundled scenario name (automotive_push, aerospace_push) or a YAML path")
+    m.add_argument("scenario", help=f"bundled scenario name ({', '.join(_bundled_scenarios())}) or a YAML path")
     m.add_argument("--out", help="output folder (default out/<scenario>)")
     m.add_argument("--no-record", action="store_true", help="skip the Meshcat recording")
     m.add_argument("--scenario-text", help="YAML overriding the scenario's fields, e.g. "

@@ -113,6 +113,17 @@ def test_version(capsys):
     assert cf.__version__ in capsys.readouterr().out
 
 
+def test_simulate_help_lists_every_bundled_scenario(capsys):
+    """simulate --help names every scenario file shipped in diagrams/."""
+    from drake_cfvol.comanip import diagrams_dir
+
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    names = sorted(p.stem for p in diagrams_dir().glob("*.yaml"))
+    assert len(names) >= 6 and all(n in out for n in names)
+
+
 def test_help_has_no_markup(capsys):
     """--help reads as plain text (no reST double backquotes)."""
     with pytest.raises(SystemExit):

@@ -40,10 +40,9 @@ def test_run_inside_bounds_and_free(run):
     free = np.array(wc.checker.CheckConfigsCollisionFree(q_update), bool)
     assert free.all(), f"{(~free).sum()} steps collide at the update rate"
     assert summary["collisions"] == 0 and summary["max_bound_violation"] <= 1e-12
-    # The human really moved the robot off the nominal.
-    assert summary["max_deviation"] > 0.2
-    # Uncertified bounds, a push towards the nearest obstacle: the filter had work.
-    assert summary["filter_steps"] > 0 and summary["guard_steps"] == summary["filter_steps"]
+    # The human really moved the robot off the nominal (Drake-independent:
+    # the logged command against the logged nominal).
+    assert np.abs(q - logs["nominal"]).max() > 0.2
     assert summary["filter_fallbacks"] == 0 and summary["faults"] == 0
 
 
@@ -78,12 +77,29 @@ def test_run_reports_volume_and_clearance(run):
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     hits = ReferenceScene(wc, cm.bounds.volume.volume).volume_hits(logs["commanded_position"])
     assert summary["volume_penetrations"] >= int(hits.sum())
-    assert summary["volume_penetrations"] == int(logs["in_volume"].sum())
-    assert summary["min_clearance_m"] == pytest.approx(float(logs["update_min_distance"].min()))
-    assert summary["min_clearance_m"] <= float(logs["min_distance"].min())
-    q = logs["update_commanded_position"][int(np.argmin(logs["update_min_distance"][:, 0]))]
-    moving = min(wc.obstacle_distances(q, 2.0, changeable_only=True).values())
-    assert summary["min_clearance_m"] == pytest.approx(moving, abs=1e-9)
+    # The clearance, recounted by the workcell's own Drake scene at every
+    # update (not the diagram's monitor that the summary read).
+    recount = min(min(wc.obstacle_distances(q, 2.0, changeable_only=True).values())
+                  for q in logs["update_commanded_position"])
+    assert summary["min_clearance_m"] == pytest.approx(recount, abs=1e-9)
+
+
+def test_filter_count_matches_what_it_changed(run):
+    """The filter's own count of the updates it acted on (its internal
+    counter) matches what the logs show it did: the updates where its
+    command differs from the admittance's request, both logged at the
+    update rate."""
+    name, out, summary = run
+    logs = np.load(out / "logs.npz")
+    # An update's command answers the request the admittance held before
+    # that update (both are states updated at the same instant).
+    q, desired = logs["update_commanded_position"], logs["update_desired_position"]
+    changed = np.r_[False, np.abs(q[1:] - desired[:-1]).max(axis=1) > 1e-9]
+    steps = np.diff(logs["update_filter_count"][:, 0], prepend=0.0)
+    assert set(np.unique(steps)) <= {0.0, 1.0}
+    acted = np.flatnonzero(steps > 0)
+    assert len(acted) == summary["filter_steps"]
+    np.testing.assert_array_equal(acted, np.flatnonzero(changed))
 
 
 def test_outputs_written(run):

@@ -1,5 +1,7 @@
 """The Drake systems, on their outputs (FixValue / Eval)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -41,6 +43,33 @@ def test_bounds_source_between_waypoints():
     np.testing.assert_allclose(nom, [0.0, 0.4])
     np.testing.assert_allclose(lo, [-0.5, 0.2])
     np.testing.assert_allclose(hi, [1.0, 0.4])
+
+
+def test_bounds_source_between_waypoints_with_stretch_boxes():
+    """With certified stretch boxes and a rate limit (SPEC 7, "stretch"
+    rule), by hand: at s = 0.5 the first stretch's box, each bound capped by
+    the second stretch's bound plus rate x 0.5 (joint 0; joint 1 has no
+    limit); at s = 1.5 the second stretch's box."""
+    t = dataclasses.replace(_table(), stretch_lower=np.array([[-0.7, 0.1], [-0.3, 0.15]]),
+                            stretch_upper=np.array([[0.9, 0.45], [0.25, 0.5]]), rate=np.array([0.2, np.inf]))
+    src = JointBoundsSource(t)
+    lo, hi, nom = _eval(src, 0.5)
+    np.testing.assert_allclose(nom, [0.0, 0.4])
+    np.testing.assert_allclose(lo, [-0.3 - 0.2 * 0.5, 0.1])
+    np.testing.assert_allclose(hi, [0.25 + 0.2 * 0.5, 0.45])
+    lo, hi, nom = _eval(src, 1.5)
+    np.testing.assert_allclose(lo, [-0.3, 0.15])
+    np.testing.assert_allclose(hi, [0.25, 0.5])
+
+
+def test_bounds_source_between_waypoints_linear():
+    """A certified ("linear") table, by hand: at s = 0.25 every bound is a
+    quarter of the way from waypoint 0's to waypoint 1's."""
+    t = dataclasses.replace(_table(), interpolation="linear")
+    lo, hi, nom = _eval(JointBoundsSource(t), 0.25)
+    np.testing.assert_allclose(nom, [0.0, 0.45])
+    np.testing.assert_allclose(lo, [0.75 * -1.0 + 0.25 * -0.5, 0.75 * 0.0 + 0.25 * 0.2])
+    np.testing.assert_allclose(hi, [0.75 * 1.0 + 0.25 * 2.0, 0.75 * 1.0 + 0.25 * 0.4])
 
 
 def test_bounds_source_outside_range():
