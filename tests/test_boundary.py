@@ -82,3 +82,26 @@ def test_reaching_joints_of_a_link_2_collision(corner):
     wc, arrays = corner
     np.testing.assert_array_equal(B.reaching_joints(wc, arrays, np.array([0.4, 0.8]), 0.0), [True, True])
     np.testing.assert_array_equal(B.reaching_joints(wc, arrays, np.zeros(2), 0.0), [True, True])
+
+
+def test_proven_edges_are_not_tested_again(corner):
+    """A free box (the arm's small box away from the post): every edge is
+    proven and remembered; proving it again tests nothing. Shrinking joint
+    0's upper bound keeps joint 0's own edges (their range shrank, the
+    others did not move) and joint 1's edges at joint 0's lower bound; only
+    joint 1's edges at the moved bound are tested again, and they pass."""
+    wc, arrays = corner
+    lower = np.array([[-0.1, -0.1], [-0.1, -0.1]])
+    upper = -lower
+    nominal = np.zeros((2, 2))
+    margins = np.zeros(1)
+    memo: dict = {}
+    failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
+    n_edges = len(B.edge_tasks(lower[0], upper[0], lower[1], upper[1])[2])
+    assert not failed and tests == n_edges == 4 and len(memo) == 4
+    assert B._failures(arrays, lower, upper, nominal, [0], margins, memo) == ([], 0)
+    upper[:, 0] = 0.05
+    failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
+    assert not failed and tests == 1  # joint 1's edge with joint 0 on its (moved) upper bound
+    # A larger margin than the proven one is tested again.
+    assert B._failures(arrays, lower, upper, nominal, [0], np.full(1, 0.01), memo)[1] == 4
