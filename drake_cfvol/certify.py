@@ -472,7 +472,10 @@ class _Certification:
         # (Drake's nearest pair at it): a bare flange is not pinched for a
         # collision of the forearm.
         allowed = np.ones(X.shape, bool)
-        reach = lambda r, st: reaching_joints(self.workcell, self.arrays, X[r], float(self.margins[st]))  # noqa: E731
+
+        def reach(r, st):
+            return reaching_joints(self.workcell, self.arrays, X[r], float(self.margins[st]))
+
         for st in np.unique(i):
             rows = np.flatnonzero(i == st)
             if len(rows) <= _REACH_QUERIES:
