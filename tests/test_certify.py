@@ -248,20 +248,22 @@ def test_certificate_report_in_words(corner):
 
 # Automotive at the defaults, boundary proof included (~170 s, the certificate
 # the README example, the certified scenario runs and the adversarial test
-# share within the run);
-# aerospace with the sampled certificate only (its proof takes ~8 min).
+# share within the run); aerospace with the sampled certificate only at
+# epsilon 1e-4 (its proof takes ~6 min; 1e-5 alone ~2 min).
 @pytest.mark.slow
-@pytest.mark.parametrize("cell, proof", [("automotive", True), ("aerospace", False)])
-def test_independent_cf_of_certified_bounds(cell, proof, bounded, planned, request):
-    """Certified bounds at the defaults (epsilon 1e-5), checked by Drake on a
-    seed stream certification never used (60,000 samples): at most 3
-    collide (the certificate allows 0.6 on average), and the boxes only
-    shrank."""
+@pytest.mark.parametrize("cell, settings", [("automotive", {}), ("aerospace", {"boundary": False, "epsilon": 1e-4})])
+def test_independent_cf_of_certified_bounds(cell, settings, bounded, planned, request):
+    """Certified bounds, checked by Drake on a seed stream certification
+    never used (60,000 samples): no more collide than the certificate's
+    epsilon allows (on average at most 60,000 x epsilon: 0.6 or 6; a
+    Poisson count at that mean exceeds 3, resp. 15, with probability 0.3 %,
+    resp. 0.05 %), and the boxes only shrank."""
     wc = request.getfixturevalue(cell)
     plain = bounded(cell, "path1", 1000)
-    cert = cf.estimate_bounds(wc, planned(cell, "path1"), resolution=1000, certify=Certify(seed=0, boundary=proof))
+    certify = Certify(seed=0, **settings)
+    cert = cf.estimate_bounds(wc, planned(cell, "path1"), resolution=1000, certify=certify)
     res = cf.confidence_factor(wc, cert, windows=30, samples=2000, seed=424242)
-    assert res.colliding <= 3
+    assert res.colliding <= {1e-5: 3, 1e-4: 15}[certify.epsilon]
     # What the sweep proved still covers the certified box: at every s
     # (waypoints, quarters, and just either side of them) each bound lies
     # within the plain table's stretch box or at the nominal.
