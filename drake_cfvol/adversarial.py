@@ -179,10 +179,10 @@ def _recount(wc, path, bounds, scenario, summary, logs, margin, nominal_clearanc
     # The path index at each update, as PathProgress has it.
     rate = (path.g - 1) / summary["path_duration_s"] if summary["path_duration_s"] > 0 else np.inf
     s_at = np.clip((t - scenario.start_time) * rate, 0.0, path.g - 1.0)
+    s_at = np.round(s_at, 9)
+    q_nom = bounds.boxes_at(s_at)[2] if len(t) else np.empty_like(q)
     nom = np.empty(len(t))
-    q_nom = np.empty_like(q)
-    for i, si in enumerate(np.round(s_at, 9)):
-        q_nom[i] = bounds.at(float(si))[2]
+    for i, si in enumerate(s_at):
         if si not in nominal_clearance:
             nominal_clearance[si] = min(wc.obstacle_distances(q_nom[i], 2.0, changeable_only=True).values(),
                                         default=2.0)

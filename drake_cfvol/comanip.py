@@ -726,11 +726,11 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         builder.ExportOutput(port, name)
         loggers[name] = LogVectorOutput(port, builder, publish_period=scenario.log_period)
         loggers[name].set_name(f"log_{name}")
-    # Speed, clearance and collisions at the control update rate too (the
-    # log period may be coarser: a step between two updates must not hide).
     if safety is not None:
         # What the admittance asked the filter for, beside what it commanded.
         exported["desired_position"] = adm.commanded_position_output
+    # Speed, clearance and collisions at the control update rate too (the
+    # log period may be coarser: a step between two updates must not hide).
     for name in UPDATE_RATE_LOGS + (("filter_count", "desired_position") if safety is not None else ()):
         loggers[f"update_{name}"] = LogVectorOutput(exported[name], builder, publish_period=a.period)
         loggers[f"update_{name}"].set_name(f"log_update_{name}")
