@@ -91,7 +91,7 @@ def test_damper_row_by_hand(wall):
     sctx = sf.GetMyContextFromRoot(ctx)
     q = np.array([0.85, -0.3])
     sf.set_initial_position(sctx, q)
-    A, b, dists = sf.damper_rows(sctx)
+    A, b, dists = sf.damper_rows(sctx)[:3]
     d = 0.8 - _tip(q)[0] - R
     assert 0.02 < d < 0.15
     s1, s12 = np.sin(q[0]), np.sin(q[0] + q[1])
@@ -113,7 +113,7 @@ def test_damper_row_is_drakes_distance_rate(wall):
     while checked < 10:
         q = rng.uniform([-0.6, -1.2], [0.6, 1.2])
         sf.set_initial_position(sctx, q)
-        A, b, dists = sf.damper_rows(sctx)
+        A, b, dists = sf.damper_rows(sctx)[:3]
         if len(b) == 0 or abs(_tip(q)[1]) > 1.5:
             continue
         v = rng.normal(size=2)
@@ -123,6 +123,46 @@ def test_damper_row_is_drakes_distance_rate(wall):
         sf.set_initial_position(sctx, q - eps * v)
         d_minus = _drake_distance(diagram, ctx, tip, wall_id)
         assert A[0] @ v == pytest.approx((d_plus - d_minus) / (2 * eps), abs=1e-6)
+        checked += 1
+
+
+def test_second_order_term_by_hand_and_against_drake(wall):
+    """The rows' second-order term at a step dq: the witness point (on the
+    tip sphere, facing the wall) carried by link 2's turn, by hand, gives
+    e = max(0, a dq - n (p' - p)) + R theta^2 / 2, theta = |dq1| + |dq2|;
+    and Drake's distance after the step never falls below d + a dq - e (the
+    oracle), nor above the witness point's own gap there, at random
+    configurations near the wall and steps up to 4 updates at the limits."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    rng = np.random.default_rng(7)
+
+    def rot(a):
+        return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+    checked = 0
+    while checked < 40:
+        q = rng.uniform([-0.6, -1.2], [0.6, 1.2])
+        sf.set_initial_position(sctx, q)
+        rows = sf.damper_rows(sctx)
+        if len(rows.b) == 0 or abs(_tip(q)[1]) > 1.5:
+            continue
+        d = rows.distances[0]
+        dq = rng.uniform(-1, 1, 2) * VMAX * H * 4
+        elbow = lambda x: L1 * np.array([np.cos(x[0]), np.sin(x[0])])  # noqa: E731
+        p_w = _tip(q) + [R, 0.0]  # the witness faces the wall (+x)
+        p_link2 = rot(-(q[0] + q[1])) @ (p_w - elbow(q))  # in link 2's frame
+        p_after = elbow(q + dq) + rot(q[0] + q[1] + dq[0] + dq[1]) @ p_link2
+        theta = np.abs(dq).sum()
+        change = -(p_after[0] - p_w[0])  # the witness point's gap change (n = -x)
+        e_hand = max(0.0, rows.A[0] @ dq - change) + 0.5 * R * theta ** 2
+        e = sf.second_order(sctx, rows, dq)
+        assert e == pytest.approx([e_hand], abs=1e-12)
+        sf.set_initial_position(sctx, q + dq)
+        after = _drake_distance(diagram, ctx, tip, wall_id)
+        # Below: the row's promise; above: the witness point's own gap (a point of the sphere).
+        assert d + rows.A[0] @ dq - e[0] - 1e-12 <= after <= d + change + 1e-9
         checked += 1
 
 
