@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol import boundary as B
+from drake_cfvol.algorithm import boundary as B
 from conftest import write_arm_cell
 
 

@@ -8,8 +8,8 @@ from scipy.spatial.transform import Rotation
 
 import drake_cfvol as cf
 from drake_cfvol import kernel as K
-from drake_cfvol.heightmap import HeightMap, Volume
-from drake_cfvol.sweep import volume_table
+from drake_cfvol.algorithm.heightmap import HeightMap, Volume
+from drake_cfvol.algorithm.sweep import volume_table
 
 MESH_CELL = "tests/data/mesh_cell.yaml"
 
