@@ -371,7 +371,7 @@ def test_push_toward_nearest_obstacle_points_at_it():
     """A toward_nearest_obstacle push becomes a tool force of that size along
     the line from the robot's witness point to the nearest obstacle's, at the
     nominal when the push starts (recomputed here from the workcell)."""
-    from drake_cfvol.comanip import _resolve_pushes
+    from drake_cfvol.comanip.diagram import _resolve_pushes
 
     scenario, file = load_scenario("automotive_push", scenario_text=FAST)
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
@@ -388,7 +388,7 @@ def test_push_toward_nearest_obstacle_points_at_it():
 def test_scenario_certify_asks_for_certified_bounds(monkeypatch):
     """certify: true builds the diagram on certified bounds (Certify at its
     defaults, seeded with the scenario's seed); false, on the paper's."""
-    import drake_cfvol.comanip as C
+    import drake_cfvol.comanip.diagram as C
     from drake_cfvol.algorithm.certify import Certify
 
     asked = []

@@ -23,7 +23,8 @@ import numpy as np
 
 from drake_cfvol.algorithm.certify import Certify
 from drake_cfvol.exceptions import ParameterError
-from drake_cfvol.comanip import load_scenario, run_scenario
+from drake_cfvol.comanip.run import MARGIN_TOLERANCE, run_scenario
+from drake_cfvol.comanip.scenario import load_scenario
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.algorithm.planning import plan_nominal_path
@@ -37,10 +38,6 @@ __all__ = ["steady_push_runs", "summarize_runs", "nearest_obstacle_signs", "adve
 #: the seed picks) or "random_pushes" (the ``<cell>_random`` scenario's
 #: seeded sequence of random pushes, push seed = the run's seed).
 PATTERNS = ("random", "nearest", "random_pushes")
-
-#: How far below min(margin, the nominal's own clearance) a run may dip
-#: and still count as keeping the margin, m.
-MARGIN_TOLERANCE = 0.002
 
 
 def _signs(seed: int, k: int) -> np.ndarray:

@@ -1,7 +1,6 @@
 """Shared helpers of the systems: vector arguments, and values and clips
 that work for float and AutoDiffXd alike."""
 
-from __future__ import annotations
 
 
 import numpy as np

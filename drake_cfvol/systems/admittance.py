@@ -2,7 +2,6 @@
 inside the bounds without wind-up; sensor faults hold the last safe command
 (SPEC 9)."""
 
-from __future__ import annotations
 
 
 import numpy as np

@@ -1,6 +1,5 @@
 """The bounds table as a Drake system of the path index (SPEC 9)."""
 
-from __future__ import annotations
 
 
 import numpy as np

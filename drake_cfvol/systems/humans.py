@@ -2,7 +2,6 @@
 ``RandomSource``, seeded through the context), and a person reacting to the
 robot's position."""
 
-from __future__ import annotations
 
 import dataclasses
 

@@ -1,7 +1,6 @@
 """Clearance, collision and volume contact through a SceneGraph's query
 port."""
 
-from __future__ import annotations
 
 
 from pydrake.common.value import AbstractValue

@@ -1,6 +1,5 @@
 """The path's progress over time, and the fastest safe rate for a table."""
 
-from __future__ import annotations
 
 
 import numpy as np
