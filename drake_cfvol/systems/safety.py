@@ -1,23 +1,121 @@
 """A smooth runtime safety filter between the admittance and the robot
 (SPEC 9): every update it commands the motion closest to the one asked for
 that keeps the joint velocity limits, the box at the next path position and
-a clearance margin, the last through the diagram's own SceneGraph.
+a clearance margin, the last through the diagram's own SceneGraph
+(:class:`SafetyFilter`).
+
+The discrete state is the commanded position q_c (rad, or m for a
+prismatic joint); ``commanded_position`` outputs it, so it depends on no
+input: the plant may be posed from it (``MultibodyPositionToGeometryPose``
+into the SceneGraph whose ``query_object`` this system reads) without an
+algebraic loop. Every ``period`` seconds the update picks the velocity v
+and sets q_c <- q_c + v dt (dt = ``period``), v solving::
+
+    minimise  |v - v_des|^2,   v_des = (desired_position - q_c) / dt
+    subject to
+      |v_j| <= velocity_limit_j                           (hard, always)
+      lower_j <= q_c,j + v_j dt <= upper_j                (the box ahead)
+      n_i^T (J_Ai - J_Bi) v >= -rate (d_i - d_t)          (each row i of the damper)
+
+**Velocity limits** are hard: no update moves joint j by more than
+``velocity_limit_j`` x dt, whatever the inputs (no jumps, ever); the
+filter commands at most (1 - 1e-9) of each limit, so that rounding in
+q_c + v dt never shows a step above it. ``acceleration_limits``, where
+given, shape the request instead (v_des is held within a_j dt of the
+last velocity): the hard constraints always win over them, so a braking
+damper is never overruled by them.
+
+**The box**: ``lower`` and ``upper`` are the bounds at the next path
+position (where the command takes effect: a second JointBoundsSource fed
+by ``PathProgress.path_index_ahead``). The path's own motion is
+rate-limited (:func:`~drake_cfvol.systems.safe_path_rate`), so the box
+moves by a share of the velocity limit per update and stays reachable;
+should q_c lie farther outside it than one step at the limit, the joint
+moves towards it at the limit rather than jumping. The box gives way to
+the damper only (see Solver): an uncertified box whose corner sweeps
+into an obstacle is left rather than followed in (``box_exits``).
+
+**The damper** (Faverjon and Tournassoud's velocity damper; Drake's
+``DifferentialInverseKinematicsSystem.CollisionConstraint`` is its
+discrete limit): for every pair of geometries (the robot's moving links
+against the obstacles, and the robot's pairs not filtered against each
+other; never the volume V, which is virtual), Drake's signed distance
+d_i, its unit normal n_i (``nhat_BA_W``, from B to A) and witness points
+(``p_ACa``/``p_BCb``, moved into the body frames with the inspector's
+``GetPoseInFrame``) come through ``query_object`` at the robot's present
+configuration. Within the influence distance d_inf the distance may
+shrink only as fast as still lets it stop at d_t = ``clearance`` +
+``allowance``: its rate n_i^T (J_Ai - J_Bi) v, J the translational
+Jacobians (world frame) of the witness points, is held above
+-rate (d_i - d_t), rate = min(xi / (d_inf - d_t), 1 / dt), xi the
+``damper_gain`` (m/s: the approach speed allowed at the edge of the
+influence zone). With rate dt <= 1 the linearised next distance stays
+>= d_t; the approach slows smoothly (exponentially, time constant
+1 / rate) to the margin: a soft wall, not a hold and a snap. A pair
+below it must move apart at rate (d_t - d_i).
+
+**Second order**: a row is first order in the step, and a turning link
+curves away from its tangent: at 3 rad/s over 10 ms a point 1.5 m out
+moves about 1 mm off it. So each row asks for e_i(v dt) / dt more, e_i
+the bound of :meth:`second_order` on how far the step can move its
+distance beyond the first-order change (from the joint axes' lever arms
+at the row's points); e depends on the step, so the QP is solved again
+with e at its solution until the solution meets its own e. Against a
+static obstacle the rows' distances are then bounded exactly (the plane
+through the obstacle's witness, at a polytope's vertices or a round
+shape's centre); between two moving links it is an estimate.
+
+One witness row sees only the closest features: a face tilting towards
+an obstacle brings its corners closer faster than its witness point.
+So each pair also has rows at probe points of its moving shapes (box
+corners, cylinder rims, capsule end spheres, convex hull vertices):
+against a static obstacle, a probe's distance from the plane through the
+obstacle's witness (normal n_i), a lower bound of its distance from the
+obstacle; against another moving link, the probe's own distance from it
+(Drake's ``ComputeSignedDistanceToPoint``) and its gradient.
+
+**The nominal**: within two steps (at the velocity limits) of the nominal
+at the next path position (input ``nominal``), each row is relaxed to
+b_i' = min(b_i, a_i v_ref), v_ref the step to that nominal (clipped to
+the limits and the box), fully within one step and fading out by two:
+at zero deviation v_ref is the nominal's own motion, so the nominal is
+always admissible, also where its own clearance is below the margin
+(near a goal), and a row is relaxed only as far as following the
+nominal shrinks it. Farther out no row is relaxed: there a row's
+linearisation says nothing reliable about the nominal's distances (a
+straight joint-space line back to the nominal may cross an obstacle).
+
+**Solver**: where the request (clipped to the velocity limits and the
+box) meets every damper row, it is commanded as is: away from obstacles
+the filter is the identity and ``filter_active`` is 0. Otherwise a small
+QP through Drake's ``MathematicalProgram`` and ``ClarabelSolver``
+(about 0.1 ms; OSQP is as fast but prints polishing notes and lands
+1e-5 away), in stages by priority, the velocity limits hard in all:
+(1) the box and the rows hard; (2) if nothing meets both, the rows hard
+and the box soft (weight ``BOX_WEIGHT``: left as little as it must be);
+(3) if the limits leave nothing that meets the rows, the rows soft too
+(weight ``SLACK_WEIGHT``: missed as little as possible,
+``damper_misses``). Should the solver fail, the filter holds (as far as
+the box allows) and ``fallback_count`` counts it. Nothing raises inside
+a simulation: a non-finite or crossed input holds q_c the same way.
+
+Cost: a pair known to lie beyond the influence distance is measured
+again only once the commanded motion could have brought it within
+(``skip_far_pairs``).
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, QueryObject, Sphere
-from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.geometry import QueryObject
 from pydrake.solvers import ClarabelSolver, MathematicalProgram
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.systems.damper import DamperRows, VelocityDamper
 
-__all__ = ["SafetyFilter"]
+__all__ = ["SafetyFilter", "StagedQP"]
 
 #: Status state layout: [acted at the last update, updates it acted,
 #: smallest signed distance seen at the last update (m), largest
@@ -33,103 +131,9 @@ _HAIR = 1e-9
 #: than this, rad (m).
 _CHANGED = 1e-9
 
-
 #: What a row that fell short of its second-order term asks for beyond it
 #: at the next solve, m/s (10 nm per 10 ms update): the rounds converge.
 _NUDGE = 1e-6
-
-#: The Levi-Civita symbol arranged so that (r @ _EPS).reshape(3, 3) is the
-#: cross-product matrix [r]x of a vector r.
-_EPS = np.zeros((3, 3, 3))
-_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
-_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
-_EPS = _EPS.transpose(1, 0, 2).reshape(3, 9)
-
-#: Points sampled on each rim of a cylinder (probe points).
-_RIM_POINTS = 12
-
-
-def _probes(shape) -> tuple[np.ndarray, np.ndarray]:
-    """Probe spheres of a shape, in its frame: centres (3 x m) and radii
-    (m,). Their lowest points along a direction reach the shape's support
-    there wherever the support set may be flat (a face, an edge, a rim, a
-    capsule's side), so rows at them see a face tilt towards an obstacle;
-    smooth, strictly convex shapes (sphere, ellipsoid) need none."""
-    if isinstance(shape, Box):
-        half = np.array([shape.width(), shape.depth(), shape.height()]) / 2
-        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
-        return corners.T, np.zeros(8)
-    if isinstance(shape, Cylinder):
-        a = np.linspace(0.0, 2 * np.pi, _RIM_POINTS, endpoint=False)
-        ring = np.stack([shape.radius() * np.cos(a), shape.radius() * np.sin(a)], axis=1)
-        rims = [np.column_stack([ring, np.full(len(a), z)]) for z in (-shape.length() / 2, shape.length() / 2)]
-        return np.concatenate(rims).T, np.zeros(2 * _RIM_POINTS)
-    if isinstance(shape, Capsule):
-        ends = np.array([[0.0, 0.0, -shape.length() / 2], [0.0, 0.0, shape.length() / 2]])
-        return ends.T, np.full(2, shape.radius())
-    if isinstance(shape, (Convex, Mesh)):
-        try:
-            hull = shape.GetConvexHull()
-            pts = np.array([hull.vertex(i) for i in range(hull.num_vertices())], float).reshape(-1, 3)
-            return pts.T, np.zeros(len(pts))
-        except Exception:  # no hull: the witness row alone
-            return np.zeros((3, 0)), np.zeros(0)
-    return np.zeros((3, 0)), np.zeros(0)  # smooth (sphere, ellipsoid): the witness row suffices
-
-
-def _radius(shape) -> float:
-    """The radius of a ball about the shape's frame origin that holds the
-    shape, m (inf if unknown)."""
-    if isinstance(shape, Box):
-        return 0.5 * float(np.linalg.norm([shape.width(), shape.depth(), shape.height()]))
-    if isinstance(shape, Sphere):
-        return shape.radius()
-    if isinstance(shape, Capsule):
-        return shape.radius() + shape.length() / 2
-    if isinstance(shape, Cylinder):
-        return float(np.hypot(shape.radius(), shape.length() / 2))
-    if isinstance(shape, Ellipsoid):
-        return max(shape.a(), shape.b(), shape.c())
-    if isinstance(shape, (Convex, Mesh)):
-        try:
-            hull = shape.GetConvexHull()
-            return max(float(np.linalg.norm(hull.vertex(i))) for i in range(hull.num_vertices()))
-        except Exception:
-            return np.inf
-    return np.inf
-
-
-class DamperRows(NamedTuple):
-    """The damper's rows at one configuration (:meth:`SafetyFilter.damper_rows`).
-    Row i reads dirs_i . (v_P1 - v_P2) for its two points P1, P2 (on the two
-    geometries; a point on a welded body does not move)."""
-
-    #: (m, k): each row's rate of its distance per unit joint velocity, m/rad (m/m).
-    A: np.ndarray
-    #: (m,): the rows' right-hand sides, A v >= b, m/s.
-    b: np.ndarray
-    #: (pairs,): every watched pair's signed distance, m (NaN: not measured).
-    distances: np.ndarray
-    #: (m, 3): each row's direction (unit) in the world frame.
-    dirs: np.ndarray
-    #: (m, 2, 3): each row's two points in the world frame, m.
-    points: np.ndarray
-    #: (m, 2): the moving body slot of each point (-1: welded).
-    slots: np.ndarray
-    #: (m, 2): the radius of a round shape whose witness the point is, m
-    #: (0: a vertex, a probe centre, or welded).
-    rounds: np.ndarray
-
-
-def _round_radius(shape) -> float:
-    """The radius of the round part of a shape, m: its witness point's
-    lever arm grows by it (0 for a polytope, whose probes are its
-    vertices)."""
-    if isinstance(shape, (Sphere, Capsule, Cylinder)):
-        return float(shape.radius())
-    if isinstance(shape, Ellipsoid):
-        return float(max(shape.a(), shape.b(), shape.c()))
-    return 0.0
 
 
 def _limits(value, k: int, name: str) -> np.ndarray:
@@ -139,6 +143,66 @@ def _limits(value, k: int, name: str) -> np.ndarray:
     if np.any(np.isnan(v)) or np.any(v <= 0):
         raise ParameterError(f"{name} must be > 0 (inf: no limit), got {v.tolist()}.")
     return v
+
+
+class StagedQP:
+    """The filter's QP, argmin |v - v_t|^2 in stages by priority, the
+    velocity limits |v| <= vmax always hard:
+
+    1. the box and the damper's rows hard: lo <= v <= hi, A v >= b;
+    2. if no v meets both, the rows hard and the box soft: the command
+       leaves the box (an uncertified box's corner sweeping into an
+       obstacle) as little as it must, weight ``box_weight``;
+    3. if the limits leave no v that meets the rows, both soft, the rows
+       weighted ``slack_weight``: missed as little as possible.
+
+    Through Drake's ``MathematicalProgram`` and ``ClarabelSolver``.
+    """
+
+    def __init__(self, vmax, *, box_weight: float, slack_weight: float):
+        self._vmax = np.asarray(vmax, float)
+        self.box_weight, self.slack_weight = float(box_weight), float(slack_weight)
+        self._solver = ClarabelSolver()
+
+    def solve(self, v_t, lo, hi, A, b):
+        """The solution of the first stage that has one; None if the solver fails."""
+        for box_soft, rows_soft in ((False, False), (True, False), (True, True)):
+            v = self._stage(v_t, lo, hi, A, b, box_soft=box_soft, rows_soft=rows_soft)
+            if v is not None:
+                return v
+        return None
+
+    def _stage(self, v_t, lo, hi, A, b, *, box_soft: bool, rows_soft: bool):
+        m, k = len(b), len(v_t)
+        prog = MathematicalProgram()
+        v = prog.NewContinuousVariables(k, "v")
+        prog.AddQuadraticCost(2.0 * np.eye(k), -2.0 * v_t, v, is_convex=True)
+        vmax = self._vmax
+        if box_soft:
+            prog.AddBoundingBoxConstraint(-vmax, vmax, v)
+            e = prog.NewContinuousVariables(k, "e")
+            prog.AddQuadraticCost(2.0 * self.box_weight * np.eye(k), np.zeros(k), e, is_convex=True)
+            prog.AddBoundingBoxConstraint(0.0, np.inf, e)
+            eye = np.eye(k)
+            prog.AddLinearConstraint(np.hstack([eye, eye]), lo, np.full(k, np.inf), np.concatenate([v, e]))
+            prog.AddLinearConstraint(np.hstack([eye, -eye]), np.full(k, -np.inf), hi, np.concatenate([v, e]))
+        else:
+            prog.AddBoundingBoxConstraint(lo, hi, v)
+        if rows_soft:
+            s = prog.NewContinuousVariables(m, "s")
+            prog.AddQuadraticCost(2.0 * self.slack_weight * np.eye(m), np.zeros(m), s, is_convex=True)
+            prog.AddBoundingBoxConstraint(0.0, np.inf, s)
+            prog.AddLinearConstraint(np.hstack([A, np.eye(m)]), b, np.full(m, np.inf), np.concatenate([v, s]))
+        else:
+            prog.AddLinearConstraint(A, b, np.full(m, np.inf), v)
+        try:
+            result = self._solver.Solve(prog)
+        except RuntimeError:
+            return None
+        if not result.is_success():
+            return None
+        x = np.clip(result.GetSolution(v), -vmax, vmax)
+        return x if box_soft else np.clip(x, lo, hi)
 
 
 class SafetyFilter(LeafSystem):
@@ -164,104 +228,8 @@ class SafetyFilter(LeafSystem):
         - damper_misses
         - box_exits
 
-    The discrete state is the commanded position q_c (rad, or m for a
-    prismatic joint); ``commanded_position`` outputs it, so it depends on no
-    input: the plant may be posed from it (``MultibodyPositionToGeometryPose``
-    into the SceneGraph whose ``query_object`` this system reads) without an
-    algebraic loop. Every ``period`` seconds the update picks the velocity v
-    and sets q_c <- q_c + v dt (dt = ``period``), v solving::
-
-        minimise  |v - v_des|^2,   v_des = (desired_position - q_c) / dt
-        subject to
-          |v_j| <= velocity_limit_j                           (hard, always)
-          lower_j <= q_c,j + v_j dt <= upper_j                (the box ahead)
-          n_i^T (J_Ai - J_Bi) v >= -rate (d_i - d_t)          (each row i of the damper)
-
-    **Velocity limits** are hard: no update moves joint j by more than
-    ``velocity_limit_j`` x dt, whatever the inputs (no jumps, ever); the
-    filter commands at most (1 - 1e-9) of each limit, so that rounding in
-    q_c + v dt never shows a step above it. ``acceleration_limits``, where
-    given, shape the request instead (v_des is held within a_j dt of the
-    last velocity): the hard constraints always win over them, so a braking
-    damper is never overruled by them.
-
-    **The box**: ``lower`` and ``upper`` are the bounds at the next path
-    position (where the command takes effect: a second JointBoundsSource fed
-    by ``PathProgress.path_index_ahead``). The path's own motion is
-    rate-limited (:func:`~drake_cfvol.systems.safe_path_rate`), so the box
-    moves by a share of the velocity limit per update and stays reachable;
-    should q_c lie farther outside it than one step at the limit, the joint
-    moves towards it at the limit rather than jumping. The box gives way to
-    the damper only (see Solver): an uncertified box whose corner sweeps
-    into an obstacle is left rather than followed in (``box_exits``).
-
-    **The damper** (Faverjon and Tournassoud's velocity damper; Drake's
-    ``DifferentialInverseKinematicsSystem.CollisionConstraint`` is its
-    discrete limit): for every pair of geometries (the robot's moving links
-    against the obstacles, and the robot's pairs not filtered against each
-    other; never the volume V, which is virtual), Drake's signed distance
-    d_i, its unit normal n_i (``nhat_BA_W``, from B to A) and witness points
-    (``p_ACa``/``p_BCb``, moved into the body frames with the inspector's
-    ``GetPoseInFrame``) come through ``query_object`` at the robot's present
-    configuration. Within the influence distance d_inf the distance may
-    shrink only as fast as still lets it stop at d_t = ``clearance`` +
-    ``allowance``: its rate n_i^T (J_Ai - J_Bi) v, J the translational
-    Jacobians (world frame) of the witness points, is held above
-    -rate (d_i - d_t), rate = min(xi / (d_inf - d_t), 1 / dt), xi the
-    ``damper_gain`` (m/s: the approach speed allowed at the edge of the
-    influence zone). With rate dt <= 1 the linearised next distance stays
-    >= d_t; the approach slows smoothly (exponentially, time constant
-    1 / rate) to the margin: a soft wall, not a hold and a snap. A pair
-    below it must move apart at rate (d_t - d_i).
-
-    **Second order**: a row is first order in the step, and a turning link
-    curves away from its tangent: at 3 rad/s over 10 ms a point 1.5 m out
-    moves about 1 mm off it. So each row asks for e_i(v dt) / dt more, e_i
-    the bound of :meth:`second_order` on how far the step can move its
-    distance beyond the first-order change (from the joint axes' lever arms
-    at the row's points); e depends on the step, so the QP is solved again
-    with e at its solution until the solution meets its own e. Against a
-    static obstacle the rows' distances are then bounded exactly (the plane
-    through the obstacle's witness, at a polytope's vertices or a round
-    shape's centre); between two moving links it is an estimate.
-
-    One witness row sees only the closest features: a face tilting towards
-    an obstacle brings its corners closer faster than its witness point.
-    So each pair also has rows at probe points of its moving shapes (box
-    corners, cylinder rims, capsule end spheres, convex hull vertices):
-    against a static obstacle, a probe's distance from the plane through the
-    obstacle's witness (normal n_i), a lower bound of its distance from the
-    obstacle; against another moving link, the probe's own distance from it
-    (Drake's ``ComputeSignedDistanceToPoint``) and its gradient.
-
-    **The nominal**: within two steps (at the velocity limits) of the nominal
-    at the next path position (input ``nominal``), each row is relaxed to
-    b_i' = min(b_i, a_i v_ref), v_ref the step to that nominal (clipped to
-    the limits and the box), fully within one step and fading out by two:
-    at zero deviation v_ref is the nominal's own motion, so the nominal is
-    always admissible, also where its own clearance is below the margin
-    (near a goal), and a row is relaxed only as far as following the
-    nominal shrinks it. Farther out no row is relaxed: there a row's
-    linearisation says nothing reliable about the nominal's distances (a
-    straight joint-space line back to the nominal may cross an obstacle).
-
-    **Solver**: where the request (clipped to the velocity limits and the
-    box) meets every damper row, it is commanded as is: away from obstacles
-    the filter is the identity and ``filter_active`` is 0. Otherwise a small
-    QP through Drake's ``MathematicalProgram`` and ``ClarabelSolver``
-    (about 0.1 ms; OSQP is as fast but prints polishing notes and lands
-    1e-5 away), in stages by priority, the velocity limits hard in all:
-    (1) the box and the rows hard; (2) if nothing meets both, the rows hard
-    and the box soft (weight ``BOX_WEIGHT``: left as little as it must be);
-    (3) if the limits leave nothing that meets the rows, the rows soft too
-    (weight ``SLACK_WEIGHT``: missed as little as possible,
-    ``damper_misses``). Should the solver fail, the filter holds (as far as
-    the box allows) and ``fallback_count`` counts it. Nothing raises inside
-    a simulation: a non-finite or crossed input holds q_c the same way.
-
-    Cost: a pair known to lie beyond the influence distance is measured
-    again only once the commanded motion could have brought it within
-    (``skip_far_pairs``).
+    The update, its constraints and what they guarantee: see the module's
+    documentation (:mod:`drake_cfvol.systems.safety`).
 
     Outputs: ``filter_active`` is 1 after an update that changed the
     request (the commanded position differs from ``desired_position`` by
@@ -359,37 +327,12 @@ class SafetyFilter(LeafSystem):
         if q0.shape != (k,):
             raise DimensionError("initial_position", k, q0.shape)
         self._plant = plant
-        self._pairs = self._make_pairs(plant, scene_graph, robot, obstacle_ids)
-        inspector = scene_graph.model_inspector()
-        #: Geometries Drake's point query measures (ComputeSignedDistanceToPoint).
-        self._point_query = {g: isinstance(inspector.GetShape(g), (Box, Capsule, Cylinder, Sphere, Ellipsoid))
-                             for a, b, _, _ in self._pairs for g in (a, b)}
-        #: Per geometry, the radius added to its witness point's lever arm:
-        #: a round shape's support point moves on it as the shape turns
-        #: (a sphere's centre is exact: its radius), a polytope's stays at
-        #: its probes (vertices).
-        self._round = {g: _round_radius(inspector.GetShape(g)) for a, b, _, _ in self._pairs for g in (a, b)}
-        self._solver = ClarabelSolver()
-        # For skipping far pairs: the moving bodies, the radius of a ball
-        # about each one's origin holding its geometry, and each pair's
-        # bodies (-1: welded).
+        self._damper = VelocityDamper(plant, scene_graph, robot, obstacle_ids=obstacle_ids,
+                                      target_distance=self.target_distance,
+                                      influence_distance=self.influence_distance, rate=self.rate)
+        self._qp = StagedQP(self._vmax, box_weight=self.BOX_WEIGHT, slack_weight=self.SLACK_WEIGHT)
         self.skip_far_pairs = bool(skip_far_pairs)
-        bodies = sorted({side[0].index(): side[0] for _, _, sa, sb in self._pairs for side in (sa, sb)
-                         if side[0] is not None}.items())
-        self._bodies = [b for _, b in bodies]
-        slot = {i: n for n, (i, _) in enumerate(bodies)}
-        self._body_radius = np.zeros(len(self._bodies))
-        for a, b, sa, sb in self._pairs:
-            for gid, side in ((a, sa), (b, sb)):
-                if side[0] is not None:
-                    n = slot[side[0].index()]
-                    r = float(np.linalg.norm(side[1].translation())) + _radius(inspector.GetShape(gid))
-                    self._body_radius[n] = max(self._body_radius[n], r)
-        self._pair_bodies = np.array([[slot[sa[0].index()] if sa[0] is not None else -1,
-                                       slot[sb[0].index()] if sb[0] is not None else -1]
-                                      for _, _, sa, sb in self._pairs], dtype=int).reshape(-1, 2)
-        self._slot = slot
-        self._chain_masks(plant, robot)
+        n_pairs = self._damper.num_pairs
 
         self.desired_position_input = self.DeclareVectorInputPort(name="desired_position", size=k)
         self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
@@ -402,7 +345,7 @@ class SafetyFilter(LeafSystem):
         self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0]))
         # Per pair, how far it is known to lie beyond the influence distance
         # (m; negative: measure it at the next update).
-        self._budget = self.DeclareDiscreteState(np.full(max(len(self._pairs), 1), -1.0))
+        self._budget = self.DeclareDiscreteState(np.full(max(n_pairs, 1), -1.0))
         # A plant context used as scratch for the Jacobians (never a context
         # outside this system's own).
         self._scratch = self.DeclareCacheEntry(
@@ -422,104 +365,40 @@ class SafetyFilter(LeafSystem):
                 prerequisites_of_calc={self.xd_ticket()})
             setattr(self, f"{name}_output", port)
 
-    # -- construction ------------------------------------------------------
-
-    @staticmethod
-    def _make_pairs(plant, scene_graph, robot, obstacle_ids) -> list[tuple]:
-        """The geometry pairs the damper watches: the robot's moving links
-        against every obstacle, and the robot's own unfiltered pairs with at
-        least one moving link. Each: (id_A, id_B, side_A, side_B), a side
-        (body or None where no joint moves it, X_BG, probe centres in the
-        body frame, probe radii)."""
-        inspector = scene_graph.model_inspector()
-        moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(robot))))
-        robot_ids, moving = [], set()
-        for b in plant.GetBodyIndices(robot):
-            ids = plant.GetCollisionGeometriesForBody(plant.get_body(b))
-            robot_ids.extend(ids)
-            if b in moved:
-                moving.update(ids)
-        robot_set = set(robot_ids)
-        if obstacle_ids is None:
-            obstacle_ids = [g for g in inspector.GetAllGeometryIds() if g not in robot_set
-                            and inspector.GetProximityProperties(g) is not None]
-        obstacles = sorted(set(obstacle_ids) - robot_set, key=lambda g: g.get_value())
-        ordered = sorted(robot_set, key=lambda g: g.get_value())
-        pairs = [(a, b) for a in ordered if a in moving for b in obstacles]
-        pairs += [(a, b) for i, a in enumerate(ordered) for b in ordered[i + 1:]
-                  if (a in moving or b in moving) and not inspector.CollisionFiltered(a, b)]
-
-        sides = {}
-
-        def side(gid):
-            """(moving body or None, X_BG, probe centres in the body frame
-            (m x 3), probe radii)."""
-            if gid not in sides:
-                body = plant.GetBodyFromFrameId(inspector.GetFrameId(gid))
-                X_BG = inspector.GetPoseInFrame(gid)
-                if body is None or body.index() not in moved:
-                    sides[gid] = (None, X_BG, np.zeros((0, 3)), np.zeros(0))
-                else:
-                    centres, radii = _probes(inspector.GetShape(gid))
-                    P_B = X_BG.multiply(centres).T if centres.shape[1] else np.zeros((0, 3))
-                    sides[gid] = (body, X_BG, P_B, radii)
-            return sides[gid]
-
-        return [(a, b, side(a), side(b)) for a, b in pairs]
-
-    def _chain_masks(self, plant, robot) -> None:
-        """Per moving body slot, the revolute joints that turn it (``_rev``,
-        (S, k) 0/1, by velocity index): a body turns by at most the sum of
-        their |dq_j| in a step dq."""
-        self._rev = np.zeros((len(self._bodies), self.k))
-        for j in plant.GetJointIndices(robot):
-            joint = plant.get_joint(j)
-            if joint.num_velocities() != 1 or joint.type_name() != "revolute":
-                continue
-            moved = set(plant.GetBodiesKinematicallyAffectedBy([j]))
-            for n, body in enumerate(self._bodies):
-                if body.index() in moved:
-                    self._rev[n, joint.velocity_start()] = 1.0
-
-    def second_order(self, context, rows: DamperRows, dq: np.ndarray) -> np.ndarray:
-        """Per row, how far a joint step ``dq`` (k,) from the commanded
-        position of ``context`` falls short of the row's first-order change
-        A dq, m (>= 0): the rows' points are carried to q + dq by the bodies'
-        poses there (forward kinematics), so the change of dirs . (P1 - P2)
-        is exact for body-fixed points; a round shape's witness point
-        (radius r) may slide on it as the body turns by at most theta (the
-        sum of |dq_j| over the revolute joints that move it), which the term
-        r theta^2 / 2 covers. Against a static obstacle the row is the plane
-        through the obstacle's witness, so this bounds the distance at
-        q + dq; between two moving links it is an estimate (the other link's
-        turn tilts its surface too)."""
-        dq = np.asarray(dq, float)
-        m = len(rows.b)
-        if not m:
-            return np.zeros(0)
-        plant = self._plant
-        pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
-        q = context.get_discrete_state(self._position).CopyToVector()
-        used = np.unique(rows.slots[rows.slots >= 0])
-        moved = np.zeros((len(self._bodies) + 1, 3, 4))  # per slot: [R | t] of X_WB(q + dq) X_WB(q)^-1
-        moved[-1, :, :3] = np.eye(3)  # slot -1: welded
-        plant.SetPositions(pctx, q)
-        before = {n: plant.EvalBodyPoseInWorld(pctx, self._bodies[n]) for n in used}
-        plant.SetPositions(pctx, q + dq)
-        for n in used:
-            X = plant.EvalBodyPoseInWorld(pctx, self._bodies[n]).multiply(before[n].inverse())
-            moved[n, :, :3], moved[n, :, 3] = X.rotation().matrix(), X.translation()
-        T = moved[rows.slots]  # (m, 2, 3, 4)
-        after = np.einsum("msij,msj->msi", T[..., :3], rows.points) + T[..., 3]
-        delta = after - rows.points
-        actual = np.einsum("mi,mi->m", rows.dirs, delta[:, 0] - delta[:, 1])
-        theta = np.append(self._rev @ np.abs(dq), 0.0)[rows.slots]
-        return np.maximum(0.0, rows.A @ dq - actual) + 0.5 * np.sum(rows.rounds * theta ** 2, axis=1)
-
     @property
     def num_pairs(self) -> int:
         """How many geometry pairs the damper watches."""
-        return len(self._pairs)
+        return self._damper.num_pairs
+
+    def _pctx(self, context):
+        return self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
+
+    def damper_rows(self, context, measure=None) -> DamperRows:
+        """The damper's rows at the commanded position of ``context``
+        (:meth:`VelocityDamper.rows`): A v >= b to first order, before the
+        second-order term and the relaxation towards the nominal.
+
+        Args:
+            measure: (pairs,) bools, the pairs to measure (default all);
+                the others' distances are NaN.
+        """
+        q = context.get_discrete_state(self._position).CopyToVector()
+        return self._damper.rows(self._pctx(context), self.query_object_input.Eval(context), q, measure)
+
+    def second_order(self, context, rows: DamperRows, dq) -> np.ndarray:
+        """Per row, how far a joint step ``dq`` from the commanded position
+        of ``context`` falls short of the row's first-order change, m
+        (:meth:`VelocityDamper.second_order`)."""
+        q = context.get_discrete_state(self._position).CopyToVector()
+        return self._damper.second_order(self._pctx(context), q, rows, dq)
+
+    def _next_budget(self, context, q, q_next, budget, dists):
+        """Each pair's certain distance beyond the influence distance after
+        the step (:meth:`VelocityDamper.budget_after`); all -1 (measure at
+        the next update) without ``skip_far_pairs``."""
+        if not self.skip_far_pairs:
+            return np.full(max(self._damper.num_pairs, 1), -1.0)
+        return self._damper.budget_after(self._pctx(context), q, q_next, budget, dists)
 
     def set_initial_position(self, context, q) -> None:
         """Sets the commanded position q_c of ``context`` (e.g. the path's
@@ -529,130 +408,9 @@ class SafetyFilter(LeafSystem):
             raise DimensionError("q", self.k, q.shape)
         context.get_mutable_discrete_state(self._position).SetFromVector(q)
         context.get_mutable_discrete_state(self._budget).SetFromVector(
-            np.full(max(len(self._pairs), 1), -1.0))
+            np.full(max(self._damper.num_pairs, 1), -1.0))
 
     # -- the update ----------------------------------------------------------
-
-    def damper_rows(self, context, measure=None) -> DamperRows:
-        """The damper's rows at the commanded position of ``context``: for
-        the pairs closer than the influence distance, A (m x k) and b (m,)
-        with the constraint A v >= b (first order; before the second-order
-        term and the relaxation towards the nominal), every watched pair's
-        signed distance, and the rows' points' lever arms for
-        :meth:`second_order`.
-
-        Args:
-            measure: (pairs,) bools, the pairs to measure (default all);
-                the others' distances are NaN.
-        """
-        q = context.get_discrete_state(self._position).CopyToVector()
-        query = self.query_object_input.Eval(context)
-        plant = self._plant
-        pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
-        plant.SetPositions(pctx, q)
-        world = plant.world_frame()
-        rows, rhs = [], []
-        ends = []  # per row: ((slot, p_W) of side A, of side B); slot -1: welded
-        dists = np.full(len(self._pairs), np.nan)
-        kin = {}  # per moving body at q: (R_WB, p_WBo, J_w, J_v), its Jacobian at Bo
-
-        def points(side, P_B):
-            """World positions (m x 3) and translational Jacobians
-            (m x 3 x k) of points given in a moving body's frame."""
-            body = side[0]
-            if body.index() not in kin:
-                X_WB = plant.EvalBodyPoseInWorld(pctx, body)
-                J = plant.CalcJacobianSpatialVelocity(pctx, JacobianWrtVariable.kV, body.body_frame(), np.zeros(3),
-                                                      world, world)
-                kin[body.index()] = (X_WB.rotation().matrix(), X_WB.translation(), J[:3], J[3:])
-            R, o, J_w, J_v = kin[body.index()]
-            # v_P = v_Bo + w x r, r = p_P - p_Bo: J_P = J_v - [r]x J_w, with
-            # [r]x = r . eps (the Levi-Civita symbol) for all points at once.
-            r = P_B @ R.T
-            p_W = r + o
-            J = J_v[None] - (r @ _EPS).reshape(-1, 3, 3) @ J_w
-            return p_W, J
-
-        def witness(side, p_GC, X_WG, probes: bool = False):
-            """A witness point (in the geometry frame G, posed at X_WG) and,
-            if asked, the side's probe centres: world positions (m x 3) and
-            translational Jacobians (m x 3 x k; zero on a welded body),
-            the witness first."""
-            body, X_BG = side[0], side[1]
-            p_GC = np.asarray(p_GC, float).reshape(1, 3)
-            if body is None:
-                return X_WG.multiply(p_GC.T).T, np.zeros((1, 3, self.k))
-            P_B = X_BG.multiply(p_GC.T).T
-            return points(side, np.vstack([P_B, side[2]]) if probes and len(side[2]) else P_B)
-
-        for index, (id_a, id_b, side_a, side_b) in enumerate(self._pairs):
-            if measure is not None and not measure[index]:
-                continue
-            try:
-                pair = query.ComputeSignedDistancePairClosestPoints(id_a, id_b)
-            except RuntimeError:  # a shape pair Drake cannot measure: not watched
-                continue
-            d = pair.distance
-            dists[index] = d
-            if d >= self.influence_distance:
-                continue
-            n = np.asarray(pair.nhat_BA_W, float).reshape(3)
-            P_a, J_a = witness(side_a, pair.p_ACa, query.GetPoseInWorld(id_a), probes=True)
-            P_b, J_b = witness(side_b, pair.p_BCb, query.GetPoseInWorld(id_b), probes=True)
-            rows.append(n @ (J_a[0] - J_b[0]))
-            rhs.append(-self.rate * (d - self.target_distance))
-            ends.append((n, self._end(side_a, P_a[0], self._round[id_a]), self._end(side_b, P_b[0], self._round[id_b])))
-            # A's probes against B, and B's against A: a face tilting
-            # towards the other shape shows at its corners. The plane
-            # through the other's witness (normal n, resp. -n) bounds from
-            # below the distance of every point of a probing shape from a
-            # static shape (an obstacle), to first order in the motion:
-            # those rows are the plane's. Against a moving shape (a robot
-            # link) the plane moves too, so a probe gets its own distance
-            # from Drake's point query and its gradient instead; a probe
-            # whose plane gap exceeds the influence distance is skipped
-            # either way (the plane gap is a lower bound).
-            for side, sign, id_other, side_other, P, J_P, other, J_other in (
-                    (side_a, 1.0, id_b, side_b, P_a, J_a, P_b[0], J_b[0]),
-                    (side_b, -1.0, id_a, side_a, P_b, J_b, P_a[0], J_a[0])):
-                if len(P) < 2:
-                    continue
-                radii = side[3]
-                gaps = sign * (P[1:] - other) @ n - radii
-                near = np.flatnonzero(gaps < self.influence_distance)
-                if not len(near):
-                    continue
-                if side_other[0] is None:  # a static obstacle: the plane's rows
-                    rows.extend((sign * n) @ (J_P[1 + near] - J_other))
-                    rhs.extend(-self.rate * (gaps[near] - self.target_distance))
-                    ends.extend((sign * n, self._end(side, P[1 + i]), self._end(side_other, other)) for i in near)
-                    continue
-                if not self._point_query[id_other]:
-                    continue  # a moving shape without a point query: the witness row only
-                X_WO = query.GetPoseInWorld(id_other)
-                for i in near:
-                    found = [r for r in query.ComputeSignedDistanceToPoint(P[1 + i], self.influence_distance + radii[i])
-                             if r.id_G == id_other]
-                    if not found or found[0].distance - radii[i] >= self.influence_distance:
-                        continue
-                    p_near, J_near = witness(side_other, found[0].p_GN, X_WO)
-                    grad = np.asarray(found[0].grad_W, float).reshape(3)
-                    rows.append(grad @ (J_P[1 + i] - J_near[0]))
-                    rhs.append(-self.rate * (found[0].distance - radii[i] - self.target_distance))
-                    ends.append((grad, self._end(side, P[1 + i]), self._end(side_other, p_near[0])))
-        A = np.array(rows).reshape(-1, self.k)
-        m = len(ends)
-        return DamperRows(A, np.array(rhs, float), dists,
-                          dirs=np.array([e[0] for e in ends], float).reshape(m, 3),
-                          points=np.array([[e[1][1], e[2][1]] for e in ends], float).reshape(m, 2, 3),
-                          slots=np.array([[e[1][0], e[2][0]] for e in ends], int).reshape(m, 2),
-                          rounds=np.array([[e[1][2], e[2][2]] for e in ends], float).reshape(m, 2))
-
-    def _end(self, side, p_W, round_radius: float = 0.0) -> tuple:
-        """A row's point on one side: (the moving body's slot, p_W, the
-        round shape's radius), slot -1 and radius 0 on a welded body."""
-        p_W = np.asarray(p_W, float).reshape(3)
-        return (-1, p_W, 0.0) if side[0] is None else (self._slot[side[0].index()], p_W, round_radius)
 
     def _interval(self, q, lower, upper):
         """Per joint, the velocities within the limits that land in the box;
@@ -690,13 +448,12 @@ class SafetyFilter(LeafSystem):
                 step = self.acceleration_limits * h
                 target = np.clip(target, v_last - step, v_last + step)
             v_t = np.clip(target, lo, hi)
-            budget = context.get_discrete_state(self._budget).CopyToVector()[:len(self._pairs)]
-            measure = budget < 0 if self.skip_far_pairs else np.ones(len(self._pairs), bool)
+            budget = context.get_discrete_state(self._budget).CopyToVector()[:self._damper.num_pairs]
+            measure = budget < 0 if self.skip_far_pairs else np.ones(self._damper.num_pairs, bool)
             try:
                 rows = self.damper_rows(context, measure)
             except RuntimeError:
-                rows = DamperRows(np.zeros((0, k)), np.zeros(0), np.full(len(self._pairs), np.nan), np.zeros((0, 3)),
-                                  np.zeros((0, 2, 3)), np.full((0, 2), -1, dtype=int), np.zeros((0, 2)))
+                rows = self._damper.empty()
                 fallback = True
             dists = rows.distances
             # Skipped pairs lie at least their budget beyond the influence distance.
@@ -714,38 +471,14 @@ class SafetyFilter(LeafSystem):
         acted = (not sane) or bool(np.any(np.abs(q_next - desired) > _CHANGED))
         discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
         discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
-        if sane and len(self._pairs):
+        if sane and self._damper.num_pairs:
             discrete_state.get_mutable_vector(self._budget).SetFromVector(
                 self._next_budget(context, q, q_next, budget, dists))
         else:  # measure every pair at the next update
-            discrete_state.get_mutable_vector(self._budget).SetFromVector(np.full(max(len(self._pairs), 1), -1.0))
+            discrete_state.get_mutable_vector(self._budget).SetFromVector(np.full(max(self._damper.num_pairs, 1), -1.0))
         discrete_state.get_mutable_vector(self._status).SetFromVector(
             [float(acted), status[_COUNT] + acted, dmin, ratio, status[_FALLBACKS] + fallback,
              status[_MISSES] + missed, status[_EXITS] + exited])
-
-    def _next_budget(self, context, q, q_next, budget, dists):
-        """Each pair's distance beyond the influence distance that is still
-        certain after this step: the measured one (or the last budget) less
-        how far the step can have moved the pair's bodies, every point of a
-        body's geometry within its radius r of the body's origin o:
-        |o' - o| + theta r for a turn by theta. Distances are asked for only
-        at updates, so the poses at both ends bound it. Negative: measure
-        at the next update. (Valid while the SceneGraph is posed from this
-        filter's output; else construct with ``skip_far_pairs=False``.)"""
-        if not self.skip_far_pairs:
-            return np.full(max(len(self._pairs), 1), -1.0)
-        plant = self._plant
-        pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
-        moved = np.zeros(len(self._bodies) + 1)  # the last slot: welded, 0
-        plant.SetPositions(pctx, q)
-        before = [plant.EvalBodyPoseInWorld(pctx, body) for body in self._bodies]
-        plant.SetPositions(pctx, q_next)
-        for n, body in enumerate(self._bodies):
-            after = plant.EvalBodyPoseInWorld(pctx, body)
-            turn = before[n].rotation().InvertAndCompose(after.rotation()).ToAngleAxis().angle()
-            moved[n] = np.linalg.norm(after.translation() - before[n].translation()) + turn * self._body_radius[n]
-        left = np.where(np.isnan(dists), budget, dists - self.influence_distance)
-        return left - moved[self._pair_bodies[:, 0]] - moved[self._pair_bodies[:, 1]]
 
     def _filter(self, context, q, v_t, lo, hi, rows: DamperRows, nominal):
         """The velocity commanded for the request v_t: (v, the rows'
@@ -770,7 +503,7 @@ class SafetyFilter(LeafSystem):
             return v_t, b, True
         v = v_t
         for _ in range(self.SECOND_ORDER_ROUNDS):
-            v = self._solve(v_t, lo, hi, A, b)
+            v = self._qp.solve(v_t, lo, hi, A, b)
             if v is None:
                 v = np.clip(np.zeros(self.k), lo, hi)
                 return v, need(v), False
@@ -796,53 +529,3 @@ class SafetyFilter(LeafSystem):
             return b
         v_ref = np.clip((nominal - q) / self.period, lo, hi)
         return b + w * np.minimum(0.0, A @ v_ref - b)
-
-    def _solve(self, v_t, lo, hi, A, b):
-        """The QP, in stages by priority (the velocity limits always hard):
-
-        1. the box and the damper's rows hard: argmin |v - v_t|^2 s.t.
-           lo <= v <= hi, A v >= b;
-        2. if no v meets both, the rows hard and the box soft: the command
-           leaves the box (an uncertified box's corner sweeping into an
-           obstacle) as little as it must, weight ``BOX_WEIGHT``;
-        3. if the limits leave no v that meets the rows, both soft, the rows
-           weighted ``SLACK_WEIGHT``: missed as little as possible.
-
-        None if the solver fails."""
-        for box_soft, rows_soft in ((False, False), (True, False), (True, True)):
-            v = self._qp(v_t, lo, hi, A, b, box_soft=box_soft, rows_soft=rows_soft)
-            if v is not None:
-                return v
-        return None
-
-    def _qp(self, v_t, lo, hi, A, b, *, box_soft: bool, rows_soft: bool):
-        m, k = len(b), self.k
-        prog = MathematicalProgram()
-        v = prog.NewContinuousVariables(k, "v")
-        prog.AddQuadraticCost(2.0 * np.eye(k), -2.0 * v_t, v, is_convex=True)
-        vmax = self._vmax
-        if box_soft:
-            prog.AddBoundingBoxConstraint(-vmax, vmax, v)
-            e = prog.NewContinuousVariables(k, "e")
-            prog.AddQuadraticCost(2.0 * self.BOX_WEIGHT * np.eye(k), np.zeros(k), e, is_convex=True)
-            prog.AddBoundingBoxConstraint(0.0, np.inf, e)
-            eye = np.eye(k)
-            prog.AddLinearConstraint(np.hstack([eye, eye]), lo, np.full(k, np.inf), np.concatenate([v, e]))
-            prog.AddLinearConstraint(np.hstack([eye, -eye]), np.full(k, -np.inf), hi, np.concatenate([v, e]))
-        else:
-            prog.AddBoundingBoxConstraint(lo, hi, v)
-        if rows_soft:
-            s = prog.NewContinuousVariables(m, "s")
-            prog.AddQuadraticCost(2.0 * self.SLACK_WEIGHT * np.eye(m), np.zeros(m), s, is_convex=True)
-            prog.AddBoundingBoxConstraint(0.0, np.inf, s)
-            prog.AddLinearConstraint(np.hstack([A, np.eye(m)]), b, np.full(m, np.inf), np.concatenate([v, s]))
-        else:
-            prog.AddLinearConstraint(A, b, np.full(m, np.inf), v)
-        try:
-            result = self._solver.Solve(prog)
-        except RuntimeError:
-            return None
-        if not result.is_success():
-            return None
-        x = np.clip(result.GetSolution(v), -vmax, vmax)
-        return x if box_soft else np.clip(x, lo, hi)
