@@ -1,101 +1,33 @@
 """Workcells: a robot and its obstacles, loaded from one YAML file.
 
-A workcell file holds Drake model directives (``directives:``) for the robot
-and the obstacles, and a ``cfvol:`` section::
-
-    directives:
-    - add_model: {name: abb, file: package://drake_cfvol_models/...urdf}
-    - add_weld: {parent: world, child: abb::base_link}
-    - add_model: {name: cell, file: package://drake_cfvol_models/cells/...sdf}
-    cfvol:
-      robot: abb                 # model instance of the robot
-      tool_frame: tcp            # frame of the robot (Jacobian, tool path)
-      base_frame: base_link      # reach is measured from here ...
-      rail_joint: null           # ... or along this prismatic joint's travel
-      reach: 2.8                 # m, the activation radius of the volume
-      height_map: {origin: [x, y], size: [x_dim, y_dim]}   # m, on the floor
-      package_paths: {my_pkg: relative/or/absolute/dir}     # optional
-      joint_limits: {joint: [lower, upper]}                 # optional overrides
-      params: {h_max: 1.5, ...}                             # VolumeParams overrides
-      configurations:
-        path1: {start: [...], goal: [...]}                  # rad / m
+The file's schema is :mod:`drake_cfvol.scene.schema`; the queries on the
+scene are :mod:`drake_cfvol.scene.queries`.
 
 Every obstacle is a body outside the robot's model instance, welded to the
 world, with proximity geometry; the floor is one of them.
-
-The file is read with pydrake's ``yaml_load_typed`` into
-:class:`WorkcellFile` (``directives: list[ModelDirective]`` and
-:class:`CfvolSection`), as Drake's hardware_sim reads its scenarios: a key
-that is not part of the schema, anywhere, is an error that names the key and
-its line.
 """
-
 
 import copy
 import dataclasses
-import functools
-import os
-import re
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
-from pydrake.common.yaml import yaml_load_typed
 from pydrake.geometry import Role
-from pydrake.multibody.parsing import (
-    ModelDirective,
-    ModelDirectives,
-    Parser,
-    ProcessModelDirectives,
-)
+from pydrake.multibody.parsing import ModelDirectives, Parser, ProcessModelDirectives
 from pydrake.multibody.tree import BodyIndex, ModelInstanceIndex
-from pydrake.planning import RobotDiagramBuilder, SceneGraphCollisionChecker
+from pydrake.planning import RobotDiagramBuilder
 
 from drake_cfvol.scene import meshes as _meshes
-from drake_cfvol.exceptions import (
-    CollisionError,
-    ConfigurationError,
-    DimensionError,
-    JointLimitError,
-    MissingJointLimitsError,
-    UnknownCellError,
-    WorkcellFileNotFoundError,
-    WorkcellError,
-    WorkcellFormatError,
-)
+from drake_cfvol.exceptions import UnknownCellError, WorkcellFileNotFoundError, WorkcellFormatError
 from drake_cfvol.scene.arrays import SceneArrays, scene_arrays
 
+from drake_cfvol.scene.queries import WorkcellQueries, geometry_key, robot_geometry_ids
+from drake_cfvol.scene.schema import (DEFAULT_EDGE_STEP, CfvolSection, HeightMapExtent, NamedConfiguration,
+                                      WorkcellFile, builtin_cells, models_dir, read_workcell_file)
+
 __all__ = ["Obstacle", "Workcell", "WorkcellFile", "CfvolSection", "HeightMapExtent", "NamedConfiguration",
-           "builtin_cells", "load_workcell", "models_dir"]
-
-#: Distance between configurations at which Drake's edge checks sample (rad or
-#: m, Euclidean in joint space).
-DEFAULT_EDGE_STEP = 0.01
-
-
-def models_dir() -> Path:
-    """Returns the folder of the bundled models (holds ``package.xml``):
-    ``$DRAKE_CFVOL_MODELS`` if set, else the ``drake_cfvol.models`` package
-    data (the repository's ``models/``, shipped inside the wheel).
-
-    Raises:
-        WorkcellError: the folder is missing.
-    """
-    env = os.environ.get("DRAKE_CFVOL_MODELS")
-    folder = Path(env) if env else Path(str(resources.files("drake_cfvol.models")))
-    if not (folder / "package.xml").is_file():
-        raise WorkcellError(
-            f"drake_cfvol's models folder is missing ({folder}/package.xml not found). Reinstall the "
-            "package (`pip install drake-cfvol` or `pip install .` from a checkout), or point "
-            "$DRAKE_CFVOL_MODELS at a folder holding the models' package.xml.")
-    return folder
-
-
-def builtin_cells() -> dict[str, Path]:
-    """Returns the built-in workcells, by name."""
-    return {p.stem: p for p in sorted((models_dir() / "cells").glob("*.yaml"))}
+           "builtin_cells", "load_workcell", "models_dir", "geometry_key", "robot_geometry_ids"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -115,155 +47,7 @@ class Obstacle:
 
 # -- the typed schema of a workcell file (yaml_load_typed) ------------------
 
-@dataclasses.dataclass
-class HeightMapExtent:
-    """The height map's extent on the floor.
-
-    Attributes:
-        origin: (x, y) of its corner, m.
-        size: (x_dim, y_dim), m.
-    """
-
-    origin: list[float] = dataclasses.field(default_factory=list)
-    size: list[float] = dataclasses.field(default_factory=list)
-
-
-@dataclasses.dataclass
-class NamedConfiguration:
-    """A named start/goal pair, rad (m for prismatic joints)."""
-
-    start: list[float] = dataclasses.field(default_factory=list)
-    goal: list[float] = dataclasses.field(default_factory=list)
-
-
-@dataclasses.dataclass
-class CfvolSection:
-    """The ``cfvol:`` section of a workcell file.
-
-    Attributes:
-        robot: the robot's model instance.
-        tool_frame: a frame of the robot (Jacobian, tool path).
-        base_frame: the reach is measured from here (default: the robot's root body).
-        rail_joint: a prismatic joint whose travel the reach follows, or None.
-        reach: the activation radius of the volume, m.
-        height_map: the height map's extent.
-        package_paths: package name -> folder (relative to the file).
-        joint_limits: joint -> [lower, upper] overrides, rad or m.
-        params: :class:`drake_cfvol.VolumeParams` overrides.
-        configurations: named start/goal pairs.
-    """
-
-    robot: str = ""
-    tool_frame: str = ""
-    base_frame: str | None = None
-    rail_joint: str | None = None
-    reach: float = 0.0
-    height_map: HeightMapExtent | None = None
-    package_paths: dict[str, str] = dataclasses.field(default_factory=dict)
-    joint_limits: dict[str, list[float]] = dataclasses.field(default_factory=dict)
-    params: dict[str, float] = dataclasses.field(default_factory=dict)
-    configurations: dict[str, NamedConfiguration] = dataclasses.field(default_factory=dict)
-
-
-def geometry_key(inspector, geometry_id) -> tuple[str, str]:
-    """(frame name, geometry name): a geometry's name that holds across
-    plants built from the same models."""
-    return inspector.GetName(inspector.GetFrameId(geometry_id)), inspector.GetName(geometry_id)
-
-
-def robot_geometry_ids(plant, robot) -> tuple[set, set]:
-    """Proximity geometry ids of a robot's links in a finalized plant, and of
-    those its joints move.
-
-    Returns:
-        (every, moving)
-    """
-    moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(robot))))
-    every, moving = set(), set()
-    for b in plant.GetBodyIndices(robot):
-        ids = plant.GetCollisionGeometriesForBody(plant.get_body(b))
-        every.update(ids)
-        if b in moved:
-            moving.update(ids)
-    return every, moving
-
-
-@dataclasses.dataclass
-class WorkcellFile:
-    """A workcell file: Drake model directives plus the ``cfvol:`` section
-    (loaded with ``yaml_load_typed``, as Drake's hardware_sim scenarios)."""
-
-    directives: list[ModelDirective] = dataclasses.field(default_factory=list)
-    cfvol: CfvolSection = dataclasses.field(default_factory=CfvolSection)
-
-
-def _key_lines(text: str) -> dict[str, int]:
-    """First line (1-based) of every mapping key in a YAML text, by key and by
-    dotted path."""
-    out: dict[str, int] = {}
-    try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
-    except yaml.YAMLError:
-        return out
-
-    def walk(node, prefix):
-        if isinstance(node, yaml.MappingNode):
-            for k, v in node.value:
-                name = str(k.value)
-                line = k.start_mark.line + 1
-                out.setdefault(name, line)
-                out.setdefault(prefix + name, line)
-                walk(v, prefix + name + ".")
-        elif isinstance(node, yaml.SequenceNode):
-            for item in node.value:
-                walk(item, prefix)
-
-    walk(root, "")
-    return out
-
-
-def read_workcell_file(path: Path) -> tuple[WorkcellFile, dict[str, int]]:
-    """Reads and type-checks a workcell file.
-
-    Returns:
-        (the typed file, key -> line)
-
-    Raises:
-        WorkcellFormatError: unreadable, not YAML, an unknown key (named, with
-            its line), or a value of the wrong type.
-    """
-    try:
-        text = path.read_text()
-    except OSError as e:
-        raise WorkcellFormatError(str(path), f"cannot read the file ({e.strerror}).") from e
-    try:
-        data = yaml.safe_load(text)
-    except yaml.MarkedYAMLError as e:
-        mark = e.problem_mark or e.context_mark
-        line = mark.line + 1 if mark is not None else None
-        raise WorkcellFormatError(str(path), f"not valid YAML: {e.problem or e}. Fix the syntax there.", line) from e
-    if not isinstance(data, dict):
-        raise WorkcellFormatError(str(path), "expected a mapping with 'directives:' and 'cfvol:' at the top.", 1)
-    lines = _key_lines(text)
-    for key in ("directives", "cfvol"):
-        if data.get(key) is None:
-            raise WorkcellFormatError(str(path), f"'(top level)' lacks the required key '{key}'.", 1)
-    try:
-        typed = yaml_load_typed(schema=WorkcellFile, data=text)
-    except Exception as e:  # Drake raises RuntimeError / ValueError / TypeError here.
-        msg = str(e)
-        unknown = re.search(r"fields \[([^\]]*)\] were unknown", msg)
-        if unknown:
-            names = [n.strip(" '\"") for n in unknown.group(1).split(",")]
-            line = lines.get(names[0])
-            raise WorkcellFormatError(
-                str(path), f"unknown key {', '.join(repr(n) for n in names)}: not part of a workcell file. "
-                "Check its spelling (see the drake_cfvol.scene.workcell docstring for the keys).", line) from e
-        raise WorkcellFormatError(str(path), f"a value has the wrong type: {msg}. Fix it there.") from e
-    return typed, lines
-
-
-class Workcell:
+class Workcell(WorkcellQueries):
     """A loaded workcell: the robot, its obstacles and the cfvol settings.
 
     Build one with :func:`load_workcell`. The diagram is a Drake
@@ -311,6 +95,18 @@ class Workcell:
             raise WorkcellFormatError(str(path), "'directives' is empty: add the robot and the obstacles.",
                                       lines.get("directives"))
 
+        self._edge_step = float(edge_step)
+        self._cache: dict = {}  # results computed once (WorkcellQueries._memo)
+        self._build_diagram(spec, lines)
+        self._read_joints(cf, lines)
+        self._read_frames(cf, lines)
+        self._read_settings(cf, lines)
+        self.obstacles = self._find_obstacles()
+        self._geometry_owner = {gid: obs.name for obs in self.obstacles.values() for gid in obs.geometry_ids}
+
+    def _build_diagram(self, spec, lines) -> None:
+        """The RobotDiagram from the directives; the robot's instance."""
+        cf, path = spec.cfvol, self.path
         builder = RobotDiagramBuilder(time_step=0.0)
         parser = builder.parser()
         self._add_packages(parser.package_map())
@@ -333,9 +129,10 @@ class Workcell:
         self.plant = self.diagram.plant()
         self.scene_graph = self.diagram.scene_graph()
         self._context = self.diagram.CreateDefaultContext()
-        self._edge_step = float(edge_step)
-        self._scene_arrays: SceneArrays | None = None
 
+    def _read_joints(self, cf, lines) -> None:
+        """The robot's joints, their kinds and limits (file overrides applied)."""
+        path = self.path
         plant = self.plant
         if plant.num_positions() != plant.num_positions(self.robot):
             raise WorkcellFormatError(
@@ -367,6 +164,10 @@ class Workcell:
         self.position_upper = upper
         self.velocity_limits = plant.GetVelocityUpperLimits().copy()
 
+
+    def _read_frames(self, cf, lines) -> None:
+        """The tool and base frames and the rail joint."""
+        path, plant = self.path, self.plant
         try:
             self.tool_frame = plant.GetFrameByName(cf.tool_frame, self.robot)
         except RuntimeError as e:
@@ -387,6 +188,10 @@ class Workcell:
             raise WorkcellFormatError(
                 str(path), f"cfvol.rail_joint '{self.rail_joint}' is not a joint of the robot "
                 f"(joints: {', '.join(self.joint_names)}).", lines.get("rail_joint"))
+
+    def _read_settings(self, cf, lines) -> None:
+        """Reach, height map extent, parameter overrides, named configurations."""
+        path = self.path
         self.reach = float(cf.reach or 0.0)
         hm = cf.height_map
         self.height_map_origin = np.asarray(hm.origin if hm and hm.origin else [np.nan, np.nan], float)
@@ -406,8 +211,6 @@ class Workcell:
                         f"has {self.num_joints} joints ({', '.join(self.joint_names)}).",
                         lines.get(f"cfvol.configurations.{cname}.{label}", lines.get(cname)))
             self.configurations[str(cname)] = (start, goal)
-        self.obstacles = self._find_obstacles()
-        self._geometry_owner = {gid: obs.name for obs in self.obstacles.values() for gid in obs.geometry_ids}
 
     # -- loading helpers -------------------------------------------------
 
@@ -526,229 +329,7 @@ class Workcell:
     def scene_arrays(self) -> SceneArrays:
         """The robot chain, robot shapes and obstacle shapes as arrays for the
         compiled kernel (:func:`drake_cfvol.scene.arrays.scene_arrays`), built once."""
-        if self._scene_arrays is None:
-            self._scene_arrays = scene_arrays(self)
-        return self._scene_arrays
-
-    def obstacle_distances(self, q, max_distance: float, *, moving_only: bool = False,
-                           changeable_only: bool = False) -> dict[str, float]:
-        """Smallest signed distance per obstacle to the robot at ``q`` (real
-        geometry, Drake), for the obstacles within ``max_distance``, m. With
-        ``moving_only``, only the robot's links that its joints move count
-        (a fixed base resting on its pedestal says nothing about a push);
-        with ``changeable_only``, moreover only the pairs whose distance a
-        joint motion changes (:meth:`invariant_pairs`: a turret turning above
-        its round pedestal, a rail carriage gliding above the floor)."""
-        invariant = self.invariant_pairs() if changeable_only else frozenset()  # poses the context: first
-        self.plant_context(q)
-        sg = self.scene_graph
-        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
-        owner = self._geometry_owner
-        fixed = self.fixed_robot_geometries() if (moving_only or changeable_only) else frozenset()
-        out: dict[str, float] = {}
-        for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=max_distance):
-            a, b = owner.get(pair.id_A), owner.get(pair.id_B)
-            if (a is None) == (b is None):
-                continue  # robot-robot or obstacle-obstacle
-            r, o = (pair.id_B, pair.id_A) if a is not None else (pair.id_A, pair.id_B)
-            if r in fixed or (r, o) in invariant:
-                continue
-            name = a if a is not None else b
-            out[name] = min(out.get(name, np.inf), pair.distance)
-        return out
-
-    def nearest_obstacle(self, q, max_distance: float = 5.0):
-        """The obstacle nearest to the robot's moving links at ``q`` (Drake,
-        real geometry), among the pairs whose distance a joint motion
-        changes (:meth:`invariant_pairs`).
-
-        Returns:
-            (name, distance m, p_WR, p_WO): the witness points on the robot and
-            on the obstacle, world frame; None if nothing is within
-            ``max_distance``.
-        """
-        invariant = self.invariant_pairs()  # poses the context: first
-        self.plant_context(q)
-        sg = self.scene_graph
-        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
-        owner, fixed = self._geometry_owner, self.fixed_robot_geometries()
-        best = None
-        for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=max_distance):
-            a, b = owner.get(pair.id_A), owner.get(pair.id_B)
-            if (a is None) == (b is None):
-                continue
-            robot_id, p_R, name, obs_id, p_O = ((pair.id_B, pair.p_BCb, a, pair.id_A, pair.p_ACa) if a is not None
-                                                else (pair.id_A, pair.p_ACa, b, pair.id_B, pair.p_BCb))
-            if robot_id in fixed or (robot_id, obs_id) in invariant:
-                continue
-            if best is None or pair.distance < best[1]:
-                best = (name, pair.distance, query.GetPoseInWorld(robot_id) @ p_R,
-                        query.GetPoseInWorld(obs_id) @ p_O)
-        return best
-
-    def invariant_pairs(self, *, samples: int = 12, seed: int = 0, tol: float = 1e-6) -> frozenset:
-        """(robot geometry id, obstacle geometry id) pairs, moving links only,
-        whose signed distance no joint motion changes: equal within ``tol``
-        (m) at the default configuration and ``samples`` seeded uniform
-        configurations within the position limits (nominal +- pi for a joint
-        without limits). A push cannot bring such a pair closer, so a run's
-        clearance leaves them out (:meth:`obstacle_distances`). Computed once."""
-        if getattr(self, "_invariant", None) is not None:
-            return self._invariant
-        k = self.num_joints
-        q0 = self.plant.GetPositions(self.plant.CreateDefaultContext(), self.robot)
-        lo = np.where(np.isfinite(self.position_lower), self.position_lower, q0 - np.pi)
-        hi = np.where(np.isfinite(self.position_upper), self.position_upper, q0 + np.pi)
-        Q = np.vstack([q0, np.random.default_rng(seed).uniform(lo, hi, (samples, k))])
-        _, moving = robot_geometry_ids(self.plant, self.robot)
-        pairs = [(r, o) for r in sorted(moving, key=lambda g: g.get_value())
-                 for o in sorted(self._geometry_owner, key=lambda g: g.get_value())]
-        sg = self.scene_graph
-        D = np.full((len(Q), len(pairs)), np.nan)
-        for n, q in enumerate(Q):
-            self.plant_context(q)
-            query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
-            for m, (r, o) in enumerate(pairs):
-                try:
-                    D[n, m] = query.ComputeSignedDistancePairClosestPoints(r, o).distance
-                except RuntimeError:
-                    pass  # a shape pair Drake cannot measure: never called invariant
-        spread = np.nanmax(D, axis=0) - np.nanmin(D, axis=0) if len(Q) else np.zeros(len(pairs))
-        ok = np.all(np.isfinite(D), axis=0) & (spread <= tol)
-        self._invariant = frozenset(p for p, keep in zip(pairs, ok) if keep)
-        return self._invariant
-
-    def invariant_pair_names(self) -> frozenset:
-        """:meth:`invariant_pairs` as ((frame name, geometry name) of the
-        robot's geometry, same of the obstacle's): names that hold in any
-        plant the workcell was added to (:meth:`add_to_plant`)."""
-        inspector = self.scene_graph.model_inspector()
-        return frozenset((geometry_key(inspector, r), geometry_key(inspector, o)) for r, o in self.invariant_pairs())
-
-    def fixed_robot_geometries(self) -> frozenset:
-        """Proximity geometry ids of the robot's bodies that no joint moves
-        (e.g. a base welded to its pedestal)."""
-        if getattr(self, "_fixed_ids", None) is None:
-            every, moving = robot_geometry_ids(self.plant, self.robot)
-            self._fixed_ids = frozenset(every - moving)
-        return self._fixed_ids
-
-    # -- queries ---------------------------------------------------------
-
-    @property
-    def num_joints(self) -> int:
-        """k, the robot's number of joints."""
-        return len(self.joint_names)
-
-    @property
-    def context(self):
-        """A diagram context owned by the workcell (do not keep references)."""
-        return self._context
-
-    def plant_context(self, q: np.ndarray | None = None):
-        """Returns the workcell's plant context, set to ``q`` if given."""
-        ctx = self.plant.GetMyMutableContextFromRoot(self._context)
-        if q is not None:
-            self.plant.SetPositions(ctx, np.asarray(q, float))
-        return ctx
-
-    @functools.cached_property
-    def checker(self):
-        """A Drake ``SceneGraphCollisionChecker`` of the real scene (obstacles
-        + self-collision, adjacent links filtered)."""
-        return SceneGraphCollisionChecker(
-            model=self.diagram, robot_model_instances=[self.robot],
-            edge_step_size=self._edge_step, env_collision_padding=0.0, self_collision_padding=0.0)
-
-    def padded_checker(self, clearance: float):
-        """A ``SceneGraphCollisionChecker`` that calls a configuration nearer
-        than ``clearance`` (m) to an obstacle or to the robot itself
-        colliding (Drake's collision padding); one per distinct value."""
-        clearance = float(clearance)
-        if clearance == 0.0:
-            return self.checker
-        if getattr(self, "_padded_checkers", None) is None:
-            self._padded_checkers = {}
-        cache = self._padded_checkers
-        if clearance not in cache:
-            cache[clearance] = SceneGraphCollisionChecker(
-                model=self.diagram, robot_model_instances=[self.robot], edge_step_size=self._edge_step,
-                env_collision_padding=clearance, self_collision_padding=clearance)
-        return cache[clearance]
-
-    def clearance(self, q, influence: float = 1.0) -> float:
-        """The robot's signed distance to the obstacles and to itself at
-        ``q`` (m; the smallest pair, by Drake; ``influence`` if none is
-        nearer)."""
-        d = np.asarray(self.checker.CalcRobotClearance(np.asarray(q, float), influence).distances())
-        return float(d.min()) if d.size else float(influence)
-
-    def finite_limits(self, needed_for: str) -> tuple[np.ndarray, np.ndarray]:
-        """Returns the position limits, raising if any is infinite."""
-        bad = [n for n, lo, hi in zip(self.joint_names, self.position_lower, self.position_upper)
-               if not (np.isfinite(lo) and np.isfinite(hi))]
-        if bad:
-            raise MissingJointLimitsError(bad, needed_for)
-        return self.position_lower.copy(), self.position_upper.copy()
-
-    def validate_configuration(self, q, what: str = "configuration", *, check_limits: bool = True,
-                               tolerance: float = 1e-9) -> np.ndarray:
-        """Checks a configuration's size and limits; returns it as an array.
-
-        Raises:
-            DimensionError: ``q`` is not (k,).
-            JointLimitError: a joint lies outside its limits.
-        """
-        q = np.asarray(q, dtype=float)
-        if q.shape != (self.num_joints,):
-            raise DimensionError(
-                what, self.num_joints, q.shape[0] if q.ndim == 1 else q.shape,
-                f"The robot's joints are {', '.join(self.joint_names)}.")
-        if not np.all(np.isfinite(q)):
-            bad = [f"{n} = {v}" for n, v in zip(self.joint_names, q) if not np.isfinite(v)]
-            raise ConfigurationError(f"{what} has a value that is not a finite number: {', '.join(bad)}. Give every "
-                                     "joint a finite position (rad or m).")
-        if check_limits:
-            for n, v, lo, hi in zip(self.joint_names, q, self.position_lower, self.position_upper):
-                if v < lo - tolerance or v > hi + tolerance:
-                    raise JointLimitError(what, n, float(v), float(lo), float(hi))
-        return q
-
-    def colliding_pairs(self, q) -> list[tuple[str, str]]:
-        """Names the pairs of bodies in collision at ``q`` (real scene)."""
-        self.plant_context(q)
-        sg_context = self.scene_graph.GetMyContextFromRoot(self._context)
-        query = self.scene_graph.get_query_output_port().Eval(sg_context)
-        inspector = query.inspector()
-        pairs = set()
-        for pp in query.ComputePointPairPenetration():
-            a = self.plant.GetBodyFromFrameId(inspector.GetFrameId(pp.id_A)).name()
-            b = self.plant.GetBodyFromFrameId(inspector.GetFrameId(pp.id_B)).name()
-            pairs.add(tuple(sorted((a, b))))
-        return sorted(pairs)
-
-    def is_free(self, q) -> bool:
-        """True if ``q`` is free of collision with the real scene."""
-        return bool(self.checker.CheckConfigCollisionFree(np.asarray(q, float)))
-
-    def require_free(self, q, what: str) -> None:
-        """Raises :class:`CollisionError` naming the bodies if ``q`` collides."""
-        if not self.is_free(q):
-            raise CollisionError(what, self.colliding_pairs(q))
-
-    def configuration(self, name: str) -> tuple[np.ndarray, np.ndarray]:
-        """Returns the named (start, goal) pair."""
-        if name not in self.configurations:
-            raise WorkcellError(
-                f"Cell '{self.name}' has no configuration '{name}'. It has: "
-                f"{', '.join(self.configurations) or '(none)'}; add it under cfvol.configurations.")
-        s, g = self.configurations[name]
-        return s.copy(), g.copy()
-
-    def tool_position(self, q) -> np.ndarray:
-        """p_WT: the tool frame's origin in the world at ``q``, m."""
-        ctx = self.plant_context(q)
-        return self.tool_frame.CalcPoseInWorld(ctx).translation().copy()
+        return self._memo("scene_arrays", lambda: scene_arrays(self))
 
     def __repr__(self) -> str:
         return (f"Workcell(name={self.name!r}, robot={self.robot_name!r}, k={self.num_joints}, "
