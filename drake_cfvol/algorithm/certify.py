@@ -44,16 +44,12 @@ evaluation's.
 """
 
 import dataclasses
-import hashlib
-import json
 import math
-import os
 import time
-import zipfile
-from pathlib import Path
 
 import numpy as np
 
+from drake_cfvol.algorithm.cert_cache import cache_dir, cache_key, cache_load, cache_store
 from drake_cfvol.algorithm.boundary import cut_point, cut_slacks, prove_boundary, reaching_joints
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.algorithm.metrics import freedom
@@ -203,70 +199,6 @@ def certification_rng(seed: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_CERT_STREAM,)))
 
 
-def cache_dir() -> Path | None:
-    """Where certified boxes are kept: ``$DRAKE_CFVOL_CACHE`` (``off``
-    disables the cache), else ``$XDG_CACHE_HOME/drake_cfvol`` or
-    ``~/.cache/drake_cfvol``. Entries are named by a hash of every input
-    (and of the certifier's and kernel's source), so a changed scene, path,
-    bound, setting or method never reuses a stale one; delete the folder to
-    clear it."""
-    env = os.environ.get("DRAKE_CFVOL_CACHE")
-    if env is not None:
-        return None if env.strip().lower() in ("", "off", "0", "no", "false") else Path(env).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "drake_cfvol"
-
-
-def _versions() -> str:
-    """The versions of what a certificate's result depends on."""
-    import numba
-    import pydrake
-
-    return f"numpy {np.__version__}, numba {numba.__version__}, drake {getattr(pydrake, '__version__', '?')}"
-
-
-def _cache_key(arrays, table, certify: Certify) -> str:
-    """A hash of everything the result depends on: the settings and the
-    clearance, the bounds and path, the scene's arrays, the source of every
-    module of the package (the box-at-s rule, the kernel, the certifier...)
-    and the versions of numpy, numba and drake (a changed method or
-    dependency never reuses an old entry)."""
-    h = hashlib.sha256(f"certify/{certify!r}/{table.params.get('clearance', 0.0)!r}".encode())
-    package = Path(__file__).resolve().parents[1]
-    for module in sorted(package.rglob("*.py")):
-        h.update(module.relative_to(package).as_posix().encode())
-        h.update(module.read_bytes())
-    h.update(_versions().encode())
-    for a in (table.nominal, table.stretch_lower, table.stretch_upper, table.rate, arrays.shapes, arrays.shape_body,
-              arrays.obstacles, arrays.verts, arrays.self_pairs, *arrays.chain):
-        if a is None:
-            h.update(b"none")
-            continue
-        a = np.ascontiguousarray(a)
-        h.update(f"{a.dtype}{a.shape}".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()[:32]
-
-
-def _cache_load(file: Path):
-    try:
-        with np.load(file, allow_pickle=False) as z:
-            report = CertificateReport(**json.loads(str(z["report"])))
-            return z["lower"].copy(), z["upper"].copy(), report
-    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):
-        return None  # missing or damaged: compute again
-
-
-def _cache_store(file: Path, lower, upper, report) -> None:
-    try:
-        file.parent.mkdir(parents=True, exist_ok=True)
-        tmp = file.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez(tmp, lower=lower, upper=upper, report=json.dumps(report.to_dict()))
-        os.replace(tmp, file)
-    except OSError:
-        pass  # a read-only or full disk only costs the next run its time
-
-
 def _greedy_cut(X, t, lower, upper, nominal, i, allowed=None):
     """Cuts stretch i of a linear table (its waypoint boxes ``lower[i:i+2]``,
     ``upper[i:i+2]``, in place) until no colliding sample X (n, k), at
@@ -382,9 +314,9 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
     t0 = time.perf_counter()
     arrays = workcell.scene_arrays()
     folder = cache_dir() if certify.cache else None
-    file = folder / "certificates" / f"{_cache_key(arrays, table, certify)}.npz" if folder else None
+    file = folder / "certificates" / f"{cache_key(arrays, table, certify)}.npz" if folder else None
     if file is not None and file.is_file():
-        hit = _cache_load(file)
+        hit = cache_load(file, CertificateReport)
         if hit is not None:
             hit[2].cached = True
             return hit
@@ -399,7 +331,7 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
         bar.close()
     report = job.report((time.perf_counter() - t0) * 1e3)
     if file is not None:
-        _cache_store(file, job.current.lower, job.current.upper, report)
+        cache_store(file, job.current.lower, job.current.upper, report)
     return job.current.lower, job.current.upper, report
 
 

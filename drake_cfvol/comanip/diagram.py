@@ -18,6 +18,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import Adder, LogVectorOutput, RandomSource
 from pydrake.visualization import VisualizationConfig
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+
 from drake_cfvol.algorithm.certify import Certify
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.params import VolumeParams

@@ -5,6 +5,7 @@
 import subprocess
 from pathlib import Path
 import numpy as np
+
 from drake_cfvol.io.plotting import _pyplot
 from drake_cfvol.comanip.diagram import Comanipulation
 

@@ -10,6 +10,7 @@ import numpy as np
 from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.common import RandomGenerator
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
+
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.comanip.scenario import load_scenario
 from drake_cfvol.comanip.diagram import Comanipulation, build_comanipulation_diagram

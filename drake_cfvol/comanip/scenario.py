@@ -12,6 +12,7 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.analysis import SimulatorConfig
 from pydrake.visualization import VisualizationConfig
+
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.systems import Push
