@@ -145,6 +145,33 @@ def _limits(value, k: int, name: str) -> np.ndarray:
     return v
 
 
+def _interval(q, lower, upper, vmax, h):
+    """Per joint, the velocities within the limits that land in the box;
+    where the box lies farther than one step, the step towards it at the
+    limit."""
+    to_lo, to_hi = (lower - q) / h, (upper - q) / h
+    lo, hi = np.maximum(-vmax, to_lo), np.minimum(vmax, to_hi)
+    lo = np.where(to_lo > vmax, vmax, lo)
+    hi = np.where(to_hi < -vmax, -vmax, hi)
+    return lo, np.maximum(lo, hi)
+
+
+def _relax(q, nominal, lo, hi, A, b, vmax, h):
+    """The damper's rows relaxed so that following the nominal stays
+    admissible near it: b_i' = b_i + w min(0, a_i v_ref - b_i), v_ref
+    the step to the nominal (clipped to the limits and the box), w = 1
+    within one step at the velocity limits of the nominal, fading to 0
+    at two steps (a deviated robot gets no relaxation: the rows'
+    linearisation says nothing reliable about the nominal's distances
+    there)."""
+    step = np.where(np.isfinite(vmax), np.abs(nominal - q) / (vmax * h), 0.0)
+    w = float(np.clip(2.0 - step.max(initial=0.0), 0.0, 1.0))
+    if w == 0.0:
+        return b
+    v_ref = np.clip((nominal - q) / h, lo, hi)
+    return b + w * np.minimum(0.0, A @ v_ref - b)
+
+
 class StagedQP:
     """The filter's QP, argmin |v - v_t|^2 in stages by priority, the
     velocity limits |v| <= vmax always hard:
@@ -412,17 +439,6 @@ class SafetyFilter(LeafSystem):
 
     # -- the update ----------------------------------------------------------
 
-    def _interval(self, q, lower, upper):
-        """Per joint, the velocities within the limits that land in the box;
-        where the box lies farther than one step, the step towards it at the
-        limit."""
-        h, vmax = self.period, self._vmax
-        to_lo, to_hi = (lower - q) / h, (upper - q) / h
-        lo, hi = np.maximum(-vmax, to_lo), np.minimum(vmax, to_hi)
-        lo = np.where(to_lo > vmax, vmax, lo)
-        hi = np.where(to_hi < -vmax, -vmax, hi)
-        return lo, np.maximum(lo, hi)
-
     def _update(self, context, discrete_state):
         h, k = self.period, self.k
         q = context.get_discrete_state(self._position).CopyToVector()
@@ -438,11 +454,11 @@ class SafetyFilter(LeafSystem):
         if not sane:
             # Hold, as far as the box (if it is usable) allows.
             ok = np.isfinite(lower) & np.isfinite(upper) & (lower <= upper)
-            lo, hi = self._interval(q, np.where(ok, lower, q), np.where(ok, upper, q))
+            lo, hi = _interval(q, np.where(ok, lower, q), np.where(ok, upper, q), self._vmax, self.period)
             v, fallback, dmin, missed = np.clip(np.zeros(k), lo, hi), True, status[_MIN_DISTANCE], False
             v = np.clip(v, lo, hi)
         else:
-            lo, hi = self._interval(q, lower, upper)
+            lo, hi = _interval(q, lower, upper, self._vmax, self.period)
             target = (desired - q) / h
             if self.acceleration_limits is not None:
                 step = self.acceleration_limits * h
@@ -494,7 +510,7 @@ class SafetyFilter(LeafSystem):
 
         def need(v):
             b = rows.b + self.second_order(context, rows, v * h) / h
-            return self._relax(q, nominal, lo, hi, A, b) if relax else b
+            return _relax(q, nominal, lo, hi, A, b, self.velocity_limits, self.period) if relax else b
 
         if not len(rows.b):
             return v_t, rows.b, True
@@ -513,19 +529,3 @@ class SafetyFilter(LeafSystem):
                 return v, b_v, True
             b = np.maximum(b, b_v) + _NUDGE * short
         return v, need(v), True
-
-    def _relax(self, q, nominal, lo, hi, A, b):
-        """The damper's rows relaxed so that following the nominal stays
-        admissible near it: b_i' = b_i + w min(0, a_i v_ref - b_i), v_ref
-        the step to the nominal (clipped to the limits and the box), w = 1
-        within one step at the velocity limits of the nominal, fading to 0
-        at two steps (a deviated robot gets no relaxation: the rows'
-        linearisation says nothing reliable about the nominal's distances
-        there)."""
-        vmax = self.velocity_limits
-        step = np.where(np.isfinite(vmax), np.abs(nominal - q) / (vmax * self.period), 0.0)
-        w = float(np.clip(2.0 - step.max(initial=0.0), 0.0, 1.0))
-        if w == 0.0:
-            return b
-        v_ref = np.clip((nominal - q) / self.period, lo, hi)
-        return b + w * np.minimum(0.0, A @ v_ref - b)
