@@ -222,6 +222,147 @@ def _assign_colours(plant, scene_graph, workcell, categories):
             scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
 
 
+def _workcell_path_bounds(scenario: Scenario, base_dir, path, bounds, progress: bool):
+    """The scenario's workcell, nominal path and bounds (planned and
+    estimated unless given; a table loaded from disk gets its volume grown
+    again), and the times (ms) planning and bounding took."""
+    t0 = time.perf_counter()
+    cell = scenario.cell
+    if _looks_like_path(cell):
+        cell = str(_cell_path(cell, base_dir))
+    wc = load_workcell(cell)
+    wc.configuration(scenario.path)  # an unknown path name fails here, before planning
+    height_map_of(wc, VolumeParams.for_workcell(wc, resolution=scenario.resolution, **dict(scenario.params)))
+    if path is None:
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
+                                 clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
+    t1 = time.perf_counter()
+    if bounds is None:
+        bounds = estimate_bounds(wc, path, resolution=scenario.resolution, progress=progress,
+                                 certify=Certify(seed=scenario.seed) if scenario.certify else None,
+                                 **dict(scenario.params))
+    if bounds.volume is None:  # a table loaded from disk: grow its volume again
+        known = {f.name for f in dataclasses.fields(VolumeParams)}
+        params = VolumeParams(**{k: v for k, v in bounds.params.items() if k in known})
+        nominal = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.seed)
+        bounds = dataclasses.replace(bounds, volume=build_volume(wc, nominal, params))
+    t2 = time.perf_counter()
+    return wc, path, bounds, {"plan": (t1 - t0) * 1e3, "bounds": (t2 - t1) * 1e3}
+
+
+def _add_scene(builder, wc, vb):
+    """Plant and SceneGraph with the workcell and the volume's proximity
+    boxes (columns merged, conservatively, into at most
+    MAX_PROXIMITY_BOXES), obstacles coloured by category. Returns (plant,
+    scene_graph, robot, volume ids, merge info)."""
+    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    robot = wc.add_to_plant(plant)
+    centres, sizes, merge_info = vb.volume.merged_boxes(MAX_PROXIMITY_BOXES)
+    volume_ids = register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR, boxes=(centres, sizes))
+    plant.Finalize()
+    _colour_obstacles(plant, scene_graph, wc, vb.categories)
+    return plant, scene_graph, robot, volume_ids, merge_info
+
+
+def _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids):
+    """The real obstacles' proximity geometry (the volume's boxes and the
+    robot left out), and the (moving link, obstacle) pairs whose distance no
+    joint motion changes (the workcell's own, matched by name): a push
+    cannot bring them closer. Returns (robot ids, moving ids, obstacle
+    ids, ignored pairs)."""
+    robot_ids, moving_ids = robot_geometry_ids(plant, robot)
+    inspector = scene_graph.model_inspector()
+    obstacle_ids = [g for i in map(ModelInstanceIndex, range(plant.num_model_instances())) if i != robot
+                    for b in plant.GetBodyIndices(i) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]
+    not_obstacles = set(volume_ids) | set(robot_ids)
+    obstacle_ids = sorted({g for g in obstacle_ids if g not in not_obstacles
+                           and inspector.GetProximityProperties(g) is not None}, key=lambda g: g.get_value())
+    invariant = wc.invariant_pair_names()
+    ignored = [(a, b) for a in moving_ids for b in obstacle_ids
+               if (geometry_key(inspector, a), geometry_key(inspector, b)) in invariant]
+    return robot_ids, moving_ids, obstacle_ids, ignored
+
+
+def _add_safety_filter(builder, scenario, bounds, wc, plant, scene_graph, robot, obstacle_ids, progress, adm, path):
+    """The runtime safety filter between the admittance and the robot. A
+    command computed at an update takes effect until the next one, so the
+    admittance and the filter work on the bounds one period ahead (the
+    filter's output is its state: at the next update it is what the robot
+    holds, inside the box there). Returns the filter."""
+    f, a = scenario.safety_filter, scenario.admittance
+    margin = f.clearance if f.clearance is not None else float(bounds.params.get("clearance", 0.0))
+    source_ahead = builder.AddNamedSystem("joint_bounds_ahead", JointBoundsSource(bounds, clamp=True))
+    builder.Connect(progress.path_index_ahead_output, source_ahead.path_index_input)
+    safety = builder.AddNamedSystem("safety_filter", SafetyFilter(
+        plant, scene_graph, robot, velocity_limits=wc.velocity_limits, obstacle_ids=obstacle_ids,
+        clearance=margin, influence_distance=f.influence_distance, damper_gain=f.damper_gain,
+        period=a.period, initial_position=path.waypoints[0]))
+    for name in ("nominal", "lower", "upper"):
+        builder.Connect(source_ahead.GetOutputPort(name), adm.GetInputPort(name))
+        builder.Connect(source_ahead.GetOutputPort(name), safety.GetInputPort(name))
+    builder.Connect(adm.commanded_position_output, safety.desired_position_input)
+    builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
+    return safety
+
+
+def _add_pushes(builder, scenario, k, human, progress, commanded, source):
+    """The human's joint torques: the scripted pushes, random pushes
+    (Drake's RandomSource, its state the randomness, seeded with
+    SetRandomContext, shaped into torques) and the reactive co-worker,
+    summed. Returns the torque output port."""
+    torques = [human.human_torque_output]
+    rp = scenario.random_pushes
+    if rp.count > 0:
+        noise = builder.AddNamedSystem("random_numbers", RandomSource(
+            RandomDistribution.kUniform, k + 1, sampling_interval_sec=rp.mean_duration))
+        shaper = builder.AddNamedSystem("random_pushes", RandomPushShaper(
+            k, probability=min(1.0, rp.count * rp.mean_duration / (progress.duration + scenario.end_hold)),
+            max_torque=rp.max_torque))
+        builder.Connect(noise.get_output_port(), shaper.uniform_input)
+        torques.append(shaper.human_torque_output)
+    re = scenario.reactive
+    if re.gain > 0:
+        coworker = builder.AddNamedSystem("reactive_coworker", ReactiveCoworker(
+            k, gain=re.gain, offset=re.offset or np.zeros(k), start=re.start, duration=re.duration,
+            max_torque=re.max_torque))
+        builder.Connect(commanded, coworker.commanded_position_input)
+        builder.Connect(source.nominal_output, coworker.nominal_input)
+        torques.append(coworker.human_torque_output)
+    if len(torques) == 1:
+        return torques[0]
+    total = builder.AddNamedSystem("push_sum", Adder(len(torques), k))
+    for i, port in enumerate(torques):
+        builder.Connect(port, total.get_input_port(i))
+    return total.get_output_port()
+
+
+def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
+    """Exports the named ports and logs them at the log period, and the
+    update-rate signals (speed, clearance, collisions; the log period may
+    be coarser: a step between two updates must not hide) at the
+    admittance's period. Returns the loggers by name."""
+    if safety is not None:
+        exported.update({"filter_active": safety.filter_active_output, "filter_count": safety.filter_count_output,
+                         "filter_fallbacks": safety.fallback_count_output,
+                         "filter_damper_misses": safety.damper_misses_output,
+                         "filter_box_exits": safety.box_exits_output})
+    loggers = {}
+    for name, port in exported.items():
+        builder.ExportOutput(port, name)
+        loggers[name] = LogVectorOutput(port, builder, publish_period=scenario.log_period)
+        loggers[name].set_name(f"log_{name}")
+    if safety is not None:
+        # What the admittance asked the filter for, beside what it commanded.
+        exported["desired_position"] = adm.commanded_position_output
+    for name in UPDATE_RATE_LOGS + (("filter_count", "desired_position") if safety is not None else ()):
+        loggers[f"update_{name}"] = LogVectorOutput(exported[name], builder,
+                                                    publish_period=scenario.admittance.period)
+        loggers[f"update_{name}"].set_name(f"log_update_{name}")
+    return loggers
+
+
 def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: Path | None = None,
                                  path=None, bounds=None, progress: bool = False) -> Comanipulation:
     """Builds a co-manipulation diagram from a scenario.
@@ -239,170 +380,59 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         The :class:`Comanipulation`.
     """
     validate_scenario(scenario)
-    t0 = time.perf_counter()
-    cell = scenario.cell
-    if _looks_like_path(cell):
-        cell = str(_cell_path(cell, base_dir))
-    wc = load_workcell(cell)
-    wc.configuration(scenario.path)  # an unknown path name fails here, before planning
-    height_map_of(wc, VolumeParams.for_workcell(wc, resolution=scenario.resolution, **dict(scenario.params)))
-    if path is None:
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
-                                 clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
-    t1 = time.perf_counter()
-    if bounds is None:
-        bounds = estimate_bounds(wc, path, resolution=scenario.resolution, progress=progress,
-                                 certify=Certify(seed=scenario.seed) if scenario.certify else None,
-                                 **dict(scenario.params))
+    wc, path, bounds, times = _workcell_path_bounds(scenario, base_dir, path, bounds, progress)
     t2 = time.perf_counter()
-    vb = bounds.volume
-    if vb is None:  # a table loaded from disk: grow its volume again
-        known = {f.name for f in dataclasses.fields(VolumeParams)}
-        params = VolumeParams(**{k: v for k, v in bounds.params.items() if k in known})
-        nominal = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.seed)
-        vb = build_volume(wc, nominal, params)
-        bounds = dataclasses.replace(bounds, volume=vb)
-    k, g = wc.num_joints, path.g
-
+    vb, k, g = bounds.volume, wc.num_joints, path.g
     builder = DiagramBuilder()
-    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
-    plant = MultibodyPlant(0.0)
-    plant.RegisterAsSourceForSceneGraph(scene_graph)
-    robot = wc.add_to_plant(plant)
-    # The volume in the diagram's own scene, as proximity geometry at any R:
-    # columns merged (conservatively) into at most MAX_PROXIMITY_BOXES boxes.
-    centres, sizes, merge_info = vb.volume.merged_boxes(MAX_PROXIMITY_BOXES)
-    volume_ids = register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR, boxes=(centres, sizes))
-    plant.Finalize()
-    assert plant.num_positions() == k and robot is not None
-    _colour_obstacles(plant, scene_graph, wc, vb.categories)
-
-    a = scenario.admittance
-    share = scenario.path_velocity_share
+    plant, scene_graph, robot, volume_ids, merge_info = _add_scene(builder, wc, vb)
+    a, share = scenario.admittance, scenario.path_velocity_share
     rate = min((g - 1) / scenario.path_duration, safe_path_rate(bounds, wc.velocity_limits, share=share))
     progress = builder.AddNamedSystem("path_progress", PathProgress(g, rate=rate, start_time=scenario.start_time,
-                                                                    lead=scenario.admittance.period))
+                                                                    lead=a.period))
     source = builder.AddNamedSystem("joint_bounds", JointBoundsSource(bounds))
     adm = builder.AddNamedSystem("admittance", AdmittanceDeformation(
         k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=a.period, plant=plant,
         tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot), velocity_limits=wc.velocity_limits,
         path_share=share))
-    pushes = _resolve_pushes(scenario, wc, path, progress)
-    rp = scenario.random_pushes
-    human = builder.AddNamedSystem("human", ScriptedHuman(k, pushes))
-    robot_ids, moving_ids = robot_geometry_ids(plant, robot)
-    inspector = scene_graph.model_inspector()
-    obstacle_ids = [g for i in map(ModelInstanceIndex, range(plant.num_model_instances())) if i != robot
-                    for b in plant.GetBodyIndices(i) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]
-    not_obstacles = set(volume_ids) | set(robot_ids)
-    obstacle_ids = sorted({g for g in obstacle_ids if g not in not_obstacles
-                           and inspector.GetProximityProperties(g) is not None}, key=lambda g: g.get_value())
-    # Pairs whose distance no joint motion changes (the workcell's own scene,
-    # matched by name): a push cannot bring them closer.
-    invariant = wc.invariant_pair_names()
-    ignored = [(a, b) for a in moving_ids for b in obstacle_ids
-               if (geometry_key(inspector, a), geometry_key(inspector, b)) in invariant]
+    human = builder.AddNamedSystem("human", ScriptedHuman(k, _resolve_pushes(scenario, wc, path, progress)))
+    robot_ids, moving_ids, obstacle_ids, ignored = _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids)
     monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
         robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids, obstacle_ids=obstacle_ids,
         ignored_pairs=ignored))
     to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
-
     builder.Connect(progress.path_index_output, source.path_index_input)
     safety = None
     if scenario.collision_guard:
-        # The runtime safety filter between the admittance and the robot. A
-        # command computed at an update takes effect until the next one, so
-        # the admittance and the filter work on the bounds one period ahead
-        # (the filter's output is its state: at the next update it is what
-        # the robot holds, inside the box there).
-        f = scenario.safety_filter
-        margin = f.clearance if f.clearance is not None else float(bounds.params.get("clearance", 0.0))
-        source_ahead = builder.AddNamedSystem("joint_bounds_ahead", JointBoundsSource(bounds, clamp=True))
-        builder.Connect(progress.path_index_ahead_output, source_ahead.path_index_input)
-        safety = builder.AddNamedSystem("safety_filter", SafetyFilter(
-            plant, scene_graph, robot, velocity_limits=wc.velocity_limits, obstacle_ids=obstacle_ids,
-            clearance=margin, influence_distance=f.influence_distance, damper_gain=f.damper_gain,
-            period=a.period, initial_position=path.waypoints[0]))
-        for name in ("nominal", "lower", "upper"):
-            builder.Connect(source_ahead.GetOutputPort(name), adm.GetInputPort(name))
-            builder.Connect(source_ahead.GetOutputPort(name), safety.GetInputPort(name))
-        builder.Connect(adm.commanded_position_output, safety.desired_position_input)
-        builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
+        safety = _add_safety_filter(builder, scenario, bounds, wc, plant, scene_graph, robot, obstacle_ids,
+                                    progress, adm, path)
         commanded = safety.commanded_position_output
     else:
         for name in ("nominal", "lower", "upper"):
             builder.Connect(source.GetOutputPort(name), adm.GetInputPort(name))
         commanded = adm.commanded_position_output
-    torques = [human.human_torque_output]
-    if rp.count > 0:
-        # Random pushes: Drake's RandomSource (its state is the randomness,
-        # seeded with SetRandomContext) shaped into torques.
-        noise = builder.AddNamedSystem("random_numbers", RandomSource(
-            RandomDistribution.kUniform, k + 1, sampling_interval_sec=rp.mean_duration))
-        shaper = builder.AddNamedSystem("random_pushes", RandomPushShaper(
-            k, probability=min(1.0, rp.count * rp.mean_duration / (progress.duration + scenario.end_hold)),
-            max_torque=rp.max_torque))
-        builder.Connect(noise.get_output_port(), shaper.uniform_input)
-        torques.append(shaper.human_torque_output)
-    re = scenario.reactive
-    if re.gain > 0:
-        coworker = builder.AddNamedSystem("reactive_coworker", ReactiveCoworker(
-            k, gain=re.gain, offset=re.offset or np.zeros(k), start=re.start, duration=re.duration,
-            max_torque=re.max_torque))
-        builder.Connect(commanded, coworker.commanded_position_input)
-        builder.Connect(source.nominal_output, coworker.nominal_input)
-        torques.append(coworker.human_torque_output)
-    torque_port = torques[0]
-    if len(torques) > 1:
-        total = builder.AddNamedSystem("push_sum", Adder(len(torques), k))
-        for i, port in enumerate(torques):
-            builder.Connect(port, total.get_input_port(i))
-        torque_port = total.get_output_port()
+    torque_port = _add_pushes(builder, scenario, k, human, progress, commanded, source)
     builder.Connect(torque_port, adm.human_torque_input)
     builder.Connect(human.human_wrench_output, adm.human_wrench_input)
     builder.Connect(commanded, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
     builder.Connect(scene_graph.get_query_output_port(), monitor.query_object_input)
-
-    exported = {
+    loggers = _export_and_log(builder, {
         "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
         "nominal": source.nominal_output, "commanded_position": commanded,
         "deviation": adm.deviation_output, "fault": adm.fault_output, "fault_count": adm.fault_count_output,
         "human_torque": torque_port, "human_wrench": human.human_wrench_output,
         "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
-        "in_volume": monitor.in_volume_output,
-    }
-    if safety is not None:
-        exported.update({"filter_active": safety.filter_active_output, "filter_count": safety.filter_count_output,
-                         "filter_fallbacks": safety.fallback_count_output,
-                         "filter_damper_misses": safety.damper_misses_output,
-                         "filter_box_exits": safety.box_exits_output})
-    loggers = {}
-    for name, port in exported.items():
-        builder.ExportOutput(port, name)
-        loggers[name] = LogVectorOutput(port, builder, publish_period=scenario.log_period)
-        loggers[name].set_name(f"log_{name}")
-    if safety is not None:
-        # What the admittance asked the filter for, beside what it commanded.
-        exported["desired_position"] = adm.commanded_position_output
-    # Speed, clearance and collisions at the control update rate too (the
-    # log period may be coarser: a step between two updates must not hide).
-    for name in UPDATE_RATE_LOGS + (("filter_count", "desired_position") if safety is not None else ()):
-        loggers[f"update_{name}"] = LogVectorOutput(exported[name], builder, publish_period=a.period)
-        loggers[f"update_{name}"].set_name(f"log_update_{name}")
+        "in_volume": monitor.in_volume_output}, scenario, safety, adm)
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
-
     if meshcat is not None:
         for params in meshcat_params(scenario.visualization):
             MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
         show_tool_path(meshcat, wc, path)
         show_category_legend(meshcat, wc, vb.categories)
         frame_camera(meshcat, wc, path)
-
     diagram = builder.Build()
     diagram.set_name("comanipulation")
-    t3 = time.perf_counter()
+    times["diagram"] = (time.perf_counter() - t2) * 1e3
     return Comanipulation(diagram, scenario, wc, path, bounds, plant, scene_graph, loggers, progress, meshcat,
-                          {"count": len(volume_ids), **merge_info}, {"plan": (t1 - t0) * 1e3, "bounds": (t2 - t1) * 1e3,
-                                         "diagram": (t3 - t2) * 1e3},
+                          {"count": len(volume_ids), **merge_info}, times,
                           safety.clearance if safety is not None else None)
