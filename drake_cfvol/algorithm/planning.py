@@ -24,6 +24,7 @@ from drake_cfvol.exceptions import (
     PlanningError,
     SingularityError,
 )
+from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.workcell import Workcell
 
 __all__ = ["NominalPath", "plan_nominal_path", "densify", "min_singular_value"]
@@ -159,6 +160,70 @@ def _shortcut(verts: np.ndarray, edge_free, rng: np.random.Generator, iterations
     return np.array(out)
 
 
+def _checked_request(workcell, q_start, q_goal, seed, time_limit, max_step, singular_threshold, clearance):
+    """Checks a planning request; returns (start, goal, lower, upper, the
+    margin the path keeps: the clearance, lowered to 0.9 x the start's or
+    goal's own clearance where that is nearer)."""
+    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise ParameterError(f"seed must be a non-negative integer, got {seed!r}.")
+    if not time_limit > 0:
+        raise ParameterError(f"time_limit must be > 0 s, got {time_limit}.")
+    if not max_step > 0:
+        raise ParameterError(f"max_step must be > 0, got {max_step}.")
+    lower, upper = workcell.finite_limits("Planning a nominal path")
+    start = workcell.validate_configuration(q_start, "start configuration")
+    goal = workcell.validate_configuration(q_goal, "goal configuration")
+    workcell.require_free(start, "The start configuration")
+    workcell.require_free(goal, "The goal configuration")
+    for what, q in (("start", start), ("goal", goal)):
+        sv = min_singular_value(workcell, q)
+        if sv <= singular_threshold:
+            raise SingularityError(
+                f"The {what} configuration is singular: the tool Jacobian's smallest singular value is "
+                f"{sv:.2e} <= {singular_threshold:.1e}. Move the wrist off the singularity (e.g. a "
+                "non-zero wrist bend).")
+    if clearance is None:
+        clearance = VolumeParams.for_workcell(workcell).clearance
+    if not (np.isfinite(clearance) and 0.0 <= clearance <= 0.5):
+        raise ParameterError(f"clearance must be in [0, 0.5] m, got {clearance!r}.")
+    margin = float(clearance)
+    if margin > 0:
+        ends = min(workcell.clearance(start, margin), workcell.clearance(goal, margin))
+        margin = min(margin, 0.9 * ends)
+    return start, goal, lower, upper, margin
+
+
+def _attempt(workcell, lower, upper, start, goal, checker, attempt_seed, time_left, max_step, shortcut_iterations,
+             singular_threshold):
+    """One planning attempt: RRT-Connect, seeded shortcuts, densified and
+    verified (every edge by Drake's padded checker, every waypoint off the
+    singularities). Returns (waypoints, stats) or why it failed (str)."""
+    edge_free = checker.CheckEdgeCollisionFree
+    t0 = time.perf_counter()
+    verts, ostats = _ompl.rrt_connect(lower, upper, start, goal, is_state_valid=checker.CheckConfigCollisionFree,
+                                      is_motion_valid=edge_free, seed=attempt_seed, time_limit=time_left)
+    plan_ms = (time.perf_counter() - t0) * 1e3
+    if verts is None:
+        return "no solution"
+    t1 = time.perf_counter()
+    verts = _shortcut(verts, edge_free, np.random.default_rng(attempt_seed), shortcut_iterations)
+    simplify_ms = (time.perf_counter() - t1) * 1e3
+    verts[0], verts[-1] = start, goal
+    wp = densify(verts, max_step)
+    t2 = time.perf_counter()
+    bad_edge = next((i for i in range(len(wp) - 1) if not edge_free(wp[i], wp[i + 1])), None)
+    if bad_edge is not None:
+        return f"densified edge {bad_edge} collides"
+    sv = np.array([min_singular_value(workcell, q) for q in wp])
+    verify_ms = (time.perf_counter() - t2) * 1e3
+    if sv.min() <= singular_threshold:
+        return f"waypoint {int(sv.argmin())} singular ({sv.min():.1e})"
+    return wp, {"plan_time_ms": plan_ms, "simplify_time_ms": simplify_ms, "verify_time_ms": verify_ms,
+                "raw_vertices": int(ostats.get("raw_vertices", 0)), "simplified_vertices": len(verts),
+                "state_checks": ostats["state_checks"], "motion_checks": ostats["motion_checks"],
+                "min_singular_value": float(sv.min())}
+
+
 def plan_nominal_path(
     workcell: Workcell,
     q_start,
@@ -197,80 +262,25 @@ def plan_nominal_path(
         MissingJointLimitsError: a joint has no finite limits.
         PlanningError: no path within the time limit.
     """
-    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
-        raise ParameterError(f"seed must be a non-negative integer, got {seed!r}.")
-    if not time_limit > 0:
-        raise ParameterError(f"time_limit must be > 0 s, got {time_limit}.")
-    if not max_step > 0:
-        raise ParameterError(f"max_step must be > 0, got {max_step}.")
-    lower, upper = workcell.finite_limits("Planning a nominal path")
-    start = workcell.validate_configuration(q_start, "start configuration")
-    goal = workcell.validate_configuration(q_goal, "goal configuration")
-    workcell.require_free(start, "The start configuration")
-    workcell.require_free(goal, "The goal configuration")
-    for what, q in (("start", start), ("goal", goal)):
-        sv = min_singular_value(workcell, q)
-        if sv <= singular_threshold:
-            raise SingularityError(
-                f"The {what} configuration is singular: the tool Jacobian's smallest singular value is "
-                f"{sv:.2e} <= {singular_threshold:.1e}. Move the wrist off the singularity (e.g. a "
-                "non-zero wrist bend).")
-    if clearance is None:
-        from drake_cfvol.scene.params import VolumeParams
-
-        clearance = VolumeParams.for_workcell(workcell).clearance
-    if not (np.isfinite(clearance) and 0.0 <= clearance <= 0.5):
-        raise ParameterError(f"clearance must be in [0, 0.5] m, got {clearance!r}.")
-    margin = float(clearance)
-    if margin > 0:
-        ends = min(workcell.clearance(start, margin), workcell.clearance(goal, margin))
-        margin = min(margin, 0.9 * ends)
+    start, goal, lower, upper, margin = _checked_request(workcell, q_start, q_goal, seed, time_limit, max_step,
+                                                         singular_threshold, clearance)
     checker = workcell.padded_checker(margin)
-    is_free = checker.CheckConfigCollisionFree
-    edge_free = checker.CheckEdgeCollisionFree
 
     t_total = time.perf_counter()
     deadline = t_total + time_limit
     attempts = 0
     failures: list[str] = []
-    while True:
-        remaining = deadline - time.perf_counter()
-        if remaining <= 0:
-            break
+    while deadline - time.perf_counter() > 0:
         attempt_seed = int(seed) * 1009 + attempts
         attempts += 1
-        t0 = time.perf_counter()
-        verts, ostats = _ompl.rrt_connect(
-            lower, upper, start, goal, is_state_valid=is_free, is_motion_valid=edge_free,
-            seed=attempt_seed, time_limit=remaining)
-        plan_ms = (time.perf_counter() - t0) * 1e3
-        if verts is None:
-            failures.append("no solution")
+        found = _attempt(workcell, lower, upper, start, goal, checker, attempt_seed, deadline - time.perf_counter(),
+                         max_step, shortcut_iterations, singular_threshold)
+        if isinstance(found, str):
+            failures.append(found)
             continue
-        t1 = time.perf_counter()
-        rng = np.random.default_rng(attempt_seed)
-        verts = _shortcut(verts, edge_free, rng, shortcut_iterations)
-        simplify_ms = (time.perf_counter() - t1) * 1e3
-        verts[0], verts[-1] = start, goal
-        wp = densify(verts, max_step)
-        t2 = time.perf_counter()
-        bad_edge = next((i for i in range(len(wp) - 1) if not edge_free(wp[i], wp[i + 1])), None)
-        if bad_edge is not None:
-            failures.append(f"densified edge {bad_edge} collides")
-            continue
-        sv = np.array([min_singular_value(workcell, q) for q in wp])
-        verify_ms = (time.perf_counter() - t2) * 1e3
-        if sv.min() <= singular_threshold:
-            failures.append(f"waypoint {int(sv.argmin())} singular ({sv.min():.1e})")
-            continue
-        stats = {
-            "plan_time_ms": plan_ms, "simplify_time_ms": simplify_ms, "verify_time_ms": verify_ms,
-            "total_time_ms": (time.perf_counter() - t_total) * 1e3, "attempts": attempts,
-            "raw_vertices": int(ostats.get("raw_vertices", 0)), "simplified_vertices": len(verts),
-            "state_checks": ostats["state_checks"], "motion_checks": ostats["motion_checks"],
-            "min_singular_value": float(sv.min()), "max_step": max_step, "rejected": list(failures),
-            "clearance_m": margin,
-        }
+        wp, stats = found
+        stats.update({"total_time_ms": (time.perf_counter() - t_total) * 1e3, "attempts": attempts,
+                      "max_step": max_step, "rejected": list(failures), "clearance_m": margin})
         return NominalPath(wp, list(workcell.joint_names), workcell.name, label, int(seed), stats)
     why = "; ".join(failures[-3:]) or "no attempt could start"
     raise PlanningError(
