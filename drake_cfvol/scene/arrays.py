@@ -208,19 +208,15 @@ def _pose(X) -> tuple[np.ndarray, np.ndarray]:
     return X.rotation().matrix().copy(), X.translation().copy()
 
 
-def scene_arrays(workcell) -> SceneArrays:
-    """Reads the workcell's robot chain, robot shapes and obstacle shapes
-    from Drake (``Workcell.scene_arrays`` caches the result)."""
+def _chain_order(workcell):
+    """The robot's bodies in topological order (parents before children)
+    and each body's inboard joint (by body index)."""
     plant = workcell.plant
-    inspector = workcell.scene_graph.model_inspector()
-    ctx = plant.CreateDefaultContext()
-    plant.SetPositions(ctx, np.zeros(plant.num_positions()))
     robot_bodies = [plant.get_body(b) for b in plant.GetBodyIndices(workcell.robot)]
     inboard = {}
     for i in range(plant.num_joints()):
         joint = plant.get_joint(JointIndex(i))
         inboard[int(joint.child_body().index())] = joint
-    # Topological order: parents before children.
     order, placed = [], set()
     pending = list(robot_bodies)
     while pending:
@@ -239,16 +235,24 @@ def scene_arrays(workcell) -> SceneArrays:
                 progressed = True
         if not progressed:
             raise WorkcellError("the robot's kinematic tree has a loop; only trees are supported.")
+    return order, inboard
+
+
+def _chain_arrays(workcell, order, inboard):
+    """The chain in ``kernel.fk`` order (parent, jtype, qidx, axis, R_PF,
+    p_PF, R_MB, p_MB; a parent outside the robot folded into X_PF, a weld's
+    X_FM folded too) and each joint's body (joint_body)."""
+    plant = workcell.plant
+    ctx = plant.CreateDefaultContext()
+    plant.SetPositions(ctx, np.zeros(plant.num_positions()))
     index_of = {int(b.index()): n for n, b in enumerate(order)}
     B = len(order)
     parent = np.full(B, -1, np.int64)
     jtype = np.zeros(B, np.int64)
     qidx = np.zeros(B, np.int64)
     axis = np.zeros((B, 3))
-    R_PF = np.zeros((B, 3, 3))
-    p_PF = np.zeros((B, 3))
-    R_MB = np.zeros((B, 3, 3))
-    p_MB = np.zeros((B, 3))
+    R_PF, p_PF = np.zeros((B, 3, 3)), np.zeros((B, 3))
+    R_MB, p_MB = np.zeros((B, 3, 3)), np.zeros((B, 3))
     joint_names = list(workcell.joint_names)
     joint_body = np.full(len(joint_names), -1, np.int64)
     for n, body in enumerate(order):
@@ -273,8 +277,13 @@ def scene_arrays(workcell) -> SceneArrays:
             joint_body[joint_names.index(joint.name())] = n
         R_PF[n], p_PF[n] = _pose(X_PF)
         R_MB[n], p_MB[n] = _pose(X_BM.inverse())
+    return (parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), joint_body
 
-    verts: list[np.ndarray] = []
+
+def _robot_shapes(workcell, order, verts):
+    """The robot's proximity shapes as kernel rows (hull vertices appended
+    to ``verts``): rows, their bodies, bounding-ball centres and radii."""
+    plant, inspector = workcell.plant, workcell.scene_graph.model_inspector()
     rows, bodies, bcs, brs = [], [], [], []
     for n, body in enumerate(order):
         fid = plant.GetBodyFrameIdIfExists(body.index())
@@ -289,10 +298,12 @@ def scene_arrays(workcell) -> SceneArrays:
             brs.append(radius)
     if not rows:
         raise WorkcellError(f"robot '{workcell.robot_name}' has no proximity geometry; the bounds need it.")
-    shapes = np.array(rows)
-    shape_body = np.array(bodies, np.int64)
-    shape_bc, shape_br = np.array(bcs), np.array(brs)
+    return np.array(rows), np.array(bodies, np.int64), np.array(bcs), np.array(brs)
 
+
+def _obstacle_shapes(workcell, verts):
+    """The obstacles' shapes as kernel rows, posed in the world, and their names."""
+    inspector = workcell.scene_graph.model_inspector()
     obs_rows, obs_names = [], []
     sg_ctx = workcell.scene_graph.GetMyContextFromRoot(workcell.context)
     query = workcell.scene_graph.get_query_output_port().Eval(sg_ctx)
@@ -300,34 +311,49 @@ def scene_arrays(workcell) -> SceneArrays:
         for gid in obs.geometry_ids:
             obs_rows.append(shape_row(inspector.GetShape(gid), *_pose(query.GetPoseInWorld(gid)), verts)[0])
             obs_names.append(obs.name)
+    return np.array(obs_rows).reshape(-1, K.SHAPE_W), obs_names
 
-    checker = workcell.checker
-    has_geometry = [bool((shape_body == b).any()) for b in range(B)]
-    pairs = [(a, b) for a in range(B) for b in range(a + 1, B)
-             if has_geometry[a] and has_geometry[b]
-             and not checker.IsCollisionFilteredBetween(order[a], order[b])]
-    k = len(joint_names)
-    moved = np.zeros((k, B), bool)
-    for j in range(k):
-        b = joint_body[j]
+
+def _moved_by(parent, joint_body, B):
+    """(k, B): True where joint j moves body b (b at or below the joint's body)."""
+    moved = np.zeros((len(joint_body), B), bool)
+    for j, b in enumerate(joint_body):
         stack = [b]
         while stack:
             x = stack.pop()
             moved[j, x] = True
             stack.extend(np.flatnonzero(parent == x).tolist())
-    obstacles = np.array(obs_rows).reshape(-1, K.SHAPE_W)
+    return moved
+
+
+def scene_arrays(workcell) -> SceneArrays:
+    """Reads the workcell's robot chain, robot shapes and obstacle shapes
+    from Drake (``Workcell.scene_arrays`` caches the result)."""
+    order, inboard = _chain_order(workcell)
+    chain, joint_body = _chain_arrays(workcell, order, inboard)
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = chain
+    B = len(order)
+    verts: list[np.ndarray] = []
+    shapes, shape_body, shape_bc, shape_br = _robot_shapes(workcell, order, verts)
+    obstacles, obs_names = _obstacle_shapes(workcell, verts)
+    checker = workcell.checker
+    has_geometry = [bool((shape_body == b).any()) for b in range(B)]
+    pairs = [(a, b) for a in range(B) for b in range(a + 1, B)
+             if has_geometry[a] and has_geometry[b]
+             and not checker.IsCollisionFilteredBetween(order[a], order[b])]
+    moved = _moved_by(parent, joint_body, B)
     all_verts = np.concatenate(verts) if verts else np.zeros((0, 3))
     obs_aabb = np.zeros((len(obstacles), 6))
     for o in range(len(obstacles)):
         K.row_aabb(obstacles[o], all_verts, obs_aabb[o])
     reach = _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved,
                    workcell.position_lower, workcell.position_upper, qidx)
+    revolute = np.asarray(workcell.revolute, bool)
     return SceneArrays(
-        [b.name() for b in order], [b.index() for b in order], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
+        [b.name() for b in order], [b.index() for b in order], *chain,
         shapes, shape_body, obstacles, obs_names, obs_aabb,
         all_verts, np.array(pairs, np.int64).reshape(-1, 2), moved,
-        reach, _curvature(reach, moved, np.asarray(workcell.revolute, bool)), np.asarray(workcell.revolute, bool),
-        joint_body)
+        reach, _curvature(reach, moved, revolute), revolute, joint_body)
 
 
 def _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved,
