@@ -24,6 +24,54 @@ def _log(sim_context, logger):
     return log.sample_times().copy(), log.data().T.copy()
 
 
+def _simulate(cm, scenario, meshcat, progress: bool):
+    """Simulates the run (recording into ``meshcat`` if given); the random
+    pushes' numbers live in the context, seeded Drake's way. Returns (the
+    simulator's context, wall time s)."""
+    sim = Simulator(cm.diagram)
+    ApplySimulatorConfig(scenario.simulator_config, sim)
+    ctx = sim.get_mutable_context()
+    cm.diagram.SetRandomContext(ctx, RandomGenerator(scenario.random_pushes.seed))
+    if meshcat is not None:
+        meshcat.StartRecording(frames_per_second=1.0 / scenario.visualization.publish_period,
+                               set_visualizations_while_recording=False)
+    t0 = time.perf_counter()
+    duration = cm.duration
+    with Progress(duration, "Simulating", enabled=progress, unit="simulated s") as bar:
+        steps = 100
+        for n in range(1, steps + 1):
+            sim.AdvanceTo(duration * n / steps)
+            bar.update(duration / steps)
+    return ctx, time.perf_counter() - t0
+
+
+def _write_files(cm, logs, out: Path, meshcat, plot: bool, svg: bool) -> dict:
+    """The recording (self-contained HTML), the plot and the diagram's SVG."""
+    files = {}
+    if meshcat is not None:
+        meshcat.StopRecording()
+        meshcat.PublishRecording()
+        html = out / "recording.html"
+        html.write_text(meshcat.StaticHtml())
+        files["recording_html"] = str(html)
+    if plot:
+        files["plot_png"] = str(plot_run(logs, cm, out / "run.png"))
+    if svg:
+        files.update(write_diagram_svg(cm.diagram, out / "diagram"))
+    return files
+
+
+def _margins(cm, scenario) -> tuple[float, float]:
+    """The margin in force, and the nominal's own clearance (moving links
+    against the obstacles, Drake, at every waypoint): a run keeps the margin
+    if it never comes nearer than min(margin, the nominal's own)."""
+    margin = cm.filter_clearance if scenario.collision_guard else float(cm.bounds.params.get("clearance", 0.0) or 0.0)
+    nominal_own = min((min(d.values(), default=1.0) for d in
+                       (cm.workcell.obstacle_distances(qn, 1.0, changeable_only=True) for qn in cm.path.waypoints)),
+                      default=1.0)
+    return margin, float(nominal_own)
+
+
 def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = True, plot: bool = True,
                  svg: bool = True, path=None, bounds=None, progress: bool = False,
                  scenario_text: str | None = None) -> dict:
@@ -44,23 +92,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         meshcat = Meshcat(MeshcatParams(host="localhost"))
     cm = build_comanipulation_diagram(scenario, meshcat=meshcat, base_dir=file.parent if file else None,
                                       path=path, bounds=bounds, progress=progress)
-    sim = Simulator(cm.diagram)
-    ApplySimulatorConfig(scenario.simulator_config, sim)
-    ctx = sim.get_mutable_context()
-    # The random pushes' numbers live in the context: seed them (Drake's way).
-    cm.diagram.SetRandomContext(ctx, RandomGenerator(scenario.random_pushes.seed))
-    if meshcat is not None:
-        meshcat.StartRecording(frames_per_second=1.0 / scenario.visualization.publish_period,
-                               set_visualizations_while_recording=False)
-    t0 = time.perf_counter()
-    duration = cm.duration
-    with Progress(duration, "Simulating", enabled=progress, unit="simulated s") as bar:
-        steps = 100
-        for n in range(1, steps + 1):
-            t_next = duration * n / steps
-            sim.AdvanceTo(t_next)
-            bar.update(duration / steps)
-    sim_s = time.perf_counter() - t0
+    ctx, sim_s = _simulate(cm, scenario, meshcat, progress)
     logs = {name: _log(ctx, lg) for name, lg in cm.loggers.items()}
     t, q = logs["commanded_position"]
     _, lo = logs["lower"]
@@ -69,22 +101,12 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     violation = float(np.max(np.maximum(np.maximum(lo - q, q - hi), 0.0))) if len(q) else 0.0
     rates = update_rate_figures(logs, cm)
     penetrations = int(logs["in_volume"][1].sum())
-    files = {}
-    if meshcat is not None:
-        meshcat.StopRecording()
-        meshcat.PublishRecording()
-        html = out / "recording.html"
-        html.write_text(meshcat.StaticHtml())
-        files["recording_html"] = str(html)
-    if plot:
-        files["plot_png"] = str(plot_run(logs, cm, out / "run.png"))
-    if svg:
-        files.update(write_diagram_svg(cm.diagram, out / "diagram"))
+    files = _write_files(cm, logs, out, meshcat, plot, svg)
     np.savez(out / "logs.npz", **{f"{k}_t": v[0] for k, v in logs.items()}, **{k: v[1] for k, v in logs.items()})
     summary = {
         "scenario": str(file) if file else str(scenario_name_or_path), "cell": cm.workcell.name,
         "path": scenario.path, "resolution": scenario.resolution, "g": cm.path.g, "steps": int(len(t)),
-        "duration_s": duration, "path_duration_s": cm.progress.duration - scenario.start_time,
+        "duration_s": cm.duration, "path_duration_s": cm.progress.duration - scenario.start_time,
         "sim_wall_s": sim_s,
         "min_clearance_m": rates["min_clearance_m"],
         "max_velocity_ratio": rates["max_velocity_ratio"], "volume_penetrations": penetrations,
@@ -101,15 +123,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "diagram_svg": files.get("diagram_svg"), "diagram_dot": files.get("diagram_dot"),
         "notices": [],
     }
-    # The margin in force, and the nominal's own clearance (moving links
-    # against the obstacles, Drake, at every waypoint): a run keeps the
-    # margin if it never comes nearer than min(margin, the nominal's own).
-    margin = cm.filter_clearance if scenario.collision_guard else float(cm.bounds.params.get("clearance", 0.0) or 0.0)
-    nominal_own = min((min(d.values(), default=1.0) for d in
-                       (cm.workcell.obstacle_distances(qn, 1.0, changeable_only=True) for qn in cm.path.waypoints)),
-                      default=1.0)
-    summary["clearance_m"] = margin
-    summary["nominal_min_clearance_m"] = float(nominal_own)
+    summary["clearance_m"], summary["nominal_min_clearance_m"] = _margins(cm, scenario)
     summary["problems"] = run_problems(summary)
     if svg and files.get("diagram_svg") is None:
         summary["notices"].append(missing_dot_notice(out / "diagram"))
