@@ -55,6 +55,37 @@ def warm_up(*, progress: bool = False) -> float:
     return _warm_up_ms
 
 
+def _check_inputs(workcell, path, backend: str, certify) -> None:
+    if not isinstance(path, NominalPath):
+        raise ParameterError(f"path must be a NominalPath, got {type(path).__name__}.")
+    if path.k != workcell.num_joints:
+        raise DimensionError("the path's configurations", workcell.num_joints, path.k,
+                             f"The workcell's robot has joints {', '.join(workcell.joint_names)}.")
+    if backend not in BACKENDS:
+        raise ParameterError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {backend!r}.")
+    if certify is not None and not isinstance(certify, Certify):
+        raise ParameterError(f"certify must be a drake_cfvol.Certify or None, got {type(certify).__name__}.")
+
+
+def _bound(workcell, W, vb, params, backend: str, progress: bool):
+    """The bounding step: (waypoint lower, upper, stretch lower, upper,
+    rate, stats). The fast backend bounds each stretch (absolute bounds
+    nominal +- pi for a joint without limits) and rate-limits the waypoint
+    boxes; the Drake backend bounds waypoints (no rate)."""
+    if backend == "fast":
+        lo_w, hi_w = absolute_bounds(workcell.position_lower, workcell.position_upper, W)
+        lim_lo_st = np.maximum(lo_w[:-1], lo_w[1:])
+        lim_hi_st = np.minimum(hi_w[:-1], hi_w[1:])
+        st_lower, st_upper, stats = stretch_bounds(workcell.scene_arrays(), W, vb.volume, params,
+                                                   lim_lo_st, lim_hi_st)
+        rate = default_rate(W, workcell.velocity_limits, params.waypoint_time)
+        lower, upper = waypoint_boxes(st_lower, st_upper, W, rate)
+        return lower, upper, st_lower, st_upper, rate, stats
+    lower, upper, stats = drake_sweep_bounds(workcell, W, vb.volume, params, progress=progress)
+    st_lower, st_upper = intersection_stretches(lower, upper)
+    return lower, upper, st_lower, st_upper, None, stats
+
+
 def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = None, *,
                     backend: str = "fast", certify: Certify | None = None, progress: bool = False,
                     **overrides) -> BoundsTable:
@@ -88,15 +119,7 @@ def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = N
         params = VolumeParams.for_workcell(workcell, **overrides)
     elif overrides:
         params = params.replace(**overrides)
-    if not isinstance(path, NominalPath):
-        raise ParameterError(f"path must be a NominalPath, got {type(path).__name__}.")
-    if path.k != workcell.num_joints:
-        raise DimensionError("the path's configurations", workcell.num_joints, path.k,
-                             f"The workcell's robot has joints {', '.join(workcell.joint_names)}.")
-    if backend not in BACKENDS:
-        raise ParameterError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {backend!r}.")
-    if certify is not None and not isinstance(certify, Certify):
-        raise ParameterError(f"certify must be a drake_cfvol.Certify or None, got {type(certify).__name__}.")
+    _check_inputs(workcell, path, backend, certify)
     height_map_of(workcell, params)  # checks R (memory) before any work
     jit_ms = warm_up(progress=progress) if backend == "fast" else 0.0
     workcell.scene_arrays()  # read from Drake once per workcell, like loading it
@@ -106,19 +129,7 @@ def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = N
     vb = build_volume(workcell, path, params, categories=cats)
     t2 = time.perf_counter()
     W = path.waypoints
-    if backend == "fast":
-        # Absolute bounds per stretch: nominal +- pi for a joint without limits.
-        lo_w, hi_w = absolute_bounds(workcell.position_lower, workcell.position_upper, W)
-        lim_lo_st = np.maximum(lo_w[:-1], lo_w[1:])
-        lim_hi_st = np.minimum(hi_w[:-1], hi_w[1:])
-        st_lower, st_upper, stats = stretch_bounds(workcell.scene_arrays(), W, vb.volume, params,
-                                                   lim_lo_st, lim_hi_st)
-        rate = default_rate(W, workcell.velocity_limits, params.waypoint_time)
-        lower, upper = waypoint_boxes(st_lower, st_upper, W, rate)
-    else:
-        lower, upper, stats = drake_sweep_bounds(workcell, W, vb.volume, params, progress=progress)
-        st_lower, st_upper = intersection_stretches(lower, upper)
-        rate = None
+    lower, upper, st_lower, st_upper, rate, stats = _bound(workcell, W, vb, params, backend, progress)
     t3 = time.perf_counter()
     lim_lo, lim_hi = absolute_bounds(workcell.position_lower, workcell.position_upper, W[0])
     stats.setdefault("clearance_m", float(params.clearance))
