@@ -46,12 +46,7 @@ def rrt_connect(
     ou.RNG.setSeed(int(seed) + 1)
     ou.setLogLevel(ou.LogLevel.LOG_WARN)
     k = len(lower)
-    space = ob.RealVectorStateSpace(k)
-    bounds = ob.RealVectorBounds(k)
-    for i in range(k):
-        bounds.setLow(i, float(lower[i]))
-        bounds.setHigh(i, float(upper[i]))
-    space.setBounds(bounds)
+    space = _space(ob, lower, upper)
     ss = og.SimpleSetup(space)
     si = ss.getSpaceInformation()
     counts = {"states": 0, "motions": 0}
@@ -71,12 +66,7 @@ def rrt_connect(
     ss.setStateValidityChecker(state_valid)
     motion = _Motion(si)
     si.setMotionValidator(motion)
-    st = space.allocState()
-    gl = space.allocState()
-    for i in range(k):
-        st[i] = float(start[i])
-        gl[i] = float(goal[i])
-    ss.setStartAndGoalStates(st, gl)
+    ss.setStartAndGoalStates(_state(space, start), _state(space, goal))
     planner = og.RRTConnect(si)
     if planner_range > 0:
         planner.setRange(float(planner_range))
@@ -92,3 +82,23 @@ def rrt_connect(
     verts = np.array([to_np(s) for s in states])
     stats["raw_vertices"] = len(verts)
     return verts, stats
+
+
+def _space(ob, lower, upper):
+    """OMPL's real vector state space over the box [lower, upper]."""
+    k = len(lower)
+    space = ob.RealVectorStateSpace(k)
+    bounds = ob.RealVectorBounds(k)
+    for i in range(k):
+        bounds.setLow(i, float(lower[i]))
+        bounds.setHigh(i, float(upper[i]))
+    space.setBounds(bounds)
+    return space
+
+
+def _state(space, q):
+    """An OMPL state of ``space`` at q."""
+    s = space.allocState()
+    for i, x in enumerate(q):
+        s[i] = float(x)
+    return s

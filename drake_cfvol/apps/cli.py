@@ -314,11 +314,8 @@ def cmd_demo(args) -> int:
     return run_demo(out_dir=out, seed=args.seed, quick=args.quick)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="cfvol", description=_DESCRIPTION)
-    p.add_argument("--version", action="version", version=f"cfvol (drake_cfvol) {__version__}")
-    sub = p.add_subparsers(dest="command", required=True)
-
+def _add_plan(sub) -> None:
+    """The ``plan`` command."""
     q = sub.add_parser("plan", help="plan a nominal path (RRT-Connect) for a named start/goal pair")
     q.add_argument("cell", help="built-in cell name (automotive, aerospace) or a workcell YAML path")
     q.add_argument("--path", default="1", help="configuration pair: 1, 2, 3 or a name (default 1)")
@@ -331,6 +328,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--json", action="store_true", help="print one JSON object")
     q.set_defaults(func=cmd_plan)
 
+
+def _add_bounds(sub) -> None:
+    """The ``bounds`` command."""
     b = sub.add_parser("bounds", help="plan a path and compute its joint bounds, CF and freedom")
     b.add_argument("cell", help="built-in cell name or a workcell YAML path")
     b.add_argument("--path", default="1", help="configuration pair: 1, 2, 3 or a name (default 1)")
@@ -360,6 +360,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.set_defaults(func=cmd_bounds)
 
+
+def _add_simulate(sub) -> None:
+    """The ``simulate`` command."""
     m = sub.add_parser("simulate", help="run a co-manipulation scenario and record it")
     m.add_argument("scenario", help=f"bundled scenario name ({', '.join(_bundled_scenarios())}) or a YAML path")
     m.add_argument("--out", help="output folder (default out/<scenario>)")
@@ -369,6 +372,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=cmd_simulate)
 
+
+def _add_bench(sub) -> None:
+    """The ``bench`` command (the harness of a development checkout)."""
     n = sub.add_parser("bench", help="reproduce the paper's Tables I and II side by side")
     n.add_argument("--quick", action="store_true", help="a small run (a few minutes)")
     n.add_argument("--cells", nargs="+", help="cells (default both)")
@@ -395,11 +401,23 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--json", action="store_true", help="print one JSON object")
     n.set_defaults(func=cmd_bench)
 
+
+def _add_demo(sub) -> None:
+    """The ``demo`` command."""
     d = sub.add_parser("demo", help="the main job: plan, bound and run the automotive cell")
     d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--quick", action="store_true", help="fewer CF samples")
     d.set_defaults(func=cmd_demo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``cfvol`` command line: plan, bounds, simulate, bench, demo."""
+    p = argparse.ArgumentParser(prog="cfvol", description=_DESCRIPTION)
+    p.add_argument("--version", action="version", version=f"cfvol (drake_cfvol) {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+    for add in (_add_plan, _add_bounds, _add_simulate, _add_bench, _add_demo):
+        add(sub)
     return p
 
 
