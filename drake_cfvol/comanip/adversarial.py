@@ -39,6 +39,11 @@ __all__ = ["steady_push_runs", "summarize_runs", "nearest_obstacle_signs", "adve
 #: seeded sequence of random pushes, push seed = the run's seed).
 PATTERNS = ("random", "nearest", "random_pushes")
 
+#: A run's summary figures each row carries as they are.
+_SUMMARY_KEYS = ("collisions", "min_clearance_m", "max_velocity_ratio", "filter_steps", "filter_damper_misses",
+                 "filter_fallbacks", "faults", "filter_box_exits", "max_bound_violation", "max_deviation",
+                 "sim_wall_s")
+
 
 def _signs(seed: int, k: int) -> np.ndarray:
     return np.random.default_rng(seed).choice([-1.0, 1.0], size=k)
@@ -132,13 +137,7 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
             margin = s["filter_clearance_m"] if s["filter_clearance_m"] is not None else margin_default
             row = {"cell": cell, "seed": seed, "pattern": pattern, "signs": signs.tolist(), "torque": float(torque),
                    "safety_filter": bool(safety_filter), "certify": bool(certify), "margin_m": margin,
-                   "collisions": s["collisions"], "min_clearance_m": s["min_clearance_m"],
-                   "max_velocity_ratio": s["max_velocity_ratio"], "filter_steps": s["filter_steps"],
-                   "filter_damper_misses": s.get("filter_damper_misses", 0),
-                   "filter_fallbacks": s["filter_fallbacks"], "faults": s["faults"],
-                   "filter_box_exits": s.get("filter_box_exits", 0),
-                   "max_bound_violation": s["max_bound_violation"], "max_deviation": s["max_deviation"],
-                   "sim_wall_s": s["sim_wall_s"],
+                   **{key: s.get(key, 0) for key in _SUMMARY_KEYS},
                    **_recount(wc, path, bounds, scenario, s, logs, margin, nominal_clearance)}
             rows.append(row)
             if on_run is not None:
