@@ -184,3 +184,18 @@ def test_bundled_data_found_through_package_resources():
     assert (models_dir() / "package.xml").is_file()
     assert set(cf.builtin_cells()) >= {"automotive", "aerospace"}
     assert (diagrams_dir() / "automotive_push.yaml").is_file()
+
+
+def test_readme_layout_is_drawn_from_the_tree():
+    """The README's layout section is what tools/layout.py draws from the
+    package tree now (every subpackage and module, with its docstring's
+    first sentence): rerun ``tools/layout.py --write`` after a change."""
+    import importlib.util
+
+    root = PACKAGE.parent
+    spec = importlib.util.spec_from_file_location("layout_tool", root / "tools" / "layout.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    drawn = tool.layout()
+    assert "`algorithm/`" in drawn and "`safety`" in drawn
+    assert drawn in (root / "README.md").read_text()
