@@ -78,11 +78,8 @@ def regions_may_collide(arrays, A, B, js, va, vb, pads) -> np.ndarray:
     js = np.ascontiguousarray(js, np.int64)
     va, vb = np.ascontiguousarray(va, float), np.ascontiguousarray(vb, float)
     nts, nvs = _grid(arrays, A, B, js, va, vb)
-    a = arrays
     return K.regions_hit(A, B, js, va, vb, nts, nvs, np.ascontiguousarray(np.broadcast_to(pads, js.shape), float),
-                         a.parent, a.jtype, a.qidx, a.axis, a.R_PF, a.p_PF, a.R_MB, a.p_MB, a.shapes,
-                         a.shape_body, a.verts, a.obstacles, a.obstacle_aabb, a.self_pairs, a.moved_by, a.reach,
-                         a.curvature, a.revolute, a.joint_body)
+                         arrays.model)
 
 
 def _box(lower, upper, nominal, i, s):

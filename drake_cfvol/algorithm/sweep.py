@@ -121,17 +121,14 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     reach_j = np.where(arrays.revolute, arrays.reach.max(axis=1), 0.0)
     v_steps = np.where(reach_j > 0, np.sqrt(8 * MOTION_TOLERANCE / np.maximum(reach_j, 1e-9)), np.inf)
     table, ox, oy, side = volume_table(volume)
-    a = arrays
-    common = (a.parent, a.jtype, a.qidx, a.axis, a.R_PF, a.p_PF, a.R_MB, a.p_MB, a.shapes, a.shape_body,
-              a.verts, a.obstacles, a.obstacle_aabb, a.self_pairs, a.moved_by, a.reach, a.curvature, a.revolute,
-              a.joint_body, table, ox, oy, side)
     lim_lo = np.ascontiguousarray(lower_limit, dtype=np.float64)
     lim_hi = np.ascontiguousarray(upper_limit, dtype=np.float64)
 
     if margins is None:
         margins = stretch_margins(arrays, W, params.clearance)
     chains = np.array([(j, sgn) for j in range(k) for sgn in (1, -1)], np.int64)
-    bounds, tests = K.sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, *common,
+    bounds, tests = K.sweep_chains(chains, (lim_lo, lim_hi, delta), nts, v_steps, W, arrays.model,
+                                   K.HeightField(table, float(ox), float(oy), float(side)),
                                    np.ascontiguousarray(margins, dtype=np.float64))
     lo_nom = np.minimum(W[:-1], W[1:])
     hi_nom = np.maximum(W[:-1], W[1:])

@@ -55,11 +55,9 @@ def categorize(workcell, path: NominalPath, params: VolumeParams) -> Categories:
     take no part, as in Drake)."""
     a = workcell.scene_arrays()
     W = np.ascontiguousarray(path.waypoints, dtype=np.float64)
-    movable = a.moved_by.any(axis=0)
 
     def per_obstacle(Q, radius):
-        d = K.obstacle_distances(np.ascontiguousarray(Q), float(radius), 1e-7, *a.chain, a.shapes,
-                                 a.shape_body, a.verts, a.obstacles, a.obstacle_aabb, movable).min(axis=0)
+        d = K.obstacle_distances(np.ascontiguousarray(Q), float(radius), 1e-7, a.model).min(axis=0)
         out: dict[str, float] = {}
         for name, value in zip(a.obstacle_names, d):
             if value < radius:
@@ -165,8 +163,7 @@ def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
             continue
         K.shape_footprint(row, a.verts, poly)
         K.fill_convex_polygon(masks[cats.of(name)], poly, x0, y0, pixel)
-    K.robot_footprint(np.ascontiguousarray(path.waypoints, dtype=np.float64), *a.chain, a.shapes, a.shape_body,
-                      a.verts, a.moved_by.any(axis=0), masks["trail"], x0, y0, pixel)
+    K.robot_footprint(np.ascontiguousarray(path.waypoints, dtype=np.float64), a.model, masks["trail"], x0, y0, pixel)
     X, Y = hm.centres()
     ix = np.clip(np.floor((X - x0) / pixel).astype(int), 0, shape[0] - 1)
     iy = np.clip(np.floor((Y - y0) / pixel).astype(int), 0, shape[1] - 1)
@@ -207,10 +204,8 @@ def lower_along_path(vol: Volume, arrays, waypoints: np.ndarray, clearance: floa
     hm = vol.heightmap
     heights = np.ascontiguousarray(vol.heights, dtype=np.float64)
     a = arrays
-    K.lower_columns_under(np.ascontiguousarray(Q), np.ascontiguousarray(E), a.parent, a.jtype, a.qidx, a.axis,
-                          a.R_PF, a.p_PF, a.R_MB, a.p_MB, a.shapes, a.shape_body, a.verts, heights,
-                          float(hm.origin[0]), float(hm.origin[1]), float(hm.side), float(clearance),
-                          a.moved_by.any(axis=0))
+    K.lower_columns_under(np.ascontiguousarray(Q), np.ascontiguousarray(E), a.model, heights,
+                          (float(hm.origin[0]), float(hm.origin[1]), float(hm.side)), float(clearance))
     vol.heights = heights
     vol.changed()
     changed = vol.heights < vol.raw_heights

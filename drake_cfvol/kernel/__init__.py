@@ -25,10 +25,12 @@ size (3), first vertex, end vertex, e_iso, axis u (3), e_disc, e_seg.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["BOX", "SPHERE", "CAPSULE", "CYLINDER", "ELLIPSOID", "HULL", "SHAPE_W", "fk", "gjk_intersect",
+__all__ = ["Chain", "Model", "HeightField", "Scratch", "RegionScratch", "BOX", "SPHERE", "CAPSULE", "CYLINDER", "ELLIPSOID", "HULL", "SHAPE_W", "fk", "gjk_intersect",
            "range_max_table", "range_max", "object_hits_columns", "configs_may_collide", "sweep_chains",
            "lower_columns_under", "obstacle_distances", "row_aabb", "configs_may_collide_serial", "regions_hit"]
 
@@ -39,6 +41,72 @@ _K, _C, _R, _S, _V0, _V1, _EI, _U, _ED, _ES = 0, 1, 4, 13, 16, 17, 18, 19, 22, 2
 #: A separating direction must separate by at least this (m): numerical
 #: rounding can never turn an overlap into "free".
 SEP_EPS = 1e-9
+
+
+# -- typed arguments (numba takes named tuples of arrays) ---------------------
+
+class Chain(NamedTuple):
+    """The robot's kinematic chain, bodies in topological order (B of them):
+    X_WB = X_WP X_PF X_FM(q) X_MB."""
+
+    parent: np.ndarray  #: (B,) int: the parent body's index, -1 the world
+    jtype: np.ndarray  #: (B,) int: 0 weld, 1 revolute, 2 prismatic
+    qidx: np.ndarray  #: (B,) int: the joint's position index
+    axis: np.ndarray  #: (B, 3): the joint's unit axis in F
+    R_PF: np.ndarray  #: (B, 3, 3)
+    p_PF: np.ndarray  #: (B, 3)
+    R_MB: np.ndarray  #: (B, 3, 3)
+    p_MB: np.ndarray  #: (B, 3)
+
+
+class Model(NamedTuple):
+    """The robot and its obstacles as the kernel sees them
+    (:meth:`drake_cfvol.scene.arrays.SceneArrays.model`)."""
+
+    chain: Chain
+    shapes: np.ndarray  #: (S, SHAPE_W) robot shape rows in their body frames
+    shape_body: np.ndarray  #: (S,) int
+    verts: np.ndarray  #: (V, 3) hull vertices of every mesh shape (robot and obstacles)
+    obstacles: np.ndarray  #: (O, SHAPE_W) obstacle rows in the world
+    obstacle_aabb: np.ndarray  #: (O, 6)
+    body_pairs: np.ndarray  #: (P, 2) int: robot body pairs Drake does not filter
+    shape_pairs: np.ndarray  #: (P', 2) int: robot shape pairs of those body pairs
+    movable: np.ndarray  #: (B,) bool: moved by some joint
+    moved: np.ndarray  #: (k, B) bool: joint j moves body b
+    reach: np.ndarray  #: (k, B): body b's shapes' largest distance from joint j's axis
+    curvature: np.ndarray  #: (k, k, B): second-derivative bounds of b's points
+    revolute: np.ndarray  #: (k,) bool
+    joint_body: np.ndarray  #: (k,) int: the body each joint moves first
+
+
+class HeightField(NamedTuple):
+    """The volume V's columns: a range-maximum table and the grid."""
+
+    table: np.ndarray  #: :func:`range_max_table` of the heights; (1, 1, 0, 0): none
+    ox: float  #: the grid's corner x, m
+    oy: float  #: the grid's corner y, m
+    side: float  #: a cell's side, m
+
+
+class Scratch(NamedTuple):
+    """One thread's scratch for the scene tests (:func:`new_scratch`)."""
+
+    ws: np.ndarray
+    stack: np.ndarray
+    box: np.ndarray
+    tmp6: np.ndarray
+
+
+class RegionScratch(NamedTuple):
+    """One thread's scratch for the region tests (:func:`_region_workspace`)."""
+
+    RP: np.ndarray
+    pP: np.ndarray
+    objs: np.ndarray
+    aabbs: np.ndarray
+    rel: np.ndarray
+    rel_aabb: np.ndarray
+    q_c: np.ndarray
 
 
 # -- forward kinematics ----------------------------------------------------
@@ -85,10 +153,11 @@ def _mv_add(A, v, base, out):
 
 
 @njit(cache=True)
-def fk_into(q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB):
+def fk_into(q, chain, R_WB, p_WB):
     """Body poses X_WB at q into (B, 3, 3) / (B, 3) arrays. Bodies are in
     topological order (parents first); parent -1 is the world.
-    X_WB = X_WP X_PF X_FM(q) X_MB."""
+    X_WB = X_WP X_PF X_FM(q) X_MB. ``chain``: a :class:`Chain`."""
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = chain
     B = parent.shape[0]
     M = np.empty((3, 3, 3))  # R_FM, R_PM, R_PB
     V = np.empty((3, 3))  # p_FM, p_PM, p_PB
@@ -121,14 +190,17 @@ def fk_into(q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB):
 
 
 @njit(cache=True, parallel=True)
-def fk(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB):
+def fk(Q, chain):
     """Body poses for many configurations: (N, B, 3, 3), (N, B, 3)."""
     N = Q.shape[0]
-    B = parent.shape[0]
+    B = chain.parent.shape[0]
     R = np.empty((N, B, 3, 3))
     p = np.empty((N, B, 3))
+    # numba passes no tuples of arrays into a parallel loop: the chain's
+    # arrays go in one by one, the chain is rebuilt inside.
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = chain
     for n in prange(N):
-        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R[n], p[n])
+        fk_into(Q[n], Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), R[n], p[n])
     return R, p
 
 
@@ -593,6 +665,19 @@ def new_workspace():
 
 
 @njit(cache=True)
+def new_scratch():
+    """:func:`new_workspace` as a :class:`Scratch`."""
+    ws, stack, box, tmp6 = new_workspace()
+    return Scratch(ws, stack, box, tmp6)
+
+
+@njit(cache=True)
+def no_height_field():
+    """A :class:`HeightField` without columns (no volume V)."""
+    return HeightField(np.zeros((1, 1, 0, 0)), 0.0, 0.0, 1.0)
+
+
+@njit(cache=True)
 def object_hits_columns(obj, verts, aabb, table, ox, oy, side, ws, stack, box):
     """True where the object (its axis-aligned box ``aabb``) may touch a
     column of V. The footprint's cell block is halved until each half is
@@ -667,8 +752,12 @@ def _pose_objects(R_WB, p_WB, shapes, shape_body, pose, objs):
 
 
 @njit(cache=True)
-def _object_vs_scene(obj, aabb, verts, obstacles, obs_aabb, table, ox, oy, side, ws, stack, box):
-    """An object against the obstacles and V (an empty table: no V)."""
+def _object_vs_scene(obj, aabb, m, field, sc):
+    """An object against the obstacles of model ``m`` and the height field
+    (an empty table: no V)."""
+    verts, obstacles, obs_aabb = m.verts, m.obstacles, m.obstacle_aabb
+    table, ox, oy, side = field
+    ws, stack, box = sc.ws, sc.stack, sc.box
     for o in range(obstacles.shape[0]):
         if _aabb_apart(aabb, obs_aabb[o]):
             continue
@@ -681,19 +770,21 @@ def _object_vs_scene(obj, aabb, verts, obstacles, obs_aabb, table, ox, oy, side,
 
 
 @njit(cache=True)
-def _may_collide_range(Q, start, stop, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
-                       obstacles, obs_aabb, shape_pairs, movable, pad, out):
+def _may_collide_range(Q, start, stop, m, pad, out):
     """configs_may_collide for Q[start:stop], into out, on one thread."""
-    B = parent.shape[0]
+    shapes, shape_body, verts = m.shapes, m.shape_body, m.verts
+    shape_pairs, movable = m.shape_pairs, m.movable
+    B = m.chain.parent.shape[0]
     S = shapes.shape[0]
-    empty_table = np.zeros((1, 1, 0, 0))
-    ws, stack, box, tmp6 = new_workspace()
+    no_field = no_height_field()
+    sc = new_scratch()
+    ws = sc.ws
     R_WB = np.empty((B, 3, 3))
     p_WB = np.empty((B, 3))
     objs = np.empty((S, 1, SHAPE_W))
     aabbs = np.empty((S, 6))
     for n in range(start, stop):
-        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+        fk_into(Q[n], m.chain, R_WB, p_WB)
         _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
         for s in range(S):
             objs[s, 0, _EI] = shapes[s, _EI] + pad  # the margin against the scene
@@ -702,8 +793,7 @@ def _may_collide_range(Q, start, stop, parent, jtype, qidx, axis, R_PF, p_PF, R_
         for s in range(S):
             if not movable[shape_body[s]]:
                 continue
-            if _object_vs_scene(objs[s], aabbs[s], verts, obstacles, obs_aabb, empty_table, 0.0, 0.0, 1.0,
-                                ws, stack, box):
+            if _object_vs_scene(objs[s], aabbs[s], m, no_field, sc):
                 hit = True
                 break
         if not hit:
@@ -722,33 +812,37 @@ def _may_collide_range(Q, start, stop, parent, jtype, qidx, axis, R_PF, p_PF, R_
 
 
 @njit(cache=True, parallel=True)
-def configs_may_collide(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
-                        obstacles, obs_aabb, shape_pairs, movable, pad):
+def configs_may_collide(Q, m, pad):
     """(N,) True where a configuration may collide with the obstacles or
     itself, or come closer to them than ``pad`` (m); False is certified free
-    (farther than ``pad`` from everything). ``shape_pairs`` (P, 2) are the robot
-    shape pairs to test (those of body pairs Drake does not filter). Bodies
+    (farther than ``pad`` from everything). ``m``: a :class:`Model`; its
+    ``shape_pairs`` (P, 2) are the robot shape pairs to test (those of body pairs Drake does not filter). Bodies
     that no joint moves (``movable`` False) are welded to the world, like
     the obstacles: Drake filters those pairs, and so does this."""
     N = Q.shape[0]
     out = np.zeros(N, np.bool_)
     chunk = 256
     n_chunks = (N + chunk - 1) // chunk
+    # numba passes no tuples of arrays into a parallel loop: the model's
+    # arrays go in one by one, the model is rebuilt inside.
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
+    (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
+     curvature_, revolute_, joint_body_) = m[1:]
     for c in prange(n_chunks):
-        _may_collide_range(Q, c * chunk, min(N, (c + 1) * chunk), parent, jtype, qidx, axis, R_PF, p_PF, R_MB,
-                           p_MB, shapes, shape_body, verts, obstacles, obs_aabb, shape_pairs, movable, pad, out)
+        mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
+                   obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
+                   joint_body_)
+        _may_collide_range(Q, c * chunk, min(N, (c + 1) * chunk), mm, pad, out)
     return out
 
 
 @njit(cache=True)
-def configs_may_collide_serial(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts,
-                               obstacles, obs_aabb, shape_pairs, movable, pad):
+def configs_may_collide_serial(Q, m, pad):
     """:func:`configs_may_collide` on the calling thread: for a few
     configurations (a collision guard's checks), where waking the thread
     pool costs more than the work."""
     out = np.zeros(Q.shape[0], np.bool_)
-    _may_collide_range(Q, 0, Q.shape[0], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body,
-                       verts, obstacles, obs_aabb, shape_pairs, movable, pad, out)
+    _may_collide_range(Q, 0, Q.shape[0], m, pad, out)
     return out
 
 
@@ -781,10 +875,7 @@ MAX_V_SAMPLES = 9
 
 
 @njit(cache=True)
-def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
-                 shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
-                 curvature, revolute, joint_body, table, ox, oy, side,
-                 RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6, pad):
+def _region_hits(W, i, j, ts, vs, m, field, sc, rs, pad):
     """May the robot collide (or come closer than ``pad``, m) anywhere in the region R = {nom(i + t) with
     joint j replaced by v : t in [ta, tb], v in [va, vb]}?
 
@@ -804,7 +895,18 @@ def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_P
     the two bodies move anything: a common motion would smear both hulls
     over each other. Everything else keeps its pose relative to the nominal,
     which is free.
+
+    ``ts`` = (ta, tb, nt), ``vs`` = (va, vb, nv); ``m`` a :class:`Model`,
+    ``field`` a :class:`HeightField`, ``sc`` and ``rs`` the thread's
+    :class:`Scratch` and :class:`RegionScratch`.
     """
+    ta, tb, nt = ts
+    va, vb, nv = vs
+    parent, R_MB, p_MB, axis = m.chain.parent, m.chain.R_MB, m.chain.p_MB, m.chain.axis
+    shapes, shape_body, verts, pairs = m.shapes, m.shape_body, m.verts, m.body_pairs
+    moved, reach, curvature, revolute, joint_body = m.moved, m.reach, m.curvature, m.revolute, m.joint_body
+    RP, pP, objs, aabbs, rel, rel_aabb, q_c = rs
+    ws, tmp6 = sc.ws, sc.tmp6
     S = shapes.shape[0]
     k = W.shape[1]
     P = nt * nv
@@ -817,7 +919,7 @@ def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_P
             q_c[kk] = W[i, kk] + t * (W[i + 1, kk] - W[i, kk])
         q_c[j] = va
         c0 = ti * nv
-        fk_into(q_c, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, RP[c0], pP[c0])
+        fk_into(q_c, m.chain, RP[c0], pP[c0])
         if nv == 1:
             continue
         # Joint j's axis in the world (through its child frame's origin):
@@ -876,7 +978,7 @@ def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_P
             set_motion(objs[s, c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
         obj = objs[s, :P]
         object_aabb(obj, verts, aabbs[s], tmp6)
-        if _object_vs_scene(obj, aabbs[s], verts, obstacles, obs_aabb, table, ox, oy, side, ws, stack, box):
+        if _object_vs_scene(obj, aabbs[s], m, field, sc):
             return True
     R_fm = np.empty((3, 3))
     p_fm = np.empty(3)
@@ -888,19 +990,19 @@ def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_P
         if moved[j, a] == moved[j, bb]:
             continue
         f = a if not moved[j, a] else bb  # the body j does not move
-        m = bb if f == a else a
-        grow = _relative_growth(W, i, j, f, m, L_t, L_v, moved, curvature, reach, revolute)
+        mb = bb if f == a else a
+        grow = _relative_growth(W, i, j, f, mb, L_t, L_v, moved, curvature, reach, revolute)
         for sm in range(S):
-            if shape_body[sm] != m:
+            if shape_body[sm] != mb:
                 continue
             for c in range(P):
                 # X_fm = X_Wf^-1 X_Wm at grid point c.
                 Rf = RP[c, f]
-                Rm = RP[c, m]
+                Rm = RP[c, mb]
                 for r in range(3):
                     for cc in range(3):
                         R_fm[r, cc] = Rf[0, r] * Rm[0, cc] + Rf[1, r] * Rm[1, cc] + Rf[2, r] * Rm[2, cc]
-                    dp[r] = pP[c, m, r] - pP[c, f, r]
+                    dp[r] = pP[c, mb, r] - pP[c, f, r]
                 for r in range(3):
                     p_fm[r] = Rf[0, r] * dp[0] + Rf[1, r] * dp[1] + Rf[2, r] * dp[2]
                 pose_shape(shapes[sm], R_fm, p_fm, relP[c])
@@ -919,9 +1021,7 @@ def _region_hits(W, i, j, ta, tb, nt, va, vb, nv, parent, jtype, qidx, axis, R_P
 
 
 @njit(cache=True)
-def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtype, qidx, axis, R_PF, p_PF,
-            R_MB, p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute,
-            joint_body, table, ox, oy, side, RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6, pad):
+def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
     """The bound v of joint j over stretch i (upper for sgn +1, lower for
     -1): for every t in [0, 1], moving joint j alone from nom(i + t) to v is
     free. An adaptive search from the stretch's nominal range outwards:
@@ -930,10 +1030,13 @@ def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtyp
     narrower than delta[j]. Each test samples nt poses along t and one pose
     per ``v_step`` along v (at most MAX_V_SAMPLES). ``guess`` is an
     absolute bound to start from (the previous stretch's; NaN: cold).
+    ``lims`` = (lim_lo, lim_hi, delta), ``grid`` = (nt, v_step).
 
     Returns:
         (bound, tests)
     """
+    lim_lo, lim_hi, delta = lims
+    nt, v_step = grid
     bound = lim_hi[i, j] if sgn > 0 else lim_lo[i, j]
     dj = delta[j]
     if sgn > 0:
@@ -967,10 +1070,7 @@ def _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nt, v_step, W, parent, jtyp
         if nv > MAX_V_SAMPLES:
             nv = MAX_V_SAMPLES
         count += 1
-        hit = _region_hits(W, i, j, 0.0, 1.0, nt, va, vb, nv, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
-                           shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach,
-                           curvature, revolute, joint_body, table, ox, oy, side,
-                           RP, pP, objs, aabbs, rel, rel_aabb, q_c, ws, stack, box, tmp6, pad)
+        hit = _region_hits(W, i, j, (0.0, 1.0, nt), (va, vb, nv), m, field, sc, rs, pad)
         if not hit:
             F = X
             if F >= T:
@@ -994,18 +1094,18 @@ def _region_workspace(B, S, k):
     """Scratch arrays of one thread's region tests (:func:`_region_hits`)
     for B bodies, S shapes and k joints."""
     P = MAX_T_SAMPLES * MAX_V_SAMPLES
-    return (np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
-            np.empty((P, SHAPE_W)), np.empty(6), np.empty(k))
+    return RegionScratch(np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
+                         np.empty((P, SHAPE_W)), np.empty(6), np.empty(k))
 
 
 @njit(cache=True, parallel=True)
-def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, qidx, axis, R_PF, p_PF, R_MB,
-                 p_MB, shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute,
-                 joint_body, table, ox, oy, side, pads):
+def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads):
     """Certified single-joint bounds of every stretch (:func:`_search`),
     keeping stretch i at least ``pads[i]`` (m) from the scene and itself.
     Chain n = (j, sign) walks the stretches in order, each search starting
     from the previous stretch's bound; the chains run in parallel.
+    ``lims`` = (lim_lo (g-1, k), lim_hi, delta (k,)); ``m`` a
+    :class:`Model`; ``field`` a :class:`HeightField`.
 
     Returns:
         (bounds (n, g-1), tests (n,))
@@ -1014,22 +1114,30 @@ def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, 
     n_st = W.shape[0] - 1
     out = np.zeros((n_chains, n_st))
     tests = np.zeros(n_chains, np.int64)
-    B = parent.shape[0]
-    S = shapes.shape[0]
+    B = m.chain.parent.shape[0]
+    S = m.shapes.shape[0]
     k = W.shape[1]
+    # numba passes no tuples of arrays into a parallel loop: the model's
+    # arrays go in one by one, the model is rebuilt inside.
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
+    (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
+     curvature_, revolute_, joint_body_) = m[1:]
+    lim_lo, lim_hi, delta = lims
+    table, ox, oy, side = field
     for n in prange(n_chains):
+        mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
+                   obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
+                   joint_body_)
+        fld = HeightField(table, ox, oy, side)
+        lm = (lim_lo, lim_hi, delta)
         j = chains[n, 0]
         sgn = chains[n, 1]
-        ws, stack, box, tmp6 = new_workspace()
-        RP, pP, objs, aabbs, rel, rel_aabb, q_c = _region_workspace(B, S, k)
+        sc = new_scratch()
+        rs = _region_workspace(B, S, k)
         guess = np.nan
         count = 0
         for i in range(n_st):
-            bound, c = _search(i, j, sgn, guess, delta, lim_lo, lim_hi, nts[i, j], v_steps[j], W, parent, jtype,
-                               qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts, obstacles, obs_aabb,
-                               pairs, moved, reach, curvature, revolute, joint_body, table, ox, oy, side, RP, pP,
-                               objs, aabbs,
-                               rel, rel_aabb, q_c, ws, stack, box, tmp6, pads[i])
+            bound, c = _search(i, j, sgn, guess, W, lm, (nts[i, j], v_steps[j]), mm, fld, sc, rs, pads[i])
             out[n, i] = bound
             count += c
             guess = bound
@@ -1038,8 +1146,7 @@ def sweep_chains(chains, delta, lim_lo, lim_hi, nts, v_steps, W, parent, jtype, 
 
 
 @njit(cache=True, parallel=True)
-def regions_hit(A, B, js, va, vb, nts, nvs, pads, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes,
-                shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature, revolute, joint_body):
+def regions_hit(A, B, js, va, vb, nts, nvs, pads, m):
     """Region tests of many straight pieces (the certificate's box edges).
 
     Task n is the region {c(t) with joint js[n] replaced by v : t in [0, 1],
@@ -1055,42 +1162,48 @@ def regions_hit(A, B, js, va, vb, nts, nvs, pads, parent, jtype, qidx, axis, R_P
     """
     n_tasks = A.shape[0]
     out = np.zeros(n_tasks, np.bool_)
-    B_n = parent.shape[0]
-    S = shapes.shape[0]
+    B_n = m.chain.parent.shape[0]
+    S = m.shapes.shape[0]
     k = A.shape[1]
-    empty_table = np.zeros((1, 1, 0, 0))
     n_chunks = (n_tasks + 63) // 64
+    # numba passes no tuples of arrays into a parallel loop: the model's
+    # arrays go in one by one, the model is rebuilt inside.
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
+    (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
+     curvature_, revolute_, joint_body_) = m[1:]
     for c in prange(n_chunks):
-        ws, stack, box, tmp6 = new_workspace()
-        RP, pP, objs, aabbs, rel, rel_aabb, q_c = _region_workspace(B_n, S, k)
+        mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
+                   obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
+                   joint_body_)
+        no_field = no_height_field()
+        sc = new_scratch()
+        rs = _region_workspace(B_n, S, k)
         W = np.empty((2, k))
         for n in range(c * 64, min(n_tasks, (c + 1) * 64)):
             W[0] = A[n]
             W[1] = B[n]
-            out[n] = _region_hits(W, 0, js[n], 0.0, 1.0, min(nts[n], MAX_T_SAMPLES), va[n], vb[n],
-                                  min(nvs[n], MAX_V_SAMPLES), parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB,
-                                  shapes, shape_body, verts, obstacles, obs_aabb, pairs, moved, reach, curvature,
-                                  revolute, joint_body, empty_table, 0.0, 0.0, 1.0, RP, pP, objs, aabbs, rel,
-                                  rel_aabb, q_c, ws, stack, box, tmp6, pads[n])
+            out[n] = _region_hits(W, 0, js[n], (0.0, 1.0, min(nts[n], MAX_T_SAMPLES)),
+                                  (va[n], vb[n], min(nvs[n], MAX_V_SAMPLES)), mm, no_field, sc, rs, pads[n])
     return out
 
 
 @njit(cache=True)
-def lower_columns_under(Q, e_body, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body,
-                        verts, heights, ox, oy, side, clearance, movable):
+def lower_columns_under(Q, e_body, m, heights, grid, clearance):
     """Lowers every column under the robot at configurations Q (each body
     grown by e_body[n, b], a ball) to ``clearance`` below the lowest point of
     any shape whose footprint's bounding rectangle covers it (bodies that
-    never move: once). In place."""
-    B = parent.shape[0]
+    never move: once). In place. ``grid`` = (ox, oy, side) of ``heights``."""
+    shapes, shape_body, verts, movable = m.shapes, m.shape_body, m.verts, m.movable
+    ox, oy, side = grid
+    B = m.chain.parent.shape[0]
     S = shapes.shape[0]
-    m, nn = heights.shape
+    nx, ny = heights.shape
     R_WB = np.empty((B, 3, 3))
     p_WB = np.empty((B, 3))
     row = np.empty(SHAPE_W)
     box = np.empty(6)
     for n in range(Q.shape[0]):
-        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+        fk_into(Q[n], m.chain, R_WB, p_WB)
         for s in range(S):
             b = shape_body[s]
             if n > 0 and not movable[b]:
@@ -1103,7 +1216,7 @@ def lower_columns_under(Q, e_body, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, 
                 cap = 0.0
             i0, i1, j0, j1 = _clip_block(int(np.floor((box[0] - ox) / side)), int(np.floor((box[3] - ox) / side)),
                                          int(np.floor((box[1] - oy) / side)), int(np.floor((box[4] - oy) / side)),
-                                         m, nn)
+                                         nx, ny)
             for a in range(i0, i1 + 1):
                 for c in range(j0, j1 + 1):
                     if heights[a, c] > cap:
@@ -1120,12 +1233,16 @@ def _touches(objs, S, e, verts, obstacle, ws):
 
 
 @njit(cache=True, parallel=True)
-def obstacle_distances(Q, hi, tol, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body,
-                       verts, obstacles, obs_aabb, movable):
+def obstacle_distances(Q, hi, tol, m):
     """(N, O) distance from the robot at Q[n] (its shapes on bodies some
     joint moves) to obstacle shape o, by bisection on the radius of a ball
     grown around every robot shape: within ``tol`` below the true distance;
-    0 when touching; ``hi`` for anything farther than hi."""
+    0 when touching; ``hi`` for anything farther than hi. ``m``: a :class:`Model`."""
+    shapes, shape_body, verts, movable = m.shapes, m.shape_body, m.verts, m.movable
+    obstacles, obs_aabb = m.obstacles, m.obstacle_aabb
+    # numba passes no tuples of arrays into a parallel loop: the chain's
+    # arrays go in one by one, the chain is rebuilt inside.
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
     N = Q.shape[0]
     O = obstacles.shape[0]
     B = parent.shape[0]
@@ -1137,7 +1254,7 @@ def obstacle_distances(Q, hi, tol, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, 
         p_WB = np.empty((B, 3))
         objs = np.empty((S, 1, SHAPE_W))
         aabb = np.empty(6)
-        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+        fk_into(Q[n], Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), R_WB, p_WB)
         _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
         # Shapes that never move are welded like the obstacles: park them far away.
         for s in range(S):
@@ -1237,18 +1354,18 @@ def fill_convex_polygon(mask, poly, x0, y0, pixel):
 
 
 @njit(cache=True)
-def robot_footprint(Q, parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, shapes, shape_body, verts, movable,
-                    mask, x0, y0, pixel):
+def robot_footprint(Q, m, mask, x0, y0, pixel):
     """Marks the robot's xy footprint at every configuration of Q (bodies
-    that never move: once) in ``mask``."""
-    B = parent.shape[0]
+    that never move: once) in ``mask``. ``m``: a :class:`Model`."""
+    shapes, shape_body, verts, movable = m.shapes, m.shape_body, m.verts, m.movable
+    B = m.chain.parent.shape[0]
     S = shapes.shape[0]
     R_WB = np.empty((B, 3, 3))
     p_WB = np.empty((B, 3))
     row = np.empty(SHAPE_W)
     poly = np.empty((FOOTPRINT_DIRECTIONS, 2))
     for n in range(Q.shape[0]):
-        fk_into(Q[n], parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB, R_WB, p_WB)
+        fk_into(Q[n], m.chain, R_WB, p_WB)
         for s in range(S):
             b = shape_body[s]
             if n > 0 and not movable[b]:
@@ -1335,46 +1452,36 @@ def warm_up() -> float:
     p_PF = np.array([[0.0, 0.0, 0.5]])
     R_MB = eye[None].copy()
     p_MB = np.zeros((1, 3))
-    chain = (parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB)
+    chain = Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB)
     shapes = np.zeros((1, SHAPE_W))
     shapes[0, _K] = BOX
     shapes[0, _C:_C + 3] = (0.5, 0.0, 0.0)
     shapes[0, _R:_R + 9] = eye.ravel()
     shapes[0, _S:_S + 3] = (0.5, 0.05, 0.05)
-    shape_body = np.array([0], np.int64)
     verts = np.zeros((0, 3))
     obstacles = shapes.copy()
     obstacles[0, _C:_C + 3] = (0.0, 1.5, 0.5)
     obs_aabb = np.empty((1, 6))
     row_aabb(obstacles[0], verts, obs_aabb[0])
-    movable = np.array([True])
+    no_pairs = np.zeros((0, 2), np.int64)
+    m = Model(chain, shapes, np.array([0], np.int64), verts, obstacles, obs_aabb, no_pairs, no_pairs,
+              np.array([True]), np.array([[True]]), np.array([[1.01]]), np.array([[[1.01]]]), np.array([True]),
+              np.array([0], np.int64))
     W = np.array([[0.0], [0.1]])
     Q = np.ascontiguousarray(W)
-    fk(Q, *chain)
-    configs_may_collide(Q, *chain, shapes, shape_body, verts, obstacles, obs_aabb, np.zeros((0, 2), np.int64),
-                        movable, 0.0)
-    configs_may_collide_serial(Q, *chain, shapes, shape_body, verts, obstacles, obs_aabb,
-                               np.zeros((0, 2), np.int64), movable, 0.0)
+    fk(Q, chain)
+    configs_may_collide(Q, m, 0.0)
+    configs_may_collide_serial(Q, m, 0.0)
     heights = np.array([[0.0, 0.3], [0.2, 0.0]])
-    table = range_max_table(heights)
-    moved = np.array([[True]])
-    reach = np.array([[1.01]])
-    curvature = np.array([[[1.01]]])
-    revolute = np.array([True])
-    joint_body = np.array([0], np.int64)
-    sweep_chains(np.array([[0, 1], [0, -1]], np.int64), np.array([0.01]), np.array([[-3.0]]), np.array([[3.0]]),
-                 np.array([[2]], np.int64), np.array([0.2]), W, *chain, shapes, shape_body, verts, obstacles,
-                 obs_aabb, np.zeros((0, 2), np.int64), moved, reach, curvature, revolute, joint_body, table,
-                 -1.0, -1.0, 1.0, np.zeros(1))
+    field = HeightField(range_max_table(heights), -1.0, -1.0, 1.0)
+    sweep_chains(np.array([[0, 1], [0, -1]], np.int64), (np.array([[-3.0]]), np.array([[3.0]]), np.array([0.01])),
+                 np.array([[2]], np.int64), np.array([0.2]), W, m, field, np.zeros(1))
     regions_hit(W[:1].copy(), W[1:].copy(), np.array([0], np.int64), np.array([-0.1]), np.array([0.1]),
-                np.array([2], np.int64), np.array([2], np.int64), np.array([0.01]), *chain, shapes, shape_body,
-                verts, obstacles, obs_aabb, np.zeros((0, 2), np.int64), moved, reach, curvature, revolute,
-                joint_body)
-    lower_columns_under(Q, np.zeros((2, 1)), *chain, shapes, shape_body, verts, heights.copy(), -1.0, -1.0, 1.0,
-                        0.0, movable)
-    obstacle_distances(Q, 0.5, 1e-3, *chain, shapes, shape_body, verts, obstacles, obs_aabb, movable)
+                np.array([2], np.int64), np.array([2], np.int64), np.array([0.01]), m)
+    lower_columns_under(Q, np.zeros((2, 1)), m, heights.copy(), (-1.0, -1.0, 1.0), 0.0)
+    obstacle_distances(Q, 0.5, 1e-3, m)
     mask = np.zeros((8, 8), np.bool_)
-    robot_footprint(Q, *chain, shapes, shape_body, verts, movable, mask, -2.0, -2.0, 0.5)
+    robot_footprint(Q, m, mask, -2.0, -2.0, 0.5)
     poly = np.empty((FOOTPRINT_DIRECTIONS, 2))
     shape_footprint(obstacles[0], verts, poly)
     fill_convex_polygon(mask, poly, -2.0, -2.0, 0.5)

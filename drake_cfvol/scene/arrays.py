@@ -164,7 +164,7 @@ class SceneArrays:
     joint_body: np.ndarray
 
     def __post_init__(self):
-        self._pairs = self._movable = None  # may_collide's arguments, built once
+        self._model = None  # the kernel's Model, built once
 
     @property
     def num_bodies(self) -> int:
@@ -173,20 +173,27 @@ class SceneArrays:
     def fk(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Body poses (N, B, 3, 3), (N, B, 3) for configurations (N, k)."""
         Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
-        return K.fk(Q, self.parent, self.jtype, self.qidx, self.axis, self.R_PF, self.p_PF, self.R_MB, self.p_MB)
+        return K.fk(Q, self.chain)
 
     def may_collide(self, Q: np.ndarray, pad: float = 0.0) -> np.ndarray:
         """(N,) True where a configuration may collide with the obstacles or
         itself, or come nearer to them than ``pad`` (m); False is certified
         free (the kernel is conservative)."""
         Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
-        if self._pairs is None:
-            self._pairs, self._movable = self.shape_pairs, self.moved_by.any(axis=0)
         # A few configurations (a guard's checks): on this thread, since
         # waking numba's thread pool costs milliseconds.
         fn = K.configs_may_collide_serial if len(Q) <= _SERIAL_MAX else K.configs_may_collide
-        return fn(Q, *self.chain, self.shapes, self.shape_body, self.verts, self.obstacles, self.obstacle_aabb,
-                  self._pairs, self._movable, float(pad))
+        return fn(Q, self.model, float(pad))
+
+    @property
+    def model(self) -> K.Model:
+        """The kernel's typed view of these arrays (built once)."""
+        if self._model is None:
+            self._model = K.Model(
+                self.chain, self.shapes, self.shape_body, self.verts, self.obstacles, self.obstacle_aabb,
+                self.self_pairs, self.shape_pairs, self.moved_by.any(axis=0), self.moved_by, self.reach,
+                self.curvature, self.revolute, self.joint_body)
+        return self._model
 
     @property
     def shape_pairs(self) -> np.ndarray:
@@ -199,9 +206,9 @@ class SceneArrays:
         return np.array(pairs, np.int64).reshape(-1, 2)
 
     @property
-    def chain(self) -> tuple:
-        """The chain arrays in ``kernel.fk`` order."""
-        return (self.parent, self.jtype, self.qidx, self.axis, self.R_PF, self.p_PF, self.R_MB, self.p_MB)
+    def chain(self) -> K.Chain:
+        """The kinematic chain (:class:`drake_cfvol.kernel.Chain`)."""
+        return K.Chain(self.parent, self.jtype, self.qidx, self.axis, self.R_PF, self.p_PF, self.R_MB, self.p_MB)
 
 
 def _pose(X) -> tuple[np.ndarray, np.ndarray]:
