@@ -234,14 +234,9 @@ def set_motion(row, e_iso, u0, u1, u2, e_disc, e_seg):
     row[_ES] = e_seg
 
 
-@njit(cache=True)
-def support(row, verts, d0, d1, d2, out):
-    """The point of the shape (with its motion set) farthest along d, into
-    out (3,). Exact for every kind."""
-    # Direction in the shape frame: R^T d.
-    l0 = row[_R + 0] * d0 + row[_R + 3] * d1 + row[_R + 6] * d2
-    l1 = row[_R + 1] * d0 + row[_R + 4] * d1 + row[_R + 7] * d2
-    l2 = row[_R + 2] * d0 + row[_R + 5] * d1 + row[_R + 8] * d2
+@njit(cache=True, inline="always")
+def _local_support(row, verts, l0, l1, l2):
+    """The shape's support point along l (its own frame, no motion set)."""
     kind = int(row[_K])
     s0 = row[_S]
     s1 = row[_S + 1]
@@ -282,48 +277,64 @@ def support(row, verts, d0, d1, d2, out):
             y = a1 / n
             z = a2 / n
     else:  # convex hull: its vertices
-        v0 = int(row[_V0])
-        v1 = int(row[_V1])
         best = -1e300
-        for v in range(v0, v1):
+        for v in range(int(row[_V0]), int(row[_V1])):
             h = verts[v, 0] * l0 + verts[v, 1] * l1 + verts[v, 2] * l2
             if h > best:
                 best = h
                 x = verts[v, 0]
                 y = verts[v, 1]
                 z = verts[v, 2]
+    return x, y, z
+
+
+@njit(cache=True, inline="always")
+def _add_motion(row, d0, d1, d2, out):
+    """Adds the support of the row's motion set along d to out."""
+    dn = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    if dn <= 0:
+        return
+    ei = row[_EI]
+    if ei > 0:
+        out[0] += ei * d0 / dn
+        out[1] += ei * d1 / dn
+        out[2] += ei * d2 / dn
+    ed = row[_ED]
+    es = row[_ES]
+    if ed > 0 or es > 0:
+        u0 = row[_U]
+        u1 = row[_U + 1]
+        u2 = row[_U + 2]
+        du = d0 * u0 + d1 * u1 + d2 * u2
+        if es > 0:
+            sg = 1.0 if du >= 0 else -1.0
+            out[0] += es * sg * u0
+            out[1] += es * sg * u1
+            out[2] += es * sg * u2
+        if ed > 0:
+            w0 = d0 - du * u0
+            w1 = d1 - du * u1
+            w2 = d2 - du * u2
+            wn = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            if wn > 0:
+                out[0] += ed * w0 / wn
+                out[1] += ed * w1 / wn
+                out[2] += ed * w2 / wn
+
+
+@njit(cache=True)
+def support(row, verts, d0, d1, d2, out):
+    """The point of the shape (with its motion set) farthest along d, into
+    out (3,). Exact for every kind."""
+    # Direction in the shape frame: R^T d.
+    l0 = row[_R + 0] * d0 + row[_R + 3] * d1 + row[_R + 6] * d2
+    l1 = row[_R + 1] * d0 + row[_R + 4] * d1 + row[_R + 7] * d2
+    l2 = row[_R + 2] * d0 + row[_R + 5] * d1 + row[_R + 8] * d2
+    x, y, z = _local_support(row, verts, l0, l1, l2)
     out[0] = row[_C] + row[_R + 0] * x + row[_R + 1] * y + row[_R + 2] * z
     out[1] = row[_C + 1] + row[_R + 3] * x + row[_R + 4] * y + row[_R + 5] * z
     out[2] = row[_C + 2] + row[_R + 6] * x + row[_R + 7] * y + row[_R + 8] * z
-    # Motion sets.
-    dn = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-    if dn > 0:
-        ei = row[_EI]
-        if ei > 0:
-            out[0] += ei * d0 / dn
-            out[1] += ei * d1 / dn
-            out[2] += ei * d2 / dn
-        ed = row[_ED]
-        es = row[_ES]
-        if ed > 0 or es > 0:
-            u0 = row[_U]
-            u1 = row[_U + 1]
-            u2 = row[_U + 2]
-            du = d0 * u0 + d1 * u1 + d2 * u2
-            if es > 0:
-                sg = 1.0 if du >= 0 else -1.0
-                out[0] += es * sg * u0
-                out[1] += es * sg * u1
-                out[2] += es * sg * u2
-            if ed > 0:
-                w0 = d0 - du * u0
-                w1 = d1 - du * u1
-                w2 = d2 - du * u2
-                wn = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
-                if wn > 0:
-                    out[0] += ed * w0 / wn
-                    out[1] += ed * w1 / wn
-                    out[2] += ed * w2 / wn
+    _add_motion(row, d0, d1, d2, out)
 
 
 # -- GJK on convex hulls of posed shapes -----------------------------------------
@@ -875,44 +886,18 @@ MAX_V_SAMPLES = 9
 
 
 @njit(cache=True)
-def _region_hits(W, i, j, ts, vs, m, field, sc, rs, pad):
-    """May the robot collide (or come closer than ``pad``, m) anywhere in the region R = {nom(i + t) with
-    joint j replaced by v : t in [ta, tb], v in [va, vb]}?
-
-    R is the image of a rectangle under an affine map into configuration
-    space. The rectangle is sampled on an nt x nv grid; each shape's
-    positions over R lie in the convex hull of its poses at the grid points
-    grown by a ball (a second-order bound): along a segment of length L
-    where |d^2 p / ds^2| <= A, a point stays within A L^2 / 8 of the chord,
-    and the chord lies in the hull of its ends. For the nominal's direction
-    dq' (dq without joint j), A = sum_kl |dq'_k| |dq'_l| curvature[k, l, b];
-    for joint j's direction, A = the shape's distance from j's axis <= reach
-    (revolute) or 0 (prismatic).
-
-    Shapes that joint j moves are tested in the world against the obstacles
-    and V. A self-collision pair that joint j moves apart is tested in the
-    frame of its body that j does not move, where only the joints between
-    the two bodies move anything: a common motion would smear both hulls
-    over each other. Everything else keeps its pose relative to the nominal,
-    which is free.
-
-    ``ts`` = (ta, tb, nt), ``vs`` = (va, vb, nv); ``m`` a :class:`Model`,
-    ``field`` a :class:`HeightField`, ``sc`` and ``rs`` the thread's
-    :class:`Scratch` and :class:`RegionScratch`.
-    """
+def _region_poses(W, i, j, ts, vs, m, rs, Rot):
+    """Body poses at the region's nt x nv grid points into rs.RP, rs.pP:
+    forward kinematics at each t (joint j at va), then joint j's motion
+    applied about (along) its axis for the other v."""
     ta, tb, nt = ts
     va, vb, nv = vs
-    parent, R_MB, p_MB, axis = m.chain.parent, m.chain.R_MB, m.chain.p_MB, m.chain.axis
-    shapes, shape_body, verts, pairs = m.shapes, m.shape_body, m.verts, m.body_pairs
-    moved, reach, curvature, revolute, joint_body = m.moved, m.reach, m.curvature, m.revolute, m.joint_body
-    RP, pP, objs, aabbs, rel, rel_aabb, q_c = rs
-    ws, tmp6 = sc.ws, sc.tmp6
-    S = shapes.shape[0]
+    B = m.chain.parent.shape[0]
+    R_MB, p_MB, axis = m.chain.R_MB, m.chain.p_MB, m.chain.axis
+    moved, revolute = m.moved, m.revolute
+    RP, pP, q_c = rs.RP, rs.pP, rs.q_c
     k = W.shape[1]
-    P = nt * nv
-    B = parent.shape[0]
-    jb = joint_body[j]
-    Rot = ws[8:11]  # scratch rows reused as a 3x3 matrix (free outside GJK)
+    jb = m.joint_body[j]
     for ti in range(nt):
         t = ta if nt == 1 else ta + (tb - ta) * ti / (nt - 1)
         for kk in range(k):
@@ -966,6 +951,20 @@ def _region_hits(W, i, j, ts, vs, m, field, sc, rs, pad):
                     pP[c, b, 0] = pP[c0, b, 0] + u0 * dv
                     pP[c, b, 1] = pP[c0, b, 1] + u1 * dv
                     pP[c, b, 2] = pP[c0, b, 2] + u2 * dv
+
+
+@njit(cache=True)
+def _region_vs_scene(W, i, j, ts, vs, m, field, sc, rs, pad):
+    """The shapes joint j moves, over the region's grid (grown by the
+    second-order bound and ``pad``), against the obstacles and V."""
+    ta, tb, nt = ts
+    va, vb, nv = vs
+    P = nt * nv
+    S = m.shapes.shape[0]
+    shapes, shape_body, verts = m.shapes, m.shape_body, m.verts
+    moved, reach, curvature, revolute = m.moved, m.reach, m.curvature, m.revolute
+    RP, pP, objs, aabbs = rs.RP, rs.pP, rs.objs, rs.aabbs
+    tmp6 = sc.tmp6
     L_t = (tb - ta) / max(nt - 1, 1)
     L_v = (vb - va) / max(nv - 1, 1)
     for s in range(S):
@@ -980,6 +979,23 @@ def _region_hits(W, i, j, ts, vs, m, field, sc, rs, pad):
         object_aabb(obj, verts, aabbs[s], tmp6)
         if _object_vs_scene(obj, aabbs[s], m, field, sc):
             return True
+    return False
+
+
+@njit(cache=True)
+def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
+    """The robot's self pairs that joint j moves apart, over the region's
+    grid, in the frame of the body j does not move."""
+    ta, tb, nt = ts
+    va, vb, nv = vs
+    P = nt * nv
+    S = m.shapes.shape[0]
+    shapes, shape_body, verts, pairs = m.shapes, m.shape_body, m.verts, m.body_pairs
+    moved, reach, curvature, revolute = m.moved, m.reach, m.curvature, m.revolute
+    RP, pP, rel, rel_aabb = rs.RP, rs.pP, rs.rel, rs.rel_aabb
+    ws, tmp6 = sc.ws, sc.tmp6
+    L_t = (tb - ta) / max(nt - 1, 1)
+    L_v = (vb - va) / max(nv - 1, 1)
     R_fm = np.empty((3, 3))
     p_fm = np.empty(3)
     dp = np.empty(3)
@@ -1018,6 +1034,40 @@ def _region_hits(W, i, j, ts, vs, m, field, sc, rs, pad):
                 if _gjk(relP, verts, shapes[sf:sf + 1], verts, 64, ws):
                     return True
     return False
+
+
+
+
+@njit(cache=True)
+def _region_hits(W, i, j, ts, vs, m, field, sc, rs, pad):
+    """May the robot collide (or come closer than ``pad``, m) anywhere in the region R = {nom(i + t) with
+    joint j replaced by v : t in [ta, tb], v in [va, vb]}?
+
+    R is the image of a rectangle under an affine map into configuration
+    space. The rectangle is sampled on an nt x nv grid; each shape's
+    positions over R lie in the convex hull of its poses at the grid points
+    grown by a ball (a second-order bound): along a segment of length L
+    where |d^2 p / ds^2| <= A, a point stays within A L^2 / 8 of the chord,
+    and the chord lies in the hull of its ends. For the nominal's direction
+    dq' (dq without joint j), A = sum_kl |dq'_k| |dq'_l| curvature[k, l, b];
+    for joint j's direction, A = the shape's distance from j's axis <= reach
+    (revolute) or 0 (prismatic).
+
+    Shapes that joint j moves are tested in the world against the obstacles
+    and V. A self-collision pair that joint j moves apart is tested in the
+    frame of its body that j does not move, where only the joints between
+    the two bodies move anything: a common motion would smear both hulls
+    over each other. Everything else keeps its pose relative to the nominal,
+    which is free.
+
+    ``ts`` = (ta, tb, nt), ``vs`` = (va, vb, nv); ``m`` a :class:`Model`,
+    ``field`` a :class:`HeightField`, ``sc`` and ``rs`` the thread's
+    :class:`Scratch` and :class:`RegionScratch`.
+    """
+    _region_poses(W, i, j, ts, vs, m, rs, sc.ws[8:11])  # ws rows 8-10 as a 3x3 (free outside GJK)
+    if _region_vs_scene(W, i, j, ts, vs, m, field, sc, rs, pad):
+        return True
+    return _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad)
 
 
 @njit(cache=True)
