@@ -199,3 +199,26 @@ def test_readme_layout_is_drawn_from_the_tree():
     drawn = tool.layout()
     assert "`algorithm/`" in drawn and "`safety`" in drawn
     assert drawn in (root / "README.md").read_text()
+
+
+def test_sizes_within_limits():
+    """No module over 600 lines, no function over 80, no class over 300 (a
+    TemplateSystem function counts as its class), no compiled function with
+    more than 12 parameters (tools/sizes.py); the counter itself sees a
+    planted long function."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("sizes_tool", PACKAGE.parent / "tools" / "sizes.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    assert tool.violations() == []
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        pkg = Path(d) / "pkg"
+        pkg.mkdir()
+        body = "\n".join(f"    x{i} = {i}" for i in range(90))
+        (pkg / "m.py").write_text(f"def long():\n{body}\n\n\nfrom numba import njit\n\n\n@njit\n"
+                                  f"def many({', '.join(f'a{i}' for i in range(13))}):\n    return a0\n")
+        found = {(kind, where.split()[-1]) for kind, where, _ in tool.violations(pkg)}
+    assert found == {("function", "long"), ("compiled parameters", "many")}
