@@ -6,26 +6,38 @@ Public API (re-exported here): :func:`load_workcell`, :func:`plan_nominal_path`,
 :class:`Certify`, :class:`VolumeParams`, :func:`confidence_factor`,
 :func:`freedom`, and the exception hierarchy rooted at :class:`CfvolError`.
 
-Layers (each module imports only from the layers below it; a test checks):
+Subpackages, in pipeline order; each imports only from those before it (and
+from ``exceptions`` and ``_version``, which import nothing of the package);
+``tests/test_architecture.py`` checks the directions:
 
-1. data and settings: ``exceptions``, ``params``, ``style``, ``_records``,
-   ``kernel`` (the compiled collision kernel, plain arrays only),
-   ``heightmap`` (height map, eq. 1, the volume V), ``table`` (BoundsTable,
-   the box-at-s rule);
-2. geometry and the scene: ``geometry`` (the robot chain and shapes as
-   kernel arrays, read from Drake), ``workcell`` (typed workcell files, Drake
-   scene, its cached arrays and distance queries);
-3. algorithm steps: ``planning`` (RRT-Connect), ``volume`` (categorization,
-   growing V), ``sweep`` (joint bounding), ``reference`` (Drake backend),
-   ``metrics`` (CF, freedom), ``certify``;
-4. the orchestrator: ``pipeline`` (Algorithm 1: ``estimate_bounds``);
-5. Drake systems and runs: ``systems``, ``safety`` (the runtime safety
-   filter), ``viz``, ``comanip``;
-6. front ends: ``demo``, ``bench``, ``cli``.
+1. ``io``: records on disk, progress bars, plotting, colours;
+2. ``kernel``: the compiled collision kernel (plain arrays only);
+3. ``scene``: workcell files, the Drake scene, its arrays for the kernel,
+   meshes, the method's parameters;
+4. ``algorithm``: planning (RRT-Connect), the height map and the volume V,
+   the sweep (joint bounding), the bounds table, the Drake reference
+   backend, the certificate and its boundary proof, CF and freedom, and
+   the pipeline (Algorithm 1: ``estimate_bounds``);
+5. ``systems``: the Drake systems (bounds source, path progress, admittance,
+   the runtime safety filter) and their builder helpers;
+6. ``comanip``: co-manipulation scenarios, diagrams, runs, recordings and
+   the adversarial runs;
+7. ``apps``: the ``cfvol`` command line and the demo.
+
+The benchmark harness (the paper's tables) lives outside the library, in
+``benchmarks/`` of a development checkout. The old flat module names
+(``drake_cfvol.certify``, ``drake_cfvol.workcell``, ...) still import: they
+are the new modules (see ``_compat``).
 """
 
+from pathlib import Path as _Path
+
 from drake_cfvol._version import __version__
-from drake_cfvol.certify import Certify
+
+# The old module names resolve to the new modules (drake_cfvol/_compat).
+__path__.append(str(_Path(__file__).parent / "_compat"))
+
+from drake_cfvol.algorithm.certify import Certify
 from drake_cfvol.exceptions import (
     CfvolError,
     CollisionError,
@@ -46,12 +58,12 @@ from drake_cfvol.exceptions import (
     WorkcellFileNotFoundError,
     WorkcellFormatError,
 )
-from drake_cfvol.metrics import CFResult, Freedom, confidence_factor, freedom
-from drake_cfvol.params import VolumeParams
-from drake_cfvol.pipeline import estimate_bounds
-from drake_cfvol.planning import NominalPath, plan_nominal_path
-from drake_cfvol.table import BoundsTable
-from drake_cfvol.workcell import Workcell, builtin_cells, load_workcell
+from drake_cfvol.algorithm.metrics import CFResult, Freedom, confidence_factor, freedom
+from drake_cfvol.scene.params import VolumeParams
+from drake_cfvol.algorithm.pipeline import estimate_bounds
+from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
+from drake_cfvol.algorithm.table import BoundsTable
+from drake_cfvol.scene.workcell import Workcell, builtin_cells, load_workcell
 
 __all__ = [
     "__version__",

@@ -2,6 +2,6 @@
 
 import sys
 
-from drake_cfvol.cli import main
+from drake_cfvol.apps.cli import main
 
 sys.exit(main())

@@ -3,7 +3,7 @@
 import numpy as np
 
 import drake_cfvol as cf
-from drake_cfvol.adversarial import nearest_obstacle_signs, summarize_runs
+from drake_cfvol.comanip.adversarial import nearest_obstacle_signs, summarize_runs
 from conftest import write_arm_cell
 
 

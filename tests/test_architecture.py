@@ -1,37 +1,84 @@
-"""The package's layout: imports go one way (no cycles), and the wheel's data
-is found through importlib.resources."""
+"""The package's layout: subpackages in pipeline order whose imports go one
+way, no cycles between modules, the old module names, and the wheel's data
+found through importlib.resources."""
 
 import ast
+import importlib
 from pathlib import Path
+
+import pytest
 
 import drake_cfvol as cf
 
 PACKAGE = Path(cf.__file__).parent
 
+#: The subpackages in pipeline order: each may import only those before it.
+#: ``exceptions`` and ``_version`` (top-level modules) import nothing of the
+#: package, and every layer may use them.
+LAYERS = ["io", "kernel", "scene", "algorithm", "systems", "comanip", "apps"]
+BASE = {"exceptions", "_version"}
+
+
+def _modules() -> dict[str, Path]:
+    """Dotted name (below drake_cfvol) -> file, every module but the old-name shims."""
+    out = {}
+    for p in PACKAGE.rglob("*.py"):
+        rel = p.relative_to(PACKAGE).with_suffix("")
+        parts = list(rel.parts)
+        if parts[0] == "_compat" or "__pycache__" in parts:
+            continue
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts) if parts else "__init__"] = p
+    return out
+
+
+def _resolve(name: str, modules: dict) -> str | None:
+    """The module of the package a dotted name (below drake_cfvol) refers
+    to: itself, or its longest prefix that is a module (``algorithm.certify.X``
+    -> ``algorithm.certify``)."""
+    parts = name.split(".")
+    for n in range(len(parts), 0, -1):
+        cand = ".".join(parts[:n])
+        if cand in modules:
+            return cand
+    return None
+
 
 def _import_graph() -> dict[str, set[str]]:
     """Module -> package modules it imports, counting imports inside
-    functions and every spelling (``from . import x``, ``from drake_cfvol.x
-    import y``, ``import drake_cfvol.x``)."""
-    mods = {p.stem for p in PACKAGE.glob("*.py")}
-    graph: dict[str, set[str]] = {m: set() for m in mods}
-    for m in mods:
-        tree = ast.parse((PACKAGE / f"{m}.py").read_text())
-        for node in ast.walk(tree):
-            targets: list[str] = []
+    functions and every spelling (``from drake_cfvol.x import y``, ``from
+    drake_cfvol.x import module``, ``import drake_cfvol.x``, relative)."""
+    modules = _modules()
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for m, path in modules.items():
+        package = m if path.name == "__init__.py" else m.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text())):
+            names: list[str] = []
             if isinstance(node, ast.ImportFrom):
-                base = node.module or ""
-                if node.level == 1:
-                    targets = [base.split(".")[0]] if base else [a.name for a in node.names]
-                elif base == "drake_cfvol":
-                    targets = [a.name for a in node.names]
-                elif base.startswith("drake_cfvol."):
-                    targets = [base.split(".")[1]]
+                if node.level:
+                    base = package.split(".") if package else []
+                    base = base[:len(base) - (node.level - 1)] if node.level > 1 else base
+                    root = ".".join(base + ([node.module] if node.module else []))
+                elif node.module == "drake_cfvol":
+                    root = ""
+                elif (node.module or "").startswith("drake_cfvol."):
+                    root = node.module[len("drake_cfvol."):]
+                else:
+                    continue
+                names = [f"{root}.{a.name}" if root else a.name for a in node.names] + ([root] if root else [])
             elif isinstance(node, ast.Import):
-                targets = [a.name.split(".")[1] for a in node.names
-                           if a.name.startswith("drake_cfvol.") and len(a.name.split(".")) > 1]
-            graph[m] |= {t for t in targets if t in mods and t != m}
+                names = [a.name[len("drake_cfvol."):] for a in node.names if a.name.startswith("drake_cfvol.")]
+            for n in names:
+                target = _resolve(n, modules)
+                if target and target != m:
+                    graph[m].add(target)
     return graph
+
+
+def _layer(module: str) -> int | None:
+    head = module.split(".")[0]
+    return LAYERS.index(head) if head in LAYERS else None
 
 
 def _find_cycle(graph):
@@ -60,11 +107,42 @@ def _find_cycle(graph):
     return None
 
 
+def test_every_module_sits_in_a_layer():
+    """Each module is one of the layers' or a base module (exceptions,
+    _version), or the package's own entry points (__init__, __main__)."""
+    stray = [m for m in _modules() if _layer(m) is None and m not in BASE | {"__init__", "__main__"}]
+    assert not stray, f"modules outside the subpackages: {stray}"
+    assert len(LAYERS) >= 4
+
+
+def test_imports_go_down_the_layers():
+    """A module imports only from its own subpackage, the ones before it
+    in pipeline order, and the base modules; the base imports nothing."""
+    graph = _import_graph()
+    assert graph["algorithm.pipeline"] >= {"algorithm.sweep", "scene.params"}, "the parser found no imports"
+    wrong = []
+    for m, targets in graph.items():
+        if m in ("__init__", "__main__"):
+            continue
+        for t in targets:
+            if m in BASE:
+                wrong.append((m, t))
+            elif t not in BASE and _layer(t) > _layer(m):
+                wrong.append((m, t))
+    assert not wrong, "imports against the layer order: " + ", ".join(f"{a} -> {b}" for a, b in wrong)
+
+
+def test_layer_check_catches_a_planted_upward_import():
+    """The check itself works: an algorithm module importing a system is
+    an upward import; a system importing the algorithm is not."""
+    assert _layer("algorithm.certify") < _layer("systems")
+    assert _layer("comanip.adversarial") > _layer("algorithm.metrics")
+    assert _resolve("algorithm.certify.Certify", _modules()) == "algorithm.certify"
+
+
 def test_no_import_cycles():
     """No module reaches itself through the package's imports."""
-    graph = _import_graph()
-    assert graph["pipeline"], "the graph parser found no imports: it is broken"
-    cycle = _find_cycle(graph)
+    cycle = _find_cycle(_import_graph())
     assert cycle is None, "import cycle: " + " -> ".join(cycle)
 
 
@@ -73,26 +151,74 @@ def test_cycle_finder_finds_a_planted_cycle():
     assert _find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": set()}) == ["a", "b", "c", "a"]
 
 
-def test_data_types_sit_below_the_pipeline():
-    """The data modules import nothing from the algorithm or the systems."""
-    graph = _import_graph()
-    upper = {"pipeline", "sweep", "volume", "certify", "metrics", "reference", "systems", "safety", "comanip", "viz",
-             "demo", "bench", "cli", "planning", "workcell", "collision"}
-    for low in ("table", "heightmap", "params", "exceptions", "style", "_records"):
-        assert not graph[low] & upper, f"{low} imports {graph[low] & upper}"
+@pytest.mark.parametrize("old, new", [("certify", "algorithm.certify"), ("workcell", "scene.workcell"),
+                                      ("safety", "systems.safety"), ("viz", "comanip.recording"),
+                                      ("cli", "apps.cli"), ("_records", "io.records")])
+def test_old_module_names_are_the_new_modules(old, new):
+    """A rename keeps the old name: ``drake_cfvol.<old>`` is the new module
+    itself (one object, so patching either patches both)."""
+    assert importlib.import_module(f"drake_cfvol.{old}") is importlib.import_module(f"drake_cfvol.{new}")
+
+
+def test_public_api_and_readme_paths_import():
+    """Every name of ``drake_cfvol.__all__`` and the module paths the README
+    shows (systems, exceptions, comanip, kernel) still import."""
+    for name in cf.__all__:
+        assert hasattr(cf, name), name
+    for mod, attr in (("systems", "JointBoundsSource"), ("systems", "SafetyFilter"), ("exceptions", "CfvolError"),
+                      ("comanip", "run_scenario"), ("kernel", "warm_up")):
+        assert hasattr(importlib.import_module(f"drake_cfvol.{mod}"), attr), (mod, attr)
 
 
 def test_no_module_writes_into_another_objects_dict():
     """Caches live with their owners: no ``x.__dict__[...] =`` in the package."""
-    for p in PACKAGE.glob("*.py"):
-        assert "__dict__" not in p.read_text(), p.name
+    for p in _modules().values():
+        assert "__dict__" not in p.read_text(), p
 
 
 def test_bundled_data_found_through_package_resources():
     """Models and scenarios resolve as package data (as in an installed wheel)."""
     from drake_cfvol.comanip import diagrams_dir
-    from drake_cfvol.workcell import models_dir
+    from drake_cfvol.scene.workcell import models_dir
 
     assert (models_dir() / "package.xml").is_file()
     assert set(cf.builtin_cells()) >= {"automotive", "aerospace"}
     assert (diagrams_dir() / "automotive_push.yaml").is_file()
+
+
+def test_readme_layout_is_drawn_from_the_tree():
+    """The README's layout section is what tools/layout.py draws from the
+    package tree now (every subpackage and module, with its docstring's
+    first sentence): rerun ``tools/layout.py --write`` after a change."""
+    import importlib.util
+
+    root = PACKAGE.parent
+    spec = importlib.util.spec_from_file_location("layout_tool", root / "tools" / "layout.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    drawn = tool.layout()
+    assert "`algorithm/`" in drawn and "`safety`" in drawn
+    assert drawn in (root / "README.md").read_text()
+
+
+def test_sizes_within_limits():
+    """No module over 600 lines, no function over 80, no class over 300 (a
+    TemplateSystem function counts as its class), no compiled function with
+    more than 12 parameters (tools/sizes.py); the counter itself sees a
+    planted long function."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("sizes_tool", PACKAGE.parent / "tools" / "sizes.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    assert tool.violations() == []
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        pkg = Path(d) / "pkg"
+        pkg.mkdir()
+        body = "\n".join(f"    x{i} = {i}" for i in range(90))
+        (pkg / "m.py").write_text(f"def long():\n{body}\n\n\nfrom numba import njit\n\n\n@njit\n"
+                                  f"def many({', '.join(f'a{i}' for i in range(13))}):\n    return a0\n")
+        found = {(kind, where.split()[-1]) for kind, where, _ in tool.violations(pkg)}
+    assert found == {("function", "long"), ("compiled parameters", "many")}

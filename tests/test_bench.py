@@ -1,11 +1,11 @@
-"""The benchmark library on a tiny configuration."""
+"""The benchmark harness (benchmarks/harness.py) on a tiny configuration."""
 
 import csv
 import json
 
 import pytest
 
-from drake_cfvol.bench import PAPER, BenchConfig, markdown, run_bench, write_outputs
+from benchmarks.harness import PAPER, BenchConfig, markdown, run_bench, write_outputs
 
 
 @pytest.fixture(scope="module")
@@ -62,7 +62,7 @@ def test_markdown_table_matches_rows(tiny):
 def test_step_plan_matches_the_run(tiny):
     """The progress clock's step list is the run's: every finished step was
     planned (else ``done`` would fail) and none is left over."""
-    from drake_cfvol.bench import _bench_steps
+    from benchmarks.harness import _bench_steps
 
     result, _ = tiny
     cfg = BenchConfig(**result["config"])
@@ -74,7 +74,7 @@ def test_step_plan_matches_the_run(tiny):
 def test_clock_uses_measured_time_of_a_kind(monkeypatch):
     """After one step of a kind has run, the steps left of that kind are
     estimated by its measured time, not by the prior."""
-    import drake_cfvol.bench as B
+    import benchmarks.harness as B
 
     cfg = BenchConfig(cells=["automotive"], paths=["path1"], resolutions=[100], trials=3, cf_windows=1,
                       cf_samples=1, reference_resolutions=[], iris=False, certify_resolutions=[], adversarial_runs=0,
@@ -103,7 +103,7 @@ def test_adversarial_suite_on_automotive():
     joint ever moves faster than its limit; the certified boxes' corners and
     edge points are all free by Drake (the boundary proof), and the
     certified bounds are narrower than the uncertified ones."""
-    from drake_cfvol.adversarial import adversarial_suite
+    from drake_cfvol.comanip.adversarial import adversarial_suite
 
     sec = adversarial_suite("automotive", 1, ["random"])
     rows = sec["rows"]
@@ -138,7 +138,7 @@ def test_adversarial_targets_by_hand():
     edges are all free and the filter-on corner-seeking runs neither collide
     nor lose the margin nor exceed a velocity limit; the filter's cost in
     deviation is the ratio of the two medians."""
-    from drake_cfvol.bench import adversarial_markdown, adversarial_targets
+    from benchmarks.harness import adversarial_markdown, adversarial_targets
 
     good = adversarial_targets([_section()])
     assert sum("-> met" in x for x in good) == 2 and not any("MISSED" in x for x in good)

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol import boundary as B
+from drake_cfvol.algorithm import boundary as B
+from drake_cfvol.algorithm import cuts as C
 from conftest import write_arm_cell
 
 
@@ -30,10 +31,10 @@ def test_width_loss_counts_what_the_rate_limit_takes():
     lower, upper, nominal = -np.ones((5, 1)), np.ones((5, 1)), np.zeros((5, 1))
     lo, hi = lower[1:3].copy(), upper[1:3].copy()
     hi[0, 0] = 0.2
-    got = B._width_loss(lower, upper, nominal, np.array([0.3]), 1, lo, hi)
+    got = C._width_loss(lower, upper, nominal, np.array([0.3]), 1, lo, hi)
     assert got == pytest.approx(np.log(2 / 1.2) + 2 * np.log(2 / 1.5) + np.log(2 / 1.8))
     # Without a rate limit only the cut itself counts.
-    assert B._width_loss(lower, upper, nominal, np.array([np.inf]), 1, lo, hi) == pytest.approx(np.log(2 / 1.2))
+    assert C._width_loss(lower, upper, nominal, np.array([np.inf]), 1, lo, hi) == pytest.approx(np.log(2 / 1.2))
 
 
 def test_cut_slacks_never_exceed_the_nominals_own_room(corner):

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.pipeline import estimate_bounds
-from drake_cfvol.table import BoundsTable, box_at
+from drake_cfvol.algorithm.pipeline import estimate_bounds
+from drake_cfvol.algorithm.table import BoundsTable, box_at
 from conftest import write_arm_cell
 
 L, W, Z = 1.0, 0.05, 0.5  # link length, half width, height of the arm
@@ -155,7 +155,7 @@ def test_box_at_sees_stretch_bounds_changed_in_place():
     """The rate rule's envelopes are reused between lookups of the same
     bounds, compared by value: tightening a stretch bound in place changes
     the next lookup exactly as a fresh table would."""
-    from drake_cfvol.table import box_at
+    from drake_cfvol.algorithm.table import box_at
 
     g, k = 6, 2
     nominal = np.zeros((g, k))
@@ -187,7 +187,7 @@ def test_rate_limited_by_hand():
     """Upper bounds 1, 5, 1 with rate 1 become 1, 2, 1 (min over i' of
     U[i'] + |i - i'|); lower bounds mirror; nothing widens; a joint without
     a rate is left alone."""
-    from drake_cfvol.table import rate_limited
+    from drake_cfvol.algorithm.table import rate_limited
 
     upper = np.array([[1.0, 1.0], [5.0, 5.0], [1.0, 1.0]])
     lo, hi = rate_limited(-upper, upper, np.zeros((3, 2)), np.array([1.0, np.inf]))
@@ -220,7 +220,7 @@ def test_within_stretches_by_hand():
     far end is lowered to the nominal (0), so the line is the nominal's own
     and lies within max(1, nom(s)) everywhere. A stretch that needs nothing
     is left as it is."""
-    from drake_cfvol.table import within_stretches
+    from drake_cfvol.algorithm.table import within_stretches
 
     nominal = np.array([[2.0], [0.0]])
     lo, hi = within_stretches(np.array([[-1.0], [-1.0]]), np.array([[2.0], [1.5]]), nominal,

@@ -5,7 +5,7 @@ import json
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.cli import main
+from drake_cfvol.apps.cli import main
 
 
 def test_plan_json(capsys):
@@ -89,8 +89,8 @@ def test_bench_quick_flags(tmp_path, capsys):
 def test_push_patterns_agree():
     """The CLI's push-pattern choices are the library's (spelled out in the
     CLI so that --help does not import Drake)."""
-    from drake_cfvol.adversarial import PATTERNS
-    from drake_cfvol.cli import PUSH_PATTERNS
+    from drake_cfvol.comanip.adversarial import PATTERNS
+    from drake_cfvol.apps.cli import PUSH_PATTERNS
 
     assert PUSH_PATTERNS == PATTERNS
 
@@ -188,7 +188,7 @@ def test_plain_output_reads_well(capsys):
 
 def test_saved_table_error_one_line(tmp_path, capsys):
     """A library error about a broken file reaches the CLI as one line."""
-    from drake_cfvol.cli import _emit
+    from drake_cfvol.apps.cli import _emit
 
     f = tmp_path / "t.npz"
     f.write_bytes(b"")
@@ -203,8 +203,8 @@ def test_saved_table_error_one_line(tmp_path, capsys):
 def test_bars_asked_for_unless_json(monkeypatch, capsys, json_flag, expected):
     """Plain output asks for progress bars (drawn only on a terminal);
     --json never does."""
-    import drake_cfvol.metrics as metrics
-    from drake_cfvol.progress import Progress
+    import drake_cfvol.algorithm.metrics as metrics
+    from drake_cfvol.io.progress import Progress
 
     asked = []
 

@@ -68,7 +68,7 @@ def test_run_reports_volume_and_clearance(run):
     diagram's scene (merged boxes, conservative: at least the count against
     the exact columns in Drake's reference scene, recounted here), and the
     clearance of the moving links only, which the logged trace matches."""
-    from drake_cfvol.reference import ReferenceScene
+    from drake_cfvol.algorithm.reference import ReferenceScene
 
     name, out, summary = run
     logs = np.load(out / "logs.npz")
@@ -371,7 +371,7 @@ def test_push_toward_nearest_obstacle_points_at_it():
     """A toward_nearest_obstacle push becomes a tool force of that size along
     the line from the robot's witness point to the nearest obstacle's, at the
     nominal when the push starts (recomputed here from the workcell)."""
-    from drake_cfvol.comanip import _resolve_pushes
+    from drake_cfvol.comanip.diagram import _resolve_pushes
 
     scenario, file = load_scenario("automotive_push", scenario_text=FAST)
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
@@ -388,8 +388,8 @@ def test_push_toward_nearest_obstacle_points_at_it():
 def test_scenario_certify_asks_for_certified_bounds(monkeypatch):
     """certify: true builds the diagram on certified bounds (Certify at its
     defaults, seeded with the scenario's seed); false, on the paper's."""
-    import drake_cfvol.comanip as C
-    from drake_cfvol.certify import Certify
+    import drake_cfvol.comanip.diagram as C
+    from drake_cfvol.algorithm.certify import Certify
 
     asked = []
     real = C.estimate_bounds
@@ -469,11 +469,11 @@ def test_steady_push_into_an_obstacle_keeps_the_margin(tmp_path):
 def test_steady_corner_pushes_keep_the_margin():
     """Steady corner-seeking pushes (1500 N m on every joint, random signs,
     the whole run; seeds 0-1, both cells, uncertified bounds, margin 2 cm),
-    recounted by Drake (drake_cfvol.adversarial): no collision, the
+    recounted by Drake (drake_cfvol.comanip.adversarial): no collision, the
     clearance never more than 2 mm below min(margin, the nominal's own),
     velocity ratio <= 1 at the update rate; without the filter the same
     pushes collide."""
-    from drake_cfvol.adversarial import steady_push_runs
+    from drake_cfvol.comanip.adversarial import steady_push_runs
 
     for cell in ("automotive", "aerospace"):
         rows = steady_push_runs(cell, 2, clearance=0.02)

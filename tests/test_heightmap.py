@@ -5,8 +5,8 @@ import pytest
 
 import drake_cfvol as cf
 from drake_cfvol import kernel as K
-from drake_cfvol.heightmap import HeightMap, height_function
-from drake_cfvol.params import VolumeParams
+from drake_cfvol.algorithm.heightmap import HeightMap, height_function
+from drake_cfvol.scene.params import VolumeParams
 
 
 @pytest.mark.parametrize("x,y,R,side,m,n", [
@@ -107,7 +107,7 @@ def test_huge_resolution_is_refused_up_front():
 
 def test_cli_refuses_huge_resolution_before_planning(capsys):
     """cfvol bounds with an absurd R stops with one error line, exit code 2."""
-    from drake_cfvol.cli import main
+    from drake_cfvol.apps.cli import main
 
     assert main(["bounds", "automotive", "-R", "1000000000", "--json"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -115,7 +115,7 @@ def test_cli_refuses_huge_resolution_before_planning(capsys):
 
 
 def _volume(heights, side=0.1, origin=(1.0, -2.0)):
-    from drake_cfvol.heightmap import Volume
+    from drake_cfvol.algorithm.heightmap import Volume
 
     m, n = heights.shape
     hm = HeightMap(np.array([origin[0], origin[1]]), m * side, n * side, m * n)

@@ -8,8 +8,8 @@ from scipy.spatial.transform import Rotation
 
 import drake_cfvol as cf
 from drake_cfvol import kernel as K
-from drake_cfvol.heightmap import HeightMap, Volume
-from drake_cfvol.sweep import volume_table
+from drake_cfvol.algorithm.heightmap import HeightMap, Volume
+from drake_cfvol.algorithm.sweep import volume_table
 
 MESH_CELL = "tests/data/mesh_cell.yaml"
 
@@ -167,3 +167,30 @@ def test_mesh_robot_compact_wrist_keeps_its_freedom(mesh_cell):
             if true_width > 0.1:
                 assert width > 0, f"joint {j} zeroed at {q}"
             assert width >= 0.6 * true_width, f"joint {j}: {width:.3f} of {true_width:.3f} rad at {q}"
+
+
+def test_a_changed_kernel_source_clears_numbas_cache(tmp_path):
+    """numba invalidates a function's cache only when its own file changes:
+    the kernel clears its cache whenever any of its sources changed (a hash
+    kept beside the cache), and keeps it while they are unchanged."""
+    from drake_cfvol.kernel import _clear_stale_cache
+
+    src, cache = tmp_path / "kernel", tmp_path / "kernel" / "__pycache__"
+    cache.mkdir(parents=True)
+    (src / "a.py").write_text("x = 1\n")
+    (src / "b.py").write_text("y = 2\n")
+    entries = [cache / "a.f-1.py311.nbi", cache / "a.f-1.py311.1.nbc", cache / "b.g-3.py311.nbi"]
+
+    def fill():
+        for f in entries:
+            f.write_bytes(b"compiled")
+
+    fill()
+    _clear_stale_cache(src, [cache])  # no hash yet: cleared, hash written
+    assert not any(f.exists() for f in entries) and (cache / "kernel_sources.sha256").is_file()
+    fill()
+    _clear_stale_cache(src, [cache])  # unchanged sources: kept
+    assert all(f.exists() for f in entries)
+    (src / "b.py").write_text("y = 3\n")  # a callee's file changed
+    _clear_stale_cache(src, [cache])
+    assert not any(f.exists() for f in entries)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.table import BoundsTable
+from drake_cfvol.algorithm.table import BoundsTable
 from conftest import write_arm_cell
 
 L, W, Z, D = 1.0, 0.05, 0.5, 0.6
@@ -84,7 +84,7 @@ def test_cf_with_kernel_prefilter_is_drakes_answer(automotive, bounded):
 
 def test_shown_percent_never_rounds_a_collision_to_100():
     """One colliding sample in 10^7 is shown below 100 %; none is 100 %."""
-    from drake_cfvol.metrics import shown_percent
+    from drake_cfvol.algorithm.metrics import shown_percent
 
     pct = 100.0 * (1 - 1e-7)
     assert shown_percent(pct, 1, 4) == 99.9999 and round(pct, 4) == 100.0
@@ -95,7 +95,7 @@ def test_shown_percent_never_rounds_a_collision_to_100():
 def test_boundary_check_counts_corners_by_hand(wall_arm):
     """The one-joint arm's box [-0.5, 1.2] has two corners per position; the
     upper one lies past the contact angle (about 0.55 rad), the lower is free."""
-    from drake_cfvol.metrics import boundary_check
+    from drake_cfvol.algorithm.metrics import boundary_check
 
     res = boundary_check(wall_arm, _table(-0.5, 1.2), edge_points=8)
     assert res.positions == 5 and res.corners == 10

@@ -3,7 +3,7 @@
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.params import VolumeParams
+from drake_cfvol.scene.params import VolumeParams
 
 
 def test_defaults_are_the_papers():

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.planning import NominalPath, densify, plan_nominal_path
+from drake_cfvol.algorithm.planning import NominalPath, densify, plan_nominal_path
 from conftest import write_arm_cell
 
 
@@ -49,7 +49,7 @@ def test_same_seed_same_bytes(automotive):
 def test_waypoints_not_singular(aerospace):
     """Every waypoint's tool Jacobian has its smallest singular value above the
     threshold (SPEC 3)."""
-    from drake_cfvol.planning import min_singular_value
+    from drake_cfvol.algorithm.planning import min_singular_value
 
     p = plan_nominal_path(aerospace, *aerospace.configuration("path1"), seed=0)
     assert min(min_singular_value(aerospace, q) for q in p.waypoints) > 1e-3

@@ -4,7 +4,7 @@ import io
 
 import pytest
 
-from drake_cfvol.progress import Progress, eta_errors
+from drake_cfvol.io.progress import Progress, eta_errors
 
 
 class _Terminal(io.StringIO):
@@ -81,7 +81,7 @@ def test_eta_error_by_hand():
 
 def test_library_is_quiet_by_default(capfd):
     """Library calls draw no bar unless asked (progress=False default)."""
-    from drake_cfvol.metrics import confidence_factor
+    from drake_cfvol.algorithm.metrics import confidence_factor
 
     import drake_cfvol as cf
 
@@ -99,7 +99,7 @@ def test_timed_bar_counts_seconds_up_to_the_expected_cost():
     ends complete."""
     import time
 
-    from drake_cfvol.progress import timed
+    from drake_cfvol.io.progress import timed
 
     out = _Terminal()
     with timed(10.0, "Compiling", file=out, tick_s=0.02, delay=0) as bar:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol._records import output_stem, prepare_output
+from drake_cfvol.io.records import output_stem, prepare_output
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +98,7 @@ def test_output_stem():
 
 def test_certified_outputs_say_so():
     """Certified bounds get their own file names, never an uncertified one's."""
-    from drake_cfvol._records import output_stem
+    from drake_cfvol.io.records import output_stem
 
     assert output_stem("automotive", "path1", 1000) == "automotive_path1_R1000"
     assert output_stem("automotive", "path1", 1000, certified=True) == "automotive_path1_R1000_certified"

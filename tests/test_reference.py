@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.reference import MAX_REFERENCE_BOXES, ReferenceScene
+from drake_cfvol.algorithm.reference import MAX_REFERENCE_BOXES, ReferenceScene
 from conftest import write_arm_cell
 
 

@@ -8,7 +8,7 @@ from hypothesis import given, settings, strategies as st
 from pydrake.systems.analysis import Simulator
 
 import drake_cfvol as cf
-from drake_cfvol.table import BoundsTable
+from drake_cfvol.algorithm.table import BoundsTable
 from drake_cfvol.systems import AdmittanceDeformation, JointBoundsSource, PathProgress, Push, ScriptedHuman
 
 
@@ -360,7 +360,7 @@ def test_clearance_monitor_agrees_with_the_workcell(named_obstacles, ignore_inva
     from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, CoulombFriction
     from pydrake.systems.framework import DiagramBuilder
 
-    from drake_cfvol.workcell import robot_geometry_ids
+    from drake_cfvol.scene.workcell import robot_geometry_ids
     from drake_cfvol.systems import ClearanceMonitor
 
     wc = cf.load_workcell("automotive")
@@ -380,7 +380,7 @@ def test_clearance_monitor_agrees_with_the_workcell(named_obstacles, ignore_inva
                      and inspector.GetProximityProperties(g) is not None]
     ignored = []
     if ignore_invariant:
-        from drake_cfvol.workcell import geometry_key
+        from drake_cfvol.scene.workcell import geometry_key
 
         inspector = sg.model_inspector()
         names = wc.invariant_pair_names()

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.params import VolumeParams
-from drake_cfvol.reference import ReferenceScene
-from drake_cfvol.volume import build_volume, categorize, ground_obstacles
+from drake_cfvol.scene.params import VolumeParams
+from drake_cfvol.algorithm.reference import ReferenceScene
+from drake_cfvol.algorithm.volume import build_volume, categorize, ground_obstacles
 from conftest import write_arm_cell
 
 
@@ -85,7 +85,7 @@ def test_volume_mesh_and_meshcat_view(automotive, planned):
     bounding box is the columns'; show_volume draws it with the obstacles."""
     from pydrake.geometry import Meshcat, MeshcatParams
 
-    from drake_cfvol.viz import show_volume, volume_mesh
+    from drake_cfvol.comanip.recording import show_volume, volume_mesh
 
     path = planned("automotive")
     vb = build_volume(automotive, path, VolumeParams.for_workcell(automotive, resolution=300))

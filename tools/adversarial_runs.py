@@ -1,5 +1,5 @@
 """Steady corner-seeking pushes, safety filter on and off (a thin CLI over
-drake_cfvol.adversarial.steady_push_runs).
+drake_cfvol.comanip.adversarial.steady_push_runs).
 
     tools/dev.sh python tools/adversarial_runs.py --runs 16 --json out/adversarial.json
 """
@@ -9,7 +9,7 @@ import json
 import sys
 import time
 
-from drake_cfvol.adversarial import PATTERNS, steady_push_runs, summarize_runs
+from drake_cfvol.comanip.adversarial import PATTERNS, steady_push_runs, summarize_runs
 
 
 def main(argv=None) -> int:

@@ -1,7 +1,7 @@
-"""Thin CLI over drake_cfvol.bench (same as `cfvol bench`)."""
+"""Thin CLI over benchmarks/harness.py (same as `cfvol bench`)."""
 import sys
 
-from drake_cfvol.cli import main
+from drake_cfvol.apps.cli import main
 
 if __name__ == "__main__":
     sys.exit(main(["bench", *sys.argv[1:]]))

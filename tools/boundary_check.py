@@ -1,5 +1,5 @@
 """Counts colliding corners and edge points of a path's boxes, by Drake
-(thin CLI over drake_cfvol.metrics.boundary_check).
+(thin CLI over drake_cfvol.algorithm.metrics.boundary_check).
 
     tools/dev.sh python tools/boundary_check.py automotive path1 [--certify [--no-boundary-proof] [--no-cache]] [--clearance 0.02]
 """
@@ -10,7 +10,7 @@ import json
 import time
 
 import drake_cfvol as cf
-from drake_cfvol.metrics import boundary_check
+from drake_cfvol.algorithm.metrics import boundary_check
 
 
 def main() -> None:

@@ -4,7 +4,7 @@
 Runs each long step with its bar enabled (drawn only on a terminal; the
 history is kept either way) and prints, per bar, the relative error of the
 time left it showed at 25 %, 50 % and 75 % of the step's duration
-(drake_cfvol.progress.eta_errors). Usage:
+(drake_cfvol.io.progress.eta_errors). Usage:
 
     tools/dev.sh python tools/eta_check.py [--skip-bench]
 """
@@ -15,8 +15,10 @@ import tempfile
 import time
 
 import drake_cfvol as cf
-from drake_cfvol import progress
-from drake_cfvol.bench import BenchConfig, run_bench
+from drake_cfvol.io import progress
+from drake_cfvol.apps.cli import bench_harness
+
+BenchConfig, run_bench = bench_harness().BenchConfig, bench_harness().run_bench
 from drake_cfvol.comanip import run_scenario
 
 

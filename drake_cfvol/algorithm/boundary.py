@@ -1,0 +1,284 @@
+"""The certificate's proof of the box boundary: every edge, and so every
+corner, of a certified box at every s, free by the kernel's region tests.
+
+A clamp pushed steadily lands on the box's faces, edges and corners, not on
+uniform random points, so a uniformly sampled certificate says little
+there. A certified table uses the "linear" box-at-s rule
+(:func:`drake_cfvol.algorithm.table.box_at`): over a stretch [i, i+1] every bound
+goes linearly from its value at waypoint i to its value at i + 1. So a
+corner of the box moves on a straight segment in configuration space, and
+the edge of joint j (joint j over its whole width, every other joint at
+one of its bounds) sweeps the region {c(t) with joint j in [va, vb]}, c
+straight, [va, vb] the joint's range at either end: exactly the kernel's
+region test (:func:`drake_cfvol.kernel.regions_hit`, a grid of poses plus
+a second-order growth bound, every shape grown by the margin). That test
+checks what joint j moves relative to the rest; the rest sits on a corner
+path, which the other joints' edges check. An edge's ends are corners, so
+proving every edge proves every corner too.
+
+A region that may collide is halved (in s and along the joint) a few
+times. Where a configuration of the failing part really comes nearer than
+the margin (a 9 x 9 grid of kernel point checks) it is cut as a point
+(:func:`cut_point`); else the region is cut (:func:`cut_for`) by scaling
+one bound's deviation from the nominal at both ends of the stretch: the
+edge's own joint if the failing part lies off the nominal, else one of the
+joints whose motion reaches the nearest pair (Drake's clearance query at
+the failing region's centre), each candidate tried at a few scales against
+the failing region. Every cut aims SLACK beyond the margin (as far as the
+nominal has room, :func:`cut_slacks`), since a region test needs some
+clearance to prove anything, and the cut kept is the one that loses the
+least log-width, counting what the rate limit then takes from the
+neighbouring waypoints. Cuts only
+tighten: single-joint motions proven by the sweep stay proven. After the
+cuts the waypoint boxes are rate-limited again
+(:func:`drake_cfvol.algorithm.table.rate_limited`), which may tighten neighbours;
+the proof runs until no stretch's box changes.
+
+The regions are :mod:`drake_cfvol.algorithm.regions`; the cuts
+:mod:`drake_cfvol.algorithm.cuts`.
+"""
+
+from __future__ import annotations
+
+import itertools
+import numpy as np
+
+from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.algorithm.table import rate_limited
+from drake_cfvol.algorithm.regions import (MAX_SPLITS, S_SPLITS, _box, _edge_key, _Item, _test, corner_points, edge_tasks,
+                                           regions_may_collide)
+from drake_cfvol.algorithm.cuts import cut_for, cut_point, cut_slacks, reaching_joints
+
+__all__ = ['prove_boundary', 'corner_pass', 'edge_tasks', 'regions_may_collide', 'corner_points', 'reaching_joints', 'cut_point', 'cut_slacks']
+
+
+def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | None = None):
+    """The edge regions of the given stretches that still may collide after
+    MAX_SPLITS halvings (a region whose own corner configurations collide
+    is not halved further). Returns (failed items, region tests run).
+
+    ``memo`` (updated in place) holds the whole edges proven so far: an
+    edge whose other joints sit exactly where a proven edge's did, with its
+    own range inside that edge's and a margin no larger, is a subset of a
+    proven region and is not tested again (cuts only tighten, so after a
+    cut on one bound most of a stretch's edges are such subsets)."""
+    memo = {} if memo is None else memo
+    items, keys = [], []
+    for i in stretches:
+        A, B, js, va, vb, sig = edge_tasks(lower[i], upper[i], lower[i + 1], upper[i + 1])
+        for n in range(len(js)):
+            j = int(js[n])
+            key = _edge_key(i, j, sig[n], A[n], B[n])
+            # The joint's own range at both ends: the edge is a subset of a
+            # proven one if both ranges lie inside (the rule is linear in s).
+            lo_j, hi_j = lower[i:i + 2, j], upper[i:i + 2, j]
+            known = memo.get(key)
+            if (known is not None and np.all(known[0] <= lo_j) and np.all(hi_j <= known[1])
+                    and margins[i] <= known[2]):
+                continue
+            keys.append((key, lo_j.copy(), hi_j.copy(), float(margins[i])))
+            items.append(_Item(i, float(i), float(i + 1), j, va[n], vb[n], sig[n], A[n], B[n], root=len(keys) - 1))
+    failed, tests = _halvings(arrays, lower, upper, nominal, items, margins)
+    bad = {it.root for it in failed}
+    for r, (key, lo_j, hi_j, m) in enumerate(keys):
+        if r not in bad:
+            memo[key] = (lo_j, hi_j, m)
+    return failed, tests
+
+
+def _halvings(arrays, lower, upper, nominal, items, margins):
+    """Tests the regions, halving the failing ones (see :func:`_failures`).
+    Returns (failed items, region tests run)."""
+    tests = 0
+    failed: list = []
+    for depth in range(MAX_SPLITS + 1):
+        if not items:
+            break
+        hit = _test(arrays, items, margins)
+        tests += len(items)
+        bad = [it for it, h in zip(items, hit) if h]
+        if depth == MAX_SPLITS or not bad:
+            failed += bad
+            break
+        ends = np.array([q for it in bad for q in it.ends(lower, upper)])
+        pads = np.repeat([margins[it.i] for it in bad], 4)
+        real = np.zeros(len(ends), bool)
+        for p in np.unique(pads):
+            sel = pads == p
+            real[sel] = arrays.may_collide(ends[sel], float(p))
+        real = real.reshape(len(bad), 4).any(axis=1)
+        failed += [it for it, r in zip(bad, real) if r]
+        items = []
+        for it in (it for it, r in zip(bad, real) if not r):
+            if depth < MAX_SPLITS - S_SPLITS:
+                # Halved along the joint: the region's hull of poses bulges
+                # inwards by about reach * width^2 / 8, the usual false alarm.
+                vm = 0.5 * (it.va + it.vb)
+                items += [_Item(it.i, it.sa, it.sb, it.j, it.va, vm, it.S, it.A, it.B, it.root),
+                          _Item(it.i, it.sa, it.sb, it.j, vm, it.vb, it.S, it.A, it.B, it.root)]
+                continue
+            ss = np.array([it.sa, 0.5 * (it.sa + it.sb), it.sb])
+            lo, hi, _ = _box(lower, upper, nominal, it.i, ss)
+            c = np.where(it.S == 1, hi, lo)
+            for h in range(2):
+                v_lo = max(min(lo[h, it.j], lo[h + 1, it.j]), it.va)
+                v_hi = min(max(hi[h, it.j], hi[h + 1, it.j]), it.vb)
+                vm = 0.5 * (v_lo + v_hi)
+                for u0, u1 in ((v_lo, vm), (vm, v_hi)):
+                    items.append(_Item(it.i, ss[h], ss[h + 1], it.j, u0, u1, it.S, c[h].copy(), c[h + 1].copy(),
+                                       it.root))
+    return failed, tests
+
+
+def corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, slacks=None, *, per_stretch: int = 4,
+                max_rounds: int = 50) -> dict:
+    """A cheap pass before the proof: the box's corners at every quarter of
+    every stretch, checked as points by the kernel; colliding ones are cut
+    (:func:`cut_point`, at most ``per_stretch`` per stretch and round),
+    round after round until none collides. It proves nothing (the region
+    proof does) but removes what the proof would otherwise find one region
+    at a time, with cuts chosen by exact point checks."""
+    g, k = nominal.shape
+    slacks = np.zeros(g - 1) if slacks is None else slacks
+    pat = np.array(list(itertools.product((0, 1), repeat=k)), bool)
+    s = np.arange(0.0, g - 1 + 1e-9, 0.25)
+    st = np.clip(np.floor(s).astype(int), 0, g - 2)
+    cuts = rounds = 0
+    for _ in range(max_rounds):
+        rounds += 1
+        Q = corner_points(lower, upper, nominal, s)
+        rows_st = np.repeat(st, len(pat))
+        pads = margins[rows_st] + slacks[rows_st]
+        bad = np.zeros(len(Q), bool)
+        for p in np.unique(pads):
+            sel = pads == p
+            bad[sel] = arrays.may_collide(Q[sel], float(p))
+        if not bad.any():
+            break
+        taken: set = set()
+        for i in np.unique(rows_st[bad]):
+            rows = np.flatnonzero(bad & (rows_st == i))
+            for r in rows[:: max(1, len(rows) // per_stretch)][:per_stretch]:
+                cut_point(workcell, arrays, lower, upper, nominal, rate, int(i), float(s[r // len(pat)]), Q[r],
+                          float(margins[i]), float(slacks[i]), taken)
+        cuts += len(taken)
+        lower[:], upper[:] = rate_limited(lower, upper, nominal, rate)
+    return {"corner_rounds": rounds, "corner_cuts": cuts}
+
+
+def _colliding_points(arrays, lower, upper, nominal, fails, margins, slacks, n: int = 9):
+    """For each failing region, a configuration of the box's edge in it
+    that may collide, (s, q), or None: an n x n grid over the region (s
+    and joint j), points outside the box at their s left out."""
+    Q, owner, where = [], [], []
+    u = np.linspace(0.0, 1.0, n)
+    for r, f in enumerate(fails):
+        s = f.sa + u * (f.sb - f.sa)
+        lo, hi, _ = _box(lower, upper, nominal, f.i, s)
+        c = np.where(f.S == 1, hi, lo)
+        v = f.va + u * (f.vb - f.va)
+        for a in range(n):
+            ok = (v >= lo[a, f.j]) & (v <= hi[a, f.j])
+            if not ok.any():
+                continue
+            q = np.repeat(c[a][None], ok.sum(), axis=0)
+            q[:, f.j] = v[ok]
+            Q.append(q)
+            owner.append(np.full(len(q), r))
+            where.append(np.full(len(q), s[a]))
+    out = [None] * len(fails)
+    if not Q:
+        return out
+    Q, owner, where = np.concatenate(Q), np.concatenate(owner), np.concatenate(where)
+    pads = np.array([margins[fails[r].i] + slacks[fails[r].i] for r in owner], float)
+    bad = np.zeros(len(Q), bool)
+    for p in np.unique(pads):
+        sel = pads == p
+        bad[sel] = arrays.may_collide(Q[sel], float(p))
+    for m in np.flatnonzero(bad):
+        if out[owner[m]] is None:
+            out[owner[m]] = (float(where[m]), Q[m].copy())
+    return out
+
+
+def _signature(lower, upper, i) -> bytes:
+    return np.concatenate([lower[i], lower[i + 1], upper[i], upper[i + 1]]).tobytes()
+
+
+def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, proven: dict | None = None, *,
+                   max_rounds: int = 200, memo: dict | None = None) -> dict:
+    """Proves every edge (and corner) of the linear table's box at every s,
+    cutting the waypoint boxes (in place) where a region may collide, until
+    every stretch is proven as it is.
+
+    Args:
+        workcell, arrays: the scene (Drake for the nearest pair; kernel arrays).
+        lower, upper: (g, k) waypoint boxes, tightened in place.
+        nominal: (g, k) the nominal; rate: (k,) the bounds' rate limit.
+        margins: (g-1,) each stretch's margin, m (lowered in place for a
+            stretch whose nominal itself fails it, as certification does).
+        proven: stretch -> the box signature proven last time (updated in
+            place): pass the same dict again after other cuts and only the
+            stretches whose box changed are proven again.
+        max_rounds: rounds of proof and cuts before giving up.
+        memo: the whole edges proven so far (updated in place; pass the
+            same dict again): an edge inside a proven one is not tested
+            again.
+
+    Returns:
+        stats: ``edge_tests`` (region tests), ``edge_cuts``, ``edge_rounds``,
+        ``margins_lowered`` (stretches whose margin had to be lowered),
+        ``unproven`` (stretches left unproven after ``max_rounds``: empty
+        unless the proof ran out of rounds).
+    """
+    proven = {} if proven is None else proven
+    memo = {} if memo is None else memo
+    n_st = len(nominal) - 1
+    slacks = cut_slacks(arrays, nominal, margins)
+    tests = cuts = rounds = lowered = 0
+    while rounds < max_rounds:
+        todo = [i for i in range(n_st) if proven.get(i) != _signature(lower, upper, i)]
+        if not todo:
+            break
+        rounds += 1
+        cp = corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, slacks)
+        cuts += cp["corner_cuts"]
+        todo = [i for i in range(n_st) if proven.get(i) != _signature(lower, upper, i)]
+        fails, t = _failures(arrays, lower, upper, nominal, todo, margins, memo)
+        tests += t
+        for i in todo:
+            proven[i] = _signature(lower, upper, i)
+        taken: set = set()
+        stuck = set()
+        points = _colliding_points(arrays, lower, upper, nominal, fails, margins, slacks)
+        for fail, hit in zip(fails, points):
+            if fail.i in stuck:
+                continue
+            if hit is not None:
+                # A real collision on the edge: cut as at a corner, the edge's
+                # own joint one of the candidates.
+                s_hit, q = hit
+                cut_point(workcell, arrays, lower, upper, nominal, rate, fail.i, s_hit, q, float(margins[fail.i]),
+                          float(slacks[fail.i]), taken, own=fail.j)
+            elif not cut_for(workcell, arrays, lower, upper, nominal, rate, fail, float(margins[fail.i]),
+                             float(slacks[fail.i]), taken):
+                stuck.add(fail.i)
+        for i in stuck:
+            # Nothing cut passes: the region sits on the nominal, which comes
+            # nearer than this stretch's margin between the points where
+            # stretch_margins proved it. Lower the margin (as certification does).
+            if margins[i] == 0.0:
+                raise ParameterError(
+                    f"boundary proof: the nominal of stretch {i} may collide between its waypoints; the path is "
+                    "not collision-free there (plan with a finer max_step).")
+            margins[i] = 0.5 * margins[i] if margins[i] > 1e-4 else 0.0
+            proven.pop(i, None)
+            lowered += 1
+        cuts += len(taken)
+        new_lo, new_hi = rate_limited(lower, upper, nominal, rate)
+        lower[:], upper[:] = new_lo, new_hi
+        for i in {f.i for f in fails} - {key[0] for key in taken} - stuck:
+            proven.pop(i, None)  # a failure left for the next round (its bound was taken)
+    unproven = [i for i in range(n_st) if proven.get(i) != _signature(lower, upper, i)]
+    return {"edge_tests": tests, "edge_cuts": cuts, "edge_rounds": rounds, "margins_lowered": lowered,
+            "unproven": unproven}

@@ -1,0 +1,545 @@
+"""Certified bounds: the whole box at every s, all joints at once.
+
+The paper's bounds are per-joint extents, each found with the other joints
+at nominal; moving several joints at once can still collide. What is
+*proven* already (SPEC 6-7, by the kernel's region tests): every single-joint
+motion from the nominal to its bound, at every s. Certification makes the
+table "linear" (each bound linear in s between its waypoints,
+:func:`drake_cfvol.algorithm.table.box_at`) and adds, for the whole box:
+
+- a *proof* where a clamp lands: every edge and corner of the box at every
+  s is free by the kernel's region tests (:mod:`drake_cfvol.algorithm.boundary`);
+- a *sampled* guarantee for the faces and the interior: N consecutive
+  samples, drawn as the Confidence Factor draws them (s uniform over the
+  path, q uniform in the box at s), are all certified free by the compiled
+  kernel, which never calls a configuration free where Drake finds a
+  collision. With N >= ln(1 / (1 - confidence)) / epsilon (the test Drake's
+  IrisZo uses): if the colliding share of that distribution were epsilon or
+  more, N free samples in a row would occur with probability at most
+  1 - confidence.
+
+How the boxes shrink (cuts only tighten, so the proven single-joint
+safety still holds; after every cut the waypoint boxes are rate-limited
+again, :func:`drake_cfvol.algorithm.table.rate_limited`):
+
+1. Search: rounds of samples stratified over the stretches (``batch`` per
+   stretch, doubling each round), a share of their coordinates drawn in
+   the outer tenth of the box, where several joints near their bounds
+   collide. All colliding samples of a round are cut at once, per stretch,
+   greedily: each cut scales one joint's deviation from the nominal on one
+   side at both ends of the stretch, the one that loses the least
+   log-width per colliding sample it removes.
+2. Proof of the boundary (edges and corners), cutting where a region may
+   collide (:func:`drake_cfvol.algorithm.boundary.prove_boundary`).
+3. Certificate: N consecutive uniform samples of the whole path. A
+   colliding sample is cut the same way, its stretch is searched again
+   (``focus_samples`` per round until a round finds nothing), the changed
+   stretches are proven again, and the run restarts.
+
+Every test keeps the table's ``clearance`` margin (per stretch: less only
+where the nominal itself is nearer, :func:`drake_cfvol.algorithm.sweep.stretch_margins`).
+
+Certification draws from a seed stream of its own, distinct from the CF
+evaluation's.
+"""
+
+import dataclasses
+import math
+import time
+
+import numpy as np
+
+from drake_cfvol.algorithm.cert_cache import cache_dir, cache_key, cache_load, cache_store
+from drake_cfvol.algorithm.boundary import cut_point, cut_slacks, prove_boundary, reaching_joints
+from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.algorithm.metrics import freedom
+from drake_cfvol.io.progress import Progress
+from drake_cfvol.algorithm.sweep import stretch_margins
+from drake_cfvol.algorithm.table import rate_limited, within_stretches
+
+__all__ = ["Certify", "CertificateReport", "certify_bounds", "certified_table", "certification_rng", "cache_dir",
+           "clamp_draws"]
+
+#: Drake queries per stretch for the joints a sampled cut may use.
+_REACH_QUERIES = 16
+#: Point cuts per stretch and round for samples on a bound.
+_POINT_CUTS = 16
+#: Room a point cut of the sampled search leaves beyond the margin, m (its
+#: neighbours on the same bound come free with it).
+_POINT_SLACK = 0.005
+
+#: Spawn key that separates certification draws from CF draws of the same seed.
+_CERT_STREAM = 0xCE27
+
+
+@dataclasses.dataclass(frozen=True)
+class Certify:
+    """Certificate settings.
+
+    Attributes:
+        epsilon: the largest colliding share allowed, in (0, 1), of
+            configurations uniform in the box.
+        clamp_epsilon: the same for where a clamp lands
+            (:func:`clamp_draws`); None: 10 x epsilon (at most 0.5). The
+            boundary proof, when on, covers the box's edges and corners
+            for certain.
+        confidence: probability that the certificate is right, in (0, 1).
+        seed: seed of the certification samples (a stream distinct from CF's).
+        batch: search samples per stretch in the first search round
+            (rounds double it).
+        search_rounds: search rounds before the certificate run.
+        search_factor: the search draws at most this many times N samples
+            in all (a small N needs little search).
+        edge_share: share of search coordinates drawn in the outer tenth
+            of their range.
+        focus_samples, focus_rounds: after a colliding sample in the
+            certificate run, its stretch is searched again with this many
+            samples per round, until a round finds nothing (at most
+            ``focus_rounds``).
+        boundary: prove every edge and corner of the box at every s
+            (:mod:`drake_cfvol.algorithm.boundary`), where a clamp pushed steadily
+            lands (default). False: the sampled certificate only, faster
+            (automotive path 1 at the 2 cm margin: 102 s against 167 s,
+            freedom 0.353 against 0.325) but a corner may then come nearer
+            than the margin, and only the runtime safety filter keeps the
+            margin there; the report says so.
+        cache: reuse a certificate computed before for exactly the same
+            inputs (scene, path, bounds, settings; see :func:`cache_dir`).
+            Certification is deterministic, so a cached result is the
+            result; the report says it was cached and how long the original
+            run took.
+    """
+
+    epsilon: float = 1e-5
+    clamp_epsilon: float | None = None
+    confidence: float = 0.99
+    seed: int = 0
+    batch: int = 1000
+    search_rounds: int = 5
+    edge_share: float = 0.5
+    focus_samples: int = 20000
+    focus_rounds: int = 4
+    search_factor: float = 8.0
+    boundary: bool = True
+    cache: bool = dataclasses.field(default=True, compare=False)
+
+    def __post_init__(self):
+        for name in ("epsilon", "clamp_epsilon", "confidence"):
+            v = getattr(self, name)
+            if name == "clamp_epsilon" and v is None:
+                continue
+            if not (isinstance(v, (int, float)) and 0.0 < v < 1.0):
+                raise ParameterError(f"Certify: {name} must lie in (0, 1), got {v!r}.")
+        if self.batch < 1:
+            raise ParameterError(f"Certify: batch must be >= 1, got {self.batch}.")
+        if self.search_rounds < 0:
+            raise ParameterError(f"Certify: search_rounds must be >= 0, got {self.search_rounds}.")
+        if not self.search_factor >= 0.0:
+            raise ParameterError(f"Certify: search_factor must be >= 0, got {self.search_factor!r}.")
+        if not isinstance(self.boundary, bool):
+            raise ParameterError(f"Certify: boundary must be True or False, got {self.boundary!r}.")
+        if not 0.0 <= self.edge_share <= 1.0:
+            raise ParameterError(f"Certify: edge_share must lie in [0, 1], got {self.edge_share!r}.")
+
+    @property
+    def n_samples(self) -> int:
+        """N = ceil(ln(1 / (1 - confidence)) / epsilon)."""
+        return int(math.ceil(math.log(1.0 / (1.0 - self.confidence)) / self.epsilon))
+
+    @property
+    def clamp_share(self) -> float:
+        """The clamp distribution's epsilon: ``clamp_epsilon``, by default
+        10 x epsilon (at most 0.5)."""
+        return self.clamp_epsilon if self.clamp_epsilon is not None else min(10.0 * self.epsilon, 0.5)
+
+    @property
+    def n_clamp_samples(self) -> int:
+        """N for the clamp distribution: ceil(ln(1 / (1 - confidence)) / clamp_share)."""
+        return int(math.ceil(math.log(1.0 / (1.0 - self.confidence)) / self.clamp_share))
+
+
+@dataclasses.dataclass
+class CertificateReport:
+    """What certification did, in words and figures.
+
+    Attributes:
+        epsilon, confidence, n_samples: the sampled certificate.
+        time_ms: time spent certifying.
+        samples: samples checked in all.
+        shrinks: bounds moved (cuts).
+        freedom_before, freedom_after: mean freedom (SPEC 8).
+        proven: what holds for certain.
+        sampled: what the sampled certificate says.
+        cached: the result was read from the cache.
+        clearance_m: the margin certified, m.
+        boundary: the boundary proof's figures (region tests, cuts,
+            rounds, stretches whose margin was lowered, unproven stretches).
+    """
+
+    epsilon: float
+    confidence: float
+    n_samples: int
+    time_ms: float
+    samples: int
+    shrinks: int
+    freedom_before: float
+    freedom_after: float
+    proven: str = ""
+    sampled: str = ""
+    cached: bool = False
+    clearance_m: float = 0.0
+    boundary: dict = dataclasses.field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def certification_rng(seed: int) -> np.random.Generator:
+    """The certification sampler (distinct from CF's ``default_rng(seed)``)."""
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_CERT_STREAM,)))
+
+
+def _greedy_cut(X, t, lower, upper, nominal, i, allowed=None):
+    """Cuts stretch i of a linear table (its waypoint boxes ``lower[i:i+2]``,
+    ``upper[i:i+2]``, in place) until no colliding sample X (n, k), at
+    fractions t (n,) of the stretch, is left in its box. Each cut scales
+    one joint's deviation from the nominal on one side, at both ends, by a
+    factor lam (the box's bound at every s moves to nom + lam (bound - nom)),
+    just enough to drop some samples: the cut chosen loses the least
+    log-width per sample it removes. ``allowed`` (n, k) bool: the joints
+    that may cut each sample (those whose motion reaches its colliding
+    pair); a sample that no allowed joint can cut may be cut by any.
+    Returns the number of cuts, or -1 if a sample cannot be cut (it lies
+    at its own nominal in every joint)."""
+    cuts = 0
+    n2 = nominal[i:i + 2]
+    allowed = np.ones(X.shape, bool) if allowed is None else np.asarray(allowed, bool)
+    while len(X):
+        T = t[:, None]
+        lo = (1 - T) * lower[i] + T * lower[i + 1]
+        hi = (1 - T) * upper[i] + T * upper[i + 1]
+        nom = (1 - T) * n2[0] + T * n2[1]
+        inside = np.all((X >= np.minimum(lo, nom)) & (X <= np.maximum(hi, nom)), axis=1)
+        X, t, allowed = X[inside], t[inside], allowed[inside]
+        if not len(X):
+            break
+        lo, hi, nom = lo[inside], hi[inside], nom[inside]
+        off = X != nom
+        allowed = np.where((allowed & off).any(axis=1)[:, None], allowed, True)
+        w0 = upper[i:i + 2] - lower[i:i + 2]
+        best = (np.inf, -1, 0, 1.0)
+        for j in range(X.shape[1]):
+            for side in (1, -1):
+                D = (hi[:, j] - nom[:, j]) if side > 0 else (nom[:, j] - lo[:, j])
+                e = (X[:, j] - nom[:, j]) if side > 0 else (nom[:, j] - X[:, j])
+                sel = (e > 0) & (D > 0) & allowed[:, j]
+                if not sel.any():
+                    continue
+                lam = np.sort(np.minimum(e[sel] / D[sel], 1.0))[::-1]
+                dev = (upper[i:i + 2, j] - n2[:, j]) if side > 0 else (n2[:, j] - lower[i:i + 2, j])
+                w1 = np.maximum(w0[:, j][None] - (1 - lam[:, None]) * dev[None], 1e-12)
+                loss = np.log(np.maximum(w0[:, j], 1e-12)[None] / w1).sum(axis=1)
+                score = loss / np.arange(1, len(lam) + 1)
+                m = int(np.argmin(score))
+                if score[m] < best[0]:
+                    best = (score[m], j, side, lam[m])
+        _, j, side, lam = best
+        if j < 0:
+            return -1
+        # Just below the sample's threshold, by a relative 1e-6: a cut of a
+        # deviation a few ulps wide must still move the bound.
+        lam = max(0.0, lam * (1 - 1e-6))
+        before = (upper if side > 0 else lower)[i:i + 2, j].copy()
+        while True:
+            if side > 0:
+                upper[i:i + 2, j] = n2[:, j] + lam * (before - n2[:, j])
+            else:
+                lower[i:i + 2, j] = n2[:, j] - lam * (n2[:, j] - before)
+            if lam == 0.0 or not np.array_equal((upper if side > 0 else lower)[i:i + 2, j], before):
+                break
+            lam = 0.5 * lam if lam > 1e-3 else 0.0
+        cuts += 1
+    return cuts
+
+
+def _edge_biased(rng, shape, share):
+    """Unit-cube draws in which a ``share`` of the coordinates lie in the
+    outer tenth of their range (either end): where whole-box collisions
+    live, so the search finds them with fewer samples."""
+    U = rng.random(shape)
+    snap = rng.random(shape) < share
+    hi_end = rng.random(shape) < 0.5
+    tenth = 0.1 * rng.random(shape)
+    return np.where(snap, np.where(hi_end, 1.0 - tenth, tenth), U)
+
+
+def clamp_draws(rng, lo, hi, nom) -> np.ndarray:
+    """Configurations where an admittance clamp lands: the nominal nom
+    (n, k) pushed on a random subset of its joints (each joint with
+    probability 1/2, to a random side, by up to twice its deviation to
+    that side's bound) and clamped into [lo, hi]; so about half of the
+    pushed joints sit on a bound, the others inside, the unpushed at the
+    nominal."""
+    n, k = nom.shape
+    pushed = rng.random((n, k)) < 0.5
+    up = rng.random((n, k)) < 0.5
+    amount = 2.0 * rng.random((n, k))
+    q = np.where(up, nom + amount * (hi - nom), nom - amount * (nom - lo))
+    return np.where(pushed, np.clip(q, lo, hi), nom)
+
+
+def certified_table(table, lower, upper):
+    """The table with certified waypoint boxes and the "linear" rule; its
+    stretch boxes are the hulls of their two waypoint boxes (within the
+    sweep's, so its single-joint proof still holds)."""
+    return dataclasses.replace(table, lower=lower, upper=upper, interpolation="linear",
+                               stretch_lower=np.minimum(lower[:-1], lower[1:]),
+                               stretch_upper=np.maximum(upper[:-1], upper[1:]))
+
+
+def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False):
+    """Shrinks a bounds table's boxes until every edge and corner of the box
+    at every s is proven free and N consecutive uniform samples of the whole
+    box are free (see the module docs).
+
+    Returns:
+        (lower, upper, CertificateReport): the certified waypoint boxes, for
+        the "linear" box-at-s rule (:func:`certified_table` makes the
+        table); the input table is not changed.
+
+    With ``progress``, a bar on a terminal shows the search rounds, then
+    the run of consecutive free samples against N; the run restarts after
+    a cut, so the bar shows no time-left estimate.
+    """
+    t0 = time.perf_counter()
+    arrays = workcell.scene_arrays()
+    folder = cache_dir() if certify.cache else None
+    file = folder / "certificates" / f"{cache_key(arrays, table, certify)}.npz" if folder else None
+    if file is not None and file.is_file():
+        hit = cache_load(file, CertificateReport)
+        if hit is not None:
+            hit[2].cached = True
+            return hit
+    job = _Certification(workcell, arrays, table, certify)
+    bar = Progress(certify.search_rounds + job.N, "Certifying whole boxes", enabled=progress, unit="steps", eta=False)
+    try:
+        if job.g > 1:
+            job.search_rounds(bar)
+            job.prove()
+            job.certificate_run(bar)
+    finally:
+        bar.close()
+    report = job.report((time.perf_counter() - t0) * 1e3)
+    if file is not None:
+        cache_store(file, job.current.lower, job.current.upper, report)
+    return job.current.lower, job.current.upper, report
+
+
+class _Certification:
+    """One certification's state: the waypoint boxes being cut (in place),
+    the stretches' margins, the sample stream and the counts."""
+
+    def __init__(self, workcell, arrays, table, certify: Certify):
+        self.workcell, self.arrays, self.table, self.certify = workcell, arrays, table, certify
+        nominal, rate = table.nominal, table.rate
+        self.nominal = nominal
+        self.rate = np.full(nominal.shape[1], np.inf) if rate is None else rate
+        self.g = nominal.shape[0]
+        self.lower, self.upper = rate_limited(*within_stretches(table.lower, table.upper, nominal,
+                                                                table.stretch_lower, table.stretch_upper),
+                                              nominal, self.rate)
+        self.clearance = float(table.params.get("clearance", 0.0) or 0.0)
+        self.margins = stretch_margins(arrays, nominal, self.clearance)
+        self.point_slacks = cut_slacks(arrays, nominal, self.margins, _POINT_SLACK)
+        self.rng = certification_rng(certify.seed)
+        self.N, self.Nc = certify.n_samples, certify.n_clamp_samples
+        self.samples = self.shrinks = 0
+        self.proven: dict = {}
+        self.memo: dict = {}
+        self.boundary = {"edge_tests": 0, "edge_cuts": 0, "edge_rounds": 0, "margins_lowered": 0, "unproven": []}
+        self.current = certified_table(table, self.lower, self.upper)
+
+    def _stretch_of(self, s):
+        return np.minimum(np.floor(s).astype(int), self.g - 2)
+
+    def flagged(self, s, Q) -> np.ndarray:
+        """Indices of the samples that may collide or come nearer than
+        their stretch's margin."""
+        pads = self.margins[self._stretch_of(s)]
+        out = np.zeros(len(Q), bool)
+        for p in np.unique(pads):
+            sel = pads == p
+            out[sel] = self.arrays.may_collide(Q[sel], p)
+        return np.flatnonzero(out)
+
+    def refresh(self):
+        """Rate-limits the waypoint boxes again and remakes the table."""
+        self.lower[:], self.upper[:] = rate_limited(self.lower, self.upper, self.nominal, self.rate)
+        self.current = certified_table(self.table, self.lower.copy(), self.upper.copy())
+
+    def cut(self, s, Q, flagged):
+        """Cuts the flagged samples away: those on a bound as points, the
+        others by the greedy cut."""
+        sf = s[flagged]
+        i = self._stretch_of(sf)
+        t = sf - i
+        X = Q[flagged]
+        # Samples on a bound (where a clamp lands) are cut as points: a cut
+        # just below them would barely move the bound they sit on.
+        T = t[:, None]
+        lo = (1 - T) * self.lower[i] + T * self.lower[i + 1]
+        hi = (1 - T) * self.upper[i] + T * self.upper[i + 1]
+        nom = (1 - T) * self.nominal[i] + T * self.nominal[i + 1]
+        on_bound = (((X == lo) | (X == hi)) & (X != nom)).any(axis=1)
+        taken: set = set()
+        for st in np.unique(i[on_bound]):
+            rows = np.flatnonzero(on_bound & (i == st))
+            for r in rows[:: max(1, len(rows) // _POINT_CUTS)][:_POINT_CUTS]:
+                cut_point(self.workcell, self.arrays, self.lower, self.upper, self.nominal, self.rate, int(st),
+                          float(sf[r]), X[r], float(self.margins[st]), float(self.point_slacks[st]), taken)
+        self.shrinks += len(taken)
+        keep = ~on_bound
+        self._cut_inner(X[keep], i[keep], t[keep])
+
+    def _cut_inner(self, X, i, t):
+        # Only joints whose motion reaches the colliding pair may cut a sample
+        # (Drake's nearest pair at it): a bare flange is not pinched for a
+        # collision of the forearm.
+        allowed = np.ones(X.shape, bool)
+
+        def reach(r, st):
+            return reaching_joints(self.workcell, self.arrays, X[r], float(self.margins[st]))
+
+        for st in np.unique(i):
+            rows = np.flatnonzero(i == st)
+            if len(rows) <= _REACH_QUERIES:
+                allowed[rows] = [reach(r, st) for r in rows]
+            else:  # many samples: the joints reaching any of a few of them
+                pick = rows[:: len(rows) // _REACH_QUERIES][:_REACH_QUERIES]
+                allowed[rows] = np.any([reach(r, st) for r in pick], axis=0)
+        for st in np.unique(i):
+            sel = i == st
+            n = _greedy_cut(X[sel], t[sel], self.lower, self.upper, self.nominal, st, allowed[sel])
+            if n < 0 and self.margins[st] > 0:
+                # The nominal itself comes nearer than this stretch's margin
+                # between the points stretch_margins looked at: lower it.
+                self.margins[st] = 0.5 * self.margins[st] if self.margins[st] > 1e-4 else 0.0
+                continue
+            if n < 0:
+                raise ParameterError(
+                    f"certification: a configuration at the nominal of stretch {st} may collide; the path is not "
+                    "collision-free between waypoints (plan with a finer max_step).")
+            self.shrinks += n
+
+    def prove(self):
+        """The boundary proof (when asked), from where it stopped last."""
+        if not self.certify.boundary:
+            return
+        stats = prove_boundary(self.workcell, self.arrays, self.lower, self.upper, self.nominal, self.rate,
+                               self.margins, self.proven, memo=self.memo)
+        for key in ("edge_tests", "edge_cuts", "edge_rounds", "margins_lowered"):
+            self.boundary[key] += stats[key]
+        self.boundary["unproven"] = stats["unproven"]
+        self.refresh()
+
+    def search(self, stretches, per, clamp=None) -> int:
+        """One edge-biased search round, ``per`` samples in each of the
+        stretches, every colliding sample cut. Returns how many collided."""
+        rng, N, Nc = self.rng, self.N, self.Nc
+        s = np.repeat(stretches, per) + rng.random(len(stretches) * per)
+        lo, hi, nom = self.current.boxes_at(s)
+        # Edge-biased in the box, and where a clamp lands in the share the
+        # certificate run draws them.
+        Q = lo + _edge_biased(rng, lo.shape, self.certify.edge_share) * (hi - lo)
+        h = len(s) - int(round(len(s) * (Nc / (N + Nc) if clamp is None else clamp)))
+        Q[h:] = clamp_draws(rng, lo[h:], hi[h:], nom[h:])
+        flagged = self.flagged(s, Q)
+        self.samples += len(Q)
+        if len(flagged):
+            self.cut(s, Q, flagged)
+            self.refresh()
+        return len(flagged)
+
+    def search_rounds(self, bar):
+        """Search: stratified over the stretches, edge-biased, every
+        colliding sample of a round cut at once."""
+        per = self.certify.batch
+        budget = self.certify.search_factor * self.N  # a search much longer than the certificate buys nothing
+        for _ in range(self.certify.search_rounds):
+            per = min(per, int(budget // (self.g - 1)))
+            if per < 1:
+                break
+            budget -= per * (self.g - 1)
+            self.search(np.arange(self.g - 1), per)
+            per *= 2
+            bar.update(1)
+
+    def certificate_run(self, bar):
+        """N consecutive free samples of the whole path from each of two
+        distributions, uniform in the box and where a clamp lands (drawn
+        side by side; a cut restarts both runs)."""
+        rng, N, certify = self.rng, self.N, self.certify
+        run = 0
+        batch = max(1, N // 64)  # small after a cut (a restart costs the batch), doubling up to N / 4
+        share = self.Nc / N  # clamp draws per uniform draw: both runs end together
+        while run < N:
+            n = min(batch, N - run)
+            batch = min(2 * batch, max(1, N // 4))
+            nc = int(math.ceil((run + n) * share)) - int(math.ceil(run * share))
+            s = rng.uniform(0.0, self.g - 1, n + nc)
+            lo, hi, nom = self.current.boxes_at(s)
+            Q = np.concatenate([lo[:n] + rng.random(lo[:n].shape) * (hi[:n] - lo[:n]),
+                                clamp_draws(rng, lo[n:], hi[n:], nom[n:])])
+            flagged = self.flagged(s, Q)
+            self.samples += n + nc
+            if len(flagged):
+                self.cut(s, Q, flagged)
+                self.refresh()
+                run, batch = 0, max(1, N // 64)
+                # The stretches that still collide get a search of their own
+                # (cheaper than another run over the whole path), from the
+                # distribution that collided: a clamp's landing has
+                # neighbours on the same bound.
+                hit = np.unique(self._stretch_of(s[flagged]))
+                focus = max(1, min(certify.focus_samples, N))
+                clamp = 0.5 if (flagged >= n).any() else None
+                for _ in range(certify.focus_rounds):
+                    if not self.search(hit, focus, clamp):
+                        break
+                self.prove()
+            else:
+                run += n
+            bar.set(certify.search_rounds + run, cuts=self.shrinks + self.boundary["edge_cuts"])
+
+    def report(self, time_ms: float) -> "CertificateReport":
+        """The report, in words."""
+        certify, clearance, margins, boundary = self.certify, self.clearance, self.margins, self.boundary
+        margin = (f"{clearance * 1e3:g} mm from the obstacles and the robot itself (less only where the nominal "
+                  f"itself is nearer: {int((margins < clearance).sum())} of {len(margins)} stretches)"
+                  if clearance > 0 else "free of collision with the obstacles and the robot itself (clearance 0)")
+        unproven = boundary["unproven"]
+        single = ("Every single-joint motion from the nominal to that joint's bound, at every s along the path, "
+                  f"keeps {margin} and the volume.")
+        if not certify.boundary:
+            proven = single + (" The box's edges and corners are NOT proven (Certify(boundary=False) asked for the "
+                               "sampled certificate only); the runtime safety filter keeps the margin where a clamp "
+                               "lands.")
+        elif not unproven:
+            proven = single + (" So does every edge of the box (one joint over its whole width, every other joint at "
+                               "one of its bounds), and so every corner, at every s: the kernel's region tests "
+                               f"({boundary['edge_tests']} regions).")
+        else:
+            proven = single + (" So does every edge and corner of the box at every s except on stretches "
+                               f"{unproven}, where the proof ran out of rounds.")
+        sampled = (f"The faces and the interior, all joints at once, sampled from two distributions (s uniform over "
+                   f"the path): {self.N} consecutive samples uniform in the box at s, and alongside them {self.Nc} "
+                   "consecutive samples where a clamp lands (the nominal pushed on a random half of its joints, "
+                   "clamped into the box, so about half of the pushed joints on a bound), all kept the margin. So "
+                   f"with probability {certify.confidence:g} at most a share {certify.epsilon:g} of the uniform "
+                   f"configurations comes nearer (about {certify.epsilon * 3e5:g} of 300,000), and at most a share "
+                   f"{certify.clamp_share:g} of the clamp's. Beyond the box, the runtime safety filter keeps the "
+                   "margin.")
+        return CertificateReport(certify.epsilon, certify.confidence, self.N, time_ms, self.samples,
+                                 self.shrinks + boundary["edge_cuts"], freedom(self.table).mean,
+                                 freedom(self.current).mean, proven, sampled, clearance_m=clearance,
+                                 boundary=boundary)

@@ -1,0 +1,301 @@
+"""Cuts that free a failing region or a colliding point of a certified box:
+scale one bound's (or a group's) deviation from the nominal at both ends
+of a stretch, or at the nearer one, and keep the cut that loses the least
+log-width (the rate limit's effect on the neighbours counted). See
+:mod:`drake_cfvol.algorithm.boundary`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drake_cfvol.algorithm.regions import _Item, _box, _test
+
+__all__ = ['reaching_joints', 'cut_point', 'cut_slacks']
+
+
+#: Scales of a bound's deviation tried by a cut, largest first.
+CUT_SCALES = (0.95, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.0)
+
+
+#: Room a cut leaves beyond the margin, m, so the region tests (whose grid
+#: and growth bound need some clearance to prove anything) can pass.
+SLACK = 0.02
+
+
+#: Bisection steps that refine a cut's passing scale toward the failing one.
+REFINE_STEPS = 3
+
+
+def reaching_joints(workcell, arrays, q, margin) -> np.ndarray:
+    """(k,) the joints whose motion moves the nearest pair at q apart
+    (Drake's clearance query): for a robot body against the scene, the
+    joints that move it; for two robot bodies, the joints that move one but
+    not the other. All joints if no pair is near."""
+    k = len(q)
+    rc = workcell.checker.CalcRobotClearance(np.asarray(q, float), max(margin, 0.0) + 0.05)
+    d = np.asarray(rc.distances())
+    if d.size:
+        # A distance no joint changes (a rail carriage above the floor) is
+        # not what a cut can help.
+        J = np.asarray(rc.jacobians()).reshape(len(d), k)
+        d = np.where(np.linalg.norm(J, axis=1) > 1e-9, d, np.inf)
+    if not d.size or not np.isfinite(d).any():
+        return np.ones(k, bool)
+    n = int(np.argmin(d))
+    plant = workcell.plant
+    names = list(arrays.body_names)
+    a = plant.get_body(rc.robot_indices()[n]).name()
+    b = plant.get_body(rc.other_indices()[n]).name()
+    ma = arrays.moved_by[:, names.index(a)] if a in names else np.zeros(k, bool)
+    if str(rc.collision_types()[n]).endswith("kSelfCollision") and b in names:
+        return ma != arrays.moved_by[:, names.index(b)]
+    return ma.copy()
+
+
+def _scaled(lower, upper, nominal, i, moves):
+    """Copies of stretch i's waypoint bounds with the deviation of each
+    (joint, side, lam) of ``moves`` scaled by lam at both ends:
+    ((lo_i, lo_i1), (hi_i, hi_i1))."""
+    lo, hi = lower[i:i + 2].copy(), upper[i:i + 2].copy()
+    nom = nominal[i:i + 2]
+    for l, side, lam in moves:
+        if side > 0:
+            hi[:, l] = nom[:, l] + lam * (hi[:, l] - nom[:, l])
+        else:
+            lo[:, l] = nom[:, l] - lam * (nom[:, l] - lo[:, l])
+    return lo, hi
+
+
+def _width_loss(lower, upper, nominal, rate, i, lo, hi):
+    """Log-width the whole table loses if stretch i's two waypoint boxes
+    became lo, hi: their own loss and what the rate limit then takes from
+    the waypoints around them (:func:`drake_cfvol.algorithm.table.rate_limited`,
+    applied from the two changed rows; the rest is rate-limited already)."""
+    g = len(nominal)
+    lo_f = lower.copy()
+    hi_f = upper.copy()
+    lo_f[i:i + 2] = np.maximum(lo_f[i:i + 2], lo)
+    hi_f[i:i + 2] = np.minimum(hi_f[i:i + 2], hi)
+    lim = np.isfinite(rate)
+    if lim.any():
+        m = np.arange(g)[:, None]
+        for e in (i, i + 1):
+            d = np.abs(m - e) * np.where(lim, rate, 0.0)
+            hi_f = np.where(lim, np.minimum(hi_f, hi_f[e] + d), hi_f)
+            lo_f = np.where(lim, np.maximum(lo_f, lo_f[e] - d), lo_f)
+    lo_f = np.minimum(lo_f, nominal)
+    hi_f = np.maximum(hi_f, nominal)
+    w0 = np.maximum(upper - lower, 1e-12)
+    w1 = np.maximum(hi_f - lo_f, 1e-12)
+    return float(np.sum(np.log(w0 / w1)))
+
+
+def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: float, slack: float,
+            taken: set) -> bool:
+    """Tightens the waypoint boxes of a failing region's stretch (in place)
+    so that the region, recomputed, passes: the candidates are the edge's
+    own joint (its failing range off the nominal cut away) and every joint
+    on its bound in the region whose motion reaches the nearest pair, each
+    at CUT_SCALES of its deviation; the passing candidate that loses the
+    least width is applied; if none passes, the whole stretch box moves
+    halfway to the nominal. ``taken`` holds the (stretch, joint, side)
+    already cut this round (not cut again before the stretch is tested
+    anew). Returns False (nothing cut) only if the region on the nominal
+    itself fails the margin."""
+    i, j = fail.i, fail.j
+    sm = 0.5 * (fail.sa + fail.sb)
+    lo_m, hi_m, nom_m = _box(lower, upper, nominal, i, np.array([sm]))
+    q = np.where(fail.S == 1, hi_m[0], lo_m[0])
+    q[j] = 0.5 * (fail.va + fail.vb)
+    reach = reaching_joints(workcell, arrays, q, margin)
+    ss = np.array([fail.sa, fail.sb])
+    options = []  # (loss, stretch-local lo, hi, key)
+    # The edge's own joint: its failing range cut away where it lies off the nominal.
+    lo_ab, hi_ab, nom_ab = _box(lower, upper, nominal, i, ss)
+    for side in (1, -1):
+        if side > 0 and fail.va > nom_ab[:, j].max():
+            dev = hi_ab[:, j] - nom_ab[:, j]
+            lam = float(np.min((fail.va - nom_ab[:, j]) / np.maximum(dev, 1e-300)))
+        elif side < 0 and fail.vb < nom_ab[:, j].min():
+            dev = nom_ab[:, j] - lo_ab[:, j]
+            lam = float(np.min((nom_ab[:, j] - fail.vb) / np.maximum(dev, 1e-300)))
+        else:
+            continue
+        lam = float(np.clip(lam * (1 - 1e-6), 0.0, 1.0))
+        lo, hi = _scaled(lower, upper, nominal, i, [(j, side, lam)])
+        options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i, j, side)))
+    # Another joint on its bound in the region, and all of them together (a
+    # collision that two bounds make at once), tried at a few scales.
+    group = [int(l) for l in np.flatnonzero(reach) if l != j]
+    sides = {l: 1 if fail.S[l] == 1 else -1 for l in group}
+    cands = [((l, sides[l]), [l]) for l in group] + ([((-1, 0), group)] if len(group) > 1 else [])
+    trials = []
+    for (l, side), members in cands:
+        for lam in CUT_SCALES:
+            lo, hi = _scaled(lower, upper, nominal, i, [(m, sides[m], lam) for m in members])
+            if np.array_equal(lo, lower[i:i + 2]) and np.array_equal(hi, upper[i:i + 2]):
+                continue
+            a_lo, a_hi, _ = _box(lo, hi, nominal[i:i + 2], 0, ss - i)
+            ca = np.where(fail.S == 1, a_hi, a_lo)
+            trials.append((l, side, lam, lo, hi, _Item(i, fail.sa, fail.sb, j, fail.va, fail.vb, fail.S, ca[0], ca[1])))
+    if trials:
+        ok = ~_test(arrays, [t[5] for t in trials], {i: margin + slack})
+        best_l = {}
+        for (l, side, lam, lo, hi, _), good in zip(trials, ok):
+            if good and (l, side) not in best_l:  # scales run largest first: the first pass is the best
+                best_l[(l, side)] = (lo, hi)
+        for (l, side), (lo, hi) in best_l.items():
+            key = (i, int(l), side) if l >= 0 else (i, -2, 0)
+            options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, key))
+    options = [o for o in options
+               if not (np.array_equal(o[1], lower[i:i + 2]) and np.array_equal(o[2], upper[i:i + 2]))]
+    if not options:
+        # No single bound clears it: if the nominal's own stretch keeps the
+        # margin here, every bound of the stretch moves halfway to it (the
+        # box shrinks to the nominal, proven by the sweep); else the margin
+        # is what fails.
+        na, nb = nom_ab
+        on_nominal = _Item(i, fail.sa, fail.sb, j, min(na[j], nb[j]), max(na[j], nb[j]), fail.S, na, nb)
+        if _test(arrays, [on_nominal], {i: margin})[0]:
+            return False
+        key = (i, -1, 0)
+        nom2 = nominal[i:i + 2]
+        lo = nom2 - 0.5 * (nom2 - lower[i:i + 2])
+        hi = nom2 + 0.5 * (upper[i:i + 2] - nom2)
+        options.append((0.0, lo, hi, key))
+    _, lo, hi, key = min(options, key=lambda o: o[0])
+    if key in taken:
+        return True  # this bound moved already this round: test again first
+    taken.add(key)
+    lower[i:i + 2] = np.maximum(lower[i:i + 2], lo)
+    upper[i:i + 2] = np.minimum(upper[i:i + 2], hi)
+    return True
+
+
+def _variants(lower, upper, nominal, i, t, moves):
+    """Ways to scale, at s = i + t, the deviations from the nominal of the
+    (joint, side, lam) ``moves`` (each deviation at s becomes lam times
+    what it was): both ends of stretch i scaled by lam, or only the nearer
+    end, moved just enough (when that is possible). Returns a list of
+    (lo, hi), stretch i's two waypoint boxes, (2, k) each."""
+    out = [_scaled(lower, upper, nominal, i, moves)]
+    nom2 = nominal[i:i + 2]
+    e = 0 if t <= 0.5 else 1
+    w = max((1 - t) if e == 0 else t, 1e-12)
+    lo, hi = lower[i:i + 2].copy(), upper[i:i + 2].copy()
+    for l, side, lam in moves:
+        d = (hi[:, l] - nom2[:, l]) if side > 0 else (nom2[:, l] - lo[:, l])
+        new_e = d[e] - (1 - lam) * ((1 - t) * d[0] + t * d[1]) / w
+        if new_e < 0:
+            return out  # the nearer end alone cannot do it
+        if side > 0:
+            hi[e, l] = nom2[e, l] + new_e
+        else:
+            lo[e, l] = nom2[e, l] - new_e
+    out.append((lo, hi))
+    return out
+
+
+def cut_point(workcell, arrays, lower, upper, nominal, rate, i, s, q, margin, slack, taken, own=None) -> None:
+    """Tightens stretch i (in place) so that the colliding configuration q
+    of the box at s comes free, with ``slack`` (m) beyond the margin. q may
+    be a corner, an edge point (``own``: the edge's joint) or any point of
+    the box, such as where a clamp lands: each joint at its nominal, on a
+    bound, or inside. Candidates: each joint off its nominal whose motion
+    reaches the nearest pair (Drake), all of them together, and the edge's
+    own joint; each moves q's deviation toward the nominal by the largest
+    scale that frees it (CUT_SCALES, then REFINE_STEPS bisections; checked
+    as points), and the bound on that side is cut to match (a joint on its
+    bound moves with it; a joint inside is cut just below q). Each at both
+    ends of the stretch or at the nearer end only; the cut that loses the
+    least width, counting what the rate limit then takes from the
+    neighbours, is applied, else the stretch's box moves halfway to the
+    nominal. ``taken`` holds the cuts of this round (a key is cut once)."""
+    t = s - i
+    (lo_s,), (hi_s,), (nom,) = _box(lower, upper, nominal, i, np.array([s]))
+    # Cuts only tighten: an earlier cut this round may have moved (or freed)
+    # the point already.
+    q_now = np.clip(q, np.minimum(lo_s, nom), np.maximum(hi_s, nom))
+    if not np.array_equal(q_now, q):
+        q = q_now
+        if not arrays.may_collide(q[None], margin + slack)[0]:
+            return
+    off = q != nom
+    reach = [int(l) for l in np.flatnonzero(reaching_joints(workcell, arrays, q, margin) & off) if l != own]
+    cands = [[l] for l in reach] + ([reach] if len(reach) > 1 else [])
+    if own is not None and off[own]:
+        cands.append([own])
+    moves = []
+    if cands:
+        trials, Q = [], []
+        for group in cands:
+            for lam in CUT_SCALES:
+                x = q.copy()
+                x[group] = nom[group] + lam * (q[group] - nom[group])
+                trials.append((tuple(group), lam))
+                Q.append(x)
+        ok = ~arrays.may_collide(np.array(Q), margin + slack)
+        bracket, failing = {}, {}  # group -> (largest failing scale, largest passing scale)
+        for (key, lam), good in zip(trials, ok):
+            if key in bracket:
+                continue
+            if good:  # scales run largest first
+                bracket[key] = (failing.get(key, 1.0), lam)
+            else:
+                failing[key] = lam
+        keys = list(bracket)
+        for _ in range(REFINE_STEPS if keys else 0):  # bisect each passing scale toward the failing one
+            X = []
+            for key in keys:
+                x = q.copy()
+                x[list(key)] = nom[list(key)] + 0.5 * sum(bracket[key]) * (q[list(key)] - nom[list(key)])
+                X.append(x)
+            good = ~arrays.may_collide(np.array(X), margin + slack)
+            for key, gd in zip(keys, good):
+                mid = 0.5 * sum(bracket[key])
+                bracket[key] = (bracket[key][0], mid) if gd else (mid, bracket[key][1])
+        for key, (_, lam) in bracket.items():
+            mv = []
+            for l in key:
+                side = 1 if q[l] > nom[l] else -1
+                dev = (hi_s[l] - nom[l]) if side > 0 else (nom[l] - lo_s[l])
+                if dev > 0:  # q's deviation scaled by lam is this share of the bound's
+                    mv.append((l, side, min(1.0, lam * abs(q[l] - nom[l]) / dev)))
+            if mv:
+                moves.append((key, mv))
+    options = []
+    for key, mv in moves:
+        for lo, hi in _variants(lower, upper, nominal, i, t, mv):
+            options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i,) + key))
+    if not options:
+        nom2 = nominal[i:i + 2]
+        options.append((0.0, nom2 - 0.5 * (nom2 - lower[i:i + 2]), nom2 + 0.5 * (upper[i:i + 2] - nom2), (i, -1)))
+    _, lo, hi, key = min(options, key=lambda o: o[0])
+    if key in taken:
+        return
+    taken.add(key)
+    lower[i:i + 2] = np.maximum(lower[i:i + 2], lo)
+    upper[i:i + 2] = np.minimum(upper[i:i + 2], hi)
+
+
+def cut_slacks(arrays, nominal, margins, slack: float | None = None) -> np.ndarray:
+    """(g-1,) the room each stretch's cuts leave beyond its margin, m: the
+    largest of ``slack`` (default SLACK) halved up to three times, or 0, at
+    which the nominal's two waypoints and midpoint keep margin + room (a
+    cut can never clear more room than the nominal has)."""
+    slack = SLACK if slack is None else float(slack)
+    n_st = len(nominal) - 1
+    out = np.zeros(n_st)
+    if slack <= 0 or n_st < 1:
+        return out
+    Q = np.concatenate([nominal[:-1], nominal[1:], 0.5 * (nominal[:-1] + nominal[1:])])
+    pads = np.tile(np.asarray(margins, float), 3)
+    for rung in (0.125, 0.25, 0.5, 1.0):  # from small up: a rung that holds at every point is kept
+        room = rung * slack
+        free = np.zeros(len(Q), bool)
+        for p in np.unique(pads):
+            sel = pads == p
+            free[sel] = ~arrays.may_collide(Q[sel], float(p) + room)
+        out = np.where(free.reshape(3, n_st).all(axis=0), room, out)
+    return out

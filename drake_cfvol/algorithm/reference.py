@@ -1,0 +1,162 @@
+"""The reference backend: the volume as one SceneGraph box per column, and
+Drake's own collision checker (the paper's design, literally).
+
+Drake's SceneGraph cost grows about quadratically with the number of
+proximity geometries (its collision-filter table), so this backend is for R
+up to ~1000-2000. It is the ground truth the fast backend is tested against.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from pydrake.geometry import Box
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import CoulombFriction
+from pydrake.planning import SceneGraphCollisionChecker
+
+from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.algorithm.heightmap import Volume
+from drake_cfvol.scene.params import VolumeParams
+from drake_cfvol.io.progress import Progress
+from drake_cfvol.algorithm.table import absolute_bounds
+
+__all__ = ["VOLUME_BOX_PREFIX", "register_volume_boxes", "ReferenceScene", "drake_sweep_bounds"]
+
+#: Names of the volume's geometries in SceneGraph.
+VOLUME_BOX_PREFIX = "cfvol_volume_"
+
+#: Above this many columns the reference refuses (cost: see module docs).
+MAX_REFERENCE_BOXES = 3000
+
+
+def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35), visual: bool = True,
+                          boxes=None) -> list:
+    """Registers the volume's columns on the world body of a plant (before
+    ``Finalize``): proximity geometry, and an illustration if ``visual``.
+
+    Args:
+        boxes: (centres, sizes) to register instead of one box per column
+            (e.g. :meth:`Volume.merged_boxes`).
+
+    Returns:
+        The proximity ``GeometryId`` of each box.
+    """
+    centres, sizes = volume.boxes() if boxes is None else boxes[:2]
+    world = plant.world_body()
+    ids = []
+    for i, (c, s) in enumerate(zip(centres, sizes)):
+        X_WC = RigidTransform(c)
+        ids.append(plant.RegisterCollisionGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}{i}",
+                                                   CoulombFriction(0.5, 0.5)))
+        if visual:
+            plant.RegisterVisualGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}visual_{i}",
+                                         np.asarray(colour))
+    return ids
+
+
+class ReferenceScene:
+    """The workcell plus the volume's boxes in one Drake scene.
+
+    Args:
+        workcell: the workcell.
+        volume: the volume V.
+        edge_step: Drake's edge-check step, rad or m.
+        max_boxes: refuse volumes with more columns than this (Drake needs
+            ~1-2 s per 1000 boxes, 12 GB and a minute at 5000).
+        clearance: Drake's collision padding, m: a configuration nearer than
+            this to the volume, an obstacle or itself counts as colliding.
+    """
+
+    def __init__(self, workcell, volume: Volume, *, edge_step: float = 0.01,
+                 max_boxes: int = MAX_REFERENCE_BOXES, clearance: float = 0.0):
+        if volume.n_boxes > max_boxes:
+            raise ParameterError(
+                f"the reference backend holds one SceneGraph box per column; {volume.n_boxes} columns "
+                f"exceed its practical limit of {max_boxes} (Drake's cost grows quadratically). "
+                "Use backend='fast' or a lower resolution.")
+        t0 = time.perf_counter()
+        holder = {}
+
+        def add(plant):
+            holder["ids"] = register_volume_boxes(plant, volume, visual=False)
+
+        self.diagram, self.robot = workcell.build_scene(add)
+        self.box_ids = set(holder["ids"])
+        self.build_s = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        self.checker = SceneGraphCollisionChecker(
+            model=self.diagram, robot_model_instances=[self.robot], edge_step_size=edge_step,
+            env_collision_padding=clearance, self_collision_padding=clearance)
+        self.checker_s = time.perf_counter() - t1
+        self._context = self.diagram.CreateDefaultContext()
+
+    def configs_free(self, Q) -> np.ndarray:
+        """(N,) True where the robot is free of the volume, the obstacles and
+        itself (Drake)."""
+        return np.array(self.checker.CheckConfigsCollisionFree(np.atleast_2d(Q), parallelize=True), bool)
+
+    def volume_hits(self, Q) -> np.ndarray:
+        """(N,) True where the robot touches a volume column (Drake's
+        penetration query, real robot geometry)."""
+        plant = self.diagram.plant()
+        sg = self.diagram.scene_graph()
+        pctx = plant.GetMyMutableContextFromRoot(self._context)
+        sctx = sg.GetMyContextFromRoot(self._context)
+        out = np.zeros(len(Q), bool)
+        for n, q in enumerate(np.atleast_2d(Q)):
+            plant.SetPositions(pctx, self.robot, q)
+            query = sg.get_query_output_port().Eval(sctx)
+            for pp in query.ComputePointPairPenetration():
+                if pp.id_A in self.box_ids or pp.id_B in self.box_ids:
+                    out[n] = True
+                    break
+        return out
+
+
+def drake_sweep_bounds(workcell, waypoints: np.ndarray, volume: Volume, params: VolumeParams,
+                       *, scene: ReferenceScene | None = None,
+                       progress: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Joint bounds by Drake alone: each single-joint motion is sampled every
+    ``delta`` (the checker's resolution) from the nominal outwards; the bound
+    is the last free sample before the first collision (a sample nearer
+    than ``params.clearance`` counts as one).
+
+    With ``progress``, a bar on a terminal counts the waypoints (building
+    the scene is ~1 % of the time at R = 1000)."""
+    waypoints = np.asarray(waypoints, float)
+    g, k = waypoints.shape
+    scene = scene or ReferenceScene(workcell, volume, clearance=params.clearance)
+    bar = Progress(g, "Reference bounds (Drake)", enabled=progress, unit="waypoint")
+    lower = waypoints.copy()
+    upper = waypoints.copy()
+    checks = 0
+    chunk = 64
+    for i, q in enumerate(waypoints):
+        lo_abs, hi_abs = absolute_bounds(workcell.position_lower, workcell.position_upper, q)
+        for j in range(k):
+            delta = params.delta if workcell.revolute[j] else params.delta_prismatic
+            for sign, limit in ((+1, hi_abs[j]), (-1, lo_abs[j])):
+                span = max(sign * (limit - q[j]), 0.0)
+                steps = np.r_[np.arange(delta, span, delta), span] if span > 0 else np.zeros(0)
+                best = 0.0
+                for start in range(0, len(steps), chunk):
+                    part = steps[start: start + chunk]
+                    Q = np.repeat(q[None], len(part), axis=0)
+                    Q[:, j] = q[j] + sign * part
+                    free = scene.configs_free(Q)
+                    checks += len(part)
+                    if not free.all():
+                        first = int(np.argmin(free))
+                        best = part[first - 1] if first > 0 else best
+                        break
+                    best = part[-1]
+                if sign > 0:
+                    upper[i, j] = q[j] + best
+                else:
+                    lower[i, j] = q[j] - best
+        bar.update(1)
+    bar.close()
+    return lower, upper, {"drake_checks": checks, "scene_build_s": scene.build_s,
+                          "checker_build_s": scene.checker_s}

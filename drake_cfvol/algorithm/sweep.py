@@ -1,0 +1,173 @@
+"""Joint bounding (paper Algorithm 2, made sound and safe between waypoints;
+docs/spec.md, sections 6-7), on the compiled kernel.
+
+For every stretch [i, i+1] of the path, joint j and each direction, the
+bound is (to within delta) the farthest value v towards the joint's limit
+such that, for every s in the stretch, moving joint j alone from the
+interpolated nominal to v is free against the volume V, the obstacles and
+the robot itself.
+
+The paper tests only end values, and only at waypoints: its bisection can
+jump over an obstacle, and a box found at two waypoints can collide between
+them. Here each step of the search certifies a whole *region*: joint j over
+an interval [a, b] while the rest of the robot follows the nominal over the
+stretch. The robot is posed at the region's centre and each body grown by
+how far its points can move over the region (:func:`kernel._region_hits`);
+where the nominal's own motion is what makes a test fail, the stretch is
+halved. Each (joint, direction) walks the stretches in order, every search
+starting from the previous stretch's bound; the walks run in parallel.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from drake_cfvol import kernel as K
+from drake_cfvol.scene.arrays import SceneArrays
+from drake_cfvol.algorithm.heightmap import Volume
+from drake_cfvol.scene.params import VolumeParams
+
+__all__ = ["stretch_bounds", "volume_table", "nominal_growth", "default_rate", "stretch_margins"]
+
+#: Poses are sampled along the stretch (up to kernel.MAX_T_SAMPLES) until
+#: the nominal's own motion grows a body by at most this much between
+#: samples, and along joint j (up to kernel.MAX_V_SAMPLES) until j's motion
+#: does (m, second-order bounds).
+MOTION_TOLERANCE = 0.01
+
+
+def volume_table(volume: Volume | None) -> tuple[np.ndarray, float, float, float]:
+    """The kernel's view of V: (range-max table, origin x, origin y, side)."""
+    if volume is None or volume.n_boxes == 0:
+        return np.zeros((1, 1, 0, 0)), 0.0, 0.0, 1.0
+    hm = volume.heightmap
+    return volume.kernel_table(), float(hm.origin[0]), float(hm.origin[1]), float(hm.side)
+
+
+def nominal_growth(arrays: SceneArrays, waypoints: np.ndarray) -> np.ndarray:
+    """(g-1, k): the most any body is grown over a whole stretch by the
+    nominal's own motion when joint j is the one swept, m: max over bodies
+    of sum_kl |dq_k| |dq_l| curvature[k, l, b] / 8, k, l != j."""
+    dq = np.abs(np.diff(waypoints, axis=0))  # (g-1, k)
+    out = np.zeros(dq.shape)
+    for j in range(dq.shape[1]):
+        d = dq.copy()
+        d[:, j] = 0.0
+        a = np.einsum("ik,il,klb->ib", d, d, arrays.curvature)
+        out[:, j] = a.max(axis=1) / 8.0
+    return out
+
+
+#: Margins tried (as fractions of ``clearance``) when the nominal itself is
+#: nearer than the clearance somewhere: the largest the kernel proves free
+#: at both waypoints and the midpoint of a stretch is that stretch's margin.
+MARGIN_LADDER = (1.0, 0.95, 0.9, 0.85, 0.8, 0.7, 0.6, 0.5, 0.4, 0.3, 0.2, 0.1, 0.0)
+
+
+def stretch_margins(arrays: SceneArrays, waypoints: np.ndarray, clearance: float) -> np.ndarray:
+    """(g-1,) the margin each stretch keeps, m: ``clearance`` where the
+    nominal itself keeps it (planning does, except near a start or goal the
+    user placed nearer), else the largest rung of MARGIN_LADDER x clearance
+    at which the compiled kernel (conservative: its "free" means farther
+    than the margin) finds the stretch's two waypoints and its midpoint
+    free. So no box comes nearer than min(clearance, about the nominal's
+    own clearance). A stretch whose nominal dips below its margin between
+    those samples keeps its single-joint bounds at the nominal (the region
+    tests fail there): never unsafe, only narrow."""
+    W = np.ascontiguousarray(waypoints, dtype=np.float64)
+    g = len(W)
+    if g < 2:
+        return np.zeros(0)
+    if clearance <= 0:
+        return np.zeros(g - 1)
+    Q = np.concatenate([W, 0.5 * (W[:-1] + W[1:])])
+    kept = np.zeros(len(Q))
+    for rung in MARGIN_LADDER[::-1]:  # from 0 up: a rung that holds at q is kept
+        ok = ~arrays.may_collide(Q, rung * clearance)
+        kept = np.where(ok, rung * clearance, kept)
+    per_wp, mid = kept[:g], kept[g:]
+    return np.minimum(np.minimum(per_wp[:-1], per_wp[1:]), mid)
+
+
+def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | None, params: VolumeParams,
+                   lower_limit: np.ndarray, upper_limit: np.ndarray, margins: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Certified per-stretch joint bounds.
+
+    Args:
+        arrays: the workcell's kernel arrays.
+        waypoints: (g, k) the nominal path.
+        volume: V (None: obstacles and self only).
+        params: ``delta`` / ``delta_prismatic`` tolerances.
+        lower_limit, upper_limit: (g-1, k) absolute bounds per stretch (finite).
+        margins: (g-1,) the margin each stretch keeps from the obstacles,
+            V and itself, m (None: :func:`stretch_margins` of
+            ``params.clearance``).
+
+    Returns:
+        (lower (g-1, k), upper (g-1, k), stats). A bound may lie inside the
+        nominal's own range over its stretch (``stats["pinned"]`` counts
+        them): there the box is held at the nominal.
+    """
+    W = np.ascontiguousarray(waypoints, dtype=np.float64)
+    g, k = W.shape
+    n_st = g - 1
+    delta = np.where(arrays.revolute, params.delta, params.delta_prismatic).astype(np.float64)
+    growth = nominal_growth(arrays, W)  # (g-1, k); it scales with the sample spacing squared
+    nts = np.clip(1 + np.ceil(np.sqrt(growth / MOTION_TOLERANCE)), 2, K.MAX_T_SAMPLES).astype(np.int64)
+    # Along v: growth = reach L^2 / 8 <= tolerance for a step L.
+    reach_j = np.where(arrays.revolute, arrays.reach.max(axis=1), 0.0)
+    v_steps = np.where(reach_j > 0, np.sqrt(8 * MOTION_TOLERANCE / np.maximum(reach_j, 1e-9)), np.inf)
+    table, ox, oy, side = volume_table(volume)
+    lim_lo = np.ascontiguousarray(lower_limit, dtype=np.float64)
+    lim_hi = np.ascontiguousarray(upper_limit, dtype=np.float64)
+
+    if margins is None:
+        margins = stretch_margins(arrays, W, params.clearance)
+    chains = np.array([(j, sgn) for j in range(k) for sgn in (1, -1)], np.int64)
+    bounds, tests = K.sweep_chains(chains, (lim_lo, lim_hi, delta), nts, v_steps, W, arrays.model,
+                                   K.HeightField(table, float(ox), float(oy), float(side)),
+                                   np.ascontiguousarray(margins, dtype=np.float64))
+    lo_nom = np.minimum(W[:-1], W[1:])
+    hi_nom = np.maximum(W[:-1], W[1:])
+    upper = bounds[0::2].T.copy()
+    lower = bounds[1::2].T.copy()
+    tests = int(tests.sum())
+    # A bound inside the nominal's own range over the stretch is kept as it
+    # is: where the nominal passes it, the box is held at the nominal (the
+    # box at s always holds nom(s); see table.box_at).
+    stats = {"region_tests": tests, "searches": 2 * n_st * k,
+             "pinned": int((upper < hi_nom).sum() + (lower > lo_nom).sum()),
+             "max_t_samples": int(nts.max()) if nts.size else 0,
+             "motion_tolerance_m": MOTION_TOLERANCE, "clearance_m": float(params.clearance),
+             "stretches_below_clearance": int((margins < params.clearance).sum()),
+             "min_margin_m": float(margins.min()) if len(margins) else float(params.clearance)}
+    return lower, upper, stats
+
+
+#: Without a given time per waypoint, the nominal is taken to run at this
+#: fraction of the joints' velocity limits (a collaborative speed).
+NOMINAL_SPEED_FRACTION = 0.25
+
+
+def default_rate(waypoints: np.ndarray, velocity_limits: np.ndarray, waypoint_time: float | None) -> np.ndarray:
+    """The bounds' Lipschitz rate per unit s (docs/spec.md, section 7): each
+    joint's velocity limit times the nominal time per waypoint, so that a
+    clamp following the nominal never has to move a joint faster than its
+    limit. Without a given ``waypoint_time``: the time per waypoint of the
+    nominal at NOMINAL_SPEED_FRACTION of the limits (its slowest joint sets
+    it: max over steps and joints of |dq_j| / (fraction vmax_j)). A joint
+    without a velocity limit gets no rate limit (inf)."""
+    vmax = np.asarray(velocity_limits, float)
+    ok = np.isfinite(vmax) & (vmax > 0)
+    if waypoint_time is None:
+        step = np.abs(np.diff(waypoints, axis=0)).max(axis=0) if len(waypoints) > 1 else np.zeros(len(vmax))
+        per = np.where(ok, step / np.where(ok, NOMINAL_SPEED_FRACTION * vmax, 1.0), 0.0)
+        waypoint_time = float(per.max()) if per.size else 0.0
+    rate = np.where(ok, vmax * waypoint_time, math.inf)
+    # A rate below the nominal's own motion could not hold the nominal.
+    if len(waypoints) > 1:
+        rate = np.maximum(rate, np.abs(np.diff(waypoints, axis=0)).max(axis=0))
+    return rate

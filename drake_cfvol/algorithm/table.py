@@ -1,0 +1,401 @@
+"""The bounds table B = [b_1 .. b_g] and the rule for the box at any path
+parameter s (docs/spec.md, sections 2 and 7).
+
+This module is data only: it knows nothing of how the bounds were computed.
+:func:`box_at` is the one implementation of the box-at-s rule; the systems,
+the Confidence Factor and certification all call it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydrake.trajectories import PiecewisePolynomial
+
+from drake_cfvol.io.records import load_record, save_record
+from drake_cfvol.exceptions import DimensionError, ParameterError, RecordFormatError
+
+__all__ = ["BoundsTable", "absolute_bounds", "box_at", "nominal_trajectory", "waypoint_boxes", "intersection_stretches",
+           "rate_limited", "within_stretches", "INTERPOLATIONS"]
+
+#: Version 3 added ``interpolation`` (a version-2 file is read as "stretch").
+FORMAT_VERSION = 3
+#: The box-at-s rules between waypoints (docs/spec.md, section 7):
+#: "stretch", the stretch box rate-limited (the paper's per-joint bounds);
+#: "linear", each bound linear between its waypoints (certified tables:
+#: every corner of the box moves on a straight segment over a stretch, so
+#: the certificate can prove the box's edges and corners).
+INTERPOLATIONS = ("stretch", "linear")
+_ARRAYS = ("lower", "upper", "nominal")
+_STRETCH_ARRAYS = ("stretch_lower", "stretch_upper")
+
+
+def absolute_bounds(position_lower, position_upper, q) -> tuple[np.ndarray, np.ndarray]:
+    """Algorithm 2's absolute bounds B: the position limits; a joint without
+    limits uses nominal +- pi (docs/spec.md, section 2).
+
+    Args:
+        position_lower, position_upper: (k,) limits, rad or m (may be inf).
+        q: (k,) or (n, k) nominal configurations.
+
+    Returns:
+        (lower, upper), shaped like ``q``.
+    """
+    q = np.asarray(q, float)
+    lo = np.where(np.isfinite(position_lower), position_lower, q - np.pi)
+    hi = np.where(np.isfinite(position_upper), position_upper, q + np.pi)
+    return np.broadcast_to(lo, q.shape).copy(), np.broadcast_to(hi, q.shape).copy()
+
+
+def nominal_trajectory(nominal: np.ndarray) -> PiecewisePolynomial:
+    """The nominal as a function of the path parameter s in [0, g-1]: linear
+    between waypoints (a first-order hold), held constant outside."""
+    nominal = np.asarray(nominal, float)
+    return PiecewisePolynomial.FirstOrderHold(np.arange(len(nominal), dtype=float), nominal.T)
+
+
+def intersection_stretches(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Stretch boxes from waypoint boxes by the plain intersection of the
+    two neighbours (the rule of format-1 tables)."""
+    return np.maximum(lower[:-1], lower[1:]), np.minimum(upper[:-1], upper[1:])
+
+
+def _envelopes(U: np.ndarray, rate: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
+    """For the upper bound (sign +1): A[i] = min over i' < i of
+    (U[i'] - rate (i' + 1)) and Bv[i] = min over i' > i of (U[i'] + rate i'),
+    so that min(U[i], A[i] + rate s, Bv[i] - rate s) is the smallest of
+    U[i'] + rate * dist(s, stretch i') for s in stretch i. For the lower bound
+    (sign -1) the same with max and the signs turned."""
+    n, k = U.shape
+    idx = np.arange(n, dtype=float)[:, None]
+    with np.errstate(invalid="ignore"):
+        before = sign * U - rate * (idx + 1)
+        after = sign * U + rate * idx
+    before = np.where(np.isfinite(rate), before, np.inf)
+    after = np.where(np.isfinite(rate), after, np.inf)
+    A = np.full((n, k), np.inf)
+    Bv = np.full((n, k), np.inf)
+    if n > 1:
+        A[1:] = np.minimum.accumulate(before[:-1], axis=0)
+        Bv[:-1] = np.minimum.accumulate(after[::-1], axis=0)[::-1][1:]
+    return A, Bv
+
+
+#: The last envelopes computed, with copies of their inputs: a system
+#: looking up one s at a time asks for the same table's again and again.
+_LAST_ENVELOPES: list = []
+
+
+def _stretch_envelopes(stretch_lower, stretch_upper, rate):
+    """(Au, Bu, Al, Bl) of :func:`_envelopes`, reused while the inputs are
+    equal to the last call's (compared by value, so an array changed in
+    place is never served stale envelopes)."""
+    if _LAST_ENVELOPES:
+        (lo, hi, r), out = _LAST_ENVELOPES[0]
+        if (lo.shape == stretch_lower.shape and np.array_equal(lo, stretch_lower) and np.array_equal(hi, stretch_upper)
+                and np.array_equal(r, rate)):
+            return out
+    Au, Bu = _envelopes(stretch_upper, rate, 1.0)
+    Al, Bl = _envelopes(stretch_lower, rate, -1.0)
+    _LAST_ENVELOPES[:] = [((stretch_lower.copy(), stretch_upper.copy(), np.array(rate, float)), (Au, Bu, Al, Bl))]
+    return Au, Bu, Al, Bl
+
+
+def _stretch_rule(stretch_lower: np.ndarray, stretch_upper: np.ndarray, rate: np.ndarray, s: np.ndarray,
+                  i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rate-limited stretch bounds at path parameters s, each in stretch
+    i (before the nominal is added; see :func:`box_at`)."""
+    Au, Bu, Al, Bl = _stretch_envelopes(stretch_lower, stretch_upper, rate)
+    r = np.where(np.isfinite(rate), rate, 0.0)
+    sc = s[:, None]
+    hi = np.minimum(np.minimum(stretch_upper[i], Au[i] + r * sc), Bu[i] - r * sc)
+    lo = -np.minimum(np.minimum(-stretch_lower[i], Al[i] + r * sc), Bl[i] - r * sc)
+    return lo, hi
+
+
+def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
+           stretch_lower: np.ndarray | None = None, stretch_upper: np.ndarray | None = None,
+           rate: np.ndarray | None = None, trajectory: PiecewisePolynomial | None = None,
+           interpolation: str = "stretch") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The box at path parameters s (docs/spec.md, section 7), vectorised.
+
+    At an integer s: the waypoint's box. In stretch [i, i+1], by
+    ``interpolation``:
+
+    - "stretch": its certified stretch box, tightened so that no bound
+      changes faster than ``rate`` per unit s (the smallest of the stretch
+      bounds plus rate times the distance to their stretch), and widened
+      where needed to hold the interpolated nominal. Without stretch boxes
+      they are the intersection of the two waypoints' boxes; without a
+      rate, no rate limit.
+    - "linear": every bound linear from its value at waypoint i to its
+      value at i + 1 (holds the nominal, which is linear too; the rate
+      limit is the waypoints', :func:`rate_limited`).
+
+    Args:
+        lower, upper, nominal: (g, k) waypoint boxes and nominal.
+        s: a scalar or (n,) path parameters in [0, g-1].
+        stretch_lower, stretch_upper: (g-1, k) certified stretch boxes.
+        rate: (k,) largest change of a bound per unit s (inf: none).
+        trajectory: :func:`nominal_trajectory` of ``nominal`` (saves building it).
+
+    Returns:
+        (lower, upper, nominal), each (k,) for a scalar s, else (n, k).
+
+    Raises:
+        ParameterError: an s outside [0, g-1] or not finite.
+    """
+    if interpolation not in INTERPOLATIONS:
+        raise ParameterError(f"interpolation must be one of {', '.join(map(repr, INTERPOLATIONS))}, "
+                             f"got {interpolation!r}.")
+    g, k = nominal.shape
+    scalar = np.ndim(s) == 0
+    s = np.atleast_1d(np.asarray(s, float))
+    bad = ~np.isfinite(s) | (s < 0) | (s > g - 1)
+    if bad.any():
+        raise ParameterError(f"path index s = {s[bad][0]} is outside [0, {g - 1}] (g = {g} waypoints).")
+    traj = trajectory if trajectory is not None else nominal_trajectory(nominal)
+    nom = traj.vector_values(s).T if g > 1 else np.repeat(nominal[:1], len(s), axis=0)
+    if g == 1:
+        lo, hi = np.repeat(lower[:1], len(s), axis=0), np.repeat(upper[:1], len(s), axis=0)
+    elif interpolation == "linear":
+        i = np.clip(np.floor(s).astype(int), 0, g - 2)
+        t = (s - i)[:, None]
+        lo = (1.0 - t) * lower[i] + t * lower[i + 1]
+        hi = (1.0 - t) * upper[i] + t * upper[i + 1]
+        lo, hi = np.minimum(lo, nom), np.maximum(hi, nom)
+        at = s == np.floor(s)
+        w = s[at].astype(int)
+        lo[at], hi[at], nom[at] = lower[w], upper[w], nominal[w]
+    else:
+        if stretch_lower is None or stretch_upper is None:
+            stretch_lower, stretch_upper = intersection_stretches(lower, upper)
+        rate = np.full(k, np.inf) if rate is None else np.asarray(rate, float)
+        lo, hi = _stretch_rule(stretch_lower, stretch_upper, rate, s, np.clip(np.floor(s).astype(int), 0, g - 2))
+        lo, hi = np.minimum(lo, nom), np.maximum(hi, nom)
+        at = s == np.floor(s)
+        w = s[at].astype(int)
+        lo[at], hi[at], nom[at] = lower[w], upper[w], nominal[w]
+    if scalar:
+        return lo[0], hi[0], nom[0]
+    return lo, hi, nom
+
+
+def waypoint_boxes(stretch_lower: np.ndarray, stretch_upper: np.ndarray, nominal: np.ndarray,
+                   rate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The waypoint boxes that the stretch rule gives at integer s (the limit
+    from either side): both neighbouring stretches' bounds, rate-limited."""
+    g = len(nominal)
+    # The stretch rule at every integer s (s = g-1 lies in the last stretch).
+    lo, hi = _stretch_rule(stretch_lower, stretch_upper, np.asarray(rate, float), np.arange(g, dtype=float),
+                           np.clip(np.arange(g), 0, g - 2))
+    # At an interior waypoint the previous stretch's cap also applies.
+    hi[1:g - 1] = np.minimum(hi[1:g - 1], stretch_upper[: g - 2])
+    lo[1:g - 1] = np.maximum(lo[1:g - 1], stretch_lower[: g - 2])
+    return np.minimum(lo, nominal), np.maximum(hi, nominal)
+
+
+def rate_limited(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, rate: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Waypoint boxes tightened (never widened) so that no bound changes
+    by more than ``rate`` from one waypoint to the next: the upper bound
+    becomes min over i' of (upper[i'] + rate |i - i'|), the lower bound the
+    mirror image; then held at the nominal (a no-op when the rate is at
+    least the nominal's own step, as :func:`drake_cfvol.algorithm.sweep.default_rate`
+    makes it). The "linear" rule then never moves a bound faster than rate."""
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    rate = np.asarray(rate, float)
+    r = np.where(np.isfinite(rate), rate, 0.0)
+    lim = np.isfinite(rate)
+    hi, lo = upper.copy(), lower.copy()
+    for i in range(1, len(hi)):  # forward pass, then backward: the min over i' of U[i'] + rate |i - i'|
+        hi[i] = np.where(lim, np.minimum(hi[i], hi[i - 1] + r), hi[i])
+        lo[i] = np.where(lim, np.maximum(lo[i], lo[i - 1] - r), lo[i])
+    for i in range(len(hi) - 2, -1, -1):
+        hi[i] = np.where(lim, np.minimum(hi[i], hi[i + 1] + r), hi[i])
+        lo[i] = np.where(lim, np.maximum(lo[i], lo[i + 1] - r), lo[i])
+    return np.minimum(lo, nominal), np.maximum(hi, nominal)
+
+
+def within_stretches(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, stretch_lower: np.ndarray,
+                     stretch_upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Waypoint boxes tightened (never widened) so that under the "linear"
+    rule no bound leaves what the stretch boxes prove: on stretch i, the
+    upper bound at s stays at most max(stretch_upper[i], nom(s)) (lower
+    mirrored). A waypoint's bound may sit at its nominal beyond the stretch
+    box (SPEC 7, rule 3); then the line to the other waypoint may pass
+    above both the stretch bound and the nominal where the nominal crosses
+    the stretch bound, at t*. There the other end is lowered just enough:
+    to the value whose line meets the stretch bound at t* (never below its
+    nominal)."""
+    lo, hi = np.array(lower, float), np.array(upper, float)
+    nom = np.asarray(nominal, float)
+    for sign, b, st in ((1.0, hi, stretch_upper), (-1.0, lo, stretch_lower)):
+        for i in range(len(nom) - 1):
+            a0, a1 = sign * b[i], sign * b[i + 1]
+            n0, n1 = sign * nom[i], sign * nom[i + 1]
+            cap = sign * st[i]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ts = (cap - n0) / (n1 - n0)
+            cross = np.isfinite(ts) & (ts > 0) & (ts < 1)
+            ts = np.where(cross, ts, 0.5)  # elsewhere unused (and inf - inf for a joint without limits)
+            over = cross & ((1 - ts) * a0 + ts * a1 > cap)
+            if not over.any():
+                continue
+            # The end where the nominal lies below the cap is the one to lower.
+            lower_end1 = over & (n0 > cap)
+            lower_end0 = over & ~(n0 > cap)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                new1 = (cap - (1 - ts) * a0) / ts
+                new0 = (cap - ts * a1) / (1 - ts)
+            a1n = np.where(lower_end1, np.maximum(np.minimum(a1, new1), n1), a1)
+            a0n = np.where(lower_end0, np.maximum(np.minimum(a0, new0), n0), a0)
+            b[i], b[i + 1] = sign * a0n, sign * a1n
+    return np.minimum(lo, nom), np.maximum(hi, nom)
+
+
+@dataclasses.dataclass
+class BoundsTable:
+    """Per-waypoint joint bounds B = [b_1 .. b_g] along a nominal path.
+
+    Attributes:
+        lower, upper, nominal: (g, k), rad or m.
+        joint_names: the k joints.
+        limit_lower, limit_upper: (k,) the absolute bounds used.
+        params: the parameters used (a dict).
+        timing_ms: categorize / volume / bounding / total (and certify), ms.
+        info: everything else worth keeping (cell, path label, seed,
+            backend, categories, n_boxes, lowered, dropped, test counts).
+        volume: the volume V and the obstacle categories it was grown from
+            (a :class:`drake_cfvol.algorithm.volume.VolumeBuild`), or None for a table
+            loaded from disk (not saved; rebuild it with
+            :func:`drake_cfvol.algorithm.volume.build_volume`).
+        stretch_lower, stretch_upper: (g-1, k) the certified box of each
+            stretch [i, i+1] (default: the intersection of its two waypoint
+            boxes, as in format-1 files).
+        rate: (k,) the largest change of a bound per unit s (inf: none).
+        interpolation: the box between waypoints, "stretch" or "linear"
+            (:func:`box_at`; certified tables are "linear").
+    """
+
+    lower: np.ndarray
+    upper: np.ndarray
+    nominal: np.ndarray
+    joint_names: list[str]
+    limit_lower: np.ndarray
+    limit_upper: np.ndarray
+    params: dict = dataclasses.field(default_factory=dict)
+    timing_ms: dict = dataclasses.field(default_factory=dict)
+    info: dict = dataclasses.field(default_factory=dict)
+    volume: Any = dataclasses.field(default=None, repr=False, compare=False)
+    stretch_lower: np.ndarray | None = None
+    stretch_upper: np.ndarray | None = None
+    rate: np.ndarray | None = None
+    interpolation: str = "stretch"
+
+    def __post_init__(self):
+        for name in ("lower", "upper", "nominal", "limit_lower", "limit_upper"):
+            setattr(self, name, np.asarray(getattr(self, name), float))
+        if not (self.lower.shape == self.upper.shape == self.nominal.shape) or self.nominal.ndim != 2:
+            raise DimensionError("bounds arrays", self.nominal.shape, (self.lower.shape, self.upper.shape))
+        if self.nominal.shape[1] != len(self.joint_names):
+            raise DimensionError("bounds columns", len(self.joint_names), self.nominal.shape[1])
+        g, k = self.nominal.shape
+        if self.stretch_lower is None or self.stretch_upper is None:
+            self.stretch_lower, self.stretch_upper = intersection_stretches(self.lower, self.upper)
+        self.stretch_lower = np.asarray(self.stretch_lower, float)
+        self.stretch_upper = np.asarray(self.stretch_upper, float)
+        if self.stretch_lower.shape != (max(g - 1, 0), k) or self.stretch_upper.shape != (max(g - 1, 0), k):
+            raise DimensionError("stretch bounds", (g - 1, k), (self.stretch_lower.shape, self.stretch_upper.shape))
+        self.rate = np.full(k, np.inf) if self.rate is None else np.asarray(self.rate, float).reshape(k)
+        if self.interpolation not in INTERPOLATIONS:
+            raise ParameterError(f"BoundsTable: interpolation must be one of {', '.join(map(repr, INTERPOLATIONS))}"
+                                 f", got {self.interpolation!r}.")
+        self._trajectory = nominal_trajectory(self.nominal)
+
+    @property
+    def g(self) -> int:
+        """Number of waypoints."""
+        return self.nominal.shape[0]
+
+    @property
+    def k(self) -> int:
+        """Number of joints."""
+        return self.nominal.shape[1]
+
+    @property
+    def trajectory(self) -> PiecewisePolynomial:
+        """The nominal as a Drake trajectory of s (:func:`nominal_trajectory`)."""
+        return self._trajectory
+
+    @property
+    def s(self) -> np.ndarray:
+        """The path parameter of each waypoint: 0 .. g-1."""
+        return np.arange(self.g, dtype=float)
+
+    def at(self, s: float):
+        """(lower, upper, nominal) at path parameter s in [0, g-1]."""
+        return box_at(self.lower, self.upper, self.nominal, float(s), stretch_lower=self.stretch_lower,
+                      stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self._trajectory,
+                      interpolation=self.interpolation)
+
+    def boxes_at(self, s: np.ndarray):
+        """:meth:`at` for many s at once: three (n, k) arrays."""
+        return box_at(self.lower, self.upper, self.nominal, np.asarray(s, float), stretch_lower=self.stretch_lower,
+                      stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self._trajectory,
+                      interpolation=self.interpolation)
+
+    def widths(self) -> np.ndarray:
+        """(g, k) upper - lower."""
+        return self.upper - self.lower
+
+    def to_json_dict(self) -> dict:
+        return {"format": "drake_cfvol.BoundsTable", "version": FORMAT_VERSION,
+                "joint_names": list(self.joint_names), "lower": self.lower.tolist(),
+                "upper": self.upper.tolist(), "nominal": self.nominal.tolist(),
+                "limit_lower": self.limit_lower.tolist(), "limit_upper": self.limit_upper.tolist(),
+                "stretch_lower": self.stretch_lower.tolist(), "stretch_upper": self.stretch_upper.tolist(),
+                "rate": [v if np.isfinite(v) else None for v in self.rate.tolist()],
+                "interpolation": self.interpolation,
+                "params": self.params, "timing_ms": self.timing_ms, "info": _jsonable(self.info)}
+
+    def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
+        """Saves as ``.npz`` (arrays + JSON metadata) or ``.json`` (the
+        volume is not saved)."""
+        return save_record(path, self.to_json_dict(), _ARRAYS + _STRETCH_ARRAYS, "bounds", overwrite=overwrite)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "BoundsTable":
+        """Loads a table saved by :meth:`save` (``volume`` is None).
+
+        Raises:
+            RecordFormatError: the file is missing, empty, truncated or not a table.
+        """
+        d, a = load_record(path, _ARRAYS, "bounds", optional=_STRETCH_ARRAYS,
+                           required=("joint_names", "limit_lower", "limit_upper"))
+        version = d.get("version", 1)
+        if not isinstance(version, int) or version > FORMAT_VERSION:
+            raise RecordFormatError(path, "bounds", f"it is of format version {version!r} and this drake_cfvol "
+                                    f"reads versions up to {FORMAT_VERSION} (update drake_cfvol to read it)")
+        rate = d.get("rate")
+        return cls(a["lower"], a["upper"], a["nominal"], d["joint_names"],
+                   np.array(d["limit_lower"], float), np.array(d["limit_upper"], float),
+                   d.get("params", {}), d.get("timing_ms", {}), d.get("info", {}),
+                   stretch_lower=a.get("stretch_lower"), stretch_upper=a.get("stretch_upper"),
+                   rate=None if rate is None else np.array([np.inf if v is None else v for v in rate], float),
+                   interpolation=d.get("interpolation", "stretch"))
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    return obj

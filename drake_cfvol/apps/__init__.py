@@ -1,0 +1,3 @@
+"""Front ends: the ``cfvol`` command line and the demo. May import every other
+subpackage.
+"""

@@ -1,0 +1,439 @@
+"""The ``cfvol`` command line: thin wrappers over library functions."""
+
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from drake_cfvol.io.records import output_stem, prepare_output
+from drake_cfvol._version import __version__
+from drake_cfvol.exceptions import CfvolError, ParameterError
+
+#: drake_cfvol.comanip.adversarial.PATTERNS, spelled out so that ``cfvol --help``
+#: does not import Drake (tests/test_cli.py checks the two agree).
+PUSH_PATTERNS = ("random", "nearest", "random_pushes")
+
+_DESCRIPTION = ("Joint bounds that tell a robot how far a co-worker may push it off its planned path "
+                "without hitting anything (plan, bound, simulate, benchmark).")
+
+
+def _quiet_drake() -> None:
+    import logging
+
+    from pydrake.common import configure_logging
+
+    configure_logging()
+    logging.getLogger("drake").setLevel(logging.WARNING)
+
+
+def _path_name(n: str) -> str:
+    return n if n.startswith("path") or not n.isdigit() else f"path{n}"
+
+
+#: Plain-output labels: what each summary key means, with its unit.
+_LABELS = {
+    "cell": "cell", "path": "path", "seed": "seed", "g": "waypoints (g)", "k": "joints (k)",
+    "plan_time_ms": "planning time", "total_time_ms": "planning + checks", "attempts": "planner attempts",
+    "path_length": "path length (joint space)", "waypoints_sha256": "waypoints sha256", "out": "written to",
+    "resolution": "height-map cells (R)", "backend": "backend", "time_ms": "time to compute the bounds",
+    "timing_ms": "time per step", "cf_percent": "confidence factor (CF)", "cf_samples": "CF samples",
+    "cf_colliding": "CF samples colliding", "freedom": "freedom (mean geometric width share)",
+    "median_width": "median width per joint", "n_boxes": "volume columns", "lowered_columns": "columns lowered",
+    "dropped_columns": "columns dropped", "categories": "obstacle categories", "files": "files",
+    "certify_ms": "certification time", "certificate": "certificate",
+}
+_UNITS = {"plan_time_ms": " ms", "total_time_ms": " ms", "time_ms": " ms", "certify_ms": " ms", "cf_percent": " %",
+          "sim_wall_s": " s", "duration_s": " s", "min_clearance_m": " m", "bounds_time_ms": " ms", "build_ms": " ms",
+          "max_bound_violation": " rad/m", "max_deviation": " rad/m", "path_length": " rad/m"}
+
+
+def _fmt(v, unit: str = "") -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.4g}{unit}" if abs(v) < 1e4 else f"{v:.0f}{unit}"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_fmt(x) for x in v) or "-"
+    return f"{v}{unit}"
+
+
+def _emit(summary: dict, as_json: bool) -> None:
+    """Prints a command's summary: one JSON object, or one line per fact
+    for people (names, units, no Python reprs)."""
+    if as_json:
+        print(json.dumps(summary, default=float))
+        return
+    units = summary.pop("median_width_units", None)
+    lines = []
+    for key, v in summary.items():
+        label = _LABELS.get(key, key.replace("_", " "))
+        if key == "timing_ms" and isinstance(v, dict):
+            text = ", ".join(f"{n} {x:.1f} ms" for n, x in v.items())
+        elif key == "median_width" and isinstance(v, dict):
+            text = ", ".join(f"{n} {x:.3g} {(units or {}).get(n, '')}".rstrip() for n, x in v.items())
+        elif key == "categories" and isinstance(v, dict):
+            text = "; ".join(f"{n.replace('_', '-')}: {', '.join(x) or '-'}" for n, x in v.items())
+        elif key == "certificate" and isinstance(v, dict):
+            lines.append(("certificate", ("cached; " if v.get("cached") else "")
+                          + f"{v.get('shrinks', 0)} cuts, freedom {v.get('freedom_before', 0):.3f} -> "
+                          f"{v.get('freedom_after', 0):.3f}"))
+            lines.append(("  proven", v.get("proven", "")))
+            lines.append(("  sampled", v.get("sampled", "")))
+            continue
+        elif key == "files" and isinstance(v, dict):
+            for n, f in v.items():
+                lines.append((f"  {n.replace('_', ' ')}", f))
+            continue
+        elif isinstance(v, dict):
+            text = ", ".join(f"{n} {_fmt(x)}" for n, x in v.items()) or "-"
+        else:
+            text = _fmt(v, _UNITS.get(key, ""))
+        lines.append((label, text))
+    width = max(len(a) for a, _ in lines) + 1
+    for a, b in lines:
+        print(f"{a:<{width}} {b}")
+
+
+def _out_path(p: str | None) -> Path | None:
+    """A path the user gave, resolved against their current folder."""
+    return Path(p).expanduser().resolve() if p else None
+
+
+def cmd_plan(args) -> int:
+    from drake_cfvol.algorithm.planning import plan_nominal_path
+    from drake_cfvol.scene.workcell import load_workcell
+
+    out = _out_path(args.out)
+    if out is not None:
+        prepare_output(out, overwrite=args.force)
+    wc = load_workcell(args.cell)
+    label = _path_name(args.path)
+    start, goal = wc.configuration(label)
+    path = plan_nominal_path(wc, start, goal, seed=args.seed, time_limit=args.time_limit, label=label,
+                             clearance=args.clearance)
+    if out is not None:
+        out = str(path.save(out, overwrite=args.force))
+    summary = {
+        "cell": wc.name, "path": label, "seed": args.seed, "g": path.g, "k": path.k,
+        "clearance_m": path.stats["clearance_m"],
+        "plan_time_ms": round(path.stats["plan_time_ms"], 3),
+        "total_time_ms": round(path.stats["total_time_ms"], 3),
+        "attempts": path.stats["attempts"], "path_length": round(path.length, 6),
+        "waypoints_sha256": path.sha256, "out": out,
+    }
+    _emit(summary, args.json)
+    return 0
+
+
+def _bundled_scenarios() -> list[str]:
+    """The bundled scenarios' names (the package's diagrams folder), read
+    without importing Drake."""
+    from importlib import resources
+
+    return sorted(p.name[:-5] for p in resources.files("drake_cfvol.diagrams").iterdir() if p.name.endswith(".yaml"))
+
+
+def cmd_bounds(args) -> int:
+    from drake_cfvol.algorithm.metrics import confidence_factor, freedom, shown_percent
+    from drake_cfvol.scene.params import VolumeParams
+    from drake_cfvol.algorithm.pipeline import estimate_bounds
+    from drake_cfvol.algorithm.planning import plan_nominal_path
+    from drake_cfvol.algorithm.volume import height_map_of
+    from drake_cfvol.scene.workcell import load_workcell
+
+    if args.plot and not args.out:
+        raise ParameterError("--plot needs --out DIR (the folder to write the plot to).")
+    lonely = [f"--{n.replace('_', '-')}"
+              for n in ("epsilon", "clamp_epsilon", "confidence", "no_cache", "no_boundary_proof")
+              if getattr(args, n) not in (None, False)]
+    if lonely and not args.certify:
+        raise ParameterError(f"{', '.join(lonely)} only apply{'s' if len(lonely) == 1 else ''} to certified bounds: "
+                             "add --certify, or leave them out.")
+    if args.cf_windows < 1 or args.cf_samples < 1:
+        raise ParameterError(f"--cf-windows and --cf-samples must be >= 1, got {args.cf_windows} and "
+                             f"{args.cf_samples}.")
+    out = _out_path(args.out)
+    wc = load_workcell(args.cell)
+    label = _path_name(args.path)
+    stem = output_stem(wc.name, label, args.resolution, certified=args.certify)
+    if out is not None:
+        prepare_output(out, overwrite=args.force, folder=True)
+        for kind, ext in (("bounds", ".npz"), ("bounds", ".json"), ("path", ".json")):
+            prepare_output(out / f"{stem}_{kind}{ext}", overwrite=args.force)
+    # Check the configuration pair and the resolution (and its memory) before planning.
+    wc.configuration(label)
+    params = VolumeParams.for_workcell(wc, resolution=args.resolution, clearance=args.clearance)
+    height_map_of(wc, params)
+    path = plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label, clearance=params.clearance)
+    bars = not args.json
+    certify = None
+    if args.certify:
+        from drake_cfvol.algorithm.certify import Certify
+
+        given = {n: getattr(args, n) for n in ("epsilon", "clamp_epsilon", "confidence")
+                 if getattr(args, n) is not None}
+        certify = Certify(**given, seed=args.seed, cache=not args.no_cache,
+                          boundary=not args.no_boundary_proof)
+    table = estimate_bounds(wc, path, params, backend=args.backend, certify=certify, progress=bars)
+    cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
+                           progress=bars)
+    fr = freedom(table, wc.revolute)
+    files = {}
+    if out is not None:
+        files["bounds_npz"] = str(table.save(out / f"{stem}_bounds.npz", overwrite=args.force))
+        files["bounds_json"] = str(table.save(out / f"{stem}_bounds.json", overwrite=args.force))
+        files["path_json"] = str(path.save(out / f"{stem}_path.json", overwrite=args.force))
+        if args.plot:
+            from drake_cfvol.io.plotting import plot_bounds
+
+            files["plot_png"] = str(plot_bounds(table, out / f"{stem}_bounds.png", revolute=wc.revolute,
+                                                title=f"{wc.name} {label}, R = {args.resolution}"
+                                                + (", certified" if args.certify else "")))
+    summary = {
+        "cell": wc.name, "path": label, "seed": args.seed, "resolution": args.resolution,
+        "backend": args.backend, "g": table.g, "k": table.k,
+        "time_ms": round(table.timing_ms["total"], 3),
+        "timing_ms": {k: round(v, 3) for k, v in table.timing_ms.items()},
+        "certified": certify is not None, "clearance_m": params.clearance,
+        "cf_percent": shown_percent(cf.percent, cf.colliding, 4), "cf_samples": cf.samples,
+        "cf_colliding": cf.colliding,
+        "freedom": round(fr.mean, 5),
+        "median_width": dict(zip(table.joint_names, [round(float(x), 3) for x in fr.median_width])),
+        "median_width_units": dict(zip(table.joint_names, fr.units)),
+        "n_boxes": table.info["n_boxes"], "lowered_columns": table.info["lowered_columns"],
+        "dropped_columns": table.info["dropped_columns"], "categories": table.info["categories"],
+        "out": str(out) if out else None, "files": files,
+    }
+    if certify is not None:
+        summary["certify_ms"] = round(table.timing_ms["certify"], 3)
+        summary["certificate"] = table.info["certificate"]
+    _emit(summary, args.json)
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    from drake_cfvol.comanip import load_scenario, run_scenario
+
+    load_scenario(args.scenario, scenario_text=args.scenario_text)  # every field checked before planning
+    out = _out_path(args.out) or Path("out").resolve() / Path(args.scenario).stem
+    prepare_output(out, overwrite=True, folder=True)
+    summary = run_scenario(args.scenario, out, record=not args.no_record, progress=not args.json,
+                           scenario_text=args.scenario_text)
+    for note in summary.get("notices", []):
+        print(f"cfvol: note: {note}", file=sys.stderr)
+    _emit(summary, args.json)
+    if summary.get("problems"):
+        print(f"cfvol: unsafe run: {'; '.join(summary['problems'])}.", file=sys.stderr)
+        return 1
+    return 0
+
+
+def bench_harness():
+    """The benchmark harness (the paper's tables, the adversarial section):
+    ``benchmarks/harness.py`` of the development checkout this package runs
+    from. It is not part of the library (nor of the wheel).
+
+    Raises:
+        CfvolError: the package is not running from a development checkout.
+    """
+    import importlib
+
+    root = Path(__file__).resolve().parents[2]
+    if not (root / "benchmarks" / "harness.py").is_file():
+        raise CfvolError(f"cfvol bench runs from a development checkout of drake_cfvol (its benchmarks/ folder); "
+                         f"this one is installed at {root}. Clone the repository and run tools/dev.sh cfvol bench.")
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    return importlib.import_module("benchmarks.harness")
+
+
+def cmd_bench(args) -> int:
+    harness = bench_harness()
+    BenchConfig, run_bench, write_outputs = harness.BenchConfig, harness.run_bench, harness.write_outputs
+
+    if args.report_only:
+        saved = Path(args.out) / "results.json"
+        if not saved.is_file():
+            print(f"cfvol: error: --report-only needs {saved} from an earlier run", file=sys.stderr)
+            return 2
+        files = write_outputs(json.loads(saved.read_text()), args.out)
+        print(f"Rewrote {', '.join(Path(f).name for f in files.values())} in {Path(args.out).resolve()}")
+        return 0
+    prepare_output(_out_path(args.out), overwrite=True, folder=True)
+    cfg = BenchConfig.quick() if args.quick else BenchConfig()
+    if args.cells:
+        cfg.cells = args.cells
+    if args.paths:
+        cfg.paths = [_path_name(p) for p in args.paths]
+    if args.resolutions:
+        cfg.resolutions = args.resolutions
+    if args.trials:
+        cfg.trials = args.trials
+    if args.cf_samples:
+        cfg.cf_samples = args.cf_samples
+    if args.no_iris:
+        cfg.iris = False
+    if args.no_reference:
+        cfg.reference_resolutions = []
+    if args.certify_resolutions is not None:
+        cfg.certify_resolutions = args.certify_resolutions
+    if args.adversarial_runs is not None:
+        if args.adversarial_runs < 0:
+            print(f"cfvol: error: --adversarial-runs must be >= 0, got {args.adversarial_runs}", file=sys.stderr)
+            return 2
+        cfg.adversarial_runs = args.adversarial_runs
+    if args.adversarial_patterns:
+        cfg.adversarial_patterns = args.adversarial_patterns
+    if args.adversarial_only:
+        if not cfg.adversarial_runs:
+            print("cfvol: error: --adversarial-only needs --adversarial-runs >= 1", file=sys.stderr)
+            return 2
+        cfg.paths, cfg.iris, cfg.engine = [], False, False
+    if args.no_engine:
+        cfg.engine = False
+    result = run_bench(cfg, progress=not args.json)
+    files = write_outputs(result, args.out)
+    if args.json:
+        print(json.dumps({"rows": result["rows"], "files": files, "wall_s": result["wall_s"]}, default=float))
+    else:
+        print(Path(files["markdown"]).read_text())
+        print(f"Written to {Path(args.out).resolve()}")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from drake_cfvol.apps.demo import run_demo
+
+    out = _out_path(args.out)
+    prepare_output(out, overwrite=True, folder=True)
+    return run_demo(out_dir=out, seed=args.seed, quick=args.quick)
+
+
+def _add_plan(sub) -> None:
+    """The ``plan`` command."""
+    q = sub.add_parser("plan", help="plan a nominal path (RRT-Connect) for a named start/goal pair")
+    q.add_argument("cell", help="built-in cell name (automotive, aerospace) or a workcell YAML path")
+    q.add_argument("--path", default="1", help="configuration pair: 1, 2, 3 or a name (default 1)")
+    q.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    q.add_argument("--time-limit", type=float, default=10.0, help="planning time limit, s (default 10)")
+    q.add_argument("--clearance", type=float, default=None,
+                   help="margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)")
+    q.add_argument("--out", help="save the path (.npz or .json)")
+    q.add_argument("--force", action="store_true", help="overwrite --out if it exists")
+    q.add_argument("--json", action="store_true", help="print one JSON object")
+    q.set_defaults(func=cmd_plan)
+
+
+def _add_bounds(sub) -> None:
+    """The ``bounds`` command."""
+    b = sub.add_parser("bounds", help="plan a path and compute its joint bounds, CF and freedom")
+    b.add_argument("cell", help="built-in cell name or a workcell YAML path")
+    b.add_argument("--path", default="1", help="configuration pair: 1, 2, 3 or a name (default 1)")
+    b.add_argument("--resolution", "-R", type=int, default=1000, help="height-map cells R (default 1000)")
+    b.add_argument("--seed", type=int, default=0, help="planner and CF seed (default 0)")
+    b.add_argument("--backend", choices=["fast", "drake"], default="fast",
+                   help="fast (any R) or drake (reference, one SceneGraph box per column)")
+    b.add_argument("--cf-windows", type=int, default=30, help="CF time windows N_tw (default 30)")
+    b.add_argument("--cf-samples", type=int, default=10000, help="CF samples per window N_m (default 10000)")
+    b.add_argument("--certify", action="store_true",
+                   help="shrink the boxes until each stretch holds a sampled safety certificate")
+    b.add_argument("--epsilon", type=float, default=None,
+                   help="certificate: colliding share allowed (1e-5; needs --certify)")
+    b.add_argument("--clamp-epsilon", type=float, default=None,
+                   help="certificate: colliding share allowed where a clamp lands (10 x epsilon; needs --certify)")
+    b.add_argument("--no-cache", action="store_true",
+                   help="certify again even if the same certificate is cached (see DRAKE_CFVOL_CACHE; needs --certify)")
+    b.add_argument("--confidence", type=float, default=None, help="certificate: confidence (0.99; needs --certify)")
+    b.add_argument("--no-boundary-proof", action="store_true",
+                   help="certificate: sampled only, without the proof of every edge and corner of the box (faster, "
+                        "but a clamp may land nearer than the margin; needs --certify)")
+    b.add_argument("--clearance", type=float, default=None,
+                   help="safety margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)")
+    b.add_argument("--out", help="folder for bounds (.npz, .json), path and plot")
+    b.add_argument("--plot", action="store_true", help="write a PNG of the bounds (needs --out)")
+    b.add_argument("--force", action="store_true", help="overwrite existing files in --out")
+    b.add_argument("--json", action="store_true", help="print one JSON object")
+    b.set_defaults(func=cmd_bounds)
+
+
+def _add_simulate(sub) -> None:
+    """The ``simulate`` command."""
+    m = sub.add_parser("simulate", help="run a co-manipulation scenario and record it")
+    m.add_argument("scenario", help=f"bundled scenario name ({', '.join(_bundled_scenarios())}) or a YAML path")
+    m.add_argument("--out", help="output folder (default out/<scenario>)")
+    m.add_argument("--no-record", action="store_true", help="skip the Meshcat recording")
+    m.add_argument("--scenario-text", help="YAML overriding the scenario's fields, e.g. "
+                   "'{resolution: 2000, random_pushes: {seed: 3}}'")
+    m.add_argument("--json", action="store_true", help="print one JSON object")
+    m.set_defaults(func=cmd_simulate)
+
+
+def _add_bench(sub) -> None:
+    """The ``bench`` command (the harness of a development checkout)."""
+    n = sub.add_parser("bench", help="reproduce the paper's Tables I and II side by side")
+    n.add_argument("--quick", action="store_true", help="a small run (a few minutes)")
+    n.add_argument("--cells", nargs="+", help="cells (default both)")
+    n.add_argument("--paths", nargs="+", help="paths, e.g. 1 2 3 (default all)")
+    n.add_argument("--resolutions", nargs="+", type=int, help="R values (default the paper's)")
+    n.add_argument("--trials", type=int, help="timed trials per row (default 20)")
+    n.add_argument("--cf-samples", type=int, help="CF samples per window N_m (default 10000)")
+    n.add_argument("--no-iris", action="store_true", help="skip Drake's IrisZo comparison")
+    n.add_argument("--no-reference", action="store_true", help="skip the reference (Drake) backend rows")
+    n.add_argument("--certify-resolutions", nargs="*", type=int,
+                   help="R values that also get certified bounds (default: every R; none: no certification)")
+    n.add_argument("--adversarial-runs", type=int,
+                   help="adversarial push runs per cell, pattern, kind of bounds and filter on/off "
+                        "(default 16; --quick: 0)")
+    n.add_argument("--adversarial-patterns", nargs="+", choices=PUSH_PATTERNS,
+                   help=f"push patterns of the adversarial section (default all: {', '.join(PUSH_PATTERNS)})")
+    n.add_argument("--adversarial-only", action="store_true",
+                   help="run only the adversarial section (no paper tables, IrisZo or engine costs)")
+    n.add_argument("--no-engine", action="store_true",
+                   help="skip the kernel's fresh-cache compile and command wall-time measurements")
+    n.add_argument("--out", default="out/bench", help="output folder (default out/bench)")
+    n.add_argument("--report-only", action="store_true",
+                   help="rewrite tables and plots from --out/results.json without running")
+    n.add_argument("--json", action="store_true", help="print one JSON object")
+    n.set_defaults(func=cmd_bench)
+
+
+def _add_demo(sub) -> None:
+    """The ``demo`` command."""
+    d = sub.add_parser("demo", help="the main job: plan, bound and run the automotive cell")
+    d.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--quick", action="store_true", help="fewer CF samples")
+    d.set_defaults(func=cmd_demo)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``cfvol`` command line: plan, bounds, simulate, bench, demo."""
+    p = argparse.ArgumentParser(prog="cfvol", description=_DESCRIPTION)
+    p.add_argument("--version", action="version", version=f"cfvol (drake_cfvol) {__version__}")
+    sub = p.add_subparsers(dest="command", required=True)
+    for add in (_add_plan, _add_bounds, _add_simulate, _add_bench, _add_demo):
+        add(sub)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    _quiet_drake()
+    try:
+        return int(args.func(args) or 0)
+    except CfvolError as e:
+        print(f"cfvol: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:  # a file system error the library did not name itself
+        where = f" '{e.filename}'" if getattr(e, "filename", None) else ""
+        print(f"cfvol: error: {e.strerror or e}{where}.", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,38 @@
+"""Co-manipulation runs: a scenario file -> a Drake diagram -> a recorded run.
+
+A scenario (``diagrams/*.yaml``, loaded with ``yaml_load_typed``) names a
+cell and path, the volume's resolution, the admittance gains and the human's
+pushes. :func:`build_comanipulation_diagram` plans the path, estimates the
+bounds and wires::
+
+    PathProgress -> JointBoundsSource (ahead) -> AdmittanceDeformation <- ScriptedHuman
+                              |                       | commanded_position
+                              +-----------------> SafetyFilter <- query_object --+
+                                                      | commanded_position        |
+                              MultibodyPositionToGeometryPose -> SceneGraph ------+-> ClearanceMonitor
+
+The robot follows the safety filter's ``commanded_position`` kinematically
+(with ``collision_guard: false``, the admittance's, fed the bounds now). The diagram's own
+SceneGraph holds the robot, the obstacles (coloured by category) and the
+volume (its columns merged, conservatively, into at most 1500 boxes at any
+R), all as proximity geometry; the clearance monitor asks it through its
+query port, which the diagram also exports (``query_object``).
+
+Modules: ``scenario`` (the file schema), ``diagram`` (the diagram),
+``run`` (simulate and summarise), ``report`` (plots, SVG), ``recording``
+(Meshcat helpers), ``adversarial`` (steady pushes, the benchmark's
+adversarial section). Imports ``systems``, ``algorithm``, ``scene``,
+``kernel`` and ``io``.
+"""
+
+from drake_cfvol.comanip.scenario import AdmittanceGains, RandomPushes, Reactive, SafetyFilterConfig, Scenario, diagrams_dir, load_scenario, validate_scenario
+from drake_cfvol.comanip.diagram import Comanipulation, MAX_PROXIMITY_BOXES, UPDATE_RATE_LOGS, build_comanipulation_diagram, frame_camera, meshcat_params, show_category_legend
+from drake_cfvol.comanip.run import MARGIN_TOLERANCE, run_problems, run_scenario, update_rate_figures
+from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
+from drake_cfvol.io.style import CATEGORY_COLOURS
+
+__all__ = ["AdmittanceGains", "RandomPushes", "Reactive", "SafetyFilterConfig", "Scenario", "load_scenario",
+           "validate_scenario", "diagrams_dir", "Comanipulation", "build_comanipulation_diagram", "frame_camera",
+           "show_category_legend", "meshcat_params", "UPDATE_RATE_LOGS", "MAX_PROXIMITY_BOXES", "run_scenario",
+           "run_problems", "update_rate_figures", "MARGIN_TOLERANCE", "plot_run", "missing_dot_notice",
+           "write_diagram_svg", "CATEGORY_COLOURS"]

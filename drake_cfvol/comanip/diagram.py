@@ -1,0 +1,438 @@
+"""The co-manipulation diagram built from a scenario: plant and SceneGraph with
+the robot, the obstacles and the volume's proximity boxes; path progress,
+bounds, admittance, the safety filter, monitors and loggers; Meshcat.
+"""
+
+
+import dataclasses
+import logging
+import time
+from pathlib import Path
+import numpy as np
+from pydrake.geometry import (IllustrationProperties, MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role, RoleAssign, SceneGraph)
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import ModelInstanceIndex
+from pydrake.common import RandomDistribution
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import Adder, LogVectorOutput, RandomSource
+from pydrake.visualization import VisualizationConfig
+from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+
+from drake_cfvol.algorithm.certify import Certify
+from drake_cfvol.exceptions import ScenarioError
+from drake_cfvol.scene.params import VolumeParams
+from drake_cfvol.algorithm.pipeline import estimate_bounds
+from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
+from drake_cfvol.algorithm.reference import register_volume_boxes
+from drake_cfvol.io.style import CATEGORY_COLOURS, COLOUR_NAMES, FLOOR_COLOUR, ROBOT_COLOUR, VOLUME_COLOUR
+from drake_cfvol.systems import (
+    AdmittanceDeformation,
+    ClearanceMonitor,
+    JointBoundsSource,
+    PathProgress,
+    Push,
+    RandomPushShaper,
+    ReactiveCoworker,
+    SafetyFilter,
+    ScriptedHuman,
+    safe_path_rate,
+)
+from drake_cfvol.comanip.recording import show_tool_path
+from drake_cfvol.algorithm.volume import build_volume, height_map_of
+from drake_cfvol.scene.workcell import geometry_key, load_workcell, robot_geometry_ids
+from drake_cfvol.comanip.scenario import Scenario, _cell_path, _looks_like_path, validate_scenario
+
+__all__ = ['Comanipulation', 'build_comanipulation_diagram']
+
+
+#: Signals also logged at the control update rate (``update_<name>``).
+UPDATE_RATE_LOGS = ("commanded_position", "min_distance", "in_collision")
+
+
+#: Columns registered as proximity geometry up to this count (SceneGraph's
+#: cost grows quadratically with the number of proximity geometries).
+MAX_PROXIMITY_BOXES = 1500
+
+
+@dataclasses.dataclass
+class Comanipulation:
+    """A built co-manipulation diagram and what it was built from.
+
+    Attributes:
+        diagram: the Drake diagram (exported ports: ``path_index``, ``lower``,
+            ``upper``, ``nominal``, ``commanded_position`` (the safety
+            filter's, or with ``collision_guard`` false the admittance's),
+            ``deviation``, ``fault``, ``fault_count``, ``human_torque``,
+            ``human_wrench``, ``min_distance``, ``in_collision``,
+            ``in_volume``, ``query_object``; with the filter also
+            ``filter_active``, ``filter_count``, ``filter_fallbacks``).
+        scenario, workcell, path, bounds: the inputs.
+        plant, scene_graph: the visual/kinematic plant and its SceneGraph.
+        loggers: VectorLogSinks by name, every exported vector port at the
+            scenario's ``log_period``, and ``update_<name>`` for
+            :data:`UPDATE_RATE_LOGS` at the admittance's period.
+        progress: the PathProgress system (its ``rate`` may be below the
+            scenario's: see ``Scenario.path_velocity_share``).
+        meshcat: the Meshcat instance, if any.
+        volume_boxes: the volume's boxes in the diagram's SceneGraph (columns
+            merged, :meth:`~drake_cfvol.algorithm.heightmap.Volume.merged_boxes`):
+            ``{"count": ..., "block": ..., "height_step_m": ...,
+            "added_volume_m3": ..., "column_volume_m3": ...}``.
+        build_ms: the build's steps' wall times, ms.
+        filter_clearance: the safety filter's margin, m (None without it).
+    """
+
+    diagram: object
+    scenario: Scenario
+    workcell: object
+    path: object
+    bounds: object
+    plant: object
+    scene_graph: object
+    loggers: dict
+    progress: PathProgress
+    meshcat: object = None
+    volume_boxes: dict = dataclasses.field(default_factory=dict)
+    build_ms: dict = dataclasses.field(default_factory=dict)
+    filter_clearance: float | None = None
+
+    @property
+    def duration(self) -> float:
+        """Simulated time of the run, s: start, the path at its (possibly
+        slowed) progress, and the hold at the goal."""
+        return self.progress.duration + self.scenario.end_hold
+
+
+def frame_camera(meshcat, workcell, path) -> None:
+    """Points Meshcat's camera at the robot and its path: at the centre of
+    the box holding every link origin and the tool along the path, from a
+    distance that fits the box in view (from the front-right, above)."""
+    _, p_WB = workcell.scene_arrays().fk(path.waypoints)
+    p_WT = np.array([workcell.tool_position(q) for q in path.waypoints])
+    pts = np.concatenate([p_WB.reshape(-1, 3), p_WT])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = (lo + hi) / 2
+    radius = max(0.5 * float(np.linalg.norm(hi - lo)), 0.5)
+    direction = np.array([0.55, -0.9, 1.1])
+    direction /= np.linalg.norm(direction)
+    # A 75 degree vertical field of view holds a sphere of this radius at
+    # radius / sin(37.5 deg) ~ 1.65 radius; a little margin on top.
+    meshcat.SetCameraPose(centre + 1.9 * radius * direction, centre)
+
+
+def show_category_legend(meshcat, workcell, categories, *, prefix: str = "/legend") -> None:
+    """Names the obstacle categories in Meshcat's scene tree (the controls
+    panel of the live view and of a recording): ``legend/goal (blue)/
+    pick_table`` and so on, each a small marker in its colour above the
+    obstacle's box, and ``legend/robot (violet)``."""
+    from pydrake.geometry import Sphere
+
+    arrays = workcell.scene_arrays()
+    for name in workcell.obstacles:
+        boxes = [b for n, b in zip(arrays.obstacle_names, arrays.obstacle_aabb) if n == name]
+        if not boxes:
+            continue
+        lo, hi = np.min([b[:3] for b in boxes], axis=0), np.max([b[3:] for b in boxes], axis=0)
+        cat = categories.of(name)
+        key = f"{prefix}/{cat.replace('_', '-')} ({COLOUR_NAMES[cat]})/{name}"
+        meshcat.SetObject(key, Sphere(0.04), Rgba(*CATEGORY_COLOURS[cat]))
+        meshcat.SetTransform(key, RigidTransform([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2] + 0.08]))
+    meshcat.SetObject(f"{prefix}/robot (violet)", Sphere(0.001), Rgba(*ROBOT_COLOUR))
+
+
+def meshcat_params(config: VisualizationConfig) -> list[MeshcatVisualizerParams]:
+    """Meshcat visualizer settings from Drake's ``VisualizationConfig``, as
+    Drake's ``ApplyVisualizationConfig`` makes them (illustration and
+    proximity layers). No LCM publishers: the recording is Meshcat's own.
+    Contacts and inertia need a simulated plant, which a kinematic run has
+    not; the scenario check refuses them."""
+    out = []
+    for on, role, colour, prefix, alpha in (
+            (config.publish_illustration, Role.kIllustration, config.default_illustration_color, "illustration", 1.0),
+            (config.publish_proximity, Role.kProximity, config.default_proximity_color, "proximity",
+             config.initial_proximity_alpha)):
+        if on:
+            out.append(MeshcatVisualizerParams(
+                role=role, publish_period=config.publish_period, default_color=colour, prefix=prefix,
+                delete_on_initialization_event=config.delete_on_initialization_event,
+                enable_alpha_slider=config.enable_alpha_sliders, initial_alpha_slider_value=alpha,
+                visible_by_default=role == Role.kIllustration))
+    return out
+
+
+def _resolve_pushes(scenario: Scenario, workcell, path, progress) -> list[Push]:
+    """The scenario's pushes, with each ``toward_nearest_obstacle`` push
+    turned into a tool force towards the obstacle nearest the robot's moving
+    links at the nominal when the push starts."""
+    out = []
+    for i, p in enumerate(scenario.pushes):
+        if not p.toward_nearest_obstacle:
+            out.append(p)
+            continue
+        q = path.at(progress.index_at(p.start))
+        near = workcell.nearest_obstacle(q)
+        if near is None:
+            raise ScenarioError(Path("scenario"), f"pushes[{i}].toward_nearest_obstacle",
+                                "has no obstacle within 5 m of the robot at that time")
+        _, _, p_WR, p_WO = near
+        u = np.asarray(p_WO - p_WR, float)
+        u = u / max(np.linalg.norm(u), 1e-12)
+        w = np.zeros(6) if not len(p.wrench) else np.asarray(p.wrench, float).copy()
+        w[3:] += p.toward_nearest_obstacle * u
+        out.append(Push(p.start, p.duration, list(p.joint_torque), w.tolist()))
+    return out
+
+
+def _colour_obstacles(plant, scene_graph, workcell, categories) -> None:
+    # Drake warns on every illustration update that it must precede the
+    # visualizer's initialization: it does (no visualizer exists yet).
+    drake_log = logging.getLogger("drake")
+    level = drake_log.level
+    drake_log.setLevel(logging.ERROR)
+    try:
+        _assign_colours(plant, scene_graph, workcell, categories)
+    finally:
+        drake_log.setLevel(level)
+
+
+def _assign_colours(plant, scene_graph, workcell, categories):
+    inspector = scene_graph.model_inspector()
+    robot = plant.GetModelInstanceByName(workcell.robot_name)
+    for b in plant.GetBodyIndices(robot):
+        frame = plant.GetBodyFrameIdIfExists(b)
+        if frame is None:
+            continue
+        for gid in inspector.GetGeometries(frame, Role.kIllustration):
+            props = IllustrationProperties(inspector.GetIllustrationProperties(gid))
+            props.UpdateProperty("phong", "diffuse", Rgba(*ROBOT_COLOUR))
+            scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
+    for name, obs in workcell.obstacles.items():
+        rgba = CATEGORY_COLOURS[categories.of(name)]
+        if name in ("floor",):
+            rgba = FLOOR_COLOUR
+        body = plant.get_body(obs.body_index)
+        frame = plant.GetBodyFrameIdIfExists(body.index())
+        if frame is None:
+            continue
+        for gid in inspector.GetGeometries(frame, Role.kIllustration):
+            props = IllustrationProperties(inspector.GetIllustrationProperties(gid))
+            alpha = props.GetProperty("phong", "diffuse").a() if props.HasProperty("phong", "diffuse") else 1.0
+            props.UpdateProperty("phong", "diffuse", Rgba(*rgba[:3], min(rgba[3], alpha)))
+            scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
+
+
+def _workcell_path_bounds(scenario: Scenario, base_dir, path, bounds, progress: bool):
+    """The scenario's workcell, nominal path and bounds (planned and
+    estimated unless given; a table loaded from disk gets its volume grown
+    again), and the times (ms) planning and bounding took."""
+    t0 = time.perf_counter()
+    cell = scenario.cell
+    if _looks_like_path(cell):
+        cell = str(_cell_path(cell, base_dir))
+    wc = load_workcell(cell)
+    wc.configuration(scenario.path)  # an unknown path name fails here, before planning
+    height_map_of(wc, VolumeParams.for_workcell(wc, resolution=scenario.resolution, **dict(scenario.params)))
+    if path is None:
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
+                                 clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
+    t1 = time.perf_counter()
+    if bounds is None:
+        bounds = estimate_bounds(wc, path, resolution=scenario.resolution, progress=progress,
+                                 certify=Certify(seed=scenario.seed) if scenario.certify else None,
+                                 **dict(scenario.params))
+    if bounds.volume is None:  # a table loaded from disk: grow its volume again
+        known = {f.name for f in dataclasses.fields(VolumeParams)}
+        params = VolumeParams(**{k: v for k, v in bounds.params.items() if k in known})
+        nominal = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.seed)
+        bounds = dataclasses.replace(bounds, volume=build_volume(wc, nominal, params))
+    t2 = time.perf_counter()
+    return wc, path, bounds, {"plan": (t1 - t0) * 1e3, "bounds": (t2 - t1) * 1e3}
+
+
+def _add_scene(builder, wc, vb):
+    """Plant and SceneGraph with the workcell and the volume's proximity
+    boxes (columns merged, conservatively, into at most
+    MAX_PROXIMITY_BOXES), obstacles coloured by category. Returns (plant,
+    scene_graph, robot, volume ids, merge info)."""
+    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    robot = wc.add_to_plant(plant)
+    centres, sizes, merge_info = vb.volume.merged_boxes(MAX_PROXIMITY_BOXES)
+    volume_ids = register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR, boxes=(centres, sizes))
+    plant.Finalize()
+    _colour_obstacles(plant, scene_graph, wc, vb.categories)
+    return plant, scene_graph, robot, volume_ids, merge_info
+
+
+def _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids):
+    """The real obstacles' proximity geometry (the volume's boxes and the
+    robot left out), and the (moving link, obstacle) pairs whose distance no
+    joint motion changes (the workcell's own, matched by name): a push
+    cannot bring them closer. Returns (robot ids, moving ids, obstacle
+    ids, ignored pairs)."""
+    robot_ids, moving_ids = robot_geometry_ids(plant, robot)
+    inspector = scene_graph.model_inspector()
+    obstacle_ids = [g for i in map(ModelInstanceIndex, range(plant.num_model_instances())) if i != robot
+                    for b in plant.GetBodyIndices(i) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]
+    not_obstacles = set(volume_ids) | set(robot_ids)
+    obstacle_ids = sorted({g for g in obstacle_ids if g not in not_obstacles
+                           and inspector.GetProximityProperties(g) is not None}, key=lambda g: g.get_value())
+    invariant = wc.invariant_pair_names()
+    ignored = [(a, b) for a in moving_ids for b in obstacle_ids
+               if (geometry_key(inspector, a), geometry_key(inspector, b)) in invariant]
+    return robot_ids, moving_ids, obstacle_ids, ignored
+
+
+def _add_safety_filter(builder, scenario, bounds, wc, plant, scene_graph, robot, obstacle_ids, progress, adm, path):
+    """The runtime safety filter between the admittance and the robot. A
+    command computed at an update takes effect until the next one, so the
+    admittance and the filter work on the bounds one period ahead (the
+    filter's output is its state: at the next update it is what the robot
+    holds, inside the box there). Returns the filter."""
+    f, a = scenario.safety_filter, scenario.admittance
+    margin = f.clearance if f.clearance is not None else float(bounds.params.get("clearance", 0.0))
+    source_ahead = builder.AddNamedSystem("joint_bounds_ahead", JointBoundsSource(bounds, clamp=True))
+    builder.Connect(progress.path_index_ahead_output, source_ahead.path_index_input)
+    safety = builder.AddNamedSystem("safety_filter", SafetyFilter(
+        plant, scene_graph, robot, velocity_limits=wc.velocity_limits, obstacle_ids=obstacle_ids,
+        clearance=margin, influence_distance=f.influence_distance, damper_gain=f.damper_gain,
+        period=a.period, initial_position=path.waypoints[0]))
+    for name in ("nominal", "lower", "upper"):
+        builder.Connect(source_ahead.GetOutputPort(name), adm.GetInputPort(name))
+        builder.Connect(source_ahead.GetOutputPort(name), safety.GetInputPort(name))
+    builder.Connect(adm.commanded_position_output, safety.desired_position_input)
+    builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
+    return safety
+
+
+def _add_pushes(builder, scenario, k, human, progress, commanded, source):
+    """The human's joint torques: the scripted pushes, random pushes
+    (Drake's RandomSource, its state the randomness, seeded with
+    SetRandomContext, shaped into torques) and the reactive co-worker,
+    summed. Returns the torque output port."""
+    torques = [human.human_torque_output]
+    rp = scenario.random_pushes
+    if rp.count > 0:
+        noise = builder.AddNamedSystem("random_numbers", RandomSource(
+            RandomDistribution.kUniform, k + 1, sampling_interval_sec=rp.mean_duration))
+        shaper = builder.AddNamedSystem("random_pushes", RandomPushShaper(
+            k, probability=min(1.0, rp.count * rp.mean_duration / (progress.duration + scenario.end_hold)),
+            max_torque=rp.max_torque))
+        builder.Connect(noise.get_output_port(), shaper.uniform_input)
+        torques.append(shaper.human_torque_output)
+    re = scenario.reactive
+    if re.gain > 0:
+        coworker = builder.AddNamedSystem("reactive_coworker", ReactiveCoworker(
+            k, gain=re.gain, offset=re.offset or np.zeros(k), start=re.start, duration=re.duration,
+            max_torque=re.max_torque))
+        builder.Connect(commanded, coworker.commanded_position_input)
+        builder.Connect(source.nominal_output, coworker.nominal_input)
+        torques.append(coworker.human_torque_output)
+    if len(torques) == 1:
+        return torques[0]
+    total = builder.AddNamedSystem("push_sum", Adder(len(torques), k))
+    for i, port in enumerate(torques):
+        builder.Connect(port, total.get_input_port(i))
+    return total.get_output_port()
+
+
+def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
+    """Exports the named ports and logs them at the log period, and the
+    update-rate signals (speed, clearance, collisions; the log period may
+    be coarser: a step between two updates must not hide) at the
+    admittance's period. Returns the loggers by name."""
+    if safety is not None:
+        exported.update({"filter_active": safety.filter_active_output, "filter_count": safety.filter_count_output,
+                         "filter_fallbacks": safety.fallback_count_output,
+                         "filter_damper_misses": safety.damper_misses_output,
+                         "filter_box_exits": safety.box_exits_output})
+    loggers = {}
+    for name, port in exported.items():
+        builder.ExportOutput(port, name)
+        loggers[name] = LogVectorOutput(port, builder, publish_period=scenario.log_period)
+        loggers[name].set_name(f"log_{name}")
+    if safety is not None:
+        # What the admittance asked the filter for, beside what it commanded.
+        exported["desired_position"] = adm.commanded_position_output
+    for name in UPDATE_RATE_LOGS + (("filter_count", "desired_position") if safety is not None else ()):
+        loggers[f"update_{name}"] = LogVectorOutput(exported[name], builder,
+                                                    publish_period=scenario.admittance.period)
+        loggers[f"update_{name}"].set_name(f"log_update_{name}")
+    return loggers
+
+
+def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: Path | None = None,
+                                 path=None, bounds=None, progress: bool = False) -> Comanipulation:
+    """Builds a co-manipulation diagram from a scenario.
+
+    Args:
+        scenario: the scenario.
+        meshcat: a ``Meshcat`` to visualise into (None: no visualiser).
+        base_dir: folder that relative cell paths are taken from.
+        path, bounds: a precomputed nominal path and bounds table (otherwise
+            planned and estimated here).
+        progress: progress bars on a terminal for long steps (the kernel's
+            first compile).
+
+    Returns:
+        The :class:`Comanipulation`.
+    """
+    validate_scenario(scenario)
+    wc, path, bounds, times = _workcell_path_bounds(scenario, base_dir, path, bounds, progress)
+    t2 = time.perf_counter()
+    vb, k, g = bounds.volume, wc.num_joints, path.g
+    builder = DiagramBuilder()
+    plant, scene_graph, robot, volume_ids, merge_info = _add_scene(builder, wc, vb)
+    a, share = scenario.admittance, scenario.path_velocity_share
+    rate = min((g - 1) / scenario.path_duration, safe_path_rate(bounds, wc.velocity_limits, share=share))
+    progress = builder.AddNamedSystem("path_progress", PathProgress(g, rate=rate, start_time=scenario.start_time,
+                                                                    lead=a.period))
+    source = builder.AddNamedSystem("joint_bounds", JointBoundsSource(bounds))
+    adm = builder.AddNamedSystem("admittance", AdmittanceDeformation(
+        k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=a.period, plant=plant,
+        tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot), velocity_limits=wc.velocity_limits,
+        path_share=share))
+    human = builder.AddNamedSystem("human", ScriptedHuman(k, _resolve_pushes(scenario, wc, path, progress)))
+    robot_ids, moving_ids, obstacle_ids, ignored = _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids)
+    monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
+        robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids, obstacle_ids=obstacle_ids,
+        ignored_pairs=ignored))
+    to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
+    builder.Connect(progress.path_index_output, source.path_index_input)
+    safety = None
+    if scenario.collision_guard:
+        safety = _add_safety_filter(builder, scenario, bounds, wc, plant, scene_graph, robot, obstacle_ids,
+                                    progress, adm, path)
+        commanded = safety.commanded_position_output
+    else:
+        for name in ("nominal", "lower", "upper"):
+            builder.Connect(source.GetOutputPort(name), adm.GetInputPort(name))
+        commanded = adm.commanded_position_output
+    torque_port = _add_pushes(builder, scenario, k, human, progress, commanded, source)
+    builder.Connect(torque_port, adm.human_torque_input)
+    builder.Connect(human.human_wrench_output, adm.human_wrench_input)
+    builder.Connect(commanded, to_pose.get_input_port())
+    builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
+    builder.Connect(scene_graph.get_query_output_port(), monitor.query_object_input)
+    loggers = _export_and_log(builder, {
+        "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
+        "nominal": source.nominal_output, "commanded_position": commanded,
+        "deviation": adm.deviation_output, "fault": adm.fault_output, "fault_count": adm.fault_count_output,
+        "human_torque": torque_port, "human_wrench": human.human_wrench_output,
+        "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
+        "in_volume": monitor.in_volume_output}, scenario, safety, adm)
+    builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
+    if meshcat is not None:
+        for params in meshcat_params(scenario.visualization):
+            MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
+        show_tool_path(meshcat, wc, path)
+        show_category_legend(meshcat, wc, vb.categories)
+        frame_camera(meshcat, wc, path)
+    diagram = builder.Build()
+    diagram.set_name("comanipulation")
+    times["diagram"] = (time.perf_counter() - t2) * 1e3
+    return Comanipulation(diagram, scenario, wc, path, bounds, plant, scene_graph, loggers, progress, meshcat,
+                          {"count": len(volume_ids), **merge_info}, times,
+                          safety.clearance if safety is not None else None)

@@ -1,0 +1,181 @@
+"""Running a scenario: simulate, log at the update rate, summarise, and the
+run's problems (collision, margin, velocity).
+"""
+
+
+import json
+import time
+from pathlib import Path
+import numpy as np
+from pydrake.geometry import Meshcat, MeshcatParams
+from pydrake.common import RandomGenerator
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
+
+from drake_cfvol.io.progress import Progress
+from drake_cfvol.comanip.scenario import load_scenario
+from drake_cfvol.comanip.diagram import Comanipulation, build_comanipulation_diagram
+from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
+
+__all__ = ['run_scenario']
+
+
+def _log(sim_context, logger):
+    log = logger.FindLog(sim_context)
+    return log.sample_times().copy(), log.data().T.copy()
+
+
+def _simulate(cm, scenario, meshcat, progress: bool):
+    """Simulates the run (recording into ``meshcat`` if given); the random
+    pushes' numbers live in the context, seeded Drake's way. Returns (the
+    simulator's context, wall time s)."""
+    sim = Simulator(cm.diagram)
+    ApplySimulatorConfig(scenario.simulator_config, sim)
+    ctx = sim.get_mutable_context()
+    cm.diagram.SetRandomContext(ctx, RandomGenerator(scenario.random_pushes.seed))
+    if meshcat is not None:
+        meshcat.StartRecording(frames_per_second=1.0 / scenario.visualization.publish_period,
+                               set_visualizations_while_recording=False)
+    t0 = time.perf_counter()
+    duration = cm.duration
+    with Progress(duration, "Simulating", enabled=progress, unit="simulated s") as bar:
+        steps = 100
+        for n in range(1, steps + 1):
+            sim.AdvanceTo(duration * n / steps)
+            bar.update(duration / steps)
+    return ctx, time.perf_counter() - t0
+
+
+def _write_files(cm, logs, out: Path, meshcat, plot: bool, svg: bool) -> dict:
+    """The recording (self-contained HTML), the plot and the diagram's SVG."""
+    files = {}
+    if meshcat is not None:
+        meshcat.StopRecording()
+        meshcat.PublishRecording()
+        html = out / "recording.html"
+        html.write_text(meshcat.StaticHtml())
+        files["recording_html"] = str(html)
+    if plot:
+        files["plot_png"] = str(plot_run(logs, cm, out / "run.png"))
+    if svg:
+        files.update(write_diagram_svg(cm.diagram, out / "diagram"))
+    return files
+
+
+def _margins(cm, scenario) -> tuple[float, float]:
+    """The margin in force, and the nominal's own clearance (moving links
+    against the obstacles, Drake, at every waypoint): a run keeps the margin
+    if it never comes nearer than min(margin, the nominal's own)."""
+    margin = cm.filter_clearance if scenario.collision_guard else float(cm.bounds.params.get("clearance", 0.0) or 0.0)
+    nominal_own = min((min(d.values(), default=1.0) for d in
+                       (cm.workcell.obstacle_distances(qn, 1.0, changeable_only=True) for qn in cm.path.waypoints)),
+                      default=1.0)
+    return margin, float(nominal_own)
+
+
+def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = True, plot: bool = True,
+                 svg: bool = True, path=None, bounds=None, progress: bool = False,
+                 scenario_text: str | None = None) -> dict:
+    """Loads a scenario, builds its diagram, simulates it and writes the
+    recording (self-contained HTML), plots and a summary.
+
+    With ``progress``, a bar on a terminal counts simulated seconds.
+    ``scenario_text`` overrides fields (see :func:`load_scenario`).
+
+    Returns:
+        The summary dict (also written as ``summary.json``).
+    """
+    scenario, file = load_scenario(scenario_name_or_path, scenario_text=scenario_text)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    meshcat = None
+    if record:
+        meshcat = Meshcat(MeshcatParams(host="localhost"))
+    cm = build_comanipulation_diagram(scenario, meshcat=meshcat, base_dir=file.parent if file else None,
+                                      path=path, bounds=bounds, progress=progress)
+    ctx, sim_s = _simulate(cm, scenario, meshcat, progress)
+    logs = {name: _log(ctx, lg) for name, lg in cm.loggers.items()}
+    t, q = logs["commanded_position"]
+    _, lo = logs["lower"]
+    _, hi = logs["upper"]
+    _, nom = logs["nominal"]
+    violation = float(np.max(np.maximum(np.maximum(lo - q, q - hi), 0.0))) if len(q) else 0.0
+    rates = update_rate_figures(logs, cm)
+    penetrations = int(logs["in_volume"][1].sum())
+    files = _write_files(cm, logs, out, meshcat, plot, svg)
+    np.savez(out / "logs.npz", **{f"{k}_t": v[0] for k, v in logs.items()}, **{k: v[1] for k, v in logs.items()})
+    summary = {
+        "scenario": str(file) if file else str(scenario_name_or_path), "cell": cm.workcell.name,
+        "path": scenario.path, "resolution": scenario.resolution, "g": cm.path.g, "steps": int(len(t)),
+        "duration_s": cm.duration, "path_duration_s": cm.progress.duration - scenario.start_time,
+        "sim_wall_s": sim_s,
+        "min_clearance_m": rates["min_clearance_m"],
+        "max_velocity_ratio": rates["max_velocity_ratio"], "volume_penetrations": penetrations,
+        "collisions": rates["collisions"], "max_bound_violation": violation,
+        "filter_steps": _count(cm, ctx, "filter_count"), "guard_steps": _count(cm, ctx, "filter_count"),
+        "filter_fallbacks": _count(cm, ctx, "filter_fallbacks"),
+        "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
+        "filter_box_exits": _count(cm, ctx, "filter_box_exits"), "faults": _count(cm, ctx, "fault_count"),
+        "collision_guard": scenario.collision_guard, "filter_clearance_m": cm.filter_clearance,
+        "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
+        "n_boxes": cm.bounds.info["n_boxes"], "volume_boxes_in_scene": cm.volume_boxes["count"],
+        "bounds_time_ms": cm.bounds.timing_ms["total"], "build_ms": cm.build_ms,
+        "recording_html": files.get("recording_html"), "plot_png": files.get("plot_png"),
+        "diagram_svg": files.get("diagram_svg"), "diagram_dot": files.get("diagram_dot"),
+        "notices": [],
+    }
+    summary["clearance_m"], summary["nominal_min_clearance_m"] = _margins(cm, scenario)
+    summary["problems"] = run_problems(summary)
+    if svg and files.get("diagram_svg") is None:
+        summary["notices"].append(missing_dot_notice(out / "diagram"))
+    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+#: A run may come this much nearer than min(margin, the nominal's own
+#: clearance) before it counts as below the margin, m.
+MARGIN_TOLERANCE = 0.002
+
+
+def run_problems(summary: dict) -> list[str]:
+    """What went wrong in a run, one sentence each (empty: nothing): it
+    collided, came nearer than min(margin, the nominal's own clearance) -
+    MARGIN_TOLERANCE, or moved a joint faster than its limit (measured at
+    the control update rate)."""
+    out = []
+    if summary.get("collisions", 0) > 0:
+        out.append(f"the robot collided at {summary['collisions']} update(s)")
+    need = min(summary.get("clearance_m", 0.0), summary.get("nominal_min_clearance_m", 0.0))
+    low = summary.get("min_clearance_m")
+    if low is not None and low < need - MARGIN_TOLERANCE:
+        out.append(f"the clearance fell to {low * 1e3:.1f} mm, below the margin of {need * 1e3:.1f} mm")
+    if summary.get("max_velocity_ratio", 0.0) > 1.0 + 1e-9:
+        out.append(f"a joint moved at {summary['max_velocity_ratio']:.2f} x its velocity limit")
+    return out
+
+
+def _count(cm: Comanipulation, context, name: str) -> int:
+    """A counter exported by the diagram, at the end of the run (0 if the
+    diagram has no such port: the filter is off)."""
+    if not cm.diagram.HasOutputPort(name):
+        return 0
+    return int(cm.diagram.GetOutputPort(name).Eval(context)[0])
+
+
+def update_rate_figures(logs: dict, cm: Comanipulation) -> dict:
+    """Speed, clearance and collisions from the logs at the control update
+    rate (``update_*``): the largest |dq_j| / (period x velocity_limit_j)
+    between consecutive updates (one update period apart by construction,
+    so the period is the time step, not the difference of two rounded
+    sample times), the smallest clearance (moving links to the obstacles,
+    m) and the number of updates in collision."""
+    _, q = logs["update_commanded_position"]
+    _, dist = logs["update_min_distance"]
+    _, coll = logs["update_in_collision"]
+    h = cm.scenario.admittance.period
+    vmax = np.asarray(cm.workcell.velocity_limits, float)
+    ratio = 0.0
+    if len(q) > 1:
+        speed = np.abs(np.diff(q, axis=0)) / h
+        ratio = float(np.max(np.where(np.isfinite(vmax), speed / vmax, 0.0)))
+    return {"max_velocity_ratio": ratio, "min_clearance_m": float(dist.min()) if len(dist) else None,
+            "collisions": int(coll.sum())}

@@ -1,0 +1,97 @@
+"""The compiled collision kernel (numba, ``@njit(cache=True)``).
+
+One kernel serves joint bounding, the volume test, categorization
+distances, the Confidence Factor's pre-filter and certification. It works on
+plain arrays extracted from Drake once (:mod:`drake_cfvol.scene.arrays`):
+
+- forward kinematics of the robot's chain (:func:`fk`), tested against
+  Drake's poses to 1e-12;
+- convex shapes given by exact support functions: boxes, spheres, capsules,
+  cylinders, ellipsoids, and convex hulls of meshes (what Drake itself uses
+  for a mesh in point-pair queries);
+- motion sets folded into the support: a ball of radius ``e_iso`` (any
+  motion), a disc of radius ``e_disc`` normal to an axis u (rotation about
+  u), a segment of half-length ``e_seg`` along u (translation);
+- a boolean GJK whose "separated" answer is a certificate: a direction d
+  with h_A(d) + h_B(-d) < 0 computed from the exact supports, so the kernel
+  never calls a pose free where the shapes overlap. Where GJK does not
+  conclude it answers "may collide" (conservative);
+- the height-field volume V: a 2-D range-maximum table, and a shape against
+  the columns by recursive halving of its footprint (exact at one cell).
+
+Shape rows (``SHAPE_W`` floats): kind, centre (3), rotation (9, row-major),
+size (3), first vertex, end vertex, e_iso, axis u (3), e_disc, e_seg.
+
+Modules, by concern: ``types`` (constants and the typed arguments),
+``kinematics``, ``shapes``, ``gjk``, ``heightfield``, ``checks``
+(configurations), ``regions`` (region tests and the sweep), ``footprints``
+and ``warmup``. Imports nothing of the package.
+
+numba's cache (``cache=True``) invalidates a compiled function when its own
+file changes, not when a function it calls from another file does; so the
+kernel's cache is cleared whenever any of its files differs from the ones it
+was compiled from (:func:`_clear_stale_cache`, before anything compiles).
+"""
+
+import hashlib as _hashlib
+from pathlib import Path as _Path
+
+
+def _clear_stale_cache(folder: _Path, caches) -> None:
+    """Removes numba's cache files (``*.nbi``, ``*.nbc``) from ``caches``
+    when the sources in ``folder`` differ from those the cache was made
+    from (a hash of them, ``kernel_sources.sha256``, kept in each)."""
+    digest = _hashlib.sha256()
+    for f in sorted(folder.glob("*.py")):
+        digest.update(f.name.encode() + f.read_bytes())
+    stamp_text = digest.hexdigest()
+    for cache in caches:
+        stamp = cache / "kernel_sources.sha256"
+        try:
+            if stamp.is_file() and stamp.read_text() == stamp_text:
+                continue
+            if cache.is_dir():
+                for f in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
+                    f.unlink(missing_ok=True)
+            cache.mkdir(parents=True, exist_ok=True)
+            stamp.write_text(stamp_text)
+        except OSError:
+            pass  # a read-only place holds no cache numba could use either
+
+
+def _cache_folders(folder: _Path) -> list:
+    """Where numba keeps the kernel's cache: beside its files, and numba's
+    user-wide folder (its fallback where that is read-only)."""
+    out = [folder / "__pycache__"]
+    try:
+        from numba.core.caching import _UserWideCacheLocator
+
+        out.append(_Path(_UserWideCacheLocator(None, str(folder / "types.py")).get_cache_path()))
+    except Exception:  # numba's internals moved: the tree's cache only
+        pass
+    return out
+
+
+_clear_stale_cache(_Path(__file__).resolve().parent, _cache_folders(_Path(__file__).resolve().parent))
+
+from drake_cfvol.kernel.types import (  # noqa: E402
+    _C, _K, _R, _S, _V0, _V1, BOX, CAPSULE, CYLINDER, ELLIPSOID, FOOTPRINT_DIRECTIONS, HULL, MAX_T_SAMPLES,
+    MAX_V_SAMPLES, SHAPE_W, SPHERE, Chain, HeightField, Model, RegionScratch, Scratch)
+from drake_cfvol.kernel.kinematics import fk, fk_into  # noqa: E402
+from drake_cfvol.kernel.shapes import object_aabb, pose_shape, row_aabb, set_motion, support  # noqa: E402
+from drake_cfvol.kernel.gjk import gjk_intersect  # noqa: E402
+from drake_cfvol.kernel.heightfield import (  # noqa: E402
+    new_scratch, new_workspace, no_height_field, object_hits_columns, range_max, range_max_table)
+from drake_cfvol.kernel.checks import (  # noqa: E402
+    configs_may_collide, configs_may_collide_serial, lower_columns_under, obstacle_distances)
+from drake_cfvol.kernel.regions import regions_hit, sweep_chains  # noqa: E402
+from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint  # noqa: E402
+from drake_cfvol.kernel.warmup import warm_up  # noqa: E402
+
+__all__ = ["Chain", "Model", "HeightField", "Scratch", "RegionScratch", "BOX", "SPHERE", "CAPSULE", "CYLINDER",
+           "ELLIPSOID", "HULL", "SHAPE_W", "MAX_T_SAMPLES", "MAX_V_SAMPLES", "FOOTPRINT_DIRECTIONS", "fk", "fk_into",
+           "support", "pose_shape", "set_motion", "row_aabb", "object_aabb", "gjk_intersect", "range_max_table",
+           "range_max", "new_workspace", "new_scratch", "no_height_field", "object_hits_columns",
+           "configs_may_collide", "configs_may_collide_serial", "lower_columns_under", "obstacle_distances",
+           "sweep_chains", "regions_hit", "shape_footprint", "fill_convex_polygon", "robot_footprint",
+           "distance_map", "warm_up", "_K", "_C", "_R", "_S", "_V0", "_V1"]

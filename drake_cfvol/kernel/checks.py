@@ -1,0 +1,222 @@
+"""Configurations against the scene: may a configuration collide (or come
+nearer than a pad), distances to the obstacles, and columns of V lowered
+under the robot.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from drake_cfvol.kernel.types import Chain, Model, SHAPE_W, _C, _EI
+from drake_cfvol.kernel.kinematics import fk_into
+from drake_cfvol.kernel.shapes import _aabb_apart, pose_shape, row_aabb, set_motion
+from drake_cfvol.kernel.gjk import _gjk
+from drake_cfvol.kernel.heightfield import _clip_block, new_scratch, no_height_field, object_hits_columns
+
+__all__ = ['configs_may_collide', 'lower_columns_under', 'obstacle_distances', 'configs_may_collide_serial']
+
+
+@njit(cache=True)
+def _pose_objects(R_WB, p_WB, shapes, shape_body, pose, objs):
+    """Pose every robot shape into objs[s, pose] for the body poses given."""
+    for s in range(shapes.shape[0]):
+        b = shape_body[s]
+        pose_shape(shapes[s], R_WB[b], p_WB[b], objs[s, pose])
+
+
+@njit(cache=True)
+def _object_vs_scene(obj, aabb, m, field, sc):
+    """An object against the obstacles of model ``m`` and the height field
+    (an empty table: no V)."""
+    verts, obstacles, obs_aabb = m.verts, m.obstacles, m.obstacle_aabb
+    table, ox, oy, side = field
+    ws, stack, box = sc.ws, sc.stack, sc.box
+    for o in range(obstacles.shape[0]):
+        if _aabb_apart(aabb, obs_aabb[o]):
+            continue
+        if _gjk(obj, verts, obstacles[o:o + 1], verts, 64, ws):
+            return True
+    if table.shape[2] > 0:
+        if object_hits_columns(obj, verts, aabb, table, ox, oy, side, ws, stack, box):
+            return True
+    return False
+
+
+@njit(cache=True)
+def _may_collide_range(Q, start, stop, m, pad, out):
+    """configs_may_collide for Q[start:stop], into out, on one thread."""
+    shapes, shape_body, verts = m.shapes, m.shape_body, m.verts
+    shape_pairs, movable = m.shape_pairs, m.movable
+    B = m.chain.parent.shape[0]
+    S = shapes.shape[0]
+    no_field = no_height_field()
+    sc = new_scratch()
+    ws = sc.ws
+    R_WB = np.empty((B, 3, 3))
+    p_WB = np.empty((B, 3))
+    objs = np.empty((S, 1, SHAPE_W))
+    aabbs = np.empty((S, 6))
+    for n in range(start, stop):
+        fk_into(Q[n], m.chain, R_WB, p_WB)
+        _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
+        for s in range(S):
+            objs[s, 0, _EI] = shapes[s, _EI] + pad  # the margin against the scene
+            row_aabb(objs[s, 0], verts, aabbs[s])
+        hit = False
+        for s in range(S):
+            if not movable[shape_body[s]]:
+                continue
+            if _object_vs_scene(objs[s], aabbs[s], m, no_field, sc):
+                hit = True
+                break
+        if not hit:
+            if pad > 0.0:  # half the margin on each shape of a pair
+                for s in range(S):
+                    objs[s, 0, _EI] = shapes[s, _EI] + 0.5 * pad
+            for p in range(shape_pairs.shape[0]):
+                sa = shape_pairs[p, 0]
+                sb = shape_pairs[p, 1]
+                if _aabb_apart(aabbs[sa], aabbs[sb]):
+                    continue
+                if _gjk(objs[sa], verts, objs[sb], verts, 64, ws):
+                    hit = True
+                    break
+        out[n] = hit
+
+
+@njit(cache=True, parallel=True)
+def configs_may_collide(Q, m, pad):
+    """(N,) True where a configuration may collide with the obstacles or
+    itself, or come closer to them than ``pad`` (m); False is certified free
+    (farther than ``pad`` from everything). ``m``: a :class:`Model`; its
+    ``shape_pairs`` (P, 2) are the robot shape pairs to test (those of body pairs Drake does not filter). Bodies
+    that no joint moves (``movable`` False) are welded to the world, like
+    the obstacles: Drake filters those pairs, and so does this."""
+    N = Q.shape[0]
+    out = np.zeros(N, np.bool_)
+    chunk = 256
+    n_chunks = (N + chunk - 1) // chunk
+    # numba passes no tuples of arrays into a parallel loop: the model's
+    # arrays go in one by one, the model is rebuilt inside.
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
+    (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
+     curvature_, revolute_, joint_body_) = m[1:]
+    for c in prange(n_chunks):
+        mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
+                   obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
+                   joint_body_)
+        _may_collide_range(Q, c * chunk, min(N, (c + 1) * chunk), mm, pad, out)
+    return out
+
+
+@njit(cache=True)
+def configs_may_collide_serial(Q, m, pad):
+    """:func:`configs_may_collide` on the calling thread: for a few
+    configurations (a collision guard's checks), where waking the thread
+    pool costs more than the work."""
+    out = np.zeros(Q.shape[0], np.bool_)
+    _may_collide_range(Q, 0, Q.shape[0], m, pad, out)
+    return out
+
+
+@njit(cache=True)
+def lower_columns_under(Q, e_body, m, heights, grid, clearance):
+    """Lowers every column under the robot at configurations Q (each body
+    grown by e_body[n, b], a ball) to ``clearance`` below the lowest point of
+    any shape whose footprint's bounding rectangle covers it (bodies that
+    never move: once). In place. ``grid`` = (ox, oy, side) of ``heights``."""
+    shapes, shape_body, verts, movable = m.shapes, m.shape_body, m.verts, m.movable
+    ox, oy, side = grid
+    B = m.chain.parent.shape[0]
+    S = shapes.shape[0]
+    nx, ny = heights.shape
+    R_WB = np.empty((B, 3, 3))
+    p_WB = np.empty((B, 3))
+    row = np.empty(SHAPE_W)
+    box = np.empty(6)
+    for n in range(Q.shape[0]):
+        fk_into(Q[n], m.chain, R_WB, p_WB)
+        for s in range(S):
+            b = shape_body[s]
+            if n > 0 and not movable[b]:
+                continue
+            pose_shape(shapes[s], R_WB[b], p_WB[b], row)
+            set_motion(row, e_body[n, b], 0.0, 0.0, 1.0, 0.0, 0.0)
+            row_aabb(row, verts, box)
+            cap = box[2] - clearance
+            if cap < 0:
+                cap = 0.0
+            i0, i1, j0, j1 = _clip_block(int(np.floor((box[0] - ox) / side)), int(np.floor((box[3] - ox) / side)),
+                                         int(np.floor((box[1] - oy) / side)), int(np.floor((box[4] - oy) / side)),
+                                         nx, ny)
+            for a in range(i0, i1 + 1):
+                for c in range(j0, j1 + 1):
+                    if heights[a, c] > cap:
+                        heights[a, c] = cap
+
+
+@njit(cache=True)
+def _touches(objs, S, e, verts, obstacle, ws):
+    for s in range(S):
+        set_motion(objs[s, 0], e, 0.0, 0.0, 1.0, 0.0, 0.0)
+        if _gjk(objs[s], verts, obstacle, verts, 64, ws):
+            return True
+    return False
+
+
+@njit(cache=True, parallel=True)
+def obstacle_distances(Q, hi, tol, m):
+    """(N, O) distance from the robot at Q[n] (its shapes on bodies some
+    joint moves) to obstacle shape o, by bisection on the radius of a ball
+    grown around every robot shape: within ``tol`` below the true distance;
+    0 when touching; ``hi`` for anything farther than hi. ``m``: a :class:`Model`."""
+    shapes, shape_body, verts, movable = m.shapes, m.shape_body, m.verts, m.movable
+    obstacles, obs_aabb = m.obstacles, m.obstacle_aabb
+    # numba passes no tuples of arrays into a parallel loop: the chain's
+    # arrays go in one by one, the chain is rebuilt inside.
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
+    N = Q.shape[0]
+    O = obstacles.shape[0]
+    B = parent.shape[0]
+    S = shapes.shape[0]
+    out = np.full((N, O), hi)
+    for n in prange(N):
+        ws = np.empty((18, 3))
+        R_WB = np.empty((B, 3, 3))
+        p_WB = np.empty((B, 3))
+        objs = np.empty((S, 1, SHAPE_W))
+        aabb = np.empty(6)
+        fk_into(Q[n], Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), R_WB, p_WB)
+        _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
+        # Shapes that never move are welded like the obstacles: park them far away.
+        for s in range(S):
+            if not movable[shape_body[s]]:
+                objs[s, 0, _C + 2] = -1e9
+        for o in range(O):
+            # Any robot shape near enough to matter?
+            near = False
+            for s in range(S):
+                set_motion(objs[s, 0], hi, 0.0, 0.0, 1.0, 0.0, 0.0)
+                row_aabb(objs[s, 0], verts, aabb)
+                if not _aabb_apart(aabb, obs_aabb[o]):
+                    near = True
+                    break
+            if not near:
+                continue
+            ob = obstacles[o:o + 1]
+            if not _touches(objs, S, hi, verts, ob, ws):
+                continue
+            if _touches(objs, S, 0.0, verts, ob, ws):
+                out[n, o] = 0.0
+                continue
+            lo_e = 0.0
+            hi_e = hi
+            while hi_e - lo_e > tol:
+                mid = 0.5 * (lo_e + hi_e)
+                if _touches(objs, S, mid, verts, ob, ws):
+                    hi_e = mid
+                else:
+                    lo_e = mid
+            out[n, o] = lo_e
+    return out

@@ -1,0 +1,391 @@
+"""Region tests: a straight piece of the nominal with one joint swept over a
+range, proven free by a grid of poses and a second-order growth bound; the
+sweep's adaptive search for each joint's bound, and many regions at once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from drake_cfvol.kernel.types import Chain, HeightField, MAX_T_SAMPLES, MAX_V_SAMPLES, Model, RegionScratch, SHAPE_W
+from drake_cfvol.kernel.kinematics import _axis_rotation, _mm, fk_into
+from drake_cfvol.kernel.shapes import _aabb_apart, object_aabb, pose_shape, row_aabb, set_motion
+from drake_cfvol.kernel.gjk import _gjk
+from drake_cfvol.kernel.heightfield import new_scratch, no_height_field
+from drake_cfvol.kernel.checks import _object_vs_scene
+
+__all__ = ['sweep_chains', 'regions_hit']
+
+
+@njit(cache=True)
+def _relative_growth(W, i, j, a, b, L_t, L_v, moved, curvature, reach, revolute):
+    """Second-order growth of body b's shapes relative to body a over the
+    region (joints that move both alike do not count)."""
+    k = W.shape[1]
+    a_t = 0.0
+    for kk in range(k):
+        if kk == j or not moved[kk, b] or (a >= 0 and moved[kk, a]):
+            continue
+        dk = abs(W[i + 1, kk] - W[i, kk])
+        if dk == 0.0:
+            continue
+        for ll in range(k):
+            if ll == j or not moved[ll, b] or (a >= 0 and moved[ll, a]):
+                continue
+            a_t += dk * abs(W[i + 1, ll] - W[i, ll]) * curvature[kk, ll, b]
+    grow = a_t * L_t * L_t / 8.0
+    if moved[j, b] and revolute[j] and L_v > 0:
+        # |d^2 p / dv^2| = distance from j's axis <= reach (any pose).
+        grow += reach[j, b] * L_v * L_v / 8.0
+    return grow
+
+
+@njit(cache=True)
+def _region_poses(W, i, j, ts, vs, m, rs, Rot):
+    """Body poses at the region's nt x nv grid points into rs.RP, rs.pP:
+    forward kinematics at each t (joint j at va), then joint j's motion
+    applied about (along) its axis for the other v."""
+    ta, tb, nt = ts
+    va, vb, nv = vs
+    B = m.chain.parent.shape[0]
+    R_MB, p_MB, axis = m.chain.R_MB, m.chain.p_MB, m.chain.axis
+    moved, revolute = m.moved, m.revolute
+    RP, pP, q_c = rs.RP, rs.pP, rs.q_c
+    k = W.shape[1]
+    jb = m.joint_body[j]
+    for ti in range(nt):
+        t = ta if nt == 1 else ta + (tb - ta) * ti / (nt - 1)
+        for kk in range(k):
+            q_c[kk] = W[i, kk] + t * (W[i + 1, kk] - W[i, kk])
+        q_c[j] = va
+        c0 = ti * nv
+        fk_into(q_c, m.chain, RP[c0], pP[c0])
+        if nv == 1:
+            continue
+        # Joint j's axis in the world (through its child frame's origin):
+        # p_WM = p_WB - R_WB R_MB^T p_MB, u = R_WB R_MB^T axis.
+        RB = RP[c0, jb]
+        RM = R_MB[jb]
+        pm = p_MB[jb]
+        ax = axis[jb]
+        cw0 = pP[c0, jb, 0]
+        cw1 = pP[c0, jb, 1]
+        cw2 = pP[c0, jb, 2]
+        u0 = 0.0
+        u1 = 0.0
+        u2 = 0.0
+        for r in range(3):
+            tr = RM[0, r] * pm[0] + RM[1, r] * pm[1] + RM[2, r] * pm[2]
+            ar = RM[0, r] * ax[0] + RM[1, r] * ax[1] + RM[2, r] * ax[2]
+            cw0 -= RB[0, r] * tr
+            cw1 -= RB[1, r] * tr
+            cw2 -= RB[2, r] * tr
+            u0 += RB[0, r] * ar
+            u1 += RB[1, r] * ar
+            u2 += RB[2, r] * ar
+        un = np.array([u0, u1, u2])
+        for vi in range(1, nv):
+            c = c0 + vi
+            dv = (vb - va) * vi / (nv - 1)
+            if revolute[j]:
+                _axis_rotation(un, dv, Rot)
+            for b in range(B):
+                if not moved[j, b]:
+                    RP[c, b] = RP[c0, b]
+                    pP[c, b] = pP[c0, b]
+                elif revolute[j]:
+                    _mm(Rot, RP[c0, b], RP[c, b])
+                    x0 = pP[c0, b, 0] - cw0
+                    x1 = pP[c0, b, 1] - cw1
+                    x2 = pP[c0, b, 2] - cw2
+                    pP[c, b, 0] = cw0 + Rot[0, 0] * x0 + Rot[0, 1] * x1 + Rot[0, 2] * x2
+                    pP[c, b, 1] = cw1 + Rot[1, 0] * x0 + Rot[1, 1] * x1 + Rot[1, 2] * x2
+                    pP[c, b, 2] = cw2 + Rot[2, 0] * x0 + Rot[2, 1] * x1 + Rot[2, 2] * x2
+                else:
+                    RP[c, b] = RP[c0, b]
+                    pP[c, b, 0] = pP[c0, b, 0] + u0 * dv
+                    pP[c, b, 1] = pP[c0, b, 1] + u1 * dv
+                    pP[c, b, 2] = pP[c0, b, 2] + u2 * dv
+
+
+@njit(cache=True)
+def _region_vs_scene(W, i, j, ts, vs, m, field, sc, rs, pad):
+    """The shapes joint j moves, over the region's grid (grown by the
+    second-order bound and ``pad``), against the obstacles and V."""
+    ta, tb, nt = ts
+    va, vb, nv = vs
+    P = nt * nv
+    S = m.shapes.shape[0]
+    shapes, shape_body, verts = m.shapes, m.shape_body, m.verts
+    moved, reach, curvature, revolute = m.moved, m.reach, m.curvature, m.revolute
+    RP, pP, objs, aabbs = rs.RP, rs.pP, rs.objs, rs.aabbs
+    tmp6 = sc.tmp6
+    L_t = (tb - ta) / max(nt - 1, 1)
+    L_v = (vb - va) / max(nv - 1, 1)
+    for s in range(S):
+        b = shape_body[s]
+        if not moved[j, b]:
+            continue
+        grow = _relative_growth(W, i, j, -1, b, L_t, L_v, moved, curvature, reach, revolute)
+        for c in range(P):
+            pose_shape(shapes[s], RP[c, b], pP[c, b], objs[s, c])
+            set_motion(objs[s, c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
+        obj = objs[s, :P]
+        object_aabb(obj, verts, aabbs[s], tmp6)
+        if _object_vs_scene(obj, aabbs[s], m, field, sc):
+            return True
+    return False
+
+
+@njit(cache=True)
+def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
+    """The robot's self pairs that joint j moves apart, over the region's
+    grid, in the frame of the body j does not move."""
+    ta, tb, nt = ts
+    va, vb, nv = vs
+    P = nt * nv
+    S = m.shapes.shape[0]
+    shapes, shape_body, verts, pairs = m.shapes, m.shape_body, m.verts, m.body_pairs
+    moved, reach, curvature, revolute = m.moved, m.reach, m.curvature, m.revolute
+    RP, pP, rel, rel_aabb = rs.RP, rs.pP, rs.rel, rs.rel_aabb
+    ws, tmp6 = sc.ws, sc.tmp6
+    L_t = (tb - ta) / max(nt - 1, 1)
+    L_v = (vb - va) / max(nv - 1, 1)
+    R_fm = np.empty((3, 3))
+    p_fm = np.empty(3)
+    dp = np.empty(3)
+    relP = rel[:P]
+    for p in range(pairs.shape[0]):
+        a = pairs[p, 0]
+        bb = pairs[p, 1]
+        if moved[j, a] == moved[j, bb]:
+            continue
+        f = a if not moved[j, a] else bb  # the body j does not move
+        mb = bb if f == a else a
+        grow = _relative_growth(W, i, j, f, mb, L_t, L_v, moved, curvature, reach, revolute)
+        for sm in range(S):
+            if shape_body[sm] != mb:
+                continue
+            for c in range(P):
+                # X_fm = X_Wf^-1 X_Wm at grid point c.
+                Rf = RP[c, f]
+                Rm = RP[c, mb]
+                for r in range(3):
+                    for cc in range(3):
+                        R_fm[r, cc] = Rf[0, r] * Rm[0, cc] + Rf[1, r] * Rm[1, cc] + Rf[2, r] * Rm[2, cc]
+                    dp[r] = pP[c, mb, r] - pP[c, f, r]
+                for r in range(3):
+                    p_fm[r] = Rf[0, r] * dp[0] + Rf[1, r] * dp[1] + Rf[2, r] * dp[2]
+                pose_shape(shapes[sm], R_fm, p_fm, relP[c])
+                set_motion(relP[c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
+            object_aabb(relP, verts, rel_aabb, tmp6)
+            for sf in range(S):
+                if shape_body[sf] != f:
+                    continue
+                # Body f's shape in its own frame: the local row as it is.
+                row_aabb(shapes[sf], verts, tmp6)
+                if _aabb_apart(rel_aabb, tmp6):
+                    continue
+                if _gjk(relP, verts, shapes[sf:sf + 1], verts, 64, ws):
+                    return True
+    return False
+
+
+@njit(cache=True)
+def _region_hits(W, i, j, ts, vs, m, field, sc, rs, pad):
+    """May the robot collide (or come closer than ``pad``, m) anywhere in the region R = {nom(i + t) with
+    joint j replaced by v : t in [ta, tb], v in [va, vb]}?
+
+    R is the image of a rectangle under an affine map into configuration
+    space. The rectangle is sampled on an nt x nv grid; each shape's
+    positions over R lie in the convex hull of its poses at the grid points
+    grown by a ball (a second-order bound): along a segment of length L
+    where |d^2 p / ds^2| <= A, a point stays within A L^2 / 8 of the chord,
+    and the chord lies in the hull of its ends. For the nominal's direction
+    dq' (dq without joint j), A = sum_kl |dq'_k| |dq'_l| curvature[k, l, b];
+    for joint j's direction, A = the shape's distance from j's axis <= reach
+    (revolute) or 0 (prismatic).
+
+    Shapes that joint j moves are tested in the world against the obstacles
+    and V. A self-collision pair that joint j moves apart is tested in the
+    frame of its body that j does not move, where only the joints between
+    the two bodies move anything: a common motion would smear both hulls
+    over each other. Everything else keeps its pose relative to the nominal,
+    which is free.
+
+    ``ts`` = (ta, tb, nt), ``vs`` = (va, vb, nv); ``m`` a :class:`Model`,
+    ``field`` a :class:`HeightField`, ``sc`` and ``rs`` the thread's
+    :class:`Scratch` and :class:`RegionScratch`.
+    """
+    _region_poses(W, i, j, ts, vs, m, rs, sc.ws[8:11])  # ws rows 8-10 as a 3x3 (free outside GJK)
+    if _region_vs_scene(W, i, j, ts, vs, m, field, sc, rs, pad):
+        return True
+    return _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad)
+
+
+@njit(cache=True)
+def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
+    """The bound v of joint j over stretch i (upper for sgn +1, lower for
+    -1): for every t in [0, 1], moving joint j alone from nom(i + t) to v is
+    free. An adaptive search from the stretch's nominal range outwards:
+    test [F, F + w]; free -> certified, advance and double w; possible
+    collision -> halve w; stop once a possibly colliding interval is
+    narrower than delta[j]. Each test samples nt poses along t and one pose
+    per ``v_step`` along v (at most MAX_V_SAMPLES). ``guess`` is an
+    absolute bound to start from (the previous stretch's; NaN: cold).
+    ``lims`` = (lim_lo, lim_hi, delta), ``grid`` = (nt, v_step).
+
+    Returns:
+        (bound, tests)
+    """
+    lim_lo, lim_hi, delta = lims
+    nt, v_step = grid
+    bound = lim_hi[i, j] if sgn > 0 else lim_lo[i, j]
+    dj = delta[j]
+    if sgn > 0:
+        v0 = min(W[i, j], W[i + 1, j])
+        T = bound - v0
+    else:
+        v0 = max(W[i, j], W[i + 1, j])
+        T = v0 - bound
+    if T <= 0:
+        return v0, 0
+    count = 0
+    F = 0.0
+    start = T
+    if not np.isnan(guess):
+        start = sgn * (guess - v0) - dj  # just short of the neighbour's bound
+    if start >= dj and start < T:
+        w = start
+        w_next = 2.0 * dj
+    else:
+        w = T
+        w_next = -1.0
+    while True:
+        X = min(F + w, T)
+        if sgn > 0:
+            va = v0 + F
+            vb = v0 + X
+        else:
+            va = v0 - X
+            vb = v0 - F
+        nv = 2 + int((X - F) / v_step)
+        if nv > MAX_V_SAMPLES:
+            nv = MAX_V_SAMPLES
+        count += 1
+        hit = _region_hits(W, i, j, (0.0, 1.0, nt), (va, vb, nv), m, field, sc, rs, pad)
+        if not hit:
+            F = X
+            if F >= T:
+                break
+            if w_next > 0:
+                w = w_next
+                w_next = -1.0
+            else:
+                w = 2.0 * w
+        else:
+            width = X - F
+            w_next = -1.0
+            if width < dj:
+                break
+            w = 0.5 * width
+    return v0 + sgn * F, count
+
+
+@njit(cache=True)
+def _region_workspace(B, S, k):
+    """Scratch arrays of one thread's region tests (:func:`_region_hits`)
+    for B bodies, S shapes and k joints."""
+    P = MAX_T_SAMPLES * MAX_V_SAMPLES
+    return RegionScratch(np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
+                         np.empty((P, SHAPE_W)), np.empty(6), np.empty(k))
+
+
+@njit(cache=True, parallel=True)
+def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads):
+    """Certified single-joint bounds of every stretch (:func:`_search`),
+    keeping stretch i at least ``pads[i]`` (m) from the scene and itself.
+    Chain n = (j, sign) walks the stretches in order, each search starting
+    from the previous stretch's bound; the chains run in parallel.
+    ``lims`` = (lim_lo (g-1, k), lim_hi, delta (k,)); ``m`` a
+    :class:`Model`; ``field`` a :class:`HeightField`.
+
+    Returns:
+        (bounds (n, g-1), tests (n,))
+    """
+    n_chains = chains.shape[0]
+    n_st = W.shape[0] - 1
+    out = np.zeros((n_chains, n_st))
+    tests = np.zeros(n_chains, np.int64)
+    B = m.chain.parent.shape[0]
+    S = m.shapes.shape[0]
+    k = W.shape[1]
+    # numba passes no tuples of arrays into a parallel loop: the model's
+    # arrays go in one by one, the model is rebuilt inside.
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
+    (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
+     curvature_, revolute_, joint_body_) = m[1:]
+    lim_lo, lim_hi, delta = lims
+    table, ox, oy, side = field
+    for n in prange(n_chains):
+        mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
+                   obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
+                   joint_body_)
+        fld = HeightField(table, ox, oy, side)
+        lm = (lim_lo, lim_hi, delta)
+        j = chains[n, 0]
+        sgn = chains[n, 1]
+        sc = new_scratch()
+        rs = _region_workspace(B, S, k)
+        guess = np.nan
+        count = 0
+        for i in range(n_st):
+            bound, c = _search(i, j, sgn, guess, W, lm, (nts[i, j], v_steps[j]), mm, fld, sc, rs, pads[i])
+            out[n, i] = bound
+            count += c
+            guess = bound
+        tests[n] = count
+    return out, tests
+
+
+@njit(cache=True, parallel=True)
+def regions_hit(A, B, js, va, vb, nts, nvs, pads, m):
+    """Region tests of many straight pieces (the certificate's box edges).
+
+    Task n is the region {c(t) with joint js[n] replaced by v : t in [0, 1],
+    v in [va[n], vb[n]]}, where c(t) = A[n] + t (B[n] - A[n]), tested as in
+    :func:`_region_hits` (nts[n] x nvs[n] grid poses, second-order growth)
+    against the obstacles and the robot itself, kept ``pads[n]`` (m) away;
+    no volume V. As there, only what joint js[n] moves relative to the rest
+    is tested: the rest is the pose at c(t), proven by the other joints'
+    tasks.
+
+    Returns:
+        (n,) True where the region may collide (False: proven free).
+    """
+    n_tasks = A.shape[0]
+    out = np.zeros(n_tasks, np.bool_)
+    B_n = m.chain.parent.shape[0]
+    S = m.shapes.shape[0]
+    k = A.shape[1]
+    n_chunks = (n_tasks + 63) // 64
+    # numba passes no tuples of arrays into a parallel loop: the model's
+    # arrays go in one by one, the model is rebuilt inside.
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
+    (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
+     curvature_, revolute_, joint_body_) = m[1:]
+    for c in prange(n_chunks):
+        mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
+                   obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
+                   joint_body_)
+        no_field = no_height_field()
+        sc = new_scratch()
+        rs = _region_workspace(B_n, S, k)
+        W = np.empty((2, k))
+        for n in range(c * 64, min(n_tasks, (c + 1) * 64)):
+            W[0] = A[n]
+            W[1] = B[n]
+            out[n] = _region_hits(W, 0, js[n], (0.0, 1.0, min(nts[n], MAX_T_SAMPLES)),
+                                  (va[n], vb[n], min(nvs[n], MAX_V_SAMPLES)), mm, no_field, sc, rs, pads[n])
+    return out

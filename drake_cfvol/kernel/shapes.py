@@ -1,0 +1,237 @@
+"""Convex shapes given by exact support functions (boxes, spheres, capsules,
+cylinders, ellipsoids, convex hulls), with motion sets folded in, posed in
+the world, and their axis-aligned bounding boxes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from drake_cfvol.kernel.types import _C, _ED, _EI, _ES, _K, _R, _S, _U, _V0, _V1
+
+__all__ = ['row_aabb']
+
+
+@njit(cache=True)
+def pose_shape(local, R_WB, p_WB, out):
+    """A shape row posed in the world: out = local with the body pose applied
+    (centre and rotation); the motion fields are left as in ``local``."""
+    out[:] = local
+    for i in range(3):
+        acc = p_WB[i]
+        for j in range(3):
+            acc += R_WB[i, j] * local[_C + j]
+        out[_C + i] = acc
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += R_WB[i, k] * local[_R + 3 * k + j]
+            out[_R + 3 * i + j] = acc
+
+
+@njit(cache=True)
+def set_motion(row, e_iso, u0, u1, u2, e_disc, e_seg):
+    row[_EI] = e_iso
+    row[_U] = u0
+    row[_U + 1] = u1
+    row[_U + 2] = u2
+    row[_ED] = e_disc
+    row[_ES] = e_seg
+
+
+@njit(cache=True, inline="always")
+def _local_support(row, verts, l0, l1, l2):
+    """The shape's support point along l (its own frame, no motion set)."""
+    kind = int(row[_K])
+    s0 = row[_S]
+    s1 = row[_S + 1]
+    s2 = row[_S + 2]
+    x = 0.0
+    y = 0.0
+    z = 0.0
+    if kind == 0:  # box: half extents
+        x = s0 if l0 >= 0 else -s0
+        y = s1 if l1 >= 0 else -s1
+        z = s2 if l2 >= 0 else -s2
+    elif kind == 1:  # sphere: radius
+        n = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
+        if n > 0:
+            x = s0 * l0 / n
+            y = s0 * l1 / n
+            z = s0 * l2 / n
+    elif kind == 2:  # capsule along z: radius, half length
+        n = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
+        z = s1 if l2 >= 0 else -s1
+        if n > 0:
+            x = s0 * l0 / n
+            y = s0 * l1 / n
+            z += s0 * l2 / n
+    elif kind == 3:  # cylinder along z: radius, half length
+        n = np.sqrt(l0 * l0 + l1 * l1)
+        z = s1 if l2 >= 0 else -s1
+        if n > 0:
+            x = s0 * l0 / n
+            y = s0 * l1 / n
+    elif kind == 4:  # ellipsoid: semi-axes
+        a0 = s0 * s0 * l0
+        a1 = s1 * s1 * l1
+        a2 = s2 * s2 * l2
+        n = np.sqrt(a0 * l0 + a1 * l1 + a2 * l2)
+        if n > 0:
+            x = a0 / n
+            y = a1 / n
+            z = a2 / n
+    else:  # convex hull: its vertices
+        best = -1e300
+        for v in range(int(row[_V0]), int(row[_V1])):
+            h = verts[v, 0] * l0 + verts[v, 1] * l1 + verts[v, 2] * l2
+            if h > best:
+                best = h
+                x = verts[v, 0]
+                y = verts[v, 1]
+                z = verts[v, 2]
+    return x, y, z
+
+
+@njit(cache=True, inline="always")
+def _add_motion(row, d0, d1, d2, out):
+    """Adds the support of the row's motion set along d to out."""
+    dn = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    if dn <= 0:
+        return
+    ei = row[_EI]
+    if ei > 0:
+        out[0] += ei * d0 / dn
+        out[1] += ei * d1 / dn
+        out[2] += ei * d2 / dn
+    ed = row[_ED]
+    es = row[_ES]
+    if ed > 0 or es > 0:
+        u0 = row[_U]
+        u1 = row[_U + 1]
+        u2 = row[_U + 2]
+        du = d0 * u0 + d1 * u1 + d2 * u2
+        if es > 0:
+            sg = 1.0 if du >= 0 else -1.0
+            out[0] += es * sg * u0
+            out[1] += es * sg * u1
+            out[2] += es * sg * u2
+        if ed > 0:
+            w0 = d0 - du * u0
+            w1 = d1 - du * u1
+            w2 = d2 - du * u2
+            wn = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            if wn > 0:
+                out[0] += ed * w0 / wn
+                out[1] += ed * w1 / wn
+                out[2] += ed * w2 / wn
+
+
+@njit(cache=True)
+def support(row, verts, d0, d1, d2, out):
+    """The point of the shape (with its motion set) farthest along d, into
+    out (3,). Exact for every kind."""
+    # Direction in the shape frame: R^T d.
+    l0 = row[_R + 0] * d0 + row[_R + 3] * d1 + row[_R + 6] * d2
+    l1 = row[_R + 1] * d0 + row[_R + 4] * d1 + row[_R + 7] * d2
+    l2 = row[_R + 2] * d0 + row[_R + 5] * d1 + row[_R + 8] * d2
+    x, y, z = _local_support(row, verts, l0, l1, l2)
+    out[0] = row[_C] + row[_R + 0] * x + row[_R + 1] * y + row[_R + 2] * z
+    out[1] = row[_C + 1] + row[_R + 3] * x + row[_R + 4] * y + row[_R + 5] * z
+    out[2] = row[_C + 2] + row[_R + 6] * x + row[_R + 7] * y + row[_R + 8] * z
+    _add_motion(row, d0, d1, d2, out)
+
+
+@njit(cache=True)
+def _cross(a, b, out):
+    out[0] = a[1] * b[2] - a[2] * b[1]
+    out[1] = a[2] * b[0] - a[0] * b[2]
+    out[2] = a[0] * b[1] - a[1] * b[0]
+
+
+@njit(cache=True, inline="always")
+def _dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True)
+def support_multi(obj, verts, d0, d1, d2, out, tmp):
+    """Support of the convex hull of the object's rows along d, into out."""
+    best = -np.inf
+    for p in range(obj.shape[0]):
+        support(obj[p], verts, d0, d1, d2, tmp)
+        h = tmp[0] * d0 + tmp[1] * d1 + tmp[2] * d2
+        if h > best:
+            best = h
+            out[0] = tmp[0]
+            out[1] = tmp[1]
+            out[2] = tmp[2]
+
+
+@njit(cache=True)
+def row_aabb(row, verts, out):
+    """A shape row's (with its motion set) axis-aligned box, closed form:
+    out = [xmin, ymin, zmin, xmax, ymax, zmax]."""
+    kind = int(row[_K])
+    s0 = row[_S]
+    s1 = row[_S + 1]
+    s2 = row[_S + 2]
+    for a in range(3):
+        r0 = row[_R + 3 * a]
+        r1 = row[_R + 3 * a + 1]
+        r2 = row[_R + 3 * a + 2]
+        c = row[_C + a]
+        lo = 0.0
+        hi = 0.0
+        if kind == 0:
+            h = abs(r0) * s0 + abs(r1) * s1 + abs(r2) * s2
+            lo = -h
+            hi = h
+        elif kind == 1:
+            lo = -s0
+            hi = s0
+        elif kind == 2:
+            h = abs(r2) * s1 + s0
+            lo = -h
+            hi = h
+        elif kind == 3:
+            h = abs(r2) * s1 + s0 * np.sqrt(max(1.0 - r2 * r2, 0.0))
+            lo = -h
+            hi = h
+        elif kind == 4:
+            h = np.sqrt((r0 * s0) ** 2 + (r1 * s1) ** 2 + (r2 * s2) ** 2)
+            lo = -h
+            hi = h
+        else:
+            lo = np.inf
+            hi = -np.inf
+            for v in range(int(row[_V0]), int(row[_V1])):
+                x = r0 * verts[v, 0] + r1 * verts[v, 1] + r2 * verts[v, 2]
+                if x < lo:
+                    lo = x
+                if x > hi:
+                    hi = x
+        ua = row[_U + a]
+        m = row[_EI] + row[_ED] * np.sqrt(max(1.0 - ua * ua, 0.0)) + row[_ES] * abs(ua)
+        out[a] = c + lo - m
+        out[3 + a] = c + hi + m
+
+
+@njit(cache=True)
+def object_aabb(obj, verts, out, tmp6):
+    """The axis-aligned box of an object (union over its rows)."""
+    row_aabb(obj[0], verts, out)
+    for p in range(1, obj.shape[0]):
+        row_aabb(obj[p], verts, tmp6)
+        for a in range(3):
+            if tmp6[a] < out[a]:
+                out[a] = tmp6[a]
+            if tmp6[3 + a] > out[3 + a]:
+                out[3 + a] = tmp6[3 + a]
+
+
+@njit(cache=True, inline="always")
+def _aabb_apart(a, b):
+    return (a[0] > b[3] or b[0] > a[3] or a[1] > b[4] or b[1] > a[4] or a[2] > b[5] or b[2] > a[5])

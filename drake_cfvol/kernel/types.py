@@ -1,0 +1,100 @@
+"""The kernel's constants (shape kinds, the shape row's layout) and its typed
+arguments: named tuples of arrays, which numba takes as they are.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+import numpy as np
+
+__all__ = ['Chain', 'Model', 'HeightField', 'Scratch', 'RegionScratch', 'BOX', 'SPHERE', 'CAPSULE', 'CYLINDER', 'ELLIPSOID', 'HULL', 'SHAPE_W']
+
+
+BOX, SPHERE, CAPSULE, CYLINDER, ELLIPSOID, HULL = 0, 1, 2, 3, 4, 5
+
+
+SHAPE_W = 25
+
+
+# Offsets in a shape row.
+_K, _C, _R, _S, _V0, _V1, _EI, _U, _ED, _ES = 0, 1, 4, 13, 16, 17, 18, 19, 22, 23
+
+
+#: A separating direction must separate by at least this (m): numerical
+#: rounding can never turn an overlap into "free".
+SEP_EPS = 1e-9
+
+
+class Chain(NamedTuple):
+    """The robot's kinematic chain, bodies in topological order (B of them):
+    X_WB = X_WP X_PF X_FM(q) X_MB."""
+
+    parent: np.ndarray  #: (B,) int: the parent body's index, -1 the world
+    jtype: np.ndarray  #: (B,) int: 0 weld, 1 revolute, 2 prismatic
+    qidx: np.ndarray  #: (B,) int: the joint's position index
+    axis: np.ndarray  #: (B, 3): the joint's unit axis in F
+    R_PF: np.ndarray  #: (B, 3, 3)
+    p_PF: np.ndarray  #: (B, 3)
+    R_MB: np.ndarray  #: (B, 3, 3)
+    p_MB: np.ndarray  #: (B, 3)
+
+
+class Model(NamedTuple):
+    """The robot and its obstacles as the kernel sees them
+    (:meth:`drake_cfvol.scene.arrays.SceneArrays.model`)."""
+
+    chain: Chain
+    shapes: np.ndarray  #: (S, SHAPE_W) robot shape rows in their body frames
+    shape_body: np.ndarray  #: (S,) int
+    verts: np.ndarray  #: (V, 3) hull vertices of every mesh shape (robot and obstacles)
+    obstacles: np.ndarray  #: (O, SHAPE_W) obstacle rows in the world
+    obstacle_aabb: np.ndarray  #: (O, 6)
+    body_pairs: np.ndarray  #: (P, 2) int: robot body pairs Drake does not filter
+    shape_pairs: np.ndarray  #: (P', 2) int: robot shape pairs of those body pairs
+    movable: np.ndarray  #: (B,) bool: moved by some joint
+    moved: np.ndarray  #: (k, B) bool: joint j moves body b
+    reach: np.ndarray  #: (k, B): body b's shapes' largest distance from joint j's axis
+    curvature: np.ndarray  #: (k, k, B): second-derivative bounds of b's points
+    revolute: np.ndarray  #: (k,) bool
+    joint_body: np.ndarray  #: (k,) int: the body each joint moves first
+
+
+class HeightField(NamedTuple):
+    """The volume V's columns: a range-maximum table and the grid."""
+
+    table: np.ndarray  #: :func:`range_max_table` of the heights; (1, 1, 0, 0): none
+    ox: float  #: the grid's corner x, m
+    oy: float  #: the grid's corner y, m
+    side: float  #: a cell's side, m
+
+
+class Scratch(NamedTuple):
+    """One thread's scratch for the scene tests (:func:`new_scratch`)."""
+
+    ws: np.ndarray
+    stack: np.ndarray
+    box: np.ndarray
+    tmp6: np.ndarray
+
+
+class RegionScratch(NamedTuple):
+    """One thread's scratch for the region tests (:func:`_region_workspace`)."""
+
+    RP: np.ndarray
+    pP: np.ndarray
+    objs: np.ndarray
+    aabbs: np.ndarray
+    rel: np.ndarray
+    rel_aabb: np.ndarray
+    q_c: np.ndarray
+
+
+#: Most poses sampled along t and along v in one region test.
+MAX_T_SAMPLES = 5
+
+
+MAX_V_SAMPLES = 9
+
+
+#: Directions sampled around a shape for its xy footprint polygon.
+FOOTPRINT_DIRECTIONS = 8

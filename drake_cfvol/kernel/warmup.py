@@ -1,0 +1,71 @@
+"""Compiling every kernel once (or loading it from numba's cache).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from drake_cfvol.kernel.types import BOX, Chain, FOOTPRINT_DIRECTIONS, HeightField, Model, SHAPE_W, _C, _K, _R, _S
+from drake_cfvol.kernel.kinematics import fk
+from drake_cfvol.kernel.shapes import row_aabb
+from drake_cfvol.kernel.gjk import gjk_intersect
+from drake_cfvol.kernel.heightfield import range_max_table
+from drake_cfvol.kernel.checks import configs_may_collide, configs_may_collide_serial, lower_columns_under, obstacle_distances
+from drake_cfvol.kernel.regions import regions_hit, sweep_chains
+from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint
+
+
+def warm_up() -> float:
+    """Compiles (or loads from numba's cache) every kernel by running it
+    once on a tiny made-up scene: a one-joint arm with one box link, one
+    obstacle and a 2 x 2 height field. Returns the seconds it took; the
+    paper's timing never includes this."""
+    import time
+
+    t0 = time.perf_counter()
+    eye = np.eye(3)
+    parent = np.array([-1], np.int64)
+    jtype = np.array([1], np.int64)
+    qidx = np.array([0], np.int64)
+    axis = np.array([[0.0, 0.0, 1.0]])
+    R_PF = eye[None].copy()
+    p_PF = np.array([[0.0, 0.0, 0.5]])
+    R_MB = eye[None].copy()
+    p_MB = np.zeros((1, 3))
+    chain = Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB)
+    shapes = np.zeros((1, SHAPE_W))
+    shapes[0, _K] = BOX
+    shapes[0, _C:_C + 3] = (0.5, 0.0, 0.0)
+    shapes[0, _R:_R + 9] = eye.ravel()
+    shapes[0, _S:_S + 3] = (0.5, 0.05, 0.05)
+    verts = np.zeros((0, 3))
+    obstacles = shapes.copy()
+    obstacles[0, _C:_C + 3] = (0.0, 1.5, 0.5)
+    obs_aabb = np.empty((1, 6))
+    row_aabb(obstacles[0], verts, obs_aabb[0])
+    no_pairs = np.zeros((0, 2), np.int64)
+    m = Model(chain, shapes, np.array([0], np.int64), verts, obstacles, obs_aabb, no_pairs, no_pairs,
+              np.array([True]), np.array([[True]]), np.array([[1.01]]), np.array([[[1.01]]]), np.array([True]),
+              np.array([0], np.int64))
+    W = np.array([[0.0], [0.1]])
+    Q = np.ascontiguousarray(W)
+    fk(Q, chain)
+    configs_may_collide(Q, m, 0.0)
+    configs_may_collide_serial(Q, m, 0.0)
+    heights = np.array([[0.0, 0.3], [0.2, 0.0]])
+    field = HeightField(range_max_table(heights), -1.0, -1.0, 1.0)
+    sweep_chains(np.array([[0, 1], [0, -1]], np.int64), (np.array([[-3.0]]), np.array([[3.0]]), np.array([0.01])),
+                 np.array([[2]], np.int64), np.array([0.2]), W, m, field, np.zeros(1))
+    regions_hit(W[:1].copy(), W[1:].copy(), np.array([0], np.int64), np.array([-0.1]), np.array([0.1]),
+                np.array([2], np.int64), np.array([2], np.int64), np.array([0.01]), m)
+    lower_columns_under(Q, np.zeros((2, 1)), m, heights.copy(), (-1.0, -1.0, 1.0), 0.0)
+    obstacle_distances(Q, 0.5, 1e-3, m)
+    mask = np.zeros((8, 8), np.bool_)
+    robot_footprint(Q, m, mask, -2.0, -2.0, 0.5)
+    poly = np.empty((FOOTPRINT_DIRECTIONS, 2))
+    shape_footprint(obstacles[0], verts, poly)
+    fill_convex_polygon(mask, poly, -2.0, -2.0, 0.5)
+    distance_map(mask)
+    gjk_intersect(shapes, verts, obstacles, verts)
+    row_aabb(obstacles[0], verts, np.empty(6))
+    return time.perf_counter() - t0

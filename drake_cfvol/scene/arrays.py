@@ -1,0 +1,425 @@
+"""The robot and its obstacles as plain arrays for the compiled kernel
+(:mod:`drake_cfvol.kernel`), read from Drake once per workcell.
+
+- The kinematic chain: every body of the robot in topological order, its
+  parent, its inboard joint (type, axis, position index) and the fixed poses
+  around the joint, so that ``kernel.fk`` reproduces Drake's X_WB.
+- The shapes: each proximity geometry as an exact convex shape (box,
+  sphere, capsule, cylinder, ellipsoid) or, for a mesh or convex shape, its
+  convex hull (what Drake uses for a mesh in point-pair queries). Nothing is
+  approximated, so no excess needs reporting.
+- Axis-aligned boxes of the obstacles, the self-collision pairs Drake does
+  not filter, which joints move which bodies, and a bound on how far
+  any point of a body can be from each joint's axis (``reach``), the same at
+  every configuration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from pydrake.geometry import (
+    Box,
+    Capsule,
+    Convex,
+    Cylinder,
+    Ellipsoid,
+    HalfSpace,
+    Mesh,
+    Role,
+    Sphere,
+)
+from pydrake.multibody.tree import JointIndex
+
+from drake_cfvol import kernel as K
+from drake_cfvol.exceptions import WorkcellError
+
+__all__ = ["SceneArrays", "scene_arrays", "shape_row"]
+
+#: A half space (an infinite floor) is modelled as a box this deep and wide, m.
+HALF_SPACE_SIZE = 1000.0
+
+
+def _hull_vertices(shape) -> np.ndarray:
+    hull = shape.GetConvexHull()
+    return np.array([hull.vertex(i) for i in range(hull.num_vertices())], float).reshape(-1, 3)
+
+
+def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[np.ndarray, float, np.ndarray]:
+    """A Drake shape posed at X_BG as a kernel shape row.
+
+    Args:
+        shape: the Drake shape.
+        R_BG, p_BG: its pose in the body (or world) frame.
+        verts: the list of vertex arrays so far; a hull appends to it.
+
+    Returns:
+        (row (SHAPE_W,), bounding radius about the returned centre, centre in B)
+
+    Raises:
+        WorkcellError: an unsupported shape.
+    """
+    row = np.zeros(K.SHAPE_W)
+    R = np.asarray(R_BG, float)
+    c = np.asarray(p_BG, float).copy()
+    if isinstance(shape, Box):
+        kind, size = K.BOX, np.asarray(shape.size()) / 2
+        radius = float(np.linalg.norm(size))
+    elif isinstance(shape, Sphere):
+        kind, size = K.SPHERE, np.array([shape.radius(), 0, 0])
+        radius = shape.radius()
+    elif isinstance(shape, Capsule):
+        kind, size = K.CAPSULE, np.array([shape.radius(), shape.length() / 2, 0])
+        radius = shape.radius() + shape.length() / 2
+    elif isinstance(shape, Cylinder):
+        kind, size = K.CYLINDER, np.array([shape.radius(), shape.length() / 2, 0])
+        radius = float(np.hypot(shape.radius(), shape.length() / 2))
+    elif isinstance(shape, Ellipsoid):
+        kind, size = K.ELLIPSOID, np.array([shape.a(), shape.b(), shape.c()])
+        radius = float(size.max())
+    elif isinstance(shape, HalfSpace):
+        # The half space z <= 0 of its frame: a big box below the plane.
+        kind, size = K.BOX, np.full(3, HALF_SPACE_SIZE / 2)
+        c = c + R @ np.array([0.0, 0.0, -HALF_SPACE_SIZE / 2])
+        radius = float(np.linalg.norm(size))
+    elif isinstance(shape, (Mesh, Convex)):
+        v = _hull_vertices(shape)
+        if len(v) < 4:
+            raise WorkcellError(f"a {type(shape).__name__} shape has a degenerate convex hull ({len(v)} vertices).")
+        centre = (v.min(0) + v.max(0)) / 2
+        v = v - centre
+        c = c + R @ centre
+        start = sum(len(x) for x in verts)
+        verts.append(v)
+        kind, size = K.HULL, np.zeros(3)
+        row[K._V0], row[K._V1] = start, start + len(v)
+        radius = float(np.linalg.norm(v, axis=1).max())
+    else:
+        raise WorkcellError(
+            f"shape {type(shape).__name__} is not supported by the fast backend; use boxes, spheres, "
+            "cylinders, capsules, ellipsoids, meshes or convex shapes (or backend='drake').")
+    row[K._K] = kind
+    row[K._C:K._C + 3] = c
+    row[K._R:K._R + 9] = R.ravel()
+    row[K._S:K._S + 3] = size
+    return row, radius, c
+
+
+#: Batches up to this size are checked on the calling thread (waking numba's
+#: thread pool costs about 4 ms here, ~500 serial checks).
+_SERIAL_MAX = 256
+
+
+@dataclasses.dataclass
+class SceneArrays:
+    """Everything the kernel needs about a workcell.
+
+    Attributes:
+        body_names, body_indices: the robot's bodies (B), topological order.
+        parent (B,): parent body index, -1 for a body fixed to the world.
+        jtype (B,): 0 fixed, 1 revolute, 2 prismatic (the inboard joint).
+        qidx (B,): the joint's position index (0 for fixed joints).
+        axis (B, 3): the joint's unit axis in its frames.
+        R_PF, p_PF (B, 3, 3), (B, 3): joint frame F in the parent body (the
+            parent's world pose folded in for a parent outside the chain).
+        R_MB, p_MB: the body in the joint's child frame M.
+        shapes (S, SHAPE_W): robot shapes in their body's frame.
+        shape_body (S,): their body.
+        obstacles (O, SHAPE_W): obstacle shapes in the world.
+        obstacle_names (O,): the obstacle each belongs to.
+        obstacle_aabb (O, 6): their axis-aligned boxes [min xyz, max xyz].
+        verts (V, 3): hull vertices (shape frames) of every hull.
+        self_pairs (P, 2): robot body pairs that Drake does not filter.
+        moved_by (k, B): True where joint j moves body b.
+        reach (k, B): bound on the distance from joint j's axis point to any
+            point of body b, at every configuration, m (0 if not moved).
+        curvature (k, k, B): bound on |d^2 p / dq_k dq_l| for any point p of
+            body b at any configuration, m (see :func:`_curvature`).
+        revolute (k,): joint types.
+        joint_body (k,): the body whose inboard joint each joint is.
+    """
+
+    body_names: list
+    body_indices: list
+    parent: np.ndarray
+    jtype: np.ndarray
+    qidx: np.ndarray
+    axis: np.ndarray
+    R_PF: np.ndarray
+    p_PF: np.ndarray
+    R_MB: np.ndarray
+    p_MB: np.ndarray
+    shapes: np.ndarray
+    shape_body: np.ndarray
+    obstacles: np.ndarray
+    obstacle_names: list
+    obstacle_aabb: np.ndarray
+    verts: np.ndarray
+    self_pairs: np.ndarray
+    moved_by: np.ndarray
+    reach: np.ndarray
+    curvature: np.ndarray
+    revolute: np.ndarray
+    joint_body: np.ndarray
+
+    def __post_init__(self):
+        self._model = None  # the kernel's Model, built once
+
+    @property
+    def num_bodies(self) -> int:
+        return len(self.body_names)
+
+    def fk(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Body poses (N, B, 3, 3), (N, B, 3) for configurations (N, k)."""
+        Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
+        return K.fk(Q, self.chain)
+
+    def may_collide(self, Q: np.ndarray, pad: float = 0.0) -> np.ndarray:
+        """(N,) True where a configuration may collide with the obstacles or
+        itself, or come nearer to them than ``pad`` (m); False is certified
+        free (the kernel is conservative)."""
+        Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
+        # A few configurations (a guard's checks): on this thread, since
+        # waking numba's thread pool costs milliseconds.
+        fn = K.configs_may_collide_serial if len(Q) <= _SERIAL_MAX else K.configs_may_collide
+        return fn(Q, self.model, float(pad))
+
+    @property
+    def model(self) -> K.Model:
+        """The kernel's typed view of these arrays (built once)."""
+        if self._model is None:
+            self._model = K.Model(
+                self.chain, self.shapes, self.shape_body, self.verts, self.obstacles, self.obstacle_aabb,
+                self.self_pairs, self.shape_pairs, self.moved_by.any(axis=0), self.moved_by, self.reach,
+                self.curvature, self.revolute, self.joint_body)
+        return self._model
+
+    @property
+    def shape_pairs(self) -> np.ndarray:
+        """(P, 2) robot shape pairs of the body pairs Drake does not filter."""
+        body_pairs = {(int(a), int(b)) for a, b in self.self_pairs}
+        S = len(self.shapes)
+        pairs = [(a, b) for a in range(S) for b in range(a + 1, S)
+                 if (int(self.shape_body[a]), int(self.shape_body[b])) in body_pairs
+                 or (int(self.shape_body[b]), int(self.shape_body[a])) in body_pairs]
+        return np.array(pairs, np.int64).reshape(-1, 2)
+
+    @property
+    def chain(self) -> K.Chain:
+        """The kinematic chain (:class:`drake_cfvol.kernel.Chain`)."""
+        return K.Chain(self.parent, self.jtype, self.qidx, self.axis, self.R_PF, self.p_PF, self.R_MB, self.p_MB)
+
+
+def _pose(X) -> tuple[np.ndarray, np.ndarray]:
+    return X.rotation().matrix().copy(), X.translation().copy()
+
+
+def _chain_order(workcell):
+    """The robot's bodies in topological order (parents before children)
+    and each body's inboard joint (by body index)."""
+    plant = workcell.plant
+    robot_bodies = [plant.get_body(b) for b in plant.GetBodyIndices(workcell.robot)]
+    inboard = {}
+    for i in range(plant.num_joints()):
+        joint = plant.get_joint(JointIndex(i))
+        inboard[int(joint.child_body().index())] = joint
+    order, placed = [], set()
+    pending = list(robot_bodies)
+    while pending:
+        progressed = False
+        for body in list(pending):
+            joint = inboard.get(int(body.index()))
+            if joint is None:
+                raise WorkcellError(
+                    f"robot body '{body.name()}' has no inboard joint (a floating base?); weld the robot's "
+                    "base to the world with add_weld.")
+            par = joint.parent_body()
+            if par.model_instance() != workcell.robot or int(par.index()) in placed:
+                order.append(body)
+                placed.add(int(body.index()))
+                pending.remove(body)
+                progressed = True
+        if not progressed:
+            raise WorkcellError("the robot's kinematic tree has a loop; only trees are supported.")
+    return order, inboard
+
+
+def _chain_arrays(workcell, order, inboard):
+    """The chain in ``kernel.fk`` order (parent, jtype, qidx, axis, R_PF,
+    p_PF, R_MB, p_MB; a parent outside the robot folded into X_PF, a weld's
+    X_FM folded too) and each joint's body (joint_body)."""
+    plant = workcell.plant
+    ctx = plant.CreateDefaultContext()
+    plant.SetPositions(ctx, np.zeros(plant.num_positions()))
+    index_of = {int(b.index()): n for n, b in enumerate(order)}
+    B = len(order)
+    parent = np.full(B, -1, np.int64)
+    jtype = np.zeros(B, np.int64)
+    qidx = np.zeros(B, np.int64)
+    axis = np.zeros((B, 3))
+    R_PF, p_PF = np.zeros((B, 3, 3)), np.zeros((B, 3))
+    R_MB, p_MB = np.zeros((B, 3, 3)), np.zeros((B, 3))
+    joint_names = list(workcell.joint_names)
+    joint_body = np.full(len(joint_names), -1, np.int64)
+    for n, body in enumerate(order):
+        joint = inboard[int(body.index())]
+        X_PF = joint.frame_on_parent().GetFixedPoseInBodyFrame()
+        X_BM = joint.frame_on_child().GetFixedPoseInBodyFrame()
+        par = joint.parent_body()
+        if par.model_instance() == workcell.robot:
+            parent[n] = index_of[int(par.index())]
+        else:
+            X_PF = par.EvalPoseInWorld(ctx) @ X_PF  # fixed: only the robot moves
+        if joint.num_positions() == 0:
+            # Fold the weld's fixed X_FM into X_PF.
+            X_FM = joint.frame_on_child().CalcPose(ctx, joint.frame_on_parent())
+            X_PF = X_PF @ X_FM
+        else:
+            kind = joint.type_name()
+            jtype[n] = {"revolute": 1, "prismatic": 2}[kind]
+            qidx[n] = joint.position_start()
+            ax = joint.revolute_axis() if kind == "revolute" else joint.translation_axis()
+            axis[n] = np.asarray(ax, float) / np.linalg.norm(ax)
+            joint_body[joint_names.index(joint.name())] = n
+        R_PF[n], p_PF[n] = _pose(X_PF)
+        R_MB[n], p_MB[n] = _pose(X_BM.inverse())
+    return (parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), joint_body
+
+
+def _robot_shapes(workcell, order, verts):
+    """The robot's proximity shapes as kernel rows (hull vertices appended
+    to ``verts``): rows, their bodies, bounding-ball centres and radii."""
+    plant, inspector = workcell.plant, workcell.scene_graph.model_inspector()
+    rows, bodies, bcs, brs = [], [], [], []
+    for n, body in enumerate(order):
+        fid = plant.GetBodyFrameIdIfExists(body.index())
+        if fid is None:
+            continue
+        for gid in inspector.GetGeometries(fid, Role.kProximity):
+            X_BG = inspector.GetPoseInFrame(gid)
+            row, radius, centre = shape_row(inspector.GetShape(gid), *_pose(X_BG), verts)
+            rows.append(row)
+            bodies.append(n)
+            bcs.append(centre)
+            brs.append(radius)
+    if not rows:
+        raise WorkcellError(f"robot '{workcell.robot_name}' has no proximity geometry; the bounds need it.")
+    return np.array(rows), np.array(bodies, np.int64), np.array(bcs), np.array(brs)
+
+
+def _obstacle_shapes(workcell, verts):
+    """The obstacles' shapes as kernel rows, posed in the world, and their names."""
+    inspector = workcell.scene_graph.model_inspector()
+    obs_rows, obs_names = [], []
+    sg_ctx = workcell.scene_graph.GetMyContextFromRoot(workcell.context)
+    query = workcell.scene_graph.get_query_output_port().Eval(sg_ctx)
+    for obs in workcell.obstacles.values():
+        for gid in obs.geometry_ids:
+            obs_rows.append(shape_row(inspector.GetShape(gid), *_pose(query.GetPoseInWorld(gid)), verts)[0])
+            obs_names.append(obs.name)
+    return np.array(obs_rows).reshape(-1, K.SHAPE_W), obs_names
+
+
+def _moved_by(parent, joint_body, B):
+    """(k, B): True where joint j moves body b (b at or below the joint's body)."""
+    moved = np.zeros((len(joint_body), B), bool)
+    for j, b in enumerate(joint_body):
+        stack = [b]
+        while stack:
+            x = stack.pop()
+            moved[j, x] = True
+            stack.extend(np.flatnonzero(parent == x).tolist())
+    return moved
+
+
+def scene_arrays(workcell) -> SceneArrays:
+    """Reads the workcell's robot chain, robot shapes and obstacle shapes
+    from Drake (``Workcell.scene_arrays`` caches the result)."""
+    order, inboard = _chain_order(workcell)
+    chain, joint_body = _chain_arrays(workcell, order, inboard)
+    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = chain
+    B = len(order)
+    verts: list[np.ndarray] = []
+    shapes, shape_body, shape_bc, shape_br = _robot_shapes(workcell, order, verts)
+    obstacles, obs_names = _obstacle_shapes(workcell, verts)
+    checker = workcell.checker
+    has_geometry = [bool((shape_body == b).any()) for b in range(B)]
+    pairs = [(a, b) for a in range(B) for b in range(a + 1, B)
+             if has_geometry[a] and has_geometry[b]
+             and not checker.IsCollisionFilteredBetween(order[a], order[b])]
+    moved = _moved_by(parent, joint_body, B)
+    all_verts = np.concatenate(verts) if verts else np.zeros((0, 3))
+    obs_aabb = np.zeros((len(obstacles), 6))
+    for o in range(len(obstacles)):
+        K.row_aabb(obstacles[o], all_verts, obs_aabb[o])
+    reach = _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved,
+                   workcell.position_lower, workcell.position_upper, qidx)
+    revolute = np.asarray(workcell.revolute, bool)
+    return SceneArrays(
+        [b.name() for b in order], [b.index() for b in order], *chain,
+        shapes, shape_body, obstacles, obs_names, obs_aabb,
+        all_verts, np.array(pairs, np.int64).reshape(-1, 2), moved,
+        reach, _curvature(reach, moved, revolute), revolute, joint_body)
+
+
+def _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved,
+           lower, upper, qidx) -> np.ndarray:
+    """reach[j, b]: a configuration-independent bound on |p - c_j| for any
+    point p of body b, c_j the origin of joint j's child frame M (on its
+    axis). Triangle inequality along the chain: the distance between
+    consecutive joint origins is fixed in the body between them (plus the
+    travel of a prismatic joint), and each body's points lie within a fixed
+    distance of its own joint origin."""
+    B = len(parent)
+    anchor = np.array([-R_MB[b].T @ p_MB[b] for b in range(B)])  # M origin in body b's frame
+    own = np.zeros(B)  # max |p - anchor_b| over body b's shapes
+    for b in range(B):
+        sel = shape_body == b
+        if sel.any():
+            own[b] = (np.linalg.norm(shape_bc[sel] - anchor[b], axis=1) + shape_br[sel]).max()
+    step = np.zeros(B)  # |anchor_b - anchor_parent| bound, in the parent's frame
+    for b in range(B):
+        par = parent[b]
+        if par < 0:
+            continue
+        step[b] = np.linalg.norm(p_PF[b] - anchor[par])
+        if jtype[b] == 2:
+            q = qidx[b]
+            travel = max(abs(lower[q]), abs(upper[q]))
+            step[b] += travel if np.isfinite(travel) else np.inf
+    k = len(joint_body)
+    reach = np.zeros((k, B))
+    for j in range(k):
+        for b in np.flatnonzero(moved[j]):
+            total, x = own[b], b
+            while x != joint_body[j]:
+                total += step[x]
+                x = parent[x]
+            reach[j, b] = total
+    return reach
+
+
+def _curvature(reach: np.ndarray, moved: np.ndarray, revolute: np.ndarray) -> np.ndarray:
+    """curvature[k, l, b] >= |d^2 p / dq_k dq_l| for every point p of body b.
+
+    With c_l, u_l joint l's axis point and direction, for joint k upstream of
+    l (both revolute): d/dq_k (u_l x (p - c_l)) = (u_k x u_l) x (p - c_l) +
+    u_l x (u_k x (p - c_l)), at most 2 |p - c_l|; for k = l, |p - c_k|. A
+    revolute and a prismatic joint: at most 1 (the prismatic axis turns
+    with the revolute joint upstream of it; a translation turns nothing). Two
+    prismatic joints: 0.
+    """
+    k, B = reach.shape
+    out = np.zeros((k, k, B))
+    for a in range(k):
+        for c in range(k):
+            both = moved[a] & moved[c]
+            if revolute[a] and revolute[c]:
+                val = reach[a] if a == c else 2.0 * np.maximum(reach[a], reach[c])
+            elif revolute[a] or revolute[c]:
+                val = np.ones(B)
+            else:
+                val = np.zeros(B)
+            out[a, c] = np.where(both, val, 0.0)
+    return out

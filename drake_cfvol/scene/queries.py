@@ -1,0 +1,263 @@
+"""Queries on a workcell's Drake scene: signed distances per obstacle, the
+nearest obstacle, pairs no joint motion changes, Drake's collision checkers,
+configuration checks (:class:`WorkcellQueries`, a part of
+:class:`~drake_cfvol.scene.workcell.Workcell`).
+
+Every query poses the one diagram context the workcell owns
+(``Workcell.context``): a workcell is not for use from two threads at once.
+Results computed once are kept in the workcell's ``_cache`` dict (one
+idiom: :meth:`WorkcellQueries._memo`).
+"""
+
+
+import numpy as np
+from pydrake.planning import SceneGraphCollisionChecker
+
+from drake_cfvol.exceptions import (CollisionError, ConfigurationError, DimensionError, JointLimitError, MissingJointLimitsError, WorkcellError)
+
+__all__ = ["WorkcellQueries", "geometry_key", "robot_geometry_ids"]
+
+
+def geometry_key(inspector, geometry_id) -> tuple[str, str]:
+    """(frame name, geometry name): a geometry's name that holds across
+    plants built from the same models."""
+    return inspector.GetName(inspector.GetFrameId(geometry_id)), inspector.GetName(geometry_id)
+
+
+def robot_geometry_ids(plant, robot) -> tuple[set, set]:
+    """Proximity geometry ids of a robot's links in a finalized plant, and of
+    those its joints move.
+
+    Returns:
+        (every, moving)
+    """
+    moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(robot))))
+    every, moving = set(), set()
+    for b in plant.GetBodyIndices(robot):
+        ids = plant.GetCollisionGeometriesForBody(plant.get_body(b))
+        every.update(ids)
+        if b in moved:
+            moving.update(ids)
+    return every, moving
+
+
+class WorkcellQueries:
+    """The queries of :class:`~drake_cfvol.scene.workcell.Workcell` (a mixin:
+    it uses the workcell's plant, scene graph, context, robot, joints and
+    obstacles)."""
+
+    def _memo(self, key, make):
+        """The value kept under ``key`` in the workcell's cache, made once by ``make()``."""
+        if key not in self._cache:
+            self._cache[key] = make()
+        return self._cache[key]
+
+    def obstacle_distances(self, q, max_distance: float, *, moving_only: bool = False,
+                           changeable_only: bool = False) -> dict[str, float]:
+        """Smallest signed distance per obstacle to the robot at ``q`` (real
+        geometry, Drake), for the obstacles within ``max_distance``, m. With
+        ``moving_only``, only the robot's links that its joints move count
+        (a fixed base resting on its pedestal says nothing about a push);
+        with ``changeable_only``, moreover only the pairs whose distance a
+        joint motion changes (:meth:`invariant_pairs`: a turret turning above
+        its round pedestal, a rail carriage gliding above the floor)."""
+        invariant = self.invariant_pairs() if changeable_only else frozenset()  # poses the context: first
+        self.plant_context(q)
+        sg = self.scene_graph
+        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
+        owner = self._geometry_owner
+        fixed = self.fixed_robot_geometries() if (moving_only or changeable_only) else frozenset()
+        out: dict[str, float] = {}
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=max_distance):
+            a, b = owner.get(pair.id_A), owner.get(pair.id_B)
+            if (a is None) == (b is None):
+                continue  # robot-robot or obstacle-obstacle
+            r, o = (pair.id_B, pair.id_A) if a is not None else (pair.id_A, pair.id_B)
+            if r in fixed or (r, o) in invariant:
+                continue
+            name = a if a is not None else b
+            out[name] = min(out.get(name, np.inf), pair.distance)
+        return out
+
+    def nearest_obstacle(self, q, max_distance: float = 5.0):
+        """The obstacle nearest to the robot's moving links at ``q`` (Drake,
+        real geometry), among the pairs whose distance a joint motion
+        changes (:meth:`invariant_pairs`).
+
+        Returns:
+            (name, distance m, p_WR, p_WO): the witness points on the robot and
+            on the obstacle, world frame; None if nothing is within
+            ``max_distance``.
+        """
+        invariant = self.invariant_pairs()  # poses the context: first
+        self.plant_context(q)
+        sg = self.scene_graph
+        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
+        owner, fixed = self._geometry_owner, self.fixed_robot_geometries()
+        best = None
+        for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=max_distance):
+            a, b = owner.get(pair.id_A), owner.get(pair.id_B)
+            if (a is None) == (b is None):
+                continue
+            robot_id, p_R, name, obs_id, p_O = ((pair.id_B, pair.p_BCb, a, pair.id_A, pair.p_ACa) if a is not None
+                                                else (pair.id_A, pair.p_ACa, b, pair.id_B, pair.p_BCb))
+            if robot_id in fixed or (robot_id, obs_id) in invariant:
+                continue
+            if best is None or pair.distance < best[1]:
+                best = (name, pair.distance, query.GetPoseInWorld(robot_id) @ p_R,
+                        query.GetPoseInWorld(obs_id) @ p_O)
+        return best
+
+    def invariant_pairs(self, *, samples: int = 12, seed: int = 0, tol: float = 1e-6) -> frozenset:
+        """(robot geometry id, obstacle geometry id) pairs, moving links only,
+        whose signed distance no joint motion changes: equal within ``tol``
+        (m) at the default configuration and ``samples`` seeded uniform
+        configurations within the position limits (nominal +- pi for a joint
+        without limits). A push cannot bring such a pair closer, so a run's
+        clearance leaves them out (:meth:`obstacle_distances`). Computed once."""
+        return self._memo(("invariant_pairs", samples, seed, tol), lambda: self._invariant_pairs(samples, seed, tol))
+
+    def _invariant_pairs(self, samples: int, seed: int, tol: float) -> frozenset:
+        k = self.num_joints
+        q0 = self.plant.GetPositions(self.plant.CreateDefaultContext(), self.robot)
+        lo = np.where(np.isfinite(self.position_lower), self.position_lower, q0 - np.pi)
+        hi = np.where(np.isfinite(self.position_upper), self.position_upper, q0 + np.pi)
+        Q = np.vstack([q0, np.random.default_rng(seed).uniform(lo, hi, (samples, k))])
+        _, moving = robot_geometry_ids(self.plant, self.robot)
+        pairs = [(r, o) for r in sorted(moving, key=lambda g: g.get_value())
+                 for o in sorted(self._geometry_owner, key=lambda g: g.get_value())]
+        sg = self.scene_graph
+        D = np.full((len(Q), len(pairs)), np.nan)
+        for n, q in enumerate(Q):
+            self.plant_context(q)
+            query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(self._context))
+            for m, (r, o) in enumerate(pairs):
+                try:
+                    D[n, m] = query.ComputeSignedDistancePairClosestPoints(r, o).distance
+                except RuntimeError:
+                    pass  # a shape pair Drake cannot measure: never called invariant
+        spread = np.nanmax(D, axis=0) - np.nanmin(D, axis=0) if len(Q) else np.zeros(len(pairs))
+        ok = np.all(np.isfinite(D), axis=0) & (spread <= tol)
+        return frozenset(p for p, keep in zip(pairs, ok) if keep)
+
+    def invariant_pair_names(self) -> frozenset:
+        """:meth:`invariant_pairs` as ((frame name, geometry name) of the
+        robot's geometry, same of the obstacle's): names that hold in any
+        plant the workcell was added to (:meth:`add_to_plant`)."""
+        inspector = self.scene_graph.model_inspector()
+        return frozenset((geometry_key(inspector, r), geometry_key(inspector, o)) for r, o in self.invariant_pairs())
+
+    def fixed_robot_geometries(self) -> frozenset:
+        """Proximity geometry ids of the robot's bodies that no joint moves
+        (e.g. a base welded to its pedestal)."""
+        def make():
+            every, moving = robot_geometry_ids(self.plant, self.robot)
+            return frozenset(every - moving)
+
+        return self._memo("fixed_robot_geometries", make)
+
+    @property
+    def num_joints(self) -> int:
+        """k, the robot's number of joints."""
+        return len(self.joint_names)
+
+    @property
+    def context(self):
+        """A diagram context owned by the workcell (do not keep references)."""
+        return self._context
+
+    def plant_context(self, q: np.ndarray | None = None):
+        """Returns the workcell's plant context, set to ``q`` if given."""
+        ctx = self.plant.GetMyMutableContextFromRoot(self._context)
+        if q is not None:
+            self.plant.SetPositions(ctx, np.asarray(q, float))
+        return ctx
+
+    @property
+    def checker(self):
+        """A Drake ``SceneGraphCollisionChecker`` of the real scene (obstacles
+        + self-collision, adjacent links filtered)."""
+        return self.padded_checker(0.0)
+
+    def padded_checker(self, clearance: float):
+        """A ``SceneGraphCollisionChecker`` that calls a configuration nearer
+        than ``clearance`` (m) to an obstacle or to the robot itself
+        colliding (Drake's collision padding); one per distinct value."""
+        clearance = float(clearance)
+        return self._memo(("checker", clearance), lambda: SceneGraphCollisionChecker(
+            model=self.diagram, robot_model_instances=[self.robot], edge_step_size=self._edge_step,
+            env_collision_padding=clearance, self_collision_padding=clearance))
+
+    def clearance(self, q, influence: float = 1.0) -> float:
+        """The robot's signed distance to the obstacles and to itself at
+        ``q`` (m; the smallest pair, by Drake; ``influence`` if none is
+        nearer)."""
+        d = np.asarray(self.checker.CalcRobotClearance(np.asarray(q, float), influence).distances())
+        return float(d.min()) if d.size else float(influence)
+
+    def finite_limits(self, needed_for: str) -> tuple[np.ndarray, np.ndarray]:
+        """Returns the position limits, raising if any is infinite."""
+        bad = [n for n, lo, hi in zip(self.joint_names, self.position_lower, self.position_upper)
+               if not (np.isfinite(lo) and np.isfinite(hi))]
+        if bad:
+            raise MissingJointLimitsError(bad, needed_for)
+        return self.position_lower.copy(), self.position_upper.copy()
+
+    def validate_configuration(self, q, what: str = "configuration", *, check_limits: bool = True,
+                               tolerance: float = 1e-9) -> np.ndarray:
+        """Checks a configuration's size and limits; returns it as an array.
+
+        Raises:
+            DimensionError: ``q`` is not (k,).
+            JointLimitError: a joint lies outside its limits.
+        """
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.num_joints,):
+            raise DimensionError(
+                what, self.num_joints, q.shape[0] if q.ndim == 1 else q.shape,
+                f"The robot's joints are {', '.join(self.joint_names)}.")
+        if not np.all(np.isfinite(q)):
+            bad = [f"{n} = {v}" for n, v in zip(self.joint_names, q) if not np.isfinite(v)]
+            raise ConfigurationError(f"{what} has a value that is not a finite number: {', '.join(bad)}. Give every "
+                                     "joint a finite position (rad or m).")
+        if check_limits:
+            for n, v, lo, hi in zip(self.joint_names, q, self.position_lower, self.position_upper):
+                if v < lo - tolerance or v > hi + tolerance:
+                    raise JointLimitError(what, n, float(v), float(lo), float(hi))
+        return q
+
+    def colliding_pairs(self, q) -> list[tuple[str, str]]:
+        """Names the pairs of bodies in collision at ``q`` (real scene)."""
+        self.plant_context(q)
+        sg_context = self.scene_graph.GetMyContextFromRoot(self._context)
+        query = self.scene_graph.get_query_output_port().Eval(sg_context)
+        inspector = query.inspector()
+        pairs = set()
+        for pp in query.ComputePointPairPenetration():
+            a = self.plant.GetBodyFromFrameId(inspector.GetFrameId(pp.id_A)).name()
+            b = self.plant.GetBodyFromFrameId(inspector.GetFrameId(pp.id_B)).name()
+            pairs.add(tuple(sorted((a, b))))
+        return sorted(pairs)
+
+    def is_free(self, q) -> bool:
+        """True if ``q`` is free of collision with the real scene."""
+        return bool(self.checker.CheckConfigCollisionFree(np.asarray(q, float)))
+
+    def require_free(self, q, what: str) -> None:
+        """Raises :class:`CollisionError` naming the bodies if ``q`` collides."""
+        if not self.is_free(q):
+            raise CollisionError(what, self.colliding_pairs(q))
+
+    def configuration(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Returns the named (start, goal) pair."""
+        if name not in self.configurations:
+            raise WorkcellError(
+                f"Cell '{self.name}' has no configuration '{name}'. It has: "
+                f"{', '.join(self.configurations) or '(none)'}; add it under cfvol.configurations.")
+        s, g = self.configurations[name]
+        return s.copy(), g.copy()
+
+    def tool_position(self, q) -> np.ndarray:
+        """p_WT: the tool frame's origin in the world at ``q``, m."""
+        ctx = self.plant_context(q)
+        return self.tool_frame.CalcPoseInWorld(ctx).translation().copy()

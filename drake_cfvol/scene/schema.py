@@ -1,0 +1,193 @@
+"""The workcell file: its schema (typed dataclasses read with pydrake's
+``yaml_load_typed``, as Drake's hardware_sim reads its scenarios), the
+line of every key (for errors that name it), and the built-in cells.
+
+Workcells: a robot and its obstacles, loaded from one YAML file.
+
+A workcell file holds Drake model directives (``directives:``) for the robot
+and the obstacles, and a ``cfvol:`` section::
+
+    directives:
+    - add_model: {name: abb, file: package://drake_cfvol_models/...urdf}
+    - add_weld: {parent: world, child: abb::base_link}
+    - add_model: {name: cell, file: package://drake_cfvol_models/cells/...sdf}
+    cfvol:
+      robot: abb                 # model instance of the robot
+      tool_frame: tcp            # frame of the robot (Jacobian, tool path)
+      base_frame: base_link      # reach is measured from here ...
+      rail_joint: null           # ... or along this prismatic joint's travel
+      reach: 2.8                 # m, the activation radius of the volume
+      height_map: {origin: [x, y], size: [x_dim, y_dim]}   # m, on the floor
+      package_paths: {my_pkg: relative/or/absolute/dir}     # optional
+      joint_limits: {joint: [lower, upper]}                 # optional overrides
+      params: {h_max: 1.5, ...}                             # VolumeParams overrides
+      configurations:
+        path1: {start: [...], goal: [...]}                  # rad / m
+"""
+
+import dataclasses
+import os
+import re
+from importlib import resources
+from pathlib import Path
+
+import yaml
+from pydrake.common.yaml import yaml_load_typed
+from pydrake.multibody.parsing import ModelDirective
+
+from drake_cfvol.exceptions import WorkcellError, WorkcellFormatError
+
+__all__ = ["WorkcellFile", "CfvolSection", "HeightMapExtent", "NamedConfiguration", "builtin_cells", "models_dir",
+           "read_workcell_file", "DEFAULT_EDGE_STEP"]
+
+#: Distance between configurations at which Drake's edge checks sample (rad or
+#: m, Euclidean in joint space).
+DEFAULT_EDGE_STEP = 0.01
+
+
+def models_dir() -> Path:
+    """Returns the folder of the bundled models (holds ``package.xml``):
+    ``$DRAKE_CFVOL_MODELS`` if set, else the ``drake_cfvol.models`` package
+    data (the repository's ``models/``, shipped inside the wheel).
+
+    Raises:
+        WorkcellError: the folder is missing.
+    """
+    env = os.environ.get("DRAKE_CFVOL_MODELS")
+    folder = Path(env) if env else Path(str(resources.files("drake_cfvol.models")))
+    if not (folder / "package.xml").is_file():
+        raise WorkcellError(
+            f"drake_cfvol's models folder is missing ({folder}/package.xml not found). Reinstall the "
+            "package (`pip install drake-cfvol` or `pip install .` from a checkout), or point "
+            "$DRAKE_CFVOL_MODELS at a folder holding the models' package.xml.")
+    return folder
+
+
+def builtin_cells() -> dict[str, Path]:
+    """Returns the built-in workcells, by name."""
+    return {p.stem: p for p in sorted((models_dir() / "cells").glob("*.yaml"))}
+
+
+@dataclasses.dataclass
+class HeightMapExtent:
+    """The height map's extent on the floor.
+
+    Attributes:
+        origin: (x, y) of its corner, m.
+        size: (x_dim, y_dim), m.
+    """
+
+    origin: list[float] = dataclasses.field(default_factory=list)
+    size: list[float] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class NamedConfiguration:
+    """A named start/goal pair, rad (m for prismatic joints)."""
+
+    start: list[float] = dataclasses.field(default_factory=list)
+    goal: list[float] = dataclasses.field(default_factory=list)
+
+
+@dataclasses.dataclass
+class CfvolSection:
+    """The ``cfvol:`` section of a workcell file.
+
+    Attributes:
+        robot: the robot's model instance.
+        tool_frame: a frame of the robot (Jacobian, tool path).
+        base_frame: the reach is measured from here (default: the robot's root body).
+        rail_joint: a prismatic joint whose travel the reach follows, or None.
+        reach: the activation radius of the volume, m.
+        height_map: the height map's extent.
+        package_paths: package name -> folder (relative to the file).
+        joint_limits: joint -> [lower, upper] overrides, rad or m.
+        params: :class:`drake_cfvol.VolumeParams` overrides.
+        configurations: named start/goal pairs.
+    """
+
+    robot: str = ""
+    tool_frame: str = ""
+    base_frame: str | None = None
+    rail_joint: str | None = None
+    reach: float = 0.0
+    height_map: HeightMapExtent | None = None
+    package_paths: dict[str, str] = dataclasses.field(default_factory=dict)
+    joint_limits: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+    params: dict[str, float] = dataclasses.field(default_factory=dict)
+    configurations: dict[str, NamedConfiguration] = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass
+class WorkcellFile:
+    """A workcell file: Drake model directives plus the ``cfvol:`` section
+    (loaded with ``yaml_load_typed``, as Drake's hardware_sim scenarios)."""
+
+    directives: list[ModelDirective] = dataclasses.field(default_factory=list)
+    cfvol: CfvolSection = dataclasses.field(default_factory=CfvolSection)
+
+
+def _key_lines(text: str) -> dict[str, int]:
+    """First line (1-based) of every mapping key in a YAML text, by key and by
+    dotted path."""
+    out: dict[str, int] = {}
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return out
+
+    def walk(node, prefix):
+        if isinstance(node, yaml.MappingNode):
+            for k, v in node.value:
+                name = str(k.value)
+                line = k.start_mark.line + 1
+                out.setdefault(name, line)
+                out.setdefault(prefix + name, line)
+                walk(v, prefix + name + ".")
+        elif isinstance(node, yaml.SequenceNode):
+            for item in node.value:
+                walk(item, prefix)
+
+    walk(root, "")
+    return out
+
+
+def read_workcell_file(path: Path) -> tuple[WorkcellFile, dict[str, int]]:
+    """Reads and type-checks a workcell file.
+
+    Returns:
+        (the typed file, key -> line)
+
+    Raises:
+        WorkcellFormatError: unreadable, not YAML, an unknown key (named, with
+            its line), or a value of the wrong type.
+    """
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise WorkcellFormatError(str(path), f"cannot read the file ({e.strerror}).") from e
+    try:
+        data = yaml.safe_load(text)
+    except yaml.MarkedYAMLError as e:
+        mark = e.problem_mark or e.context_mark
+        line = mark.line + 1 if mark is not None else None
+        raise WorkcellFormatError(str(path), f"not valid YAML: {e.problem or e}. Fix the syntax there.", line) from e
+    if not isinstance(data, dict):
+        raise WorkcellFormatError(str(path), "expected a mapping with 'directives:' and 'cfvol:' at the top.", 1)
+    lines = _key_lines(text)
+    for key in ("directives", "cfvol"):
+        if data.get(key) is None:
+            raise WorkcellFormatError(str(path), f"'(top level)' lacks the required key '{key}'.", 1)
+    try:
+        typed = yaml_load_typed(schema=WorkcellFile, data=text)
+    except Exception as e:  # Drake raises RuntimeError / ValueError / TypeError here.
+        msg = str(e)
+        unknown = re.search(r"fields \[([^\]]*)\] were unknown", msg)
+        if unknown:
+            names = [n.strip(" '\"") for n in unknown.group(1).split(",")]
+            line = lines.get(names[0])
+            raise WorkcellFormatError(
+                str(path), f"unknown key {', '.join(repr(n) for n in names)}: not part of a workcell file. "
+                "Check its spelling (see the drake_cfvol.scene.workcell docstring for the keys).", line) from e
+        raise WorkcellFormatError(str(path), f"a value has the wrong type: {msg}. Fix it there.") from e
+    return typed, lines

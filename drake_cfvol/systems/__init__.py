@@ -1,0 +1,32 @@
+"""Drake systems for co-manipulation runs (SPEC 9).
+
+- :class:`JointBoundsSource`: the bounds table as a system of the path index.
+- :class:`AdmittanceDeformation`: the human's push -> a deviation from the
+  nominal, clamped inside the bounds without wind-up; sensor faults hold
+  the last safe command.
+- :class:`SafetyFilter` (from :mod:`drake_cfvol.safety`): between the
+  admittance and the robot, the motion closest to the one asked for that
+  keeps the velocity limits, the box ahead and a clearance margin (a
+  velocity damper on the SceneGraph's signed distances).
+- :class:`PathProgress`: the path index over time.
+- :class:`ScriptedHuman`: pushes with set magnitude, direction and timing.
+- :class:`RandomPushShaper`: random pushes from Drake's ``RandomSource``
+  (seeded through the context).
+- :class:`ReactiveCoworker`: a person reacting to the robot's position.
+- :class:`ClearanceMonitor`: clearance, collision and volume contact, through
+  a SceneGraph's query port.
+
+One system per module. Imports ``algorithm`` (the bounds table), ``scene``,
+``kernel`` and ``io`` only.
+"""
+
+
+from drake_cfvol.systems.admittance import AdmittanceDeformation, AdmittanceDeformation_
+from drake_cfvol.systems.bounds_source import JointBoundsSource, JointBoundsSource_
+from drake_cfvol.systems.humans import Push, RandomPushShaper, ReactiveCoworker, ScriptedHuman
+from drake_cfvol.systems.monitor import ClearanceMonitor
+from drake_cfvol.systems.path import PathProgress, safe_path_rate
+from drake_cfvol.systems.safety import SafetyFilter
+
+__all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
+           "ClearanceMonitor", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate"]

@@ -1,0 +1,40 @@
+"""Shared helpers of the systems: vector arguments, and values and clips
+that work for float and AutoDiffXd alike."""
+
+
+
+import numpy as np
+
+from drake_cfvol.exceptions import DimensionError, ParameterError
+
+
+def _vector(value, k: int, name: str, *, positive: bool = False, nonnegative: bool = False) -> np.ndarray:
+    v = np.broadcast_to(np.asarray(value, float), (k,)).copy() if np.ndim(value) == 0 else np.asarray(value, float)
+    if v.shape != (k,):
+        raise DimensionError(name, k, v.shape)
+    if not np.all(np.isfinite(v)):
+        raise ParameterError(f"{name} must be finite, got {v.tolist()}.")
+    if positive and np.any(v <= 0):
+        raise ParameterError(f"{name} must be > 0, got {v.tolist()}.")
+    if nonnegative and np.any(v < 0):
+        raise ParameterError(f"{name} must be >= 0, got {v.tolist()}.")
+    return v
+
+
+def _values(x) -> np.ndarray:
+    """Float values of a float or AutoDiffXd array (derivatives dropped)."""
+    x = np.asarray(x)
+    if x.dtype == object:
+        return np.array([float(e.value()) for e in x.ravel()]).reshape(x.shape)
+    return x.astype(float)
+
+
+def _clip(x, lo, hi):
+    """Elementwise clip for float or AutoDiffXd arrays (the derivative is
+    that of the active argument)."""
+    x = np.asarray(x)
+    if x.dtype != object:
+        return np.clip(x, lo, hi)
+    xv, lov, hiv = _values(x), _values(lo), _values(hi)
+    lo, hi = np.asarray(lo, dtype=object), np.asarray(hi, dtype=object)
+    return np.where(xv < lov, lo, np.where(xv > hiv, hi, x))

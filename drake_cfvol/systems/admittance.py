@@ -1,0 +1,264 @@
+"""The admittance: the human's push -> a deviation from the nominal, clamped
+inside the bounds without wind-up; sensor faults hold the last safe command
+(SPEC 9)."""
+
+
+
+import numpy as np
+from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.autodiffutils import AutoDiffXd
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import BasicVector_, LeafSystem_, ValueProducer
+from pydrake.systems.scalar_conversion import TemplateSystem
+
+from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.systems._util import _clip, _values, _vector
+
+__all__ = ['AdmittanceDeformation', 'AdmittanceDeformation_']
+
+
+@TemplateSystem.define("AdmittanceDeformation_", T_list=(float, AutoDiffXd))
+def AdmittanceDeformation_(T):
+
+    class Impl(LeafSystem_[T]):
+        """Admittance-controlled deformation of the nominal, clamped in bounds.
+
+        .. pydrake_system::
+
+            name: AdmittanceDeformation
+            input_ports:
+            - nominal
+            - lower
+            - upper
+            - human_torque
+            - human_wrench
+            output_ports:
+            - commanded_position
+            - deviation
+            - fault
+            - fault_count
+
+        Per joint, the deviation d from the nominal obeys
+        M d'' + D d' + K d = tau_h + J(q)^T w_h, integrated every ``period``
+        seconds (semi-implicit Euler). ``human_torque`` is a joint torque
+        (N m, or N for prismatic joints); ``human_wrench`` is the spatial
+        force [torque (N m); force (N)] at the tool frame's origin, expressed
+        in the world frame, mapped through the tool's spatial Jacobian at the
+        current commanded configuration. Either may be left unconnected.
+
+        The output is ``commanded_position = clamp(nominal + d, lower,
+        upper)``; it depends on the state and the nominal and bounds only, so
+        a co-worker model fed from it forms no algebraic loop. No wind-up:
+        after each update the state itself is clamped so that nominal + d
+        stays inside the bounds, and a rate pushing outward at a bound is
+        zeroed; releasing a push at a bound leaves it on the next step.
+
+        M, D and K are Drake numeric parameters (``mass``, ``damping``,
+        ``stiffness``, each of size k): set them per context with
+        ``get_mutable_numeric_parameter``; the constructor's values are the
+        defaults.
+
+        Velocity limits: with them the deviation's rate is held to
+        ``1 - path_share`` of each limit, so that with a path whose nominal
+        and bounds move at most ``path_share`` of the limits
+        (:func:`safe_path_rate`) the commanded position never moves a joint
+        faster than its limit (clamping is 1-Lipschitz in its inputs).
+
+        Sensor faults: an update whose ``human_torque`` or ``human_wrench``
+        holds a non-finite value, or one beyond its plausibility limit
+        (``max_torque``, ``max_wrench``), holds the last safe command: the
+        deviation and its rate are kept as they are (so ``commanded_position``
+        = clamp(nominal + held deviation, lower, upper) follows the path), and
+        ``fault`` is 1 until an update reads plausible inputs again;
+        ``fault_count`` counts the faulted updates. Nothing raises in the
+        control loop for a sensor input. (Non-finite ``nominal``, ``lower``
+        or ``upper`` come from the planner, not a sensor: they raise a
+        :class:`~drake_cfvol.ParameterError` naming the port.)
+
+        The collision checks are not here: a :class:`drake_cfvol.safety.SafetyFilter`
+        between this system and the robot keeps the clearance.
+
+        Scalar types: float and AutoDiffXd (``ToAutoDiffXd()``); with
+        AutoDiffXd, derivatives flow through the dynamics, the clamp and the
+        parameters, while the fault checks and the wrench's Jacobian are
+        evaluated on values.
+
+        Args:
+            k: number of joints.
+            mass: M, kg m^2 per joint (kg for prismatic); scalar or (k,); > 0.
+            damping: D, N m s/rad (N s/m); >= 0.
+            stiffness: K, N m/rad (N/m) towards the nominal; >= 0.
+            period: update period, s; > 0.
+            plant, tool_frame: needed only when ``human_wrench`` is
+                connected: the robot's plant (finalized; its positions are the
+                k joints) and the tool frame. The Jacobian is computed in a
+                plant context kept in this system's own context (a cache
+                entry used as scratch).
+            velocity_limits: (k,) joint velocity limits, rad/s (m/s; inf: no
+                limit), or None (no limit).
+            path_share: see above; in (0, 1).
+            max_torque: the largest plausible |human_torque_j|, N m (N);
+                scalar or (k,); > 0. Default 2000 N m: beyond any person's
+                push through the arm's levers (the adversarial pushes of
+                ``tools/adversarial_runs.py`` use 1500 N m).
+            max_wrench: the largest plausible |human_wrench_i|, [torque N m
+                x3; force N x3]; scalar or (6,); > 0. Default 500 N m and
+                1500 N (a person pushes with a few hundred newtons).
+        """
+
+        def _construct(self, k: int, *, mass=10.0, damping=200.0, stiffness=400.0, period: float = 0.01,
+                       plant=None, tool_frame=None, velocity_limits=None, path_share: float = 0.5,
+                       max_torque=2000.0, max_wrench=(500.0, 500.0, 500.0, 1500.0, 1500.0, 1500.0),
+                       converter=None):
+            LeafSystem_[T].__init__(self, converter)
+            if not period > 0:
+                raise ParameterError(f"period must be > 0 s, got {period}.")
+            if not 0.0 < path_share < 1.0:
+                raise ParameterError(f"path_share must lie in (0, 1), got {path_share}.")
+            self.k = int(k)
+            self.M = _vector(mass, k, "mass", positive=True)
+            self.D = _vector(damping, k, "damping", nonnegative=True)
+            self.K = _vector(stiffness, k, "stiffness", nonnegative=True)
+            self.max_torque = _vector(max_torque, k, "max_torque", positive=True)
+            self.max_wrench = _vector(max_wrench, 6, "max_wrench", positive=True)
+            self.period = float(period)
+            self.path_share = float(path_share)
+            self.max_rate = None
+            self._velocity_limits = velocity_limits
+            if velocity_limits is not None:
+                vl = np.asarray(velocity_limits, float).reshape(-1)
+                if vl.shape != (self.k,):
+                    raise DimensionError("velocity_limits", self.k, vl.shape)
+                if np.any(np.isnan(vl)) or np.any(vl <= 0):
+                    raise ParameterError(f"velocity_limits must be > 0 (inf: no limit), got {vl.tolist()}.")
+                self.max_rate = (1.0 - self.path_share) * vl
+            if plant is not None and plant.num_positions() != k:
+                raise DimensionError("the plant's positions", k, plant.num_positions())
+            self._plant = plant
+            self._tool = tool_frame
+            self.mass_parameter = self.DeclareNumericParameter(BasicVector_[T](self.M))
+            self.damping_parameter = self.DeclareNumericParameter(BasicVector_[T](self.D))
+            self.stiffness_parameter = self.DeclareNumericParameter(BasicVector_[T](self.K))
+            self._scratch = None
+            if plant is not None:
+                self._scratch = self.DeclareCacheEntry(
+                    description="plant context (scratch for the wrench's Jacobian)",
+                    value_producer=ValueProducer(allocate=lambda: AbstractValue.Make(plant.CreateDefaultContext()),
+                                                 calc=lambda context, value: None),
+                    prerequisites_of_calc={self.nothing_ticket()})
+            self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=k)
+            self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
+            self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
+            self.human_torque_input = self.DeclareVectorInputPort(name="human_torque", size=k)
+            self.human_wrench_input = self.DeclareVectorInputPort(name="human_wrench", size=6)
+            self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
+            self._fault_state = self.DeclareDiscreteState(2)  # [faulted at the last update, faulted updates]
+            self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
+            self.commanded_position_output = self.DeclareVectorOutputPort(
+                name="commanded_position", size=k, calc=self._calc_commanded,
+                prerequisites_of_calc={self.xd_ticket(), self.nominal_input.ticket(), self.lower_input.ticket(),
+                                       self.upper_input.ticket()})
+            self.deviation_output = self.DeclareVectorOutputPort(
+                name="deviation", size=k,
+                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._state).CopyToVector()[:self.k]),
+                prerequisites_of_calc={self.xd_ticket()})
+            self.fault_output = self.DeclareVectorOutputPort(
+                name="fault", size=1,
+                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._fault_state).CopyToVector()[:1]),
+                prerequisites_of_calc={self.xd_ticket()})
+            self.fault_count_output = self.DeclareVectorOutputPort(
+                name="fault_count", size=1,
+                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._fault_state).CopyToVector()[1:]),
+                prerequisites_of_calc={self.xd_ticket()})
+
+        def _construct_copy(self, other, converter=None):
+            Impl._construct(self, other.k, mass=other.M, damping=other.D, stiffness=other.K, period=other.period,
+                            plant=other._plant, tool_frame=other._tool, velocity_limits=other._velocity_limits,
+                            path_share=other.path_share, max_torque=other.max_torque, max_wrench=other.max_wrench,
+                            converter=converter)
+
+        def gains(self, context) -> tuple:
+            """(M, D, K) of this context (the numeric parameters)."""
+            return tuple(context.get_numeric_parameter(i).CopyToVector() for i in
+                         (self.mass_parameter, self.damping_parameter, self.stiffness_parameter))
+
+        def _inputs(self, context):
+            nominal = self.nominal_input.Eval(context)
+            lower = self.lower_input.Eval(context)
+            upper = self.upper_input.Eval(context)
+            for name, v in (("nominal", nominal), ("lower", lower), ("upper", upper)):
+                if not np.all(np.isfinite(_values(v))):
+                    raise ParameterError(f"AdmittanceDeformation: input '{name}' holds a non-finite value "
+                                         f"{_values(v).tolist()}; connect a valid source.")
+            if np.any(_values(lower) > _values(upper)):
+                raise ParameterError(f"AdmittanceDeformation: lower > upper at joint(s) "
+                                     f"{np.flatnonzero(_values(lower) > _values(upper)).tolist()}.")
+            return nominal, lower, upper
+
+        def _sensors(self, context):
+            """The human's joint torque and tool wrench (zeros where not
+            connected), and whether they are plausible: finite and within
+            ``max_torque`` and ``max_wrench``."""
+            tau = np.zeros(self.k, dtype=object if T is AutoDiffXd else float)
+            w = np.zeros(6)
+            ok = True
+            if self.human_torque_input.HasValue(context):
+                tau = self.human_torque_input.Eval(context)
+                tv = _values(tau)
+                ok &= bool(np.all(np.isfinite(tv)) and np.all(np.abs(tv) <= self.max_torque))
+            if self.human_wrench_input.HasValue(context):
+                w = _values(self.human_wrench_input.Eval(context))
+                ok &= bool(np.all(np.isfinite(w)) and np.all(np.abs(w) <= self.max_wrench))
+            return tau, w, ok
+
+        def _push(self, context, tau, w, q):
+            """The joint torque of the push: tau + J(q)^T w."""
+            tau = 0 * q + tau
+            if np.any(w != 0):
+                if self._plant is None:
+                    raise ParameterError("AdmittanceDeformation: 'human_wrench' is connected but no plant and "
+                                         "tool_frame were given to map it through the Jacobian.")
+                pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
+                self._plant.SetPositions(pctx, _values(q))
+                J = self._plant.CalcJacobianSpatialVelocity(
+                    pctx, JacobianWrtVariable.kQDot, self._tool, np.zeros(3),
+                    self._plant.world_frame(), self._plant.world_frame())
+                tau = tau + J.T @ w
+            return tau
+
+        def _update(self, context, discrete_state):
+            nominal, lower, upper = self._inputs(context)
+            x = context.get_discrete_state(self._state).CopyToVector()
+            faults = context.get_discrete_state(self._fault_state).CopyToVector()
+            tau, w, plausible = self._sensors(context)
+            if not plausible:
+                # Hold the last safe command: deviation and rate as they are.
+                discrete_state.get_mutable_vector(self._fault_state).SetFromVector([1.0, faults[1] + 1.0])
+                return
+            d, v = x[:self.k].copy(), x[self.k:].copy()
+            M, D, K = self.gains(context)
+            tau = self._push(context, tau, w, _clip(nominal + d, lower, upper))
+            h = self.period
+            v = v + h * (tau - D * v - K * d) / M
+            if self.max_rate is not None:
+                v = _clip(v, -self.max_rate, self.max_rate)
+            d = d + h * v
+            # No wind-up: keep nominal + d inside [lower, upper]; stop outward rates.
+            lo, hi = lower - nominal, upper - nominal
+            dv, vv = _values(d), _values(v)
+            at_hi, at_lo = dv >= _values(hi), dv <= _values(lo)
+            d = _clip(d, lo, hi)
+            v = np.where((at_hi & (vv > 0)) | (at_lo & (vv < 0)), 0 * v, v)
+            discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
+            discrete_state.get_mutable_vector(self._fault_state).SetFromVector([0.0, faults[1]])
+
+        def _calc_commanded(self, context, output):
+            nominal, lower, upper = self._inputs(context)
+            d = context.get_discrete_state(self._state).CopyToVector()[:self.k]
+            output.SetFromVector(_clip(nominal + d, lower, upper))
+
+    return Impl
+
+
+#: The float instantiation (``AdmittanceDeformation_[AutoDiffXd]`` by conversion).
+AdmittanceDeformation = AdmittanceDeformation_[None]

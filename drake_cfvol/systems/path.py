@@ -1,0 +1,99 @@
+"""The path's progress over time, and the fastest safe rate for a table."""
+
+
+
+import numpy as np
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import TrajectorySource
+from pydrake.trajectories import PiecewisePolynomial
+
+from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.algorithm.table import BoundsTable
+
+__all__ = ['PathProgress', 'safe_path_rate']
+
+
+def safe_path_rate(bounds: BoundsTable, velocity_limits, *, share: float = 0.5) -> float:
+    """The fastest path progress, in waypoints per second, at which the
+    nominal and the bounds move no joint faster than ``share`` of its
+    velocity limit.
+
+    The bounds change by at most ``bounds.rate`` per unit s (SPEC 7) and
+    the nominal, linear between waypoints, by at most its largest step,
+    which the rate already covers. A table without a rate (the reference
+    backend, or saved without one) uses its largest change between
+    neighbouring waypoints; its bounds may still jump within a stretch.
+
+    Returns:
+        The rate (inf if no joint has a velocity limit).
+    """
+    vmax = np.asarray(velocity_limits, float)
+    if bounds.g > 1:
+        steps = np.max([np.abs(np.diff(a, axis=0)).max(axis=0) for a in (bounds.nominal, bounds.lower, bounds.upper)],
+                       axis=0)
+    else:
+        steps = np.zeros(bounds.k)
+    rate = np.asarray(bounds.rate, float)
+    per_s = np.where(np.isfinite(rate), rate, steps)
+    ok = np.isfinite(vmax) & (vmax > 0) & (per_s > 0)
+    return float(np.min(share * vmax[ok] / per_s[ok])) if ok.any() else float("inf")
+
+
+class PathProgress(Diagram):
+    """The path index over time: s(t) = clip(rate (t - start_time), 0, g-1),
+    a Drake ``TrajectorySource`` of a first-order-hold trajectory.
+
+    .. pydrake_system::
+
+        name: PathProgress
+        output_ports:
+        - path_index
+        - path_index_ahead
+
+    ``path_index_ahead`` is s(t + lead): where the path will be one
+    controller period later, when a command computed now takes effect (the
+    co-manipulation diagram feeds the admittance and the safety filter the
+    bounds there).
+
+    Args:
+        g: number of waypoints.
+        rate: waypoints per second (> 0).
+        start_time: when the robot starts along the path, s.
+        lead: the look-ahead of ``path_index_ahead``, s (>= 0).
+    """
+
+    def __init__(self, g: int, *, rate: float, start_time: float = 0.0, lead: float = 0.0):
+        super().__init__()
+        if not rate > 0:
+            raise ParameterError(f"rate must be > 0 waypoints/s, got {rate}.")
+        if int(g) < 1:
+            raise ParameterError(f"g must be >= 1 waypoint, got {g}.")
+        self.g, self.rate, self.start_time = int(g), float(rate), float(start_time)
+        # Held at 0 before start_time and at g-1 after the end (Drake
+        # trajectories hold their end values outside their time span).
+        t0 = self.start_time
+        self.trajectory = PiecewisePolynomial.FirstOrderHold(
+            [t0, max(self.duration, t0 + 1e-9)], np.array([[0.0, self.g - 1.0]]))
+        builder = DiagramBuilder()
+        if not lead >= 0:
+            raise ParameterError(f"lead must be >= 0 s, got {lead}.")
+        self.lead = float(lead)
+        source = builder.AddNamedSystem("trajectory", TrajectorySource(self.trajectory))
+        ahead = PiecewisePolynomial.FirstOrderHold(
+            [t0 - self.lead, max(self.duration, t0 + 1e-9) - self.lead], np.array([[0.0, self.g - 1.0]]))
+        source_ahead = builder.AddNamedSystem("trajectory_ahead", TrajectorySource(ahead))
+        builder.ExportOutput(source.get_output_port(), "path_index")
+        builder.ExportOutput(source_ahead.get_output_port(), "path_index_ahead")
+        builder.BuildInto(self)
+        self.set_name("path_progress")
+        self.path_index_output = self.GetOutputPort("path_index")
+        self.path_index_ahead_output = self.GetOutputPort("path_index_ahead")
+
+    def index_at(self, t: float) -> float:
+        """s at time t."""
+        return float(self.trajectory.value(float(t))[0, 0])
+
+    @property
+    def duration(self) -> float:
+        """Time to reach the end of the path, s."""
+        return self.start_time + (self.g - 1) / self.rate

@@ -1,0 +1,531 @@
+"""A smooth runtime safety filter between the admittance and the robot
+(SPEC 9): every update it commands the motion closest to the one asked for
+that keeps the joint velocity limits, the box at the next path position and
+a clearance margin, the last through the diagram's own SceneGraph
+(:class:`SafetyFilter`).
+
+The discrete state is the commanded position q_c (rad, or m for a
+prismatic joint); ``commanded_position`` outputs it, so it depends on no
+input: the plant may be posed from it (``MultibodyPositionToGeometryPose``
+into the SceneGraph whose ``query_object`` this system reads) without an
+algebraic loop. Every ``period`` seconds the update picks the velocity v
+and sets q_c <- q_c + v dt (dt = ``period``), v solving::
+
+    minimise  |v - v_des|^2,   v_des = (desired_position - q_c) / dt
+    subject to
+      |v_j| <= velocity_limit_j                           (hard, always)
+      lower_j <= q_c,j + v_j dt <= upper_j                (the box ahead)
+      n_i^T (J_Ai - J_Bi) v >= -rate (d_i - d_t)          (each row i of the damper)
+
+**Velocity limits** are hard: no update moves joint j by more than
+``velocity_limit_j`` x dt, whatever the inputs (no jumps, ever); the
+filter commands at most (1 - 1e-9) of each limit, so that rounding in
+q_c + v dt never shows a step above it. ``acceleration_limits``, where
+given, shape the request instead (v_des is held within a_j dt of the
+last velocity): the hard constraints always win over them, so a braking
+damper is never overruled by them.
+
+**The box**: ``lower`` and ``upper`` are the bounds at the next path
+position (where the command takes effect: a second JointBoundsSource fed
+by ``PathProgress.path_index_ahead``). The path's own motion is
+rate-limited (:func:`~drake_cfvol.systems.safe_path_rate`), so the box
+moves by a share of the velocity limit per update and stays reachable;
+should q_c lie farther outside it than one step at the limit, the joint
+moves towards it at the limit rather than jumping. The box gives way to
+the damper only (see Solver): an uncertified box whose corner sweeps
+into an obstacle is left rather than followed in (``box_exits``).
+
+**The damper** (Faverjon and Tournassoud's velocity damper; Drake's
+``DifferentialInverseKinematicsSystem.CollisionConstraint`` is its
+discrete limit): for every pair of geometries (the robot's moving links
+against the obstacles, and the robot's pairs not filtered against each
+other; never the volume V, which is virtual), Drake's signed distance
+d_i, its unit normal n_i (``nhat_BA_W``, from B to A) and witness points
+(``p_ACa``/``p_BCb``, moved into the body frames with the inspector's
+``GetPoseInFrame``) come through ``query_object`` at the robot's present
+configuration. Within the influence distance d_inf the distance may
+shrink only as fast as still lets it stop at d_t = ``clearance`` +
+``allowance``: its rate n_i^T (J_Ai - J_Bi) v, J the translational
+Jacobians (world frame) of the witness points, is held above
+-rate (d_i - d_t), rate = min(xi / (d_inf - d_t), 1 / dt), xi the
+``damper_gain`` (m/s: the approach speed allowed at the edge of the
+influence zone). With rate dt <= 1 the linearised next distance stays
+>= d_t; the approach slows smoothly (exponentially, time constant
+1 / rate) to the margin: a soft wall, not a hold and a snap. A pair
+below it must move apart at rate (d_t - d_i).
+
+**Second order**: a row is first order in the step, and a turning link
+curves away from its tangent: at 3 rad/s over 10 ms a point 1.5 m out
+moves about 1 mm off it. So each row asks for e_i(v dt) / dt more, e_i
+the bound of :meth:`second_order` on how far the step can move its
+distance beyond the first-order change (from the joint axes' lever arms
+at the row's points); e depends on the step, so the QP is solved again
+with e at its solution until the solution meets its own e. Against a
+static obstacle the rows' distances are then bounded exactly (the plane
+through the obstacle's witness, at a polytope's vertices or a round
+shape's centre); between two moving links it is an estimate.
+
+One witness row sees only the closest features: a face tilting towards
+an obstacle brings its corners closer faster than its witness point.
+So each pair also has rows at probe points of its moving shapes (box
+corners, cylinder rims, capsule end spheres, convex hull vertices):
+against a static obstacle, a probe's distance from the plane through the
+obstacle's witness (normal n_i), a lower bound of its distance from the
+obstacle; against another moving link, the probe's own distance from it
+(Drake's ``ComputeSignedDistanceToPoint``) and its gradient.
+
+**The nominal**: within two steps (at the velocity limits) of the nominal
+at the next path position (input ``nominal``), each row is relaxed to
+b_i' = min(b_i, a_i v_ref), v_ref the step to that nominal (clipped to
+the limits and the box), fully within one step and fading out by two:
+at zero deviation v_ref is the nominal's own motion, so the nominal is
+always admissible, also where its own clearance is below the margin
+(near a goal), and a row is relaxed only as far as following the
+nominal shrinks it. Farther out no row is relaxed: there a row's
+linearisation says nothing reliable about the nominal's distances (a
+straight joint-space line back to the nominal may cross an obstacle).
+
+**Solver**: where the request (clipped to the velocity limits and the
+box) meets every damper row, it is commanded as is: away from obstacles
+the filter is the identity and ``filter_active`` is 0. Otherwise a small
+QP through Drake's ``MathematicalProgram`` and ``ClarabelSolver``
+(about 0.1 ms; OSQP is as fast but prints polishing notes and lands
+1e-5 away), in stages by priority, the velocity limits hard in all:
+(1) the box and the rows hard; (2) if nothing meets both, the rows hard
+and the box soft (weight ``BOX_WEIGHT``: left as little as it must be);
+(3) if the limits leave nothing that meets the rows, the rows soft too
+(weight ``SLACK_WEIGHT``: missed as little as possible,
+``damper_misses``). Should the solver fail, the filter holds (as far as
+the box allows) and ``fallback_count`` counts it. Nothing raises inside
+a simulation: a non-finite or crossed input holds q_c the same way.
+
+Cost: a pair known to lie beyond the influence distance is measured
+again only once the commanded motion could have brought it within
+(``skip_far_pairs``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import QueryObject
+from pydrake.solvers import ClarabelSolver, MathematicalProgram
+from pydrake.systems.framework import LeafSystem, ValueProducer
+
+from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.systems.damper import DamperRows, VelocityDamper
+
+__all__ = ["SafetyFilter", "StagedQP"]
+
+#: Status state layout: [acted at the last update, updates it acted,
+#: smallest signed distance seen at the last update (m), largest
+#: |v_j| / limit_j of the last update, updates that used the fallback,
+#: updates that had to miss a damper row, updates whose command left the
+#: box].
+_ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS = range(7)
+
+#: The share of the velocity limits the filter keeps below them.
+_HAIR = 1e-9
+
+#: A command counts as changed when it differs from the request by more
+#: than this, rad (m).
+_CHANGED = 1e-9
+
+#: What a row that fell short of its second-order term asks for beyond it
+#: at the next solve, m/s (10 nm per 10 ms update): the rounds converge.
+_NUDGE = 1e-6
+
+
+def _limits(value, k: int, name: str) -> np.ndarray:
+    v = np.broadcast_to(np.asarray(value, float), (k,)).copy() if np.ndim(value) == 0 else np.asarray(value, float)
+    if v.shape != (k,):
+        raise DimensionError(name, k, v.shape)
+    if np.any(np.isnan(v)) or np.any(v <= 0):
+        raise ParameterError(f"{name} must be > 0 (inf: no limit), got {v.tolist()}.")
+    return v
+
+
+def _interval(q, lower, upper, vmax, h):
+    """Per joint, the velocities within the limits that land in the box;
+    where the box lies farther than one step, the step towards it at the
+    limit."""
+    to_lo, to_hi = (lower - q) / h, (upper - q) / h
+    lo, hi = np.maximum(-vmax, to_lo), np.minimum(vmax, to_hi)
+    lo = np.where(to_lo > vmax, vmax, lo)
+    hi = np.where(to_hi < -vmax, -vmax, hi)
+    return lo, np.maximum(lo, hi)
+
+
+def _relax(q, nominal, lo, hi, A, b, vmax, h):
+    """The damper's rows relaxed so that following the nominal stays
+    admissible near it: b_i' = b_i + w min(0, a_i v_ref - b_i), v_ref
+    the step to the nominal (clipped to the limits and the box), w = 1
+    within one step at the velocity limits of the nominal, fading to 0
+    at two steps (a deviated robot gets no relaxation: the rows'
+    linearisation says nothing reliable about the nominal's distances
+    there)."""
+    step = np.where(np.isfinite(vmax), np.abs(nominal - q) / (vmax * h), 0.0)
+    w = float(np.clip(2.0 - step.max(initial=0.0), 0.0, 1.0))
+    if w == 0.0:
+        return b
+    v_ref = np.clip((nominal - q) / h, lo, hi)
+    return b + w * np.minimum(0.0, A @ v_ref - b)
+
+
+class StagedQP:
+    """The filter's QP, argmin |v - v_t|^2 in stages by priority, the
+    velocity limits |v| <= vmax always hard:
+
+    1. the box and the damper's rows hard: lo <= v <= hi, A v >= b;
+    2. if no v meets both, the rows hard and the box soft: the command
+       leaves the box (an uncertified box's corner sweeping into an
+       obstacle) as little as it must, weight ``box_weight``;
+    3. if the limits leave no v that meets the rows, both soft, the rows
+       weighted ``slack_weight``: missed as little as possible.
+
+    Through Drake's ``MathematicalProgram`` and ``ClarabelSolver``.
+    """
+
+    def __init__(self, vmax, *, box_weight: float, slack_weight: float):
+        self._vmax = np.asarray(vmax, float)
+        self.box_weight, self.slack_weight = float(box_weight), float(slack_weight)
+        self._solver = ClarabelSolver()
+
+    def solve(self, v_t, lo, hi, A, b):
+        """The solution of the first stage that has one; None if the solver fails."""
+        for box_soft, rows_soft in ((False, False), (True, False), (True, True)):
+            v = self._stage(v_t, lo, hi, A, b, box_soft=box_soft, rows_soft=rows_soft)
+            if v is not None:
+                return v
+        return None
+
+    def _stage(self, v_t, lo, hi, A, b, *, box_soft: bool, rows_soft: bool):
+        m, k = len(b), len(v_t)
+        prog = MathematicalProgram()
+        v = prog.NewContinuousVariables(k, "v")
+        prog.AddQuadraticCost(2.0 * np.eye(k), -2.0 * v_t, v, is_convex=True)
+        vmax = self._vmax
+        if box_soft:
+            prog.AddBoundingBoxConstraint(-vmax, vmax, v)
+            e = prog.NewContinuousVariables(k, "e")
+            prog.AddQuadraticCost(2.0 * self.box_weight * np.eye(k), np.zeros(k), e, is_convex=True)
+            prog.AddBoundingBoxConstraint(0.0, np.inf, e)
+            eye = np.eye(k)
+            prog.AddLinearConstraint(np.hstack([eye, eye]), lo, np.full(k, np.inf), np.concatenate([v, e]))
+            prog.AddLinearConstraint(np.hstack([eye, -eye]), np.full(k, -np.inf), hi, np.concatenate([v, e]))
+        else:
+            prog.AddBoundingBoxConstraint(lo, hi, v)
+        if rows_soft:
+            s = prog.NewContinuousVariables(m, "s")
+            prog.AddQuadraticCost(2.0 * self.slack_weight * np.eye(m), np.zeros(m), s, is_convex=True)
+            prog.AddBoundingBoxConstraint(0.0, np.inf, s)
+            prog.AddLinearConstraint(np.hstack([A, np.eye(m)]), b, np.full(m, np.inf), np.concatenate([v, s]))
+        else:
+            prog.AddLinearConstraint(A, b, np.full(m, np.inf), v)
+        try:
+            result = self._solver.Solve(prog)
+        except RuntimeError:
+            return None
+        if not result.is_success():
+            return None
+        x = np.clip(result.GetSolution(v), -vmax, vmax)
+        return x if box_soft else np.clip(x, lo, hi)
+
+
+class SafetyFilter(LeafSystem):
+    """The commanded position closest to the one asked for that keeps the
+    velocity limits, the box ahead and the clearance margin.
+
+    .. pydrake_system::
+
+        name: SafetyFilter
+        input_ports:
+        - desired_position
+        - lower
+        - upper
+        - nominal (optional)
+        - query_object
+        output_ports:
+        - commanded_position
+        - filter_active
+        - filter_count
+        - min_distance
+        - velocity_ratio
+        - fallback_count
+        - damper_misses
+        - box_exits
+
+    The update, its constraints and what they guarantee: see the module's
+    documentation (:mod:`drake_cfvol.systems.safety`).
+
+    Outputs: ``filter_active`` is 1 after an update that changed the
+    request (the commanded position differs from ``desired_position`` by
+    more than 1e-9); ``filter_count`` counts such updates; ``min_distance``
+    is the smallest signed distance over the filter's pairs at the last
+    update (m; self pairs included; inf with none; a skipped pair counts
+    with its lower bound, so above the influence distance this is a lower
+    bound); ``velocity_ratio`` is max_j |v_j| / velocity_limit_j of the last
+    update; ``fallback_count``, ``damper_misses``, ``box_exits`` count
+    updates (see above).
+
+    Scalar type: float only.
+
+    Args:
+        plant: the finalized MultibodyPlant registered with ``scene_graph``;
+            its positions and velocities are the robot's k joints (a
+            revolute or prismatic joint each), other bodies welded.
+        scene_graph: the diagram's SceneGraph (its model inspector gives the
+            geometry, the bodies and the collision filters).
+        robot: the robot's model instance in ``plant``.
+        velocity_limits: (k,) rad/s (m/s; inf: none); default: the plant's.
+        obstacle_ids: the real obstacles' geometry ids (default: every
+            proximity geometry not on the robot; pass them to leave out
+            virtual geometry such as the volume V's boxes).
+        clearance: the margin, m (>= 0).
+        influence_distance: d_inf, m (> clearance + allowance): pairs
+            farther apart than this do not constrain.
+        damper_gain: xi, m/s (> 0).
+        period: update period dt, s (> 0).
+        acceleration_limits: (k,) rad/s^2 (m/s^2), or None.
+        initial_position: the default q_c (k,); default zeros (see
+            :meth:`set_initial_position`).
+        allowance: m (>= 0): the damper aims this far above the margin,
+            for what the rows' second-order bound leaves out (a witness
+            moving between features; two moving links).
+        skip_far_pairs: measure a pair again only once the commanded motion
+            (body displacements bounded from the poses at both ends of each
+            step) could have brought it within the influence distance. Valid
+            when the SceneGraph is posed from this filter's output (as in
+            the co-manipulation diagram); set False when it is posed from
+            anything else (a measured state).
+    """
+
+    #: Weight of a damper row's miss (slack) against the request's, (s/m)^2
+    #: over (s/rad)^2: a row is missed only where the hard constraints leave
+    #: no choice.
+    SLACK_WEIGHT = 1e6
+
+    #: Weight of a step out of the box against the request's, both (s/rad)^2:
+    #: the box gives way only to a damper row.
+    BOX_WEIGHT = 1e3
+
+    #: Most QP solves per update for the rows' second-order term.
+    SECOND_ORDER_ROUNDS = 4
+
+    def __init__(self, plant, scene_graph, robot, *, velocity_limits=None, obstacle_ids=None,
+                 clearance: float = 0.0, influence_distance: float = 0.15, damper_gain: float = 1.0,
+                 period: float = 0.01, acceleration_limits=None, initial_position=None, allowance: float = 0.001,
+                 skip_far_pairs: bool = True):
+        super().__init__()
+        k = plant.num_positions()
+        if plant.num_velocities() != k or plant.num_positions(robot) != k:
+            raise ParameterError("SafetyFilter: the plant's positions and velocities must be the robot's joints "
+                                 f"(positions {k}, velocities {plant.num_velocities()}, robot's "
+                                 f"{plant.num_positions(robot)}).")
+        if not period > 0:
+            raise ParameterError(f"SafetyFilter: period must be > 0 s, got {period}.")
+        if not clearance >= 0:
+            raise ParameterError(f"SafetyFilter: clearance must be >= 0 m, got {clearance}.")
+        if not allowance >= 0:
+            raise ParameterError(f"SafetyFilter: allowance must be >= 0 m, got {allowance}.")
+        if not influence_distance > clearance + allowance:
+            raise ParameterError(f"SafetyFilter: influence_distance ({influence_distance} m) must exceed the "
+                                 f"clearance plus the allowance ({clearance} + {allowance} m).")
+        if not damper_gain > 0:
+            raise ParameterError(f"SafetyFilter: damper_gain must be > 0 m/s, got {damper_gain}.")
+        self.k = k
+        self.period = float(period)
+        self.clearance = float(clearance)
+        self.allowance = float(allowance)
+        self.influence_distance = float(influence_distance)
+        self.damper_gain = float(damper_gain)
+        #: The distance the damper aims at, m: the margin plus the allowance.
+        self.target_distance = self.clearance + self.allowance
+        #: The damper's rate, 1/s: min(xi / (d_inf - d_s), 1 / dt).
+        self.rate = min(self.damper_gain / (self.influence_distance - self.target_distance), 1.0 / self.period)
+        self.velocity_limits = _limits(plant.GetVelocityUpperLimits() if velocity_limits is None
+                                       else velocity_limits, k, "velocity_limits")
+        # Commanded at most this: a hair (1e-9) under the limits, so that
+        # rounding in q + v dt never shows a step above them.
+        self._vmax = self.velocity_limits * (1.0 - _HAIR)
+        self.acceleration_limits = (None if acceleration_limits is None
+                                    else _limits(acceleration_limits, k, "acceleration_limits"))
+        q0 = np.zeros(k) if initial_position is None else np.asarray(initial_position, float)
+        if q0.shape != (k,):
+            raise DimensionError("initial_position", k, q0.shape)
+        self._plant = plant
+        self._damper = VelocityDamper(plant, scene_graph, robot, obstacle_ids=obstacle_ids,
+                                      target_distance=self.target_distance,
+                                      influence_distance=self.influence_distance, rate=self.rate)
+        self._qp = StagedQP(self._vmax, box_weight=self.BOX_WEIGHT, slack_weight=self.SLACK_WEIGHT)
+        self.skip_far_pairs = bool(skip_far_pairs)
+        n_pairs = self._damper.num_pairs
+
+        self.desired_position_input = self.DeclareVectorInputPort(name="desired_position", size=k)
+        self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
+        self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
+        self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=k)
+        self.query_object_input = self.DeclareAbstractInputPort(
+            name="query_object", model_value=AbstractValue.Make(QueryObject()))
+        self._position = self.DeclareDiscreteState(q0)
+        self._velocity = self.DeclareDiscreteState(k)  # the last commanded velocity
+        self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0]))
+        # Per pair, how far it is known to lie beyond the influence distance
+        # (m; negative: measure it at the next update).
+        self._budget = self.DeclareDiscreteState(np.full(max(n_pairs, 1), -1.0))
+        # A plant context used as scratch for the Jacobians (never a context
+        # outside this system's own).
+        self._scratch = self.DeclareCacheEntry(
+            description="plant context (scratch for the witness points' Jacobians)",
+            value_producer=ValueProducer(allocate=lambda: AbstractValue.Make(plant.CreateDefaultContext()),
+                                         calc=lambda context, value: None),
+            prerequisites_of_calc={self.nothing_ticket()})
+        self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
+        self.commanded_position_output = self.DeclareStateOutputPort("commanded_position", self._position)
+        status = [("filter_active", _ACTIVE), ("filter_count", _COUNT), ("min_distance", _MIN_DISTANCE),
+                  ("velocity_ratio", _RATIO), ("fallback_count", _FALLBACKS), ("damper_misses", _MISSES),
+                  ("box_exits", _EXITS)]
+        for name, i in status:
+            port = self.DeclareVectorOutputPort(
+                name=name, size=1, calc=lambda ctx, out, i=i: out.SetAtIndex(
+                    0, ctx.get_discrete_state(self._status).GetAtIndex(i)),
+                prerequisites_of_calc={self.xd_ticket()})
+            setattr(self, f"{name}_output", port)
+
+    @property
+    def num_pairs(self) -> int:
+        """How many geometry pairs the damper watches."""
+        return self._damper.num_pairs
+
+    def _pctx(self, context):
+        return self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
+
+    def damper_rows(self, context, measure=None) -> DamperRows:
+        """The damper's rows at the commanded position of ``context``
+        (:meth:`VelocityDamper.rows`): A v >= b to first order, before the
+        second-order term and the relaxation towards the nominal.
+
+        Args:
+            measure: (pairs,) bools, the pairs to measure (default all);
+                the others' distances are NaN.
+        """
+        q = context.get_discrete_state(self._position).CopyToVector()
+        return self._damper.rows(self._pctx(context), self.query_object_input.Eval(context), q, measure)
+
+    def second_order(self, context, rows: DamperRows, dq) -> np.ndarray:
+        """Per row, how far a joint step ``dq`` from the commanded position
+        of ``context`` falls short of the row's first-order change, m
+        (:meth:`VelocityDamper.second_order`)."""
+        q = context.get_discrete_state(self._position).CopyToVector()
+        return self._damper.second_order(self._pctx(context), q, rows, dq)
+
+    def _next_budget(self, context, q, q_next, budget, dists):
+        """Each pair's certain distance beyond the influence distance after
+        the step (:meth:`VelocityDamper.budget_after`); all -1 (measure at
+        the next update) without ``skip_far_pairs``."""
+        if not self.skip_far_pairs:
+            return np.full(max(self._damper.num_pairs, 1), -1.0)
+        return self._damper.budget_after(self._pctx(context), q, q_next, budget, dists)
+
+    def set_initial_position(self, context, q) -> None:
+        """Sets the commanded position q_c of ``context`` (e.g. the path's
+        start before a run)."""
+        q = np.asarray(q, float)
+        if q.shape != (self.k,):
+            raise DimensionError("q", self.k, q.shape)
+        context.get_mutable_discrete_state(self._position).SetFromVector(q)
+        context.get_mutable_discrete_state(self._budget).SetFromVector(
+            np.full(max(self._damper.num_pairs, 1), -1.0))
+
+    # -- the update ----------------------------------------------------------
+
+    def _update(self, context, discrete_state):
+        h, k = self.period, self.k
+        q = context.get_discrete_state(self._position).CopyToVector()
+        v_last = context.get_discrete_state(self._velocity).CopyToVector()
+        status = context.get_discrete_state(self._status).CopyToVector()
+        desired = np.asarray(self.desired_position_input.Eval(context), float)
+        lower = np.asarray(self.lower_input.Eval(context), float)
+        upper = np.asarray(self.upper_input.Eval(context), float)
+        nominal = (np.asarray(self.nominal_input.Eval(context), float) if self.nominal_input.HasValue(context)
+                   else None)
+        fallback = False
+        sane = all(np.all(np.isfinite(x)) for x in (desired, lower, upper)) and np.all(lower <= upper)
+        if not sane:
+            # Hold, as far as the box (if it is usable) allows.
+            ok = np.isfinite(lower) & np.isfinite(upper) & (lower <= upper)
+            lo, hi = _interval(q, np.where(ok, lower, q), np.where(ok, upper, q), self._vmax, self.period)
+            v, fallback, dmin, missed = np.clip(np.zeros(k), lo, hi), True, status[_MIN_DISTANCE], False
+            v = np.clip(v, lo, hi)
+        else:
+            lo, hi = _interval(q, lower, upper, self._vmax, self.period)
+            target = (desired - q) / h
+            if self.acceleration_limits is not None:
+                step = self.acceleration_limits * h
+                target = np.clip(target, v_last - step, v_last + step)
+            v_t = np.clip(target, lo, hi)
+            budget = context.get_discrete_state(self._budget).CopyToVector()[:self._damper.num_pairs]
+            measure = budget < 0 if self.skip_far_pairs else np.ones(self._damper.num_pairs, bool)
+            try:
+                rows = self.damper_rows(context, measure)
+            except RuntimeError:
+                rows = self._damper.empty()
+                fallback = True
+            dists = rows.distances
+            # Skipped pairs lie at least their budget beyond the influence distance.
+            known = np.where(np.isnan(dists), self.influence_distance + np.maximum(budget, 0.0), dists)
+            dmin = float(known.min()) if len(known) else np.inf
+            v, b, solved = self._filter(context, q, v_t, lo, hi, rows, nominal)
+            fallback = fallback or not solved
+            missed = bool(len(b) and np.any(rows.A @ v < b - 1e-6))
+        vmax = self._vmax
+        v = np.clip(v, -vmax, vmax)
+        exited = bool(np.any((v < lo - 1e-9) | (v > hi + 1e-9)))
+        q_next = q + v * h
+        limits = self.velocity_limits
+        ratio = float(np.max(np.where(np.isfinite(limits), np.abs(v) / limits, 0.0))) if k else 0.0
+        acted = (not sane) or bool(np.any(np.abs(q_next - desired) > _CHANGED))
+        discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
+        discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
+        if sane and self._damper.num_pairs:
+            discrete_state.get_mutable_vector(self._budget).SetFromVector(
+                self._next_budget(context, q, q_next, budget, dists))
+        else:  # measure every pair at the next update
+            discrete_state.get_mutable_vector(self._budget).SetFromVector(np.full(max(self._damper.num_pairs, 1), -1.0))
+        discrete_state.get_mutable_vector(self._status).SetFromVector(
+            [float(acted), status[_COUNT] + acted, dmin, ratio, status[_FALLBACKS] + fallback,
+             status[_MISSES] + missed, status[_EXITS] + exited])
+
+    def _filter(self, context, q, v_t, lo, hi, rows: DamperRows, nominal):
+        """The velocity commanded for the request v_t: (v, the rows'
+        right-hand sides at v, solved (False: the fallback)). A row holds
+        when its distance after the step, first order plus the second-order
+        bound :meth:`second_order` at the step taken, meets the damper:
+        A v >= b + e(v dt) / dt, then relaxed towards the nominal. e
+        depends on v, so the QP is solved with e at the last solution until
+        that solution meets its own e (at most ``SECOND_ORDER_ROUNDS``
+        solves; the right-hand sides only grow)."""
+        A, h = rows.A, self.period
+        relax = nominal is not None and np.all(np.isfinite(nominal))
+
+        def need(v):
+            b = rows.b + self.second_order(context, rows, v * h) / h
+            return _relax(q, nominal, lo, hi, A, b, self.velocity_limits, self.period) if relax else b
+
+        if not len(rows.b):
+            return v_t, rows.b, True
+        b = need(v_t)
+        if np.all(A @ v_t >= b - 1e-12):
+            return v_t, b, True
+        v = v_t
+        for _ in range(self.SECOND_ORDER_ROUNDS):
+            v = self._qp.solve(v_t, lo, hi, A, b)
+            if v is None:
+                v = np.clip(np.zeros(self.k), lo, hi)
+                return v, need(v), False
+            b_v = need(v)
+            short = A @ v < b_v - 1e-9
+            if not short.any():
+                return v, b_v, True
+            b = np.maximum(b, b_v) + _NUDGE * short
+        return v, need(v), True
