@@ -157,44 +157,86 @@ def test_nan_nominal_is_rejected():
         adm.commanded_position_output.Eval(ctx)
 
 
+def _checked_admittance(**check_kw):
+    """HumanInputCheck -> AdmittanceDeformation (fault -> hold), the push
+    and the admittance's planner inputs exported."""
+    from pydrake.systems.framework import DiagramBuilder
+
+    from drake_cfvol.systems import HumanInputCheck
+
+    builder = DiagramBuilder()
+    check = builder.AddSystem(HumanInputCheck(2, period=0.01, **check_kw))
+    adm = builder.AddSystem(AdmittanceDeformation(2, mass=1.0, damping=20.0, stiffness=100.0, period=0.01))
+    builder.Connect(check.human_torque_output, adm.human_torque_input)
+    builder.Connect(check.human_wrench_output, adm.human_wrench_input)
+    builder.Connect(check.fault_output, adm.hold_input)
+    for port in (check.human_torque_input, check.human_wrench_input, adm.nominal_input, adm.lower_input,
+                 adm.upper_input):
+        builder.ExportInput(port, port.get_name())
+    diagram = builder.Build()
+    ctx = diagram.CreateDefaultContext()
+    return diagram, check, adm, ctx
+
+
 @pytest.mark.parametrize("bad", [np.nan, np.inf, 1e5])
 def test_sensor_fault_holds_the_last_safe_command(bad):
     """A non-finite or implausible torque (NaN, inf, 1e5 N m > max_torque)
-    raises no exception: the deviation and its rate are held, so the
-    command follows the nominal with the deviation of the last good
-    update; ``fault`` is 1 while it lasts and ``fault_count`` counts the
-    faulted updates; a plausible torque again clears the fault."""
-    adm, ctx = _admittance(mass=1.0, damping=20.0, stiffness=100.0, period=0.01)
-    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], [10.0, -5.0])
-    sim = Simulator(adm, ctx)
+    raises no exception: the check's ``fault`` holds the admittance, whose
+    deviation and rate stay as they were, so the command follows the
+    nominal with the deviation of the last good update; ``fault_count``
+    counts the faulted updates; a plausible torque again clears the fault."""
+    diagram, check, adm, ctx = _checked_admittance()
+    a_ctx, c_ctx = adm.GetMyContextFromRoot(ctx), check.GetMyContextFromRoot(ctx)
+
+    def fix(nominal, tau):
+        diagram.GetInputPort("nominal").FixValue(ctx, nominal)
+        diagram.GetInputPort("lower").FixValue(ctx, [-1, -1])
+        diagram.GetInputPort("upper").FixValue(ctx, [1, 1])
+        diagram.GetInputPort("human_torque").FixValue(ctx, tau)
+
+    fix([0.0, 0.0], [10.0, -5.0])
+    sim = Simulator(diagram, ctx)
     sim.AdvanceTo(0.5 - 1e-9)  # updates at 0, .., 0.49
-    held = adm.deviation_output.Eval(ctx).copy()
-    state = ctx.get_discrete_state(0).CopyToVector().copy()
-    assert np.abs(held).max() > 0.01 and adm.fault_output.Eval(ctx)[0] == 0.0
-    _fix(adm, ctx, [0.2, 0.1], [-1, -1], [1, 1], [bad, -5.0])
+    held = adm.deviation_output.Eval(a_ctx).copy()
+    state = a_ctx.get_discrete_state(0).CopyToVector().copy()
+    assert np.abs(held).max() > 0.01 and check.fault_output.Eval(c_ctx)[0] == 0.0
+    fix([0.2, 0.1], [bad, -5.0])
     sim.AdvanceTo(0.6 - 1e-9)  # ten faulted updates
-    np.testing.assert_array_equal(ctx.get_discrete_state(0).CopyToVector(), state)
-    np.testing.assert_allclose(adm.commanded_position_output.Eval(ctx), [0.2, 0.1] + held)
-    assert adm.fault_output.Eval(ctx)[0] == 1.0 and adm.fault_count_output.Eval(ctx)[0] == 10.0
-    _fix(adm, ctx, [0.2, 0.1], [-1, -1], [1, 1], [10.0, -5.0])
+    np.testing.assert_array_equal(a_ctx.get_discrete_state(0).CopyToVector(), state)
+    np.testing.assert_allclose(adm.commanded_position_output.Eval(a_ctx), [0.2, 0.1] + held)
+    assert check.fault_output.Eval(c_ctx)[0] == 1.0 and check.fault_count_output.Eval(c_ctx)[0] == 10.0
+    fix([0.2, 0.1], [10.0, -5.0])
     sim.AdvanceTo(0.61 - 1e-9)
-    assert adm.fault_output.Eval(ctx)[0] == 0.0 and adm.fault_count_output.Eval(ctx)[0] == 10.0
-    assert not np.array_equal(adm.deviation_output.Eval(ctx), held)
+    assert check.fault_output.Eval(c_ctx)[0] == 0.0 and check.fault_count_output.Eval(c_ctx)[0] == 10.0
+    assert not np.array_equal(adm.deviation_output.Eval(a_ctx), held)
 
 
 def test_wrench_fault_and_plausibility_limits():
     """A NaN or implausible tool wrench (force beyond max_wrench) faults
-    like a torque; the limits are checked at construction."""
-    adm, ctx = _admittance(max_wrench=[50, 50, 50, 200, 200, 200])
-    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], [0.0, 0.0])
-    for w in ([0, 0, 0, np.nan, 0, 0], [0, 0, 0, 0, 0, 300.0]):
-        adm.human_wrench_input.FixValue(ctx, w)
-        x = adm.EvalUniquePeriodicDiscreteUpdate(ctx)
-        assert x.get_vector(1).GetAtIndex(0) == 1.0
+    like a torque, a plausible one does not; the limits are checked at
+    construction."""
+    from drake_cfvol.systems import HumanInputCheck
+
+    check = HumanInputCheck(2, max_wrench=[50, 50, 50, 200, 200, 200])
+    ctx = check.CreateDefaultContext()
+    check.human_torque_input.FixValue(ctx, [0.0, 0.0])
+    for w, fault in (([0, 0, 0, np.nan, 0, 0], 1.0), ([0, 0, 0, 0, 0, 300.0], 1.0), ([0, 0, 0, 0, 0, 150.0], 0.0)):
+        check.human_wrench_input.FixValue(ctx, w)
+        assert check.fault_output.Eval(ctx)[0] == fault
     with pytest.raises(cf.ParameterError, match="max_torque"):
-        AdmittanceDeformation(2, max_torque=0.0)
+        HumanInputCheck(2, max_torque=0.0)
     with pytest.raises(cf.DimensionError, match="max_wrench"):
-        AdmittanceDeformation(2, max_wrench=[1.0, 2.0])
+        HumanInputCheck(2, max_wrench=[1.0, 2.0])
+
+
+def test_a_non_finite_push_is_never_integrated():
+    """Wired without a check, the admittance still holds on a NaN push
+    (its state stays finite and unchanged)."""
+    adm, ctx = _admittance()
+    _fix(adm, ctx, [0.0, 0.0], [-1, -1], [1, 1], [np.nan, 0.0])
+    before = ctx.get_discrete_state(0).CopyToVector().copy()
+    x = adm.EvalUniquePeriodicDiscreteUpdate(ctx)
+    np.testing.assert_array_equal(x.get_vector(0).CopyToVector(), before)
 
 
 def test_wrench_needs_a_plant():

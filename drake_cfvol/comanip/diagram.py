@@ -29,6 +29,7 @@ from drake_cfvol.io.style import CATEGORY_COLOURS, COLOUR_NAMES, FLOOR_COLOUR, R
 from drake_cfvol.systems import (
     AdmittanceDeformation,
     ClearanceMonitor,
+    HumanInputCheck,
     JointBoundsSource,
     PathProgress,
     Push,
@@ -411,15 +412,20 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
             builder.Connect(source.GetOutputPort(name), adm.GetInputPort(name))
         commanded = adm.commanded_position_output
     torque_port = _add_pushes(builder, scenario, k, human, progress, commanded, source)
-    builder.Connect(torque_port, adm.human_torque_input)
-    builder.Connect(human.human_wrench_output, adm.human_wrench_input)
+    # The push as sensed, checked: an implausible one holds the admittance.
+    check = builder.AddNamedSystem("human_input_check", HumanInputCheck(k, period=a.period))
+    builder.Connect(torque_port, check.human_torque_input)
+    builder.Connect(human.human_wrench_output, check.human_wrench_input)
+    builder.Connect(check.human_torque_output, adm.human_torque_input)
+    builder.Connect(check.human_wrench_output, adm.human_wrench_input)
+    builder.Connect(check.fault_output, adm.hold_input)
     builder.Connect(commanded, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
     builder.Connect(scene_graph.get_query_output_port(), monitor.query_object_input)
     loggers = _export_and_log(builder, {
         "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
         "nominal": source.nominal_output, "commanded_position": commanded,
-        "deviation": adm.deviation_output, "fault": adm.fault_output, "fault_count": adm.fault_count_output,
+        "deviation": adm.deviation_output, "fault": check.fault_output, "fault_count": check.fault_count_output,
         "human_torque": torque_port, "human_wrench": human.human_wrench_output,
         "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
         "in_volume": monitor.in_volume_output}, scenario, safety, adm)

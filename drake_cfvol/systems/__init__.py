@@ -2,8 +2,9 @@
 
 - :class:`JointBoundsSource`: the bounds table as a system of the path index.
 - :class:`AdmittanceDeformation`: the human's push -> a deviation from the
-  nominal, clamped inside the bounds without wind-up; sensor faults hold
-  the last safe command.
+  nominal, clamped inside the bounds without wind-up.
+- :class:`HumanInputCheck`: the sensed push checked for plausibility; a
+  fault holds the admittance's last safe command.
 - :class:`SafetyFilter` (from :mod:`drake_cfvol.safety`): between the
   admittance and the robot, the motion closest to the one asked for that
   keeps the velocity limits, the box ahead and a clearance margin (a
@@ -23,10 +24,11 @@ One system per module. Imports ``algorithm`` (the bounds table), ``scene``,
 
 from drake_cfvol.systems.admittance import AdmittanceDeformation, AdmittanceDeformation_
 from drake_cfvol.systems.bounds_source import JointBoundsSource, JointBoundsSource_
+from drake_cfvol.systems.human_input import HumanInputCheck, HumanInputCheck_
 from drake_cfvol.systems.humans import Push, RandomPushShaper, ReactiveCoworker, ScriptedHuman
 from drake_cfvol.systems.monitor import ClearanceMonitor
 from drake_cfvol.systems.path import PathProgress, safe_path_rate
 from drake_cfvol.systems.safety import SafetyFilter
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
-           "ClearanceMonitor", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate"]
+           "ClearanceMonitor", "HumanInputCheck", "HumanInputCheck_", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate"]

@@ -1,6 +1,5 @@
 """The admittance: the human's push -> a deviation from the nominal, clamped
-inside the bounds without wind-up; sensor faults hold the last safe command
-(SPEC 9)."""
+inside the bounds without wind-up (SPEC 9)."""
 
 
 
@@ -32,11 +31,10 @@ def AdmittanceDeformation_(T):
             - upper
             - human_torque
             - human_wrench
+            - hold (optional)
             output_ports:
             - commanded_position
             - deviation
-            - fault
-            - fault_count
 
         Per joint, the deviation d from the nominal obeys
         M d'' + D d' + K d = tau_h + J(q)^T w_h, integrated every ``period``
@@ -64,24 +62,23 @@ def AdmittanceDeformation_(T):
         (:func:`safe_path_rate`) the commanded position never moves a joint
         faster than its limit (clamping is 1-Lipschitz in its inputs).
 
-        Sensor faults: an update whose ``human_torque`` or ``human_wrench``
-        holds a non-finite value, or one beyond its plausibility limit
-        (``max_torque``, ``max_wrench``), holds the last safe command: the
-        deviation and its rate are kept as they are (so ``commanded_position``
-        = clamp(nominal + held deviation, lower, upper) follows the path), and
-        ``fault`` is 1 until an update reads plausible inputs again;
-        ``fault_count`` counts the faulted updates. Nothing raises in the
-        control loop for a sensor input. (Non-finite ``nominal``, ``lower``
-        or ``upper`` come from the planner, not a sensor: they raise a
-        :class:`~drake_cfvol.ParameterError` naming the port.)
+        Holding: an update while ``hold`` is > 0.5 keeps the deviation and
+        its rate as they are (the last safe command: ``commanded_position``
+        = clamp(nominal + held deviation, lower, upper) follows the path).
+        Wire :class:`~drake_cfvol.systems.human_input.HumanInputCheck`'s
+        ``fault`` to it: that system checks the push for plausibility and
+        counts the faults. A non-finite push is never integrated, wired or
+        not (the update holds). Non-finite ``nominal``, ``lower`` or
+        ``upper`` come from the planner, not a sensor: they raise a
+        :class:`~drake_cfvol.ParameterError` naming the port.
 
         The collision checks are not here: a :class:`drake_cfvol.safety.SafetyFilter`
         between this system and the robot keeps the clearance.
 
         Scalar types: float and AutoDiffXd (``ToAutoDiffXd()``); with
         AutoDiffXd, derivatives flow through the dynamics, the clamp and the
-        parameters, while the fault checks and the wrench's Jacobian are
-        evaluated on values.
+        parameters, while the hold and the wrench's Jacobian are evaluated
+        on values.
 
         Args:
             k: number of joints.
@@ -97,18 +94,10 @@ def AdmittanceDeformation_(T):
             velocity_limits: (k,) joint velocity limits, rad/s (m/s; inf: no
                 limit), or None (no limit).
             path_share: see above; in (0, 1).
-            max_torque: the largest plausible |human_torque_j|, N m (N);
-                scalar or (k,); > 0. Default 2000 N m: beyond any person's
-                push through the arm's levers (the adversarial pushes of
-                ``tools/adversarial_runs.py`` use 1500 N m).
-            max_wrench: the largest plausible |human_wrench_i|, [torque N m
-                x3; force N x3]; scalar or (6,); > 0. Default 500 N m and
-                1500 N (a person pushes with a few hundred newtons).
         """
 
         def _construct(self, k: int, *, mass=10.0, damping=200.0, stiffness=400.0, period: float = 0.01,
                        plant=None, tool_frame=None, velocity_limits=None, path_share: float = 0.5,
-                       max_torque=2000.0, max_wrench=(500.0, 500.0, 500.0, 1500.0, 1500.0, 1500.0),
                        converter=None):
             LeafSystem_[T].__init__(self, converter)
             if not period > 0:
@@ -119,8 +108,6 @@ def AdmittanceDeformation_(T):
             self.M = _vector(mass, k, "mass", positive=True)
             self.D = _vector(damping, k, "damping", nonnegative=True)
             self.K = _vector(stiffness, k, "stiffness", nonnegative=True)
-            self.max_torque = _vector(max_torque, k, "max_torque", positive=True)
-            self.max_wrench = _vector(max_wrench, 6, "max_wrench", positive=True)
             self.period = float(period)
             self.path_share = float(path_share)
             self.max_rate = None
@@ -151,8 +138,8 @@ def AdmittanceDeformation_(T):
             self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
             self.human_torque_input = self.DeclareVectorInputPort(name="human_torque", size=k)
             self.human_wrench_input = self.DeclareVectorInputPort(name="human_wrench", size=6)
+            self.hold_input = self.DeclareVectorInputPort(name="hold", size=1)
             self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
-            self._fault_state = self.DeclareDiscreteState(2)  # [faulted at the last update, faulted updates]
             self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
             self.commanded_position_output = self.DeclareVectorOutputPort(
                 name="commanded_position", size=k, calc=self._calc_commanded,
@@ -162,20 +149,11 @@ def AdmittanceDeformation_(T):
                 name="deviation", size=k,
                 calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._state).CopyToVector()[:self.k]),
                 prerequisites_of_calc={self.xd_ticket()})
-            self.fault_output = self.DeclareVectorOutputPort(
-                name="fault", size=1,
-                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._fault_state).CopyToVector()[:1]),
-                prerequisites_of_calc={self.xd_ticket()})
-            self.fault_count_output = self.DeclareVectorOutputPort(
-                name="fault_count", size=1,
-                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._fault_state).CopyToVector()[1:]),
-                prerequisites_of_calc={self.xd_ticket()})
 
         def _construct_copy(self, other, converter=None):
             Impl._construct(self, other.k, mass=other.M, damping=other.D, stiffness=other.K, period=other.period,
                             plant=other._plant, tool_frame=other._tool, velocity_limits=other._velocity_limits,
-                            path_share=other.path_share, max_torque=other.max_torque, max_wrench=other.max_wrench,
-                            converter=converter)
+                            path_share=other.path_share, converter=converter)
 
         def gains(self, context) -> tuple:
             """(M, D, K) of this context (the numeric parameters)."""
@@ -197,18 +175,19 @@ def AdmittanceDeformation_(T):
 
         def _sensors(self, context):
             """The human's joint torque and tool wrench (zeros where not
-            connected), and whether they are plausible: finite and within
-            ``max_torque`` and ``max_wrench``."""
+            connected), and whether this update integrates them: all finite
+            and ``hold`` not raised."""
             tau = np.zeros(self.k, dtype=object if T is AutoDiffXd else float)
             w = np.zeros(6)
             ok = True
             if self.human_torque_input.HasValue(context):
                 tau = self.human_torque_input.Eval(context)
-                tv = _values(tau)
-                ok &= bool(np.all(np.isfinite(tv)) and np.all(np.abs(tv) <= self.max_torque))
+                ok &= bool(np.all(np.isfinite(_values(tau))))
             if self.human_wrench_input.HasValue(context):
                 w = _values(self.human_wrench_input.Eval(context))
-                ok &= bool(np.all(np.isfinite(w)) and np.all(np.abs(w) <= self.max_wrench))
+                ok &= bool(np.all(np.isfinite(w)))
+            if self.hold_input.HasValue(context):
+                ok &= not _values(self.hold_input.Eval(context))[0] > 0.5
             return tau, w, ok
 
         def _push(self, context, tau, w, q):
@@ -229,12 +208,9 @@ def AdmittanceDeformation_(T):
         def _update(self, context, discrete_state):
             nominal, lower, upper = self._inputs(context)
             x = context.get_discrete_state(self._state).CopyToVector()
-            faults = context.get_discrete_state(self._fault_state).CopyToVector()
-            tau, w, plausible = self._sensors(context)
-            if not plausible:
-                # Hold the last safe command: deviation and rate as they are.
-                discrete_state.get_mutable_vector(self._fault_state).SetFromVector([1.0, faults[1] + 1.0])
-                return
+            tau, w, integrate = self._sensors(context)
+            if not integrate:
+                return  # hold the last safe command: deviation and rate as they are
             d, v = x[:self.k].copy(), x[self.k:].copy()
             M, D, K = self.gains(context)
             tau = self._push(context, tau, w, _clip(nominal + d, lower, upper))
@@ -250,7 +226,6 @@ def AdmittanceDeformation_(T):
             d = _clip(d, lo, hi)
             v = np.where((at_hi & (vv > 0)) | (at_lo & (vv < 0)), 0 * v, v)
             discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
-            discrete_state.get_mutable_vector(self._fault_state).SetFromVector([0.0, faults[1]])
 
         def _calc_commanded(self, context, output):
             nominal, lower, upper = self._inputs(context)
