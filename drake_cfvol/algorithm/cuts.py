@@ -91,14 +91,73 @@ def _width_loss(lower, upper, nominal, rate, i, lo, hi):
     return float(np.sum(np.log(w0 / w1)))
 
 
+def _joint_scale_options(arrays, lower, upper, nominal, rate, fail: _Item, reach, pad: float) -> list:
+    """Cut options (loss, lo, hi, key) of a failing region: each other joint
+    on its bound in the region whose motion reaches the nearest pair, and
+    all of them together (a collision that two bounds make at once), each
+    at CUT_SCALES of its deviation, the largest passing scale bisected
+    toward the failing one above it; the region must keep ``pad``."""
+    i, j = fail.i, fail.j
+    ss = np.array([fail.sa, fail.sb])
+    options = []
+    group = [int(l) for l in np.flatnonzero(reach) if l != j]
+    sides = {l: 1 if fail.S[l] == 1 else -1 for l in group}
+    cands = [((l, sides[l]), [l]) for l in group] + ([((-1, 0), group)] if len(group) > 1 else [])
+    members_of = dict(cands)
+
+    def trial(key, lam):
+        lo, hi = _scaled(lower, upper, nominal, i, [(m, sides[m], lam) for m in members_of[key]])
+        a_lo, a_hi, _ = _box(lo, hi, nominal[i:i + 2], 0, ss - i)
+        ca = np.where(fail.S == 1, a_hi, a_lo)
+        return lo, hi, _Item(i, fail.sa, fail.sb, j, fail.va, fail.vb, fail.S, ca[0], ca[1])
+
+    trials = []
+    for key in members_of:
+        for lam in CUT_SCALES:
+            lo, hi, item = trial(key, lam)
+            if np.array_equal(lo, lower[i:i + 2]) and np.array_equal(hi, upper[i:i + 2]):
+                continue
+            trials.append((key, lam, lo, hi, item))
+    if trials:
+        ok = ~_test(arrays, [t[4] for t in trials], {i: pad})
+        best_l, failing = {}, {}  # key -> (passing scale, lo, hi); key -> largest failing scale
+        for (key, lam, lo, hi, _), good in zip(trials, ok):
+            if key in best_l:
+                continue
+            if good:  # scales run largest first: the first pass is the best of the list
+                best_l[key] = (lam, lo, hi)
+            else:
+                failing[key] = lam
+        # Cut no deeper than needed: bisect each passing scale toward the
+        # failing one above it (as cut_point does), all keys in one batch.
+        bracket = {key: (failing.get(key, 1.0), best_l[key][0]) for key in best_l}
+        for _ in range(REFINE_STEPS if bracket else 0):
+            mids = {key: 0.5 * (f + p_) for key, (f, p_) in bracket.items()}
+            tried = {key: trial(key, lam) for key, lam in mids.items()}
+            good = ~_test(arrays, [t[2] for t in tried.values()], {i: pad})
+            for (key, (lo, hi, _)), gd in zip(tried.items(), good):
+                f, p_ = bracket[key]
+                if gd:
+                    bracket[key] = (f, mids[key])
+                    best_l[key] = (mids[key], lo, hi)
+                else:
+                    bracket[key] = (mids[key], p_)
+        for (l, side), (_, lo, hi) in best_l.items():
+            key = (i, int(l), side) if l >= 0 else (i, -2, 0)
+            options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, key))
+    return options
+
+
 def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: float, slack: float,
             taken: set) -> bool:
     """Tightens the waypoint boxes of a failing region's stretch (in place)
     so that the region, recomputed, passes: the candidates are the edge's
     own joint (its failing range off the nominal cut away) and every joint
     on its bound in the region whose motion reaches the nearest pair, each
-    at CUT_SCALES of its deviation; the passing candidate that loses the
-    least width is applied; if none passes, the whole stretch box moves
+    at CUT_SCALES of its deviation, the largest passing scale then bisected
+    REFINE_STEPS times toward the failing one above it (no deeper than the
+    region test needs); the passing candidate that loses the least width
+    is applied; if none passes, the whole stretch box moves
     halfway to the nominal. ``taken`` holds the (stretch, joint, side)
     already cut this round (not cut again before the stretch is tested
     anew). Returns False (nothing cut) only if the region on the nominal
@@ -125,29 +184,7 @@ def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: 
         lam = float(np.clip(lam * (1 - 1e-6), 0.0, 1.0))
         lo, hi = _scaled(lower, upper, nominal, i, [(j, side, lam)])
         options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i, j, side)))
-    # Another joint on its bound in the region, and all of them together (a
-    # collision that two bounds make at once), tried at a few scales.
-    group = [int(l) for l in np.flatnonzero(reach) if l != j]
-    sides = {l: 1 if fail.S[l] == 1 else -1 for l in group}
-    cands = [((l, sides[l]), [l]) for l in group] + ([((-1, 0), group)] if len(group) > 1 else [])
-    trials = []
-    for (l, side), members in cands:
-        for lam in CUT_SCALES:
-            lo, hi = _scaled(lower, upper, nominal, i, [(m, sides[m], lam) for m in members])
-            if np.array_equal(lo, lower[i:i + 2]) and np.array_equal(hi, upper[i:i + 2]):
-                continue
-            a_lo, a_hi, _ = _box(lo, hi, nominal[i:i + 2], 0, ss - i)
-            ca = np.where(fail.S == 1, a_hi, a_lo)
-            trials.append((l, side, lam, lo, hi, _Item(i, fail.sa, fail.sb, j, fail.va, fail.vb, fail.S, ca[0], ca[1])))
-    if trials:
-        ok = ~_test(arrays, [t[5] for t in trials], {i: margin + slack})
-        best_l = {}
-        for (l, side, lam, lo, hi, _), good in zip(trials, ok):
-            if good and (l, side) not in best_l:  # scales run largest first: the first pass is the best
-                best_l[(l, side)] = (lo, hi)
-        for (l, side), (lo, hi) in best_l.items():
-            key = (i, int(l), side) if l >= 0 else (i, -2, 0)
-            options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, key))
+    options += _joint_scale_options(arrays, lower, upper, nominal, rate, fail, reach, margin + slack)
     options = [o for o in options
                if not (np.array_equal(o[1], lower[i:i + 2]) and np.array_equal(o[2], upper[i:i + 2]))]
     if not options:
