@@ -318,6 +318,40 @@ def test_boundary_proof_frees_every_edge_by_drake(cell, sampled, request):
     assert np.all(cert.upper[1] - cert.lower[1] > 0.1)
 
 
+@pytest.mark.parametrize("cell", ["corner", "corner_mesh"])
+def test_regrow_gives_back_an_unneeded_cut_and_keeps_the_proof(cell, request):
+    """After the proof, a cut made unneeded (joint 1's lower deviation
+    shrunk to a fifth everywhere: only safer) is given back by regrow where
+    the proof still holds: that bound widens at some waypoint, no bound
+    narrows, the report counts it, and every corner and edge point of the
+    box at every waypoint and stretch midpoint still keeps the margin by
+    Drake's padded checker. Regrow without the proof is refused."""
+    from drake_cfvol.algorithm.certify import _Certification
+    from drake_cfvol.algorithm.metrics import boundary_check
+
+    import dataclasses
+
+    wc, path = request.getfixturevalue(cell)
+    # Without a rate limit (as a table of the reference backend): this path
+    # stands still, so a rate-limited bound could not differ between waypoints.
+    table = dataclasses.replace(cf.estimate_bounds(wc, path, h_max=0.0), rate=None)
+    job = _Certification(wc, wc.scene_arrays(), table, Certify(epsilon=1e-3, regrow=True, cache=False))
+    job.prove()
+    nom = job.nominal
+    job.lower[:, 0] = nom[:, 0] - 0.2 * (nom[:, 0] - job.lower[:, 0])
+    job.refresh()
+    before_lo, before_hi = job.lower.copy(), job.upper.copy()
+    assert job.regrow() >= 1
+    assert np.any(job.lower[:, 0] < before_lo[:, 0] - 1e-9)
+    assert np.all(job.lower <= before_lo + 1e-12) and np.all(job.upper >= before_hi - 1e-12)
+    assert job.boundary["regrown"] >= 1
+    margin = float(job.margins.min())
+    check = boundary_check(wc, job.current, clearance=max(0.0, margin - 1e-3))
+    assert check.corners_colliding == 0 and check.edges_colliding == 0 and check.corners > 0
+    with pytest.raises(cf.ParameterError, match="regrow"):
+        Certify(boundary=False, regrow=True)
+
+
 def test_greedy_cut_uses_only_allowed_joints():
     """The by-hand sample (0.9, 0.2) whose colliding pair only joint 1
     reaches: joint 0 (the cheaper cut) may not cut it, so joint 1's upper

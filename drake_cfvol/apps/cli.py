@@ -149,7 +149,7 @@ def cmd_bounds(args) -> int:
     if args.plot and not args.out:
         raise ParameterError("--plot needs --out DIR (the folder to write the plot to).")
     lonely = [f"--{n.replace('_', '-')}"
-              for n in ("epsilon", "clamp_epsilon", "confidence", "no_cache", "no_boundary_proof")
+              for n in ("epsilon", "clamp_epsilon", "confidence", "no_cache", "no_boundary_proof", "regrow")
               if getattr(args, n) not in (None, False)]
     if lonely and not args.certify:
         raise ParameterError(f"{', '.join(lonely)} only apply{'s' if len(lonely) == 1 else ''} to certified bounds: "
@@ -178,7 +178,7 @@ def cmd_bounds(args) -> int:
         given = {n: getattr(args, n) for n in ("epsilon", "clamp_epsilon", "confidence")
                  if getattr(args, n) is not None}
         certify = Certify(**given, seed=args.seed, cache=not args.no_cache,
-                          boundary=not args.no_boundary_proof)
+                          boundary=not args.no_boundary_proof, regrow=args.regrow)
     table = estimate_bounds(wc, path, params, backend=args.backend, certify=certify, progress=bars)
     cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
                            progress=bars)
@@ -352,6 +352,9 @@ def _add_bounds(sub) -> None:
     b.add_argument("--no-boundary-proof", action="store_true",
                    help="certificate: sampled only, without the proof of every edge and corner of the box (faster, "
                         "but a clamp may land nearer than the margin; needs --certify)")
+    b.add_argument("--regrow", action="store_true",
+                   help="certificate: afterwards widen cut bounds back where the proof still holds (more freedom, "
+                        "about twice the time; needs --certify, not with --no-boundary-proof)")
     b.add_argument("--clearance", type=float, default=None,
                    help="safety margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)")
     b.add_argument("--out", help="folder for bounds (.npz, .json), path and plot")
