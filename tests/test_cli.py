@@ -154,12 +154,18 @@ def test_bad_cf_samples_before_planning(capsys):
 
 
 @pytest.mark.parametrize("flag", [["--epsilon", "1e-4"], ["--clamp-epsilon", "1e-3"], ["--confidence", "0.9"],
-                                  ["--no-cache"], ["--no-boundary-proof"]])
+                                  ["--no-cache"], ["--no-boundary-proof"], ["--regrow"]])
 def test_certificate_options_need_certify(flag, capsys):
     """An option that does nothing without --certify is refused, not ignored."""
     assert main(["bounds", "automotive", *flag]) == 2
     err = capsys.readouterr().err
     assert err.startswith("cfvol: error: ") and "--certify" in err and flag[0] in err
+
+
+def test_regrow_needs_the_boundary_proof(capsys):
+    """--regrow with --no-boundary-proof is refused before any planning."""
+    assert main(["bounds", "automotive", "--certify", "--regrow", "--no-boundary-proof"]) == 2
+    assert "--no-boundary-proof" in capsys.readouterr().err
 
 
 def test_plot_without_out(capsys):

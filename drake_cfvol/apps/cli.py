@@ -154,6 +154,8 @@ def cmd_bounds(args) -> int:
     if lonely and not args.certify:
         raise ParameterError(f"{', '.join(lonely)} only apply{'s' if len(lonely) == 1 else ''} to certified bounds: "
                              "add --certify, or leave them out.")
+    if args.regrow and args.no_boundary_proof:
+        raise ParameterError("--regrow widens bounds where the boundary proof holds: leave out --no-boundary-proof.")
     if args.cf_windows < 1 or args.cf_samples < 1:
         raise ParameterError(f"--cf-windows and --cf-samples must be >= 1, got {args.cf_windows} and "
                              f"{args.cf_samples}.")
