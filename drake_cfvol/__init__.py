@@ -53,6 +53,7 @@ from drake_cfvol.exceptions import (
     RecordFormatError,
     ScenarioError,
     SingularityError,
+    StationError,
     UnknownCellError,
     WorkcellError,
     WorkcellFileNotFoundError,
@@ -71,6 +72,6 @@ __all__ = [
     "MissingJointLimitsError", "ParameterError", "PlanningError", "SingularityError",
     "UnknownCellError", "WorkcellError", "WorkcellFileNotFoundError", "WorkcellFormatError", "FileError",
     "RecordFormatError", "OutputExistsError", "OutputPathError", "ScenarioError",
-    "NominalPath", "plan_nominal_path", "Workcell", "builtin_cells", "load_workcell",
+    "StationError", "NominalPath", "plan_nominal_path", "Workcell", "builtin_cells", "load_workcell",
     "BoundsTable", "estimate_bounds", "Certify", "VolumeParams", "CFResult", "Freedom", "confidence_factor", "freedom",
 ]

@@ -51,6 +51,12 @@ class WorkcellFormatError(WorkcellError):
         super().__init__(f"{where}: {message}")
 
 
+class StationError(WorkcellError):
+    """A user's RobotDiagram cannot become a workcell
+    (:meth:`drake_cfvol.Workcell.FromRobotDiagram`), or a system cannot be
+    added to a user's station (:func:`drake_cfvol.systems.AddCoManipulation`)."""
+
+
 class ConfigurationError(CfvolError):
     """A joint configuration is invalid for the robot."""
 

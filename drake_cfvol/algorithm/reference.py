@@ -11,16 +11,17 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from pydrake.geometry import Box
+from pydrake.geometry import (AddContactMaterial, Box, GeometryInstance, MakePhongIllustrationProperties,
+                             ProximityProperties)
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import CoulombFriction
-from pydrake.planning import SceneGraphCollisionChecker
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.algorithm.heightmap import Volume
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.algorithm.table import absolute_bounds
+from drake_cfvol.scene.queries import RobotChecker
 
 __all__ = ["VOLUME_BOX_PREFIX", "register_volume_boxes", "ReferenceScene", "drake_sweep_bounds"]
 
@@ -32,18 +33,23 @@ MAX_REFERENCE_BOXES = 3000
 
 
 def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35), visual: bool = True,
-                          boxes=None) -> list:
+                          boxes=None, scene_graph=None) -> list:
     """Registers the volume's columns on the world body of a plant (before
     ``Finalize``): proximity geometry, and an illustration if ``visual``.
+    A finalized plant's are registered on its SceneGraph instead, as
+    anchored geometry of the plant's source (``scene_graph`` needed).
 
     Args:
         boxes: (centres, sizes) to register instead of one box per column
             (e.g. :meth:`Volume.merged_boxes`).
+        scene_graph: the plant's SceneGraph (needed for a finalized plant).
 
     Returns:
         The proximity ``GeometryId`` of each box.
     """
     centres, sizes = volume.boxes() if boxes is None else boxes[:2]
+    if plant.is_finalized():
+        return _register_anchored(plant, scene_graph, centres, sizes, colour, visual)
     world = plant.world_body()
     ids = []
     for i, (c, s) in enumerate(zip(centres, sizes)):
@@ -53,6 +59,24 @@ def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35
         if visual:
             plant.RegisterVisualGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}visual_{i}",
                                          np.asarray(colour))
+    return ids
+
+
+def _register_anchored(plant, scene_graph, centres, sizes, colour, visual) -> list:
+    """The volume's boxes as anchored geometry of a finalized plant's source."""
+    if scene_graph is None:
+        raise ParameterError("register_volume_boxes: the plant is finalized; pass its scene_graph to register the "
+                             "boxes as anchored geometry.")
+    source, ids = plant.get_source_id(), []
+    for i, (c, s) in enumerate(zip(centres, sizes)):
+        gid = scene_graph.RegisterAnchoredGeometry(
+            source, GeometryInstance(RigidTransform(c), Box(*s), f"{VOLUME_BOX_PREFIX}{i}"))
+        props = ProximityProperties()
+        AddContactMaterial(friction=CoulombFriction(0.5, 0.5), properties=props)
+        scene_graph.AssignRole(source, gid, props)
+        if visual:
+            scene_graph.AssignRole(source, gid, MakePhongIllustrationProperties(np.asarray(colour)))
+        ids.append(gid)
     return ids
 
 
@@ -79,16 +103,15 @@ class ReferenceScene:
         t0 = time.perf_counter()
         holder = {}
 
-        def add(plant):
-            holder["ids"] = register_volume_boxes(plant, volume, visual=False)
+        def add(plant, scene_graph):
+            holder["ids"] = register_volume_boxes(plant, volume, visual=False, scene_graph=scene_graph)
 
         self.diagram, self.robot = workcell.build_scene(add)
         self.box_ids = set(holder["ids"])
         self.build_s = time.perf_counter() - t0
         t1 = time.perf_counter()
-        self.checker = SceneGraphCollisionChecker(
-            model=self.diagram, robot_model_instances=[self.robot], edge_step_size=edge_step,
-            env_collision_padding=clearance, self_collision_padding=clearance)
+        self.checker = RobotChecker(self.diagram, self.robot, workcell.slice.q_default, edge_step_size=edge_step,
+                                    env_collision_padding=clearance, self_collision_padding=clearance)
         self.checker_s = time.perf_counter() - t1
         self._context = self.diagram.CreateDefaultContext()
 
@@ -106,7 +129,7 @@ class ReferenceScene:
         sctx = sg.GetMyContextFromRoot(self._context)
         out = np.zeros(len(Q), bool)
         for n, q in enumerate(np.atleast_2d(Q)):
-            plant.SetPositions(pctx, self.robot, q)
+            self.checker.slice.set_positions(pctx, q)
             query = sg.get_query_output_port().Eval(sctx)
             for pp in query.ComputePointPairPenetration():
                 if pp.id_A in self.box_ids or pp.id_B in self.box_ids:

@@ -34,6 +34,7 @@ from pydrake.multibody.tree import JointIndex
 
 from drake_cfvol import kernel as K
 from drake_cfvol.exceptions import WorkcellError
+from drake_cfvol.scene.robot import robot_bodies
 
 __all__ = ["SceneArrays", "scene_arrays", "shape_row"]
 
@@ -219,13 +220,15 @@ def _chain_order(workcell):
     """The robot's bodies in topological order (parents before children)
     and each body's inboard joint (by body index)."""
     plant = workcell.plant
-    robot_bodies = [plant.get_body(b) for b in plant.GetBodyIndices(workcell.robot)]
+    mine = robot_bodies(plant, workcell.robot)
+    robot_set = {int(b) for b in mine}
+    robot_bodies_ = [plant.get_body(b) for b in mine]
     inboard = {}
     for i in range(plant.num_joints()):
         joint = plant.get_joint(JointIndex(i))
         inboard[int(joint.child_body().index())] = joint
     order, placed = [], set()
-    pending = list(robot_bodies)
+    pending = list(robot_bodies_)
     while pending:
         progressed = False
         for body in list(pending):
@@ -235,7 +238,7 @@ def _chain_order(workcell):
                     f"robot body '{body.name()}' has no inboard joint (a floating base?); weld the robot's "
                     "base to the world with add_weld.")
             par = joint.parent_body()
-            if par.model_instance() != workcell.robot or int(par.index()) in placed:
+            if int(par.index()) not in robot_set or int(par.index()) in placed:
                 order.append(body)
                 placed.add(int(body.index()))
                 pending.remove(body)
@@ -251,7 +254,8 @@ def _chain_arrays(workcell, order, inboard):
     X_FM folded too) and each joint's body (joint_body)."""
     plant = workcell.plant
     ctx = plant.CreateDefaultContext()
-    plant.SetPositions(ctx, np.zeros(plant.num_positions()))
+    plant.SetPositions(ctx, workcell.slice.q_default)  # held degrees of freedom where the workcell holds them
+    workcell.slice.set_positions(ctx, np.zeros(workcell.num_joints))
     index_of = {int(b.index()): n for n, b in enumerate(order)}
     B = len(order)
     parent = np.full(B, -1, np.int64)
@@ -267,18 +271,18 @@ def _chain_arrays(workcell, order, inboard):
         X_PF = joint.frame_on_parent().GetFixedPoseInBodyFrame()
         X_BM = joint.frame_on_child().GetFixedPoseInBodyFrame()
         par = joint.parent_body()
-        if par.model_instance() == workcell.robot:
+        if int(par.index()) in index_of:
             parent[n] = index_of[int(par.index())]
         else:
             X_PF = par.EvalPoseInWorld(ctx) @ X_PF  # fixed: only the robot moves
-        if joint.num_positions() == 0:
-            # Fold the weld's fixed X_FM into X_PF.
+        if joint.num_positions() == 0 or joint.name() not in joint_names or joint.model_instance() != workcell.robot:
+            # Fold the weld's (or a held joint's, e.g. a gripper finger's) fixed X_FM into X_PF.
             X_FM = joint.frame_on_child().CalcPose(ctx, joint.frame_on_parent())
             X_PF = X_PF @ X_FM
         else:
             kind = joint.type_name()
             jtype[n] = {"revolute": 1, "prismatic": 2}[kind]
-            qidx[n] = joint.position_start()
+            qidx[n] = joint_names.index(joint.name())  # the robot's own position order
             ax = joint.revolute_axis() if kind == "revolute" else joint.translation_axis()
             axis[n] = np.asarray(ax, float) / np.linalg.norm(ax)
             joint_body[joint_names.index(joint.name())] = n

@@ -13,9 +13,10 @@ idiom: :meth:`WorkcellQueries._memo`).
 import numpy as np
 from pydrake.planning import SceneGraphCollisionChecker
 
+from drake_cfvol.scene.robot import RobotSlice, robot_bodies, robot_instances
 from drake_cfvol.exceptions import (CollisionError, ConfigurationError, DimensionError, JointLimitError, MissingJointLimitsError, WorkcellError)
 
-__all__ = ["WorkcellQueries", "geometry_key", "robot_geometry_ids"]
+__all__ = ["RobotChecker", "WorkcellQueries", "geometry_key", "robot_geometry_ids"]
 
 
 def geometry_key(inspector, geometry_id) -> tuple[str, str]:
@@ -25,20 +26,80 @@ def geometry_key(inspector, geometry_id) -> tuple[str, str]:
 
 
 def robot_geometry_ids(plant, robot) -> tuple[set, set]:
-    """Proximity geometry ids of a robot's links in a finalized plant, and of
-    those its joints move.
+    """Proximity geometry ids of a robot's links in a finalized plant (a
+    gripper welded to it included, :func:`~drake_cfvol.scene.robot.robot_bodies`),
+    and of those its joints move.
 
     Returns:
         (every, moving)
     """
     moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(robot))))
     every, moving = set(), set()
-    for b in plant.GetBodyIndices(robot):
+    for b in robot_bodies(plant, robot):
         ids = plant.GetCollisionGeometriesForBody(plant.get_body(b))
         every.update(ids)
         if b in moved:
             moving.update(ids)
     return every, moving
+
+
+class _RobotClearance:
+    """Drake's ``RobotClearance`` with the Jacobians' robot columns only."""
+
+    def __init__(self, rc, robot_slice):
+        self._rc, self._slice = rc, robot_slice
+
+    def __getattr__(self, name):
+        return getattr(self._rc, name)
+
+    def jacobians(self) -> np.ndarray:
+        J = np.asarray(self._rc.jacobians()).reshape(len(self._rc.distances()), -1)
+        return self._slice.columns(J, "qdot")
+
+
+class RobotChecker:
+    """A Drake ``SceneGraphCollisionChecker`` that takes the robot's k
+    positions where Drake's takes the plant's n (every other degree of
+    freedom held at the workcell's default: a gripper's fingers, a free
+    part). The robot is its model instance and every instance its joints
+    move (a gripper). Drake's checker is :attr:`drake`.
+
+    Args:
+        model: a ``RobotDiagram``.
+        robot: the robot's model instance in it.
+        q_default: (n,) the plant's positions to hold the rest at (default:
+            the plant's default context).
+        **kwargs: for ``SceneGraphCollisionChecker`` (``edge_step_size``, paddings).
+    """
+
+    def __init__(self, model, robot, q_default=None, **kwargs):
+        plant = model.plant()
+        self.slice = RobotSlice(plant, robot, q_default)
+        self.drake = SceneGraphCollisionChecker(model=model, robot_model_instances=robot_instances(plant, robot),
+                                                **kwargs)
+
+    def CheckConfigCollisionFree(self, q) -> bool:
+        """True if the robot at ``q`` (k,) is free (Drake)."""
+        return self.drake.CheckConfigCollisionFree(self.slice.full(q))
+
+    def CheckConfigsCollisionFree(self, Q, parallelize=True) -> list:
+        """Per row of ``Q`` (N, k), True where free (Drake)."""
+        return self.drake.CheckConfigsCollisionFree(self.slice.full(np.atleast_2d(Q)), parallelize=parallelize)
+
+    def CheckEdgeCollisionFree(self, a, b) -> bool:
+        """True if the straight joint-space edge from ``a`` to ``b`` is free
+        at Drake's edge step."""
+        return self.drake.CheckEdgeCollisionFree(self.slice.full(a), self.slice.full(b))
+
+    def CalcRobotClearance(self, q, influence_distance: float):
+        """Drake's ``RobotClearance`` at ``q`` (k,), with the same methods;
+        ``jacobians()`` has the robot's k columns."""
+        rc = self.drake.CalcRobotClearance(self.slice.full(q), influence_distance)
+        return rc if not self.slice.extra else _RobotClearance(rc, self.slice)
+
+    def IsCollisionFilteredBetween(self, a, b) -> bool:
+        """Whether Drake's checker ignores the pair of bodies ``a``, ``b``."""
+        return self.drake.IsCollisionFilteredBetween(a, b)
 
 
 class WorkcellQueries:
@@ -119,7 +180,7 @@ class WorkcellQueries:
 
     def _invariant_pairs(self, samples: int, seed: int, tol: float) -> frozenset:
         k = self.num_joints
-        q0 = self.plant.GetPositions(self.plant.CreateDefaultContext(), self.robot)
+        q0 = self.slice.q_default[self.slice.qidx]
         lo = np.where(np.isfinite(self.position_lower), self.position_lower, q0 - np.pi)
         hi = np.where(np.isfinite(self.position_upper), self.position_upper, q0 + np.pi)
         Q = np.vstack([q0, np.random.default_rng(seed).uniform(lo, hi, (samples, k))])
@@ -170,7 +231,7 @@ class WorkcellQueries:
         """Returns the workcell's plant context, set to ``q`` if given."""
         ctx = self.plant.GetMyMutableContextFromRoot(self._context)
         if q is not None:
-            self.plant.SetPositions(ctx, np.asarray(q, float))
+            self.slice.set_positions(ctx, np.asarray(q, float))
         return ctx
 
     @property
@@ -184,8 +245,8 @@ class WorkcellQueries:
         than ``clearance`` (m) to an obstacle or to the robot itself
         colliding (Drake's collision padding); one per distinct value."""
         clearance = float(clearance)
-        return self._memo(("checker", clearance), lambda: SceneGraphCollisionChecker(
-            model=self.diagram, robot_model_instances=[self.robot], edge_step_size=self._edge_step,
+        return self._memo(("checker", clearance), lambda: RobotChecker(
+            self.diagram, self.robot, self.slice.q_default, edge_step_size=self._edge_step,
             env_collision_padding=clearance, self_collision_padding=clearance))
 
     def clearance(self, q, influence: float = 1.0) -> float:

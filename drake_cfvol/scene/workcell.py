@@ -7,22 +7,23 @@ Every obstacle is a body outside the robot's model instance, welded to the
 world, with proximity geometry; the floor is one of them.
 """
 
-import copy
 import dataclasses
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from pydrake.geometry import Role
 from pydrake.multibody.parsing import ModelDirectives, Parser, ProcessModelDirectives
 from pydrake.multibody.tree import BodyIndex, ModelInstanceIndex
 from pydrake.planning import RobotDiagramBuilder
 
-from drake_cfvol.scene import meshes as _meshes
-from drake_cfvol.exceptions import UnknownCellError, WorkcellFileNotFoundError, WorkcellFormatError
+from drake_cfvol.exceptions import (StationError, UnknownCellError, WorkcellError, WorkcellFileNotFoundError,
+                                   WorkcellFormatError)
 from drake_cfvol.scene.arrays import SceneArrays, scene_arrays
 
+from drake_cfvol.scene.directives import add_packages, diagram_from_directives
+from drake_cfvol.scene.setup import WorkcellSetup
 from drake_cfvol.scene.queries import WorkcellQueries, geometry_key, robot_geometry_ids
+from drake_cfvol.scene.robot import RobotSlice, robot_bodies
 from drake_cfvol.scene.schema import (DEFAULT_EDGE_STEP, CfvolSection, HeightMapExtent, NamedConfiguration,
                                       WorkcellFile, builtin_cells, models_dir, read_workcell_file)
 
@@ -47,7 +48,7 @@ class Obstacle:
 
 # -- the typed schema of a workcell file (yaml_load_typed) ------------------
 
-class Workcell(WorkcellQueries):
+class Workcell(WorkcellSetup, WorkcellQueries):
     """A loaded workcell: the robot, its obstacles and the cfvol settings.
 
     Build one with :func:`load_workcell`. The diagram is a Drake
@@ -82,7 +83,6 @@ class Workcell(WorkcellQueries):
     def __init__(self, path: Path, *, edge_step: float = DEFAULT_EDGE_STEP):
         path = Path(path).resolve()
         self.path = path
-        self.name = path.stem
         self.notes: list[str] = []
         spec, lines = read_workcell_file(path)
         self.spec = spec
@@ -94,185 +94,128 @@ class Workcell(WorkcellQueries):
         if not spec.directives:
             raise WorkcellFormatError(str(path), "'directives' is empty: add the robot and the obstacles.",
                                       lines.get("directives"))
+        hm = cf.height_map
+        diagram, self._directives = diagram_from_directives(path, spec, lines, self.notes)
+        self._setup(diagram, name=path.stem, robot=cf.robot, tool_frame=cf.tool_frame,
+                    base_frame=cf.base_frame, rail_joint=cf.rail_joint, reach=cf.reach or None,
+                    height_map_origin=hm.origin if hm and hm.origin else None,
+                    height_map_size=hm.size if hm and hm.size else None, joint_limits=cf.joint_limits,
+                    params=cf.params, configurations={n: (c.start, c.goal) for n, c in cf.configurations.items()},
+                    edge_step=edge_step)
 
+    @classmethod
+    def FromRobotDiagram(cls, robot_diagram, *, robot, tool_frame: str, base_frame: str | None = None,
+                         rail_joint: str | None = None, reach: float | None = None, height_map_origin=None,
+                         height_map_size=None, joint_limits: dict | None = None, params: dict | None = None,
+                         configurations: dict | None = None, name: str = "station",
+                         edge_step: float = DEFAULT_EDGE_STEP) -> "Workcell":
+        """A workcell from a user's own ``RobotDiagram`` (Drake's
+        ``RobotDiagramBuilder``, finalized and built).
+
+        The robot is one model instance; its joints are the k joints the
+        bounds are for. A body its joints move (a gripper welded to the
+        flange, in an instance of its own) belongs to the robot. Every
+        other body with proximity geometry is an obstacle, where the plant's
+        default context puts it: a gripper's fingers and a free part lying
+        on a table are held there (the workcell's :attr:`notes` name them).
+        The user's diagram is cloned, never changed.
+
+        Args:
+            robot_diagram: the ``RobotDiagram``.
+            robot: the robot's model instance: its name (or a
+                ``ModelInstanceIndex``).
+            tool_frame: a frame of the robot (the push's Jacobian, the tool path).
+            base_frame: the reach is measured from here (default: the robot's root body).
+            rail_joint: a prismatic joint of the robot whose travel the reach follows.
+            reach: the volume's activation radius, m (default: a bound on how
+                far the robot's geometry lies from its first revolute joint).
+            height_map_origin, height_map_size: the height map's corner (x, y)
+                and size (x_dim, y_dim), m (default: the reach around the
+                base, over the rail's travel).
+            joint_limits: joint name -> [lower, upper] overrides, rad or m.
+            params: :class:`drake_cfvol.VolumeParams` overrides.
+            configurations: name -> (start, goal), each (k,).
+            name: the workcell's name (records, file names).
+            edge_step: Drake's edge-check step, rad or m.
+
+        Raises:
+            StationError: not a finalized RobotDiagram, an unknown robot or
+                frame, a robot joint that is neither revolute nor prismatic,
+                no obstacle with proximity geometry (the message says which
+                and how to fix it).
+        """
+        if not (hasattr(robot_diagram, "plant") and hasattr(robot_diagram, "scene_graph")):
+            raise StationError(f"Workcell.FromRobotDiagram needs a pydrake.planning.RobotDiagram (from "
+                               f"RobotDiagramBuilder.Build()), got {type(robot_diagram).__name__}.")
+        if not robot_diagram.plant().is_finalized():
+            raise StationError("Workcell.FromRobotDiagram: the RobotDiagram's plant is not finalized; build the "
+                               "diagram first (RobotDiagramBuilder.Build()).")
+        self = cls.__new__(cls)
+        self.path, self.spec, self._lines, self._directives = None, None, {}, None
+        self.notes = []
+        clone = robot_diagram.Clone()
+        # A clone forgets free bodies' default poses (drake 1.51): carry the
+        # user's default positions over.
+        user_plant = robot_diagram.plant()
+        clone.plant().SetDefaultPositions(user_plant.GetPositions(user_plant.CreateDefaultContext()))
+        self._setup(clone, name=str(name), robot=robot, tool_frame=tool_frame,
+                    base_frame=base_frame, rail_joint=rail_joint, reach=reach, height_map_origin=height_map_origin,
+                    height_map_size=height_map_size, joint_limits=joint_limits or {}, params=params or {},
+                    configurations=configurations or {}, edge_step=edge_step)
+        return self
+
+    def _fail(self, message: str, key: str | None = None):
+        """The error for a bad setting: with the file and line for a
+        workcell file, else a StationError."""
+        if self.path is not None:
+            return WorkcellFormatError(str(self.path), message, self._lines.get(key) if key else None)
+        return StationError(f"Workcell.FromRobotDiagram: {message}")
+
+    def _setup(self, diagram, *, name, robot, tool_frame, base_frame, rail_joint, reach, height_map_origin,
+               height_map_size, joint_limits, params, configurations, edge_step) -> None:
+        """Everything after the diagram: the robot, joints, frames, settings, obstacles."""
+        self.name = name
+        self.diagram = diagram
+        self.plant = diagram.plant()
+        self.scene_graph = diagram.scene_graph()
+        self.robot = self._find_robot(robot)
+        self.robot_name = self.plant.GetModelInstanceName(self.robot)
         self._edge_step = float(edge_step)
         self._cache: dict = {}  # results computed once (WorkcellQueries._memo)
-        self._build_diagram(spec, lines)
-        self._read_joints(cf, lines)
-        self._read_frames(cf, lines)
-        self._read_settings(cf, lines)
+        self._context = diagram.CreateDefaultContext()
+        try:
+            self.slice = RobotSlice(self.plant, self.robot,
+                                    self.plant.GetPositions(self.plant.GetMyContextFromRoot(self._context)))
+        except WorkcellError as e:
+            raise self._fail(str(e)) from None
+        self._note_held()
+        self._read_joints(joint_limits)
+        self._read_frames(tool_frame, base_frame, rail_joint)
+        self._read_settings(reach, height_map_origin, height_map_size, params, configurations)
         self.obstacles = self._find_obstacles()
         self._geometry_owner = {gid: obs.name for obs in self.obstacles.values() for gid in obs.geometry_ids}
 
-    def _build_diagram(self, spec, lines) -> None:
-        """The RobotDiagram from the directives; the robot's instance."""
-        cf, path = spec.cfvol, self.path
-        builder = RobotDiagramBuilder(time_step=0.0)
-        parser = builder.parser()
-        self._add_packages(parser.package_map())
-        self._directives = self._prepare_directives(spec.directives, parser.package_map())
-        try:
-            ProcessModelDirectives(ModelDirectives(directives=self._directives), builder.plant(), parser)
-        except Exception as e:  # Drake raises RuntimeError / ValueError here.
-            raise WorkcellFormatError(
-                str(path), f"Drake cannot load the model directives: {e}", lines.get("directives")) from e
-        plant = builder.plant()
-        if not plant.HasModelInstanceNamed(cf.robot):
-            names = [plant.GetModelInstanceName(ModelInstanceIndex(i)) for i in range(plant.num_model_instances())]
-            raise WorkcellFormatError(
-                str(path), f"cfvol.robot '{cf.robot}' is not a model instance of the directives "
-                f"(there are: {', '.join(names)}).", lines.get("robot"))
-        self.robot = plant.GetModelInstanceByName(cf.robot)
-        self.robot_name = cf.robot
-        plant.Finalize()
-        self.diagram = builder.Build()
-        self.plant = self.diagram.plant()
-        self.scene_graph = self.diagram.scene_graph()
-        self._context = self.diagram.CreateDefaultContext()
-
-    def _read_joints(self, cf, lines) -> None:
-        """The robot's joints, their kinds and limits (file overrides applied)."""
-        path = self.path
+    def _find_robot(self, robot):
         plant = self.plant
-        if plant.num_positions() != plant.num_positions(self.robot):
-            raise WorkcellFormatError(
-                str(path), "only the robot may have degrees of freedom: weld every obstacle to "
-                "the world (add_weld, or <static>true</static> in SDF).")
-        joints = [plant.get_joint(j) for j in plant.GetJointIndices(self.robot)]
-        joints = sorted((j for j in joints if j.num_positions() > 0), key=lambda j: j.position_start())
-        for j in joints:
-            if j.num_positions() != 1:
-                raise WorkcellFormatError(
-                    str(path), f"joint '{j.name()}' has {j.num_positions()} positions; only revolute "
-                    "and prismatic joints are supported.")
-        self.joint_names = [j.name() for j in joints]
-        self.revolute = np.array([j.type_name() == "revolute" for j in joints])
-        lower = plant.GetPositionLowerLimits().copy()
-        upper = plant.GetPositionUpperLimits().copy()
-        for jname, lim in cf.joint_limits.items():
-            if jname not in self.joint_names:
-                raise WorkcellFormatError(
-                    str(path), f"cfvol.joint_limits names joint '{jname}', which the robot lacks "
-                    f"(joints: {', '.join(self.joint_names)}).", lines.get(jname))
-            if not (len(lim) == 2 and float(lim[0]) < float(lim[1])):
-                raise WorkcellFormatError(
-                    str(path), f"cfvol.joint_limits.{jname} must be [lower, upper] with lower < upper.",
-                    lines.get(jname))
-            i = self.joint_names.index(jname)
-            lower[i], upper[i] = float(lim[0]), float(lim[1])
-        self.position_lower = lower
-        self.position_upper = upper
-        self.velocity_limits = plant.GetVelocityUpperLimits().copy()
-
-
-    def _read_frames(self, cf, lines) -> None:
-        """The tool and base frames and the rail joint."""
-        path, plant = self.path, self.plant
-        try:
-            self.tool_frame = plant.GetFrameByName(cf.tool_frame, self.robot)
-        except RuntimeError as e:
-            raise WorkcellFormatError(
-                str(path), f"cfvol.tool_frame '{cf.tool_frame}' is not a frame of '{cf.robot}'.",
-                lines.get("tool_frame")) from e
-        if cf.base_frame is None:
-            self.base_frame = self._robot_root(plant).body_frame()
-        else:
-            try:
-                self.base_frame = plant.GetFrameByName(cf.base_frame, self.robot)
-            except RuntimeError as e:
-                raise WorkcellFormatError(
-                    str(path), f"cfvol.base_frame '{cf.base_frame}' is not a frame of '{cf.robot}'.",
-                    lines.get("base_frame")) from e
-        self.rail_joint = cf.rail_joint
-        if self.rail_joint is not None and self.rail_joint not in self.joint_names:
-            raise WorkcellFormatError(
-                str(path), f"cfvol.rail_joint '{self.rail_joint}' is not a joint of the robot "
-                f"(joints: {', '.join(self.joint_names)}).", lines.get("rail_joint"))
-
-    def _read_settings(self, cf, lines) -> None:
-        """Reach, height map extent, parameter overrides, named configurations."""
-        path = self.path
-        self.reach = float(cf.reach or 0.0)
-        hm = cf.height_map
-        self.height_map_origin = np.asarray(hm.origin if hm and hm.origin else [np.nan, np.nan], float)
-        self.height_map_size = np.asarray(hm.size if hm and hm.size else [np.nan, np.nan], float)
-        for label, v in (("origin", self.height_map_origin), ("size", self.height_map_size)):
-            if v.shape != (2,):
-                raise WorkcellFormatError(str(path), f"cfvol.height_map.{label} must be [x, y] (m), got "
-                                          f"{v.size} values.", lines.get("height_map"))
-        self.params = dict(cf.params)
-        self.configurations: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        for cname, pair in cf.configurations.items():
-            start, goal = np.asarray(pair.start, float), np.asarray(pair.goal, float)
-            for label, q in (("start", start), ("goal", goal)):
-                if q.shape != (self.num_joints,):
-                    raise WorkcellFormatError(
-                        str(path), f"cfvol.configurations.{cname}.{label} has {q.size} values; the robot "
-                        f"has {self.num_joints} joints ({', '.join(self.joint_names)}).",
-                        lines.get(f"cfvol.configurations.{cname}.{label}", lines.get(cname)))
-            self.configurations[str(cname)] = (start, goal)
-
-    # -- loading helpers -------------------------------------------------
-
-    def _robot_root(self, plant):
-        bodies = [plant.get_body(b) for b in plant.GetBodyIndices(self.robot)]
-        for b in bodies:
-            parent = [j for j in (plant.get_joint(i) for i in plant.GetJointIndices(self.robot))
-                      if j.child_body().index() == b.index()]
-            if not parent:
-                return b
-        return bodies[0]
-
-    def _add_packages(self, package_map) -> None:
-        """The bundled models' package, then the file's ``package_paths``."""
-        package_map.AddPackageXml(str(models_dir() / "package.xml"))
-        for pname, ppath in self.spec.cfvol.package_paths.items():
-            folder = (self.path.parent / str(ppath)).resolve()
-            if not folder.is_dir():
-                raise WorkcellFormatError(
-                    str(self.path), f"cfvol.package_paths.{pname}: folder '{folder}' does not exist.",
-                    self._lines.get(pname, self._lines.get("package_paths")))
-            if package_map.Contains(str(pname)):
-                package_map.Remove(str(pname))
-            package_map.Add(str(pname), str(folder))
-
-    def _prepare_directives(self, directives: list, package_map) -> list:
-        """Resolves relative model files and converts STL meshes (Drake 1.51
-        refuses STL collision meshes); the typed directives are copied, not
-        changed."""
-        out = []
-        path = self.path
-        for d in directives:
-            d = copy.deepcopy(d)
-            if d.add_model is not None:
-                url = str(d.add_model.file)
-                if url.startswith("package://"):
-                    try:
-                        resolved = Path(package_map.ResolveUrl(url))
-                    except Exception as e:
-                        raise WorkcellFormatError(str(path), _meshes.package_url_error(url, e, package_map) + ".",
-                                                  self._lines.get("directives")) from None
-                elif url.startswith("file://"):
-                    resolved = Path(url[len("file://"):])
-                else:
-                    resolved = (path.parent / url).resolve()
-                if not resolved.is_file():
-                    raise WorkcellFormatError(
-                        str(path), f"model file '{url}' not found (looked at {resolved}).",
-                        self._lines.get("directives"))
-                converted, notes = _meshes.convert_stl_references(resolved, package_map)
-                self.notes.extend(notes)
-                d.add_model.file = "file://" + str(converted)
-            out.append(d)
-        return out
+        if isinstance(robot, ModelInstanceIndex):
+            if int(robot) >= plant.num_model_instances():
+                raise self._fail(f"robot {robot} is not a model instance of the plant.", "robot")
+            return robot
+        if not plant.HasModelInstanceNamed(str(robot)):
+            names = [plant.GetModelInstanceName(ModelInstanceIndex(i)) for i in range(plant.num_model_instances())]
+            where = "cfvol.robot" if self.path is not None else "robot"
+            raise self._fail(f"{where} '{robot}' is not a model instance of the plant (there are: "
+                             f"{', '.join(names)}).", "robot")
+        return plant.GetModelInstanceByName(str(robot))
 
     def _find_obstacles(self) -> dict[str, Obstacle]:
         plant = self.plant
         inspector = self.scene_graph.model_inspector()
         found: list[tuple[str, str, Any, tuple]] = []
+        mine = set(robot_bodies(plant, self.robot))
         for i in range(plant.num_bodies()):
             body = plant.get_body(BodyIndex(i))
-            if body.model_instance() == self.robot or body.index() == plant.world_body().index():
+            if body.index() in mine or body.index() == plant.world_body().index():
                 continue
             frame_id = plant.GetBodyFrameIdIfExists(body.index())
             if frame_id is None:
@@ -289,9 +232,8 @@ class Workcell(WorkcellQueries):
             key = name if counts[name] == 1 else scoped
             obstacles[key] = Obstacle(key, index, geoms)
         if not obstacles:
-            raise WorkcellFormatError(
-                str(self.path), "the workcell has no obstacles with proximity geometry; add at least "
-                "the floor as a body with a collision shape.")
+            raise self._fail("the workcell has no obstacles with proximity geometry; add at least the floor as a "
+                             "body with a collision shape.")
         return obstacles
 
     def add_to_plant(self, plant, parser=None):
@@ -299,9 +241,19 @@ class Workcell(WorkcellQueries):
 
         Returns:
             The robot's model instance in that plant.
+
+        Raises:
+            StationError: the workcell came from a RobotDiagram (its models
+                are the user's; use :meth:`build_scene`, or the user's own
+                plant with :func:`drake_cfvol.systems.AddCoManipulation`).
         """
+        if self._directives is None:
+            raise StationError(
+                f"workcell '{self.name}' came from a RobotDiagram, so it cannot add its models to another plant; "
+                "use Workcell.build_scene() (a clone of that diagram), or wire the systems into your own station "
+                "with drake_cfvol.systems.AddCoManipulation.")
         parser = parser or Parser(plant)
-        self._add_packages(parser.package_map())
+        add_packages(parser.package_map(), self.path, self.spec.cfvol.package_paths, self._lines)
         ProcessModelDirectives(ModelDirectives(directives=self._directives), plant, parser)
         return plant.GetModelInstanceByName(self.robot_name)
 
@@ -309,17 +261,27 @@ class Workcell(WorkcellQueries):
         """Builds a fresh ``RobotDiagram`` of this workcell.
 
         Args:
-            add_geometry: called as ``add_geometry(plant)`` before the plant
-                is finalized (e.g. to register the volume's boxes).
-            time_step: the plant's time step, s.
+            add_geometry: called as ``add_geometry(plant, scene_graph)`` to
+                add geometry (e.g. the volume's boxes): before the plant is
+                finalized for a workcell file; for a workcell from a
+                RobotDiagram, on a clone of it (a finalized plant: register
+                anchored geometry on the SceneGraph).
+            time_step: the plant's time step, s (a workcell from a
+                RobotDiagram keeps the diagram's own).
 
         Returns:
             (robot diagram, robot model instance)
         """
+        if self._directives is None:
+            diagram = self.diagram.Clone()
+            diagram.plant().SetDefaultPositions(self.slice.q_default)
+            if add_geometry is not None:
+                add_geometry(diagram.plant(), diagram.scene_graph())
+            return diagram, diagram.plant().GetModelInstanceByName(self.robot_name)
         builder = RobotDiagramBuilder(time_step=time_step)
         self.add_to_plant(builder.plant(), builder.parser())
         if add_geometry is not None:
-            add_geometry(builder.plant())
+            add_geometry(builder.plant(), builder.scene_graph())
         builder.plant().Finalize()
         diagram = builder.Build()
         return diagram, diagram.plant().GetModelInstanceByName(self.robot_name)

@@ -16,6 +16,9 @@
 - :class:`ReactiveCoworker`: a person reacting to the robot's position.
 - :class:`ClearanceMonitor`: clearance, collision and volume contact, through
   a SceneGraph's query port.
+- :func:`AddCoManipulation`: all of the above a station needs, added to a
+  user's own builder and wired to its plant and SceneGraph;
+  :class:`ToolPushForce`: a push at the tool as a real force on a plant.
 
 One system per module. Imports ``algorithm`` (the bounds table), ``scene``,
 ``kernel`` and ``io`` only.
@@ -29,6 +32,8 @@ from drake_cfvol.systems.humans import Push, RandomPushShaper, ReactiveCoworker,
 from drake_cfvol.systems.monitor import ClearanceMonitor
 from drake_cfvol.systems.path import PathProgress, safe_path_rate
 from drake_cfvol.systems.safety import SafetyFilter
+from drake_cfvol.systems.station import AddCoManipulation, CoManipulationSystems, ToolPushForce
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
-           "ClearanceMonitor", "HumanInputCheck", "HumanInputCheck_", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate"]
+           "ClearanceMonitor", "HumanInputCheck", "HumanInputCheck_", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate",
+           "AddCoManipulation", "CoManipulationSystems", "ToolPushForce"]

@@ -10,6 +10,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import BasicVector_, LeafSystem_, ValueProducer
 from pydrake.systems.scalar_conversion import TemplateSystem
 
+from drake_cfvol.scene.robot import RobotSlice
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.systems._util import _clip, _values, _vector
 
@@ -32,6 +33,7 @@ def AdmittanceDeformation_(T):
             - human_torque
             - human_wrench
             - hold (optional)
+            - measured_position (optional)
             output_ports:
             - commanded_position
             - deviation
@@ -42,7 +44,9 @@ def AdmittanceDeformation_(T):
         (N m, or N for prismatic joints); ``human_wrench`` is the spatial
         force [torque (N m); force (N)] at the tool frame's origin, expressed
         in the world frame, mapped through the tool's spatial Jacobian at the
-        current commanded configuration. Either may be left unconnected.
+        ``measured_position`` if that input is connected (a robot that tracks
+        its command with an error), else at the current commanded
+        configuration. Either push may be left unconnected.
 
         The output is ``commanded_position = clamp(nominal + d, lower,
         upper)``; it depends on the state and the nominal and bounds only, so
@@ -87,10 +91,13 @@ def AdmittanceDeformation_(T):
             stiffness: K, N m/rad (N/m) towards the nominal; >= 0.
             period: update period, s; > 0.
             plant, tool_frame: needed only when ``human_wrench`` is
-                connected: the robot's plant (finalized; its positions are the
-                k joints) and the tool frame. The Jacobian is computed in a
-                plant context kept in this system's own context (a cache
-                entry used as scratch).
+                connected: the robot's plant (finalized) and the tool frame.
+                The Jacobian is computed in a plant context kept in this
+                system's own context (a cache entry used as scratch).
+            robot: the robot's model instance in ``plant``; needed when the
+                plant holds more degrees of freedom than the k joints (a
+                gripper, free parts: held at their default in the scratch
+                context).
             velocity_limits: (k,) joint velocity limits, rad/s (m/s; inf: no
                 limit), or None (no limit).
             path_share: see above; in (0, 1).
@@ -98,7 +105,7 @@ def AdmittanceDeformation_(T):
 
         def _construct(self, k: int, *, mass=10.0, damping=200.0, stiffness=400.0, period: float = 0.01,
                        plant=None, tool_frame=None, velocity_limits=None, path_share: float = 0.5,
-                       converter=None):
+                       robot=None, converter=None):
             LeafSystem_[T].__init__(self, converter)
             if not period > 0:
                 raise ParameterError(f"period must be > 0 s, got {period}.")
@@ -119,8 +126,15 @@ def AdmittanceDeformation_(T):
                 if np.any(np.isnan(vl)) or np.any(vl <= 0):
                     raise ParameterError(f"velocity_limits must be > 0 (inf: no limit), got {vl.tolist()}.")
                 self.max_rate = (1.0 - self.path_share) * vl
-            if plant is not None and plant.num_positions() != k:
-                raise DimensionError("the plant's positions", k, plant.num_positions())
+            self._slice = None
+            if plant is not None:
+                if robot is None and plant.num_positions() != k:
+                    raise DimensionError("the plant's positions", k, plant.num_positions(),
+                                         "Pass robot= (the robot's model instance) for a plant that holds more.")
+                self._slice = RobotSlice(plant, robot) if robot is not None else None
+                if self._slice is not None and self._slice.k != k:
+                    raise DimensionError("the robot's joints", k, self._slice.k)
+            self._robot = robot
             self._plant = plant
             self._tool = tool_frame
             self.mass_parameter = self.DeclareNumericParameter(BasicVector_[T](self.M))
@@ -139,6 +153,7 @@ def AdmittanceDeformation_(T):
             self.human_torque_input = self.DeclareVectorInputPort(name="human_torque", size=k)
             self.human_wrench_input = self.DeclareVectorInputPort(name="human_wrench", size=6)
             self.hold_input = self.DeclareVectorInputPort(name="hold", size=1)
+            self.measured_position_input = self.DeclareVectorInputPort(name="measured_position", size=k)
             self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
             self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
             self.commanded_position_output = self.DeclareVectorOutputPort(
@@ -153,7 +168,7 @@ def AdmittanceDeformation_(T):
         def _construct_copy(self, other, converter=None):
             Impl._construct(self, other.k, mass=other.M, damping=other.D, stiffness=other.K, period=other.period,
                             plant=other._plant, tool_frame=other._tool, velocity_limits=other._velocity_limits,
-                            path_share=other.path_share, converter=converter)
+                            path_share=other.path_share, robot=other._robot, converter=converter)
 
         def gains(self, context) -> tuple:
             """(M, D, K) of this context (the numeric parameters)."""
@@ -198,10 +213,17 @@ def AdmittanceDeformation_(T):
                     raise ParameterError("AdmittanceDeformation: 'human_wrench' is connected but no plant and "
                                          "tool_frame were given to map it through the Jacobian.")
                 pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
-                self._plant.SetPositions(pctx, _values(q))
+                if self.measured_position_input.HasValue(context):
+                    q = self.measured_position_input.Eval(context)
+                if self._slice is not None:
+                    self._slice.set_positions(pctx, _values(q))
+                else:
+                    self._plant.SetPositions(pctx, _values(q))
                 J = self._plant.CalcJacobianSpatialVelocity(
                     pctx, JacobianWrtVariable.kQDot, self._tool, np.zeros(3),
                     self._plant.world_frame(), self._plant.world_frame())
+                if self._slice is not None:
+                    J = self._slice.columns(J, "qdot")
                 tau = tau + J.T @ w
             return tau
 

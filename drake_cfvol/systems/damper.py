@@ -13,6 +13,8 @@ import numpy as np
 from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Sphere
 from pydrake.multibody.tree import JacobianWrtVariable
 
+from drake_cfvol.scene.robot import RobotSlice, robot_bodies
+
 __all__ = ["DamperRows", "VelocityDamper"]
 
 #: The Levi-Civita symbol arranged so that (r @ _EPS).reshape(3, 3) is the
@@ -115,7 +117,9 @@ class VelocityDamper:
     term (see :class:`~drake_cfvol.systems.safety.SafetyFilter`).
 
     Args:
-        plant: the finalized MultibodyPlant (the robot's k joints).
+        plant: the finalized MultibodyPlant (the robot's k joints, and any
+            other degrees of freedom: held at their default in the scratch
+            context the Jacobians are taken in).
         scene_graph: its SceneGraph.
         robot: the robot's model instance.
         obstacle_ids: the obstacles' geometry ids (None: every proximity
@@ -127,7 +131,8 @@ class VelocityDamper:
 
     def __init__(self, plant, scene_graph, robot, *, obstacle_ids, target_distance: float,
                  influence_distance: float, rate: float):
-        self.k = plant.num_positions()
+        self._slice = RobotSlice(plant, robot)
+        self.k = self._slice.k
         self.target_distance = float(target_distance)
         self.influence_distance = float(influence_distance)
         self.rate = float(rate)
@@ -177,7 +182,7 @@ class VelocityDamper:
         inspector = scene_graph.model_inspector()
         moved = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices(robot))))
         robot_ids, moving = [], set()
-        for b in plant.GetBodyIndices(robot):
+        for b in robot_bodies(plant, robot):
             ids = plant.GetCollisionGeometriesForBody(plant.get_body(b))
             robot_ids.extend(ids)
             if b in moved:
@@ -222,7 +227,7 @@ class VelocityDamper:
             moved = set(plant.GetBodiesKinematicallyAffectedBy([j]))
             for n, body in enumerate(self._bodies):
                 if body.index() in moved:
-                    self._rev[n, joint.velocity_start()] = 1.0
+                    self._rev[n, self._slice.velocity_index(joint)] = 1.0
 
     def rows(self, pctx, query, q, measure=None) -> DamperRows:
         """The damper's rows at q (``pctx``: a plant context to pose; ``query``:
@@ -238,7 +243,7 @@ class VelocityDamper:
                 the others' distances are NaN.
         """
         plant = self._plant
-        plant.SetPositions(pctx, q)
+        self._slice.set_positions(pctx, q)
         world = plant.world_frame()
         rows, rhs = [], []
         ends = []  # per row: ((slot, p_W) of side A, of side B); slot -1: welded
@@ -251,8 +256,8 @@ class VelocityDamper:
             body = side[0]
             if body.index() not in kin:
                 X_WB = plant.EvalBodyPoseInWorld(pctx, body)
-                J = plant.CalcJacobianSpatialVelocity(pctx, JacobianWrtVariable.kV, body.body_frame(), np.zeros(3),
-                                                      world, world)
+                J = self._slice.columns(plant.CalcJacobianSpatialVelocity(
+                    pctx, JacobianWrtVariable.kV, body.body_frame(), np.zeros(3), world, world))
                 kin[body.index()] = (X_WB.rotation().matrix(), X_WB.translation(), J[:3], J[3:])
             R, o, J_w, J_v = kin[body.index()]
             # v_P = v_Bo + w x r, r = p_P - p_Bo: J_P = J_v - [r]x J_w, with
@@ -370,9 +375,9 @@ class VelocityDamper:
         used = np.unique(rows.slots[rows.slots >= 0])
         moved = np.zeros((len(self._bodies) + 1, 3, 4))  # per slot: [R | t] of X_WB(q + dq) X_WB(q)^-1
         moved[-1, :, :3] = np.eye(3)  # slot -1: welded
-        plant.SetPositions(pctx, q)
+        self._slice.set_positions(pctx, q)
         before = {n: plant.EvalBodyPoseInWorld(pctx, self._bodies[n]) for n in used}
-        plant.SetPositions(pctx, q + dq)
+        self._slice.set_positions(pctx, q + dq)
         for n in used:
             X = plant.EvalBodyPoseInWorld(pctx, self._bodies[n]).multiply(before[n].inverse())
             moved[n, :, :3], moved[n, :, 3] = X.rotation().matrix(), X.translation()
@@ -394,9 +399,9 @@ class VelocityDamper:
         configurations the steps go through.)"""
         plant = self._plant
         moved = np.zeros(len(self._bodies) + 1)  # the last slot: welded, 0
-        plant.SetPositions(pctx, q)
+        self._slice.set_positions(pctx, q)
         before = [plant.EvalBodyPoseInWorld(pctx, body) for body in self._bodies]
-        plant.SetPositions(pctx, q_next)
+        self._slice.set_positions(pctx, q_next)
         for n, body in enumerate(self._bodies):
             after = plant.EvalBodyPoseInWorld(pctx, body)
             turn = before[n].rotation().InvertAndCompose(after.rotation()).ToAngleAxis().angle()

@@ -113,6 +113,7 @@ from pydrake.solvers import ClarabelSolver, MathematicalProgram
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.scene.robot import RobotSlice
 from drake_cfvol.systems.damper import DamperRows, VelocityDamper
 
 __all__ = ["SafetyFilter", "StagedQP"]
@@ -232,6 +233,21 @@ class StagedQP:
         return x if box_soft else np.clip(x, lo, hi)
 
 
+def _check_parameters(period, clearance, allowance, influence_distance, damper_gain) -> None:
+    """Raises ParameterError naming the first of SafetyFilter's scalar parameters that is out of range."""
+    if not period > 0:
+        raise ParameterError(f"SafetyFilter: period must be > 0 s, got {period}.")
+    if not clearance >= 0:
+        raise ParameterError(f"SafetyFilter: clearance must be >= 0 m, got {clearance}.")
+    if not allowance >= 0:
+        raise ParameterError(f"SafetyFilter: allowance must be >= 0 m, got {allowance}.")
+    if not influence_distance > clearance + allowance:
+        raise ParameterError(f"SafetyFilter: influence_distance ({influence_distance} m) must exceed the "
+                             f"clearance plus the allowance ({clearance} + {allowance} m).")
+    if not damper_gain > 0:
+        raise ParameterError(f"SafetyFilter: damper_gain must be > 0 m/s, got {damper_gain}.")
+
+
 class SafetyFilter(LeafSystem):
     """The commanded position closest to the one asked for that keeps the
     velocity limits, the box ahead and the clearance margin.
@@ -244,9 +260,11 @@ class SafetyFilter(LeafSystem):
         - lower
         - upper
         - nominal (optional)
+        - measured_position (optional)
         - query_object
         output_ports:
         - commanded_position
+        - commanded_velocity
         - filter_active
         - filter_count
         - min_distance
@@ -272,10 +290,9 @@ class SafetyFilter(LeafSystem):
 
     Args:
         plant: the finalized MultibodyPlant registered with ``scene_graph``;
-            its positions and velocities are the robot's k joints (a
-            revolute or prismatic joint each), other bodies welded.
-        scene_graph: the diagram's SceneGraph (its model inspector gives the
-            geometry, the bodies and the collision filters).
+            the robot's k joints are a revolute or prismatic joint each
+            (other degrees of freedom may be there: a gripper, free parts).
+        scene_graph: the diagram's SceneGraph (geometry, bodies, collision filters).
         robot: the robot's model instance in ``plant``.
         velocity_limits: (k,) rad/s (m/s; inf: none); default: the plant's.
         obstacle_ids: the real obstacles' geometry ids (default: every
@@ -317,22 +334,8 @@ class SafetyFilter(LeafSystem):
                  period: float = 0.01, acceleration_limits=None, initial_position=None, allowance: float = 0.001,
                  skip_far_pairs: bool = True):
         super().__init__()
-        k = plant.num_positions()
-        if plant.num_velocities() != k or plant.num_positions(robot) != k:
-            raise ParameterError("SafetyFilter: the plant's positions and velocities must be the robot's joints "
-                                 f"(positions {k}, velocities {plant.num_velocities()}, robot's "
-                                 f"{plant.num_positions(robot)}).")
-        if not period > 0:
-            raise ParameterError(f"SafetyFilter: period must be > 0 s, got {period}.")
-        if not clearance >= 0:
-            raise ParameterError(f"SafetyFilter: clearance must be >= 0 m, got {clearance}.")
-        if not allowance >= 0:
-            raise ParameterError(f"SafetyFilter: allowance must be >= 0 m, got {allowance}.")
-        if not influence_distance > clearance + allowance:
-            raise ParameterError(f"SafetyFilter: influence_distance ({influence_distance} m) must exceed the "
-                                 f"clearance plus the allowance ({clearance} + {allowance} m).")
-        if not damper_gain > 0:
-            raise ParameterError(f"SafetyFilter: damper_gain must be > 0 m/s, got {damper_gain}.")
+        k = RobotSlice(plant, robot).k
+        _check_parameters(period, clearance, allowance, influence_distance, damper_gain)
         self.k = k
         self.period = float(period)
         self.clearance = float(clearance)
@@ -343,8 +346,8 @@ class SafetyFilter(LeafSystem):
         self.target_distance = self.clearance + self.allowance
         #: The damper's rate, 1/s: min(xi / (d_inf - d_s), 1 / dt).
         self.rate = min(self.damper_gain / (self.influence_distance - self.target_distance), 1.0 / self.period)
-        self.velocity_limits = _limits(plant.GetVelocityUpperLimits() if velocity_limits is None
-                                       else velocity_limits, k, "velocity_limits")
+        self.velocity_limits = _limits(plant.GetVelocityUpperLimits()[RobotSlice(plant, robot).vidx]
+                                       if velocity_limits is None else velocity_limits, k, "velocity_limits")
         # Commanded at most this: a hair (1e-9) under the limits, so that
         # rounding in q + v dt never shows a step above them.
         self._vmax = self.velocity_limits * (1.0 - _HAIR)
@@ -365,6 +368,7 @@ class SafetyFilter(LeafSystem):
         self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
         self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
         self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=k)
+        self.measured_position_input = self.DeclareVectorInputPort(name="measured_position", size=k)
         self.query_object_input = self.DeclareAbstractInputPort(
             name="query_object", model_value=AbstractValue.Make(QueryObject()))
         self._position = self.DeclareDiscreteState(q0)
@@ -382,6 +386,7 @@ class SafetyFilter(LeafSystem):
             prerequisites_of_calc={self.nothing_ticket()})
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
         self.commanded_position_output = self.DeclareStateOutputPort("commanded_position", self._position)
+        self.commanded_velocity_output = self.DeclareStateOutputPort("commanded_velocity", self._velocity)
         status = [("filter_active", _ACTIVE), ("filter_count", _COUNT), ("min_distance", _MIN_DISTANCE),
                   ("velocity_ratio", _RATIO), ("fallback_count", _FALLBACKS), ("damper_misses", _MISSES),
                   ("box_exits", _EXITS)]
@@ -400,24 +405,32 @@ class SafetyFilter(LeafSystem):
     def _pctx(self, context):
         return self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
 
+    def base_position(self, context) -> np.ndarray:
+        """Where the rows are taken: the ``measured_position`` input if it
+        is connected (a robot that tracks its command with an error; the
+        SceneGraph is posed from the measured state), else the commanded
+        position (the SceneGraph posed from this filter's output)."""
+        if self.measured_position_input.HasValue(context):
+            return np.asarray(self.measured_position_input.Eval(context), float)
+        return context.get_discrete_state(self._position).CopyToVector()
+
     def damper_rows(self, context, measure=None) -> DamperRows:
-        """The damper's rows at the commanded position of ``context``
-        (:meth:`VelocityDamper.rows`): A v >= b to first order, before the
-        second-order term and the relaxation towards the nominal.
+        """The damper's rows at :meth:`base_position` (:meth:`VelocityDamper.rows`):
+        A v >= b to first order, before the second-order term and the
+        relaxation towards the nominal.
 
         Args:
             measure: (pairs,) bools, the pairs to measure (default all);
                 the others' distances are NaN.
         """
-        q = context.get_discrete_state(self._position).CopyToVector()
+        q = self.base_position(context)
         return self._damper.rows(self._pctx(context), self.query_object_input.Eval(context), q, measure)
 
     def second_order(self, context, rows: DamperRows, dq) -> np.ndarray:
-        """Per row, how far a joint step ``dq`` from the commanded position
-        of ``context`` falls short of the row's first-order change, m
+        """Per row, how far a joint step ``dq`` from :meth:`base_position`
+        falls short of the row's first-order change, m
         (:meth:`VelocityDamper.second_order`)."""
-        q = context.get_discrete_state(self._position).CopyToVector()
-        return self._damper.second_order(self._pctx(context), q, rows, dq)
+        return self._damper.second_order(self._pctx(context), self.base_position(context), rows, dq)
 
     def _next_budget(self, context, q, q_next, budget, dists):
         """Each pair's certain distance beyond the influence distance after
@@ -465,7 +478,9 @@ class SafetyFilter(LeafSystem):
                 target = np.clip(target, v_last - step, v_last + step)
             v_t = np.clip(target, lo, hi)
             budget = context.get_discrete_state(self._budget).CopyToVector()[:self._damper.num_pairs]
-            measure = budget < 0 if self.skip_far_pairs else np.ones(self._damper.num_pairs, bool)
+            measured = self.measured_position_input.HasValue(context)
+            skip = self.skip_far_pairs and not measured  # a measured robot moves on its own: measure all
+            measure = budget < 0 if skip else np.ones(self._damper.num_pairs, bool)
             try:
                 rows = self.damper_rows(context, measure)
             except RuntimeError:
@@ -487,7 +502,7 @@ class SafetyFilter(LeafSystem):
         acted = (not sane) or bool(np.any(np.abs(q_next - desired) > _CHANGED))
         discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
         discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
-        if sane and self._damper.num_pairs:
+        if sane and self._damper.num_pairs and not self.measured_position_input.HasValue(context):
             discrete_state.get_mutable_vector(self._budget).SetFromVector(
                 self._next_budget(context, q, q_next, budget, dists))
         else:  # measure every pair at the next update
@@ -507,9 +522,13 @@ class SafetyFilter(LeafSystem):
         solves; the right-hand sides only grow)."""
         A, h = rows.A, self.period
         relax = nominal is not None and np.all(np.isfinite(nominal))
+        # The rows are taken at the base (the measured position, if given):
+        # the step they see runs from there to the next command, q + v h.
+        offset = q - self.base_position(context)
+        shift = A @ offset / h if len(rows.b) else rows.b
 
         def need(v):
-            b = rows.b + self.second_order(context, rows, v * h) / h
+            b = rows.b - shift + self.second_order(context, rows, offset + v * h) / h
             return _relax(q, nominal, lo, hi, A, b, self.velocity_limits, self.period) if relax else b
 
         if not len(rows.b):

@@ -1,0 +1,81 @@
+"""A workcell file's model directives made into a Drake ``RobotDiagram``:
+its packages (the bundled models', the file's ``package_paths``), model
+files resolved against the file's folder, STL meshes converted (Drake 1.51
+refuses STL collision meshes)."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+from pydrake.multibody.parsing import ModelDirectives, ProcessModelDirectives
+from pydrake.planning import RobotDiagramBuilder
+
+from drake_cfvol.exceptions import WorkcellFormatError
+from drake_cfvol.scene import meshes as _meshes
+from drake_cfvol.scene.schema import models_dir
+
+__all__ = ["add_packages", "diagram_from_directives", "prepare_directives"]
+
+
+def add_packages(package_map, path: Path, package_paths: dict, lines: dict) -> None:
+    """Adds the bundled models' package, then the file's ``package_paths``
+    (folders relative to the file at ``path``)."""
+    package_map.AddPackageXml(str(models_dir() / "package.xml"))
+    for pname, ppath in package_paths.items():
+        folder = (path.parent / str(ppath)).resolve()
+        if not folder.is_dir():
+            raise WorkcellFormatError(str(path), f"cfvol.package_paths.{pname}: folder '{folder}' does not exist.",
+                                      lines.get(pname, lines.get("package_paths")))
+        if package_map.Contains(str(pname)):
+            package_map.Remove(str(pname))
+        package_map.Add(str(pname), str(folder))
+
+
+def prepare_directives(directives: list, package_map, path: Path, lines: dict, notes: list) -> list:
+    """Copies of the typed directives with model files resolved (relative to
+    the file at ``path``) and STL meshes converted; what the conversion did
+    is appended to ``notes``."""
+    out = []
+    for d in directives:
+        d = copy.deepcopy(d)
+        if d.add_model is not None:
+            url = str(d.add_model.file)
+            if url.startswith("package://"):
+                try:
+                    resolved = Path(package_map.ResolveUrl(url))
+                except Exception as e:
+                    raise WorkcellFormatError(str(path), _meshes.package_url_error(url, e, package_map) + ".",
+                                              lines.get("directives")) from None
+            elif url.startswith("file://"):
+                resolved = Path(url[len("file://"):])
+            else:
+                resolved = (path.parent / url).resolve()
+            if not resolved.is_file():
+                raise WorkcellFormatError(str(path), f"model file '{url}' not found (looked at {resolved}).",
+                                          lines.get("directives"))
+            converted, more = _meshes.convert_stl_references(resolved, package_map)
+            notes.extend(more)
+            d.add_model.file = "file://" + str(converted)
+        out.append(d)
+    return out
+
+
+def diagram_from_directives(path: Path, spec, lines: dict, notes: list):
+    """The RobotDiagram of a workcell file's directives.
+
+    Returns:
+        (diagram, the prepared directives: for adding the same models to
+        another plant)
+    """
+    builder = RobotDiagramBuilder(time_step=0.0)
+    parser = builder.parser()
+    add_packages(parser.package_map(), path, spec.cfvol.package_paths, lines)
+    directives = prepare_directives(spec.directives, parser.package_map(), path, lines, notes)
+    try:
+        ProcessModelDirectives(ModelDirectives(directives=directives), builder.plant(), parser)
+    except Exception as e:  # Drake raises RuntimeError / ValueError here.
+        raise WorkcellFormatError(str(path), f"Drake cannot load the model directives: {e}",
+                                  lines.get("directives")) from e
+    builder.plant().Finalize()
+    return builder.Build(), directives
