@@ -230,7 +230,7 @@ def test_table_loaded_from_disk_builds_a_diagram(tmp_path):
 
     scenario, file = load_scenario("automotive_push", scenario_text=FAST)
     wc = cf.load_workcell(scenario.cell)
-    path = cf.plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed)
+    path = cf.plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.random_seed)
     table = cf.estimate_bounds(wc, path, resolution=scenario.resolution)
     loaded = cf.BoundsTable.load(table.save(tmp_path / "b.npz"))
     assert loaded.volume is None
@@ -296,9 +296,9 @@ def test_scenario_text_overrides_the_file():
     value, nested configs merge."""
     base, _ = load_scenario("automotive_push")
     s, _ = load_scenario("automotive_push", scenario_text="{resolution: 2000, simulator_config: "
-                                                          "{target_realtime_rate: 0.5}, random_pushes: {seed: 11}}")
+                                                          "{target_realtime_rate: 0.5}, random_pushes: {max_torque: 11.0}}")
     assert s.resolution == 2000 and s.simulator_config.target_realtime_rate == 0.5
-    assert s.random_pushes.seed == 11 and s.random_pushes.count == base.random_pushes.count
+    assert s.random_pushes.max_torque == 11.0 and s.random_pushes.count == base.random_pushes.count
     assert s.pushes == base.pushes and s.path == base.path
     assert s.simulator_config.integration_scheme == base.simulator_config.integration_scheme
 
@@ -402,7 +402,7 @@ def test_scenario_certify_asks_for_certified_bounds(monkeypatch):
     for flag in ("true", "false"):
         scenario, file = load_scenario("automotive_reactive", scenario_text=f"{{certify: {flag}, resolution: 200}}")
         build_comanipulation_diagram(scenario, base_dir=file.parent)
-    assert asked[0] == Certify(seed=scenario.seed) and asked[1] is None
+    assert asked[0] == Certify(seed=scenario.random_seed) and asked[1] is None
 
 
 # Certifies automotive path 1 with the boundary proof (~170 s, shared within the

@@ -262,15 +262,14 @@ def test_add_comanipulation_ports_on_a_plant_with_more_dofs(station_bounds):
     assert cm.duration == pytest.approx((table.g - 1) / rate)
     diagram = builder.Build()
     ctx = diagram.CreateDefaultContext()
-    x = cm.desired_state_output.Eval(cm.desired_state.GetMyContextFromRoot(ctx))
+    x = cm.desired_state_output.Eval(cm.safety.GetMyContextFromRoot(ctx))
     np.testing.assert_array_equal(x, np.concatenate([table.nominal[0], np.zeros(7)]))
 
 
-def test_add_comanipulation_refuses_a_table_of_other_joints(station_bounds, automotive):
+def test_add_comanipulation_refuses_a_table_of_other_joints(station_bounds, bounded):
     """A table for another robot, an unknown robot or frame: a StationError that names it."""
     _, table = station_bounds
-    other = cf.estimate_bounds(automotive, cf.plan_nominal_path(automotive, *automotive.configuration("path1"),
-                                                                seed=0), resolution=200)
+    other = bounded("automotive")
     builder = DiagramBuilder()
     plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
     add_station_models(plant, Parser(plant))

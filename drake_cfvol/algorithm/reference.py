@@ -33,7 +33,7 @@ MAX_REFERENCE_BOXES = 3000
 
 
 def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35), visual: bool = True,
-                          boxes=None, scene_graph=None) -> list:
+                          boxes=None, scene_graph=None, proximity: bool = True) -> list:
     """Registers the volume's columns on the world body of a plant (before
     ``Finalize``): proximity geometry, and an illustration if ``visual``.
     A finalized plant's are registered on its SceneGraph instead, as
@@ -43,6 +43,8 @@ def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35
         boxes: (centres, sizes) to register instead of one box per column
             (e.g. :meth:`Volume.merged_boxes`).
         scene_graph: the plant's SceneGraph (needed for a finalized plant).
+        proximity: register proximity geometry (False: an illustration
+            only, e.g. in a simulated plant, where the boxes must not push).
 
     Returns:
         The proximity ``GeometryId`` of each box.
@@ -54,8 +56,9 @@ def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35
     ids = []
     for i, (c, s) in enumerate(zip(centres, sizes)):
         X_WC = RigidTransform(c)
-        ids.append(plant.RegisterCollisionGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}{i}",
-                                                   CoulombFriction(0.5, 0.5)))
+        if proximity:
+            ids.append(plant.RegisterCollisionGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}{i}",
+                                                       CoulombFriction(0.5, 0.5)))
         if visual:
             plant.RegisterVisualGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}visual_{i}",
                                          np.asarray(colour))

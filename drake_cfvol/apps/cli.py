@@ -138,11 +138,22 @@ def _bundled_scenarios() -> list[str]:
     return sorted(p.name[:-5] for p in resources.files("drake_cfvol.diagrams").iterdir() if p.name.endswith(".yaml"))
 
 
+def _path_to_bound(args, wc, label: str, clearance: float):
+    """The saved path of ``--path-file`` (checked against the cell), or one planned."""
+    if args.path_file:
+        from drake_cfvol.algorithm.reuse import load_path_for
+
+        return load_path_for(wc, _out_path(args.path_file))
+    from drake_cfvol.algorithm.planning import plan_nominal_path
+
+    wc.configuration(label)
+    return plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label, clearance=clearance)
+
+
 def cmd_bounds(args) -> int:
     from drake_cfvol.algorithm.metrics import confidence_factor, freedom, shown_percent
     from drake_cfvol.scene.params import VolumeParams
     from drake_cfvol.algorithm.pipeline import estimate_bounds
-    from drake_cfvol.algorithm.planning import plan_nominal_path
     from drake_cfvol.algorithm.volume import height_map_of
     from drake_cfvol.scene.workcell import load_workcell
 
@@ -168,10 +179,9 @@ def cmd_bounds(args) -> int:
         for kind, ext in (("bounds", ".npz"), ("bounds", ".json"), ("path", ".json")):
             prepare_output(out / f"{stem}_{kind}{ext}", overwrite=args.force)
     # Check the configuration pair and the resolution (and its memory) before planning.
-    wc.configuration(label)
     params = VolumeParams.for_workcell(wc, resolution=args.resolution, clearance=args.clearance)
     height_map_of(wc, params)
-    path = plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label, clearance=params.clearance)
+    path = _path_to_bound(args, wc, label, params.clearance)
     bars = not args.json
     certify = None
     if args.certify:
@@ -221,11 +231,20 @@ def cmd_bounds(args) -> int:
 def cmd_simulate(args) -> int:
     from drake_cfvol.comanip import load_scenario, run_scenario
 
-    load_scenario(args.scenario, scenario_text=args.scenario_text)  # every field checked before planning
+    files = {name: str(_out_path(getattr(args, name))) for name in ("path_file", "bounds_file")
+             if getattr(args, name)}
+    # Every field checked before planning.
+    load_scenario(args.scenario, scenario_text=args.scenario_text, overrides=files)
     out = _out_path(args.out) or Path("out").resolve() / Path(args.scenario).stem
+    created = not out.exists()
     prepare_output(out, overwrite=True, folder=True)
-    summary = run_scenario(args.scenario, out, record=not args.no_record, progress=not args.json,
-                           scenario_text=args.scenario_text)
+    try:
+        summary = run_scenario(args.scenario, out, record=not args.no_record, progress=not args.json,
+                               scenario_text=args.scenario_text, overrides=files)
+    except BaseException:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # a failed run leaves no empty folder behind
+        raise
     for note in summary.get("notices", []):
         print(f"cfvol: note: {note}", file=sys.stderr)
     _emit(summary, args.json)
@@ -338,6 +357,8 @@ def _add_bounds(sub) -> None:
     b.add_argument("--path", default="1", help="configuration pair: 1, 2, 3 or a name (default 1)")
     b.add_argument("--resolution", "-R", type=int, default=1000, help="height-map cells R (default 1000)")
     b.add_argument("--seed", type=int, default=0, help="planner and CF seed (default 0)")
+    b.add_argument("--path-file", help="a saved path (cfvol plan --out) to bound instead of planning one; checked "
+                   "against the cell")
     b.add_argument("--backend", choices=["fast", "drake"], default="fast",
                    help="fast (any R) or drake (reference, one SceneGraph box per column)")
     b.add_argument("--cf-windows", type=int, default=30, help="CF time windows N_tw (default 30)")
@@ -372,6 +393,10 @@ def _add_simulate(sub) -> None:
     m.add_argument("scenario", help=f"bundled scenario name ({', '.join(_bundled_scenarios())}) or a YAML path")
     m.add_argument("--out", help="output folder (default out/<scenario>)")
     m.add_argument("--no-record", action="store_true", help="skip the Meshcat recording")
+    m.add_argument("--path-file", help="a saved path (cfvol plan/bounds --out) instead of planning; checked against "
+                   "the scenario's cell")
+    m.add_argument("--bounds-file", help="a saved bounds table (cfvol bounds --out) instead of bounding; checked "
+                   "against the cell")
     m.add_argument("--scenario-text", help="YAML overriding the scenario's fields, e.g. "
                    "'{resolution: 2000, random_pushes: {seed: 3}}'")
     m.add_argument("--json", action="store_true", help="print one JSON object")

@@ -43,13 +43,13 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
               f"{p.stats['total_time_ms']:>9.1f}  {p.sha256[:12]}")
 
     scenario, _ = load_scenario("automotive_push")
-    path = paths[scenario.path] if scenario.seed == seed else None
+    path = paths[scenario.path] if scenario.random_seed == seed else None
     if path is None:
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.random_seed, label=scenario.path,
                              clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
     print(f"\n2. Bounds for {path.label} at R = {resolution}" + (", certified" if scenario.certify else ""))
     table = estimate_bounds(wc, path, resolution=resolution, progress=True,
-                            certify=Certify(seed=scenario.seed) if scenario.certify else None)
+                            certify=Certify(seed=scenario.random_seed) if scenario.certify else None)
     cf = confidence_factor(wc, table, samples=2000 if quick else 10000, seed=seed, progress=True)
     fr = freedom(table, wc.revolute)
     stem = output_stem(wc.name, path.label, resolution, certified=scenario.certify)

@@ -119,11 +119,11 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
     scenario, _ = load_scenario(name)
     wc = load_workcell(scenario.cell)
     if path is None:
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.random_seed, label=scenario.path,
                              clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
     if bounds is None:
         bounds = estimate_bounds(wc, path, resolution=scenario.resolution, **dict(scenario.params),
-                                 certify=Certify(seed=scenario.seed) if certify else None)
+                                 certify=Certify(seed=scenario.random_seed) if certify else None)
     seeds = list(range(runs)) if seeds is None else list(seeds)
     margin_default = float(bounds.params.get("clearance", 0.0)) if clearance is None else float(clearance)
     nominal_clearance: dict[float, float] = {}
@@ -151,7 +151,7 @@ def _push_text(wc, path, pattern, seed, n_seeds, torque, certify, safety_filter,
     text = f"{{certify: {str(certify).lower()}, collision_guard: {str(safety_filter).lower()}, "
     if pattern == "random_pushes":
         signs = np.zeros(k)
-        text += f"random_pushes: {{seed: {int(seed)}}}"
+        text += f"random_seed: {int(seed)}"
     else:
         if pattern == "nearest":
             at = int(round(seed * (path.g - 1) / max(n_seeds - 1, 1))) % path.g
@@ -261,12 +261,12 @@ def adversarial_suite(cell: str, runs: int = 16, patterns=PATTERNS, *, torque: f
     scenario, _ = load_scenario(f"{cell}_push")
     wc = load_workcell(scenario.cell)
     params = dict(scenario.params)
-    path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
+    path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.random_seed, label=scenario.path,
                              clearance=VolumeParams.for_workcell(wc, **params).clearance)
     tables = {"uncertified": estimate_bounds(wc, path, resolution=scenario.resolution, **params)}
     t0 = time.perf_counter()
     tables["certified"] = estimate_bounds(wc, path, resolution=scenario.resolution, **params,
-                                          certify=Certify(seed=scenario.seed))
+                                          certify=Certify(seed=scenario.random_seed))
     certify_s = time.perf_counter() - t0
     out = {"cell": cell, "clearance_m": float(tables["certified"].params.get("clearance", 0.0)),
            "certify_s": certify_s, "certificate_cached": bool(tables["certified"].info["certificate"].get("cached")),

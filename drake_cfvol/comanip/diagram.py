@@ -39,10 +39,13 @@ from drake_cfvol.systems import (
     ScriptedHuman,
     safe_path_rate,
 )
+from drake_cfvol.comanip.dynamics import add_driver, add_simulated_plant
 from drake_cfvol.comanip.recording import show_tool_path
 from drake_cfvol.algorithm.volume import build_volume, height_map_of
-from drake_cfvol.scene.workcell import geometry_key, load_workcell, robot_geometry_ids
-from drake_cfvol.comanip.scenario import Scenario, _cell_path, _looks_like_path, validate_scenario
+from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
+from drake_cfvol.scene.workcell import Workcell, geometry_key, load_workcell, robot_geometry_ids
+from drake_cfvol.comanip.scenario import (Scenario, _cell_path, _looks_like_path, check_scenario_against_cell,
+                                          scenario_file_path, validate_scenario)
 
 __all__ = ['Comanipulation', 'build_comanipulation_diagram']
 
@@ -223,46 +226,79 @@ def _assign_colours(plant, scene_graph, workcell, categories):
             scene_graph.AssignRole(plant.get_source_id(), gid, props, RoleAssign.kReplace)
 
 
-def _workcell_path_bounds(scenario: Scenario, base_dir, path, bounds, progress: bool):
-    """The scenario's workcell, nominal path and bounds (planned and
-    estimated unless given; a table loaded from disk gets its volume grown
-    again), and the times (ms) planning and bounding took."""
-    t0 = time.perf_counter()
+def _scenario_workcell(scenario: Scenario, base_dir, file):
+    """The scenario's cell: the one it holds (its own file), a built-in or a
+    workcell file (relative to the scenario's folder)."""
+    if scenario.directives:
+        if file is None:
+            raise ScenarioError(Path("scenario"), "directives", "a scenario that holds its cell must be a file "
+                                "(the cell is read from it): pass scenario_file=")
+        return Workcell(file, embedded=True)
     cell = scenario.cell
     if _looks_like_path(cell):
         cell = str(_cell_path(cell, base_dir))
-    wc = load_workcell(cell)
-    wc.configuration(scenario.path)  # an unknown path name fails here, before planning
-    height_map_of(wc, VolumeParams.for_workcell(wc, resolution=scenario.resolution, **dict(scenario.params)))
+    return load_workcell(cell)
+
+
+def _workcell_path_bounds(scenario: Scenario, base_dir, file, path, bounds, progress: bool):
+    """The scenario's workcell, nominal path and bounds (given, loaded from
+    the scenario's ``path_file``/``bounds_file`` and checked against the
+    cell, or planned and estimated; a table loaded from disk gets its
+    volume grown again), and the times (ms) planning and bounding took."""
+    t0 = time.perf_counter()
+    if file is not None:
+        file = Path(file).resolve()
+        base_dir = base_dir or file.parent
+    validate_scenario(scenario, file, base_dir=base_dir)
+    wc = _scenario_workcell(scenario, base_dir, file)
+    check_scenario_against_cell(scenario, wc, file)
+    params = VolumeParams.for_workcell(wc, resolution=scenario.resolution, **dict(scenario.params))
+    height_map_of(wc, params)
+    if path is None and scenario.path_file is not None:
+        path = load_path_for(wc, scenario_file_path(scenario.path_file, base_dir))
+    if bounds is None and scenario.bounds_file is not None:
+        bounds = load_bounds_for(wc, scenario_file_path(scenario.bounds_file, base_dir), path)
+    if path is None and bounds is not None:
+        path = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.random_seed)
     if path is None:
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.seed, label=scenario.path,
-                                 clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
+        wc.configuration(scenario.path)  # an unknown path name fails here, before planning
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.random_seed,
+                                 label=scenario.path, clearance=params.clearance)
     t1 = time.perf_counter()
     if bounds is None:
         bounds = estimate_bounds(wc, path, resolution=scenario.resolution, progress=progress,
-                                 certify=Certify(seed=scenario.seed) if scenario.certify else None,
+                                 certify=Certify(seed=scenario.random_seed) if scenario.certify else None,
                                  **dict(scenario.params))
     if bounds.volume is None:  # a table loaded from disk: grow its volume again
         known = {f.name for f in dataclasses.fields(VolumeParams)}
         params = VolumeParams(**{k: v for k, v in bounds.params.items() if k in known})
-        nominal = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.seed)
+        nominal = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.random_seed)
         bounds = dataclasses.replace(bounds, volume=build_volume(wc, nominal, params))
     t2 = time.perf_counter()
     return wc, path, bounds, {"plan": (t1 - t0) * 1e3, "bounds": (t2 - t1) * 1e3}
 
 
-def _add_scene(builder, wc, vb):
+def _add_scene(builder, wc, vb, plant_config=None, q0=None):
     """Plant and SceneGraph with the workcell and the volume's proximity
     boxes (columns merged, conservatively, into at most
-    MAX_PROXIMITY_BOXES), obstacles coloured by category. Returns (plant,
-    scene_graph, robot, volume ids, merge info)."""
-    scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
-    plant = MultibodyPlant(0.0)
-    plant.RegisterAsSourceForSceneGraph(scene_graph)
-    robot = wc.add_to_plant(plant)
+    MAX_PROXIMITY_BOXES), obstacles coloured by category. With a
+    ``plant_config`` the plant is a time-stepping one (a dynamic run: the
+    volume's boxes are drawn, not proximity geometry that would push the
+    robot; the robot starts at ``q0``). Returns (plant, scene_graph, robot,
+    volume ids, merge info)."""
+    if plant_config is None:
+        scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
+        plant = MultibodyPlant(0.0)
+        plant.RegisterAsSourceForSceneGraph(scene_graph)
+        robot = wc.add_to_plant(plant)
+    else:
+        plant, scene_graph, robot = add_simulated_plant(builder, wc, plant_config)
     centres, sizes, merge_info = vb.volume.merged_boxes(MAX_PROXIMITY_BOXES)
-    volume_ids = register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR, boxes=(centres, sizes))
+    volume_ids = register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR, boxes=(centres, sizes),
+                                       proximity=plant_config is None)
     plant.Finalize()
+    if q0 is not None:
+        plant.SetDefaultPositions(robot, q0)
     _colour_obstacles(plant, scene_graph, wc, vb.categories)
     return plant, scene_graph, robot, volume_ids, merge_info
 
@@ -339,6 +375,35 @@ def _add_pushes(builder, scenario, k, human, progress, commanded, source):
     return total.get_output_port()
 
 
+def _add_meshcat(builder, scene_graph, meshcat, scenario, wc, path, categories) -> None:
+    """Meshcat's visualizers (the scenario's layers), the tool path, the
+    category legend and the camera."""
+    for params in meshcat_params(scenario.visualization):
+        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
+    show_tool_path(meshcat, wc, path)
+    show_category_legend(meshcat, wc, categories)
+    frame_camera(meshcat, wc, path)
+
+
+def _drive(builder, scenario, wc, plant, scene_graph, robot, commanded, torque, human, adm, safety):
+    """What moves the robot: a kinematic run poses the plant from the
+    command; a dynamic run adds the driver, applies the push as real forces
+    and feeds the measured position to the admittance and the safety filter.
+    Returns the measured position's port (None in a kinematic run)."""
+    if scenario.plant_config is None:
+        to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
+        builder.Connect(commanded, to_pose.get_input_port())
+        builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
+        return None
+    measured = add_driver(builder, scenario, wc, plant, robot, commanded=commanded, torque=torque,
+                          wrench=human.human_wrench_output, period=scenario.admittance.period,
+                          desired_state=safety.desired_state_output if safety is not None else None)
+    builder.Connect(measured, adm.measured_position_input)
+    if safety is not None:
+        builder.Connect(measured, safety.measured_position_input)
+    return measured
+
+
 def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
     """Exports the named ports and logs them at the log period, and the
     update-rate signals (speed, clearance, collisions; the log period may
@@ -357,7 +422,9 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
     if safety is not None:
         # What the admittance asked the filter for, beside what it commanded.
         exported["desired_position"] = adm.commanded_position_output
-    for name in UPDATE_RATE_LOGS + (("filter_count", "desired_position") if safety is not None else ()):
+    extra = (("filter_count", "desired_position") if safety is not None else ()) + (
+        ("measured_position",) if "measured_position" in exported else ())
+    for name in UPDATE_RATE_LOGS + extra:
         loggers[f"update_{name}"] = LogVectorOutput(exported[name], builder,
                                                     publish_period=scenario.admittance.period)
         loggers[f"update_{name}"].set_name(f"log_update_{name}")
@@ -365,13 +432,17 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
 
 
 def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: Path | None = None,
-                                 path=None, bounds=None, progress: bool = False) -> Comanipulation:
+                                 path=None, bounds=None, progress: bool = False,
+                                 scenario_file: Path | None = None) -> Comanipulation:
     """Builds a co-manipulation diagram from a scenario.
 
     Args:
         scenario: the scenario.
         meshcat: a ``Meshcat`` to visualise into (None: no visualiser).
-        base_dir: folder that relative cell paths are taken from.
+        base_dir: folder that relative cell paths are taken from (default:
+            the scenario file's).
+        scenario_file: the scenario's file (errors name it; a scenario that
+            holds its cell is read from it).
         path, bounds: a precomputed nominal path and bounds table (otherwise
             planned and estimated here).
         progress: progress bars on a terminal for long steps (the kernel's
@@ -380,12 +451,13 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     Returns:
         The :class:`Comanipulation`.
     """
-    validate_scenario(scenario)
-    wc, path, bounds, times = _workcell_path_bounds(scenario, base_dir, path, bounds, progress)
+    wc, path, bounds, times = _workcell_path_bounds(scenario, base_dir, scenario_file, path, bounds, progress)
     t2 = time.perf_counter()
     vb, k, g = bounds.volume, wc.num_joints, path.g
     builder = DiagramBuilder()
-    plant, scene_graph, robot, volume_ids, merge_info = _add_scene(builder, wc, vb)
+    dynamic = scenario.plant_config is not None
+    plant, scene_graph, robot, volume_ids, merge_info = _add_scene(builder, wc, vb, scenario.plant_config,
+                                                                   path.waypoints[0] if dynamic else None)
     a, share = scenario.admittance, scenario.path_velocity_share
     rate = min((g - 1) / scenario.path_duration, safe_path_rate(bounds, wc.velocity_limits, share=share))
     progress = builder.AddNamedSystem("path_progress", PathProgress(g, rate=rate, start_time=scenario.start_time,
@@ -400,7 +472,6 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
         robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids, obstacle_ids=obstacle_ids,
         ignored_pairs=ignored))
-    to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
     builder.Connect(progress.path_index_output, source.path_index_input)
     safety = None
     if scenario.collision_guard:
@@ -419,10 +490,9 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     builder.Connect(check.human_torque_output, adm.human_torque_input)
     builder.Connect(check.human_wrench_output, adm.human_wrench_input)
     builder.Connect(check.fault_output, adm.hold_input)
-    builder.Connect(commanded, to_pose.get_input_port())
-    builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
+    measured = _drive(builder, scenario, wc, plant, scene_graph, robot, commanded, torque_port, human, adm, safety)
     builder.Connect(scene_graph.get_query_output_port(), monitor.query_object_input)
-    loggers = _export_and_log(builder, {
+    loggers = _export_and_log(builder, {**({"measured_position": measured} if measured is not None else {}),
         "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
         "nominal": source.nominal_output, "commanded_position": commanded,
         "deviation": adm.deviation_output, "fault": check.fault_output, "fault_count": check.fault_count_output,
@@ -431,11 +501,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         "in_volume": monitor.in_volume_output}, scenario, safety, adm)
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
     if meshcat is not None:
-        for params in meshcat_params(scenario.visualization):
-            MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
-        show_tool_path(meshcat, wc, path)
-        show_category_legend(meshcat, wc, vb.categories)
-        frame_camera(meshcat, wc, path)
+        _add_meshcat(builder, scene_graph, meshcat, scenario, wc, path, vb.categories)
     diagram = builder.Build()
     diagram.set_name("comanipulation")
     times["diagram"] = (time.perf_counter() - t2) * 1e3

@@ -31,7 +31,7 @@ def _simulate(cm, scenario, meshcat, progress: bool):
     sim = Simulator(cm.diagram)
     ApplySimulatorConfig(scenario.simulator_config, sim)
     ctx = sim.get_mutable_context()
-    cm.diagram.SetRandomContext(ctx, RandomGenerator(scenario.random_pushes.seed))
+    cm.diagram.SetRandomContext(ctx, RandomGenerator(scenario.random_seed))
     if meshcat is not None:
         meshcat.StartRecording(frames_per_second=1.0 / scenario.visualization.publish_period,
                                set_visualizations_while_recording=False)
@@ -61,6 +61,21 @@ def _write_files(cm, logs, out: Path, meshcat, plot: bool, svg: bool) -> dict:
     return files
 
 
+def _tracking(logs, scenario) -> dict:
+    """A dynamic run's tracking: per update, the largest joint error between
+    the measured position and the command it was to reach (the previous
+    update's), rad (m); the volume's boxes are drawn only (not proximity
+    geometry of a simulated plant), so volume contacts are not counted."""
+    if scenario.plant_config is None:
+        return {"dynamic": False}
+    m, c = logs["update_measured_position"][1], logs["update_commanded_position"][1]
+    n = min(len(m), len(c))
+    err = np.abs(m[1:n] - c[:n - 1]).max(axis=1) if n > 1 else np.zeros(1)
+    return {"dynamic": True, "time_step_s": scenario.plant_config.time_step,
+            "tracking_error_max": float(err.max()), "tracking_error_median": float(np.median(err)),
+            "volume_penetrations": None}
+
+
 def _margins(cm, scenario) -> tuple[float, float]:
     """The margin in force, and the nominal's own clearance (moving links
     against the obstacles, Drake, at every waypoint): a run keeps the margin
@@ -74,24 +89,24 @@ def _margins(cm, scenario) -> tuple[float, float]:
 
 def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = True, plot: bool = True,
                  svg: bool = True, path=None, bounds=None, progress: bool = False,
-                 scenario_text: str | None = None) -> dict:
+                 scenario_text: str | None = None, overrides: dict | None = None) -> dict:
     """Loads a scenario, builds its diagram, simulates it and writes the
     recording (self-contained HTML), plots and a summary.
 
     With ``progress``, a bar on a terminal counts simulated seconds.
-    ``scenario_text`` overrides fields (see :func:`load_scenario`).
+    ``scenario_text`` and ``overrides`` change fields (see :func:`load_scenario`).
 
     Returns:
         The summary dict (also written as ``summary.json``).
     """
-    scenario, file = load_scenario(scenario_name_or_path, scenario_text=scenario_text)
+    scenario, file = load_scenario(scenario_name_or_path, scenario_text=scenario_text, overrides=overrides)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     meshcat = None
     if record:
         meshcat = Meshcat(MeshcatParams(host="localhost"))
-    cm = build_comanipulation_diagram(scenario, meshcat=meshcat, base_dir=file.parent if file else None,
-                                      path=path, bounds=bounds, progress=progress)
+    cm = build_comanipulation_diagram(scenario, meshcat=meshcat, scenario_file=file, path=path, bounds=bounds,
+                                      progress=progress)
     ctx, sim_s = _simulate(cm, scenario, meshcat, progress)
     logs = {name: _log(ctx, lg) for name, lg in cm.loggers.items()}
     t, q = logs["commanded_position"]
@@ -124,6 +139,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "notices": [],
     }
     summary["clearance_m"], summary["nominal_min_clearance_m"] = _margins(cm, scenario)
+    summary.update(_tracking(logs, scenario))
     summary["problems"] = run_problems(summary)
     if svg and files.get("diagram_svg") is None:
         summary["notices"].append(missing_dot_notice(out / "diagram"))

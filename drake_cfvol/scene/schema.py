@@ -38,7 +38,7 @@ from pydrake.multibody.parsing import ModelDirective
 from drake_cfvol.exceptions import WorkcellError, WorkcellFormatError
 
 __all__ = ["WorkcellFile", "CfvolSection", "HeightMapExtent", "NamedConfiguration", "builtin_cells", "models_dir",
-           "read_workcell_file", "DEFAULT_EDGE_STEP"]
+           "read_workcell_file", "read_yaml", "DEFAULT_EDGE_STEP"]
 
 #: Distance between configurations at which Drake's edge checks sample (rad or
 #: m, Euclidean in joint space).
@@ -127,12 +127,28 @@ class WorkcellFile:
     cfvol: CfvolSection = dataclasses.field(default_factory=CfvolSection)
 
 
+class _TagLoader(yaml.SafeLoader):
+    """YAML's safe loader, reading a tagged node (``!IiwaDriver {...}``) as
+    its plain value (Drake's reader checks the variant)."""
+
+
+_TagLoader.add_multi_constructor("!", lambda loader, suffix, node: (
+    loader.construct_mapping(node) if isinstance(node, yaml.MappingNode) else
+    loader.construct_sequence(node) if isinstance(node, yaml.SequenceNode) else loader.construct_scalar(node)))
+
+
+def read_yaml(text: str):
+    """A YAML text as plain Python values, Drake's variant tags read as the
+    value they tag."""
+    return yaml.load(text, Loader=_TagLoader)
+
+
 def _key_lines(text: str) -> dict[str, int]:
     """First line (1-based) of every mapping key in a YAML text, by key and by
     dotted path."""
     out: dict[str, int] = {}
     try:
-        root = yaml.compose(text, Loader=yaml.SafeLoader)
+        root = yaml.compose(text, Loader=_TagLoader)
     except yaml.YAMLError:
         return out
 
@@ -152,8 +168,10 @@ def _key_lines(text: str) -> dict[str, int]:
     return out
 
 
-def read_workcell_file(path: Path) -> tuple[WorkcellFile, dict[str, int]]:
-    """Reads and type-checks a workcell file.
+def read_workcell_file(path: Path, *, embedded: bool = False) -> tuple[WorkcellFile, dict[str, int]]:
+    """Reads and type-checks a workcell file (``embedded``: the
+    ``directives`` and ``cfvol`` keys of another file, e.g. a scenario that
+    holds its cell; its other keys are left out).
 
     Returns:
         (the typed file, key -> line)
@@ -167,7 +185,7 @@ def read_workcell_file(path: Path) -> tuple[WorkcellFile, dict[str, int]]:
     except OSError as e:
         raise WorkcellFormatError(str(path), f"cannot read the file ({e.strerror}).") from e
     try:
-        data = yaml.safe_load(text)
+        data = read_yaml(text) if embedded else yaml.safe_load(text)
     except yaml.MarkedYAMLError as e:
         mark = e.problem_mark or e.context_mark
         line = mark.line + 1 if mark is not None else None
@@ -175,6 +193,9 @@ def read_workcell_file(path: Path) -> tuple[WorkcellFile, dict[str, int]]:
     if not isinstance(data, dict):
         raise WorkcellFormatError(str(path), "expected a mapping with 'directives:' and 'cfvol:' at the top.", 1)
     lines = _key_lines(text)
+    if embedded:
+        data = {key: data.get(key) for key in ("directives", "cfvol")}
+        text = yaml.safe_dump(data, sort_keys=False)
     for key in ("directives", "cfvol"):
         if data.get(key) is None:
             raise WorkcellFormatError(str(path), f"'(top level)' lacks the required key '{key}'.", 1)

@@ -11,6 +11,9 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+import copy
+
+from pydrake.common.schema import Transform
 from pydrake.geometry import Role
 from pydrake.multibody.parsing import ModelDirectives, Parser, ProcessModelDirectives
 from pydrake.multibody.tree import BodyIndex, ModelInstanceIndex
@@ -23,7 +26,7 @@ from drake_cfvol.scene.arrays import SceneArrays, scene_arrays
 from drake_cfvol.scene.directives import add_packages, diagram_from_directives
 from drake_cfvol.scene.setup import WorkcellSetup
 from drake_cfvol.scene.queries import WorkcellQueries, geometry_key, robot_geometry_ids
-from drake_cfvol.scene.robot import RobotSlice, robot_bodies
+from drake_cfvol.scene.robot import RobotSlice, robot_bodies, robot_instances
 from drake_cfvol.scene.schema import (DEFAULT_EDGE_STEP, CfvolSection, HeightMapExtent, NamedConfiguration,
                                       WorkcellFile, builtin_cells, models_dir, read_workcell_file)
 
@@ -80,11 +83,11 @@ class Workcell(WorkcellSetup, WorkcellQueries):
             conversions).
     """
 
-    def __init__(self, path: Path, *, edge_step: float = DEFAULT_EDGE_STEP):
+    def __init__(self, path: Path, *, edge_step: float = DEFAULT_EDGE_STEP, embedded: bool = False):
         path = Path(path).resolve()
         self.path = path
         self.notes: list[str] = []
-        spec, lines = read_workcell_file(path)
+        spec, lines = read_workcell_file(path, embedded=embedded)
         self.spec = spec
         self._lines = lines
         cf = spec.cfvol
@@ -256,6 +259,46 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         add_packages(parser.package_map(), self.path, self.spec.cfvol.package_paths, self._lines)
         ProcessModelDirectives(ModelDirectives(directives=self._directives), plant, parser)
         return plant.GetModelInstanceByName(self.robot_name)
+
+    def add_robot_to_plant(self, plant, parser=None):
+        """Adds the robot alone (and the model instances it carries, e.g. a
+        gripper) to an unfinalized plant: a controller's model. A weld of
+        the robot to an obstacle (a pedestal) becomes a weld to the world at
+        the obstacle frame's pose in this workcell.
+
+        Returns:
+            The robot's model instance in that plant.
+
+        Raises:
+            StationError: the workcell came from a RobotDiagram.
+        """
+        if self._directives is None:
+            raise StationError(f"workcell '{self.name}' came from a RobotDiagram: build your controller's plant from "
+                               "your own models.")
+        mine = {self.plant.GetModelInstanceName(i) for i in robot_instances(self.plant, self.robot)}
+        ctx = self.plant.GetMyContextFromRoot(self._context)
+        kept = []
+        for d in self._directives:
+            if d.add_model is not None and d.add_model.name in mine:
+                kept.append(d)
+            elif d.add_weld is not None and d.add_weld.child.split("::")[0] in mine:
+                d = copy.deepcopy(d)
+                parent = d.add_weld.parent
+                if parent != "world" and parent.split("::")[0] not in mine:
+                    X_WP = self._scoped_frame(parent).CalcPoseInWorld(ctx)
+                    X_PC = d.add_weld.X_PC.GetDeterministicValue() if d.add_weld.X_PC is not None else None
+                    d.add_weld.parent = "world"
+                    d.add_weld.X_PC = Transform(X_WP if X_PC is None else X_WP @ X_PC)
+                kept.append(d)
+        parser = parser or Parser(plant)
+        add_packages(parser.package_map(), self.path, self.spec.cfvol.package_paths, self._lines)
+        ProcessModelDirectives(ModelDirectives(directives=kept), plant, parser)
+        return plant.GetModelInstanceByName(self.robot_name)
+
+    def _scoped_frame(self, scoped: str):
+        """A frame of this workcell's plant by its scoped name ``model::frame``."""
+        model, _, name = scoped.rpartition("::")
+        return self.plant.GetFrameByName(name, self.plant.GetModelInstanceByName(model))
 
     def build_scene(self, add_geometry=None, *, time_step: float = 0.0):
         """Builds a fresh ``RobotDiagram`` of this workcell.

@@ -4,6 +4,25 @@ that keeps the joint velocity limits, the box at the next path position and
 a clearance margin, the last through the diagram's own SceneGraph
 (:class:`SafetyFilter`).
 
+**Outputs**: ``filter_active`` is 1 after an update that changed the
+request (the commanded position differs from ``desired_position`` by more
+than 1e-9); ``filter_count`` counts such updates; ``min_distance`` is the
+smallest signed distance over the filter's pairs at the last update (m;
+self pairs included; inf with none; a skipped pair counts with its lower
+bound, so above the influence distance this is a lower bound);
+``velocity_ratio`` is max_j |v_j| / velocity_limit_j of the last update;
+``fallback_count``, ``damper_misses``, ``box_exits`` count updates (see
+below). ``commanded_velocity`` is the last update's v; ``desired_state`` is
+[q_d; v] on the straight line from the last update's position to q_c,
+reached at the next update: continuous in time, for a tracking controller
+(Drake's ``InverseDynamicsController``, a driver).
+
+**A robot that tracks with an error** (a time-stepping plant under a
+controller): connect its ``measured_position`` q_m. The damper's rows are
+then taken at q_m, from the SceneGraph posed by the plant, and constrain
+the whole step from q_m to the next command, A (q_c - q_m + v dt) / dt >=
+b; every pair is measured at every update.
+
 The discrete state is the commanded position q_c (rad, or m for a
 prismatic joint); ``commanded_position`` outputs it, so it depends on no
 input: the plant may be posed from it (``MultibodyPositionToGeometryPose``
@@ -248,6 +267,26 @@ def _check_parameters(period, clearance, allowance, influence_distance, damper_g
         raise ParameterError(f"SafetyFilter: damper_gain must be > 0 m/s, got {damper_gain}.")
 
 
+def _declare_status_outputs(system, status) -> None:
+    """The filter's status outputs (``filter_active_output``, ...), each one
+    entry of the ``status`` discrete state."""
+    for name, i in [("filter_active", _ACTIVE), ("filter_count", _COUNT), ("min_distance", _MIN_DISTANCE),
+                    ("velocity_ratio", _RATIO), ("fallback_count", _FALLBACKS), ("damper_misses", _MISSES),
+                    ("box_exits", _EXITS)]:
+        port = system.DeclareVectorOutputPort(
+            name=name, size=1, calc=lambda ctx, out, i=i: out.SetAtIndex(0, ctx.get_discrete_state(status).GetAtIndex(i)),
+            prerequisites_of_calc={system.xd_ticket()})
+        setattr(system, f"{name}_output", port)
+
+
+def _desired_state(q, v, h: float, t: float) -> np.ndarray:
+    """[q_d; v]: the command's straight line from the last update's position
+    to the commanded one ``q``, reached at the next update (a tracking
+    controller follows it without the lag of a staircase)."""
+    left = h - (t - h * np.floor(t / h + 1e-9))  # time to the next update, in (0, h]
+    return np.concatenate([q - v * left, v])
+
+
 class SafetyFilter(LeafSystem):
     """The commanded position closest to the one asked for that keeps the
     velocity limits, the box ahead and the clearance margin.
@@ -265,6 +304,7 @@ class SafetyFilter(LeafSystem):
         output_ports:
         - commanded_position
         - commanded_velocity
+        - desired_state
         - filter_active
         - filter_count
         - min_distance
@@ -276,15 +316,7 @@ class SafetyFilter(LeafSystem):
     The update, its constraints and what they guarantee: see the module's
     documentation (:mod:`drake_cfvol.systems.safety`).
 
-    Outputs: ``filter_active`` is 1 after an update that changed the
-    request (the commanded position differs from ``desired_position`` by
-    more than 1e-9); ``filter_count`` counts such updates; ``min_distance``
-    is the smallest signed distance over the filter's pairs at the last
-    update (m; self pairs included; inf with none; a skipped pair counts
-    with its lower bound, so above the influence distance this is a lower
-    bound); ``velocity_ratio`` is max_j |v_j| / velocity_limit_j of the last
-    update; ``fallback_count``, ``damper_misses``, ``box_exits`` count
-    updates (see above).
+    The outputs and the measured position: see the module's documentation.
 
     Scalar type: float only.
 
@@ -387,20 +419,20 @@ class SafetyFilter(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
         self.commanded_position_output = self.DeclareStateOutputPort("commanded_position", self._position)
         self.commanded_velocity_output = self.DeclareStateOutputPort("commanded_velocity", self._velocity)
-        status = [("filter_active", _ACTIVE), ("filter_count", _COUNT), ("min_distance", _MIN_DISTANCE),
-                  ("velocity_ratio", _RATIO), ("fallback_count", _FALLBACKS), ("damper_misses", _MISSES),
-                  ("box_exits", _EXITS)]
-        for name, i in status:
-            port = self.DeclareVectorOutputPort(
-                name=name, size=1, calc=lambda ctx, out, i=i: out.SetAtIndex(
-                    0, ctx.get_discrete_state(self._status).GetAtIndex(i)),
-                prerequisites_of_calc={self.xd_ticket()})
-            setattr(self, f"{name}_output", port)
+        self.desired_state_output = self.DeclareVectorOutputPort(
+            name="desired_state", size=2 * k, calc=self._calc_desired_state,
+            prerequisites_of_calc={self.xd_ticket(), self.time_ticket()})
+        _declare_status_outputs(self, self._status)
 
     @property
     def num_pairs(self) -> int:
         """How many geometry pairs the damper watches."""
         return self._damper.num_pairs
+
+    def _calc_desired_state(self, context, output) -> None:
+        xd = context.get_discrete_state
+        output.SetFromVector(_desired_state(xd(self._position).CopyToVector(), xd(self._velocity).CopyToVector(),
+                                            self.period, context.get_time()))
 
     def _pctx(self, context):
         return self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()

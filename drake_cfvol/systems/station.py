@@ -16,7 +16,7 @@ from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import LeafSystem
-from pydrake.systems.primitives import Demultiplexer, Multiplexer
+from pydrake.systems.primitives import Demultiplexer
 
 from drake_cfvol.exceptions import StationError
 from drake_cfvol.scene.robot import RobotSlice
@@ -39,13 +39,14 @@ class CoManipulationSystems:
         human_torque_input: k joint torques, N m (N for a prismatic joint):
             a torque-sensing arm's external-torque estimate.
         desired_state_output: 2k, the commanded position and velocity (for
-            Drake's ``InverseDynamicsController`` or a driver).
+            Drake's ``InverseDynamicsController`` or a driver): the straight
+            line between consecutive commands, continuous in time (the
+            safety filter's ``desired_state``).
         commanded_position_output: k, rad (m).
         path_index_output: 1, the path index s.
         duration: seconds to run the path at its safe rate, the start time
             included.
-        progress, bounds, check, admittance, safety, desired_state: the
-            systems themselves (their other ports: the filter's status, the
+        progress, bounds, check, admittance, safety: the systems themselves (their other ports: the filter's status, the
             check's fault count, the bounds).
     """
 
@@ -60,7 +61,6 @@ class CoManipulationSystems:
     check: HumanInputCheck
     admittance: object
     safety: SafetyFilter
-    desired_state: object
 
 
 def _robot_instance(plant, robot):
@@ -82,7 +82,7 @@ def _check_table(table, robot_slice, plant, robot) -> None:
             "on a workcell of the same robot (Workcell.FromRobotDiagram of the same models).")
 
 
-def _wire(builder, progress, bounds, check, adm, safety, desired, scene_graph) -> None:
+def _wire(builder, progress, bounds, check, adm, safety, scene_graph) -> None:
     """Connects the added systems among themselves and to the SceneGraph."""
     builder.Connect(progress.path_index_ahead_output, bounds.path_index_input)
     for port in ("nominal", "lower", "upper"):
@@ -93,8 +93,6 @@ def _wire(builder, progress, bounds, check, adm, safety, desired, scene_graph) -
     builder.Connect(check.fault_output, adm.hold_input)
     builder.Connect(adm.commanded_position_output, safety.desired_position_input)
     builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
-    builder.Connect(safety.commanded_position_output, desired.get_input_port(0))
-    builder.Connect(safety.commanded_velocity_output, desired.get_input_port(1))
 
 
 def _resolve(plant, robot, table, tool_frame, velocity_limits, clearance, share, max_path_rate):
@@ -182,8 +180,7 @@ def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, 
         plant, scene_graph, robot, velocity_limits=limits, obstacle_ids=obstacle_ids, clearance=margin,
         influence_distance=influence_distance, damper_gain=damper_gain, period=period,
         initial_position=table.nominal[0]))
-    desired = builder.AddNamedSystem(f"{name}_desired_state", Multiplexer([k, k]))
-    _wire(builder, progress, bounds, check, adm, safety, desired, scene_graph)
+    _wire(builder, progress, bounds, check, adm, safety, scene_graph)
     if measured_state:
         split = builder.AddNamedSystem(f"{name}_measured_state", Demultiplexer([k, k]))
         builder.Connect(plant.get_state_output_port(robot), split.get_input_port(0))
@@ -191,9 +188,9 @@ def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, 
         builder.Connect(split.get_output_port(0), safety.measured_position_input)
     return CoManipulationSystems(
         human_wrench_input=check.human_wrench_input, human_torque_input=check.human_torque_input,
-        desired_state_output=desired.get_output_port(0), commanded_position_output=safety.commanded_position_output,
+        desired_state_output=safety.desired_state_output, commanded_position_output=safety.commanded_position_output,
         path_index_output=progress.path_index_output, duration=progress.duration, progress=progress,
-        bounds=bounds, check=check, admittance=adm, safety=safety, desired_state=desired)
+        bounds=bounds, check=check, admittance=adm, safety=safety)
 
 
 class ToolPushForce(LeafSystem):
