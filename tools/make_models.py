@@ -104,6 +104,49 @@ KUKA = dict(
 )
 
 
+# The torque-sensing cobot: KUKA LBR iiwa 14 R820 (public data sheet: 7
+# axes, 29.9 kg, 14 kg payload; axis distances 0.36 / 0.42 / 0.40 / 0.126 m
+# from the base to A2, A2 to A4, A4 to A6, A6 to the flange; ranges +-170,
+# +-120, +-170, +-120, +-170, +-120, +-175 deg; speeds 85, 85, 100, 75, 130,
+# 135, 135 deg/s; torques 320, 320, 176, 176, 110, 40, 40 N m). Joints with
+# transmissions, so that Drake's IiwaDriver finds the 7 actuators. A small
+# hand-guiding tool on the flange (1.5 kg, a modelling choice).
+IIWA_MASS_KG = 29.9
+IIWA_TOOL_MASS_KG = 1.5
+
+IIWA = dict(
+    name="iiwa14",
+    root="iiwa_link_0",
+    colour="0.85 0.85 0.88 1",
+    mass=IIWA_MASS_KG,
+    gripper_mass=IIWA_TOOL_MASS_KG,
+    efforts=(320, 320, 176, 176, 110, 40, 40),
+    links={
+        "iiwa_link_0": [("capsule", 0.105, (0.0, 0.0, 0.05), (0.0, 0.0, 0.06))],
+        "iiwa_link_1": [("capsule", 0.08, (0.0, 0.0, 0.0), (0.0, 0.0, 0.14))],
+        "iiwa_link_2": [("capsule", 0.08, (0.0, 0.0, 0.03), (0.0, 0.0, 0.17))],
+        "iiwa_link_3": [("capsule", 0.075, (0.0, 0.0, 0.0), (0.0, 0.0, 0.15))],
+        "iiwa_link_4": [("capsule", 0.075, (0.0, 0.0, 0.03), (0.0, 0.0, 0.13))],
+        "iiwa_link_5": [("capsule", 0.07, (0.0, 0.0, 0.0), (0.0, 0.0, 0.14))],
+        "iiwa_link_6": [("capsule", 0.065, (0.0, 0.0, 0.0), (0.0, 0.0, 0.02))],
+        "iiwa_link_7": [("cylinder_z", 0.045, 0.045, (0.0, 0.0, 0.0225))],
+        # A hand-guiding tool: a grip tube along the flange axis.
+        "gripper": [("capsule", 0.035, (0.0, 0.0, 0.03), (0.0, 0.0, 0.12))],
+    },
+    joints=[
+        ("iiwa_joint_1", "revolute", "iiwa_link_0", "iiwa_link_1", (0, 0, 0.1575), (0, 0, 1), D(-170), D(170), D(85)),
+        ("iiwa_joint_2", "revolute", "iiwa_link_1", "iiwa_link_2", (0, 0, 0.2025), (0, 1, 0), D(-120), D(120), D(85)),
+        ("iiwa_joint_3", "revolute", "iiwa_link_2", "iiwa_link_3", (0, 0, 0.2045), (0, 0, 1), D(-170), D(170), D(100)),
+        ("iiwa_joint_4", "revolute", "iiwa_link_3", "iiwa_link_4", (0, 0, 0.2155), (0, -1, 0), D(-120), D(120), D(75)),
+        ("iiwa_joint_5", "revolute", "iiwa_link_4", "iiwa_link_5", (0, 0, 0.1845), (0, 0, 1), D(-170), D(170), D(130)),
+        ("iiwa_joint_6", "revolute", "iiwa_link_5", "iiwa_link_6", (0, 0, 0.2155), (0, 1, 0), D(-120), D(120), D(135)),
+        ("iiwa_joint_7", "revolute", "iiwa_link_6", "iiwa_link_7", (0, 0, 0.081), (0, 0, 1), D(-175), D(175), D(135)),
+        ("tool_mount", "fixed", "iiwa_link_7", "gripper", (0, 0, 0.045), None, 0, 0, 0),
+        ("tcp_joint", "fixed", "gripper", "tcp", (0, 0, 0.14), None, 0, 0, 0),
+    ],
+)
+
+
 # Workcells: static SDF models, one named body per obstacle (box size, centre
 # in the world). The robot bases: ABB on a 0.42 m pedestal at the origin; the
 # KUKA's rail centred on the origin along x.
@@ -136,6 +179,22 @@ AEROSPACE = dict(
         "fence_front": ((11.9, 0.05, 2.20), (0.0, 7.3, 1.10)),
         "fence_left": ((0.05, 10.3, 2.20), (-5.95, 2.15, 1.10)),
         "fence_right": ((0.05, 10.3, 2.20), (5.95, 2.15, 1.10)),
+    },
+)
+
+# The cobot cell: the iiwa on a work table (top 0.80 m), a part fixture and
+# a screwing fixture on the table, a parts bin beside it, a monitor post and
+# a shelf behind. The robot's base sits on the table top at the origin.
+COBOT = dict(
+    name="cobot_cell",
+    obstacles={
+        "floor": ((6.0, 6.0, 0.10), (0.0, 0.0, -0.05)),
+        "table": ((1.60, 1.20, 0.80), (0.30, 0.0, 0.40)),
+        "part_fixture": ((0.30, 0.30, 0.12), (0.62, 0.38, 0.86)),
+        "screw_fixture": ((0.26, 0.34, 0.20), (0.62, -0.38, 0.90)),
+        "bin": ((0.40, 0.30, 0.25), (-0.30, -0.45, 0.925)),
+        "monitor_post": ((0.08, 0.08, 0.70), (-0.35, 0.45, 1.15)),
+        "shelf": ((0.30, 1.20, 1.60), (-0.85, 0.0, 0.80)),
     },
 )
 
@@ -178,6 +237,9 @@ def _geometry(shape) -> tuple[str, str]:
             f'<origin xyz="{_f(xyz)}" rpy="0 {math.pi / 2:.9f} 0"/>',
             f'<cylinder radius="{r:g}" length="{length:g}"/>',
         )
+    if kind == "cylinder_z":
+        _, r, length, xyz = shape
+        return f'<origin xyz="{_f(xyz)}" rpy="0 0 0"/>', f'<cylinder radius="{r:g}" length="{length:g}"/>'
     if kind == "capsule":
         _, r, p0, p1 = shape
         d = [b - a for a, b in zip(p0, p1)]
@@ -207,9 +269,9 @@ def _shape_inertia(shape):
         v = a * b * c
         return v, list(xyz), [[v * (b * b + c * c) / 12, 0, 0], [0, v * (a * a + c * c) / 12, 0],
                               [0, 0, v * (a * a + b * b) / 12]]
-    if kind == "cylinder_x":
+    if kind in ("cylinder_x", "cylinder_z"):
         _, r, length, xyz = shape
-        axis, centre = 0, list(xyz)
+        axis, centre = (0 if kind == "cylinder_x" else 2), list(xyz)
     else:
         _, r, p0, p1 = shape
         d = [b - a for a, b in zip(p0, p1)]
@@ -249,7 +311,7 @@ def _densities(robot: dict) -> dict:
     arm = [n for n in links if n != "gripper" and n not in robot.get("unweighed", ())]
     density = robot["mass"] / sum(_shape_inertia(s)[0] for n in arm for s in links[n])
     out = {n: density for n in links}
-    out["gripper"] = GRIPPER_MASS_KG / sum(_shape_inertia(s)[0] for s in links["gripper"])
+    out["gripper"] = robot.get("gripper_mass", GRIPPER_MASS_KG) / sum(_shape_inertia(s)[0] for s in links["gripper"])
     return out
 
 
@@ -274,14 +336,24 @@ def write_urdf(robot: dict) -> str:
             lines.append(f'    <visual name="{link}_visual_{i}">{origin}<geometry>{geom}</geometry><material name="{material}"/></visual>')
             lines.append(f'    <collision name="{link}_collision_{i}">{origin}<geometry>{geom}</geometry></collision>')
         lines.append("  </link>")
+    efforts = iter(robot.get("efforts", ()))
     for name, jtype, parent, child, xyz, axis, lo, hi, vmax in robot["joints"]:
         lines.append(f'  <joint name="{name}" type="{jtype}">')
         lines.append(f'    <parent link="{parent}"/><child link="{child}"/>')
         lines.append(f'    <origin xyz="{_f(xyz)}" rpy="0 0 0"/>')
         if jtype != "fixed":
             lines.append(f'    <axis xyz="{_f(axis)}"/>')
-            lines.append(f'    <limit lower="{lo:.9f}" upper="{hi:.9f}" velocity="{vmax:.6f}" effort="10000"/>')
+            effort = next(efforts, 10000)
+            lines.append(f'    <limit lower="{lo:.9f}" upper="{hi:.9f}" velocity="{vmax:.6f}" effort="{effort}"/>')
         lines.append("  </joint>")
+    if "efforts" in robot:  # transmissions: Drake makes an actuator for each
+        for name, jtype, *_ in robot["joints"]:
+            if jtype != "fixed":
+                lines += [f'  <transmission name="{name}_transmission">',
+                          "    <type>transmission_interface/SimpleTransmission</type>",
+                          f'    <joint name="{name}"><hardwareInterface>EffortJointInterface</hardwareInterface></joint>',
+                          f'    <actuator name="{name}_motor"><mechanicalReduction>1</mechanicalReduction></actuator>',
+                          "  </transmission>"]
     lines.append("</robot>")
     return "\n".join(lines) + "\n"
 
@@ -389,12 +461,12 @@ def write_mesh_arm() -> list[Path]:
 
 
 def main() -> None:
-    for robot, folder in ((ABB, "abb_irb6700"), (KUKA, "kuka_kr210")):
+    for robot, folder in ((ABB, "abb_irb6700"), (KUKA, "kuka_kr210"), (IIWA, "iiwa14")):
         out = MODELS / folder / f"{robot['name']}.urdf"
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(write_urdf(robot))
         print(f"wrote {out.relative_to(MODELS.parent)}")
-    for cell in (AUTOMOTIVE, AEROSPACE):
+    for cell in (AUTOMOTIVE, AEROSPACE, COBOT):
         out = MODELS / "cells" / f"{cell['name']}.sdf"
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(write_cell_sdf(cell))

@@ -7,6 +7,7 @@ bounds, admittance, the safety filter, monitors and loggers; Meshcat.
 import dataclasses
 import logging
 import time
+import typing
 from pathlib import Path
 import numpy as np
 from pydrake.geometry import (IllustrationProperties, MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role, RoleAssign, SceneGraph)
@@ -15,7 +16,9 @@ from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.common import RandomDistribution
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import Adder, LogVectorOutput, RandomSource
+from pydrake.manipulation import IiwaDriver
+from pydrake.systems.primitives import (Adder, LogVectorOutput, RandomSource,
+                                        StateInterpolatorWithDiscreteDerivative)
 from pydrake.visualization import VisualizationConfig
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
@@ -39,7 +42,10 @@ from drake_cfvol.systems import (
     ScriptedHuman,
     safe_path_rate,
 )
-from drake_cfvol.comanip.dynamics import add_driver, add_simulated_plant
+from drake_cfvol.comanip.dynamics import add_driver, add_simulated_plant, driver_of
+from drake_cfvol.comanip.iiwa import (add_hand, add_iiwa_controller_interface, add_iiwa_station, add_measured,
+                                     grip_point, tool_radius)
+from drake_cfvol.systems.hand import first_push_direction, waiting_point
 from drake_cfvol.comanip.recording import show_tool_path
 from drake_cfvol.algorithm.volume import build_volume, height_map_of
 from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
@@ -278,32 +284,50 @@ def _workcell_path_bounds(scenario: Scenario, base_dir, file, path, bounds, prog
     return wc, path, bounds, {"plan": (t1 - t0) * 1e3, "bounds": (t2 - t1) * 1e3}
 
 
-def _add_scene(builder, wc, vb, plant_config=None, q0=None):
+class Scene(typing.NamedTuple):
+    """The plant side of a co-manipulation diagram."""
+
+    plant: object
+    scene_graph: object
+    robot: object
+    volume_ids: list
+    merge_info: dict
+    models: list  # Drake's ModelInstanceInfo of the cell's models (a dynamic run's)
+    hand: object  # the co-worker's hand body, or None
+
+
+def _add_scene(builder, wc, vb, scenario, q0) -> Scene:
     """Plant and SceneGraph with the workcell and the volume's proximity
     boxes (columns merged, conservatively, into at most
-    MAX_PROXIMITY_BOXES), obstacles coloured by category. With a
-    ``plant_config`` the plant is a time-stepping one (a dynamic run: the
-    volume's boxes are drawn, not proximity geometry that would push the
-    robot; the robot starts at ``q0``). Returns (plant, scene_graph, robot,
-    volume ids, merge info)."""
-    if plant_config is None:
+    MAX_PROXIMITY_BOXES), obstacles coloured by category. With the
+    scenario's ``plant_config`` the plant is a time-stepping one (a dynamic
+    run: the volume's boxes are drawn, not proximity geometry that would
+    push the robot; the robot starts at ``q0``; a torque-sensing arm's run
+    gets the co-worker's hand)."""
+    models, hand = [], None
+    if scenario.plant_config is None:
         scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
         plant = MultibodyPlant(0.0)
         plant.RegisterAsSourceForSceneGraph(scene_graph)
         robot = wc.add_to_plant(plant)
     else:
-        plant, scene_graph, robot = add_simulated_plant(builder, wc, plant_config)
+        plant, scene_graph, robot, models, hand = add_simulated_plant(
+            builder, wc, scenario.plant_config, hand=isinstance(driver_of(scenario, wc), IiwaDriver))
     centres, sizes, merge_info = vb.volume.merged_boxes(MAX_PROXIMITY_BOXES)
     volume_ids = register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR, boxes=(centres, sizes),
-                                       proximity=plant_config is None)
+                                       proximity=scenario.plant_config is None)
     plant.Finalize()
-    if q0 is not None:
+    if scenario.plant_config is not None:
         plant.SetDefaultPositions(robot, q0)
+    if hand is not None:  # waiting beside the tool, on the first push's side
+        p_WG = wc.tool_frame.body().EvalPoseInWorld(wc.plant_context(q0)).multiply(grip_point(wc))
+        plant.SetDefaultFloatingBaseBodyPose(hand, RigidTransform(waiting_point(
+            p_WG, first_push_direction(scenario.pushes), tool_radius(wc))))
     _colour_obstacles(plant, scene_graph, wc, vb.categories)
-    return plant, scene_graph, robot, volume_ids, merge_info
+    return Scene(plant, scene_graph, robot, volume_ids, merge_info, models, hand)
 
 
-def _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids):
+def _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids, hand=None):
     """The real obstacles' proximity geometry (the volume's boxes and the
     robot left out), and the (moving link, obstacle) pairs whose distance no
     joint motion changes (the workcell's own, matched by name): a push
@@ -314,6 +338,8 @@ def _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids):
     obstacle_ids = [g for i in map(ModelInstanceIndex, range(plant.num_model_instances())) if i != robot
                     for b in plant.GetBodyIndices(i) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]
     not_obstacles = set(volume_ids) | set(robot_ids)
+    if hand is not None:  # the co-worker's hand touches the tool on purpose
+        not_obstacles |= set(plant.GetCollisionGeometriesForBody(hand))
     obstacle_ids = sorted({g for g in obstacle_ids if g not in not_obstacles
                            and inspector.GetProximityProperties(g) is not None}, key=lambda g: g.get_value())
     invariant = wc.invariant_pair_names()
@@ -385,23 +411,59 @@ def _add_meshcat(builder, scene_graph, meshcat, scenario, wc, path, categories) 
     frame_camera(meshcat, wc, path)
 
 
-def _drive(builder, scenario, wc, plant, scene_graph, robot, commanded, torque, human, adm, safety):
+def _add_check(builder, k, period, torque, wrench, adm):
+    """The push as sensed, checked: an implausible one holds the admittance."""
+    check = builder.AddNamedSystem("human_input_check", HumanInputCheck(k, period=period))
+    builder.Connect(torque, check.human_torque_input)
+    if wrench is not None:
+        builder.Connect(wrench, check.human_wrench_input)
+    builder.Connect(check.human_torque_output, adm.human_torque_input)
+    builder.Connect(check.human_wrench_output, adm.human_wrench_input)
+    builder.Connect(check.fault_output, adm.hold_input)
+    return check
+
+
+def _drive(builder, scenario, wc, scene, commanded, torque, human, adm, safety):
     """What moves the robot: a kinematic run poses the plant from the
     command; a dynamic run adds the driver, applies the push as real forces
     and feeds the measured position to the admittance and the safety filter.
-    Returns the measured position's port (None in a kinematic run)."""
+    Returns (the measured position's port, the push as the robot senses it
+    (a torque-sensing arm's external torque), each None where there is none)."""
+    plant, robot = scene.plant, scene.robot
     if scenario.plant_config is None:
         to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
         builder.Connect(commanded, to_pose.get_input_port())
-        builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
-        return None
-    measured = add_driver(builder, scenario, wc, plant, robot, commanded=commanded, torque=torque,
-                          wrench=human.human_wrench_output, period=scenario.admittance.period,
-                          desired_state=safety.desired_state_output if safety is not None else None)
+        builder.Connect(to_pose.get_output_port(), scene.scene_graph.get_source_pose_port(plant.get_source_id()))
+        return None, None
+    desired = safety.desired_state_output if safety is not None else None
+    driver, sensed = driver_of(scenario, wc), None
+    if isinstance(driver, IiwaDriver):
+        measured, sensed = _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human)
+    else:
+        measured = add_driver(builder, scenario, wc, plant, robot, commanded=commanded, torque=torque,
+                              wrench=human.human_wrench_output, period=scenario.admittance.period,
+                              desired_state=desired)
     builder.Connect(measured, adm.measured_position_input)
     if safety is not None:
         builder.Connect(measured, safety.measured_position_input)
-    return measured
+    return measured, sensed
+
+
+def _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human):
+    """The iiwa under Drake's IiwaDriver over an in-memory LCM, the
+    co-worker's hand pushing the tool. Returns (measured position, external
+    torque) from the iiwa's status."""
+    if desired is None:
+        interp = builder.AddNamedSystem("desired_state", StateInterpolatorWithDiscreteDerivative(
+            wc.num_joints, scenario.admittance.period, suppress_initial_transient=True))
+        builder.Connect(commanded, interp.get_input_port())
+        desired = interp.get_output_port()
+    lcm = add_iiwa_station(builder, driver, wc.robot_name, scene.plant, scene.models)
+    status = add_iiwa_controller_interface(builder, lcm, desired, wc.num_joints)
+    tool = scene.plant.GetFrameByName(wc.tool_frame.name(), scene.robot)
+    add_hand(builder, scene.plant, scene.hand, tool, human.human_wrench_output, tool_radius=tool_radius(wc),
+             initial_direction=first_push_direction(scenario.pushes), p_BG=grip_point(wc))
+    return add_measured(builder, status, commanded, wc.num_joints), status.get_torque_external_output_port()
 
 
 def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
@@ -455,9 +517,8 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     t2 = time.perf_counter()
     vb, k, g = bounds.volume, wc.num_joints, path.g
     builder = DiagramBuilder()
-    dynamic = scenario.plant_config is not None
-    plant, scene_graph, robot, volume_ids, merge_info = _add_scene(builder, wc, vb, scenario.plant_config,
-                                                                   path.waypoints[0] if dynamic else None)
+    scene = _add_scene(builder, wc, vb, scenario, path.waypoints[0])
+    plant, scene_graph, robot, volume_ids = scene.plant, scene.scene_graph, scene.robot, scene.volume_ids
     a, share = scenario.admittance, scenario.path_velocity_share
     rate = min((g - 1) / scenario.path_duration, safe_path_rate(bounds, wc.velocity_limits, share=share))
     progress = builder.AddNamedSystem("path_progress", PathProgress(g, rate=rate, start_time=scenario.start_time,
@@ -466,9 +527,10 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     adm = builder.AddNamedSystem("admittance", AdmittanceDeformation(
         k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=a.period, plant=plant,
         tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot), velocity_limits=wc.velocity_limits,
-        path_share=share))
+        path_share=share, robot=robot))
     human = builder.AddNamedSystem("human", ScriptedHuman(k, _resolve_pushes(scenario, wc, path, progress)))
-    robot_ids, moving_ids, obstacle_ids, ignored = _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids)
+    robot_ids, moving_ids, obstacle_ids, ignored = _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids,
+                                                                          scene.hand)
     monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
         robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids, obstacle_ids=obstacle_ids,
         ignored_pairs=ignored))
@@ -483,14 +545,10 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
             builder.Connect(source.GetOutputPort(name), adm.GetInputPort(name))
         commanded = adm.commanded_position_output
     torque_port = _add_pushes(builder, scenario, k, human, progress, commanded, source)
-    # The push as sensed, checked: an implausible one holds the admittance.
-    check = builder.AddNamedSystem("human_input_check", HumanInputCheck(k, period=a.period))
-    builder.Connect(torque_port, check.human_torque_input)
-    builder.Connect(human.human_wrench_output, check.human_wrench_input)
-    builder.Connect(check.human_torque_output, adm.human_torque_input)
-    builder.Connect(check.human_wrench_output, adm.human_wrench_input)
-    builder.Connect(check.fault_output, adm.hold_input)
-    measured = _drive(builder, scenario, wc, plant, scene_graph, robot, commanded, torque_port, human, adm, safety)
+    measured, sensed = _drive(builder, scenario, wc, scene, commanded, torque_port, human, adm, safety)
+    check = _add_check(builder, k, a.period, sensed or torque_port,
+                       None if sensed is not None else human.human_wrench_output, adm)
+    torque_port = sensed or torque_port
     builder.Connect(scene_graph.get_query_output_port(), monitor.query_object_input)
     loggers = _export_and_log(builder, {**({"measured_position": measured} if measured is not None else {}),
         "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
@@ -506,5 +564,5 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     diagram.set_name("comanipulation")
     times["diagram"] = (time.perf_counter() - t2) * 1e3
     return Comanipulation(diagram, scenario, wc, path, bounds, plant, scene_graph, loggers, progress, meshcat,
-                          {"count": len(volume_ids), **merge_info}, times,
+                          {"count": len(volume_ids), **scene.merge_info}, times,
                           safety.clearance if safety is not None else None)

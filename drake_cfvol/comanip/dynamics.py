@@ -16,18 +16,34 @@ from pydrake.systems.primitives import (Adder, ConstantVectorSource, Demultiplex
 from drake_cfvol.comanip.scenario import InverseDynamicsDriver
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.robot import RobotSlice
+from drake_cfvol.systems.hand import add_hand_body
 from drake_cfvol.systems.station import ToolPushForce
 
-__all__ = ["add_simulated_plant", "add_driver"]
+__all__ = ["add_simulated_plant", "add_driver", "driver_of"]
 
 
-def add_simulated_plant(builder, wc, plant_config):
+def driver_of(scenario, wc):
+    """The robot's driver config (default :class:`InverseDynamicsDriver`).
+
+    Raises:
+        ScenarioError: a driver named for a model that is not the robot.
+    """
+    unknown = sorted(set(scenario.model_drivers) - {wc.robot_name})
+    if unknown:
+        raise ScenarioError("scenario", f"model_drivers.{unknown[0]}", f"names no robot of cell '{wc.name}' (its "
+                            f"robot is '{wc.robot_name}')")
+    return scenario.model_drivers.get(wc.robot_name, InverseDynamicsDriver())
+
+
+def add_simulated_plant(builder, wc, plant_config, *, hand: bool = False):
     """The time-stepping plant and its SceneGraph with the workcell's
-    models (unfinalized). Returns (plant, scene_graph, robot)."""
+    models (unfinalized), and the co-worker's hand if asked. Returns
+    (plant, scene_graph, robot, Drake's ModelInstanceInfo list, hand body
+    or None)."""
     plant, scene_graph = AddMultibodyPlant(plant_config, builder)
-    plant.set_name("plant")
-    scene_graph.set_name("scene_graph")
-    return plant, scene_graph, wc.add_to_plant(plant)
+    models = wc.add_models(plant)
+    body = add_hand_body(plant) if hand else None
+    return plant, scene_graph, plant.GetModelInstanceByName(wc.robot_name), models, body
 
 
 def _control_plant(wc, time_step: float):
@@ -59,15 +75,7 @@ def add_driver(builder, scenario, wc, plant, robot, *, commanded, torque, wrench
     Returns:
         The measured position's port (k).
     """
-    driver = scenario.model_drivers.get(wc.robot_name, InverseDynamicsDriver())
-    if not isinstance(driver, InverseDynamicsDriver):
-        raise ScenarioError("scenario", f"model_drivers.{wc.robot_name}",
-                            f"is a {type(driver).__name__}, which cell '{wc.name}' does not support here; use "
-                            "!InverseDynamicsDriver")
-    unknown = sorted(set(scenario.model_drivers) - {wc.robot_name})
-    if unknown:
-        raise ScenarioError("scenario", f"model_drivers.{unknown[0]}", f"names no robot of cell '{wc.name}' (its "
-                            f"robot is '{wc.robot_name}')")
+    driver = driver_of(scenario, wc)
     rs = RobotSlice(plant, robot)
     k = rs.k
     control = _control_plant(wc, plant.time_step())

@@ -371,6 +371,14 @@ def _check_sources(scenario: Scenario, where, base_dir) -> None:
                             "(leave plant_config out for a kinematic run)")
     if scenario.model_drivers and pc is None:
         raise ScenarioError(where, "model_drivers", "needs plant_config: drivers act in a dynamic run only")
+    if any(isinstance(d, IiwaDriver) for d in scenario.model_drivers.values()):
+        felt = [f"pushes item {i}: joint_torque" for i, p in enumerate(scenario.pushes, 1) if len(p.joint_torque)]
+        felt += ["random_pushes.count"] * (scenario.random_pushes.count > 0) + ["reactive.gain"] * (
+            scenario.reactive.gain > 0)
+        if felt:
+            raise ScenarioError(where, felt[0], "is a joint torque, which a torque-sensing arm (IiwaDriver) would "
+                                "not feel through contact: give the co-worker's pushes as tool wrenches (the "
+                                "hand's force) in this cell")
 
 
 def validate_scenario(scenario: Scenario, file: Path | None = None, *, base_dir: Path | None = None) -> None:

@@ -255,10 +255,17 @@ class Workcell(WorkcellSetup, WorkcellQueries):
                 f"workcell '{self.name}' came from a RobotDiagram, so it cannot add its models to another plant; "
                 "use Workcell.build_scene() (a clone of that diagram), or wire the systems into your own station "
                 "with drake_cfvol.systems.AddCoManipulation.")
+        self.add_models(plant, parser)
+        return plant.GetModelInstanceByName(self.robot_name)
+
+    def add_models(self, plant, parser=None) -> list:
+        """:meth:`add_to_plant`, returning Drake's ``ModelInstanceInfo`` of
+        every model added (for ``ApplyDriverConfigs``)."""
+        if self._directives is None:
+            self.add_to_plant(plant)  # raises the StationError
         parser = parser or Parser(plant)
         add_packages(parser.package_map(), self.path, self.spec.cfvol.package_paths, self._lines)
-        ProcessModelDirectives(ModelDirectives(directives=self._directives), plant, parser)
-        return plant.GetModelInstanceByName(self.robot_name)
+        return ProcessModelDirectives(ModelDirectives(directives=self._directives), plant, parser)
 
     def add_robot_to_plant(self, plant, parser=None):
         """Adds the robot alone (and the model instances it carries, e.g. a

@@ -19,9 +19,12 @@ reached at the next update: continuous in time, for a tracking controller
 
 **A robot that tracks with an error** (a time-stepping plant under a
 controller): connect its ``measured_position`` q_m. The damper's rows are
-then taken at q_m, from the SceneGraph posed by the plant, and constrain
-the whole step from q_m to the next command, A (q_c - q_m + v dt) / dt >=
-b; every pair is measured at every update.
+then taken at q_m, from the SceneGraph posed by the plant (the distances
+where the robot is), and constrain the command's step, A v >= b: near an
+obstacle the command moves away at the damper's rate, and the robot
+follows it; the tracking error is the controller's to close (a command
+that tried to undo it within one update would chase the robot). Every
+pair is measured at every update.
 
 The discrete state is the commanded position q_c (rad, or m for a
 prismatic joint); ``commanded_position`` outputs it, so it depends on no
@@ -554,13 +557,13 @@ class SafetyFilter(LeafSystem):
         solves; the right-hand sides only grow)."""
         A, h = rows.A, self.period
         relax = nominal is not None and np.all(np.isfinite(nominal))
-        # The rows are taken at the base (the measured position, if given):
-        # the step they see runs from there to the next command, q + v h.
-        offset = q - self.base_position(context)
-        shift = A @ offset / h if len(rows.b) else rows.b
+        # The rows are taken at the base (the measured position, if given)
+        # and constrain the command's own step v h: a tracking error is the
+        # controller's to close (demanding that the command undo it at once
+        # would chase the robot).
 
         def need(v):
-            b = rows.b - shift + self.second_order(context, rows, offset + v * h) / h
+            b = rows.b + self.second_order(context, rows, v * h) / h
             return _relax(q, nominal, lo, hi, A, b, self.velocity_limits, self.period) if relax else b
 
         if not len(rows.b):

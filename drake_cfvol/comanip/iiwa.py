@@ -1,0 +1,145 @@
+"""A torque-sensing arm under Drake's ``IiwaDriver``: the simulated station
+(``ApplyDriverConfigs``: Drake's simulated iiwa driver on the plant, its LCM
+command receiver and status sender) and the co-manipulation controller's
+side of the same LCM interface (``IiwaCommandSender``,
+``IiwaStatusReceiver``). In a run the two talk over an in-memory LCM
+(``DrakeLcm("memq://")``, a loopback); on hardware the controller side is
+the same and the bus is the robot's network.
+
+The co-worker's hand pushes the tool through contact
+(:class:`~drake_cfvol.systems.hand.CoworkerHand`), so that the driver's
+external-torque estimate (the plant's contact forces on the arm, low-pass
+filtered) is what feeds the admittance, as on a real arm.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from drake import lcmt_iiwa_command, lcmt_iiwa_status
+from pydrake.lcm import DrakeLcm
+from pydrake.manipulation import ApplyDriverConfigs, IiwaCommandSender, IiwaControlMode, IiwaStatusReceiver
+from pydrake.systems.lcm import LcmBuses, LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
+from pydrake.systems.framework import LeafSystem
+from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
+
+from drake_cfvol.systems.hand import CoworkerHand
+
+__all__ = ["IIWA_STATUS_PERIOD", "UntilFirstStatus", "add_iiwa_station", "add_iiwa_controller_interface", "add_hand",
+           "add_measured", "grip_point",
+           "tool_radius"]
+
+#: The iiwa's LCM status and command period, s (Drake's kIiwaLcmStatusPeriod).
+IIWA_STATUS_PERIOD = 0.005
+
+
+def add_iiwa_station(builder, driver, robot_name: str, plant, models, lcm=None):
+    """The simulated side: Drake's ``ApplyDriverConfigs`` with the scenario's
+    ``IiwaDriver`` on the plant (finalized), on an LCM bus ``driver.lcm_bus``
+    (default: an in-memory one). Returns the LCM instance."""
+    lcm = lcm or DrakeLcm("memq://")
+    builder.AddNamedSystem("lcm_interface", LcmInterfaceSystem(lcm))
+    buses = LcmBuses()
+    buses.Add(driver.lcm_bus, lcm)
+    ApplyDriverConfigs(driver_configs={robot_name: driver}, sim_plant=plant, models_from_directives=models,
+                       lcm_buses=buses, builder=builder)
+    return lcm
+
+
+def add_iiwa_controller_interface(builder, lcm, desired_state, k: int = 7):
+    """The controller's side of the iiwa's LCM interface: the desired
+    position (the first k of ``desired_state``) sent as ``IIWA_COMMAND`` at
+    the driver's period with zero feed-forward torque; ``IIWA_STATUS``
+    received. Returns the ``IiwaStatusReceiver`` (ports ``position_measured``,
+    ``velocity_estimated``, ``torque_external``, ...)."""
+    split = builder.AddNamedSystem("desired_position", Demultiplexer([k, k]))
+    builder.Connect(desired_state, split.get_input_port(0))
+    sender = builder.AddNamedSystem("iiwa_command_sender", IiwaCommandSender(k, IiwaControlMode.kPositionAndTorque))
+    zero = builder.AddNamedSystem("iiwa_feedforward_torque", ConstantVectorSource(np.zeros(k)))
+    builder.Connect(split.get_output_port(0), sender.get_position_input_port())
+    builder.Connect(zero.get_output_port(), sender.get_torque_input_port())
+    publish = builder.AddNamedSystem("iiwa_command_publisher", LcmPublisherSystem.Make(
+        channel="IIWA_COMMAND", lcm_type=lcmt_iiwa_command, lcm=lcm, publish_period=IIWA_STATUS_PERIOD,
+        use_cpp_serializer=True))
+    builder.Connect(sender.get_output_port(), publish.get_input_port())
+    subscribe = builder.AddNamedSystem("iiwa_status_subscriber", LcmSubscriberSystem.Make(
+        channel="IIWA_STATUS", lcm_type=lcmt_iiwa_status, lcm=lcm, use_cpp_serializer=True))
+    receiver = builder.AddNamedSystem("iiwa_status_receiver", IiwaStatusReceiver(k))
+    builder.Connect(subscribe.get_output_port(), receiver.get_input_port())
+    return receiver
+
+
+def grip_point(wc) -> np.ndarray:
+    """Where a hand pushes the tool: the centre of the proximity shape
+    nearest the tool frame's origin among the bodies welded to its body (a
+    TCP frame's body has none of its own), in the tool body's frame, m."""
+    plant, body = wc.plant, wc.tool_frame.body()
+    inspector = wc.scene_graph.model_inspector()
+    ctx = wc.plant_context(wc.slice.q_default[wc.slice.qidx])
+    X_TW = body.EvalPoseInWorld(ctx).inverse()
+    p_T = wc.tool_frame.GetFixedPoseInBodyFrame().translation()
+    centres = [X_TW @ other.EvalPoseInWorld(ctx) @ inspector.GetPoseInFrame(g).translation()
+               for other in plant.GetBodiesWeldedTo(body) for g in plant.GetCollisionGeometriesForBody(other)]
+    return min(centres, key=lambda c: np.linalg.norm(c - p_T)) if centres else p_T.copy()
+
+
+def tool_radius(wc) -> float:
+    """How far the tool's surface lies from its grip point (:func:`grip_point`),
+    m: the point's depth inside the tool body's geometry (Drake's signed
+    distance to a point, at the default configuration), at least 1 cm."""
+    p_BG = grip_point(wc)
+    ctx = wc.plant_context(wc.slice.q_default[wc.slice.qidx])
+    p_WT = wc.tool_frame.body().EvalPoseInWorld(ctx).multiply(p_BG)
+    sg = wc.scene_graph
+    query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(wc.context))
+    mine = {g for b in wc.plant.GetBodiesWeldedTo(wc.tool_frame.body()) for g in wc.plant.GetCollisionGeometriesForBody(b)}
+    depths = [-r.distance for r in query.ComputeSignedDistanceToPoint(p_WT, threshold=1.0) if r.id_G in mine]
+    return max([0.01] + depths)
+
+
+class UntilFirstStatus(LeafSystem):
+    """The measured position once the driver's status has arrived: before
+    ``wait`` seconds (two status periods) it passes ``fallback`` (the
+    command, where the robot starts), since a status receiver reports zeros
+    until its first message.
+
+    .. pydrake_system::
+
+        name: UntilFirstStatus
+        input_ports:
+        - measured
+        - fallback
+        output_ports:
+        - position
+    """
+
+    def __init__(self, k: int, wait: float = 2 * IIWA_STATUS_PERIOD):
+        super().__init__()
+        self._wait = float(wait)
+        self.measured_input = self.DeclareVectorInputPort(name="measured", size=k)
+        self.fallback_input = self.DeclareVectorInputPort(name="fallback", size=k)
+        self.position_output = self.DeclareVectorOutputPort(name="position", size=k, calc=self._calc)
+
+    def _calc(self, context, output) -> None:
+        source = self.fallback_input if context.get_time() < self._wait else self.measured_input
+        output.SetFromVector(source.Eval(context))
+
+
+def add_measured(builder, status, commanded, k: int):
+    """The measured position from the iiwa's status, the command standing in
+    until the first status arrives. Returns the port."""
+    gate = builder.AddNamedSystem("measured_position", UntilFirstStatus(k))
+    builder.Connect(status.get_position_measured_output_port(), gate.measured_input)
+    builder.Connect(commanded, gate.fallback_input)
+    return gate.position_output
+
+
+def add_hand(builder, plant, hand_body, tool_frame, wrench, *, tool_radius: float, initial_direction, p_BG=None):
+    """The co-worker's hand pushing the tool with ``wrench``'s force, through
+    contact. Returns the :class:`CoworkerHand`."""
+    hand = builder.AddNamedSystem("coworker_hand", CoworkerHand(plant, hand_body, tool_frame, tool_radius=tool_radius,
+                                                                initial_direction=initial_direction, p_BG=p_BG))
+    builder.Connect(wrench, hand.wrench_input)
+    builder.Connect(plant.get_body_poses_output_port(), hand.body_poses_input)
+    builder.Connect(plant.get_body_spatial_velocities_output_port(), hand.body_spatial_velocities_input)
+    builder.Connect(hand.spatial_forces_output, plant.get_applied_spatial_force_input_port())
+    return hand

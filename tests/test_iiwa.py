@@ -1,0 +1,74 @@
+"""The torque-sensing cobot cell: the iiwa under Drake's IiwaDriver, the
+controller talking LCM to the simulated station over an in-memory bus, the
+co-worker's hand felt through the driver's external-torque estimate."""
+
+import numpy as np
+import pytest
+from pydrake.systems.analysis import Simulator
+
+import drake_cfvol as cf
+from drake_cfvol.comanip import load_scenario, run_scenario
+from drake_cfvol.comanip.diagram import build_comanipulation_diagram
+
+
+def test_cobot_cell_model_from_public_data():
+    """The cobot cell loads with the iiwa's published joint ranges and
+    speeds, 7 actuated joints, the published mass, and collision-free
+    named configurations."""
+    wc = cf.load_workcell("cobot")
+    assert wc.num_joints == 7 and wc.plant.num_actuated_dofs() == 7
+    np.testing.assert_allclose(np.degrees(wc.position_upper), [170, 120, 170, 120, 170, 120, 175])
+    np.testing.assert_allclose(np.degrees(wc.velocity_limits), [85, 85, 100, 75, 130, 135, 135], rtol=1e-6)
+    arm = sum(wc.plant.get_body(b).default_mass() for b in wc.plant.GetBodyIndices(wc.robot)
+              if wc.plant.get_body(b).name() not in ("gripper", "tcp"))
+    assert arm == pytest.approx(29.9, abs=0.1)
+    for name in ("path1", "path2", "path3"):
+        assert all(wc.is_free(q) for q in wc.configuration(name))
+
+
+def test_lcm_loopback_between_controller_and_simulated_station():
+    """Over DrakeLcm("memq://") the controller's command reaches the
+    simulated driver (its commanded position is ours) and the driver's status
+    comes back (measured position equal to the plant's, external torque equal
+    to the plant's filtered contact forces: zero before any contact)."""
+    scenario, file = load_scenario("cobot_push", scenario_text="{certify: false, resolution: 300, pushes: []}")
+    cm = build_comanipulation_diagram(scenario, scenario_file=file)
+    sim = Simulator(cm.diagram)
+    ctx = sim.get_mutable_context()
+    sim.AdvanceTo(1.0)  # the path starts at 0.5 s
+    status = cm.diagram.GetSubsystemByName("iiwa_status_receiver")
+    sctx = status.GetMyContextFromRoot(ctx)
+    plant = cm.plant
+    q_plant = plant.GetPositions(plant.GetMyContextFromRoot(ctx), plant.GetModelInstanceByName("iiwa"))
+    q_status = status.get_position_measured_output_port().Eval(sctx)
+    v = np.abs(plant.GetVelocities(plant.GetMyContextFromRoot(ctx))).max()
+    assert np.abs(q_status - q_plant).max() <= 2 * 0.005 * v + 1e-9  # at most two status periods old
+    commanded = status.get_position_commanded_output_port().Eval(sctx)
+    ours = cm.diagram.GetSubsystemByName("safety_filter").desired_state_output.Eval(
+        cm.diagram.GetSubsystemByName("safety_filter").GetMyContextFromRoot(ctx))[:7]
+    assert np.abs(commanded - ours).max() < 0.02 and np.abs(commanded - q_plant).max() < 0.02
+    np.testing.assert_array_equal(status.get_torque_external_output_port().Eval(sctx), np.zeros(7))
+    assert np.abs(q_plant - cm.path.waypoints[0]).max() > 1e-3  # the robot moved along its path
+
+
+def test_joint_torque_pushes_refused_for_a_torque_sensing_arm(tmp_path):
+    """A joint-torque push in the cobot cell is refused before loading: the
+    arm feels pushes through contact only."""
+    with pytest.raises(cf.ScenarioError, match="pushes item 1: joint_torque.*tool wrenches"):
+        load_scenario("cobot_push", scenario_text="{pushes: [{joint_torque: [1, 0, 0, 0, 0, 0, 0]}]}")
+
+
+@pytest.mark.slow
+def test_cobot_push_runs_under_the_iiwa_driver(tmp_path):
+    """The bundled cobot scenario runs dynamic under the IiwaDriver with 0
+    collisions: the hand's pushes reach the admittance only through the
+    driver's external-torque estimate, deform the motion, and the path ends."""
+    s = run_scenario("cobot_push", tmp_path, record=False, plot=False, svg=False)
+    assert s["dynamic"] and s["collisions"] == 0 and s["problems"] == []
+    logs = np.load(tmp_path / "logs.npz")
+    t, tau = logs["human_torque_t"], logs["human_torque"]
+    pushing = (t > 1.2) & (t < 2.5)
+    assert np.abs(tau[pushing]).max() > 5.0  # N m, felt by the arm's torque sensing
+    assert np.abs(tau[t < 0.9]).max() == 0.0  # nothing before the first push
+    assert s["max_deviation"] > 0.02
+    assert np.abs(logs["update_measured_position"][-1] - logs["nominal"][-1]).max() < 0.01
