@@ -4,7 +4,6 @@ forces, the safety filter on the measured configuration."""
 
 import numpy as np
 import pytest
-from pydrake.multibody.plant import MultibodyPlant
 
 from drake_cfvol.comanip import run_scenario
 from drake_cfvol.comanip.dynamics import _control_plant

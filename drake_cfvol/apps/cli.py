@@ -104,6 +104,15 @@ def _out_path(p: str | None) -> Path | None:
     return Path(p).expanduser().resolve() if p else None
 
 
+def _load_cell(load_workcell, cell: str):
+    """The workcell, its loader's notes (mesh conversions, fixed URDF
+    quirks, held degrees of freedom) printed to stderr, one line each."""
+    wc = load_workcell(cell)
+    for note in wc.notes:
+        print(f"cfvol: note: {note}", file=sys.stderr)
+    return wc
+
+
 def cmd_plan(args) -> int:
     from drake_cfvol.algorithm.planning import plan_nominal_path
     from drake_cfvol.scene.workcell import load_workcell
@@ -111,7 +120,7 @@ def cmd_plan(args) -> int:
     out = _out_path(args.out)
     if out is not None:
         prepare_output(out, overwrite=args.force)
-    wc = load_workcell(args.cell)
+    wc = _load_cell(load_workcell, args.cell)
     label = _path_name(args.path)
     start, goal = wc.configuration(label)
     path = plan_nominal_path(wc, start, goal, seed=args.seed, time_limit=args.time_limit, label=label,
@@ -171,7 +180,7 @@ def cmd_bounds(args) -> int:
         raise ParameterError(f"--cf-windows and --cf-samples must be >= 1, got {args.cf_windows} and "
                              f"{args.cf_samples}.")
     out = _out_path(args.out)
-    wc = load_workcell(args.cell)
+    wc = _load_cell(load_workcell, args.cell)
     label = _path_name(args.path)
     stem = output_stem(wc.name, label, args.resolution, certified=args.certify)
     if out is not None:

@@ -136,7 +136,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "bounds_time_ms": cm.bounds.timing_ms["total"], "build_ms": cm.build_ms,
         "recording_html": files.get("recording_html"), "plot_png": files.get("plot_png"),
         "diagram_svg": files.get("diagram_svg"), "diagram_dot": files.get("diagram_dot"),
-        "notices": [],
+        "notices": list(cm.workcell.notes),
     }
     summary["clearance_m"], summary["nominal_min_clearance_m"] = _margins(cm, scenario)
     summary.update(_tracking(logs, scenario))

@@ -14,6 +14,7 @@ from pydrake.planning import RobotDiagramBuilder
 from drake_cfvol.exceptions import WorkcellFormatError
 from drake_cfvol.scene import meshes as _meshes
 from drake_cfvol.scene.schema import models_dir
+from drake_cfvol.scene.urdf import condensed_drake_warnings, fix_urdf_quirks
 
 __all__ = ["add_packages", "diagram_from_directives", "prepare_directives"]
 
@@ -56,9 +57,26 @@ def prepare_directives(directives: list, package_map, path: Path, lines: dict, n
                                           lines.get("directives"))
             converted, more = _meshes.convert_stl_references(resolved, package_map)
             notes.extend(more)
-            d.add_model.file = "file://" + str(converted)
+            quirks = fix_urdf_quirks(converted, package_map, original=resolved)
+            notes.extend(quirks.notes)
+            _check_world_welds(quirks, d.add_model.name, directives, path, lines)
+            d.add_model.file = "file://" + str(quirks.path)
         out.append(d)
     return out
+
+
+def _check_world_welds(quirks, model: str, directives: list, path: Path, lines: dict) -> None:
+    """A model whose file fixes a link to its own ``world`` link must not
+    be welded again by the directives (Drake would refuse it obscurely)."""
+    if not quirks.fixed_to_world:
+        return
+    for d in directives:
+        if d.add_weld is not None and d.add_weld.child.split("::")[0] == model:
+            raise WorkcellFormatError(
+                str(path), f"model '{model}' ({quirks.name}) already fixes link "
+                f"'{quirks.fixed_to_world[0]}' to the world through its own 'world' link, so the directive "
+                f"add_weld {{parent: {d.add_weld.parent}, child: {d.add_weld.child}}} welds it twice: remove that "
+                "add_weld (or the URDF's world joint).", lines.get("add_weld", lines.get("directives")))
 
 
 def diagram_from_directives(path: Path, spec, lines: dict, notes: list):
@@ -73,7 +91,8 @@ def diagram_from_directives(path: Path, spec, lines: dict, notes: list):
     add_packages(parser.package_map(), path, spec.cfvol.package_paths, lines)
     directives = prepare_directives(spec.directives, parser.package_map(), path, lines, notes)
     try:
-        ProcessModelDirectives(ModelDirectives(directives=directives), builder.plant(), parser)
+        with condensed_drake_warnings():
+            ProcessModelDirectives(ModelDirectives(directives=directives), builder.plant(), parser)
     except Exception as e:  # Drake raises RuntimeError / ValueError here.
         raise WorkcellFormatError(str(path), f"Drake cannot load the model directives: {e}",
                                   lines.get("directives")) from e

@@ -24,6 +24,7 @@ from drake_cfvol.exceptions import (StationError, UnknownCellError, WorkcellErro
 from drake_cfvol.scene.arrays import SceneArrays, scene_arrays
 
 from drake_cfvol.scene.directives import add_packages, diagram_from_directives
+from drake_cfvol.scene.urdf import condensed_drake_warnings
 from drake_cfvol.scene.setup import WorkcellSetup
 from drake_cfvol.scene.queries import WorkcellQueries, geometry_key, robot_geometry_ids
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies, robot_instances
@@ -265,7 +266,8 @@ class Workcell(WorkcellSetup, WorkcellQueries):
             self.add_to_plant(plant)  # raises the StationError
         parser = parser or Parser(plant)
         add_packages(parser.package_map(), self.path, self.spec.cfvol.package_paths, self._lines)
-        return ProcessModelDirectives(ModelDirectives(directives=self._directives), plant, parser)
+        with condensed_drake_warnings(log=False):  # said once, when the workcell was loaded
+            return ProcessModelDirectives(ModelDirectives(directives=self._directives), plant, parser)
 
     def add_robot_to_plant(self, plant, parser=None):
         """Adds the robot alone (and the model instances it carries, e.g. a
@@ -299,7 +301,8 @@ class Workcell(WorkcellSetup, WorkcellQueries):
                 kept.append(d)
         parser = parser or Parser(plant)
         add_packages(parser.package_map(), self.path, self.spec.cfvol.package_paths, self._lines)
-        ProcessModelDirectives(ModelDirectives(directives=kept), plant, parser)
+        with condensed_drake_warnings(log=False):
+            ProcessModelDirectives(ModelDirectives(directives=kept), plant, parser)
         return plant.GetModelInstanceByName(self.robot_name)
 
     def _scoped_frame(self, scoped: str):
