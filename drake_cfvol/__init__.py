@@ -64,6 +64,7 @@ from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
 from drake_cfvol.algorithm.table import BoundsTable
+from drake_cfvol.scene.urdf import AddModels
 from drake_cfvol.scene.workcell import Workcell, builtin_cells, load_workcell
 
 __all__ = [
@@ -72,6 +73,6 @@ __all__ = [
     "MissingJointLimitsError", "ParameterError", "PlanningError", "SingularityError",
     "UnknownCellError", "WorkcellError", "WorkcellFileNotFoundError", "WorkcellFormatError", "FileError",
     "RecordFormatError", "OutputExistsError", "OutputPathError", "ScenarioError",
-    "StationError", "NominalPath", "plan_nominal_path", "Workcell", "builtin_cells", "load_workcell",
+    "StationError", "NominalPath", "plan_nominal_path", "Workcell", "AddModels", "builtin_cells", "load_workcell",
     "BoundsTable", "estimate_bounds", "Certify", "VolumeParams", "CFResult", "Freedom", "confidence_factor", "freedom",
 ]

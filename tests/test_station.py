@@ -1,6 +1,11 @@
-"""A user's own station: a workcell from a RobotDiagram (a gripper and a free
-part in the plant), and the systems added to the user's builder with
-AddCoManipulation, kinematic and under Drake's InverseDynamicsController."""
+"""A user's own station: a workcell from a RobotDiagram (a 7-DoF arm with
+STL meshes, a gripper and a free part in the plant), and the systems added
+to the user's builder with AddCoManipulation, under Drake's
+InverseDynamicsController."""
+
+import re
+import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,11 +30,56 @@ GOAL = [1.6, 0.2, 0.0, -2.2, 0.0, 1.6, 0.7]
 PART_AT = [0.75, -0.3, 0.45]  # on the table's corner (its top at z = 0.4)
 
 
+def _obj_to_stl(obj: Path, stl: Path) -> None:
+    """A binary STL of an OBJ mesh (faces fanned into triangles)."""
+    verts, tris = [], []
+    for line in obj.read_text().splitlines():
+        parts = line.split()
+        if parts and parts[0] == "v":
+            verts.append([float(x) for x in parts[1:4]])
+        elif parts and parts[0] == "f":
+            idx = [int(p.split("/")[0]) - 1 for p in parts[1:]]
+            tris += [(idx[0], idx[i], idx[i + 1]) for i in range(1, len(idx) - 1)]
+    V = np.array(verts)
+    out = bytearray(b"\0" * 80) + struct.pack("<I", len(tris))
+    for a, b, c in tris:
+        n = np.cross(V[b] - V[a], V[c] - V[a])
+        n = n / max(np.linalg.norm(n), 1e-12)
+        out += struct.pack("<12fH", *n, *V[a], *V[b], *V[c], 0)
+    stl.write_bytes(bytes(out))
+
+
+@pytest.fixture(scope="module")
+def stl_arm(tmp_path_factory):
+    """The mesh test robot as a user might have it: its own folder, STL
+    meshes referenced by relative paths."""
+    folder = tmp_path_factory.mktemp("stl_arm")
+    src = models_dir() / "mesh_arm"
+    (folder / "meshes").mkdir()
+    for obj in (src / "meshes").glob("*.obj"):
+        _obj_to_stl(obj, folder / "meshes" / f"{obj.stem}.stl")
+    text = (src / "mesh_arm.urdf").read_text()
+    text = re.sub(r"package://drake_cfvol_models/mesh_arm/meshes/(\w+)\.obj", r"meshes/\1.stl", text)
+    (folder / "arm.urdf").write_text(text)
+    return folder / "arm.urdf"
+
+
+STL_ARM = None  # set by the module's fixture below (the STL robot's URDF)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _use_stl_arm(stl_arm):
+    global STL_ARM
+    STL_ARM = stl_arm
+
+
 def add_station_models(plant, parser, *, scene=True, part=True, finger=True, actuators=True):
-    """The mesh test robot (actuated), a gripper welded to its tool (palm,
-    and a finger on a prismatic joint), the mesh scene and a free part."""
+    """The mesh test robot with STL meshes (actuated; through
+    drake_cfvol.AddModels, which converts them), a gripper welded to its
+    tool (palm, and a finger on a prismatic joint), the mesh scene and a
+    free part."""
     parser.package_map().AddPackageXml(str(models_dir() / "package.xml"))
-    arm = parser.AddModels(url="package://drake_cfvol_models/mesh_arm/mesh_arm.urdf")[0]
+    arm = cf.AddModels(parser, file=STL_ARM)[0]
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("base", arm))
     if actuators:
         for j in plant.GetJointIndices(arm):

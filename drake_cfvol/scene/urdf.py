@@ -29,7 +29,7 @@ from pathlib import Path
 
 from drake_cfvol.scene import meshes as _meshes
 
-__all__ = ["UrdfQuirks", "fix_urdf_quirks", "condensed_drake_warnings"]
+__all__ = ["AddModels", "UrdfQuirks", "fix_urdf_quirks", "condensed_drake_warnings"]
 
 _LOG = logging.getLogger("drake_cfvol")
 
@@ -158,3 +158,49 @@ def condensed_drake_warnings(notes: list[str] | None = None, *, log: bool = True
                 notes.append(line)
             if log:
                 _LOG.warning("%s", line)
+
+
+def AddModels(parser, *, file: str | Path | None = None, url: str | None = None,
+              notes: list[str] | None = None) -> list:
+    """Drake's ``Parser.AddModels`` for a user's own robot file, as a
+    workcell file's directives load it: STL meshes converted (Drake 1.51
+    refuses STL collision meshes), the URDF quirks above fixed or refused,
+    Drake's warnings condensed. For building your own ``RobotDiagram``
+    (:meth:`drake_cfvol.Workcell.FromRobotDiagram`) from ROS-style files.
+
+    Args:
+        parser: the ``Parser`` of the plant to add to.
+        file: a model file path; or
+        url: a ``package://`` (or ``file://``) URL, resolved by the parser's
+            package map.
+        notes: a list the notes (conversions, fixes) are appended to; they
+            are logged at INFO level too.
+
+    Returns:
+        The added model instances (as ``Parser.AddModels``).
+
+    Raises:
+        WorkcellFormatError: the file is missing, or a referenced mesh is.
+    """
+    from drake_cfvol.exceptions import WorkcellFormatError
+
+    if (file is None) == (url is None):
+        raise WorkcellFormatError(str(file or url), "give exactly one of file= or url=.")
+    package_map = parser.package_map()
+    if url is not None:
+        try:
+            path = Path(package_map.ResolveUrl(url))
+        except Exception as e:
+            raise WorkcellFormatError(url, _meshes.package_url_error(url, e, package_map) + ".") from None
+    else:
+        path = Path(file).expanduser().resolve()
+    if not path.is_file():
+        raise WorkcellFormatError(str(path), "model file not found.")
+    converted, said = _meshes.convert_stl_references(path, package_map)
+    quirks = fix_urdf_quirks(converted, package_map, original=path)
+    for note in said + quirks.notes:
+        _LOG.info("%s", note)
+        if notes is not None:
+            notes.append(note)
+    with condensed_drake_warnings(notes):
+        return parser.AddModels(str(quirks.path))
