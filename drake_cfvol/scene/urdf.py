@@ -172,7 +172,8 @@ def AddModels(parser, *, file: str | Path | None = None, url: str | None = None,
         parser: the ``Parser`` of the plant to add to.
         file: a model file path; or
         url: a ``package://`` (or ``file://``) URL, resolved by the parser's
-            package map.
+            package map (the bundled models' ``drake_cfvol_models`` package
+            is added to it if missing).
         notes: a list the notes (conversions, fixes) are appended to; they
             are logged at INFO level too.
 
@@ -187,6 +188,10 @@ def AddModels(parser, *, file: str | Path | None = None, url: str | None = None,
     if (file is None) == (url is None):
         raise WorkcellFormatError(str(file or url), "give exactly one of file= or url=.")
     package_map = parser.package_map()
+    if not package_map.Contains("drake_cfvol_models"):  # the bundled models, by package:// URL
+        from drake_cfvol.scene.schema import models_dir
+
+        package_map.AddPackageXml(str(models_dir() / "package.xml"))
     if url is not None:
         try:
             path = Path(package_map.ResolveUrl(url))
