@@ -19,7 +19,7 @@ from pydrake.systems.framework import LeafSystem
 from pydrake.systems.primitives import Demultiplexer
 
 from drake_cfvol.exceptions import StationError
-from drake_cfvol.scene.robot import RobotSlice
+from drake_cfvol.scene.robot import RobotSlice, robot_instances
 from drake_cfvol.systems.admittance import AdmittanceDeformation
 from drake_cfvol.systems.bounds_source import JointBoundsSource
 from drake_cfvol.systems.human_input import HumanInputCheck
@@ -46,8 +46,9 @@ class CoManipulationSystems:
         path_index_output: 1, the path index s.
         duration: seconds to run the path at its safe rate, the start time
             included.
-        progress, bounds, check, admittance, safety: the systems themselves (their other ports: the filter's status, the
-            check's fault count, the bounds).
+        progress, bounds, check, admittance, safety: the systems themselves
+            (their other ports: the filter's status, the check's fault
+            count, the bounds).
     """
 
     human_wrench_input: object
@@ -103,10 +104,11 @@ def _resolve(plant, robot, table, tool_frame, velocity_limits, clearance, share,
     _check_table(table, rs, plant, robot)
     k = rs.k
     if isinstance(tool_frame, str):
-        if not plant.HasFrameNamed(tool_frame, robot):
+        owner = next((i for i in robot_instances(plant, robot) if plant.HasFrameNamed(tool_frame, i)), None)
+        if owner is None:
             raise StationError(f"AddCoManipulation: tool_frame '{tool_frame}' is not a frame of "
-                               f"'{plant.GetModelInstanceName(robot)}'.")
-        tool_frame = plant.GetFrameByName(tool_frame, robot)
+                               f"'{plant.GetModelInstanceName(robot)}' (or of a body it carries).")
+        tool_frame = plant.GetFrameByName(tool_frame, owner)
     limits = (plant.GetVelocityUpperLimits()[rs.vidx] if velocity_limits is None
               else np.asarray(velocity_limits, float))
     margin = float(table.params.get("clearance", 0.0)) if clearance is None else float(clearance)
@@ -131,7 +133,7 @@ def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, 
     machines). With ``measured_state`` the plant's state output for the
     robot's model instance feeds the admittance (the wrench's Jacobian at
     the measured configuration) and the safety filter (its rows taken where
-    the robot is, the step to the next command constrained): for a
+    the robot is, constraining the command's own step): for a
     time-stepping plant under a controller. Without it the plant is posed
     from ``commanded_position_output`` (a kinematic run; the caller wires
     the poses).
