@@ -3,6 +3,7 @@ the scenario or named relative to its folder, saved paths and bounds
 checked against the cell, and errors that name the file, the list item
 (counted from 1) and the field before anything loads."""
 
+import json
 import shutil
 from pathlib import Path
 
@@ -114,7 +115,8 @@ def test_saved_path_and_bounds_are_reused_and_checked(cell_folder, tmp_path, aut
 
 def test_cli_reuses_a_saved_path_and_a_failed_run_leaves_no_folder(cell_folder, tmp_path, capsys):
     """``cfvol bounds --path-file`` bounds the saved path as it is (same
-    waypoints' hash), and a simulate run that fails leaves no empty --out."""
+    waypoints' hash), ``--bounds-file`` evaluates the saved table to the
+    same CF and freedom, and a simulate run that fails leaves no empty --out."""
     wc = cf.load_workcell(cell_folder / "cells" / "mesh_cell.yaml")
     path = cf.plan_nominal_path(wc, *wc.configuration("path1"), seed=2)
     path.save(tmp_path / "p.json")
@@ -123,7 +125,14 @@ def test_cli_reuses_a_saved_path_and_a_failed_run_leaves_no_folder(cell_folder, 
                  "--json"]) == 0
     saved = cf.NominalPath.load(next((tmp_path / "b").glob("*_path.json")))
     assert saved.sha256 == path.sha256
-    capsys.readouterr()
+    computed = json.loads(capsys.readouterr().out)
+    # The saved table evaluated again: the same CF and freedom (same samples), nothing recomputed.
+    assert main(["bounds", str(cell_folder / "cells" / "mesh_cell.yaml"), "--bounds-file",
+                 str(next((tmp_path / "b").glob("*_bounds.npz"))), "--cf-windows", "2", "--cf-samples", "50",
+                 "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert (again["cf_percent"], again["freedom"], again["g"]) == (computed["cf_percent"], computed["freedom"],
+                                                                    computed["g"])
     bad = _write(cell_folder, "bad.yaml", {"cell": "cells/mesh_cell.yaml", "path": "nope", "certify": False})
     assert main(["simulate", str(bad), "--out", str(tmp_path / "never"), "--no-record"]) != 0
     assert not (tmp_path / "never").exists()

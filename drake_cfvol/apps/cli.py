@@ -159,10 +159,35 @@ def _path_to_bound(args, wc, label: str, clearance: float):
     return plan_nominal_path(wc, *wc.configuration(label), seed=args.seed, label=label, clearance=clearance)
 
 
+def _path_and_table(args, wc, label: str, params, bars: bool):
+    """The path (saved, or planned) and its table: loaded from
+    ``--bounds-file`` (checked against the cell and the path), or computed."""
+    if args.bounds_file:
+        from drake_cfvol.algorithm.planning import NominalPath
+        from drake_cfvol.algorithm.reuse import load_bounds_for
+
+        path = _path_to_bound(args, wc, label, params.clearance) if args.path_file else None
+        table = load_bounds_for(wc, _out_path(args.bounds_file), path)
+        if path is None:
+            path = NominalPath(table.nominal, list(table.joint_names), wc.name, label, args.seed)
+        return path, table
+    from drake_cfvol.algorithm.pipeline import estimate_bounds
+
+    path = _path_to_bound(args, wc, label, params.clearance)
+    certify = None
+    if args.certify:
+        from drake_cfvol.algorithm.certify import Certify
+
+        given = {n: getattr(args, n) for n in ("epsilon", "clamp_epsilon", "confidence")
+                 if getattr(args, n) is not None}
+        certify = Certify(**given, seed=args.seed, cache=not args.no_cache,
+                          boundary=not args.no_boundary_proof, regrow=args.regrow)
+    return path, estimate_bounds(wc, path, params, backend=args.backend, certify=certify, progress=bars)
+
+
 def cmd_bounds(args) -> int:
     from drake_cfvol.algorithm.metrics import confidence_factor, freedom, shown_percent
     from drake_cfvol.scene.params import VolumeParams
-    from drake_cfvol.algorithm.pipeline import estimate_bounds
     from drake_cfvol.algorithm.volume import height_map_of
     from drake_cfvol.scene.workcell import load_workcell
 
@@ -174,6 +199,9 @@ def cmd_bounds(args) -> int:
     if lonely and not args.certify:
         raise ParameterError(f"{', '.join(lonely)} only apply{'s' if len(lonely) == 1 else ''} to certified bounds: "
                              "add --certify, or leave them out.")
+    if args.bounds_file and args.certify:
+        raise ParameterError("--bounds-file evaluates a saved table as it is: leave out --certify (certify when you "
+                             "compute the table).")
     if args.regrow and args.no_boundary_proof:
         raise ParameterError("--regrow widens bounds where the boundary proof holds: leave out --no-boundary-proof.")
     if args.cf_windows < 1 or args.cf_samples < 1:
@@ -190,17 +218,8 @@ def cmd_bounds(args) -> int:
     # Check the configuration pair and the resolution (and its memory) before planning.
     params = VolumeParams.for_workcell(wc, resolution=args.resolution, clearance=args.clearance)
     height_map_of(wc, params)
-    path = _path_to_bound(args, wc, label, params.clearance)
     bars = not args.json
-    certify = None
-    if args.certify:
-        from drake_cfvol.algorithm.certify import Certify
-
-        given = {n: getattr(args, n) for n in ("epsilon", "clamp_epsilon", "confidence")
-                 if getattr(args, n) is not None}
-        certify = Certify(**given, seed=args.seed, cache=not args.no_cache,
-                          boundary=not args.no_boundary_proof, regrow=args.regrow)
-    table = estimate_bounds(wc, path, params, backend=args.backend, certify=certify, progress=bars)
+    path, table = _path_and_table(args, wc, label, params, bars)
     cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
                            progress=bars)
     fr = freedom(table, wc.revolute)
@@ -216,11 +235,11 @@ def cmd_bounds(args) -> int:
                                                 title=f"{wc.name} {label}, R = {args.resolution}"
                                                 + (", certified" if args.certify else "")))
     summary = {
-        "cell": wc.name, "path": label, "seed": args.seed, "resolution": args.resolution,
-        "backend": args.backend, "g": table.g, "k": table.k,
+        "cell": wc.name, "path": label, "seed": args.seed, "resolution": table.info.get("resolution", args.resolution),
+        "backend": table.info.get("backend", args.backend), "g": table.g, "k": table.k,
         "time_ms": round(table.timing_ms["total"], 3),
         "timing_ms": {k: round(v, 3) for k, v in table.timing_ms.items()},
-        "certified": certify is not None, "clearance_m": params.clearance,
+        "certified": "certificate" in table.info, "clearance_m": table.params.get("clearance", params.clearance),
         "cf_percent": shown_percent(cf.percent, cf.colliding, 4), "cf_samples": cf.samples,
         "cf_colliding": cf.colliding,
         "freedom": round(fr.mean, 5),
@@ -229,9 +248,10 @@ def cmd_bounds(args) -> int:
         "n_boxes": table.info["n_boxes"], "lowered_columns": table.info["lowered_columns"],
         "dropped_columns": table.info["dropped_columns"], "categories": table.info["categories"],
         "out": str(out) if out else None, "files": files,
+        "bounds_file": str(_out_path(args.bounds_file)) if args.bounds_file else None,
     }
-    if certify is not None:
-        summary["certify_ms"] = round(table.timing_ms["certify"], 3)
+    if "certificate" in table.info:
+        summary["certify_ms"] = round(table.timing_ms.get("certify", float("nan")), 3)
         summary["certificate"] = table.info["certificate"]
     _emit(summary, args.json)
     return 0
@@ -368,6 +388,8 @@ def _add_bounds(sub) -> None:
     b.add_argument("--seed", type=int, default=0, help="planner and CF seed (default 0)")
     b.add_argument("--path-file", help="a saved path (cfvol plan --out) to bound instead of planning one; checked "
                    "against the cell")
+    b.add_argument("--bounds-file", help="a saved bounds table to evaluate (CF, freedom) instead of computing one; "
+                   "checked against the cell")
     b.add_argument("--backend", choices=["fast", "drake"], default="fast",
                    help="fast (any R) or drake (reference, one SceneGraph box per column)")
     b.add_argument("--cf-windows", type=int, default=30, help="CF time windows N_tw (default 30)")
