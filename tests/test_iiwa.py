@@ -72,3 +72,58 @@ def test_cobot_push_runs_under_the_iiwa_driver(tmp_path):
     assert np.abs(tau[t < 0.9]).max() == 0.0  # nothing before the first push
     assert s["max_deviation"] > 0.02
     assert np.abs(logs["update_measured_position"][-1] - logs["nominal"][-1]).max() < 0.01
+
+
+@pytest.mark.slow
+def test_hardware_controller_drives_the_simulated_station_over_lcm_only():
+    """The controller that runs beside a real iiwa (its SceneGraph posed from
+    the status, never from the simulated plant) drives Drake's simulated
+    station with no port between them, only LCM over memq: the true robot
+    never collides, the hand's push is felt through the external torque and
+    deforms the command, and the robot reaches the goal."""
+    from pydrake.manipulation import IiwaDriver
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import LogVectorOutput
+
+    from drake_cfvol.comanip.iiwa import add_hand, add_iiwa_controller, add_iiwa_station, grip_point, tool_radius
+    from drake_cfvol.systems import Push, ScriptedHuman
+    from drake_cfvol.systems.hand import add_hand_body, waiting_point
+
+    wc = cf.load_workcell("cobot")
+    table = cf.estimate_bounds(wc, cf.plan_nominal_path(wc, *wc.configuration("path1"), seed=0), resolution=1000)
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
+    models = wc.add_models(plant)
+    hand = add_hand_body(plant)
+    plant.Finalize()
+    iiwa = plant.GetModelInstanceByName(wc.robot_name)
+    plant.SetDefaultPositions(iiwa, table.nominal[0])
+    p_WG = wc.tool_frame.body().EvalPoseInWorld(wc.plant_context(table.nominal[0])).multiply(grip_point(wc))
+    plant.SetDefaultFloatingBaseBodyPose(hand, RigidTransform(waiting_point(p_WG, [0, 1, 0], tool_radius(wc))))
+    lcm = add_iiwa_station(builder, IiwaDriver(), wc.robot_name, plant, models)
+    human = builder.AddSystem(ScriptedHuman(7, [Push(1.0, 1.5, [], [0, 0, 0, 0, 40.0, 0])]))
+    add_hand(builder, plant, hand, plant.GetFrameByName(wc.tool_frame.name(), iiwa), human.human_wrench_output,
+             tool_radius=tool_radius(wc), initial_direction=[0, 1, 0], p_BG=grip_point(wc))
+    cm, status = add_iiwa_controller(builder, workcell=wc, table=table, lcm=lcm, mass=2.0, damping=80.0,
+                                     stiffness=300.0, start_time=0.5)
+    truth = LogVectorOutput(plant.get_state_output_port(iiwa), builder, publish_period=0.01)
+    felt = LogVectorOutput(status.get_torque_external_output_port(), builder, publish_period=0.01)
+    commanded = LogVectorOutput(cm.commanded_position_output, builder, publish_period=0.01)
+    nominal = LogVectorOutput(cm.bounds.nominal_output, builder, publish_period=0.01)
+    diagram = builder.Build()
+    # No port joins the controller to the station: only LCM does.
+    crossing = [(f.get_name(), t.get_name()) for (t, _), (f, _) in diagram.connection_map().items()
+                if "LogSink" not in type(t).__name__  # the test's own loggers read both sides
+                and t.get_name().startswith("controller") != f.get_name().startswith("controller")]
+    assert crossing == []
+    sim = Simulator(diagram)
+    sim.AdvanceTo(cm.duration + 1.0)
+    ctx = sim.get_context()
+    q = truth.FindLog(ctx).data().T[:, :7]
+    assert np.array(wc.checker.CheckConfigsCollisionFree(q), bool).all()
+    t, tau = felt.FindLog(ctx).sample_times(), felt.FindLog(ctx).data().T
+    assert np.abs(tau[(t > 1.1) & (t < 2.5)]).max() > 5.0 and np.abs(tau[t < 0.9]).max() == 0.0
+    assert np.abs(commanded.FindLog(ctx).data() - nominal.FindLog(ctx).data()).max() > 0.02
+    np.testing.assert_allclose(q[-1], table.nominal[-1], atol=0.01)

@@ -19,12 +19,16 @@ from drake import lcmt_iiwa_command, lcmt_iiwa_status
 from pydrake.lcm import DrakeLcm
 from pydrake.manipulation import ApplyDriverConfigs, IiwaCommandSender, IiwaControlMode, IiwaStatusReceiver
 from pydrake.systems.lcm import LcmBuses, LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
+from pydrake.geometry import SceneGraph
+from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import LeafSystem
+from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
 
 from drake_cfvol.systems.hand import CoworkerHand
+from drake_cfvol.systems.station import AddCoManipulation
 
-__all__ = ["IIWA_STATUS_PERIOD", "UntilFirstStatus", "add_iiwa_station", "add_iiwa_controller_interface", "add_hand",
+__all__ = ["IIWA_STATUS_PERIOD", "UntilFirstStatus", "add_iiwa_controller", "add_iiwa_station", "add_iiwa_controller_interface", "add_hand",
            "add_measured", "grip_point",
            "tool_radius"]
 
@@ -45,25 +49,26 @@ def add_iiwa_station(builder, driver, robot_name: str, plant, models, lcm=None):
     return lcm
 
 
-def add_iiwa_controller_interface(builder, lcm, desired_state, k: int = 7):
+def add_iiwa_controller_interface(builder, lcm, desired_state, k: int = 7, prefix: str = ""):
     """The controller's side of the iiwa's LCM interface: the desired
     position (the first k of ``desired_state``) sent as ``IIWA_COMMAND`` at
     the driver's period with zero feed-forward torque; ``IIWA_STATUS``
     received. Returns the ``IiwaStatusReceiver`` (ports ``position_measured``,
     ``velocity_estimated``, ``torque_external``, ...)."""
-    split = builder.AddNamedSystem("desired_position", Demultiplexer([k, k]))
+    split = builder.AddNamedSystem(f"{prefix}desired_position", Demultiplexer([k, k]))
     builder.Connect(desired_state, split.get_input_port(0))
-    sender = builder.AddNamedSystem("iiwa_command_sender", IiwaCommandSender(k, IiwaControlMode.kPositionAndTorque))
-    zero = builder.AddNamedSystem("iiwa_feedforward_torque", ConstantVectorSource(np.zeros(k)))
+    sender = builder.AddNamedSystem(f"{prefix}iiwa_command_sender",
+                                    IiwaCommandSender(k, IiwaControlMode.kPositionAndTorque))
+    zero = builder.AddNamedSystem(f"{prefix}iiwa_feedforward_torque", ConstantVectorSource(np.zeros(k)))
     builder.Connect(split.get_output_port(0), sender.get_position_input_port())
     builder.Connect(zero.get_output_port(), sender.get_torque_input_port())
-    publish = builder.AddNamedSystem("iiwa_command_publisher", LcmPublisherSystem.Make(
+    publish = builder.AddNamedSystem(f"{prefix}iiwa_command_publisher", LcmPublisherSystem.Make(
         channel="IIWA_COMMAND", lcm_type=lcmt_iiwa_command, lcm=lcm, publish_period=IIWA_STATUS_PERIOD,
         use_cpp_serializer=True))
     builder.Connect(sender.get_output_port(), publish.get_input_port())
-    subscribe = builder.AddNamedSystem("iiwa_status_subscriber", LcmSubscriberSystem.Make(
+    subscribe = builder.AddNamedSystem(f"{prefix}iiwa_status_subscriber", LcmSubscriberSystem.Make(
         channel="IIWA_STATUS", lcm_type=lcmt_iiwa_status, lcm=lcm, use_cpp_serializer=True))
-    receiver = builder.AddNamedSystem("iiwa_status_receiver", IiwaStatusReceiver(k))
+    receiver = builder.AddNamedSystem(f"{prefix}iiwa_status_receiver", IiwaStatusReceiver(k))
     builder.Connect(subscribe.get_output_port(), receiver.get_input_port())
     return receiver
 
@@ -124,10 +129,10 @@ class UntilFirstStatus(LeafSystem):
         output.SetFromVector(source.Eval(context))
 
 
-def add_measured(builder, status, commanded, k: int):
+def add_measured(builder, status, commanded, k: int, prefix: str = ""):
     """The measured position from the iiwa's status, the command standing in
     until the first status arrives. Returns the port."""
-    gate = builder.AddNamedSystem("measured_position", UntilFirstStatus(k))
+    gate = builder.AddNamedSystem(f"{prefix}measured_position", UntilFirstStatus(k))
     builder.Connect(status.get_position_measured_output_port(), gate.measured_input)
     builder.Connect(commanded, gate.fallback_input)
     return gate.position_output
@@ -143,3 +148,44 @@ def add_hand(builder, plant, hand_body, tool_frame, wrench, *, tool_radius: floa
     builder.Connect(plant.get_body_spatial_velocities_output_port(), hand.body_spatial_velocities_input)
     builder.Connect(hand.spatial_forces_output, plant.get_applied_spatial_force_input_port())
     return hand
+
+
+def add_iiwa_controller(builder, *, workcell, table, lcm, name: str = "controller", **comanipulation):
+    """The co-manipulation controller of a torque-sensing iiwa, talking to
+    it over LCM only: what runs beside the real robot. Its SceneGraph holds
+    the workcell (a plant posed from the status's measured positions, never
+    simulated); :func:`~drake_cfvol.systems.AddCoManipulation` on it, fed the
+    measured position and the driver's external-torque estimate; its
+    desired state sent as the iiwa's command. On the robot, ``lcm`` is the
+    robot's network; in a test, ``DrakeLcm("memq://")`` shared with a
+    simulated station (:func:`add_iiwa_station`).
+
+    Args:
+        workcell: a workcell of the cell (a file's: its models are added).
+        table: the bounds table.
+        lcm: the LCM instance (a ``LcmInterfaceSystem`` on it must be in
+            the diagram, as :func:`add_iiwa_station` adds).
+        name: prefix of the added systems' names.
+        **comanipulation: passed to ``AddCoManipulation`` (gains, clearance, ...).
+
+    Returns:
+        (the :class:`~drake_cfvol.systems.CoManipulationSystems`, the
+        ``IiwaStatusReceiver``)
+    """
+    scene_graph = builder.AddNamedSystem(f"{name}_scene_graph", SceneGraph())
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    robot = workcell.add_to_plant(plant)
+    plant.Finalize()
+    k = workcell.num_joints
+    cm = AddCoManipulation(builder, plant=plant, scene_graph=scene_graph, robot=robot, table=table,
+                           tool_frame=workcell.tool_frame.name(), measured_state=False, name=name, **comanipulation)
+    status = add_iiwa_controller_interface(builder, lcm, cm.desired_state_output, k, prefix=f"{name}_")
+    measured = add_measured(builder, status, cm.commanded_position_output, k, prefix=f"{name}_")
+    to_pose = builder.AddNamedSystem(f"{name}_to_pose", MultibodyPositionToGeometryPose(plant))
+    builder.Connect(measured, to_pose.get_input_port())
+    builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
+    builder.Connect(measured, cm.admittance.measured_position_input)
+    builder.Connect(measured, cm.safety.measured_position_input)
+    builder.Connect(status.get_torque_external_output_port(), cm.human_torque_input)
+    return cm, status
