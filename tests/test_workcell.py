@@ -241,3 +241,30 @@ def test_invariant_pairs_of_a_planar_arm(tmp_path):
         assert every["floor"] == pytest.approx(0.45, abs=1e-6)
         changeable = wc.obstacle_distances(q, 2.0, changeable_only=True)
         assert "floor" not in changeable and changeable["post"] == every["post"]
+
+
+@pytest.mark.parametrize("cell", ["automotive", "aerospace", "cobot", "tests/data/mesh_cell.yaml"])
+def test_collision_free_never_free_where_drake_collides(cell, request):
+    """The public batch check is never True where Drake's checker (padded by
+    the same clearance, 0 and 2 cm) finds a collision, on random
+    configurations of every built-in robot and the mesh test robot (about
+    half colliding), and calls almost nothing else colliding."""
+    wc = request.getfixturevalue(cell) if cell in ("automotive", "aerospace") else cf.load_workcell(cell)
+    Q = np.random.default_rng(5).uniform(wc.position_lower, wc.position_upper, (1000, wc.num_joints))
+    for clearance in (0.0, 0.02):
+        free = wc.collision_free(Q, clearance=clearance)
+        drake = np.array(wc.padded_checker(clearance).CheckConfigsCollisionFree(Q), bool)
+        assert 0.2 * len(Q) < (~drake).sum() < 0.9 * len(Q)
+        assert not (free & ~drake).any()
+        assert (~free & drake).sum() <= 0.002 * len(Q)
+    assert wc.collision_free(Q[0]).shape == (1,)
+
+
+def test_collision_free_refuses_bad_input(automotive):
+    """Wrong width, non-finite values and a negative clearance are named."""
+    with pytest.raises(cf.DimensionError, match="joint_1"):
+        automotive.collision_free(np.zeros((3, 5)))
+    with pytest.raises(cf.ConfigurationError, match="finite"):
+        automotive.collision_free(np.full((2, 6), np.nan))
+    with pytest.raises(cf.ParameterError, match="clearance"):
+        automotive.collision_free(np.zeros(6), clearance=-0.1)
