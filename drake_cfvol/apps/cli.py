@@ -429,7 +429,7 @@ def _add_simulate(sub) -> None:
     m.add_argument("--bounds-file", help="a saved bounds table (cfvol bounds --out) instead of bounding; checked "
                    "against the cell")
     m.add_argument("--scenario-text", help="YAML overriding the scenario's fields, e.g. "
-                   "'{resolution: 2000, random_pushes: {seed: 3}}'")
+                   "'{resolution: 2000, random_seed: 3}'")
     m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=cmd_simulate)
 
