@@ -10,9 +10,9 @@ from numba import njit, prange
 
 from drake_cfvol.kernel.types import Chain, Model, SHAPE_W, _C, _EI
 from drake_cfvol.kernel.kinematics import fk_into
-from drake_cfvol.kernel.shapes import _aabb_apart, pose_shape, row_aabb, set_motion
+from drake_cfvol.kernel.shapes import _aabb_apart, obb_apart, pose_shape, row_aabb, set_motion
 from drake_cfvol.kernel.gjk import _gjk
-from drake_cfvol.kernel.heightfield import _clip_block, new_scratch, no_height_field, object_hits_columns
+from drake_cfvol.kernel.heightfield import _clip_block, new_scratch, object_hits_columns
 
 __all__ = ['configs_may_collide', 'lower_columns_under', 'obstacle_distances', 'configs_may_collide_serial']
 
@@ -32,8 +32,11 @@ def _object_vs_scene(obj, aabb, m, field, sc):
     verts, obstacles, obs_aabb = m.verts, m.obstacles, m.obstacle_aabb
     table, ox, oy, side = field
     ws, stack, box = sc.ws, sc.stack, sc.box
+    single = obj.shape[0] == 1
     for o in range(obstacles.shape[0]):
         if _aabb_apart(aabb, obs_aabb[o]):
+            continue
+        if single and obb_apart(obj[0], obstacles[o]):  # the boxes' separating axes, before GJK
             continue
         if _gjk(obj, verts, obstacles[o:o + 1], verts, 64, ws):
             return True
@@ -44,13 +47,27 @@ def _object_vs_scene(obj, aabb, m, field, sc):
 
 
 @njit(cache=True)
+def _object_vs_obstacles(obj, aabb, verts, obstacles, obs_aabb, ws):
+    """A one-row object against the obstacles (no V): the boxes, their
+    separating axes, then GJK. Takes the arrays themselves: a model tuple
+    passed per call costs a reference count per array."""
+    for o in range(obstacles.shape[0]):
+        if _aabb_apart(aabb, obs_aabb[o]) or obb_apart(obj[0], obstacles[o]):
+            continue
+        if _gjk(obj, verts, obstacles[o:o + 1], verts, 64, ws):
+            return True
+    return False
+
+
+@njit(cache=True)
 def _may_collide_range(Q, start, stop, m, pad, out):
     """configs_may_collide for Q[start:stop], into out, on one thread."""
     shapes, shape_body, verts = m.shapes, m.shape_body, m.verts
     shape_pairs, movable = m.shape_pairs, m.movable
-    B = m.chain.parent.shape[0]
+    obstacles, obs_aabb = m.obstacles, m.obstacle_aabb
+    chain = m.chain
+    B = chain.parent.shape[0]
     S = shapes.shape[0]
-    no_field = no_height_field()
     sc = new_scratch()
     ws = sc.ws
     R_WB = np.empty((B, 3, 3))
@@ -58,7 +75,7 @@ def _may_collide_range(Q, start, stop, m, pad, out):
     objs = np.empty((S, 1, SHAPE_W))
     aabbs = np.empty((S, 6))
     for n in range(start, stop):
-        fk_into(Q[n], m.chain, R_WB, p_WB)
+        fk_into(Q[n], chain, R_WB, p_WB)
         _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
         for s in range(S):
             objs[s, 0, _EI] = shapes[s, _EI] + pad  # the margin against the scene
@@ -67,7 +84,7 @@ def _may_collide_range(Q, start, stop, m, pad, out):
         for s in range(S):
             if not movable[shape_body[s]]:
                 continue
-            if _object_vs_scene(objs[s], aabbs[s], m, no_field, sc):
+            if _object_vs_obstacles(objs[s], aabbs[s], verts, obstacles, obs_aabb, ws):
                 hit = True
                 break
         if not hit:
@@ -77,7 +94,7 @@ def _may_collide_range(Q, start, stop, m, pad, out):
             for p in range(shape_pairs.shape[0]):
                 sa = shape_pairs[p, 0]
                 sb = shape_pairs[p, 1]
-                if _aabb_apart(aabbs[sa], aabbs[sb]):
+                if _aabb_apart(aabbs[sa], aabbs[sb]) or obb_apart(objs[sa, 0], objs[sb, 0]):
                     continue
                 if _gjk(objs[sa], verts, objs[sb], verts, 64, ws):
                     hit = True

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.kernel.types import _C, _ED, _EI, _ES, _K, _R, _S, _U, _V0, _V1
+from drake_cfvol.kernel.types import SEP_EPS, _C, _ED, _EI, _ES, _K, _R, _S, _U, _V0, _V1
 
 __all__ = ['row_aabb']
 
@@ -230,6 +230,84 @@ def object_aabb(obj, verts, out, tmp6):
                 out[a] = tmp6[a]
             if tmp6[3 + a] > out[3 + a]:
                 out[3 + a] = tmp6[3 + a]
+
+
+@njit(cache=True)
+def _obb_half(row, out):
+    """A shape row's oriented bounding box: half extents along its own axes
+    (its inflation and motion terms added), into ``out``; False for a hull
+    row (no box without its vertices)."""
+    kind = int(row[_K])
+    s0 = row[_S]
+    s1 = row[_S + 1]
+    s2 = row[_S + 2]
+    if kind == 0 or kind == 4:
+        out[0], out[1], out[2] = s0, s1, s2
+    elif kind == 1:
+        out[0], out[1], out[2] = s0, s0, s0
+    elif kind == 2:
+        out[0], out[1], out[2] = s0, s0, s1 + s0
+    elif kind == 3:
+        out[0], out[1], out[2] = s0, s0, s1
+    else:
+        return False
+    e = row[_EI] + row[_ED] + row[_ES]
+    for i in range(3):
+        out[i] += e
+    return True
+
+
+@njit(cache=True)
+def obb_apart(a, b):
+    """True if two shape rows are certainly apart: their oriented bounding
+    boxes (inflations and motion terms included) are separated, by more
+    than SEP_EPS, along one of the 15 axes of the separating-axis theorem.
+    False decides nothing (near, overlapping, or a hull row). Exact for two
+    boxes; conservative for the other shapes (each inside its box)."""
+    ha = np.empty(3)
+    hb = np.empty(3)
+    if not (_obb_half(a, ha) and _obb_half(b, hb)):
+        return False
+    # C[i, j] = a_i . b_j, with a_i, b_j the boxes' axes (columns of R).
+    C = np.empty((3, 3))
+    t = np.empty(3)  # the centres' offset in a's frame
+    for i in range(3):
+        acc = 0.0
+        for k in range(3):
+            acc += a[_R + 3 * k + i] * (b[_C + k] - a[_C + k])
+        t[i] = acc
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += a[_R + 3 * k + i] * b[_R + 3 * k + j]
+            C[i, j] = acc
+    A = np.empty((3, 3))  # |C|, grown a little against rounding (near-parallel edges)
+    for i in range(3):
+        for j in range(3):
+            A[i, j] = abs(C[i, j]) + 1e-9
+    for i in range(3):  # a's axes
+        rb = hb[0] * A[i, 0] + hb[1] * A[i, 1] + hb[2] * A[i, 2]
+        if abs(t[i]) > ha[i] + rb + SEP_EPS:
+            return True
+    for j in range(3):  # b's axes
+        ra = ha[0] * A[0, j] + ha[1] * A[1, j] + ha[2] * A[2, j]
+        if abs(t[0] * C[0, j] + t[1] * C[1, j] + t[2] * C[2, j]) > ra + hb[j] + SEP_EPS:
+            return True
+    for i in range(3):  # a_i x b_j
+        i1 = (i + 1) % 3
+        i2 = (i + 2) % 3
+        for j in range(3):
+            j1 = (j + 1) % 3
+            j2 = (j + 2) % 3
+            n2 = 1.0 - C[i, j] * C[i, j]  # |a_i x b_j|^2
+            if n2 < 1e-12:
+                continue  # parallel axes: covered by the face axes
+            ra = ha[i1] * A[i2, j] + ha[i2] * A[i1, j]
+            rb = hb[j1] * A[i, j2] + hb[j2] * A[i, j1]
+            d = abs(t[i2] * C[i1, j] - t[i1] * C[i2, j])
+            if d > ra + rb + SEP_EPS * np.sqrt(n2):
+                return True
+    return False
 
 
 @njit(cache=True, inline="always")
