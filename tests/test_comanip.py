@@ -24,7 +24,8 @@ FAST = "{certify: false}"
 RECORDED = "automotive_push"
 
 
-@pytest.fixture(scope="module", params=["automotive_push", "aerospace_push"])
+# The aerospace run (14 s of a 7-DoF robot, about 10 s here) is in the slow group, which CI runs too.
+@pytest.fixture(scope="module", params=["automotive_push", pytest.param("aerospace_push", marks=pytest.mark.slow)])
 def run(request, tmp_path_factory):
     out = tmp_path_factory.mktemp(request.param)
     files = request.param == RECORDED
