@@ -26,35 +26,30 @@ def _pose_objects(R_WB, p_WB, shapes, shape_body, pose, objs):
 
 
 @njit(cache=True)
-def _object_vs_scene(obj, aabb, m, field, sc):
-    """An object against the obstacles of model ``m`` and the height field
-    (an empty table: no V)."""
-    verts, obstacles, obs_aabb = m.verts, m.obstacles, m.obstacle_aabb
-    table, ox, oy, side = field
-    ws, stack, box = sc.ws, sc.stack, sc.box
+def _object_vs_obstacles(obj, aabb, verts, obstacles, obs_aabb, ws):
+    """An object against the obstacles (no V): the boxes, a one-row
+    object's separating axes, then GJK. Takes the arrays themselves: a
+    model tuple passed per call costs a reference count per array."""
     single = obj.shape[0] == 1
     for o in range(obstacles.shape[0]):
-        if _aabb_apart(aabb, obs_aabb[o]):
-            continue
-        if single and obb_apart(obj[0], obstacles[o]):  # the boxes' separating axes, before GJK
+        if _aabb_apart(aabb, obs_aabb[o]) or (single and obb_apart(obj[0], obstacles[o])):
             continue
         if _gjk(obj, verts, obstacles[o:o + 1], verts, 64, ws):
-            return True
-    if table.shape[2] > 0:
-        if object_hits_columns(obj, verts, aabb, table, ox, oy, side, ws, stack, box):
             return True
     return False
 
 
 @njit(cache=True)
-def _object_vs_obstacles(obj, aabb, verts, obstacles, obs_aabb, ws):
-    """A one-row object against the obstacles (no V): the boxes, their
-    separating axes, then GJK. Takes the arrays themselves: a model tuple
-    passed per call costs a reference count per array."""
-    for o in range(obstacles.shape[0]):
-        if _aabb_apart(aabb, obs_aabb[o]) or obb_apart(obj[0], obstacles[o]):
-            continue
-        if _gjk(obj, verts, obstacles[o:o + 1], verts, 64, ws):
+def _object_vs_scene(obj, aabb, m, field, sc):
+    """An object against the obstacles of model ``m`` and the height field
+    (an empty table: no V)."""
+    verts = m.verts
+    table, ox, oy, side = field
+    ws, stack, box = sc.ws, sc.stack, sc.box
+    if _object_vs_obstacles(obj, aabb, verts, m.obstacles, m.obstacle_aabb, ws):
+        return True
+    if table.shape[2] > 0:
+        if object_hits_columns(obj, verts, aabb, table, ox, oy, side, ws, stack, box):
             return True
     return False
 

@@ -251,11 +251,6 @@ class Workcell(WorkcellSetup, WorkcellQueries):
                 are the user's; use :meth:`build_scene`, or the user's own
                 plant with :func:`drake_cfvol.systems.AddCoManipulation`).
         """
-        if self._directives is None:
-            raise StationError(
-                f"workcell '{self.name}' came from a RobotDiagram, so it cannot add its models to another plant; "
-                "use Workcell.build_scene() (a clone of that diagram), or wire the systems into your own station "
-                "with drake_cfvol.systems.AddCoManipulation.")
         self.add_models(plant, parser)
         return plant.GetModelInstanceByName(self.robot_name)
 
@@ -263,7 +258,10 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         """:meth:`add_to_plant`, returning Drake's ``ModelInstanceInfo`` of
         every model added (for ``ApplyDriverConfigs``)."""
         if self._directives is None:
-            self.add_to_plant(plant)  # raises the StationError
+            raise StationError(
+                f"workcell '{self.name}' came from a RobotDiagram, so it cannot add its models to another plant; "
+                "use Workcell.build_scene() (a clone of that diagram), or wire the systems into your own station "
+                "with drake_cfvol.systems.AddCoManipulation.")
         parser = parser or Parser(plant)
         add_packages(parser.package_map(), self.path, self.spec.cfvol.package_paths, self._lines)
         with condensed_drake_warnings(log=False):  # said once, when the workcell was loaded

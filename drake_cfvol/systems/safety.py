@@ -369,7 +369,8 @@ class SafetyFilter(LeafSystem):
                  period: float = 0.01, acceleration_limits=None, initial_position=None, allowance: float = 0.001,
                  skip_far_pairs: bool = True):
         super().__init__()
-        k = RobotSlice(plant, robot).k
+        robot_slice = RobotSlice(plant, robot)
+        k = robot_slice.k
         _check_parameters(period, clearance, allowance, influence_distance, damper_gain)
         self.k = k
         self.period = float(period)
@@ -381,7 +382,7 @@ class SafetyFilter(LeafSystem):
         self.target_distance = self.clearance + self.allowance
         #: The damper's rate, 1/s: min(xi / (d_inf - d_s), 1 / dt).
         self.rate = min(self.damper_gain / (self.influence_distance - self.target_distance), 1.0 / self.period)
-        self.velocity_limits = _limits(plant.GetVelocityUpperLimits()[RobotSlice(plant, robot).vidx]
+        self.velocity_limits = _limits(plant.GetVelocityUpperLimits()[robot_slice.vidx]
                                        if velocity_limits is None else velocity_limits, k, "velocity_limits")
         # Commanded at most this: a hair (1e-9) under the limits, so that
         # rounding in q + v dt never shows a step above them.
