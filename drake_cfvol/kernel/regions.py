@@ -230,8 +230,9 @@ def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
     -1): for every t in [0, 1], moving joint j alone from nom(i + t) to v is
     free. An adaptive search from the stretch's nominal range outwards:
     test [F, F + w]; free -> certified, advance and double w; possible
-    collision -> halve w; stop once a possibly colliding interval is
-    narrower than delta[j]. Each test samples nt poses along t and one pose
+    collision -> halve w; stop once a possibly colliding interval is no
+    wider than delta[j]. From a neighbour's bound: [F, its bound - delta]
+    first, then one delta past it. Each test samples nt poses along t and one pose
     per ``v_step`` along v (at most MAX_V_SAMPLES). ``guess`` is an
     absolute bound to start from (the previous stretch's; NaN: cold).
     ``lims`` = (lim_lo, lim_hi, delta), ``grid`` = (nt, v_step).
@@ -258,7 +259,7 @@ def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
         start = sgn * (guess - v0) - dj  # just short of the neighbour's bound
     if start >= dj and start < T:
         w = start
-        w_next = 2.0 * dj
+        w_next = dj  # then the neighbour's bound itself: one test when it holds
     else:
         w = T
         w_next = -1.0
@@ -287,7 +288,7 @@ def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
         else:
             width = X - F
             w_next = -1.0
-            if width < dj:
+            if width <= dj:
                 break
             w = 0.5 * width
     return v0 + sgn * F, count
