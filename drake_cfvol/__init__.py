@@ -52,6 +52,7 @@ from drake_cfvol.exceptions import (
     PlanningError,
     RecordFormatError,
     ScenarioError,
+    BatchError,
     SingularityError,
     StationError,
     UnknownCellError,
@@ -72,7 +73,7 @@ __all__ = [
     "CfvolError", "CollisionError", "ConfigurationError", "DimensionError", "JointLimitError",
     "MissingJointLimitsError", "ParameterError", "PlanningError", "SingularityError",
     "UnknownCellError", "WorkcellError", "WorkcellFileNotFoundError", "WorkcellFormatError", "FileError",
-    "RecordFormatError", "OutputExistsError", "OutputPathError", "ScenarioError",
+    "RecordFormatError", "OutputExistsError", "OutputPathError", "ScenarioError", "BatchError",
     "StationError", "NominalPath", "plan_nominal_path", "Workcell", "AddModels", "builtin_cells", "load_workcell",
     "BoundsTable", "estimate_bounds", "Certify", "VolumeParams", "CFResult", "Freedom", "confidence_factor", "freedom",
 ]

@@ -156,5 +156,15 @@ class ScenarioError(CfvolError, ValueError):
     def __init__(self, file, field: str | None, message: str):
         self.file = str(file)
         self.field = field
-        where = f"{file}: field '{field}'" if field else f"scenario '{file}'"
+        self.detail = message
+        where = f"{file}: field '{field}'" if field else f"{self.what} '{file}'"
         super().__init__(f"{where} {message}.")
+
+    what = "scenario"
+
+
+class BatchError(ScenarioError):
+    """A batch's jobs file (``cfvol batch JOBS.yaml``) or a job is invalid,
+    or the batch cannot run (no Dask, an unreachable scheduler)."""
+
+    what = "jobs file"

@@ -316,6 +316,20 @@ class BoundsTable:
                                  f", got {self.interpolation!r}.")
         self._trajectory = nominal_trajectory(self.nominal)
 
+    def __getstate__(self) -> dict:
+        """Pickled (to another process, e.g. a Dask worker's result) as it
+        is saved: without the volume V (Drake objects; rebuild it with
+        :func:`drake_cfvol.algorithm.volume.build_volume`); the nominal's
+        trajectory is rebuilt on arrival."""
+        state = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        state["volume"] = None
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        for name, value in state.items():
+            setattr(self, name, value)
+        self._trajectory = nominal_trajectory(self.nominal)
+
     @property
     def g(self) -> int:
         """Number of waypoints."""

@@ -463,6 +463,49 @@ def _add_bench(sub) -> None:
     n.set_defaults(func=cmd_bench)
 
 
+def cmd_batch(args) -> int:
+    from drake_cfvol.apps.batch import expand_jobs, load_jobs, output_files, run_batch, write_batch
+
+    if args.scheduler and args.serial:
+        raise ParameterError("--serial runs the jobs here, one after the other: leave out --scheduler.")
+    if args.workers is not None and (args.workers < 1 or args.scheduler or args.serial):
+        raise ParameterError("--workers sizes the local cluster: a number >= 1, without --scheduler or --serial.")
+    jobs_file = _out_path(args.jobs)
+    jobs, file = load_jobs(jobs_file)
+    todo = expand_jobs(jobs, file.parent)
+    out = _out_path(args.out) or (file.parent / f"{file.stem}_results")
+    output_files(todo, out, overwrite=args.force)  # checked before anything runs
+    results = run_batch(todo, scheduler="serial" if args.serial else args.scheduler, workers=args.workers,
+                        progress=not args.json)
+    files = write_batch(results, out, overwrite=args.force)
+    if args.json:
+        print(json.dumps({"jobs": [r.summary for r in results], "files": files}, default=float))
+        return 0
+    head = ("job", "cell", "path", "setting", "time ms", "CF %", "freedom", "certify ms")
+    rows = [(str(r.summary["job"]), r.summary["cell"], r.summary["path"], r.summary["setting"],
+             f"{r.summary['time_ms']:.1f}", f"{r.summary['cf_percent']:.4f}", f"{r.summary['freedom']:.3f}",
+             f"{r.summary['certify_ms']:.0f}" if "certify_ms" in r.summary else "-") for r in results]
+    widths = [max(len(x) for x in col) for col in zip(head, *rows)]
+    for row in (head, *rows):
+        print("  ".join(x.ljust(w) for x, w in zip(row, widths)).rstrip())
+    print(f"written to {out} (results.json and one bounds file per job)")
+    return 0
+
+
+def _add_batch(sub) -> None:
+    """The ``batch`` command."""
+    b = sub.add_parser("batch", help="bounds, certificates and CF for many cells x paths x settings, in parallel "
+                       "on Dask's distributed scheduler")
+    b.add_argument("jobs", help="a jobs YAML file (cells, paths, settings; see drake_cfvol.apps.batch)")
+    b.add_argument("--scheduler", help="a Dask scheduler's address (tcp://host:8786; default: a local cluster)")
+    b.add_argument("--workers", type=int, help="the local cluster's worker processes (default: one per core)")
+    b.add_argument("--serial", action="store_true", help="run the jobs here one after the other (no Dask)")
+    b.add_argument("--out", help="output folder (default: <jobs file>_results beside it)")
+    b.add_argument("--force", action="store_true", help="overwrite existing files in --out")
+    b.add_argument("--json", action="store_true", help="print one JSON object")
+    b.set_defaults(func=cmd_batch)
+
+
 def _add_demo(sub) -> None:
     """The ``demo`` command."""
     d = sub.add_parser("demo", help="the main job: plan, bound and run the automotive cell")
@@ -473,11 +516,11 @@ def _add_demo(sub) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The ``cfvol`` command line: plan, bounds, simulate, bench, demo."""
+    """The ``cfvol`` command line: plan, bounds, simulate, bench, batch, demo."""
     p = argparse.ArgumentParser(prog="cfvol", description=_DESCRIPTION)
     p.add_argument("--version", action="version", version=f"cfvol (drake_cfvol) {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
-    for add in (_add_plan, _add_bounds, _add_simulate, _add_bench, _add_demo):
+    for add in (_add_plan, _add_bounds, _add_simulate, _add_bench, _add_batch, _add_demo):
         add(sub)
     return p
 
