@@ -6,11 +6,18 @@ history is kept either way) and prints, per bar, the relative error of the
 time left it showed at 25 %, 50 % and 75 % of the step's duration
 (drake_cfvol.io.progress.eta_errors). Usage:
 
-    tools/dev.sh python tools/eta_check.py [--skip-bench]
+    tools/dev.sh python tools/eta_check.py [--skip-bench] [--compile]
+
+``--compile`` adds the kernel's first compile, on an empty numba cache in a
+fresh process (about a minute on 2 cores), and prints each compile step's
+seconds: the measured shares of drake_cfvol.kernel.warmup.STEP_SHARES.
 """
 
 import argparse
 import json
+import os
+import subprocess
+import sys
 import tempfile
 import time
 
@@ -22,11 +29,45 @@ BenchConfig, run_bench = bench_harness().BenchConfig, bench_harness().run_bench
 from drake_cfvol.comanip import run_scenario
 
 
+_COMPILE = """
+import json
+from drake_cfvol.algorithm.pipeline import warm_up
+from drake_cfvol import kernel
+from drake_cfvol.io import progress
+steps = []
+orig = kernel.warm_up
+kernel.warm_up = lambda on_step=None: orig(on_step=lambda n, s: (steps.append((n, round(s, 2))), on_step(n, s)))
+warm_up(progress=True)
+print(json.dumps({"history": progress.finished()[-1][1], "steps": steps}))
+"""
+
+
+def fresh_compile() -> dict:
+    """The kernel's first compile in a new process on an empty numba cache:
+    its bar's history and each step's seconds."""
+    with tempfile.TemporaryDirectory() as cache:
+        out = subprocess.run([sys.executable, "-c", _COMPILE], env=dict(os.environ, NUMBA_CACHE_DIR=cache),
+                             capture_output=True, text=True, check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--skip-bench", action="store_true", help="skip bench --quick (about a minute)")
+    ap.add_argument("--compile", action="store_true", help="also the kernel's first compile (about a minute)")
+    ap.add_argument("--compile-only", action="store_true", help="only the kernel's first compile")
     args = ap.parse_args()
     results = {}
+    if args.compile or args.compile_only:
+        run = fresh_compile()
+        hist = run["history"]
+        results["compile"] = {"seconds": round(hist[-1][0], 2), "steps_s": dict(run["steps"]),
+                              "eta_error_percent": {f"{int(100 * f)}%": round(100 * e, 1)
+                                                    for f, e in progress.eta_errors(hist).items()}}
+        print(f"kernel compile: {hist[-1][0]:.1f} s", flush=True)
+        if args.compile_only:
+            print(json.dumps(results, indent=1))
+            return
 
     def record(name, fn):
         t0 = time.perf_counter()

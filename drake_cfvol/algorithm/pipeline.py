@@ -16,7 +16,7 @@ from drake_cfvol.algorithm.certify import Certify, certified_table, certify_boun
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.algorithm.planning import NominalPath
-from drake_cfvol.io.progress import timed
+from drake_cfvol.io.progress import timed_steps
 from drake_cfvol.algorithm.reference import drake_sweep_bounds
 from drake_cfvol.algorithm.sweep import default_rate, stretch_bounds
 from drake_cfvol.algorithm.table import (
@@ -36,11 +36,6 @@ BACKENDS = ("fast", "drake")
 _warm_up_ms: float | None = None
 
 
-#: Compiling the kernel on a fresh numba cache, s (measured on 2 cores; a warm
-#: cache loads in ~0.3 s and shows no bar).
-COMPILE_S = 30.0
-
-
 def warm_up(*, progress: bool = False) -> float:
     """Compiles the kernel (or loads it from numba's cache) once per process;
     returns the milliseconds it took (0 after the first call). Never part of
@@ -50,8 +45,9 @@ def warm_up(*, progress: bool = False) -> float:
     global _warm_up_ms
     if _warm_up_ms is not None:
         return 0.0
-    with timed(COMPILE_S, "Compiling the collision kernel (once; numba caches it)", enabled=progress):
-        _warm_up_ms = K.warm_up() * 1e3
+    with timed_steps(K.STEP_SHARES, "Compiling the collision kernel (once; numba caches it)",
+                     enabled=progress) as step:
+        _warm_up_ms = K.warm_up(on_step=lambda name, seconds: step(name)) * 1e3
     return _warm_up_ms
 
 

@@ -20,7 +20,7 @@ import sys
 import threading
 import time
 
-__all__ = ["Progress", "DEFAULT_DELAY_S", "eta_errors", "finished", "timed"]
+__all__ = ["Progress", "DEFAULT_DELAY_S", "eta_errors", "finished", "timed_steps"]
 
 #: (description, history) of the last enabled bars, newest last.
 _FINISHED: collections.deque = collections.deque(maxlen=32)
@@ -126,26 +126,62 @@ class Progress:
         self.close()
 
 
+class _StepClock:
+    """What :func:`timed_steps` yields: call it with each step's name as
+    the step ends."""
+
+    def __init__(self, bar: Progress, shares: dict):
+        self.bar, self.shares = bar, dict(shares)
+        self.done = 0.0  # shares of the steps ended
+        self.t_done = 0.0  # seconds they took
+        self.t_step = 0.0  # when the current step began (since the bar's start)
+        self.current = next(iter(self.shares), None)
+        self._names = list(self.shares)
+
+    def __call__(self, name: str) -> None:
+        now = time.perf_counter() - self.bar.t0
+        self.done += self.shares.get(name, 0.0)
+        self.t_done = self.t_step = now
+        i = self._names.index(name) + 1 if name in self._names else len(self._names)
+        self.current = self._names[i] if i < len(self._names) else None
+        self.bar.set(min(self.done, self.bar.total))
+
+    def tick(self) -> None:
+        """Within a step: advance at the rate of the steps ended so far (the
+        shares' own rate, 1 share per second, before any has), never past
+        99 % of the current step's share."""
+        if self.current is None:
+            return
+        now = time.perf_counter() - self.bar.t0
+        rate = self.done / self.t_done if self.t_done > 0 and self.done > 0 else 1.0
+        share = self.shares[self.current]
+        self.bar.set(self.done + min((now - self.t_step) * rate, 0.99 * share))
+
+
 @contextlib.contextmanager
-def timed(expected_s: float, desc: str, *, enabled: bool = True, file=None, tick_s: float = 0.25,
-          delay: float = DEFAULT_DELAY_S):
-    """A bar for one call that cannot report progress (e.g. compiling the
-    kernel): in seconds, done = elapsed, capped at 99 % of ``expected_s`` (a
-    measured cost) until the call returns; then complete. The time left
-    shown is ``expected_s`` - elapsed.
+def timed_steps(shares: dict, desc: str, *, enabled: bool = True, file=None, tick_s: float = 0.25,
+                delay: float = DEFAULT_DELAY_S):
+    """A bar for a sequence of calls that cannot report progress
+    themselves, each with a known share of the work (seconds measured on a
+    reference machine; only their ratios matter). Yields a function to call
+    with each step's name as it ends. Between the ends of steps the bar
+    advances at the rate measured so far, so the time left shown (the rate
+    so far applied to the work left) is right on a faster or slower machine
+    as long as the shares' ratios hold.
     """
-    bar = Progress(expected_s, desc, enabled=enabled, unit="s", file=file, delay=delay)
+    bar = Progress(sum(shares.values()), desc, enabled=enabled, unit="s", file=file, delay=delay)
+    clock = _StepClock(bar, shares)
     stop = threading.Event()
 
     def tick():
         while not stop.wait(tick_s):
-            bar.set(min(time.perf_counter() - bar.t0, 0.99 * bar.total))
+            clock.tick()
 
     ticker = threading.Thread(target=tick, daemon=True)
     if bar.enabled:
         ticker.start()
     try:
-        yield bar
+        yield clock
     finally:
         stop.set()
         if ticker.is_alive():

@@ -86,7 +86,7 @@ from drake_cfvol.kernel.checks import (  # noqa: E402
     configs_may_collide, configs_may_collide_serial, lower_columns_under, obstacle_distances)
 from drake_cfvol.kernel.regions import regions_hit, sweep_chains  # noqa: E402
 from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint  # noqa: E402
-from drake_cfvol.kernel.warmup import warm_up  # noqa: E402
+from drake_cfvol.kernel.warmup import STEP_SHARES, warm_up  # noqa: E402
 
 __all__ = ["Chain", "Model", "HeightField", "Scratch", "RegionScratch", "BOX", "SPHERE", "CAPSULE", "CYLINDER",
            "ELLIPSOID", "HULL", "SHAPE_W", "MAX_T_SAMPLES", "MAX_V_SAMPLES", "FOOTPRINT_DIRECTIONS", "fk", "fk_into",
@@ -94,4 +94,4 @@ __all__ = ["Chain", "Model", "HeightField", "Scratch", "RegionScratch", "BOX", "
            "range_max", "new_workspace", "new_scratch", "no_height_field", "object_hits_columns",
            "configs_may_collide", "configs_may_collide_serial", "lower_columns_under", "obstacle_distances",
            "sweep_chains", "regions_hit", "shape_footprint", "fill_convex_polygon", "robot_footprint",
-           "distance_map", "warm_up", "_K", "_C", "_R", "_S", "_V0", "_V1"]
+           "distance_map", "warm_up", "STEP_SHARES", "_K", "_C", "_R", "_S", "_V0", "_V1"]

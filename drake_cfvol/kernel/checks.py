@@ -11,7 +11,7 @@ from numba import njit, prange
 from drake_cfvol.kernel.types import Chain, Model, SHAPE_W, _C, _EI
 from drake_cfvol.kernel.kinematics import fk_into
 from drake_cfvol.kernel.shapes import _aabb_apart, obb_apart, pose_shape, row_aabb, set_motion
-from drake_cfvol.kernel.gjk import _gjk
+from drake_cfvol.kernel.gjk import _gjk, _gjk_from
 from drake_cfvol.kernel.heightfield import _clip_block, new_scratch, object_hits_columns
 
 __all__ = ['configs_may_collide', 'lower_columns_under', 'obstacle_distances', 'configs_may_collide_serial']
@@ -26,27 +26,29 @@ def _pose_objects(R_WB, p_WB, shapes, shape_body, pose, objs):
 
 
 @njit(cache=True)
-def _object_vs_obstacles(obj, aabb, verts, obstacles, obs_aabb, ws):
+def _object_vs_obstacles(obj, aabb, verts, obstacles, obs_aabb, ws, dirs):
     """An object against the obstacles (no V): the boxes, a one-row
-    object's separating axes, then GJK. Takes the arrays themselves: a
+    object's separating axes, then GJK from the pair's last separating
+    direction (``dirs`` (O, 3), updated). Takes the arrays themselves: a
     model tuple passed per call costs a reference count per array."""
     single = obj.shape[0] == 1
     for o in range(obstacles.shape[0]):
         if _aabb_apart(aabb, obs_aabb[o]) or (single and obb_apart(obj[0], obstacles[o])):
             continue
-        if _gjk(obj, verts, obstacles[o:o + 1], verts, 64, ws):
+        if _gjk_from(obj, verts, obstacles[o:o + 1], verts, 64, ws, dirs[o]):
             return True
     return False
 
 
 @njit(cache=True)
-def _object_vs_scene(obj, aabb, m, field, sc):
-    """An object against the obstacles of model ``m`` and the height field
-    (an empty table: no V)."""
+def _object_vs_scene(obj, aabb, m, field, sc, dirs):
+    """An object against the obstacles of model ``m`` (GJK from ``dirs``,
+    see :func:`_object_vs_obstacles`) and the height field (an empty
+    table: no V)."""
     verts = m.verts
     table, ox, oy, side = field
     ws, stack, box = sc.ws, sc.stack, sc.box
-    if _object_vs_obstacles(obj, aabb, verts, m.obstacles, m.obstacle_aabb, ws):
+    if _object_vs_obstacles(obj, aabb, verts, m.obstacles, m.obstacle_aabb, ws, dirs):
         return True
     if table.shape[2] > 0:
         if object_hits_columns(obj, verts, aabb, table, ox, oy, side, ws, stack, box):
@@ -69,6 +71,10 @@ def _may_collide_range(Q, start, stop, m, pad, out):
     p_WB = np.empty((B, 3))
     objs = np.empty((S, 1, SHAPE_W))
     aabbs = np.empty((S, 6))
+    # Each pair's last separating direction (consecutive configurations of
+    # a batch are often near each other): shape x obstacle, shape pair.
+    dirs = np.zeros((S, obstacles.shape[0], 3))
+    pair_dirs = np.zeros((shape_pairs.shape[0], 3))
     for n in range(start, stop):
         fk_into(Q[n], chain, R_WB, p_WB)
         _pose_objects(R_WB, p_WB, shapes, shape_body, 0, objs)
@@ -79,7 +85,7 @@ def _may_collide_range(Q, start, stop, m, pad, out):
         for s in range(S):
             if not movable[shape_body[s]]:
                 continue
-            if _object_vs_obstacles(objs[s], aabbs[s], verts, obstacles, obs_aabb, ws):
+            if _object_vs_obstacles(objs[s], aabbs[s], verts, obstacles, obs_aabb, ws, dirs[s]):
                 hit = True
                 break
         if not hit:
@@ -91,7 +97,7 @@ def _may_collide_range(Q, start, stop, m, pad, out):
                 sb = shape_pairs[p, 1]
                 if _aabb_apart(aabbs[sa], aabbs[sb]) or obb_apart(objs[sa, 0], objs[sb, 0]):
                     continue
-                if _gjk(objs[sa], verts, objs[sb], verts, 64, ws):
+                if _gjk_from(objs[sa], verts, objs[sb], verts, 64, ws, pair_dirs[p]):
                     hit = True
                     break
         out[n] = hit

@@ -28,8 +28,22 @@ def gjk_intersect(A, vA, B, vB, max_iter=64):
 
 @njit(cache=True)
 def _gjk(A, vA, B, vB, max_iter, ws):
+    """:func:`_gjk_from` without a remembered direction."""
+    ws[17, 0] = 0.0
+    ws[17, 1] = 0.0
+    ws[17, 2] = 0.0
+    return _gjk_from(A, vA, B, vB, max_iter, ws, ws[17])
+
+
+@njit(cache=True)
+def _gjk_from(A, vA, B, vB, max_iter, ws, d0):
+    """GJK starting from d0 (3,) where it is not zero: the separating
+    direction this pair had last time (consecutive tests of a search or a
+    batch move the shapes little, so it mostly certifies at once). On a
+    certified separation d0 gets the new direction. The certificate is
+    checked from the exact supports whichever direction it starts from."""
     # Workspace rows: 0-3 simplex (oldest first), 4 d, 5 a, 6 tA, 7 tB,
-    # 8-15 scratch, 16-17 support scratch.
+    # 8-15 scratch, 16 support scratch, 17 free for callers.
     simplex = ws[0:4]
     d = ws[4]
     a = ws[5]
@@ -39,9 +53,14 @@ def _gjk(A, vA, B, vB, max_iter, ws):
     n = 0
     # d always points from the simplex towards the origin; the first
     # simplex point is near cA - cB, so start with d = cB - cA.
-    d[0] = B[0, _C] - A[0, _C]
-    d[1] = B[0, _C + 1] - A[0, _C + 1]
-    d[2] = B[0, _C + 2] - A[0, _C + 2]
+    if d0[0] * d0[0] + d0[1] * d0[1] + d0[2] * d0[2] > 1e-24:
+        d[0] = d0[0]
+        d[1] = d0[1]
+        d[2] = d0[2]
+    else:
+        d[0] = B[0, _C] - A[0, _C]
+        d[1] = B[0, _C + 1] - A[0, _C + 1]
+        d[2] = B[0, _C + 2] - A[0, _C + 2]
     if _dot(d, d) < 1e-24:
         d[0] = 1.0
         d[1] = 0.0
@@ -56,6 +75,9 @@ def _gjk(A, vA, B, vB, max_iter, ws):
         a[1] = tA[1] - tB[1]
         a[2] = tA[2] - tB[2]
         if _dot(a, d) < -SEP_EPS * dn:
+            d0[0] = d[0]
+            d0[1] = d[1]
+            d0[2] = d[2]
             return False  # certified separating direction
         simplex[n, 0] = a[0]
         simplex[n, 1] = a[1]

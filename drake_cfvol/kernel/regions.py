@@ -11,7 +11,7 @@ from numba import njit, prange
 from drake_cfvol.kernel.types import Chain, HeightField, MAX_T_SAMPLES, MAX_V_SAMPLES, Model, RegionScratch, SHAPE_W
 from drake_cfvol.kernel.kinematics import _axis_rotation, _mm, fk_into
 from drake_cfvol.kernel.shapes import _aabb_apart, object_aabb, pose_shape, row_aabb, set_motion
-from drake_cfvol.kernel.gjk import _gjk
+from drake_cfvol.kernel.gjk import _gjk_from
 from drake_cfvol.kernel.heightfield import new_scratch, no_height_field
 from drake_cfvol.kernel.checks import _object_vs_scene
 
@@ -133,7 +133,7 @@ def _region_vs_scene(W, i, j, ts, vs, m, field, sc, rs, pad):
             set_motion(objs[s, c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
         obj = objs[s, :P]
         object_aabb(obj, verts, aabbs[s], tmp6)
-        if _object_vs_scene(obj, aabbs[s], m, field, sc):
+        if _object_vs_scene(obj, aabbs[s], m, field, sc, rs.dirs[s]):
             return True
     return False
 
@@ -146,6 +146,7 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
     va, vb, nv = vs
     P = nt * nv
     S = m.shapes.shape[0]
+    O = m.obstacles.shape[0]
     shapes, shape_body, verts, pairs = m.shapes, m.shape_body, m.verts, m.body_pairs
     moved, reach, curvature, revolute = m.moved, m.reach, m.curvature, m.revolute
     RP, pP, rel, rel_aabb = rs.RP, rs.pP, rs.rel, rs.rel_aabb
@@ -187,7 +188,7 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
                 row_aabb(shapes[sf], verts, tmp6)
                 if _aabb_apart(rel_aabb, tmp6):
                     continue
-                if _gjk(relP, verts, shapes[sf:sf + 1], verts, 64, ws):
+                if _gjk_from(relP, verts, shapes[sf:sf + 1], verts, 64, ws, rs.dirs[sm, O + sf]):
                     return True
     return False
 
@@ -295,12 +296,12 @@ def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
 
 
 @njit(cache=True)
-def _region_workspace(B, S, k):
+def _region_workspace(B, S, k, O):
     """Scratch arrays of one thread's region tests (:func:`_region_hits`)
-    for B bodies, S shapes and k joints."""
+    for B bodies, S shapes, k joints and O obstacles."""
     P = MAX_T_SAMPLES * MAX_V_SAMPLES
     return RegionScratch(np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
-                         np.empty((P, SHAPE_W)), np.empty(6), np.empty(k))
+                         np.empty((P, SHAPE_W)), np.empty(6), np.empty(k), np.zeros((S, O + S, 3)))
 
 
 @njit(cache=True, parallel=True)
@@ -338,7 +339,7 @@ def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads):
         j = chains[n, 0]
         sgn = chains[n, 1]
         sc = new_scratch()
-        rs = _region_workspace(B, S, k)
+        rs = _region_workspace(B, S, k, obstacles_.shape[0])
         guess = np.nan
         count = 0
         for i in range(n_st):
@@ -382,7 +383,7 @@ def regions_hit(A, B, js, va, vb, nts, nvs, pads, m):
                    joint_body_)
         no_field = no_height_field()
         sc = new_scratch()
-        rs = _region_workspace(B_n, S, k)
+        rs = _region_workspace(B_n, S, k, obstacles_.shape[0])
         W = np.empty((2, k))
         for n in range(c * 64, min(n_tasks, (c + 1) * 64)):
             W[0] = A[n]

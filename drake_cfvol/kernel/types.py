@@ -87,6 +87,7 @@ class RegionScratch(NamedTuple):
     rel: np.ndarray
     rel_aabb: np.ndarray
     q_c: np.ndarray
+    dirs: np.ndarray  #: (S, O + S, 3) each pair's last separating direction (zero: none yet)
 
 
 #: Most poses sampled along t and along v in one region test.

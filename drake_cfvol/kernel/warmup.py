@@ -15,14 +15,18 @@ from drake_cfvol.kernel.regions import regions_hit, sweep_chains
 from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint
 
 
-def warm_up() -> float:
-    """Compiles (or loads from numba's cache) every kernel by running it
-    once on a tiny made-up scene: a one-joint arm with one box link, one
-    obstacle and a 2 x 2 height field. Returns the seconds it took; the
-    paper's timing never includes this."""
-    import time
+#: Each step's share of a fresh compile, s (measured on this 2-core machine
+#: with an empty numba cache, tools/eta_check.py --compile; the shares, not
+#: the seconds, carry over to other machines). A step compiles what the
+#: steps before it have not.
+STEP_SHARES = {"fk": 2.6, "configs_may_collide": 14.4, "configs_may_collide_serial": 2.4, "sweep_chains": 22.6,
+               "regions_hit": 17.2, "lower_columns_under": 0.8, "obstacle_distances": 4.4, "footprints": 2.4,
+               "gjk_intersect": 0.3}
 
-    t0 = time.perf_counter()
+
+def _scene():
+    """A tiny made-up scene: a one-joint arm with one box link, one
+    obstacle and a 2 x 2 height field."""
     eye = np.eye(3)
     parent = np.array([-1], np.int64)
     jtype = np.array([1], np.int64)
@@ -47,25 +51,59 @@ def warm_up() -> float:
     m = Model(chain, shapes, np.array([0], np.int64), verts, obstacles, obs_aabb, no_pairs, no_pairs,
               np.array([True]), np.array([[True]]), np.array([[1.01]]), np.array([[[1.01]]]), np.array([True]),
               np.array([0], np.int64))
+    return m, verts
+
+
+def _steps():
+    """(name, call) for every kernel entry point, on the tiny scene."""
+    m, verts = _scene()
+    chain, shapes, obstacles = m.chain, m.shapes, m.obstacles
     W = np.array([[0.0], [0.1]])
     Q = np.ascontiguousarray(W)
-    fk(Q, chain)
-    configs_may_collide(Q, m, 0.0)
-    configs_may_collide_serial(Q, m, 0.0)
     heights = np.array([[0.0, 0.3], [0.2, 0.0]])
-    field = HeightField(range_max_table(heights), -1.0, -1.0, 1.0)
-    sweep_chains(np.array([[0, 1], [0, -1]], np.int64), (np.array([[-3.0]]), np.array([[3.0]]), np.array([0.01])),
-                 np.array([[2]], np.int64), np.array([0.2]), W, m, field, np.zeros(1))
-    regions_hit(W[:1].copy(), W[1:].copy(), np.array([0], np.int64), np.array([-0.1]), np.array([0.1]),
-                np.array([2], np.int64), np.array([2], np.int64), np.array([0.01]), m)
-    lower_columns_under(Q, np.zeros((2, 1)), m, heights.copy(), (-1.0, -1.0, 1.0), 0.0)
-    obstacle_distances(Q, 0.5, 1e-3, m)
-    mask = np.zeros((8, 8), np.bool_)
-    robot_footprint(Q, m, mask, -2.0, -2.0, 0.5)
-    poly = np.empty((FOOTPRINT_DIRECTIONS, 2))
-    shape_footprint(obstacles[0], verts, poly)
-    fill_convex_polygon(mask, poly, -2.0, -2.0, 0.5)
-    distance_map(mask)
-    gjk_intersect(shapes, verts, obstacles, verts)
-    row_aabb(obstacles[0], verts, np.empty(6))
+
+    def sweep():
+        field = HeightField(range_max_table(heights), -1.0, -1.0, 1.0)
+        sweep_chains(np.array([[0, 1], [0, -1]], np.int64),
+                     (np.array([[-3.0]]), np.array([[3.0]]), np.array([0.01])),
+                     np.array([[2]], np.int64), np.array([0.2]), W, m, field, np.zeros(1))
+
+    def footprints():
+        mask = np.zeros((8, 8), np.bool_)
+        robot_footprint(Q, m, mask, -2.0, -2.0, 0.5)
+        poly = np.empty((FOOTPRINT_DIRECTIONS, 2))
+        shape_footprint(obstacles[0], verts, poly)
+        fill_convex_polygon(mask, poly, -2.0, -2.0, 0.5)
+        distance_map(mask)
+
+    return [
+        ("fk", lambda: fk(Q, chain)),
+        ("configs_may_collide", lambda: configs_may_collide(Q, m, 0.0)),
+        ("configs_may_collide_serial", lambda: configs_may_collide_serial(Q, m, 0.0)),
+        ("sweep_chains", sweep),
+        ("regions_hit", lambda: regions_hit(W[:1].copy(), W[1:].copy(), np.array([0], np.int64), np.array([-0.1]),
+                                            np.array([0.1]), np.array([2], np.int64), np.array([2], np.int64),
+                                            np.array([0.01]), m)),
+        ("lower_columns_under", lambda: lower_columns_under(Q, np.zeros((2, 1)), m, heights.copy(),
+                                                            (-1.0, -1.0, 1.0), 0.0)),
+        ("obstacle_distances", lambda: obstacle_distances(Q, 0.5, 1e-3, m)),
+        ("footprints", footprints),
+        ("gjk_intersect", lambda: (gjk_intersect(shapes, verts, obstacles, verts),
+                                   row_aabb(obstacles[0], verts, np.empty(6)))),
+    ]
+
+
+def warm_up(on_step=None) -> float:
+    """Compiles (or loads from numba's cache) every kernel by running it
+    once on a tiny made-up scene. ``on_step(name, seconds)`` is called after
+    each step (:data:`STEP_SHARES`). Returns the seconds it took; the
+    paper's timing never includes this."""
+    import time
+
+    t0 = time.perf_counter()
+    for name, call in _steps():
+        t = time.perf_counter()
+        call()
+        if on_step is not None:
+            on_step(name, time.perf_counter() - t)
     return time.perf_counter() - t0
