@@ -10,7 +10,7 @@ from numba import njit, prange
 
 from drake_cfvol.kernel.types import Chain, Model, SHAPE_W, _C, _EI
 from drake_cfvol.kernel.kinematics import fk_into
-from drake_cfvol.kernel.shapes import _aabb_apart, obb_apart, pose_shape, row_aabb, set_motion
+from drake_cfvol.kernel.shapes import _aabb_apart, _obb_apart, pose_shape, row_aabb, set_motion
 from drake_cfvol.kernel.gjk import _gjk, _gjk_from
 from drake_cfvol.kernel.heightfield import _clip_block, new_scratch, object_hits_columns
 
@@ -33,7 +33,7 @@ def _object_vs_obstacles(obj, aabb, verts, obstacles, obs_aabb, ws, dirs):
     model tuple passed per call costs a reference count per array."""
     single = obj.shape[0] == 1
     for o in range(obstacles.shape[0]):
-        if _aabb_apart(aabb, obs_aabb[o]) or (single and obb_apart(obj[0], obstacles[o])):
+        if _aabb_apart(aabb, obs_aabb[o]) or (single and _obb_apart(obj[0], obstacles[o], ws[8:17])):
             continue
         if _gjk_from(obj, verts, obstacles[o:o + 1], verts, 64, ws, dirs[o]):
             return True
@@ -95,7 +95,7 @@ def _may_collide_range(Q, start, stop, m, pad, out):
             for p in range(shape_pairs.shape[0]):
                 sa = shape_pairs[p, 0]
                 sb = shape_pairs[p, 1]
-                if _aabb_apart(aabbs[sa], aabbs[sb]) or obb_apart(objs[sa, 0], objs[sb, 0]):
+                if _aabb_apart(aabbs[sa], aabbs[sb]) or _obb_apart(objs[sa, 0], objs[sb, 0], ws[8:17]):
                     continue
                 if _gjk_from(objs[sa], verts, objs[sb], verts, 64, ws, pair_dirs[p]):
                     hit = True

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.kernel.types import SEP_EPS, _C, _ED, _EI, _ES, _K, _R, _S, _U, _V0, _V1
+from drake_cfvol.kernel.types import SEP_EPS, SHAPE_W, _C, _ED, _EI, _ES, _K, _R, _S, _U, _V0, _V1
 
 __all__ = ['row_aabb']
 
@@ -16,19 +16,20 @@ __all__ = ['row_aabb']
 @njit(cache=True)
 def pose_shape(local, R_WB, p_WB, out):
     """A shape row posed in the world: out = local with the body pose applied
-    (centre and rotation); the motion fields are left as in ``local``."""
-    out[:] = local
+    (centre and rotation); the motion fields are left as in ``local``.
+    Element by element (a slice copy and nested sums cost twice as much)."""
+    for f in range(SHAPE_W):
+        out[f] = local[f]
+    l0 = local[_C]
+    l1 = local[_C + 1]
+    l2 = local[_C + 2]
     for i in range(3):
-        acc = p_WB[i]
+        r0 = R_WB[i, 0]
+        r1 = R_WB[i, 1]
+        r2 = R_WB[i, 2]
+        out[_C + i] = p_WB[i] + r0 * l0 + r1 * l1 + r2 * l2
         for j in range(3):
-            acc += R_WB[i, j] * local[_C + j]
-        out[_C + i] = acc
-    for i in range(3):
-        for j in range(3):
-            acc = 0.0
-            for k in range(3):
-                acc += R_WB[i, k] * local[_R + 3 * k + j]
-            out[_R + 3 * i + j] = acc
+            out[_R + 3 * i + j] = r0 * local[_R + j] + r1 * local[_R + 3 + j] + r2 * local[_R + 6 + j]
 
 
 @njit(cache=True)
@@ -264,13 +265,20 @@ def obb_apart(a, b):
     than SEP_EPS, along one of the 15 axes of the separating-axis theorem.
     False decides nothing (near, overlapping, or a hull row). Exact for two
     boxes; conservative for the other shapes (each inside its box)."""
-    ha = np.empty(3)
-    hb = np.empty(3)
+    return _obb_apart(a, b, np.empty((9, 3)))
+
+
+@njit(cache=True)
+def _obb_apart(a, b, w):
+    """:func:`obb_apart` with scratch ``w`` (9, 3) (the batch loops call it
+    millions of times: no allocation per call)."""
+    ha = w[0]
+    hb = w[1]
     if not (_obb_half(a, ha) and _obb_half(b, hb)):
         return False
     # C[i, j] = a_i . b_j, with a_i, b_j the boxes' axes (columns of R).
-    C = np.empty((3, 3))
-    t = np.empty(3)  # the centres' offset in a's frame
+    C = w[3:6]
+    t = w[2]  # the centres' offset in a's frame
     for i in range(3):
         acc = 0.0
         for k in range(3):
@@ -281,7 +289,7 @@ def obb_apart(a, b):
             for k in range(3):
                 acc += a[_R + 3 * k + i] * b[_R + 3 * k + j]
             C[i, j] = acc
-    A = np.empty((3, 3))  # |C|, grown a little against rounding (near-parallel edges)
+    A = w[6:9]  # |C|, grown a little against rounding (near-parallel edges)
     for i in range(3):
         for j in range(3):
             A[i, j] = abs(C[i, j]) + 1e-9
