@@ -15,9 +15,6 @@ seconds: the measured shares of drake_cfvol.kernel.warmup.STEP_SHARES.
 
 import argparse
 import json
-import os
-import subprocess
-import sys
 import tempfile
 import time
 
@@ -29,26 +26,7 @@ BenchConfig, run_bench = bench_harness().BenchConfig, bench_harness().run_bench
 from drake_cfvol.comanip import run_scenario
 
 
-_COMPILE = """
-import json
-from drake_cfvol.algorithm.pipeline import warm_up
-from drake_cfvol import kernel
-from drake_cfvol.io import progress
-steps = []
-orig = kernel.warm_up
-kernel.warm_up = lambda on_step=None: orig(on_step=lambda n, s: (steps.append((n, round(s, 2))), on_step(n, s)))
-warm_up(progress=True)
-print(json.dumps({"history": progress.finished()[-1][1], "steps": steps}))
-"""
-
-
-def fresh_compile() -> dict:
-    """The kernel's first compile in a new process on an empty numba cache:
-    its bar's history and each step's seconds."""
-    with tempfile.TemporaryDirectory() as cache:
-        out = subprocess.run([sys.executable, "-c", _COMPILE], env=dict(os.environ, NUMBA_CACHE_DIR=cache),
-                             capture_output=True, text=True, check=True).stdout
-    return json.loads(out.strip().splitlines()[-1])
+fresh_compile = bench_harness("kernel").fresh_compile
 
 
 def main() -> None:
@@ -60,11 +38,9 @@ def main() -> None:
     results = {}
     if args.compile or args.compile_only:
         run = fresh_compile()
-        hist = run["history"]
-        results["compile"] = {"seconds": round(hist[-1][0], 2), "steps_s": dict(run["steps"]),
-                              "eta_error_percent": {f"{int(100 * f)}%": round(100 * e, 1)
-                                                    for f, e in progress.eta_errors(hist).items()}}
-        print(f"kernel compile: {hist[-1][0]:.1f} s", flush=True)
+        results["compile"] = {"seconds": round(run["seconds"], 2), "steps_s": run["steps_s"],
+                              "eta_error_percent": {f: round(100 * e, 1) for f, e in run["eta_error"].items()}}
+        print(f"kernel compile: {run['seconds']:.1f} s", flush=True)
         if args.compile_only:
             print(json.dumps(results, indent=1))
             return

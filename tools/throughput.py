@@ -2,39 +2,20 @@
 (``Workcell.collision_free``) against Drake's ``SceneGraphCollisionChecker``
 (2 threads) on the same samples, drawn uniformly from the boxes of a path's
 bounds (where a planner or a certificate samples). Medians over repeats,
-and their ratio, measured in one run.
+and their ratio, measured in one run (the first part of ``cfvol bench
+--kernel``, benchmarks/kernel.py).
 
     python tools/throughput.py [--samples 100000] [--repeats 5]
 """
 
-from __future__ import annotations
-
 import argparse
-import statistics
-import time
-
-import numpy as np
 
 import drake_cfvol as cf
+from drake_cfvol.apps.cli import bench_harness
+
+throughput = bench_harness("kernel").throughput
 
 CASES = (("automotive", "path1"), ("aerospace", "path2"))
-
-
-def samples_in_bounds(table, n: int, seed: int = 0) -> np.ndarray:
-    """(n, k) configurations, uniform in the boxes at uniform path positions."""
-    rng = np.random.default_rng(seed)
-    lo, hi, _ = table.boxes_at(rng.uniform(0, table.g - 1, n))
-    return lo + rng.random(lo.shape) * (hi - lo)
-
-
-def rate(fn, Q, repeats: int) -> tuple[float, np.ndarray]:
-    """(median configurations per second, the last answer)."""
-    times, out = [], None
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        out = fn(Q)
-        times.append(time.perf_counter() - t0)
-    return len(Q) / statistics.median(times), out
 
 
 def main() -> None:
@@ -45,15 +26,10 @@ def main() -> None:
     for cell, label in CASES:
         wc = cf.load_workcell(cell)
         table = cf.estimate_bounds(wc, cf.plan_nominal_path(wc, *wc.configuration(label), seed=0), resolution=1000)
-        Q = samples_in_bounds(table, args.samples)
-        wc.collision_free(Q[:100])  # compiled and warm
-        kernel, free = rate(wc.collision_free, Q, args.repeats)
-        drake, ok = rate(lambda X: np.array(wc.checker.CheckConfigsCollisionFree(X, parallelize=True), bool), Q,
-                         args.repeats)
-        wrong = int((free & ~ok).sum())
-        print(f"{cell} {label}: kernel {kernel:,.0f}/s, Drake {drake:,.0f}/s, ratio {kernel / drake:.1f}x "
-              f"(medians of {args.repeats}; {len(Q):,} samples, {int((~ok).sum()):,} colliding, "
-              f"{wrong} called free where Drake collides)")
+        r = throughput(wc, table, args.samples, args.repeats)
+        print(f"{cell} {label}: kernel {r['kernel_per_s']:,.0f}/s, Drake {r['drake_per_s']:,.0f}/s, ratio "
+              f"{r['ratio']:.1f}x, forward kinematics alone {r['fk_per_s']:,.0f}/s (medians of {args.repeats}; "
+              f"{r['samples']:,} samples, {r['colliding']:,} colliding, {r['wrong']} called free where Drake collides)")
 
 
 if __name__ == "__main__":

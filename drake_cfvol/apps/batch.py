@@ -234,7 +234,10 @@ def run_job(job: Job, threads: int | None = None) -> JobResult:
     if "certificate" in table.info:
         rep = table.info["certificate"]
         summary.update({"certify_ms": rep["time_ms"], "certify_cached": bool(rep.get("cached")),
-                        "certify_shrinks": rep["shrinks"], "certified_freedom_kept":
+                        "certify_shrinks": rep["shrinks"], "certify_n_samples": rep["n_samples"],
+                        "certify_samples": rep["samples"],
+                        "certify_region_tests": (rep.get("boundary") or {}).get("edge_tests", 0),
+                        "certified_freedom": rep["freedom_after"], "certified_freedom_kept":
                         rep["freedom_after"] / rep["freedom_before"] if rep["freedom_before"] else None})
     return JobResult(job, summary, table)
 
@@ -261,6 +264,13 @@ def _client(scheduler: str | None, workers: int | None):
     return Client(cluster), cluster
 
 
+def _kernel_threads(workers: int) -> int:
+    """The kernel's threads in each of a local cluster's ``workers``
+    processes: the cores shared out (one each when there are as many
+    workers as cores)."""
+    return max(1, (os.cpu_count() or 1) // max(1, workers))
+
+
 def run_batch(jobs: list[Job], *, scheduler: str | None = None, workers: int | None = None, progress: bool = True,
               client=None) -> list[JobResult]:
     """Runs the jobs and returns their results in the jobs' order.
@@ -270,8 +280,9 @@ def run_batch(jobs: list[Job], *, scheduler: str | None = None, workers: int | N
         scheduler: ``"serial"`` (one after the other, in this process, no
             Dask), a Dask scheduler's address (``tcp://host:8786``), or None:
             a LocalCluster here.
-        workers: the LocalCluster's processes (default: one per core); each
-            job's kernel then runs on one thread.
+        workers: the LocalCluster's processes (default: one per core); the
+            cores are shared out among them (one kernel thread each by
+            default; both cores for ``workers=1`` on two).
         progress: a bar of the jobs done (on a terminal).
         client: a ``distributed.Client`` of your own (then ``scheduler``
             and ``workers`` are not used).
@@ -293,7 +304,7 @@ def run_batch(jobs: list[Job], *, scheduler: str | None = None, workers: int | N
         try:
             from distributed import as_completed
 
-            threads = 1 if cluster is not None else None
+            threads = _kernel_threads(len(cluster.workers)) if cluster is not None else None
             futures = client.map(run_job, jobs, threads=threads, pure=False)
             for fut in as_completed(futures):
                 res = fut.result()

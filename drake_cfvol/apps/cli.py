@@ -283,10 +283,11 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def bench_harness():
+def bench_harness(module: str = "harness"):
     """The benchmark harness (the paper's tables, the adversarial section):
     ``benchmarks/harness.py`` of the development checkout this package runs
-    from. It is not part of the library (nor of the wheel).
+    from (``module="kernel"``: the kernel benchmark). It is not part of the
+    library (nor of the wheel).
 
     Raises:
         CfvolError: the package is not running from a development checkout.
@@ -299,10 +300,30 @@ def bench_harness():
                          f"this one is installed at {root}. Clone the repository and run tools/dev.sh cfvol bench.")
     if str(root) not in sys.path:
         sys.path.insert(0, str(root))
-    return importlib.import_module("benchmarks.harness")
+    return importlib.import_module(f"benchmarks.{module}")
+
+
+def _bench_kernel(args) -> int:
+    """``cfvol bench --kernel``: the kernel issue's targets in one run."""
+    bench = bench_harness("kernel")
+    out = _out_path(args.out if args.out != "out/bench" else "out/bench-kernel")
+    prepare_output(out, overwrite=True, folder=True)
+    cfg = bench.KernelBenchConfig.quick() if args.quick else bench.KernelBenchConfig()
+    if args.trials:
+        cfg.trials = args.trials
+    result = bench.run_kernel_bench(cfg)
+    files = bench.write_kernel_outputs(result, out, bench_harness().machine_info())
+    if args.json:
+        print(json.dumps({"targets": bench.kernel_targets(result), "files": files}, default=float))
+    else:
+        print(Path(files["markdown"]).read_text())
+        print(f"Written to {out}")
+    return 0
 
 
 def cmd_bench(args) -> int:
+    if args.kernel:
+        return _bench_kernel(args)
     harness = bench_harness()
     BenchConfig, run_bench, write_outputs = harness.BenchConfig, harness.run_bench, harness.write_outputs
 
@@ -438,6 +459,10 @@ def _add_bench(sub) -> None:
     """The ``bench`` command (the harness of a development checkout)."""
     n = sub.add_parser("bench", help="reproduce the paper's Tables I and II side by side")
     n.add_argument("--quick", action="store_true", help="a small run (a few minutes)")
+    n.add_argument("--kernel", action="store_true",
+                   help="the kernel benchmark instead: configurations per second against Drake, bounding against "
+                        "the paper, certification as batch jobs, CF, the first compile (default --out "
+                        "out/bench-kernel; uses --quick, --trials, --json)")
     n.add_argument("--cells", nargs="+", help="cells (default both)")
     n.add_argument("--paths", nargs="+", help="paths, e.g. 1 2 3 (default all)")
     n.add_argument("--resolutions", nargs="+", type=int, help="R values (default the paper's)")
