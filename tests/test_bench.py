@@ -148,3 +148,32 @@ def test_adversarial_targets_by_hand():
         assert "MISSED" in adversarial_targets([bad])[1]
     md = "\n".join(adversarial_markdown([_section()]))
     assert "| random | certified | on | 2 | 0 | 2 |" in md and "50 of 192 corners" in md
+
+
+def test_kernel_targets_say_met_or_by_how_much_missed():
+    """The kernel benchmark's targets: a figure past its threshold is met; one
+    short of it is missed by threshold / figure, with the measured reason."""
+    from benchmarks.kernel import kernel_targets
+
+    result = {
+        "throughput": [{"cell": "a", "path": "path1", "kernel_per_s": 4.0e6, "drake_per_s": 4.0e4, "ratio": 100.0,
+                        "fk_per_s": 8.0e6, "fk_ratio": 200.0},
+                       {"cell": "b", "path": "path2", "kernel_per_s": 4.0e5, "drake_per_s": 5.0e4, "ratio": 8.0,
+                        "fk_per_s": 2.0e6, "fk_ratio": 40.0}],
+        "bounding": [{"cell": "a", "path": "path1", "resolution": 100, "time_ms": 8.0, "paper_ms": 82,
+                      "paper_over_ours": 10.25, "region_tests": 100, "us_per_test": 80.0},
+                     {"cell": "a", "path": "path1", "resolution": 20000, "time_ms": 574.5, "paper_ms": 1149,
+                      "paper_over_ours": 2.0, "region_tests": 14000, "us_per_test": 41.0}],
+        "certify": [{"cell": "a", "path": "path1", "certify_ms": 5000.0, "certify_region_tests": 10,
+                     "certify_samples": 20, "certify_n_samples": 5, "certify_shrinks": 1}],
+        "cf": [{"cell": "a", "path": "path1", "samples": 300000, "seconds": 0.25, "drake_checked": 10, "percent": 99.0,
+                "drake_floor_s": 0.01}],
+        "compile": {"seconds": 60.0, "eta_error": {"25%": 0.1, "50%": 0.4}},
+    }
+    got = {name: (ok, text) for name, ok, text in kernel_targets(result)}
+    flags = [ok for ok, _ in got.values()]
+    assert flags == [True, False, True, False, False, False, True, False]
+    assert "10.0x short" in got["b path2: configurations per second >= 80x Drake's checker"][1]
+    assert "5.0x short" in got["a path1 R = 20000: bounding <= 114.9 ms (10x below the paper's 1149 ms)"][1]
+    assert "71.81" in got["a path1: growth t(20000) / t(100) <= 2"][1]  # 574.5 / 8.0
+    assert "2.5x over" in got["a path1: certification <= 2 s"][1]
