@@ -63,12 +63,13 @@ def test_unknown_cell_lists_the_built_in_ones(tmp_path):
         expand_jobs(jobs, tmp_path)
 
 
+@pytest.mark.slow
 def test_batch_on_dask_equals_the_serial_run():
     """The same jobs through Dask's distributed scheduler give exactly the serial results, in the jobs' order."""
     from distributed import Client
 
     jobs, _ = load_jobs(text=SMALL)
-    todo = expand_jobs(jobs)[:2]  # the slow group runs all four on worker processes
+    todo = expand_jobs(jobs)[:2]  # (the CLI test below runs all four on worker processes)
     serial = run_batch(todo, scheduler="serial", progress=False)
     with Client(processes=False, n_workers=2, threads_per_worker=1, dashboard_address=None) as client:
         dist = run_batch(todo, client=client, progress=False)
