@@ -164,14 +164,11 @@ def _bounding(cfg: KernelBenchConfig) -> list[dict]:
 
 def _certification(cfg: KernelBenchConfig) -> list[dict]:
     """The certify cases as batch jobs on a one-process LocalCluster."""
-    from drake_cfvol.apps.batch import BatchJobs, BatchSettings, expand_jobs, run_batch
+    from drake_cfvol.apps.batch import BatchSettings, Job, run_batch
 
     setting = BatchSettings(resolution=1000, clearance=cfg.clearance, certify=True, epsilon=cfg.epsilon, cache=False,
                             cf_windows=cfg.cf_windows, cf_samples=cfg.cf_samples)
-    jobs = []
-    for cell, label in cfg.certify_cases:
-        jobs += expand_jobs(BatchJobs(cells=[cell], paths=[label], settings=[setting]))
-    jobs = [dataclasses.replace(j, index=i) for i, j in enumerate(jobs)]
+    jobs = [Job(i, cell, label, setting) for i, (cell, label) in enumerate(cfg.certify_cases)]
     return [r.summary for r in run_batch(jobs, workers=1, progress=False)]
 
 

@@ -173,18 +173,19 @@ def expand_jobs(jobs: BatchJobs, base_dir: Path | None = None) -> list[Job]:
     files relative to ``base_dir`` (the jobs file's folder)."""
     from drake_cfvol.scene.schema import builtin_cells
 
+    from drake_cfvol.apps.cli import _path_name
+    from drake_cfvol.comanip.scenario import _cell_path
+
+    labels = [_path_name(label) for label in jobs.paths]
     out = []
     for cell in jobs.cells:
         if cell not in builtin_cells():
-            p = Path(cell).expanduser()
-            if base_dir is not None and not p.is_absolute():
-                p = base_dir / p
+            p = _cell_path(str(Path(cell).expanduser()), base_dir)
             if not p.is_file():
                 raise BatchError(base_dir or "<text>", "cells", f"'{cell}' is neither a built-in cell "
                                  f"({', '.join(sorted(builtin_cells()))}) nor a workcell file")
             cell = str(p.resolve())
-        for label in jobs.paths:
-            label = label if label.startswith("path") or not label.isdigit() else f"path{label}"
+        for label in labels:
             for s in jobs.settings:
                 out.append(Job(len(out), cell, label, s))
     return out
@@ -287,6 +288,11 @@ def run_batch(jobs: list[Job], *, scheduler: str | None = None, workers: int | N
         client: a ``distributed.Client`` of your own (then ``scheduler``
             and ``workers`` are not used).
     """
+    if client is None and scheduler is None:
+        # Compiled here first (once, with its own bar): the local workers then load it from numba's cache.
+        from drake_cfvol.algorithm.pipeline import warm_up
+
+        warm_up(progress=progress)
     bar = Progress(len(jobs), "Batch jobs", enabled=progress, unit="jobs")
     out: list[JobResult | None] = [None] * len(jobs)
     try:
@@ -295,8 +301,6 @@ def run_batch(jobs: list[Job], *, scheduler: str | None = None, workers: int | N
                 out[job.index] = run_job(job)
                 bar.update(1)
             return out
-        if client is None and scheduler is None:
-            _warm_kernel()
         own = client is None
         cluster = None
         if own:
@@ -318,14 +322,6 @@ def run_batch(jobs: list[Job], *, scheduler: str | None = None, workers: int | N
     finally:
         bar.close()
     return out
-
-
-def _warm_kernel() -> None:
-    """Compiles the kernel here first (once), so the workers of a local
-    cluster load it from numba's cache instead of each compiling it."""
-    from drake_cfvol import kernel
-
-    kernel.warm_up()
 
 
 def output_files(jobs: list[Job], out: str | Path, *, overwrite: bool = False) -> dict:
