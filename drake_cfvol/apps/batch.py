@@ -32,7 +32,7 @@ import yaml
 
 from drake_cfvol.exceptions import BatchError, CfvolError, ScenarioError
 from drake_cfvol.io.progress import Progress
-from drake_cfvol.io.records import prepare_output
+from drake_cfvol.io.records import path_label, prepare_output
 
 __all__ = ["BatchSettings", "BatchJobs", "Job", "JobResult", "load_jobs", "expand_jobs", "run_job", "run_batch",
            "write_batch", "output_files"]
@@ -173,10 +173,9 @@ def expand_jobs(jobs: BatchJobs, base_dir: Path | None = None) -> list[Job]:
     files relative to ``base_dir`` (the jobs file's folder)."""
     from drake_cfvol.scene.schema import builtin_cells
 
-    from drake_cfvol.apps.cli import _path_name
     from drake_cfvol.comanip.scenario import _cell_path
 
-    labels = [_path_name(label) for label in jobs.paths]
+    labels = [path_label(label) for label in jobs.paths]
     out = []
     for cell in jobs.cells:
         if cell not in builtin_cells():

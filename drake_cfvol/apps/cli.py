@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from drake_cfvol.io.records import output_stem, prepare_output
+from drake_cfvol.io.records import output_stem, path_label, prepare_output
 from drake_cfvol._version import __version__
 from drake_cfvol.exceptions import CfvolError, ParameterError
 
@@ -27,10 +27,6 @@ def _quiet_drake() -> None:
 
     configure_logging()
     logging.getLogger("drake").setLevel(logging.WARNING)
-
-
-def _path_name(n: str) -> str:
-    return n if n.startswith("path") or not n.isdigit() else f"path{n}"
 
 
 #: Plain-output labels: what each summary key means, with its unit.
@@ -121,7 +117,7 @@ def cmd_plan(args) -> int:
     if out is not None:
         prepare_output(out, overwrite=args.force)
     wc = _load_cell(load_workcell, args.cell)
-    label = _path_name(args.path)
+    label = path_label(args.path)
     start, goal = wc.configuration(label)
     path = plan_nominal_path(wc, start, goal, seed=args.seed, time_limit=args.time_limit, label=label,
                              clearance=args.clearance)
@@ -209,7 +205,7 @@ def cmd_bounds(args) -> int:
                              f"{args.cf_samples}.")
     out = _out_path(args.out)
     wc = _load_cell(load_workcell, args.cell)
-    label = _path_name(args.path)
+    label = path_label(args.path)
     stem = output_stem(wc.name, label, args.resolution, certified=args.certify)
     if out is not None:
         prepare_output(out, overwrite=args.force, folder=True)
@@ -340,7 +336,7 @@ def cmd_bench(args) -> int:
     if args.cells:
         cfg.cells = args.cells
     if args.paths:
-        cfg.paths = [_path_name(p) for p in args.paths]
+        cfg.paths = [path_label(p) for p in args.paths]
     if args.resolutions:
         cfg.resolutions = args.resolutions
     if args.trials:

@@ -13,6 +13,12 @@ from drake_cfvol.exceptions import OutputExistsError, OutputPathError, Parameter
 FORMATS = {"path": "drake_cfvol.NominalPath", "bounds": "drake_cfvol.BoundsTable"}
 
 
+def path_label(name: str) -> str:
+    """A configuration pair's label as the user may write it: ``1`` is
+    ``path1``; any other name is kept."""
+    return name if name.startswith("path") or not name.isdigit() else f"path{name}"
+
+
 def output_stem(cell: str, label: str, resolution: int | None = None, *, certified: bool = False) -> str:
     """The one naming scheme of output files: ``<cell>_<path>[_R<R>][_certified]``,
     followed by ``_<kind>.<ext>`` (``automotive_path1_R1000_bounds.npz``,
