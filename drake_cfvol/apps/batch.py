@@ -24,6 +24,7 @@ import functools
 import json
 import logging
 import os
+import threading
 import time
 from pathlib import Path
 
@@ -190,6 +191,12 @@ def expand_jobs(jobs: BatchJobs, base_dir: Path | None = None) -> list[Job]:
     return out
 
 
+#: Jobs in one process run one at a time: they share its workcells (Drake's
+#: checker and its contexts, not for two threads at once) and numba's
+#: thread pool, which already uses the cores.
+_JOB_LOCK = threading.Lock()
+
+
 @functools.lru_cache(maxsize=8)
 def _workcell(cell: str):
     """One workcell per cell and process (a worker runs many jobs)."""
@@ -201,7 +208,14 @@ def _workcell(cell: str):
 def run_job(job: Job, threads: int | None = None) -> JobResult:
     """Runs one job where it is called (a Dask worker, or this process):
     plan the path, compute the bounds (and their certificate), CF and
-    freedom. ``threads``: the kernel's threads (None: numba's default)."""
+    freedom. ``threads``: the kernel's threads (None: numba's default).
+    A worker with several threads runs its jobs one after the other
+    (:data:`_JOB_LOCK`)."""
+    with _JOB_LOCK:
+        return _run_job(job, threads)
+
+
+def _run_job(job: Job, threads: int | None) -> JobResult:
     from drake_cfvol.algorithm.certify import Certify
     from drake_cfvol.algorithm.metrics import confidence_factor, freedom
     from drake_cfvol.algorithm.pipeline import estimate_bounds
