@@ -15,7 +15,7 @@ PACKAGE = Path(cf.__file__).parent
 #: The subpackages in pipeline order: each may import only those before it.
 #: ``exceptions`` and ``_version`` (top-level modules) import nothing of the
 #: package, and every layer may use them.
-LAYERS = ["io", "kernel", "scene", "algorithm", "systems", "comanip", "apps"]
+LAYERS = ["io", "kernel", "scene", "algorithm", "online", "systems", "comanip", "apps"]
 BASE = {"exceptions", "_version"}
 
 

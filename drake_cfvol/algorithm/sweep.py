@@ -20,6 +20,7 @@ starting from the previous stretch's bound; the walks run in parallel.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -29,7 +30,7 @@ from drake_cfvol.scene.arrays import SceneArrays
 from drake_cfvol.algorithm.heightmap import Volume
 from drake_cfvol.scene.params import VolumeParams
 
-__all__ = ["stretch_bounds", "volume_table", "nominal_growth", "default_rate", "stretch_margins"]
+__all__ = ["stretch_bounds", "sweep_setup", "sweep_range", "SweepSetup", "volume_table", "nominal_growth", "default_rate", "stretch_margins"]
 
 #: Poses are sampled along the stretch (up to kernel.MAX_T_SAMPLES) until
 #: the nominal's own motion grows a body by at most this much between
@@ -114,22 +115,10 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     W = np.ascontiguousarray(waypoints, dtype=np.float64)
     g, k = W.shape
     n_st = g - 1
-    delta = np.where(arrays.revolute, params.delta, params.delta_prismatic).astype(np.float64)
-    growth = nominal_growth(arrays, W)  # (g-1, k); it scales with the sample spacing squared
-    nts = np.clip(1 + np.ceil(np.sqrt(growth / MOTION_TOLERANCE)), 2, K.MAX_T_SAMPLES).astype(np.int64)
-    # Along v: growth = reach L^2 / 8 <= tolerance for a step L.
-    reach_j = np.where(arrays.revolute, arrays.reach.max(axis=1), 0.0)
-    v_steps = np.where(reach_j > 0, np.sqrt(8 * MOTION_TOLERANCE / np.maximum(reach_j, 1e-9)), np.inf)
-    table, ox, oy, side = volume_table(volume)
-    lim_lo = np.ascontiguousarray(lower_limit, dtype=np.float64)
-    lim_hi = np.ascontiguousarray(upper_limit, dtype=np.float64)
-
-    if margins is None:
-        margins = stretch_margins(arrays, W, params.clearance)
-    chains = np.array([(j, sgn) for j in range(k) for sgn in (1, -1)], np.int64)
-    bounds, tests = K.sweep_chains(chains, (lim_lo, lim_hi, delta), nts, v_steps, W, arrays.model,
-                                   K.HeightField(table, float(ox), float(oy), float(side)),
-                                   np.ascontiguousarray(margins, dtype=np.float64))
+    setup = sweep_setup(arrays, W, params, lower_limit, upper_limit, margins)
+    margins = setup.margins
+    bounds, tests, _ = sweep_range(setup, arrays, W, volume_table(volume), 0, n_st - 1,
+                                   np.full(len(setup.chains), np.nan))
     lo_nom = np.minimum(W[:-1], W[1:])
     hi_nom = np.maximum(W[:-1], W[1:])
     upper = bounds[0::2].T.copy()
@@ -140,11 +129,68 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     # box at s always holds nom(s); see table.box_at).
     stats = {"region_tests": tests, "searches": 2 * n_st * k,
              "pinned": int((upper < hi_nom).sum() + (lower > lo_nom).sum()),
-             "max_t_samples": int(nts.max()) if nts.size else 0,
+             "max_t_samples": int(setup.nts.max()) if setup.nts.size else 0,
              "motion_tolerance_m": MOTION_TOLERANCE, "clearance_m": float(params.clearance),
              "stretches_below_clearance": int((margins < params.clearance).sum()),
              "min_margin_m": float(margins.min()) if len(margins) else float(params.clearance)}
     return lower, upper, stats
+
+
+@dataclasses.dataclass
+class SweepSetup:
+    """What the sweep of a path needs besides the scene: the chains (joint,
+    sign), per-joint tolerance ``delta``, the pose samples per stretch along
+    t (``nts`` (g-1, k)) and the step along v (``v_steps`` (k,)), the
+    absolute bounds per stretch and each stretch's margin, m."""
+
+    chains: np.ndarray
+    delta: np.ndarray
+    nts: np.ndarray
+    v_steps: np.ndarray
+    lim_lo: np.ndarray
+    lim_hi: np.ndarray
+    margins: np.ndarray
+
+
+def sweep_setup(arrays: SceneArrays, W: np.ndarray, params: VolumeParams, lower_limit: np.ndarray,
+                upper_limit: np.ndarray, margins: np.ndarray | None = None) -> SweepSetup:
+    """The sweep's inputs for a path (see :func:`stretch_bounds`)."""
+    W = np.ascontiguousarray(W, dtype=np.float64)
+    k = W.shape[1]
+    delta = np.where(arrays.revolute, params.delta, params.delta_prismatic).astype(np.float64)
+    growth = nominal_growth(arrays, W)  # (g-1, k); it scales with the sample spacing squared
+    nts = np.clip(1 + np.ceil(np.sqrt(growth / MOTION_TOLERANCE)), 2, K.MAX_T_SAMPLES).astype(np.int64)
+    # Along v: growth = reach L^2 / 8 <= tolerance for a step L.
+    reach_j = np.where(arrays.revolute, arrays.reach.max(axis=1), 0.0)
+    v_steps = np.where(reach_j > 0, np.sqrt(8 * MOTION_TOLERANCE / np.maximum(reach_j, 1e-9)), np.inf)
+    if margins is None:
+        margins = stretch_margins(arrays, W, params.clearance)
+    chains = np.array([(j, sgn) for j in range(k) for sgn in (1, -1)], np.int64)
+    return SweepSetup(chains, delta, nts, v_steps, np.ascontiguousarray(lower_limit, dtype=np.float64),
+                      np.ascontiguousarray(upper_limit, dtype=np.float64),
+                      np.ascontiguousarray(margins, dtype=np.float64))
+
+
+def sweep_range(setup: SweepSetup, arrays: SceneArrays, W: np.ndarray, field: tuple, a: int, b: int,
+                guesses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sweep over stretches a..b (inclusive), each chain starting from
+    ``guesses`` (n,) (NaN: cold; a full sweep starts cold at stretch 0).
+
+    Args:
+        field: :func:`volume_table`'s (table, ox, oy, side).
+
+    Returns:
+        (bounds (n, b-a+1), tests (n,), footprints (n, b-a+1, 6)): chain n
+        is ``setup.chains[n]``; a footprint is the box (min xyz, max xyz)
+        holding every body the search tested against the scene, m
+        (obstacles and columns outside it cannot change that search).
+    """
+    table, ox, oy, side = field
+    sl = slice(a, b + 1)
+    return K.sweep_chains(setup.chains, (setup.lim_lo[sl], setup.lim_hi[sl], setup.delta),
+                          np.ascontiguousarray(setup.nts[sl]), setup.v_steps, np.ascontiguousarray(W[a:b + 2]),
+                          arrays.model, K.HeightField(table, float(ox), float(oy), float(side)),
+                          setup.margins[sl], np.ascontiguousarray(guesses, dtype=np.float64))
 
 
 #: Without a given time per waypoint, the nominal is taken to run at this

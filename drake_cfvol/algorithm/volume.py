@@ -12,7 +12,8 @@ from drake_cfvol.algorithm.heightmap import HeightMap, Volume, height_function
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.algorithm.planning import NominalPath
 
-__all__ = ["Categories", "VolumeBuild", "categorize", "build_volume", "ground_obstacles"]
+__all__ = ["Categories", "VolumeBuild", "Footprints", "categorize", "build_volume", "footprint_masks",
+           "volume_from_masks", "ground_obstacles"]
 
 #: An obstacle whose top is at most this high is ground (the floor).
 GROUND_TOP = 1e-3
@@ -149,6 +150,36 @@ def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
     ``volume.dropped``.
     """
     cats = categories or categorize(workcell, path, params)
+    fp = footprint_masks(workcell, path, params, cats)
+    return volume_from_masks(workcell, path, params, cats, fp)
+
+
+@dataclasses.dataclass
+class Footprints:
+    """The footprint rasters the height function's distances come from.
+
+    Attributes:
+        masks: ``{"trail", "goal", "no_goal"}`` -> (a, b) bool rasters.
+        x0, y0: the raster's corner, m; pixel: its pixel side, m.
+    """
+
+    masks: dict
+    x0: float
+    y0: float
+    pixel: float
+
+    def indices(self, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Raster indices (clipped) of world points (X, Y), m."""
+        shape = self.masks["trail"].shape
+        return (np.clip(np.floor((X - self.x0) / self.pixel).astype(int), 0, shape[0] - 1),
+                np.clip(np.floor((Y - self.y0) / self.pixel).astype(int), 0, shape[1] - 1))
+
+
+def footprint_masks(workcell, path: NominalPath, params: VolumeParams, cats: Categories) -> Footprints:
+    """The trail (the robot's shapes at every waypoint and the trail
+    obstacles), goal and no-goal footprints on a raster of ``params.raster``
+    pixels reaching past the height map by the largest distance the height
+    function reads."""
     hm = height_map_of(workcell, params)
     a = workcell.scene_arrays()
     ground = ground_obstacles(workcell)
@@ -164,15 +195,24 @@ def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
         K.shape_footprint(row, a.verts, poly)
         K.fill_convex_polygon(masks[cats.of(name)], poly, x0, y0, pixel)
     K.robot_footprint(np.ascontiguousarray(path.waypoints, dtype=np.float64), a.model, masks["trail"], x0, y0, pixel)
+    return Footprints(masks, float(x0), float(y0), pixel)
+
+
+def volume_from_masks(workcell, path: NominalPath, params: VolumeParams, cats: Categories,
+                      fp: Footprints) -> VolumeBuild:
+    """V from footprint rasters: exact distance transforms read at the cell
+    centres, the height function, and the columns lowered under the
+    nominal."""
+    hm = height_map_of(workcell, params)
     X, Y = hm.centres()
-    ix = np.clip(np.floor((X - x0) / pixel).astype(int), 0, shape[0] - 1)
-    iy = np.clip(np.floor((Y - y0) / pixel).astype(int), 0, shape[1] - 1)
-    d = {c: (K.distance_map(m)[ix, iy] * pixel if m.any() else np.full(hm.shape, np.inf)) for c, m in masks.items()}
+    ix, iy = fp.indices(X, Y)
+    d = {c: (K.distance_map(m)[ix, iy] * fp.pixel if m.any() else np.full(hm.shape, np.inf))
+         for c, m in fp.masks.items()}
     reach = params.reach if params.reach is not None else workcell.reach
     active = reach_activation(workcell, path, hm, reach) if reach and reach > 0 else np.ones(hm.shape, bool)
     raw = height_function(d["trail"], d["goal"], d["no_goal"], active, params)
     vol = Volume(hm, raw.copy(), raw)
-    lower_along_path(vol, a, path.waypoints, params.column_clearance)
+    lower_along_path(vol, workcell.scene_arrays(), path.waypoints, params.column_clearance)
     return VolumeBuild(vol, cats, d["trail"], d["goal"], d["no_goal"], active)
 
 

@@ -133,6 +133,9 @@ def _region_vs_scene(W, i, j, ts, vs, m, field, sc, rs, pad):
             set_motion(objs[s, c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
         obj = objs[s, :P]
         object_aabb(obj, verts, aabbs[s], tmp6)
+        for r in range(3):  # what the scene can change: tests that read only boxes outside fp stay the same
+            rs.fp[r] = min(rs.fp[r], aabbs[s, r])
+            rs.fp[r + 3] = max(rs.fp[r + 3], aabbs[s, r + 3])
         if _object_vs_scene(obj, aabbs[s], m, field, sc, rs.dirs[s]):
             return True
     return False
@@ -301,24 +304,28 @@ def _region_workspace(B, S, k, O):
     for B bodies, S shapes, k joints and O obstacles."""
     P = MAX_T_SAMPLES * MAX_V_SAMPLES
     return RegionScratch(np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
-                         np.empty((P, SHAPE_W)), np.empty(6), np.empty(k), np.zeros((S, O + S, 3)))
+                         np.empty((P, SHAPE_W)), np.empty(6), np.empty(k), np.zeros((S, O + S, 3)), np.empty(6))
 
 
 @njit(cache=True, parallel=True)
-def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads):
+def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses):
     """Certified single-joint bounds of every stretch (:func:`_search`),
     keeping stretch i at least ``pads[i]`` (m) from the scene and itself.
     Chain n = (j, sign) walks the stretches in order, each search starting
-    from the previous stretch's bound; the chains run in parallel.
-    ``lims`` = (lim_lo (g-1, k), lim_hi, delta (k,)); ``m`` a
-    :class:`Model`; ``field`` a :class:`HeightField`.
+    from the previous stretch's bound (the first from ``guesses[n]``; NaN:
+    cold); the chains run in parallel. ``lims`` = (lim_lo (g-1, k), lim_hi,
+    delta (k,)); ``m`` a :class:`Model`; ``field`` a :class:`HeightField`.
 
     Returns:
-        (bounds (n, g-1), tests (n,))
+        (bounds (n, g-1), tests (n,), footprints (n, g-1, 6)): a search's
+        footprint is the union of the boxes (min xyz, max xyz) its tests
+        held against the obstacles and V; obstacles and columns outside it
+        cannot change the search's result.
     """
     n_chains = chains.shape[0]
     n_st = W.shape[0] - 1
     out = np.zeros((n_chains, n_st))
+    fps = np.empty((n_chains, n_st, 6))
     tests = np.zeros(n_chains, np.int64)
     B = m.chain.parent.shape[0]
     S = m.shapes.shape[0]
@@ -340,15 +347,19 @@ def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads):
         sgn = chains[n, 1]
         sc = new_scratch()
         rs = _region_workspace(B, S, k, obstacles_.shape[0])
-        guess = np.nan
+        guess = guesses[n]
         count = 0
         for i in range(n_st):
+            for r in range(3):
+                rs.fp[r] = np.inf
+                rs.fp[r + 3] = -np.inf
             bound, c = _search(i, j, sgn, guess, W, lm, (nts[i, j], v_steps[j]), mm, fld, sc, rs, pads[i])
             out[n, i] = bound
+            fps[n, i] = rs.fp
             count += c
             guess = bound
         tests[n] = count
-    return out, tests
+    return out, tests, fps
 
 
 @njit(cache=True, parallel=True)

@@ -88,6 +88,7 @@ class RegionScratch(NamedTuple):
     rel_aabb: np.ndarray
     q_c: np.ndarray
     dirs: np.ndarray  #: (S, O + S, 3) each pair's last separating direction (zero: none yet)
+    fp: np.ndarray  #: (6,) the union of the boxes tested against the scene (min xyz, max xyz), m
 
 
 #: Most poses sampled along t and along v in one region test.

@@ -66,7 +66,7 @@ def _steps():
         field = HeightField(range_max_table(heights), -1.0, -1.0, 1.0)
         sweep_chains(np.array([[0, 1], [0, -1]], np.int64),
                      (np.array([[-3.0]]), np.array([[3.0]]), np.array([0.01])),
-                     np.array([[2]], np.int64), np.array([0.2]), W, m, field, np.zeros(1))
+                     np.array([[2]], np.int64), np.array([0.2]), W, m, field, np.zeros(1), np.full(2, np.nan))
 
     def footprints():
         mask = np.zeros((8, 8), np.bool_)

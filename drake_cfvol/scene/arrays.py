@@ -186,6 +186,27 @@ class SceneArrays:
         fn = K.configs_may_collide_serial if len(Q) <= _SERIAL_MAX else K.configs_may_collide
         return fn(Q, self.model, float(pad))
 
+    def with_boxes(self, centres: np.ndarray, sizes: np.ndarray, name: str = "perceived") -> "SceneArrays":
+        """These arrays with axis-aligned boxes added to the obstacles (the
+        robot and its own obstacles unchanged).
+
+        Args:
+            centres, sizes: (N, 3) box centres and full side lengths in the
+                world, m.
+            name: the obstacle name the boxes take.
+        """
+        centres = np.asarray(centres, float).reshape(-1, 3)
+        sizes = np.asarray(sizes, float).reshape(-1, 3)
+        rows = np.zeros((len(centres), K.SHAPE_W))
+        rows[:, K._K] = K.BOX
+        rows[:, K._C:K._C + 3] = centres
+        rows[:, K._R:K._R + 9] = np.eye(3).ravel()
+        rows[:, K._S:K._S + 3] = sizes / 2
+        aabb = np.concatenate([centres - sizes / 2, centres + sizes / 2], axis=1)
+        return dataclasses.replace(self, obstacles=np.ascontiguousarray(np.concatenate([self.obstacles, rows])),
+                                   obstacle_names=list(self.obstacle_names) + [name] * len(rows),
+                                   obstacle_aabb=np.ascontiguousarray(np.concatenate([self.obstacle_aabb, aabb])))
+
     @property
     def model(self) -> K.Model:
         """The kernel's typed view of these arrays (built once)."""

@@ -1,0 +1,171 @@
+"""An obstacle height map from a depth camera's points (docs/spec.md, SPEC 12).
+
+The camera sees the whole cell: the floor, the cell's known obstacles, the
+robot and whatever else came in. A pixel is *new* where the camera sees
+something nearer than the cell's model (the known obstacles and the robot
+at its known pose, rendered from the same camera) by more than a
+tolerance; it *confirms the model* where the two agree. The map keeps, per
+cell of a floor grid, the top of what new stands there (0: nothing):
+
+- a cell with new points takes their highest z, rounded up to a height
+  step, and lends it to its neighbours (a one-cell dilation, so that edges
+  between pixels are covered);
+- a cell where the camera saw the known scene (floor, a known obstacle)
+  and nothing new is cleared;
+- a cell the camera did not see (hidden by the robot, out of view) keeps
+  what it had.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from drake_cfvol.algorithm.heightmap import _merge_equal
+from drake_cfvol.exceptions import ParameterError
+
+__all__ = ["MapGrid", "ObstacleMap", "PerceptionParams"]
+
+
+@dataclasses.dataclass(frozen=True)
+class PerceptionParams:
+    """How points become an obstacle map.
+
+    Attributes:
+        cell: the map's cell side, m.
+        height_step: heights are rounded up to a multiple of this, m.
+        depth_tolerance: a pixel is new where it is nearer than the model
+            by more than this, m.
+        floor: points below this height are the floor, m.
+        dilation: cells a new cell lends its height to, each way.
+    """
+
+    cell: float = 0.05
+    height_step: float = 0.02
+    depth_tolerance: float = 0.02
+    floor: float = 0.02
+    dilation: int = 1
+
+    def __post_init__(self):
+        for name in ("cell", "height_step", "depth_tolerance"):
+            if not getattr(self, name) > 0:
+                raise ParameterError(f"PerceptionParams.{name} must be > 0 m, got {getattr(self, name)!r}.")
+        if not self.floor >= 0:
+            raise ParameterError(f"PerceptionParams.floor must be >= 0 m, got {self.floor!r}.")
+        if int(self.dilation) != self.dilation or self.dilation < 0:
+            raise ParameterError(f"PerceptionParams.dilation must be a whole number of cells >= 0, got "
+                                 f"{self.dilation!r}.")
+
+
+@dataclasses.dataclass(frozen=True)
+class MapGrid:
+    """A floor grid: corner ``origin`` (x, y), square cells of ``side``,
+    ``shape`` = (cells along x, cells along y)."""
+
+    origin: tuple[float, float]
+    side: float
+    shape: tuple[int, int]
+
+    @classmethod
+    def covering(cls, origin, size, side: float) -> "MapGrid":
+        """The grid of ``side`` cells covering a rectangle (origin, size), m."""
+        if not side > 0:
+            raise ParameterError(f"a map cell's side must be > 0 m, got {side!r}.")
+        shape = (max(1, int(np.ceil(size[0] / side - 1e-9))), max(1, int(np.ceil(size[1] / side - 1e-9))))
+        return cls((float(origin[0]), float(origin[1])), float(side), shape)
+
+    def cells_of(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(i, j, inside) of world points: their cell, and whether it lies on the grid."""
+        i = np.floor((np.asarray(x) - self.origin[0]) / self.side).astype(np.int64)
+        j = np.floor((np.asarray(y) - self.origin[1]) / self.side).astype(np.int64)
+        inside = (i >= 0) & (i < self.shape[0]) & (j >= 0) & (j < self.shape[1])
+        return i, j, inside
+
+
+def _dilate(H: np.ndarray, r: int) -> np.ndarray:
+    """Max over the (2r+1) x (2r+1) neighbourhood of each cell."""
+    out = H.copy()
+    m, n = H.shape
+    for di in range(-r, r + 1):
+        for dj in range(-r, r + 1):
+            if di == 0 and dj == 0:
+                continue
+            src = H[max(0, -di):m - max(0, di), max(0, -dj):n - max(0, dj)]
+            dst = out[max(0, di):m - max(0, -di), max(0, dj):n - max(0, -dj)]
+            np.maximum(dst, src, out=dst)
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class ObstacleMap:
+    """What a depth camera found in the cell beyond its model: per cell, the
+    top of what stands there, m (0: nothing seen).
+
+    Attributes:
+        grid: the floor grid.
+        heights: (m, n) heights, m.
+        stamp: the time of the image it was made from, s (-inf: none yet).
+    """
+
+    grid: MapGrid
+    heights: np.ndarray
+    stamp: float = -np.inf
+
+    @classmethod
+    def empty(cls, grid: MapGrid) -> "ObstacleMap":
+        """A map with nothing on it."""
+        return cls(grid, np.zeros(grid.shape))
+
+    @property
+    def occupied(self) -> int:
+        """Number of cells with something on them."""
+        return int(np.count_nonzero(self.heights > 0))
+
+    def same_as(self, other: "ObstacleMap | None") -> bool:
+        """Whether two maps have the same grid and heights."""
+        return other is not None and other.grid == self.grid and np.array_equal(other.heights, self.heights)
+
+    def integrate(self, new_points: np.ndarray, seen_points: np.ndarray, stamp: float,
+                  params: PerceptionParams) -> "ObstacleMap":
+        """The map after one image (see the module's rules).
+
+        Args:
+            new_points: (3, N) world points of the new pixels, m.
+            seen_points: (3, M) world points where the camera saw the model
+                (the floor or a known obstacle, not the robot), m.
+            stamp: the image's time, s.
+            params: the perception settings.
+        """
+        new_points = np.asarray(new_points, float).reshape(3, -1)
+        seen_points = np.asarray(seen_points, float).reshape(3, -1)
+        g = self.grid
+        occ = np.zeros(g.shape)
+        keep = np.isfinite(new_points).all(axis=0) & (new_points[2] > params.floor)
+        i, j, inside = g.cells_of(new_points[0, keep], new_points[1, keep])
+        z = np.ceil(new_points[2, keep][inside] / params.height_step - 1e-9) * params.height_step
+        np.maximum.at(occ, (i[inside], j[inside]), z)
+        occ = _dilate(occ, int(params.dilation))
+        seen = np.zeros(g.shape, bool)
+        ok = np.isfinite(seen_points).all(axis=0)
+        i, j, inside = g.cells_of(seen_points[0, ok], seen_points[1, ok])
+        seen[i[inside], j[inside]] = True
+        heights = np.maximum(occ, np.where(seen, 0.0, self.heights))
+        return ObstacleMap(g, heights, float(stamp))
+
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The occupied cells as few boxes standing on the floor, exactly
+        covering them (equal-height runs merged): centres (N, 3), full sizes
+        (N, 3), m."""
+        rects = np.array(_merge_equal(self.heights), float).reshape(-1, 5)
+        s, (x0, y0) = self.grid.side, self.grid.origin
+        centres = np.stack([x0 + (rects[:, 0] + rects[:, 1]) / 2 * s, y0 + (rects[:, 2] + rects[:, 3]) / 2 * s,
+                            rects[:, 4] / 2], axis=1)
+        sizes = np.stack([(rects[:, 1] - rects[:, 0]) * s, (rects[:, 3] - rects[:, 2]) * s, rects[:, 4]], axis=1)
+        return centres, sizes
+
+    def columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """(centres (N, 2) of the occupied cells, their heights (N,)), m."""
+        i, j = np.nonzero(self.heights > 0)
+        s, (x0, y0) = self.grid.side, self.grid.origin
+        return np.stack([x0 + (i + 0.5) * s, y0 + (j + 0.5) * s], axis=1), self.heights[i, j]

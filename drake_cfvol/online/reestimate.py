@@ -1,0 +1,382 @@
+"""Bounds that follow a changing cell: the volume and the bounds re-estimated
+from an obstacle map, incrementally, over a horizon (docs/spec.md, SPEC 12).
+
+Each update:
+
+1. The map's occupied cells become boxes standing on the floor, added to
+   the cell's obstacles (the kernel's arrays), and no-goal footprint on the
+   height function's raster: V is grown again (its no-goal distances).
+2. A stretch's search depends on the scene only through the boxes its tests
+   held against it (the kernel returns each search's footprint). Stretches
+   whose footprint meets a box or a column that changed are *dirty*; dirty
+   stretches within the horizon are searched again, in order, each chain
+   from its previous stretch's bound, and a stretch whose last bound moved
+   makes its successor dirty. So the result equals a full re-estimation.
+3. Publishing: a bound that tightens is published at once. A bound that
+   widens waits until the widened box of its stretch is certified: where
+   no perceived box comes within reach of the box (a bound on every point's
+   motion), the base table's certificate covers it; elsewhere the box's
+   edges and corners are proven free by the kernel's region tests and
+   samples of its inside are checked free, against the cell and the
+   perceived boxes, with the table's margin.
+
+The live bounds never leave the base table's box (the offline, perhaps
+certified, bounds of the known cell).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+from drake_cfvol import kernel as K
+from drake_cfvol.algorithm.boundary import _failures
+from drake_cfvol.algorithm.heightmap import Volume, height_function
+from drake_cfvol.algorithm.planning import NominalPath
+from drake_cfvol.algorithm.sweep import default_rate, sweep_range, sweep_setup
+from drake_cfvol.algorithm.table import BoundsTable, absolute_bounds, box_at, waypoint_boxes
+from drake_cfvol.algorithm.volume import footprint_masks, lower_along_path
+from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.online.obstacle_map import ObstacleMap
+from drake_cfvol.scene.params import VolumeParams
+
+__all__ = ["LiveBounds", "OnlineBounds", "BoundsUpdate", "shape_radii"]
+
+
+class LiveBounds:
+    """The bounds in force: the published stretch bounds (SPEC 7's stretch
+    rule, rate-limited) within the base table's box, holding the nominal.
+    Duck-types the parts of :class:`~drake_cfvol.algorithm.table.BoundsTable`
+    that the systems read (``at``, ``g``, ``k``, ``nominal``, ``params``).
+
+    Attributes:
+        base: the base table.
+        stretch_lower, stretch_upper: (g-1, k) the published stretch bounds.
+        version: how many times the published bounds changed.
+    """
+
+    def __init__(self, base: BoundsTable, stretch_lower: np.ndarray, stretch_upper: np.ndarray, rate: np.ndarray,
+                 version: int = 0):
+        self.base = base
+        self.stretch_lower = np.asarray(stretch_lower, float)
+        self.stretch_upper = np.asarray(stretch_upper, float)
+        self.rate = np.asarray(rate, float)
+        self.version = version
+        self._wl, self._wu = waypoint_boxes(self.stretch_lower, self.stretch_upper, base.nominal, self.rate)
+
+    g = property(lambda self: self.base.g)
+    k = property(lambda self: self.base.k)
+    nominal = property(lambda self: self.base.nominal)
+    params = property(lambda self: self.base.params)
+    joint_names = property(lambda self: self.base.joint_names)
+
+    def at(self, s: float):
+        """(lower, upper, nominal) at path parameter s in [0, g-1]."""
+        lo, hi, nom = box_at(self._wl, self._wu, self.base.nominal, s, stretch_lower=self.stretch_lower,
+                             stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self.base.trajectory)
+        lo_b, hi_b, _ = self.base.at(s)
+        return np.minimum(np.maximum(lo, lo_b), nom), np.maximum(np.minimum(hi, hi_b), nom), nom
+
+    def boxes_at(self, s: np.ndarray):
+        """:meth:`at` for many s: three (n, k) arrays."""
+        out = [self.at(float(v)) for v in np.atleast_1d(s)]
+        return tuple(np.array([o[i] for o in out]) for i in range(3))
+
+
+@dataclasses.dataclass
+class BoundsUpdate:
+    """What one update did.
+
+    Attributes:
+        time_ms: its compute time, ms.
+        changed_cells: columns of V that changed; changed_boxes: perceived
+            boxes added or removed.
+        recomputed: stretches searched again; dirty: stretches still
+            waiting (beyond the horizon).
+        tests: region tests run.
+        tightened, widened: stretches whose published bounds tightened /
+            widened; pending: stretches whose widening waits for a
+            certificate.
+        version: the live bounds' version after the update.
+    """
+
+    time_ms: float
+    changed_cells: int
+    changed_boxes: int
+    recomputed: int
+    dirty: int
+    tests: int
+    tightened: int
+    widened: int
+    pending: int
+    version: int
+
+
+def shape_radii(arrays) -> np.ndarray:
+    """(B,) for each robot body, the radius about its origin of a ball
+    holding all its shapes, m."""
+    out = np.zeros(arrays.num_bodies)
+    for row, b in zip(arrays.shapes, arrays.shape_body):
+        kind, size = int(row[K._K]), row[K._S:K._S + 3]
+        if kind == K.BOX:
+            r = float(np.linalg.norm(size))
+        elif kind == K.SPHERE:
+            r = float(size[0])
+        elif kind == K.CAPSULE:
+            r = float(size[0] + size[1])
+        elif kind == K.CYLINDER:
+            r = float(np.hypot(size[0], size[1]))
+        elif kind == K.ELLIPSOID:
+            r = float(size.max())
+        else:
+            v = arrays.verts[int(row[K._V0]):int(row[K._V1])]
+            r = float(np.linalg.norm(v, axis=1).max())
+        out[b] = max(out[b], float(np.linalg.norm(row[K._C:K._C + 3])) + r)
+    return out
+
+
+def _overlap(fp: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(...,) whether each footprint (..., 6) meets any of the boxes (N, 6)."""
+    if not len(boxes):
+        return np.zeros(fp.shape[:-1], bool)
+    f = fp[..., None, :]
+    return ((f[..., 0] <= boxes[:, 3]) & (boxes[:, 0] <= f[..., 3]) & (f[..., 1] <= boxes[:, 4])
+            & (boxes[:, 1] <= f[..., 4]) & (f[..., 2] <= boxes[:, 5]) & (boxes[:, 2] <= f[..., 5])).any(axis=-1)
+
+
+class OnlineBounds:
+    """Re-estimates a path's bounds as an obstacle map changes.
+
+    Args:
+        workcell: the workcell.
+        base: the path's bounds table with its volume
+            (:func:`~drake_cfvol.estimate_bounds`' result, certified or not).
+        horizon: stretches ahead of the path index searched at an update
+            (None: to the end of the path).
+        certify_samples: inside samples per widened stretch.
+        max_certify: most widened stretches certified per update.
+        seed: the samples' seed.
+
+    Raises:
+        ParameterError: a table without its volume, or bad settings.
+    """
+
+    def __init__(self, workcell, base: BoundsTable, *, horizon: int | None = None, certify_samples: int = 500,
+                 max_certify: int = 4, seed: int = 0):
+        if base.volume is None:
+            raise ParameterError("OnlineBounds needs the table's volume: a table loaded from disk has none; grow "
+                                 "it with dataclasses.replace(table, volume=build_volume(workcell, path, params)).")
+        if horizon is not None and not int(horizon) >= 1:
+            raise ParameterError(f"horizon must be >= 1 stretch (or None: the whole path), got {horizon!r}.")
+        if not (int(certify_samples) >= 0 and int(max_certify) >= 1):
+            raise ParameterError("certify_samples must be >= 0 and max_certify >= 1, got "
+                                 f"{certify_samples!r} and {max_certify!r}.")
+        self.workcell, self.base, self.horizon = workcell, base, horizon
+        self.certify_samples, self.max_certify = int(certify_samples), int(max_certify)
+        self._rng = np.random.default_rng(seed)
+        known = {f.name for f in dataclasses.fields(VolumeParams)}
+        self.params = VolumeParams(**{k: v for k, v in base.params.items() if k in known})
+        W = np.ascontiguousarray(base.nominal, dtype=np.float64)
+        self._W = W
+        path = NominalPath(W, list(base.joint_names), workcell.name, str(base.info.get("path", "path")), 0)
+        self._vb = base.volume
+        self._fp = footprint_masks(workcell, path, self.params, self._vb.categories)
+        self._arrays0 = self._arrays = workcell.scene_arrays()
+        lo_w, hi_w = absolute_bounds(workcell.position_lower, workcell.position_upper, W)
+        self._setup = sweep_setup(self._arrays0, W, self.params, np.maximum(lo_w[:-1], lo_w[1:]),
+                                  np.minimum(hi_w[:-1], hi_w[1:]))
+        self._sign = self._setup.chains[:, 1].astype(float)
+        self._heights = np.array(self._vb.volume.heights, float)
+        self._boxes = np.zeros((0, 6))
+        self._map: ObstacleMap | None = None
+        n_st = len(W) - 1
+        bounds, tests, fps = sweep_range(self._setup, self._arrays0, W, self._field(), 0, n_st - 1,
+                                         np.full(len(self._sign), np.nan))
+        self._cand, self._fps = bounds, fps
+        self._pub = bounds.copy()
+        self._dirty = np.zeros(n_st, bool)
+        rate = base.rate if base.rate is not None and np.isfinite(base.rate).any() else default_rate(
+            W, workcell.velocity_limits, self.params.waypoint_time)
+        self._rate = np.asarray(rate, float)
+        self._radii = shape_radii(self._arrays0)
+        self._reach = np.where(self._arrays0.revolute, self._arrays0.reach.max(axis=1), 1.0)
+        self.live = self._live(0)
+
+    # -- views ---------------------------------------------------------------
+
+    def _field(self):
+        hm = self._vb.volume.heightmap
+        if not (self._heights > 0).any():
+            return np.zeros((1, 1, 0, 0)), 0.0, 0.0, 1.0
+        return K.range_max_table(np.ascontiguousarray(self._heights)), hm.origin[0], hm.origin[1], hm.side
+
+    def _split(self, chains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) (g-1, k) from chain-form bounds (n, g-1)."""
+        return chains[1::2].T.copy(), chains[0::2].T.copy()
+
+    def _live(self, version: int) -> LiveBounds:
+        lower, upper = self._split(self._pub)
+        return LiveBounds(self.base, lower, upper, self._rate, version)
+
+    @property
+    def candidate(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) (g-1, k): the latest estimate of every stretch's
+        bounds (before publishing rules)."""
+        return self._split(self._cand)
+
+    @property
+    def heights(self) -> np.ndarray:
+        """(m, n) V's columns now, m."""
+        return self._heights.copy()
+
+    @property
+    def arrays(self):
+        """The kernel's scene now: the cell's obstacles and the perceived boxes."""
+        return self._arrays
+
+    # -- the update ----------------------------------------------------------
+
+    def _volume(self, centres: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+        """V's heights with the perceived boxes in the no-goal footprint."""
+        fp, vb = self._fp, self._vb
+        no_goal = fp.masks["no_goal"].copy()
+        shape = no_goal.shape
+        for c, s in zip(centres, sizes):
+            i0, j0 = np.floor((c[:2] - s[:2] / 2 - (fp.x0, fp.y0)) / fp.pixel).astype(int)
+            i1, j1 = np.ceil((c[:2] + s[:2] / 2 - (fp.x0, fp.y0)) / fp.pixel).astype(int)
+            no_goal[max(i0, 0):min(i1, shape[0]), max(j0, 0):min(j1, shape[1])] = True
+        hm = vb.volume.heightmap
+        X, Y = hm.centres()
+        ix, iy = fp.indices(X, Y)
+        d_ng = K.distance_map(no_goal)[ix, iy] * fp.pixel if no_goal.any() else np.full(hm.shape, np.inf)
+        raw = height_function(vb.d_t, vb.d_g, d_ng, vb.active, self.params)
+        vol = Volume(hm, raw.copy(), raw)
+        lower_along_path(vol, self._arrays0, self._W, self.params.column_clearance)
+        return np.asarray(vol.heights, float)
+
+    def _changed(self, heights: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, int, int]:
+        """(n_st,) stretches whose footprint meets a changed column or box."""
+        hm = self._vb.volume.heightmap
+        ci, cj = np.nonzero(heights != self._heights)
+        old = {tuple(b) for b in np.round(self._boxes, 9)}
+        new = {tuple(b) for b in np.round(boxes, 9)}
+        moved = np.array(sorted(old ^ new), float).reshape(-1, 6)
+        hit = _overlap(self._fps, moved)  # (n, g-1)
+        if len(ci):
+            top = np.maximum(heights[ci, cj], self._heights[ci, cj])
+            cols = np.stack([hm.origin[0] + ci * hm.side, hm.origin[1] + cj * hm.side, np.zeros(len(ci)),
+                             hm.origin[0] + (ci + 1) * hm.side, hm.origin[1] + (cj + 1) * hm.side, top], axis=1)
+            hit |= _overlap(self._fps, cols)
+        return hit.any(axis=0), len(ci), len(moved)
+
+    def _recompute(self, lo: int, hi: int) -> tuple[int, int]:
+        """Searches the dirty stretches in [lo, hi] again, in order
+        (cascading). Returns (stretches, tests)."""
+        n_st, done, tests, i = len(self._dirty), 0, 0, lo
+        field = self._field()
+        while i <= hi:
+            if not self._dirty[i]:
+                i += 1
+                continue
+            b = i
+            while b + 1 <= hi and self._dirty[b + 1]:
+                b += 1
+            guesses = self._cand[:, i - 1] if i > 0 else np.full(len(self._sign), np.nan)
+            bounds, t, fps = sweep_range(self._setup, self._arrays, self._W, field, i, b, guesses)
+            moved = not np.array_equal(bounds[:, -1], self._cand[:, b])
+            self._cand[:, i:b + 1], self._fps[:, i:b + 1] = bounds, fps
+            self._dirty[i:b + 1] = False
+            done, tests = done + (b - i + 1), tests + int(t.sum())
+            if moved and b + 1 < n_st:
+                self._dirty[b + 1] = True  # its search starts from this bound
+            i = b + 1
+        return done, tests
+
+    def update(self, obstacle_map: ObstacleMap, s_now: float = 0.0, *, full: bool = False) -> BoundsUpdate:
+        """Takes a new obstacle map: re-estimates V and the dirty stretches
+        within the horizon from ``s_now``, then publishes (tightening at
+        once, widening once certified).
+
+        Args:
+            obstacle_map: the perceived obstacles.
+            s_now: the path index now.
+            full: search every stretch again (a full re-estimation).
+        """
+        t0 = time.perf_counter()
+        centres, sizes = obstacle_map.boxes()
+        boxes = np.concatenate([centres - sizes / 2, centres + sizes / 2], axis=1)
+        same = obstacle_map.same_as(self._map)
+        heights = self._heights if same else self._volume(centres, sizes)
+        if full:
+            dirty, n_cells, n_boxes = np.ones(len(self._dirty), bool), int((heights != self._heights).sum()), len(boxes)
+        elif same:
+            dirty, n_cells, n_boxes = np.zeros(len(self._dirty), bool), 0, 0
+        else:
+            dirty, n_cells, n_boxes = self._changed(heights, boxes)
+        self._dirty |= dirty
+        self._heights, self._boxes, self._map = heights, boxes, obstacle_map
+        self._arrays = self._arrays0.with_boxes(centres, sizes) if len(centres) else self._arrays0
+        n_st = len(self._dirty)
+        lo = int(np.clip(np.floor(s_now), 0, n_st - 1))
+        hi = n_st - 1 if self.horizon is None else min(n_st - 1, lo + int(self.horizon))
+        done, tests = self._recompute(0 if full else lo, hi)
+        tightened, widened, pending = self._publish(lo, hi)
+        if tightened or widened:
+            self.live = self._live(self.live.version + 1)
+        return BoundsUpdate((time.perf_counter() - t0) * 1e3, n_cells, n_boxes, done, int(self._dirty.sum()), tests,
+                            tightened, widened, pending, self.live.version)
+
+    # -- publishing ----------------------------------------------------------
+
+    def _publish(self, lo: int, hi: int) -> tuple[int, int, int]:
+        """Tightening at once (every clean stretch), widening once certified
+        (clean stretches in [lo, hi], at most ``max_certify``)."""
+        s = self._sign[:, None]
+        clean = ~self._dirty
+        tighter = (s * (self._cand - self._pub) < 0) & clean[None, :]
+        tightened = int(tighter.any(axis=0).sum())
+        self._pub = np.where(tighter, self._cand, self._pub)
+        wider = ((s * (self._cand - self._pub) > 0) & clean[None, :]).any(axis=0)
+        todo = [i for i in np.nonzero(wider)[0] if lo <= i <= hi]
+        widened = 0
+        for i in todo[:self.max_certify]:
+            if self._certified(i, self._cand[:, i]):
+                self._pub[:, i] = self._cand[:, i]
+                widened += 1
+        return tightened, widened, int(wider.sum()) - widened
+
+    def _outer_box(self, i: int, chains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) (2, k) at waypoints i, i+1: a linear box holding
+        stretch i's box at every s (its bounds and the nominal)."""
+        lower, upper = chains[1::2], chains[0::2]
+        W = self._W[i:i + 2]
+        return np.minimum(lower[None, :], W), np.maximum(upper[None, :], W)
+
+    def _certified(self, i: int, chains: np.ndarray) -> bool:
+        """Whether stretch i's box with these bounds is certified free."""
+        lo, up = self._outer_box(i, chains)
+        margin = float(self._setup.margins[i])
+        if len(self._boxes):
+            _, p_WB = self._arrays0.fk(self._W[i:i + 1])
+            p = p_WB[0]
+            dev = np.maximum(np.abs(up - self._W[i]), np.abs(self._W[i] - lo)).max(axis=0)
+            grow = float((self._reach * dev).sum()) + margin
+            reach = np.concatenate([(p - self._radii[:, None]).min(axis=0) - grow,
+                                    (p + self._radii[:, None]).max(axis=0) + grow])
+            if not _overlap(reach[None, :], self._boxes)[0]:
+                return True  # the known cell there: the base table's certificate holds
+        else:
+            return True
+        failed, _ = _failures(self._arrays, lo, up, self._W[i:i + 2], [0], np.array([margin]))
+        if failed:
+            return False
+        if self.certify_samples:
+            t = self._rng.uniform(0.0, 1.0, (self.certify_samples, 1))
+            a = (1 - t) * lo[0] + t * lo[1]
+            b = (1 - t) * up[0] + t * up[1]
+            Q = a + self._rng.uniform(0.0, 1.0, a.shape) * (b - a)
+            if self._arrays.may_collide(Q, margin).any():
+                return False
+        return True
