@@ -172,12 +172,14 @@ def sweep_setup(arrays: SceneArrays, W: np.ndarray, params: VolumeParams, lower_
 
 
 def sweep_range(setup: SweepSetup, arrays: SceneArrays, W: np.ndarray, field: tuple, a: int, b: int,
-                guesses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                guesses: np.ndarray, chains: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sweep over stretches a..b (inclusive), each chain starting from
     ``guesses`` (n,) (NaN: cold; a full sweep starts cold at stretch 0).
 
     Args:
         field: :func:`volume_table`'s (table, ox, oy, side).
+        chains: (n, 2) the chains (joint, sign) to walk (default: all of
+            ``setup.chains``).
 
     Returns:
         (bounds (n, b-a+1), tests (n,), footprints (n, b-a+1, 6)): chain n
@@ -187,7 +189,8 @@ def sweep_range(setup: SweepSetup, arrays: SceneArrays, W: np.ndarray, field: tu
     """
     table, ox, oy, side = field
     sl = slice(a, b + 1)
-    return K.sweep_chains(setup.chains, (setup.lim_lo[sl], setup.lim_hi[sl], setup.delta),
+    chains = setup.chains if chains is None else np.ascontiguousarray(chains, dtype=np.int64)
+    return K.sweep_chains(chains, (setup.lim_lo[sl], setup.lim_hi[sl], setup.delta),
                           np.ascontiguousarray(setup.nts[sl]), setup.v_steps, np.ascontiguousarray(W[a:b + 2]),
                           arrays.model, K.HeightField(table, float(ox), float(oy), float(side)),
                           setup.margins[sl], np.ascontiguousarray(guesses, dtype=np.float64))

@@ -46,6 +46,7 @@ from drake_cfvol.comanip.dynamics import add_driver, add_simulated_plant, driver
 from drake_cfvol.comanip.iiwa import (add_hand, add_iiwa_controller_interface, add_iiwa_station, add_measured,
                                      grip_point, tool_radius)
 from drake_cfvol.systems.hand import first_push_direction, waiting_point
+from drake_cfvol.comanip.online import OnlineParts, add_online
 from drake_cfvol.comanip.recording import show_tool_path
 from drake_cfvol.algorithm.volume import build_volume, height_map_of
 from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
@@ -91,6 +92,8 @@ class Comanipulation:
             "added_volume_m3": ..., "column_volume_m3": ...}``.
         build_ms: the build's steps' wall times, ms.
         filter_clearance: the safety filter's margin, m (None without it).
+        online: the moving obstacles, their perception and the online
+            bounds (:func:`drake_cfvol.comanip.online.add_online`), or None.
     """
 
     diagram: object
@@ -106,6 +109,7 @@ class Comanipulation:
     volume_boxes: dict = dataclasses.field(default_factory=dict)
     build_ms: dict = dataclasses.field(default_factory=dict)
     filter_clearance: float | None = None
+    online: OnlineParts | None = None
 
     @property
     def duration(self) -> float:
@@ -348,7 +352,8 @@ def _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids, hand=None)
     return robot_ids, moving_ids, obstacle_ids, ignored
 
 
-def _add_safety_filter(builder, scenario, bounds, wc, plant, scene_graph, robot, obstacle_ids, progress, adm, path):
+def _add_safety_filter(builder, scenario, bounds, wc, plant, scene_graph, robot, obstacle_ids, progress, adm, path,
+                       online=None):
     """The runtime safety filter between the admittance and the robot. A
     command computed at an update takes effect until the next one, so the
     admittance and the filter work on the bounds one period ahead (the
@@ -358,10 +363,13 @@ def _add_safety_filter(builder, scenario, bounds, wc, plant, scene_graph, robot,
     margin = f.clearance if f.clearance is not None else float(bounds.params.get("clearance", 0.0))
     source_ahead = builder.AddNamedSystem("joint_bounds_ahead", JointBoundsSource(bounds, clamp=True))
     builder.Connect(progress.path_index_ahead_output, source_ahead.path_index_input)
+    dynamic = [] if online is None else online.filter_ids
+    if online is not None:
+        builder.Connect(online.estimator.bounds_output, source_ahead.bounds_input)
     safety = builder.AddNamedSystem("safety_filter", SafetyFilter(
-        plant, scene_graph, robot, velocity_limits=wc.velocity_limits, obstacle_ids=obstacle_ids,
+        plant, scene_graph, robot, velocity_limits=wc.velocity_limits, obstacle_ids=list(obstacle_ids) + dynamic,
         clearance=margin, influence_distance=f.influence_distance, damper_gain=f.damper_gain,
-        period=a.period, initial_position=path.waypoints[0]))
+        period=a.period, initial_position=path.waypoints[0], dynamic_ids=dynamic))
     for name in ("nominal", "lower", "upper"):
         builder.Connect(source_ahead.GetOutputPort(name), adm.GetInputPort(name))
         builder.Connect(source_ahead.GetOutputPort(name), safety.GetInputPort(name))
@@ -531,19 +539,25 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     human = builder.AddNamedSystem("human", ScriptedHuman(k, _resolve_pushes(scenario, wc, path, progress)))
     robot_ids, moving_ids, obstacle_ids, ignored = _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids,
                                                                           scene.hand)
+    online = None
+    if scenario.perception_mode is not None:
+        online = add_online(builder, scenario, wc, plant, scene_graph, robot, bounds, progress.path_index_output)
+        builder.Connect(online.estimator.bounds_output, source.bounds_input)
     monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
-        robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids, obstacle_ids=obstacle_ids,
-        ignored_pairs=ignored))
+        robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids,
+        obstacle_ids=obstacle_ids + (online.monitor_ids if online else []), ignored_pairs=ignored))
     builder.Connect(progress.path_index_output, source.path_index_input)
     safety = None
     if scenario.collision_guard:
         safety = _add_safety_filter(builder, scenario, bounds, wc, plant, scene_graph, robot, obstacle_ids,
-                                    progress, adm, path)
+                                    progress, adm, path, online)
         commanded = safety.commanded_position_output
     else:
         for name in ("nominal", "lower", "upper"):
             builder.Connect(source.GetOutputPort(name), adm.GetInputPort(name))
         commanded = adm.commanded_position_output
+    if online is not None and online.model_position_input is not None:
+        builder.Connect(commanded, online.model_position_input)  # the camera's model of the cell
     torque_port = _add_pushes(builder, scenario, k, human, progress, commanded, source)
     measured, sensed = _drive(builder, scenario, wc, scene, commanded, torque_port, human, adm, safety)
     check = _add_check(builder, k, a.period, sensed or torque_port,
@@ -556,7 +570,7 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         "deviation": adm.deviation_output, "fault": check.fault_output, "fault_count": check.fault_count_output,
         "human_torque": torque_port, "human_wrench": human.human_wrench_output,
         "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
-        "in_volume": monitor.in_volume_output}, scenario, safety, adm)
+        "in_volume": monitor.in_volume_output, **_online_exports(online)}, scenario, safety, adm)
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
     if meshcat is not None:
         _add_meshcat(builder, scene_graph, meshcat, scenario, wc, path, vb.categories)
@@ -565,4 +579,15 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     times["diagram"] = (time.perf_counter() - t2) * 1e3
     return Comanipulation(diagram, scenario, wc, path, bounds, plant, scene_graph, loggers, progress, meshcat,
                           {"count": len(volume_ids), **scene.merge_info}, times,
-                          safety.clearance if safety is not None else None)
+                          safety.clearance if safety is not None else None, online)
+
+
+def _online_exports(online) -> dict:
+    """The online parts' ports exported and logged."""
+    if online is None:
+        return {}
+    out = {"bounds_version": online.estimator.bounds_version_output}
+    if online.camera is not None:
+        out["occupied_cells"] = online.camera.mapper.occupied_cells_output
+        out["column_overflow"] = online.columns.overflow_output
+    return out

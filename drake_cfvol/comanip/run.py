@@ -14,6 +14,7 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.comanip.scenario import load_scenario
 from drake_cfvol.comanip.diagram import Comanipulation, build_comanipulation_diagram
+from drake_cfvol.comanip.online import online_figures
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
 
 __all__ = ['run_scenario']
@@ -139,6 +140,10 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "notices": list(cm.workcell.notes),
     }
     summary["clearance_m"], summary["nominal_min_clearance_m"] = _margins(cm, scenario)
+    summary.update(online_figures(cm.online, ctx, scenario))
+    if cm.online is not None:
+        summary["moving_obstacles"] = [o.name for o in scenario.moving_obstacles]
+        summary["column_overflow"] = _count(cm, ctx, "column_overflow")
     summary.update(_tracking(logs, scenario))
     summary["problems"] = run_problems(summary)
     if svg and files.get("diagram_svg") is None:

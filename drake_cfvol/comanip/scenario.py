@@ -17,13 +17,13 @@ from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import SimulatorConfig
 from pydrake.visualization import VisualizationConfig
 
-from drake_cfvol.exceptions import ScenarioError
+from drake_cfvol.exceptions import ParameterError, ScenarioError
 from drake_cfvol.scene.params import VolumeParams
-from drake_cfvol.systems import Push
+from drake_cfvol.systems import MovingObstacle, Push
 from drake_cfvol.scene.schema import CfvolSection, read_yaml
 from drake_cfvol.scene.workcell import builtin_cells
 
-__all__ = ['check_scenario_against_cell', 'scenario_file_path', 'InverseDynamicsDriver', 'AdmittanceGains', 'RandomPushes', 'Reactive', 'SafetyFilterConfig', 'Scenario', 'load_scenario', 'validate_scenario', 'diagrams_dir']
+__all__ = ['OnlineConfig', 'check_scenario_against_cell', 'scenario_file_path', 'InverseDynamicsDriver', 'AdmittanceGains', 'RandomPushes', 'Reactive', 'SafetyFilterConfig', 'Scenario', 'load_scenario', 'validate_scenario', 'diagrams_dir']
 
 
 def diagrams_dir() -> Path:
@@ -108,6 +108,33 @@ class SafetyFilterConfig:
 
 
 @dataclasses.dataclass
+class OnlineConfig:
+    """Online re-estimation and perception settings (used when the scenario
+    has ``moving_obstacles``; docs/spec.md, SPEC 12).
+
+    Attributes:
+        camera_period: s between camera images.
+        bounds_period: s between bounds updates (an update computed at t is
+            in force from t + bounds_period).
+        horizon: stretches ahead of the path index searched again at an
+            update.
+        cell: the obstacle map's cell side, m.
+        obstacle_speed: the speed assumed for what the camera sees, m/s:
+            the map lends each occupied cell's height to the cells it could
+            reach before the next bounds are in force.
+        width, height: the camera's image, px.
+    """
+
+    camera_period: float = 0.05
+    bounds_period: float = 0.05
+    horizon: int = 8
+    cell: float = 0.05
+    obstacle_speed: float = 0.5
+    width: int = 320
+    height: int = 240
+
+
+@dataclasses.dataclass
 class InverseDynamicsDriver:
     """A dynamic run's robot under Drake's ``InverseDynamicsController``
     (``model_drivers: {robot: !InverseDynamicsDriver {...}}``): per joint,
@@ -178,6 +205,17 @@ class Scenario:
             seconds more, later ones load the certificate from the cache
             (:func:`drake_cfvol.algorithm.certify.cache_dir`); the safety filter
             then rarely acts. False: the paper's per-joint bounds.
+        moving_obstacles: boxes moving through the cell
+            (:class:`~drake_cfvol.systems.MovingObstacle`: name, box sides,
+            [t, x, y, z] waypoints of the centre); the collision and
+            clearance figures count them.
+        perception: how the bounds and the safety filter learn of moving
+            obstacles: ``camera`` (default with moving obstacles: a depth
+            camera over the cell, its obstacle map, the bounds re-estimated
+            online, the filter measuring the perceived columns) or
+            ``truth`` (the boxes' poses given directly); null without
+            moving obstacles (fixed bounds).
+        online: the perception and re-estimation settings.
         path_velocity_share: share of each joint's velocity limit that the
             path's own motion (nominal and bounds) may use; the push gets
             the rest. Path progress slows below ``path_duration`` when needed
@@ -206,10 +244,21 @@ class Scenario:
     collision_guard: bool = True
     safety_filter: SafetyFilterConfig = dataclasses.field(default_factory=SafetyFilterConfig)
     certify: bool = True
+    moving_obstacles: list[MovingObstacle] = dataclasses.field(default_factory=list)
+    perception: typing.Optional[str] = None
+    online: OnlineConfig = dataclasses.field(default_factory=OnlineConfig)
     path_velocity_share: float = 0.5
     simulator_config: SimulatorConfig = dataclasses.field(default_factory=SimulatorConfig)
     visualization: VisualizationConfig = dataclasses.field(default_factory=lambda: VisualizationConfig(
         publish_period=0.02, publish_proximity=False, publish_contacts=False, publish_inertia=False))
+
+    @property
+    def perception_mode(self) -> str | None:
+        """``camera``, ``truth`` or None (fixed bounds): ``perception``, or
+        ``camera`` where there are moving obstacles and it is not given."""
+        if self.perception is not None:
+            return self.perception
+        return "camera" if self.moving_obstacles else None
 
     @property
     def duration(self) -> float:
@@ -381,6 +430,35 @@ def _check_sources(scenario: Scenario, where, base_dir) -> None:
                                 "hand's force) in this cell")
 
 
+def _check_online(scenario: Scenario, where) -> None:
+    """Moving obstacles (items counted from 1), the perception mode and the
+    online settings."""
+    for i, o in enumerate(scenario.moving_obstacles, 1):
+        try:
+            o.check()
+        except ParameterError as e:
+            raise ScenarioError(where, f"moving_obstacles item {i}", str(e)) from None
+    names = [o.name for o in scenario.moving_obstacles]
+    if len(set(names)) != len(names):
+        raise ScenarioError(where, "moving_obstacles", f"need distinct names, got {names}")
+    if scenario.perception not in (None, "camera", "truth"):
+        raise ScenarioError(where, "perception", f"must be camera or truth (or left out), got "
+                            f"{scenario.perception!r}")
+    if scenario.perception is not None and scenario.plant_config is not None:
+        raise ScenarioError(where, "perception", "works in kinematic runs only: leave plant_config out")
+    o = scenario.online
+    for name in ("camera_period", "bounds_period", "cell"):
+        if not getattr(o, name) > 0:
+            raise ScenarioError(where, f"online.{name}", f"must be > 0, got {getattr(o, name)!r}")
+    if not o.obstacle_speed >= 0:
+        raise ScenarioError(where, "online.obstacle_speed", f"must be >= 0 m/s, got {o.obstacle_speed!r}")
+    if not o.horizon >= 1:
+        raise ScenarioError(where, "online.horizon", f"must be >= 1 stretch, got {o.horizon!r}")
+    if not (o.width >= 16 and o.height >= 16):
+        raise ScenarioError(where, "online.width", f"the camera needs at least 16 x 16 px, got {o.width} x "
+                            f"{o.height}")
+
+
 def validate_scenario(scenario: Scenario, file: Path | None = None, *, base_dir: Path | None = None) -> None:
     """Checks a scenario's values before any planning or bounding: positive
     durations and periods, a resolution whose volume fits in memory, known
@@ -429,6 +507,7 @@ def validate_scenario(scenario: Scenario, file: Path | None = None, *, base_dir:
                                 "kinematically, so there are no contact forces or inertias to show")
     if not vis.publish_period > 0:
         raise ScenarioError(where, "visualization.publish_period", f"must be > 0 s, got {vis.publish_period!r}")
+    _check_online(scenario, where)
     if scenario.random_pushes.count < 0:
         raise ScenarioError(where, "random_pushes.count", f"must be >= 0, got {scenario.random_pushes.count}")
     known = {f.name for f in dataclasses.fields(VolumeParams)}

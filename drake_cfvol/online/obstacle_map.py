@@ -12,8 +12,14 @@ cell of a floor grid, the top of what new stands there (0: nothing):
   between pixels are covered);
 - a cell where the camera saw the known scene (floor, a known obstacle)
   and nothing new is cleared;
-- a cell the camera did not see (hidden by the robot, out of view) keeps
-  what it had.
+- a cell the camera did not see (out of view, in a shadow) keeps what it
+  had; one hidden by the robot also takes the height of any cell last seen
+  occupied within ``speed`` times the time since (at most ``spread_time``):
+  what moves may have moved in under the robot unseen.
+
+The map keeps what was seen (``observed``, with the time each occupied cell
+was last seen: ``seen_at``) apart from what it reports (``heights``), so
+assumed occupancy never spreads from assumed occupancy.
 """
 
 from __future__ import annotations
@@ -38,7 +44,12 @@ class PerceptionParams:
         depth_tolerance: a pixel is new where it is nearer than the model
             by more than this, m.
         floor: points below this height are the floor, m.
-        dilation: cells a new cell lends its height to, each way.
+        dilation: cells an occupied cell lends its height to, each way.
+        speed: the speed assumed for what the camera sees, m/s: how fast
+            occupancy spreads into the cells the robot hides.
+        spread_time: occupancy spreads for at most this long, s (what has
+            been out of sight longer is held where it was last seen, grown
+            by ``speed`` x ``spread_time``).
     """
 
     cell: float = 0.05
@@ -46,6 +57,8 @@ class PerceptionParams:
     depth_tolerance: float = 0.02
     floor: float = 0.02
     dilation: int = 1
+    speed: float = 0.5
+    spread_time: float = 1.0
 
     def __post_init__(self):
         for name in ("cell", "height_step", "depth_tolerance"):
@@ -56,6 +69,9 @@ class PerceptionParams:
         if int(self.dilation) != self.dilation or self.dilation < 0:
             raise ParameterError(f"PerceptionParams.dilation must be a whole number of cells >= 0, got "
                                  f"{self.dilation!r}.")
+        if not (self.speed >= 0 and self.spread_time >= 0):
+            raise ParameterError(f"PerceptionParams.speed and spread_time must be >= 0, got {self.speed!r} m/s, "
+                                 f"{self.spread_time!r} s.")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -84,16 +100,18 @@ class MapGrid:
 
 
 def _dilate(H: np.ndarray, r: int) -> np.ndarray:
-    """Max over the (2r+1) x (2r+1) neighbourhood of each cell."""
-    out = H.copy()
-    m, n = H.shape
-    for di in range(-r, r + 1):
-        for dj in range(-r, r + 1):
-            if di == 0 and dj == 0:
-                continue
-            src = H[max(0, -di):m - max(0, di), max(0, -dj):n - max(0, dj)]
-            dst = out[max(0, di):m - max(0, -di), max(0, dj):n - max(0, -dj)]
-            np.maximum(dst, src, out=dst)
+    """Max over the (2r+1) x (2r+1) neighbourhood of each cell (separably:
+    along the rows, then the columns)."""
+    out = np.asarray(H, float).copy()
+    for axis in (0, 1):
+        src = out.copy()
+        n = src.shape[axis]
+        for d in range(1, min(int(r), n - 1) + 1):
+            a = [slice(None)] * 2
+            b = [slice(None)] * 2
+            a[axis], b[axis] = slice(d, None), slice(None, n - d)
+            np.maximum(out[tuple(a)], src[tuple(b)], out=out[tuple(a)])
+            np.maximum(out[tuple(b)], src[tuple(a)], out=out[tuple(b)])
     return out
 
 
@@ -104,18 +122,24 @@ class ObstacleMap:
 
     Attributes:
         grid: the floor grid.
-        heights: (m, n) heights, m.
+        heights: (m, n) heights, m: what the map reports.
         stamp: the time of the image it was made from, s (-inf: none yet).
+        observed: (m, n) the heights last seen, m (None: ``heights``).
+        seen_at: (m, n) when each occupied cell of ``observed`` was last
+            seen, s (None: at ``stamp``).
     """
 
     grid: MapGrid
     heights: np.ndarray
     stamp: float = -np.inf
+    observed: np.ndarray | None = None
+    seen_at: np.ndarray | None = None
 
     @classmethod
     def empty(cls, grid: MapGrid) -> "ObstacleMap":
         """A map with nothing on it."""
         return cls(grid, np.zeros(grid.shape))
+
 
     @property
     def occupied(self) -> int:
@@ -127,7 +151,7 @@ class ObstacleMap:
         return other is not None and other.grid == self.grid and np.array_equal(other.heights, self.heights)
 
     def integrate(self, new_points: np.ndarray, seen_points: np.ndarray, stamp: float,
-                  params: PerceptionParams) -> "ObstacleMap":
+                  params: PerceptionParams, hidden_points: np.ndarray | None = None) -> "ObstacleMap":
         """The map after one image (see the module's rules).
 
         Args:
@@ -136,6 +160,9 @@ class ObstacleMap:
                 (the floor or a known obstacle, not the robot), m.
             stamp: the image's time, s.
             params: the perception settings.
+            hidden_points: (3, H) points whose cells the robot hides (where
+                the camera's rays through the robot meet it and the floor),
+                m; their cells and those next to them are hidden.
         """
         new_points = np.asarray(new_points, float).reshape(3, -1)
         seen_points = np.asarray(seen_points, float).reshape(3, -1)
@@ -145,13 +172,32 @@ class ObstacleMap:
         i, j, inside = g.cells_of(new_points[0, keep], new_points[1, keep])
         z = np.ceil(new_points[2, keep][inside] / params.height_step - 1e-9) * params.height_step
         np.maximum.at(occ, (i[inside], j[inside]), z)
-        occ = _dilate(occ, int(params.dilation))
         seen = np.zeros(g.shape, bool)
         ok = np.isfinite(seen_points).all(axis=0)
         i, j, inside = g.cells_of(seen_points[0, ok], seen_points[1, ok])
         seen[i[inside], j[inside]] = True
-        heights = np.maximum(occ, np.where(seen, 0.0, self.heights))
-        return ObstacleMap(g, heights, float(stamp))
+        hidden = np.zeros(g.shape, bool)
+        if hidden_points is not None:
+            hp = np.asarray(hidden_points, float).reshape(3, -1)
+            ok = np.isfinite(hp).all(axis=0)
+            i, j, inside = g.cells_of(hp[0, ok], hp[1, ok])
+            hidden[i[inside], j[inside]] = True
+            hidden = _dilate(hidden.astype(float), 1) > 0
+        prev = self.heights if self.observed is None else self.observed
+        prev_at = np.full(g.shape, self.stamp) if self.seen_at is None else self.seen_at
+        now = occ > 0
+        observed = np.where(now, occ, np.where(seen, 0.0, prev))
+        seen_at = np.where(now, float(stamp), prev_at)
+        heights = _dilate(observed, int(params.dilation))
+        under = hidden & ~seen & ~now
+        if under.any() and params.speed > 0:
+            held = (observed > 0) & ~now
+            age = np.minimum(np.where(held, float(stamp) - seen_at, 0.0), params.spread_time)
+            radius = np.ceil(params.speed * age / g.side - 1e-9).astype(int)
+            for r in np.unique(radius[held]):
+                grown = _dilate(np.where(held & (radius == r), observed, 0.0), int(r) + int(params.dilation))
+                heights[under] = np.maximum(heights[under], grown[under])
+        return ObstacleMap(g, heights, float(stamp), observed, seen_at)
 
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """The occupied cells as few boxes standing on the floor, exactly

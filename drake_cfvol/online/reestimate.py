@@ -13,12 +13,11 @@ Each update:
    from its previous stretch's bound, and a stretch whose last bound moved
    makes its successor dirty. So the result equals a full re-estimation.
 3. Publishing: a bound that tightens is published at once. A bound that
-   widens waits until the widened box of its stretch is certified: where
-   no perceived box comes within reach of the box (a bound on every point's
-   motion), the base table's certificate covers it; elsewhere the box's
-   edges and corners are proven free by the kernel's region tests and
-   samples of its inside are checked free, against the cell and the
-   perceived boxes, with the table's margin.
+   widens waits until the widened box of its stretch is certified: the base
+   table's certificate covers the known cell, and the perceived boxes are
+   out of the box's reach (a bound on every body's motion over the box) or
+   the box's edges and corners are proven free of them by the kernel's
+   region tests.
 
 The live bounds never leave the base table's box (the offline, perhaps
 certified, bounds of the known cell).
@@ -155,27 +154,26 @@ class OnlineBounds:
             (:func:`~drake_cfvol.estimate_bounds`' result, certified or not).
         horizon: stretches ahead of the path index searched at an update
             (None: to the end of the path).
-        certify_samples: inside samples per widened stretch.
         max_certify: most widened stretches certified per update.
-        seed: the samples' seed.
+        max_proofs: most boundary proofs (a stretch's widening near a
+            perceived box) per update.
 
     Raises:
         ParameterError: a table without its volume, or bad settings.
     """
 
-    def __init__(self, workcell, base: BoundsTable, *, horizon: int | None = None, certify_samples: int = 500,
-                 max_certify: int = 4, seed: int = 0):
+    def __init__(self, workcell, base: BoundsTable, *, horizon: int | None = None, max_certify: int = 64,
+                 max_proofs: int = 1):
         if base.volume is None:
             raise ParameterError("OnlineBounds needs the table's volume: a table loaded from disk has none; grow "
                                  "it with dataclasses.replace(table, volume=build_volume(workcell, path, params)).")
         if horizon is not None and not int(horizon) >= 1:
             raise ParameterError(f"horizon must be >= 1 stretch (or None: the whole path), got {horizon!r}.")
-        if not (int(certify_samples) >= 0 and int(max_certify) >= 1):
-            raise ParameterError("certify_samples must be >= 0 and max_certify >= 1, got "
-                                 f"{certify_samples!r} and {max_certify!r}.")
+        if not int(max_certify) >= 1:
+            raise ParameterError(f"max_certify must be >= 1 stretch, got {max_certify!r}.")
         self.workcell, self.base, self.horizon = workcell, base, horizon
-        self.certify_samples, self.max_certify = int(certify_samples), int(max_certify)
-        self._rng = np.random.default_rng(seed)
+        self.max_certify, self.max_proofs = int(max_certify), int(max_proofs)
+        self._proven_map: dict = {}  # stretch -> the map its last boundary proof was run on
         known = {f.name for f in dataclasses.fields(VolumeParams)}
         self.params = VolumeParams(**{k: v for k, v in base.params.items() if k in known})
         W = np.ascontiguousarray(base.nominal, dtype=np.float64)
@@ -191,17 +189,20 @@ class OnlineBounds:
         self._heights = np.array(self._vb.volume.heights, float)
         self._boxes = np.zeros((0, 6))
         self._map: ObstacleMap | None = None
+        self._perceived_only = None
         n_st = len(W) - 1
         bounds, tests, fps = sweep_range(self._setup, self._arrays0, W, self._field(), 0, n_st - 1,
                                          np.full(len(self._sign), np.nan))
         self._cand, self._fps = bounds, fps
         self._pub = bounds.copy()
-        self._dirty = np.zeros(n_st, bool)
+        self._dirty = np.zeros((len(self._sign), n_st), bool)  # per chain and stretch
         rate = base.rate if base.rate is not None and np.isfinite(base.rate).any() else default_rate(
             W, workcell.velocity_limits, self.params.waypoint_time)
         self._rate = np.asarray(rate, float)
         self._radii = shape_radii(self._arrays0)
-        self._reach = np.where(self._arrays0.revolute, self._arrays0.reach.max(axis=1), 1.0)
+        # Per joint and body: how far a unit of the joint moves the body's points (m/rad, or 1 m/m).
+        self._body_reach = np.where(self._arrays0.revolute[:, None], self._arrays0.reach,
+                                    self._arrays0.moved_by.astype(float))
         self.live = self._live(0)
 
     # -- views ---------------------------------------------------------------
@@ -257,7 +258,7 @@ class OnlineBounds:
         return np.asarray(vol.heights, float)
 
     def _changed(self, heights: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, int, int]:
-        """(n_st,) stretches whose footprint meets a changed column or box."""
+        """(n, n_st) searches whose footprint meets a changed column or box."""
         hm = self._vb.volume.heightmap
         ci, cj = np.nonzero(heights != self._heights)
         old = {tuple(b) for b in np.round(self._boxes, 9)}
@@ -269,28 +270,34 @@ class OnlineBounds:
             cols = np.stack([hm.origin[0] + ci * hm.side, hm.origin[1] + cj * hm.side, np.zeros(len(ci)),
                              hm.origin[0] + (ci + 1) * hm.side, hm.origin[1] + (cj + 1) * hm.side, top], axis=1)
             hit |= _overlap(self._fps, cols)
-        return hit.any(axis=0), len(ci), len(moved)
+        return hit, len(ci), len(moved)
 
     def _recompute(self, lo: int, hi: int) -> tuple[int, int]:
-        """Searches the dirty stretches in [lo, hi] again, in order
-        (cascading). Returns (stretches, tests)."""
-        n_st, done, tests, i = len(self._dirty), 0, 0, lo
+        """Searches the dirty stretches in [lo, hi] again, in order, each run
+        of them with the chains dirty there (cascading: a chain whose last
+        bound moved makes its next stretch dirty). Returns (stretches,
+        tests)."""
+        n_st, done, tests, i = self._dirty.shape[1], 0, 0, lo
         field = self._field()
+        any_dirty = self._dirty.any(axis=0)
         while i <= hi:
-            if not self._dirty[i]:
+            if not any_dirty[i]:
                 i += 1
                 continue
             b = i
-            while b + 1 <= hi and self._dirty[b + 1]:
+            while b + 1 <= hi and any_dirty[b + 1]:
                 b += 1
-            guesses = self._cand[:, i - 1] if i > 0 else np.full(len(self._sign), np.nan)
-            bounds, t, fps = sweep_range(self._setup, self._arrays, self._W, field, i, b, guesses)
-            moved = not np.array_equal(bounds[:, -1], self._cand[:, b])
-            self._cand[:, i:b + 1], self._fps[:, i:b + 1] = bounds, fps
-            self._dirty[i:b + 1] = False
+            sel = np.nonzero(self._dirty[:, i:b + 1].any(axis=1))[0]
+            guesses = self._cand[sel, i - 1] if i > 0 else np.full(len(sel), np.nan)
+            bounds, t, fps = sweep_range(self._setup, self._arrays, self._W, field, i, b, guesses,
+                                         self._setup.chains[sel])
+            moved = sel[bounds[:, -1] != self._cand[sel, b]]
+            self._cand[sel, i:b + 1], self._fps[sel, i:b + 1] = bounds, fps
+            self._dirty[sel, i:b + 1] = False
             done, tests = done + (b - i + 1), tests + int(t.sum())
-            if moved and b + 1 < n_st:
-                self._dirty[b + 1] = True  # its search starts from this bound
+            if b + 1 < n_st and len(moved):
+                self._dirty[moved, b + 1] = True  # their searches start from these bounds
+                any_dirty[b + 1] = True
             i = b + 1
         return done, tests
 
@@ -310,22 +317,26 @@ class OnlineBounds:
         same = obstacle_map.same_as(self._map)
         heights = self._heights if same else self._volume(centres, sizes)
         if full:
-            dirty, n_cells, n_boxes = np.ones(len(self._dirty), bool), int((heights != self._heights).sum()), len(boxes)
+            dirty, n_cells, n_boxes = np.ones(self._dirty.shape, bool), int((heights != self._heights).sum()), len(boxes)
         elif same:
-            dirty, n_cells, n_boxes = np.zeros(len(self._dirty), bool), 0, 0
+            dirty, n_cells, n_boxes = np.zeros(self._dirty.shape, bool), 0, 0
         else:
             dirty, n_cells, n_boxes = self._changed(heights, boxes)
         self._dirty |= dirty
         self._heights, self._boxes, self._map = heights, boxes, obstacle_map
         self._arrays = self._arrays0.with_boxes(centres, sizes) if len(centres) else self._arrays0
-        n_st = len(self._dirty)
+        self._perceived_only = dataclasses.replace(
+            self._arrays0, obstacles=np.zeros((0, K.SHAPE_W)), obstacle_names=[], obstacle_aabb=np.zeros((0, 6)),
+            self_pairs=np.zeros((0, 2), np.int64)).with_boxes(centres, sizes)
+        n_st = self._dirty.shape[1]
         lo = int(np.clip(np.floor(s_now), 0, n_st - 1))
         hi = n_st - 1 if self.horizon is None else min(n_st - 1, lo + int(self.horizon))
         done, tests = self._recompute(0 if full else lo, hi)
         tightened, widened, pending = self._publish(lo, hi)
         if tightened or widened:
             self.live = self._live(self.live.version + 1)
-        return BoundsUpdate((time.perf_counter() - t0) * 1e3, n_cells, n_boxes, done, int(self._dirty.sum()), tests,
+        return BoundsUpdate((time.perf_counter() - t0) * 1e3, n_cells, n_boxes, done,
+                            int(self._dirty.any(axis=0).sum()), tests,
                             tightened, widened, pending, self.live.version)
 
     # -- publishing ----------------------------------------------------------
@@ -335,14 +346,15 @@ class OnlineBounds:
         (clean stretches in [lo, hi], at most ``max_certify``)."""
         s = self._sign[:, None]
         clean = ~self._dirty
-        tighter = (s * (self._cand - self._pub) < 0) & clean[None, :]
+        tighter = (s * (self._cand - self._pub) < 0) & clean
         tightened = int(tighter.any(axis=0).sum())
         self._pub = np.where(tighter, self._cand, self._pub)
-        wider = ((s * (self._cand - self._pub) > 0) & clean[None, :]).any(axis=0)
+        wider = ((s * (self._cand - self._pub) > 0).any(axis=0)) & clean.all(axis=0)
         todo = [i for i in np.nonzero(wider)[0] if lo <= i <= hi]
         widened = 0
+        proofs = [None] * self.max_proofs
         for i in todo[:self.max_certify]:
-            if self._certified(i, self._cand[:, i]):
+            if self._certified(i, self._cand[:, i], proofs):
                 self._pub[:, i] = self._cand[:, i]
                 widened += 1
         return tightened, widened, int(wider.sum()) - widened
@@ -354,29 +366,47 @@ class OnlineBounds:
         W = self._W[i:i + 2]
         return np.minimum(lower[None, :], W), np.maximum(upper[None, :], W)
 
-    def _certified(self, i: int, chains: np.ndarray) -> bool:
-        """Whether stretch i's box with these bounds is certified free."""
-        lo, up = self._outer_box(i, chains)
-        margin = float(self._setup.margins[i])
-        if len(self._boxes):
-            _, p_WB = self._arrays0.fk(self._W[i:i + 1])
-            p = p_WB[0]
-            dev = np.maximum(np.abs(up - self._W[i]), np.abs(self._W[i] - lo)).max(axis=0)
-            grow = float((self._reach * dev).sum()) + margin
-            reach = np.concatenate([(p - self._radii[:, None]).min(axis=0) - grow,
-                                    (p + self._radii[:, None]).max(axis=0) + grow])
-            if not _overlap(reach[None, :], self._boxes)[0]:
-                return True  # the known cell there: the base table's certificate holds
-        else:
+    def _certified(self, i: int, chains: np.ndarray, proofs: list) -> bool:
+        """Whether stretch i's box with these bounds is certified free.
+
+        The live box never leaves the base table's, whose guarantee covers
+        the known cell; what is left is the perceived boxes. (a) None comes
+        within reach of the box: each body stays within its radius plus
+        sum_j reach[j, b] |q_j - W_i[j]| (up to the box's deviation) plus
+        the margin of where it is at waypoint i. (b) Else, at most once per
+        map and stretch while ``proofs`` (a shared budget) lasts: every edge
+        and corner of a linear box holding the live box is proven free of
+        the perceived boxes by the kernel's region tests (the boundary
+        proof, :mod:`drake_cfvol.algorithm.boundary`), with the margin."""
+        if not len(self._boxes):
             return True
-        failed, _ = _failures(self._arrays, lo, up, self._W[i:i + 2], [0], np.array([margin]))
-        if failed:
+        lo, up = self._outer_box(i, chains)
+        dev = np.maximum(np.abs(up - self._W[i]), np.abs(self._W[i] - lo)).max(axis=0)  # (k,)
+        _, p_WB = self._arrays0.fk(self._W[i:i + 1])
+        grow = self._radii + dev @ self._body_reach + float(self._setup.margins[i])  # (B,)
+        balls = np.concatenate([p_WB[0] - grow[:, None], p_WB[0] + grow[:, None]], axis=1)
+        if not _overlap(balls, self._boxes).any():
+            return True
+        if not proofs or self._proven_map.get(i) is self._map:
             return False
-        if self.certify_samples:
-            t = self._rng.uniform(0.0, 1.0, (self.certify_samples, 1))
-            a = (1 - t) * lo[0] + t * lo[1]
-            b = (1 - t) * up[0] + t * up[1]
-            Q = a + self._rng.uniform(0.0, 1.0, a.shape) * (b - a)
-            if self._arrays.may_collide(Q, margin).any():
-                return False
-        return True
+        proofs.pop()
+        self._proven_map[i] = self._map
+        lo, up = self._tighter_linear(i, lo, up)
+        failed, _ = _failures(self._perceived_only, lo, up, self._W[i:i + 2], [0],
+                              np.array([float(self._setup.margins[i])]))
+        return not failed
+
+    def _tighter_linear(self, i: int, lo: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per joint and side, the smaller of two linear boxes that hold the
+        live box over stretch i: the published one (``lo``, ``up``) and the
+        base table's (linear between its waypoint boxes, or its stretch box
+        for a stretch-rule table)."""
+        b = self.base
+        if b.interpolation == "linear":
+            bl, bu = b.lower[i:i + 2], b.upper[i:i + 2]
+        else:
+            bl = np.minimum(b.stretch_lower[i][None, :], self._W[i:i + 2])
+            bu = np.maximum(b.stretch_upper[i][None, :], self._W[i:i + 2])
+        use_b_lo = bl.min(axis=0) >= lo.min(axis=0)
+        use_b_up = bu.max(axis=0) <= up.max(axis=0)
+        return np.where(use_b_lo, bl, lo), np.where(use_b_up, bu, up)

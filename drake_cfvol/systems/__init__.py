@@ -16,11 +16,18 @@
 - :class:`ReactiveCoworker`: a person reacting to the robot's position.
 - :class:`ClearanceMonitor`: clearance, collision and volume contact, through
   a SceneGraph's query port.
+- :class:`MovingBoxes`: boxes moving through the cell (a SceneGraph source).
+- :func:`AddCellCamera`: an overhead depth camera and its
+  :class:`ObstacleMapper` (points -> an obstacle height map, the robot and
+  the known cell filtered out); :class:`PerceivedColumns`: the map as
+  proximity geometry for the safety filter.
+- :class:`OnlineBoundsEstimator`: the bounds re-estimated from the map,
+  published to :class:`JointBoundsSource`'s ``bounds`` input.
 - :func:`AddCoManipulation`: all of the above a station needs, added to a
   user's own builder and wired to its plant and SceneGraph;
   :class:`ToolPushForce`: a push at the tool as a real force on a plant.
 
-One system per module. Imports ``algorithm`` (the bounds table), ``scene``,
+One system per module. Imports ``online``, ``algorithm`` (the bounds table), ``scene``,
 ``kernel`` and ``io`` only.
 """
 
@@ -29,11 +36,16 @@ from drake_cfvol.systems.admittance import AdmittanceDeformation, AdmittanceDefo
 from drake_cfvol.systems.bounds_source import JointBoundsSource, JointBoundsSource_
 from drake_cfvol.systems.human_input import HumanInputCheck, HumanInputCheck_
 from drake_cfvol.systems.humans import Push, RandomPushShaper, ReactiveCoworker, ScriptedHuman
+from drake_cfvol.systems.columns import PerceivedColumns
 from drake_cfvol.systems.monitor import ClearanceMonitor
+from drake_cfvol.systems.moving_boxes import MovingBoxes, MovingObstacle
+from drake_cfvol.systems.online_bounds import OnlineBoundsEstimator
+from drake_cfvol.systems.perception import AddCellCamera, AddCellModel, CellCamera, CellModel, ObstacleMapper
 from drake_cfvol.systems.path import PathProgress, safe_path_rate
 from drake_cfvol.systems.safety import SafetyFilter
 from drake_cfvol.systems.station import AddCoManipulation, CoManipulationSystems, ToolPushForce
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
            "ClearanceMonitor", "HumanInputCheck", "HumanInputCheck_", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate",
-           "AddCoManipulation", "CoManipulationSystems", "ToolPushForce"]
+           "AddCoManipulation", "CoManipulationSystems", "ToolPushForce", "MovingBoxes", "MovingObstacle",
+           "PerceivedColumns", "OnlineBoundsEstimator", "AddCellCamera", "AddCellModel", "CellCamera", "CellModel", "ObstacleMapper"]

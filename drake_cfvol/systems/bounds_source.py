@@ -24,6 +24,7 @@ def JointBoundsSource_(T):
             name: JointBoundsSource
             input_ports:
             - path_index
+            - bounds (optional)
             output_ports:
             - lower
             - upper
@@ -40,6 +41,12 @@ def JointBoundsSource_(T):
         central difference of width 1e-7 (they are piecewise linear in s).
         Not Symbolic: the table is a lookup in s.
 
+        ``bounds`` (optional, abstract): bounds that change during a run
+        (an :class:`~drake_cfvol.systems.OnlineBoundsEstimator`'s
+        ``bounds``, anything with the table's ``at(s)`` and ``g``); when
+        connected they replace the table given here, which still fixes the
+        number of joints.
+
         Args:
             bounds: the bounds table.
             clamp: clamp s into [0, g-1] instead of raising (default False:
@@ -52,21 +59,23 @@ def JointBoundsSource_(T):
             self._clamp = clamp
             k = bounds.k
             self.path_index_input = self.DeclareVectorInputPort(name="path_index", size=1)
+            self.bounds_input = self.DeclareAbstractInputPort(name="bounds", model_value=AbstractValue.Make(bounds))
+            tickets = {self.path_index_input.ticket(), self.bounds_input.ticket()}
             # The three outputs share one lookup per path index (a cache entry).
             self._box = self.DeclareCacheEntry(
                 description="(lower, upper, nominal) at the path index",
                 value_producer=ValueProducer(allocate=lambda: AbstractValue.Make(object()),
                                              calc=lambda ctx, value: value.set_value(self._at(ctx))),
-                prerequisites_of_calc={self.path_index_input.ticket()})
+                prerequisites_of_calc=tickets)
             self.lower_output = self.DeclareVectorOutputPort(
                 name="lower", size=k, calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[0]),
-                prerequisites_of_calc={self.path_index_input.ticket()})
+                prerequisites_of_calc=tickets)
             self.upper_output = self.DeclareVectorOutputPort(
                 name="upper", size=k, calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[1]),
-                prerequisites_of_calc={self.path_index_input.ticket()})
+                prerequisites_of_calc=tickets)
             self.nominal_output = self.DeclareVectorOutputPort(
                 name="nominal", size=k, calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[2]),
-                prerequisites_of_calc={self.path_index_input.ticket()})
+                prerequisites_of_calc=tickets)
 
         def _construct_copy(self, other, converter=None):
             Impl._construct(self, other._bounds, clamp=other._clamp, converter=converter)
@@ -75,15 +84,17 @@ def JointBoundsSource_(T):
         def bounds(self) -> BoundsTable:
             return self._bounds
 
-        def _lookup(self, s: float):
+        def _lookup(self, s: float, bounds=None):
+            bounds = self._bounds if bounds is None else bounds
             if self._clamp:
-                s = min(max(s, 0.0), self._bounds.g - 1.0) if np.isfinite(s) else s
-            return self._bounds.at(s)
+                s = min(max(s, 0.0), bounds.g - 1.0) if np.isfinite(s) else s
+            return bounds.at(s)
 
         def _at(self, context):
             s_in = self.path_index_input.Eval(context)[0]
             if T is float:
-                return self._lookup(float(s_in))
+                live = self.bounds_input.Eval(context) if self.bounds_input.HasValue(context) else None
+                return self._lookup(float(s_in), live)
             s = float(s_in.value())
             lo, hi, nom = self._lookup(s)
             ds = s_in.derivatives()

@@ -98,6 +98,25 @@ class DamperRows(NamedTuple):
     #: (m, 2): the radius of a round shape whose witness the point is, m
     #: (0: a vertex, a probe centre, or welded).
     rounds: np.ndarray
+    #: (m,): the watched pair each row belongs to.
+    pair: np.ndarray
+
+
+def dynamic_pairs(damper, dynamic_ids) -> list[tuple]:
+    """(pair index, its moving geometry) of a damper's pairs with geometry
+    that moves on its own."""
+    dynamic = set(dynamic_ids)
+    return [(n, b if b in dynamic else a) for n, (a, b, _, _) in enumerate(damper._pairs)
+            if a in dynamic or b in dynamic]
+
+
+def measure_dynamic(dynamic: list, query, measure: np.ndarray) -> None:
+    """Marks the pairs with moving geometry to be measured, except where it
+    is parked below :data:`~drake_cfvol.systems.columns.PARKED_Z` (unused)."""
+    from drake_cfvol.systems.columns import PARKED_Z
+
+    for n, gid in dynamic:
+        measure[n] = query.GetPoseInWorld(gid).translation()[2] > 0.5 * PARKED_Z
 
 
 def _round_radius(shape) -> float:
@@ -170,7 +189,7 @@ class VelocityDamper:
     def empty(self) -> DamperRows:
         """No rows, no distances measured."""
         return DamperRows(np.zeros((0, self.k)), np.zeros(0), np.full(len(self._pairs), np.nan), np.zeros((0, 3)),
-                          np.zeros((0, 2, 3)), np.full((0, 2), -1, dtype=int), np.zeros((0, 2)))
+                          np.zeros((0, 2, 3)), np.full((0, 2), -1, dtype=int), np.zeros((0, 2)), np.zeros(0, int))
 
     @staticmethod
     def _make_pairs(plant, scene_graph, robot, obstacle_ids) -> list[tuple]:
@@ -248,6 +267,7 @@ class VelocityDamper:
         rows, rhs = [], []
         ends = []  # per row: ((slot, p_W) of side A, of side B); slot -1: welded
         dists = np.full(len(self._pairs), np.nan)
+        owner = []  # per row: its pair
         kin = {}  # per moving body at q: (R_WB, p_WBo, J_w, J_v), its Jacobian at Bo
 
         def points(side, P_B):
@@ -298,13 +318,15 @@ class VelocityDamper:
             ends.append((n, self._end(side_a, P_a[0], self._round[id_a]), self._end(side_b, P_b[0], self._round[id_b])))
             self._probe_rows(query, n, (id_a, side_a, P_a, J_a), (id_b, side_b, P_b, J_b), witness,
                              rows, rhs, ends)
+            owner.extend([index] * (len(rows) - len(owner)))
         A = np.array(rows).reshape(-1, self.k)
         m = len(ends)
         return DamperRows(A, np.array(rhs, float), dists,
                           dirs=np.array([e[0] for e in ends], float).reshape(m, 3),
                           points=np.array([[e[1][1], e[2][1]] for e in ends], float).reshape(m, 2, 3),
                           slots=np.array([[e[1][0], e[2][0]] for e in ends], int).reshape(m, 2),
-                          rounds=np.array([[e[1][2], e[2][2]] for e in ends], float).reshape(m, 2))
+                          rounds=np.array([[e[1][2], e[2][2]] for e in ends], float).reshape(m, 2),
+                          pair=np.array(owner, int))
 
     def _probe_rows(self, query, n, a, b, witness, rows, rhs, ends) -> None:
         """Appends the rows of A's probes against B and of B's against A

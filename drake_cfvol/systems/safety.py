@@ -136,7 +136,7 @@ from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.scene.robot import RobotSlice
-from drake_cfvol.systems.damper import DamperRows, VelocityDamper
+from drake_cfvol.systems.damper import DamperRows, VelocityDamper, dynamic_pairs, measure_dynamic
 
 __all__ = ["SafetyFilter", "StagedQP"]
 
@@ -350,6 +350,8 @@ class SafetyFilter(LeafSystem):
             when the SceneGraph is posed from this filter's output (as in
             the co-manipulation diagram); set False when it is posed from
             anything else (a measured state).
+        dynamic_ids: geometry that moves on its own: measured at every
+            update (:func:`~.damper.measure_dynamic`), rows never relaxed.
     """
 
     #: Weight of a damper row's miss (slack) against the request's, (s/m)^2
@@ -367,7 +369,7 @@ class SafetyFilter(LeafSystem):
     def __init__(self, plant, scene_graph, robot, *, velocity_limits=None, obstacle_ids=None,
                  clearance: float = 0.0, influence_distance: float = 0.15, damper_gain: float = 1.0,
                  period: float = 0.01, acceleration_limits=None, initial_position=None, allowance: float = 0.001,
-                 skip_far_pairs: bool = True):
+                 skip_far_pairs: bool = True, dynamic_ids=()):
         super().__init__()
         robot_slice = RobotSlice(plant, robot)
         k = robot_slice.k
@@ -399,6 +401,7 @@ class SafetyFilter(LeafSystem):
         self._qp = StagedQP(self._vmax, box_weight=self.BOX_WEIGHT, slack_weight=self.SLACK_WEIGHT)
         self.skip_far_pairs = bool(skip_far_pairs)
         n_pairs = self._damper.num_pairs
+        self._dynamic = dynamic_pairs(self._damper, dynamic_ids)
 
         self.desired_position_input = self.DeclareVectorInputPort(name="desired_position", size=k)
         self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
@@ -517,6 +520,7 @@ class SafetyFilter(LeafSystem):
             measured = self.measured_position_input.HasValue(context)
             skip = self.skip_far_pairs and not measured  # a measured robot moves on its own: measure all
             measure = budget < 0 if skip else np.ones(self._damper.num_pairs, bool)
+            measure_dynamic(self._dynamic, self.query_object_input.Eval(context), measure)
             try:
                 rows = self.damper_rows(context, measure)
             except RuntimeError:
@@ -563,9 +567,11 @@ class SafetyFilter(LeafSystem):
         # controller's to close (demanding that the command undo it at once
         # would chase the robot).
 
+        fixed = np.isin(rows.pair, [n for n, _ in self._dynamic])  # the nominal is not free of them
+
         def need(v):
             b = rows.b + self.second_order(context, rows, v * h) / h
-            return _relax(q, nominal, lo, hi, A, b, self.velocity_limits, self.period) if relax else b
+            return np.where(fixed, b, _relax(q, nominal, lo, hi, A, b, self.velocity_limits, self.period)) if relax else b
 
         if not len(rows.b):
             return v_t, rows.b, True

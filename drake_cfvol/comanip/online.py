@@ -1,0 +1,152 @@
+"""A co-manipulation run's moving obstacles, their perception and the bounds
+re-estimated online (docs/spec.md, SPEC 12): the wiring, and the run's
+figures (updates, compute time, latency)."""
+
+from __future__ import annotations
+
+import math
+import typing
+
+import numpy as np
+from pydrake.geometry import Role
+
+from drake_cfvol.algorithm.reference import VOLUME_BOX_PREFIX
+from drake_cfvol.online import MapGrid, OnlineBounds, PerceptionParams
+from drake_cfvol.systems import AddCellCamera, MovingBoxes, OnlineBoundsEstimator, PerceivedColumns
+from drake_cfvol.systems.perception import AddCellModel
+
+__all__ = ["OnlineParts", "add_online", "perception_params", "online_figures", "map_grid"]
+
+
+class OnlineParts(typing.NamedTuple):
+    """What :func:`add_online` added."""
+
+    mode: str  #: "camera" or "truth"
+    grid: MapGrid
+    boxes: MovingBoxes | None
+    camera: object  # CellCamera or None
+    columns: PerceivedColumns | None
+    estimator: OnlineBoundsEstimator
+    filter_ids: list  #: obstacle geometry the safety filter measures besides the cell's
+    monitor_ids: list  #: obstacle geometry the monitor measures besides the cell's (the true boxes)
+    map_port: object  #: the obstacle map's output port
+    model_position_input: object  #: the cell model's robot position (camera), to connect; else None
+
+
+def perception_params(scenario) -> PerceptionParams:
+    """The map's settings: cells lend their height as far as an obstacle at
+    ``online.obstacle_speed`` moves until newer bounds are in force (an
+    image's age, half a camera period to the bounds update, a bounds
+    period, and the next image), plus one cell for pixel gaps; occupancy
+    spreads into unseen cells as fast as that speed (at least a cell per
+    image)."""
+    o = scenario.online
+    lag = 2 * o.camera_period + 0.5 * o.camera_period + o.bounds_period
+    return PerceptionParams(cell=o.cell, dilation=1 + int(math.ceil(o.obstacle_speed * lag / o.cell - 1e-9)),
+                            speed=o.obstacle_speed)
+
+
+def map_grid(workcell, cell: float) -> MapGrid:
+    """The obstacle map's grid: the height map's rectangle and everything
+    the robot can reach (from its first revolute joint's axis, along the
+    rail for a robot on a linear axis: ``reach`` bounds every body's
+    distance from that axis point at any configuration), plus half a metre."""
+    a = workcell.scene_arrays()
+    lo = np.asarray(workcell.height_map_origin, float)
+    hi = lo + np.asarray(workcell.height_map_size, float)
+    rev = np.nonzero(a.revolute)[0]
+    if len(rev):
+        j = int(rev[0])
+        body = int(a.joint_body[j])
+        ends = []
+        q0 = np.zeros(workcell.num_joints)
+        rail = workcell.joint_names.index(workcell.rail_joint) if workcell.rail_joint is not None else None
+        for v in ((workcell.position_lower[rail], workcell.position_upper[rail]) if rail is not None else (0.0,)):
+            q = q0.copy()
+            if rail is not None:
+                q[rail] = v
+            _, p_WB = a.fk(q[None])
+            ends.append(p_WB[0, body, :2])
+        ends = np.array(ends)
+        r = float(a.reach[j].max()) + float(np.linalg.norm(a.p_MB[body]))  # from the body origin
+        lo, hi = np.minimum(lo, ends.min(axis=0) - r), np.maximum(hi, ends.max(axis=0) + r)
+    return MapGrid.covering(lo - 0.5, hi - lo + 1.0, cell)
+
+
+def _hide_volume_from_cameras(plant, scene_graph) -> None:
+    """The volume V is virtual: no camera sees (or is blocked by) its boxes."""
+    inspector = scene_graph.model_inspector()
+    for gid in inspector.GetAllGeometryIds(Role.kPerception):
+        if VOLUME_BOX_PREFIX in inspector.GetName(gid):
+            scene_graph.RemoveRole(plant.get_source_id(), gid, Role.kPerception)
+
+
+def add_online(builder, scenario, workcell, plant, scene_graph, robot, bounds, path_index_port) -> OnlineParts:
+    """Adds the scenario's moving boxes, their perception (``camera``: the
+    cell camera, its obstacle map and the perceived columns; ``truth``: the
+    boxes' own map) and the online bounds estimator, reading the path index
+    from ``path_index_port``."""
+    o = scenario.online
+    mode = scenario.perception_mode
+    grid = map_grid(workcell, o.cell)
+    params = perception_params(scenario)
+    boxes = None
+    if scenario.moving_obstacles:
+        boxes = builder.AddNamedSystem("moving_obstacles", MovingBoxes(
+            scene_graph, scenario.moving_obstacles, grid=grid, params=params))
+        builder.Connect(boxes.geometry_pose_output, scene_graph.get_source_pose_port(boxes.source_id))
+    camera = columns = None
+    if mode == "camera":
+        _hide_volume_from_cameras(plant, scene_graph)
+        model = AddCellModel(builder, workcell=workcell)
+        camera = AddCellCamera(builder, scene_graph=scene_graph, model=model, grid=grid, params=params,
+                               width=o.width, height=o.height, period=o.camera_period)
+        model_input = model.position_input
+        columns = builder.AddNamedSystem("perceived_columns", PerceivedColumns(scene_graph, grid))
+        map_port = camera.mapper.obstacle_map_output
+        builder.Connect(map_port, columns.obstacle_map_input)
+        builder.Connect(columns.geometry_pose_output, scene_graph.get_source_pose_port(columns.source_id))
+        filter_ids = list(columns.geometry_ids)
+    else:
+        if boxes is None:
+            raise ValueError("perception truth needs moving_obstacles")
+        map_port = boxes.obstacle_map_output
+        filter_ids = list(boxes.geometry_ids)
+        model_input = None
+    estimator = builder.AddNamedSystem("online_bounds", OnlineBoundsEstimator(
+        OnlineBounds(workcell, bounds, horizon=o.horizon), grid, period=o.bounds_period,
+        offset=0.5 * o.camera_period))
+    builder.Connect(map_port, estimator.obstacle_map_input)
+    builder.Connect(path_index_port, estimator.path_index_input)
+    return OnlineParts(mode, grid, boxes, camera, columns, estimator, filter_ids,
+                       list(boxes.geometry_ids) if boxes is not None else [], map_port, model_input)
+
+
+def online_figures(parts: OnlineParts | None, context, scenario) -> dict:
+    """The run's online figures: ``bounds_updates`` (re-estimations, i.e.
+    updates whose map had changed), ``bounds_update_ms`` (their median
+    compute time), ``bounds_update_ms_max``, ``bounds_latency_s`` (worst over
+    the moving obstacles: from its first motion to the first bounds in
+    force that were computed from an image taken after it; None if none
+    moves) and ``bounds_versions``."""
+    if parts is None:
+        return {}
+    est = parts.estimator
+    log = est.log(est.GetMyContextFromRoot(context))
+    t, ms, stamp, _, version, changed = log.T if len(log) else (np.zeros(0),) * 6
+    re = changed > 0
+    out = {"perception": parts.mode, "bounds_updates": int(re.sum()),
+           "bounds_update_ms": float(np.median(ms[re])) if re.any() else 0.0,
+           "bounds_update_ms_max": float(ms[re].max()) if re.any() else 0.0,
+           "bounds_versions": int(version.max()) if len(version) else 0, "bounds_latency_s": None}
+    late = []
+    for ob in scenario.moving_obstacles:
+        t0 = ob.first_motion()
+        if t0 is None:
+            continue
+        # Row n publishes what row n-1 computed: its map stamp is row n-1's.
+        ok = [n for n in range(1, len(t)) if stamp[n - 1] > t0]
+        late.append(float(t[ok[0]] - t0) if ok else math.inf)
+    if late:
+        out["bounds_latency_s"] = max(late)
+    return out

@@ -1,0 +1,143 @@
+"""The perceived obstacle map as proximity geometry, for the runtime safety
+filter (SPEC 12)."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.geometry import (Box, FramePoseVector, GeometryFrame, GeometryInstance, IllustrationProperties,
+                              ProximityProperties, Rgba)
+from pydrake.math import RigidTransform
+from pydrake.systems.framework import LeafSystem
+
+from drake_cfvol.algorithm.heightmap import _merge_equal
+from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap
+
+__all__ = ["PerceivedColumns", "PARKED_Z", "tile_rectangles"]
+
+#: An unused tile waits this far below the floor, m; a filter may skip
+#: geometry posed below it.
+PARKED_Z = -100.0
+
+
+def tile_rectangles(heights: np.ndarray, levels: int, per_level: int) -> tuple[list, int]:
+    """Square tiles covering the occupied cells of a height map.
+
+    The occupied cells form rectangles (cells [i0, i1) x [j0, j1)); each is
+    covered by squares of 2^l cells, l the largest level with 2^l at most
+    its shorter side: in rows and columns, the last one flush with the
+    rectangle's end, so no tile leaves the rectangle. A tile stands as high
+    as the highest cell it covers. Where a level runs out of tiles, the next
+    larger one takes the tile's place (a larger square from the same corner:
+    it covers more, never less).
+
+    Returns:
+        (tiles, overflow): tiles as (level, i0, j0, h), and how many could
+        not be placed at any level.
+    """
+    used = [0] * levels
+    tiles, overflow = [], 0
+    m, n = heights.shape
+    for i0, i1, j0, j1, _ in _merge_equal((heights > 0).astype(float)):
+        short = min(i1 - i0, j1 - j0)
+        lv = min(int(np.floor(np.log2(short))), levels - 1)
+        t = 1 << lv
+        xs = sorted({min(i0 + a * t, i1 - t) for a in range(-(-(i1 - i0) // t))})
+        ys = sorted({min(j0 + b * t, j1 - t) for b in range(-(-(j1 - j0) // t))})
+        for x in xs:
+            for y in ys:
+                level = lv
+                while level < levels and used[level] >= per_level:
+                    level += 1
+                if level == levels:
+                    overflow += 1
+                    continue
+                used[level] += 1
+                t_l = 1 << level
+                tiles.append((level, x, y, float(heights[x:min(x + t_l, m), y:min(y + t_l, n)].max())))
+    return tiles, overflow
+
+
+class PerceivedColumns(LeafSystem):
+    """The obstacle map's occupied cells as boxes in the SceneGraph:
+    square columns of 1, 2, 4, ... cells (``levels`` sizes, ``per_level`` of
+    each), standing from below the floor up to each cell's height; unused
+    ones parked at :data:`PARKED_Z`. Proximity (the safety filter measures
+    them) and illustration (the recording shows them) roles, no perception
+    role (the camera does not see them).
+
+    .. pydrake_system::
+
+        name: PerceivedColumns
+        input_ports:
+        - obstacle_map
+        output_ports:
+        - geometry_pose
+        - overflow
+
+    ``overflow`` counts the tiles no level had room for (0 in a sized
+    pool); connect ``geometry_pose`` to
+    ``scene_graph.get_source_pose_port(system.source_id)``.
+
+    Args:
+        scene_graph: the diagram's SceneGraph.
+        grid: the obstacle map's grid.
+        levels: tile sizes (1, 2, ... 2^(levels-1) cells).
+        per_level: tiles of each size.
+        depth: each column's length, m (it reaches this far down from its top).
+        rgba: the columns' colour in the recording.
+    """
+
+    def __init__(self, scene_graph, grid: MapGrid, *, levels: int = 5, per_level: int = 24, depth: float = 6.0,
+                 rgba=(1.0, 0.55, 0.0, 0.35)):
+        super().__init__()
+        if levels < 1 or per_level < 1:
+            raise ParameterError(f"PerceivedColumns: levels and per_level must be >= 1, got {levels}, {per_level}.")
+        self.grid, self.levels, self.per_level, self.depth = grid, int(levels), int(per_level), float(depth)
+        self.source_id = scene_graph.RegisterSource("perceived_columns")
+        self.frame_ids, self.geometry_ids = [], []
+        for lv in range(self.levels):
+            side = grid.side * (1 << lv)
+            for n in range(self.per_level):
+                frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"column_{lv}_{n}"))
+                gid = scene_graph.RegisterGeometry(self.source_id, frame, GeometryInstance(
+                    RigidTransform(), Box(side, side, self.depth), f"column_{lv}_{n}"))
+                scene_graph.AssignRole(self.source_id, gid, ProximityProperties())
+                ill = IllustrationProperties()
+                ill.AddProperty("phong", "diffuse", Rgba(*rgba))
+                scene_graph.AssignRole(self.source_id, gid, ill)
+                self.frame_ids.append(frame)
+                self.geometry_ids.append(gid)
+        self.obstacle_map_input = self.DeclareAbstractInputPort(
+            "obstacle_map", AbstractValue.Make(ObstacleMap.empty(grid)))
+        self.geometry_pose_output = self.DeclareAbstractOutputPort(
+            "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc_poses,
+            prerequisites_of_calc={self.obstacle_map_input.ticket()})
+        self.overflow_output = self.DeclareVectorOutputPort(
+            "overflow", 1, lambda c, o: o.SetAtIndex(0, float(self._tiles(c)[1])),
+            prerequisites_of_calc={self.obstacle_map_input.ticket()})
+
+    def _tiles(self, context):
+        m = self.obstacle_map_input.Eval(context)
+        if m.grid != self.grid:
+            raise ParameterError(f"PerceivedColumns: the obstacle map's grid {m.grid} is not this system's "
+                                 f"{self.grid}; build both from one MapGrid.")
+        return tile_rectangles(m.heights, self.levels, self.per_level)
+
+    def _calc_poses(self, context, output) -> None:
+        tiles, _ = self._tiles(context)
+        poses = output.get_mutable_value()
+        poses.clear()
+        next_free = [0] * self.levels
+        s, (x0, y0) = self.grid.side, self.grid.origin
+        for level, i, j, h in tiles:
+            n = level * self.per_level + next_free[level]
+            next_free[level] += 1
+            half = 0.5 * s * (1 << level)
+            poses.set_value(self.frame_ids[n], RigidTransform([x0 + i * s + half, y0 + j * s + half,
+                                                               h - 0.5 * self.depth]))
+        for level in range(self.levels):
+            for n in range(next_free[level], self.per_level):
+                poses.set_value(self.frame_ids[level * self.per_level + n],
+                                RigidTransform([x0, y0, PARKED_Z - self.depth]))
