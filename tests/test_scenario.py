@@ -69,6 +69,13 @@ def test_scenario_holding_its_cell_equals_the_cell_file(cell_folder):
     ({"random_pushes": {"seed": 3}}, "random_pushes.seed", "is now 'random_seed'"),
     ({"plant_config": {"time_step": 0.0}}, "plant_config.time_step", "must be > 0 s"),
     ({"path_file": "nowhere.json"}, "path_file", "does not exist"),
+    ({"moving_obstacles": [{"name": "cart", "box": [1, 1], "waypoints": [[0, 0, 0, 0.5]]}]},
+     "moving_obstacles item 1", "box must be 3 sides"),
+    ({"moving_obstacles": [{"name": "cart", "waypoints": [[1, 0, 0, 0.5], [0, 1, 0, 0.5]]}]},
+     "moving_obstacles item 1", "waypoint times must increase"),
+    ({"perception": "lidar"}, "perception", "must be camera or truth"),
+    ({"online": {"cell": 0.0}}, "online.cell", "must be > 0"),
+    ({"online": {"frame_rate": 30}}, "online.frame_rate", "is not a field of OnlineConfig"),
 ])
 def test_scenario_errors_name_file_item_and_field(tmp_path, data, field, says):
     """Each bad field is named with the file, the list item counted from 1

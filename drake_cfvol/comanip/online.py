@@ -8,12 +8,12 @@ import math
 import typing
 
 import numpy as np
-from pydrake.geometry import Role
+from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, Role
 
 from drake_cfvol.algorithm.reference import VOLUME_BOX_PREFIX
 from drake_cfvol.online import MapGrid, OnlineBounds, PerceptionParams
 from drake_cfvol.systems import AddCellCamera, MovingBoxes, OnlineBoundsEstimator, PerceivedColumns
-from drake_cfvol.systems.perception import AddCellModel
+from drake_cfvol.systems.perception import AddCellModel, make_renderable
 
 __all__ = ["OnlineParts", "add_online", "perception_params", "online_figures", "map_grid"]
 
@@ -73,6 +73,18 @@ def map_grid(workcell, cell: float) -> MapGrid:
     return MapGrid.covering(lo - 0.5, hi - lo + 1.0, cell)
 
 
+def _filter_from_all_but_the_robot(scene_graph, plant, robot, ids: list) -> None:
+    """Collision filters: the moving boxes and perceived columns meet only
+    the robot (not each other, the floor, the cell or the volume), so
+    SceneGraph's contact queries never pair them with anything else."""
+    inspector = scene_graph.model_inspector()
+    robot_ids = {g for b in plant.GetBodyIndices(robot) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))}
+    others = [g for g in inspector.GetAllGeometryIds(Role.kProximity) if g not in robot_ids]
+    scene_graph.collision_filter_manager().Apply(
+        CollisionFilterDeclaration().ExcludeBetween(GeometrySet(list(ids)), GeometrySet(others))
+        .ExcludeWithin(GeometrySet(list(ids))))
+
+
 def _hide_volume_from_cameras(plant, scene_graph) -> None:
     """The volume V is virtual: no camera sees (or is blocked by) its boxes."""
     inspector = scene_graph.model_inspector()
@@ -98,6 +110,7 @@ def add_online(builder, scenario, workcell, plant, scene_graph, robot, bounds, p
     camera = columns = None
     if mode == "camera":
         _hide_volume_from_cameras(plant, scene_graph)
+        make_renderable(scene_graph, plant)
         model = AddCellModel(builder, workcell=workcell)
         camera = AddCellCamera(builder, scene_graph=scene_graph, model=model, grid=grid, params=params,
                                width=o.width, height=o.height, period=o.camera_period)
@@ -116,6 +129,7 @@ def add_online(builder, scenario, workcell, plant, scene_graph, robot, bounds, p
     estimator = builder.AddNamedSystem("online_bounds", OnlineBoundsEstimator(
         OnlineBounds(workcell, bounds, horizon=o.horizon), grid, period=o.bounds_period,
         offset=0.5 * o.camera_period))
+    _filter_from_all_but_the_robot(scene_graph, plant, robot, filter_ids + (list(boxes.geometry_ids) if boxes else []))
     builder.Connect(map_port, estimator.obstacle_map_input)
     builder.Connect(path_index_port, estimator.path_index_input)
     return OnlineParts(mode, grid, boxes, camera, columns, estimator, filter_ids,
@@ -128,7 +142,10 @@ def online_figures(parts: OnlineParts | None, context, scenario) -> dict:
     compute time), ``bounds_update_ms_max``, ``bounds_latency_s`` (worst over
     the moving obstacles: from its first motion to the first bounds in
     force that were computed from an image taken after it; None if none
-    moves) and ``bounds_versions``."""
+    moves), ``bounds_versions`` and ``freedom_end_ratio``: at the end of the
+    run, where the robot is on its path, the live box's width over the
+    known cell's (the first bounds), joint by joint, averaged (1.0: the
+    freedom came back; stretches behind the robot are not searched again)."""
     if parts is None:
         return {}
     est = parts.estimator
@@ -149,4 +166,12 @@ def online_figures(parts: OnlineParts | None, context, scenario) -> dict:
         late.append(float(t[ok[0]] - t0) if ok else math.inf)
     if late:
         out["bounds_latency_s"] = max(late)
+    first = est.initial_bounds
+    e_ctx = est.GetMyContextFromRoot(context)
+    last = est.bounds_output.Eval(e_ctx)
+    s_end = float(np.clip(est.path_index_input.Eval(e_ctx)[0], 0.0, first.g - 1.0))
+    w0 = np.subtract(*first.at(s_end)[1::-1])
+    w1 = np.subtract(*last.at(s_end)[1::-1])
+    keep = w0 > 1e-9
+    out["freedom_end_ratio"] = float(np.mean(w1[keep] / w0[keep])) if keep.any() else 1.0
     return out

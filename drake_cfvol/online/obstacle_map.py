@@ -25,13 +25,14 @@ assumed occupancy never spreads from assumed occupancy.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
 from drake_cfvol.algorithm.heightmap import _merge_equal
 from drake_cfvol.exceptions import ParameterError
 
-__all__ = ["MapGrid", "ObstacleMap", "PerceptionParams"]
+__all__ = ["MapGrid", "ObstacleMap", "PerceptionParams", "merged_rectangles"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,6 +114,20 @@ def _dilate(H: np.ndarray, r: int) -> np.ndarray:
             np.maximum(out[tuple(a)], src[tuple(b)], out=out[tuple(a)])
             np.maximum(out[tuple(b)], src[tuple(a)], out=out[tuple(b)])
     return out
+
+
+def merged_rectangles(H: np.ndarray) -> np.ndarray:
+    """(N, 5) rectangles [i0, i1, j0, j1, h] of equal positive height
+    covering every positive cell of H exactly once (the heightmap's merge,
+    run on the occupied cells' bounding block only)."""
+    i, j = np.nonzero(H > 0)
+    if not len(i):
+        return np.zeros((0, 5))
+    i0, j0 = i.min(), j.min()
+    rects = np.array(_merge_equal(H[i0:i.max() + 1, j0:j.max() + 1]), float).reshape(-1, 5)
+    rects[:, :2] += i0
+    rects[:, 2:4] += j0
+    return rects
 
 
 @dataclasses.dataclass(frozen=True)
@@ -199,11 +214,17 @@ class ObstacleMap:
                 heights[under] = np.maximum(heights[under], grown[under])
         return ObstacleMap(g, heights, float(stamp), observed, seen_at)
 
+    @functools.cached_property
+    def rectangles(self) -> np.ndarray:
+        """(N, 5) equal-height rectangles [i0, i1, j0, j1, h] (cells [i0, i1)
+        x [j0, j1)) covering exactly the occupied cells (computed once)."""
+        return merged_rectangles(self.heights)
+
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """The occupied cells as few boxes standing on the floor, exactly
         covering them (equal-height runs merged): centres (N, 3), full sizes
         (N, 3), m."""
-        rects = np.array(_merge_equal(self.heights), float).reshape(-1, 5)
+        rects = self.rectangles
         s, (x0, y0) = self.grid.side, self.grid.origin
         centres = np.stack([x0 + (rects[:, 0] + rects[:, 1]) / 2 * s, y0 + (rects[:, 2] + rects[:, 3]) / 2 * s,
                             rects[:, 4] / 2], axis=1)

@@ -92,7 +92,8 @@ class BoundsUpdate:
         time_ms: its compute time, ms.
         changed_cells: columns of V that changed; changed_boxes: perceived
             boxes added or removed.
-        recomputed: stretches searched again; dirty: stretches still
+        recomputed: stretches searched again; searches: (joint, side)
+            searches run (at most 2 k per stretch); dirty: stretches still
             waiting (beyond the horizon).
         tests: region tests run.
         tightened, widened: stretches whose published bounds tightened /
@@ -105,6 +106,7 @@ class BoundsUpdate:
     changed_cells: int
     changed_boxes: int
     recomputed: int
+    searches: int
     dirty: int
     tests: int
     tightened: int
@@ -154,7 +156,6 @@ class OnlineBounds:
             (:func:`~drake_cfvol.estimate_bounds`' result, certified or not).
         horizon: stretches ahead of the path index searched at an update
             (None: to the end of the path).
-        max_certify: most widened stretches certified per update.
         max_proofs: most boundary proofs (a stretch's widening near a
             perceived box) per update.
 
@@ -162,17 +163,16 @@ class OnlineBounds:
         ParameterError: a table without its volume, or bad settings.
     """
 
-    def __init__(self, workcell, base: BoundsTable, *, horizon: int | None = None, max_certify: int = 64,
-                 max_proofs: int = 1):
+    def __init__(self, workcell, base: BoundsTable, *, horizon: int | None = None, max_proofs: int = 1):
         if base.volume is None:
             raise ParameterError("OnlineBounds needs the table's volume: a table loaded from disk has none; grow "
                                  "it with dataclasses.replace(table, volume=build_volume(workcell, path, params)).")
         if horizon is not None and not int(horizon) >= 1:
             raise ParameterError(f"horizon must be >= 1 stretch (or None: the whole path), got {horizon!r}.")
-        if not int(max_certify) >= 1:
-            raise ParameterError(f"max_certify must be >= 1 stretch, got {max_certify!r}.")
+        if not int(max_proofs) >= 0:
+            raise ParameterError(f"max_proofs must be >= 0 per update, got {max_proofs!r}.")
         self.workcell, self.base, self.horizon = workcell, base, horizon
-        self.max_certify, self.max_proofs = int(max_certify), int(max_proofs)
+        self.max_proofs = int(max_proofs)
         self._proven_map: dict = {}  # stretch -> the map its last boundary proof was run on
         known = {f.name for f in dataclasses.fields(VolumeParams)}
         self.params = VolumeParams(**{k: v for k, v in base.params.items() if k in known})
@@ -272,12 +272,12 @@ class OnlineBounds:
             hit |= _overlap(self._fps, cols)
         return hit, len(ci), len(moved)
 
-    def _recompute(self, lo: int, hi: int) -> tuple[int, int]:
+    def _recompute(self, lo: int, hi: int) -> tuple[int, int, int]:
         """Searches the dirty stretches in [lo, hi] again, in order, each run
         of them with the chains dirty there (cascading: a chain whose last
         bound moved makes its next stretch dirty). Returns (stretches,
-        tests)."""
-        n_st, done, tests, i = self._dirty.shape[1], 0, 0, lo
+        searches, tests)."""
+        n_st, done, searches, tests, i = self._dirty.shape[1], 0, 0, 0, lo
         field = self._field()
         any_dirty = self._dirty.any(axis=0)
         while i <= hi:
@@ -295,11 +295,12 @@ class OnlineBounds:
             self._cand[sel, i:b + 1], self._fps[sel, i:b + 1] = bounds, fps
             self._dirty[sel, i:b + 1] = False
             done, tests = done + (b - i + 1), tests + int(t.sum())
+            searches += len(sel) * (b - i + 1)
             if b + 1 < n_st and len(moved):
                 self._dirty[moved, b + 1] = True  # their searches start from these bounds
                 any_dirty[b + 1] = True
             i = b + 1
-        return done, tests
+        return done, searches, tests
 
     def update(self, obstacle_map: ObstacleMap, s_now: float = 0.0, *, full: bool = False) -> BoundsUpdate:
         """Takes a new obstacle map: re-estimates V and the dirty stretches
@@ -331,30 +332,33 @@ class OnlineBounds:
         n_st = self._dirty.shape[1]
         lo = int(np.clip(np.floor(s_now), 0, n_st - 1))
         hi = n_st - 1 if self.horizon is None else min(n_st - 1, lo + int(self.horizon))
-        done, tests = self._recompute(0 if full else lo, hi)
+        done, searches, tests = self._recompute(0 if full else lo, hi)
         tightened, widened, pending = self._publish(lo, hi)
         if tightened or widened:
             self.live = self._live(self.live.version + 1)
-        return BoundsUpdate((time.perf_counter() - t0) * 1e3, n_cells, n_boxes, done,
+        return BoundsUpdate((time.perf_counter() - t0) * 1e3, n_cells, n_boxes, done, searches,
                             int(self._dirty.any(axis=0).sum()), tests,
                             tightened, widened, pending, self.live.version)
 
     # -- publishing ----------------------------------------------------------
 
     def _publish(self, lo: int, hi: int) -> tuple[int, int, int]:
-        """Tightening at once (every clean stretch), widening once certified
-        (clean stretches in [lo, hi], at most ``max_certify``)."""
+        """Tightening at once, widening once certified (every clean stretch;
+        boundary proofs only for those in [lo, hi])."""
         s = self._sign[:, None]
         clean = ~self._dirty
         tighter = (s * (self._cand - self._pub) < 0) & clean
         tightened = int(tighter.any(axis=0).sum())
         self._pub = np.where(tighter, self._cand, self._pub)
         wider = ((s * (self._cand - self._pub) > 0).any(axis=0)) & clean.all(axis=0)
-        todo = [i for i in np.nonzero(wider)[0] if lo <= i <= hi]
+        # Ahead first (a proof is spent where the robot is going); the
+        # stretches behind widen by the cheap test only.
+        idx = np.nonzero(wider)[0]
+        todo = [i for i in idx if lo <= i <= hi] + [i for i in idx if i < lo or i > hi]
         widened = 0
         proofs = [None] * self.max_proofs
-        for i in todo[:self.max_certify]:
-            if self._certified(i, self._cand[:, i], proofs):
+        for i in todo:
+            if self._certified(i, self._cand[:, i], proofs if lo <= i <= hi else []):
                 self._pub[:, i] = self._cand[:, i]
                 widened += 1
         return tightened, widened, int(wider.sum()) - widened
@@ -387,7 +391,7 @@ class OnlineBounds:
         balls = np.concatenate([p_WB[0] - grow[:, None], p_WB[0] + grow[:, None]], axis=1)
         if not _overlap(balls, self._boxes).any():
             return True
-        if not proofs or self._proven_map.get(i) is self._map:
+        if not proofs or self._map.same_as(self._proven_map.get(i)):
             return False
         proofs.pop()
         self._proven_map[i] = self._map

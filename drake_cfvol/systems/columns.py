@@ -10,9 +10,8 @@ from pydrake.geometry import (Box, FramePoseVector, GeometryFrame, GeometryInsta
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
-from drake_cfvol.algorithm.heightmap import _merge_equal
 from drake_cfvol.exceptions import ParameterError
-from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap
+from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap, merged_rectangles
 
 __all__ = ["PerceivedColumns", "PARKED_Z", "tile_rectangles"]
 
@@ -39,7 +38,7 @@ def tile_rectangles(heights: np.ndarray, levels: int, per_level: int) -> tuple[l
     used = [0] * levels
     tiles, overflow = [], 0
     m, n = heights.shape
-    for i0, i1, j0, j1, _ in _merge_equal((heights > 0).astype(float)):
+    for i0, i1, j0, j1, _ in merged_rectangles((heights > 0).astype(float)).astype(int):
         short = min(i1 - i0, j1 - j0)
         lv = min(int(np.floor(np.log2(short))), levels - 1)
         t = 1 << lv
@@ -89,7 +88,7 @@ class PerceivedColumns(LeafSystem):
         rgba: the columns' colour in the recording.
     """
 
-    def __init__(self, scene_graph, grid: MapGrid, *, levels: int = 5, per_level: int = 24, depth: float = 6.0,
+    def __init__(self, scene_graph, grid: MapGrid, *, levels: int = 5, per_level: int = 64, depth: float = 6.0,
                  rgba=(1.0, 0.55, 0.0, 0.35)):
         super().__init__()
         if levels < 1 or per_level < 1:
@@ -109,6 +108,7 @@ class PerceivedColumns(LeafSystem):
                 scene_graph.AssignRole(self.source_id, gid, ill)
                 self.frame_ids.append(frame)
                 self.geometry_ids.append(gid)
+        self._last = None  # (map, its tiles): a memo of the last map seen (it says nothing about the context)
         self.obstacle_map_input = self.DeclareAbstractInputPort(
             "obstacle_map", AbstractValue.Make(ObstacleMap.empty(grid)))
         self.geometry_pose_output = self.DeclareAbstractOutputPort(
@@ -123,7 +123,9 @@ class PerceivedColumns(LeafSystem):
         if m.grid != self.grid:
             raise ParameterError(f"PerceivedColumns: the obstacle map's grid {m.grid} is not this system's "
                                  f"{self.grid}; build both from one MapGrid.")
-        return tile_rectangles(m.heights, self.levels, self.per_level)
+        if self._last is None or self._last[0] is not m:  # both outputs of one map share the tiling
+            self._last = (m, tile_rectangles(m.heights, self.levels, self.per_level))
+        return self._last[1]
 
     def _calc_poses(self, context, output) -> None:
         tiles, _ = self._tiles(context)

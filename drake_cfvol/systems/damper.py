@@ -112,11 +112,16 @@ def dynamic_pairs(damper, dynamic_ids) -> list[tuple]:
 
 def measure_dynamic(dynamic: list, query, measure: np.ndarray) -> None:
     """Marks the pairs with moving geometry to be measured, except where it
-    is parked below :data:`~drake_cfvol.systems.columns.PARKED_Z` (unused)."""
+    is parked below :data:`~drake_cfvol.systems.columns.PARKED_Z` (unused):
+    one pose look-up per geometry."""
     from drake_cfvol.systems.columns import PARKED_Z
 
-    for n, gid in dynamic:
-        measure[n] = query.GetPoseInWorld(gid).translation()[2] > 0.5 * PARKED_Z
+    if not dynamic:
+        return
+    pairs, gids = zip(*dynamic)
+    ids = list(dict.fromkeys(gids))
+    active = {g: query.GetPoseInWorld(g).translation()[2] > 0.5 * PARKED_Z for g in ids}
+    measure[list(pairs)] = [active[g] for g in gids]
 
 
 def _round_radius(shape) -> float:

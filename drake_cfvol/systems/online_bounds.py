@@ -57,7 +57,8 @@ class OnlineBoundsEstimator(LeafSystem):
         if not period > 0:
             raise ParameterError(f"OnlineBoundsEstimator: period must be > 0 s, got {period!r}.")
         self.online, self.period = online, float(period)
-        self._initial = online.live
+        #: The bounds in force before any update (the known cell's).
+        self.initial_bounds = online.live
         self.obstacle_map_input = self.DeclareAbstractInputPort(
             "obstacle_map", AbstractValue.Make(ObstacleMap.empty(grid)))
         self.path_index_input = self.DeclareVectorInputPort(name="path_index", size=1)
@@ -76,7 +77,7 @@ class OnlineBoundsEstimator(LeafSystem):
     def reset(self) -> None:
         """A fresh re-estimator for another run (same base table and settings)."""
         o = self.online
-        self.online = OnlineBounds(o.workcell, o.base, horizon=o.horizon, max_certify=o.max_certify, max_proofs=o.max_proofs)
+        self.online = OnlineBounds(o.workcell, o.base, horizon=o.horizon, max_proofs=o.max_proofs)
 
     def log(self, context) -> np.ndarray:
         """(n, 6) the updates so far (:data:`LOG_FIELDS`)."""

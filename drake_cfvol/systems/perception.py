@@ -8,8 +8,9 @@ import typing
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import (ClippingRange, ColorRenderCamera, DepthRange, DepthRenderCamera, MakeRenderEngineVtk,
-                              RenderCameraCore, RenderEngineVtkParams, Role)
+from pydrake.geometry import (ClippingRange, ColorRenderCamera, Convex, DepthRange, DepthRenderCamera, GeometryInstance,
+                              MakeRenderEngineVtk, Mesh, PerceptionProperties, RenderCameraCore, RenderEngineVtkParams,
+                              Role)
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.perception import BaseField, DepthImageToPointCloud, PointCloud
 from pydrake.systems.framework import LeafSystem
@@ -20,7 +21,7 @@ from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap, PerceptionParams
 from drake_cfvol.scene.robot import robot_bodies
 
-__all__ = ["floor_points", "ObstacleMapper", "AddCellCamera", "CellCamera", "AddCellModel", "CellModel", "CAMERA_RENDERER", "MODEL_RENDERER", "overhead_pose"]
+__all__ = ["make_renderable", "floor_points", "ObstacleMapper", "AddCellCamera", "CellCamera", "AddCellModel", "CellModel", "CAMERA_RENDERER", "MODEL_RENDERER", "overhead_pose"]
 
 #: The renderer that draws the real cell (everything with a perception role).
 CAMERA_RENDERER = "cell_camera"
@@ -145,6 +146,39 @@ def overhead_pose(origin, size, fov_y: float, aspect: float, margin: float = 0.5
     return RigidTransform(RotationMatrix.MakeXRotation(math.pi), [cx, cy, h])
 
 
+def _obj_without_normals(shape) -> bool:
+    """A Mesh from an OBJ file that has no vertex normals (Drake's VTK
+    renderer refuses those)."""
+    if not isinstance(shape, Mesh) or shape.extension() != ".obj" or not shape.source().is_path():
+        return False
+    with open(shape.source().path(), errors="replace") as f:
+        return not any(line.startswith("vn ") for line in f)
+
+
+def make_renderable(scene_graph, plant) -> int:
+    """Gives every perception mesh of ``plant`` that the renderer cannot draw
+    (an OBJ without normals) a stand-in: its convex hull (Drake's
+    ``Convex``) on the same frame, with the mesh's perception properties,
+    the mesh itself losing the perception role. The camera and the cell
+    model then see the same hulls. Returns how many were replaced."""
+    inspector = scene_graph.model_inspector()
+    source = plant.get_source_id()
+    n = 0
+    for gid in inspector.GetAllGeometryIds(Role.kPerception):
+        if inspector.GetOwningSourceName(gid) != inspector.GetName(source) or \
+                not _obj_without_normals(inspector.GetShape(gid)):
+            continue
+        shape = inspector.GetShape(gid)
+        props = PerceptionProperties(inspector.GetPerceptionProperties(gid))
+        proxy = scene_graph.RegisterGeometry(source, inspector.GetFrameId(gid), GeometryInstance(
+            inspector.GetPoseInFrame(gid), Convex(shape.source().path(), shape.scale3()),
+            f"{inspector.GetName(gid)}_hull"))
+        scene_graph.AssignRole(source, proxy, props)
+        scene_graph.RemoveRole(source, gid, Role.kPerception)
+        n += 1
+    return n
+
+
 class CellModel(typing.NamedTuple):
     """What :func:`AddCellModel` added: the known cell in a SceneGraph of
     its own, posed from ``position_input`` (the robot's commanded
@@ -171,6 +205,7 @@ def AddCellModel(builder, *, workcell, name: str = "cell_model") -> CellModel:
     plant.RegisterAsSourceForSceneGraph(scene_graph)
     robot = workcell.add_to_plant(plant)
     plant.Finalize()
+    make_renderable(scene_graph, plant)
     to_pose = builder.AddNamedSystem(f"{name}_to_pose", MultibodyPositionToGeometryPose(plant))
     builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
     return CellModel(plant, scene_graph, robot, to_pose.get_input_port())
@@ -216,7 +251,8 @@ def AddCellCamera(builder, *, scene_graph, model: CellModel, grid: MapGrid,
     cell model's (:func:`AddCellModel`), both Drake ``RgbdSensor`` with
     ``RenderEngineVtk``, same pose and intrinsics; Drake's
     ``DepthImageToPointCloud`` (world frame); an :class:`ObstacleMapper`.
-    Give virtual geometry (the volume V's boxes) no perception role.
+    Give virtual geometry (the volume V's boxes) no perception role, and
+    meshes the renderer cannot draw a stand-in (:func:`make_renderable`).
 
     Args:
         builder: the DiagramBuilder holding ``scene_graph``.
