@@ -11,11 +11,12 @@ import numpy as np
 from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, Role
 
 from drake_cfvol.algorithm.reference import VOLUME_BOX_PREFIX
+from drake_cfvol.comanip.recording import animate_columns, animate_freedom
 from drake_cfvol.online import MapGrid, OnlineBounds, PerceptionParams
 from drake_cfvol.systems import AddCellCamera, MovingBoxes, OnlineBoundsEstimator, PerceivedColumns
 from drake_cfvol.systems.perception import AddCellModel, make_renderable
 
-__all__ = ["OnlineParts", "add_online", "perception_params", "online_figures", "map_grid"]
+__all__ = ["OnlineParts", "add_online", "perception_params", "online_figures", "map_grid", "show_online_freedom"]
 
 
 class OnlineParts(typing.NamedTuple):
@@ -115,7 +116,8 @@ def add_online(builder, scenario, workcell, plant, scene_graph, robot, bounds, p
         camera = AddCellCamera(builder, scene_graph=scene_graph, model=model, grid=grid, params=params,
                                width=o.width, height=o.height, period=o.camera_period)
         model_input = model.position_input
-        columns = builder.AddNamedSystem("perceived_columns", PerceivedColumns(scene_graph, grid))
+        columns = builder.AddNamedSystem("perceived_columns", PerceivedColumns(
+            scene_graph, grid, log_period=o.camera_period))
         map_port = camera.mapper.obstacle_map_output
         builder.Connect(map_port, columns.obstacle_map_input)
         builder.Connect(columns.geometry_pose_output, scene_graph.get_source_pose_port(columns.source_id))
@@ -175,3 +177,20 @@ def online_figures(parts: OnlineParts | None, context, scenario) -> dict:
     keep = w0 > 1e-9
     out["freedom_end_ratio"] = float(np.mean(w1[keep] / w0[keep])) if keep.any() else 1.0
     return out
+
+
+def show_online_freedom(meshcat, cm, logs: dict, context) -> None:
+    """The recording's freedom bars (:func:`~drake_cfvol.comanip.recording.animate_freedom`):
+    per joint, the logged box's width over the known cell's at the logged
+    path index, beside the robot's base; and the perceived columns
+    (:func:`~drake_cfvol.comanip.recording.animate_columns`)."""
+    first = cm.online.estimator.initial_bounds
+    t, s = logs["path_index"][0], np.clip(logs["path_index"][1][:, 0], 0.0, first.g - 1.0)
+    lo, hi = logs["lower"][1], logs["upper"][1]
+    w0 = np.array([np.subtract(*first.at(v)[1::-1]) for v in s])
+    ratios = np.where(w0 > 1e-9, (hi - lo) / np.maximum(w0, 1e-9), 1.0)
+    _, p_WB = cm.workcell.scene_arrays().fk(cm.path.waypoints[:1])
+    animate_freedom(meshcat, t, ratios, p_WB[0, 0] + [0.0, -1.5, 1.0])
+    if cm.online.columns is not None:
+        cols = cm.online.columns
+        animate_columns(meshcat, cols.tiles_log(cols.GetMyContextFromRoot(context)), cols)

@@ -14,7 +14,7 @@ from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.comanip.scenario import load_scenario
 from drake_cfvol.comanip.diagram import Comanipulation, build_comanipulation_diagram
-from drake_cfvol.comanip.online import online_figures
+from drake_cfvol.comanip.online import online_figures, show_online_freedom
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
 
 __all__ = ['run_scenario']
@@ -46,11 +46,13 @@ def _simulate(cm, scenario, meshcat, progress: bool):
     return ctx, time.perf_counter() - t0
 
 
-def _write_files(cm, logs, out: Path, meshcat, plot: bool, svg: bool) -> dict:
+def _write_files(cm, logs, out: Path, meshcat, plot: bool, svg: bool, ctx=None) -> dict:
     """The recording (self-contained HTML), the plot and the diagram's SVG."""
     files = {}
     if meshcat is not None:
         meshcat.StopRecording()
+        if cm.online is not None:
+            show_online_freedom(meshcat, cm, logs, ctx)
         meshcat.PublishRecording()
         html = out / "recording.html"
         html.write_text(meshcat.StaticHtml())
@@ -117,7 +119,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     violation = float(np.max(np.maximum(np.maximum(lo - q, q - hi), 0.0))) if len(q) else 0.0
     rates = update_rate_figures(logs, cm)
     penetrations = int(logs["in_volume"][1].sum())
-    files = _write_files(cm, logs, out, meshcat, plot, svg)
+    files = _write_files(cm, logs, out, meshcat, plot, svg, ctx)
     np.savez(out / "logs.npz", **{f"{k}_t": v[0] for k, v in logs.items()}, **{k: v[1] for k, v in logs.items()})
     summary = {
         "scenario": str(file) if file else str(scenario_name_or_path), "cell": cm.workcell.name,

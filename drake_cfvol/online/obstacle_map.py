@@ -155,6 +155,12 @@ class ObstacleMap:
         """A map with nothing on it."""
         return cls(grid, np.zeros(grid.shape))
 
+    def __deepcopy__(self, memo) -> "ObstacleMap":
+        # Never changed once made (every update makes a new map): Drake's
+        # state copies (an abstract state is deep-copied at every
+        # unrestricted update) share it.
+        return self
+
 
     @property
     def occupied(self) -> int:

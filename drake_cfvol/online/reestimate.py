@@ -41,7 +41,18 @@ from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.online.obstacle_map import ObstacleMap
 from drake_cfvol.scene.params import VolumeParams
 
-__all__ = ["LiveBounds", "OnlineBounds", "BoundsUpdate", "shape_radii"]
+__all__ = ["LiveBounds", "OnlineBounds", "BoundsUpdate", "shape_radii", "FrozenLog"]
+
+
+class FrozenLog(tuple):
+    """An append-only log for a Drake abstract state: ``log + (row,)``
+    makes a new one; Drake's state copies share it (no deep copy)."""
+
+    def __add__(self, rows) -> "FrozenLog":
+        return FrozenLog(tuple.__add__(self, tuple(rows)))
+
+    def __deepcopy__(self, memo) -> "FrozenLog":
+        return self
 
 
 class LiveBounds:
@@ -70,6 +81,9 @@ class LiveBounds:
     nominal = property(lambda self: self.base.nominal)
     params = property(lambda self: self.base.params)
     joint_names = property(lambda self: self.base.joint_names)
+
+    def __deepcopy__(self, memo) -> "LiveBounds":
+        return self  # never changed once made: Drake's state copies share it
 
     def at(self, s: float):
         """(lower, upper, nominal) at path parameter s in [0, g-1]."""

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import (Box, FramePoseVector, GeometryFrame, GeometryInstance, IllustrationProperties,
-                              ProximityProperties, Rgba)
+from pydrake.geometry import Box, FramePoseVector, GeometryFrame, GeometryInstance, ProximityProperties
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap, merged_rectangles
+from drake_cfvol.online.reestimate import FrozenLog
 
 __all__ = ["PerceivedColumns", "PARKED_Z", "tile_rectangles"]
 
@@ -62,9 +62,10 @@ class PerceivedColumns(LeafSystem):
     """The obstacle map's occupied cells as boxes in the SceneGraph:
     square columns of 1, 2, 4, ... cells (``levels`` sizes, ``per_level`` of
     each), standing from below the floor up to each cell's height; unused
-    ones parked at :data:`PARKED_Z`. Proximity (the safety filter measures
-    them) and illustration (the recording shows them) roles, no perception
-    role (the camera does not see them).
+    ones parked at :data:`PARKED_Z`. Proximity role only (the safety filter
+    measures them; the camera does not see them, and a Meshcat recording
+    would store every column at every frame: :meth:`tiles_log` keeps what
+    it needs, :func:`drake_cfvol.comanip.recording.animate_columns` draws it).
 
     .. pydrake_system::
 
@@ -74,6 +75,9 @@ class PerceivedColumns(LeafSystem):
         output_ports:
         - geometry_pose
         - overflow
+
+    Every ``log_period`` s (0: never) the tiles in force are logged in the
+    context's state when they changed (:meth:`tiles_log`).
 
     ``overflow`` counts the tiles no level had room for (0 in a sized
     pool); connect ``geometry_pose`` to
@@ -85,11 +89,11 @@ class PerceivedColumns(LeafSystem):
         levels: tile sizes (1, 2, ... 2^(levels-1) cells).
         per_level: tiles of each size.
         depth: each column's length, m (it reaches this far down from its top).
-        rgba: the columns' colour in the recording.
+        log_period: s between looks at the tiles for :meth:`tiles_log`.
     """
 
     def __init__(self, scene_graph, grid: MapGrid, *, levels: int = 5, per_level: int = 64, depth: float = 6.0,
-                 rgba=(1.0, 0.55, 0.0, 0.35)):
+                 log_period: float = 0.0):
         super().__init__()
         if levels < 1 or per_level < 1:
             raise ParameterError(f"PerceivedColumns: levels and per_level must be >= 1, got {levels}, {per_level}.")
@@ -103,9 +107,6 @@ class PerceivedColumns(LeafSystem):
                 gid = scene_graph.RegisterGeometry(self.source_id, frame, GeometryInstance(
                     RigidTransform(), Box(side, side, self.depth), f"column_{lv}_{n}"))
                 scene_graph.AssignRole(self.source_id, gid, ProximityProperties())
-                ill = IllustrationProperties()
-                ill.AddProperty("phong", "diffuse", Rgba(*rgba))
-                scene_graph.AssignRole(self.source_id, gid, ill)
                 self.frame_ids.append(frame)
                 self.geometry_ids.append(gid)
         self._last = None  # (map, its tiles): a memo of the last map seen (it says nothing about the context)
@@ -117,6 +118,21 @@ class PerceivedColumns(LeafSystem):
         self.overflow_output = self.DeclareVectorOutputPort(
             "overflow", 1, lambda c, o: o.SetAtIndex(0, float(self._tiles(c)[1])),
             prerequisites_of_calc={self.obstacle_map_input.ticket()})
+        self._log = self.DeclareAbstractState(AbstractValue.Make(FrozenLog()))
+        if log_period > 0:
+            self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=float(log_period), offset_sec=0.0,
+                                                        update=self._log_tiles)
+
+    def _log_tiles(self, context, state) -> None:
+        log = context.get_abstract_state(self._log).get_value()
+        tiles = tuple(self._tiles(context)[0])
+        if not log or log[-1][1] != tiles:
+            state.get_mutable_abstract_state(self._log).set_value(log + ((context.get_time(), tiles),))
+
+    def tiles_log(self, context) -> tuple:
+        """((t, tiles), ...): the tiles ((level, i, j, top), ...) in force
+        from each time t on (logged every ``log_period`` s, when changed)."""
+        return context.get_abstract_state(self._log).get_value()
 
     def _tiles(self, context):
         m = self.obstacle_map_input.Eval(context)

@@ -9,7 +9,7 @@ from pydrake.systems.framework import LeafSystem
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap
-from drake_cfvol.online.reestimate import OnlineBounds
+from drake_cfvol.online.reestimate import FrozenLog, OnlineBounds
 
 __all__ = ["OnlineBoundsEstimator"]
 
@@ -64,7 +64,7 @@ class OnlineBoundsEstimator(LeafSystem):
         self.path_index_input = self.DeclareVectorInputPort(name="path_index", size=1)
         self._published = self.DeclareAbstractState(AbstractValue.Make(online.live))
         self._computed = self.DeclareAbstractState(AbstractValue.Make(online.live))
-        self._log = self.DeclareAbstractState(AbstractValue.Make(()))
+        self._log = self.DeclareAbstractState(AbstractValue.Make(FrozenLog()))
         self._last_map = self.DeclareAbstractState(AbstractValue.Make(ObstacleMap.empty(grid)))
         self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=self.period, offset_sec=float(offset),
                                                     update=self._update)
