@@ -37,7 +37,7 @@ def mesh_setup():
     return wc, path, cf.estimate_bounds(wc, path, resolution=400)
 
 
-@pytest.mark.parametrize("cell", ["automotive", "mesh"])
+@pytest.mark.parametrize("cell", [pytest.param("automotive", marks=pytest.mark.slow), "mesh"])
 def test_incremental_equals_full(cell, bounded, planned, automotive, mesh_setup):
     """After a box appears and then moves, the incremental estimate equals a
     full re-estimation of the same scene, bound for bound (near the path the
@@ -134,17 +134,23 @@ def test_tightening_is_immediate(bounded, planned, automotive):
         assert np.all(hi <= np.maximum(up_c[i], nom) + 1e-12) and np.all(lo >= np.minimum(lo_c[i], nom) - 1e-12)
 
 
-def test_widening_only_when_certified(bounded, planned, automotive, monkeypatch):
+@pytest.mark.parametrize("cell", [pytest.param("automotive", marks=pytest.mark.slow), "mesh"])
+def test_widening_only_when_certified(cell, bounded, planned, automotive, mesh_setup, monkeypatch):
     """A bound widens only in stretches whose certificate held in that
     update; with every certificate refused nothing widens even after the box
     is gone; with them granted the live bounds return to the first ones."""
-    wc, path = automotive, planned("automotive")
+    if cell == "mesh":
+        wc, path, table = mesh_setup
+        offset, half, top = 0.25, 0.1, 0.9
+    else:
+        wc, path, table = automotive, planned("automotive"), bounded("automotive")
+        offset, half, top = 0.6, 0.3, 1.2
     grid = _grid(wc)
-    maps = [_box_map(grid, _near_tool(wc, path, path.g // 2, (0.6, dy)), 0.3, 1.2) for dy in (0.0, 0.3, 0.6)]
+    maps = [_box_map(grid, _near_tool(wc, path, path.g // 2, (offset, dy)), half, top) for dy in (0.0, 0.1, 0.2)]
     maps.append(ObstacleMap.empty(grid))
 
     def run(refuse: bool):
-        online = OnlineBounds(wc, bounded("automotive"))
+        online = OnlineBounds(wc, table)
         first = [a.copy() for a in _chains(online)]
         real = online._certified
         granted: list = []
