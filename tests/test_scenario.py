@@ -74,6 +74,9 @@ def test_scenario_holding_its_cell_equals_the_cell_file(cell_folder):
     ({"moving_obstacles": [{"name": "cart", "waypoints": [[1, 0, 0, 0.5], [0, 1, 0, 0.5]]}]},
      "moving_obstacles item 1", "waypoint times must increase"),
     ({"perception": "lidar"}, "perception", "must be camera or truth"),
+    ({"perception": "truth"}, "perception", "add moving_obstacles"),
+    ({"moving_obstacles": [{"name": "cart", "waypoints": [[0, 1, 0, 0.5]]}], "plant_config": {"time_step": 0.001}},
+     "moving_obstacles", "kinematic runs only"),
     ({"online": {"cell": 0.0}}, "online.cell", "must be > 0"),
     ({"online": {"frame_rate": 30}}, "online.frame_rate", "is not a field of OnlineConfig"),
 ])

@@ -444,8 +444,12 @@ def _check_online(scenario: Scenario, where) -> None:
     if scenario.perception not in (None, "camera", "truth"):
         raise ScenarioError(where, "perception", f"must be camera or truth (or left out), got "
                             f"{scenario.perception!r}")
-    if scenario.perception is not None and scenario.plant_config is not None:
-        raise ScenarioError(where, "perception", "works in kinematic runs only: leave plant_config out")
+    if scenario.perception_mode is not None and scenario.plant_config is not None:
+        raise ScenarioError(where, "moving_obstacles" if scenario.perception is None else "perception",
+                            "work in kinematic runs only: leave plant_config out")
+    if scenario.perception == "truth" and not scenario.moving_obstacles:
+        raise ScenarioError(where, "perception", "is truth, which gives the moving obstacles' poses: add "
+                            "moving_obstacles (or use camera)")
     o = scenario.online
     for name in ("camera_period", "bounds_period", "cell"):
         if not getattr(o, name) > 0:

@@ -92,18 +92,18 @@ def JointBoundsSource_(T):
 
         def _at(self, context):
             s_in = self.path_index_input.Eval(context)[0]
+            live = self.bounds_input.Eval(context) if self.bounds_input.HasValue(context) else None
             if T is float:
-                live = self.bounds_input.Eval(context) if self.bounds_input.HasValue(context) else None
                 return self._lookup(float(s_in), live)
             s = float(s_in.value())
-            lo, hi, nom = self._lookup(s)
+            lo, hi, nom = self._lookup(s, live)
             ds = s_in.derivatives()
             g = self._bounds.g
             h = 1e-7
             a, b = max(s - h, 0.0), min(s + h, g - 1.0)
             if b > a:
-                lo_a, hi_a, nom_a = self._lookup(a)
-                lo_b, hi_b, nom_b = self._lookup(b)
+                lo_a, hi_a, nom_a = self._lookup(a, live)
+                lo_b, hi_b, nom_b = self._lookup(b, live)
                 slopes = [(lo_b - lo_a) / (b - a), (hi_b - hi_a) / (b - a)]
                 i = min(int(np.floor(s)), g - 2)
                 slopes.append(self._bounds.nominal[i + 1] - self._bounds.nominal[i] if g > 1 else 0 * nom)
