@@ -17,7 +17,8 @@ from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import SimulatorConfig
 from pydrake.visualization import VisualizationConfig
 
-from drake_cfvol.exceptions import ParameterError, ScenarioError
+from drake_cfvol.comanip.online_config import OnlineConfig, check_online
+from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.systems import MovingObstacle, Push
 from drake_cfvol.scene.schema import CfvolSection, read_yaml
@@ -105,33 +106,6 @@ class SafetyFilterConfig:
     clearance: typing.Optional[float] = None
     influence_distance: float = 0.15
     damper_gain: float = 1.0
-
-
-@dataclasses.dataclass
-class OnlineConfig:
-    """Online re-estimation and perception settings (used when the scenario
-    has ``moving_obstacles``; docs/spec.md, SPEC 12).
-
-    Attributes:
-        camera_period: s between camera images.
-        bounds_period: s between bounds updates (an update computed at t is
-            in force from t + bounds_period).
-        horizon: stretches ahead of the path index searched again at an
-            update.
-        cell: the obstacle map's cell side, m.
-        obstacle_speed: the speed assumed for what the camera sees, m/s:
-            the map lends each occupied cell's height to the cells it could
-            reach before the next bounds are in force.
-        width, height: the camera's image, px.
-    """
-
-    camera_period: float = 0.05
-    bounds_period: float = 0.05
-    horizon: int = 8
-    cell: float = 0.05
-    obstacle_speed: float = 0.5
-    width: int = 320
-    height: int = 240
 
 
 @dataclasses.dataclass
@@ -430,39 +404,6 @@ def _check_sources(scenario: Scenario, where, base_dir) -> None:
                                 "hand's force) in this cell")
 
 
-def _check_online(scenario: Scenario, where) -> None:
-    """Moving obstacles (items counted from 1), the perception mode and the
-    online settings."""
-    for i, o in enumerate(scenario.moving_obstacles, 1):
-        try:
-            o.check()
-        except ParameterError as e:
-            raise ScenarioError(where, f"moving_obstacles item {i}", str(e)) from None
-    names = [o.name for o in scenario.moving_obstacles]
-    if len(set(names)) != len(names):
-        raise ScenarioError(where, "moving_obstacles", f"need distinct names, got {names}")
-    if scenario.perception not in (None, "camera", "truth"):
-        raise ScenarioError(where, "perception", f"must be camera or truth (or left out), got "
-                            f"{scenario.perception!r}")
-    if scenario.perception_mode is not None and scenario.plant_config is not None:
-        raise ScenarioError(where, "moving_obstacles" if scenario.perception is None else "perception",
-                            "work in kinematic runs only: leave plant_config out")
-    if scenario.perception == "truth" and not scenario.moving_obstacles:
-        raise ScenarioError(where, "perception", "is truth, which gives the moving obstacles' poses: add "
-                            "moving_obstacles (or use camera)")
-    o = scenario.online
-    for name in ("camera_period", "bounds_period", "cell"):
-        if not getattr(o, name) > 0:
-            raise ScenarioError(where, f"online.{name}", f"must be > 0, got {getattr(o, name)!r}")
-    if not o.obstacle_speed >= 0:
-        raise ScenarioError(where, "online.obstacle_speed", f"must be >= 0 m/s, got {o.obstacle_speed!r}")
-    if not o.horizon >= 1:
-        raise ScenarioError(where, "online.horizon", f"must be >= 1 stretch, got {o.horizon!r}")
-    if not (o.width >= 16 and o.height >= 16):
-        raise ScenarioError(where, "online.width", f"the camera needs at least 16 x 16 px, got {o.width} x "
-                            f"{o.height}")
-
-
 def validate_scenario(scenario: Scenario, file: Path | None = None, *, base_dir: Path | None = None) -> None:
     """Checks a scenario's values before any planning or bounding: positive
     durations and periods, a resolution whose volume fits in memory, known
@@ -511,7 +452,7 @@ def validate_scenario(scenario: Scenario, file: Path | None = None, *, base_dir:
                                 "kinematically, so there are no contact forces or inertias to show")
     if not vis.publish_period > 0:
         raise ScenarioError(where, "visualization.publish_period", f"must be > 0 s, got {vis.publish_period!r}")
-    _check_online(scenario, where)
+    check_online(scenario, where)
     if scenario.random_pushes.count < 0:
         raise ScenarioError(where, "random_pushes.count", f"must be >= 0, got {scenario.random_pushes.count}")
     known = {f.name for f in dataclasses.fields(VolumeParams)}

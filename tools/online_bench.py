@@ -1,0 +1,78 @@
+"""Online re-estimation: compute time per update, incremental against full.
+
+Replays a bundled moving-obstacle scenario's obstacles (their true map at
+the bounds' rate, the path index advancing as the nominal does) through
+``OnlineBounds`` twice in the same run: incrementally over the scenario's
+horizon (what a run does) and with a full re-estimation of the whole path
+at every change (the reference: no footprints, no horizon). Reports medians over repeats of each update's time (only
+updates whose map changed), and their ratio.
+
+    tools/dev.sh python tools/online_bench.py [--repeats 3] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from drake_cfvol.comanip import load_scenario  # noqa: E402
+from drake_cfvol.comanip.diagram import _workcell_path_bounds  # noqa: E402
+from drake_cfvol.comanip.online import map_grid, perception_params  # noqa: E402
+from drake_cfvol.online import OnlineBounds  # noqa: E402
+from drake_cfvol.systems import MovingBoxes  # noqa: E402
+from pydrake.geometry import SceneGraph  # noqa: E402
+
+SCENARIOS = ("automotive_moving_obstacle", "aerospace_moving_obstacle")
+
+
+def replay(name: str, full: bool) -> list[float]:
+    """Update times (ms) of the updates whose map changed."""
+    scenario, file = load_scenario(name, scenario_text="{certify: false}")
+    wc, path, bounds, _ = _workcell_path_bounds(scenario, None, file, None, None, False)
+    o = scenario.online
+    grid = map_grid(wc, o.cell)
+    boxes = MovingBoxes(SceneGraph(), scenario.moving_obstacles, grid=grid, params=perception_params(scenario))
+    online = OnlineBounds(wc, bounds, horizon=None if full else o.horizon)
+    rate = (path.g - 1) / scenario.path_duration
+    times, last = [], None
+    for t in np.arange(0.0, scenario.duration, o.bounds_period):
+        m = boxes.obstacle_map(float(t))
+        s = float(np.clip((t - scenario.start_time) * rate, 0.0, path.g - 1.0))
+        t0 = time.perf_counter()
+        online.update(m, s, full=full and not m.same_as(last))
+        ms = (time.perf_counter() - t0) * 1e3
+        if not m.same_as(last):
+            times.append(ms)
+        last = m
+    return times
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    rows = []
+    for name in SCENARIOS:
+        inc = [np.median(replay(name, False)) for _ in range(args.repeats)]
+        ref = [np.median(replay(name, True)) for _ in range(args.repeats)]
+        rows.append({"scenario": name, "incremental_ms": float(np.median(inc)), "full_ms": float(np.median(ref)),
+                     "ratio": float(np.median(inc) / np.median(ref)), "repeats": args.repeats})
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    else:
+        print("| scenario | median update, incremental (ms) | full re-estimation (ms) | ratio |\n|---|---|---|---|")
+        for r in rows:
+            print(f"| {r['scenario']} | {r['incremental_ms']:.1f} | {r['full_ms']:.1f} | {r['ratio']:.2f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
