@@ -543,3 +543,14 @@ def test_moving_obstacle_run_meets_its_targets(tmp_path):
         alone = arrays.with_boxes(ob.position(tk)[None], np.asarray(ob.box)[None])
         near.append(bool(alone.may_collide(qk[None], summary["clearance_m"] - 0.005)[0]))
     assert not any(near), f"{sum(near)} updates nearer than the margin to the trolley (kernel)"
+
+
+@pytest.mark.slow  # about 20 s
+def test_truth_perception_run_keeps_the_margin(tmp_path):
+    """With the boxes' own map (perception truth) the bundled cart run keeps
+    the margin too: the filter measures the map's columns, whose dilation
+    covers the cart's motion between maps."""
+    summary = run_scenario("automotive_moving_obstacle", tmp_path, scenario_text="{certify: false, perception: truth}",
+                           record=False, plot=False, svg=False)
+    assert summary["perception"] == "truth" and summary["collisions"] == 0 and summary["problems"] == []
+    assert summary["min_clearance_m"] >= summary["clearance_m"] - 0.002 and summary["bounds_latency_s"] <= 0.2

@@ -589,5 +589,5 @@ def _online_exports(online) -> dict:
     out = {"bounds_version": online.estimator.bounds_version_output}
     if online.camera is not None:
         out["occupied_cells"] = online.camera.mapper.occupied_cells_output
-        out["column_overflow"] = online.columns.overflow_output
+    out["column_overflow"] = online.columns.overflow_output
     return out

@@ -8,11 +8,13 @@ import math
 import typing
 
 import numpy as np
+from pydrake.common.value import AbstractValue
 from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, Role
+from pydrake.systems.primitives import ZeroOrderHold
 
 from drake_cfvol.algorithm.reference import VOLUME_BOX_PREFIX
 from drake_cfvol.comanip.recording import animate_columns, animate_freedom
-from drake_cfvol.online import MapGrid, OnlineBounds, PerceptionParams
+from drake_cfvol.online import MapGrid, ObstacleMap, OnlineBounds, PerceptionParams
 from drake_cfvol.systems import AddCellCamera, MovingBoxes, OnlineBoundsEstimator, PerceivedColumns
 from drake_cfvol.systems.perception import AddCellModel, make_renderable
 
@@ -108,7 +110,7 @@ def add_online(builder, scenario, workcell, plant, scene_graph, robot, bounds, p
         boxes = builder.AddNamedSystem("moving_obstacles", MovingBoxes(
             scene_graph, scenario.moving_obstacles, grid=grid, params=params))
         builder.Connect(boxes.geometry_pose_output, scene_graph.get_source_pose_port(boxes.source_id))
-    camera = columns = None
+    camera = model_input = None
     if mode == "camera":
         _hide_volume_from_cameras(plant, scene_graph)
         make_renderable(scene_graph, plant)
@@ -116,18 +118,22 @@ def add_online(builder, scenario, workcell, plant, scene_graph, robot, bounds, p
         camera = AddCellCamera(builder, scene_graph=scene_graph, model=model, grid=grid, params=params,
                                width=o.width, height=o.height, period=o.camera_period)
         model_input = model.position_input
-        columns = builder.AddNamedSystem("perceived_columns", PerceivedColumns(
-            scene_graph, grid, log_period=o.camera_period))
         map_port = camera.mapper.obstacle_map_output
-        builder.Connect(map_port, columns.obstacle_map_input)
-        builder.Connect(columns.geometry_pose_output, scene_graph.get_source_pose_port(columns.source_id))
-        filter_ids = list(columns.geometry_ids)
     else:
         if boxes is None:
             raise ValueError("perception truth needs moving_obstacles")
-        map_port = boxes.obstacle_map_output
-        filter_ids = list(boxes.geometry_ids)
-        model_input = None
+        # A perfect camera: the boxes' own map, sampled at the camera's rate.
+        hold = builder.AddNamedSystem("true_obstacle_map", ZeroOrderHold(
+            period_sec=o.camera_period, abstract_model_value=AbstractValue.Make(ObstacleMap.empty(grid))))
+        builder.Connect(boxes.obstacle_map_output, hold.get_input_port())
+        map_port = hold.get_output_port()
+    # The filter measures the map's columns in both modes: its dilation covers
+    # the obstacles' motion between maps (the damper knows no obstacle speed).
+    columns = builder.AddNamedSystem("perceived_columns", PerceivedColumns(
+        scene_graph, grid, log_period=o.camera_period))
+    builder.Connect(map_port, columns.obstacle_map_input)
+    builder.Connect(columns.geometry_pose_output, scene_graph.get_source_pose_port(columns.source_id))
+    filter_ids = list(columns.geometry_ids)
     estimator = builder.AddNamedSystem("online_bounds", OnlineBoundsEstimator(
         OnlineBounds(workcell, bounds, horizon=o.horizon), grid, period=o.bounds_period,
         offset=0.5 * o.camera_period))
