@@ -18,11 +18,15 @@ from ``exceptions`` and ``_version``, which import nothing of the package);
    the sweep (joint bounding), the bounds table, the Drake reference
    backend, the certificate and its boundary proof, CF and freedom, and
    the pipeline (Algorithm 1: ``estimate_bounds``);
-5. ``systems``: the Drake systems (bounds source, path progress, admittance,
-   the runtime safety filter) and their builder helpers;
-6. ``comanip``: co-manipulation scenarios, diagrams, runs, recordings and
+5. ``online``: bounds that follow a changing cell: the obstacle map from a
+   depth camera's points and the volume and bounds re-estimated from it,
+   incrementally (SPEC 12);
+6. ``systems``: the Drake systems (bounds source, path progress, admittance,
+   the runtime safety filter, moving boxes, the cell camera, the online
+   estimator) and their builder helpers;
+7. ``comanip``: co-manipulation scenarios, diagrams, runs, recordings and
    the adversarial runs;
-7. ``apps``: the ``cfvol`` command line and the demo.
+8. ``apps``: the ``cfvol`` command line and the demo.
 
 The benchmark harness (the paper's tables) lives outside the library, in
 ``benchmarks/`` of a development checkout. The old flat module names
