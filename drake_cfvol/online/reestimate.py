@@ -201,6 +201,7 @@ class OnlineBounds:
                                   np.minimum(hi_w[:-1], hi_w[1:]))
         self._sign = self._setup.chains[:, 1].astype(float)
         self._heights = np.array(self._vb.volume.heights, float)
+        self._table = None  # V's range-max table, built when first needed after a change
         self._boxes = np.zeros((0, 6))
         self._map: ObstacleMap | None = None
         self._perceived_only = None
@@ -222,10 +223,13 @@ class OnlineBounds:
     # -- views ---------------------------------------------------------------
 
     def _field(self):
+        """The kernel's view of V now (its range-max table built once per change of V)."""
         hm = self._vb.volume.heightmap
         if not (self._heights > 0).any():
             return np.zeros((1, 1, 0, 0)), 0.0, 0.0, 1.0
-        return K.range_max_table(np.ascontiguousarray(self._heights)), hm.origin[0], hm.origin[1], hm.side
+        if self._table is None:
+            self._table = K.range_max_table(np.ascontiguousarray(self._heights))
+        return self._table, hm.origin[0], hm.origin[1], hm.side
 
     def _split(self, chains: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(lower, upper) (g-1, k) from chain-form bounds (n, g-1)."""
@@ -338,11 +342,13 @@ class OnlineBounds:
         else:
             dirty, n_cells, n_boxes = self._changed(heights, boxes)
         self._dirty |= dirty
-        self._heights, self._boxes, self._map = heights, boxes, obstacle_map
-        self._arrays = self._arrays0.with_boxes(centres, sizes) if len(centres) else self._arrays0
-        self._perceived_only = dataclasses.replace(
-            self._arrays0, obstacles=np.zeros((0, K.SHAPE_W)), obstacle_names=[], obstacle_aabb=np.zeros((0, 6)),
-            self_pairs=np.zeros((0, 2), np.int64)).with_boxes(centres, sizes)
+        if not same:  # the scene the kernel sees changes only with the map
+            self._heights, self._boxes, self._table = heights, boxes, None
+            self._arrays = self._arrays0.with_boxes(centres, sizes) if len(centres) else self._arrays0
+            self._perceived_only = dataclasses.replace(
+                self._arrays0, obstacles=np.zeros((0, K.SHAPE_W)), obstacle_names=[], obstacle_aabb=np.zeros((0, 6)),
+                self_pairs=np.zeros((0, 2), np.int64)).with_boxes(centres, sizes)
+        self._map = obstacle_map
         n_st = self._dirty.shape[1]
         lo = int(np.clip(np.floor(s_now), 0, n_st - 1))
         hi = n_st - 1 if self.horizon is None else min(n_st - 1, lo + int(self.horizon))
