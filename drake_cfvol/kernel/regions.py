@@ -9,11 +9,12 @@ import numpy as np
 from numba import njit, prange
 
 from drake_cfvol.kernel.types import Chain, HeightField, MAX_T_SAMPLES, MAX_V_SAMPLES, Model, RegionScratch, SHAPE_W
-from drake_cfvol.kernel.kinematics import _axis_rotation, _mm, fk_into
-from drake_cfvol.kernel.shapes import _aabb_apart, object_aabb, pose_shape, row_aabb, set_motion
-from drake_cfvol.kernel.gjk import _gjk_from
+from drake_cfvol.kernel.kinematics import _axis_rotation, fk_into
+from drake_cfvol.kernel.shapes import _aabb_apart, pose_shape, row_aabb, set_motion
+from drake_cfvol.kernel.cells import (_ball_box_in_frame, _balls_clear_over_region, _cells_hit_row, _cells_vs_scene,
+                                      _row_boxes, _scene_clear_of_box, shape_bounds)
 from drake_cfvol.kernel.heightfield import new_scratch, no_height_field
-from drake_cfvol.kernel.checks import _object_vs_scene
+from drake_cfvol.kernel.swept import region_quick_free
 
 __all__ = ['sweep_chains', 'regions_hit']
 
@@ -90,12 +91,19 @@ def _region_poses(W, i, j, ts, vs, m, rs, Rot):
             dv = (vb - va) * vi / (nv - 1)
             if revolute[j]:
                 _axis_rotation(un, dv, Rot)
-            for b in range(B):
+            for b in range(B):  # element by element: a row view per body costs a reference count
                 if not moved[j, b]:
-                    RP[c, b] = RP[c0, b]
-                    pP[c, b] = pP[c0, b]
+                    for r in range(3):
+                        for cc in range(3):
+                            RP[c, b, r, cc] = RP[c0, b, r, cc]
+                        pP[c, b, r] = pP[c0, b, r]
                 elif revolute[j]:
-                    _mm(Rot, RP[c0, b], RP[c, b])
+                    for r in range(3):
+                        g0 = Rot[r, 0]
+                        g1 = Rot[r, 1]
+                        g2 = Rot[r, 2]
+                        for cc in range(3):
+                            RP[c, b, r, cc] = g0 * RP[c0, b, 0, cc] + g1 * RP[c0, b, 1, cc] + g2 * RP[c0, b, 2, cc]
                     x0 = pP[c0, b, 0] - cw0
                     x1 = pP[c0, b, 1] - cw1
                     x2 = pP[c0, b, 2] - cw2
@@ -103,7 +111,9 @@ def _region_poses(W, i, j, ts, vs, m, rs, Rot):
                     pP[c, b, 1] = cw1 + Rot[1, 0] * x0 + Rot[1, 1] * x1 + Rot[1, 2] * x2
                     pP[c, b, 2] = cw2 + Rot[2, 0] * x0 + Rot[2, 1] * x1 + Rot[2, 2] * x2
                 else:
-                    RP[c, b] = RP[c0, b]
+                    for r in range(3):
+                        for cc in range(3):
+                            RP[c, b, r, cc] = RP[c0, b, r, cc]
                     pP[c, b, 0] = pP[c0, b, 0] + u0 * dv
                     pP[c, b, 1] = pP[c0, b, 1] + u1 * dv
                     pP[c, b, 2] = pP[c0, b, 2] + u2 * dv
@@ -120,7 +130,6 @@ def _region_vs_scene(W, i, j, ts, vs, m, field, sc, rs, pad):
     shapes, shape_body, verts = m.shapes, m.shape_body, m.verts
     moved, reach, curvature, revolute = m.moved, m.reach, m.curvature, m.revolute
     RP, pP, objs, aabbs = rs.RP, rs.pP, rs.objs, rs.aabbs
-    tmp6 = sc.tmp6
     L_t = (tb - ta) / max(nt - 1, 1)
     L_v = (vb - va) / max(nv - 1, 1)
     for s in range(S):
@@ -128,15 +137,19 @@ def _region_vs_scene(W, i, j, ts, vs, m, field, sc, rs, pad):
         if not moved[j, b]:
             continue
         grow = _relative_growth(W, i, j, -1, b, L_t, L_v, moved, curvature, reach, revolute)
+        if _balls_clear_over_region(s, nt, nv, m, grow + pad, field, rs, sc.tmp6):
+            continue
         for c in range(P):
             pose_shape(shapes[s], RP[c, b], pP[c, b], objs[s, c])
             set_motion(objs[s, c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
         obj = objs[s, :P]
-        object_aabb(obj, verts, aabbs[s], tmp6)
+        _row_boxes(obj, verts, rs.rowbox, aabbs[s])
         for r in range(3):  # what the scene can change: tests that read only boxes outside fp stay the same
             rs.fp[r] = min(rs.fp[r], aabbs[s, r])
             rs.fp[r + 3] = max(rs.fp[r + 3], aabbs[s, r + 3])
-        if _object_vs_scene(obj, aabbs[s], m, field, sc, rs.dirs[s]):
+        if _scene_clear_of_box(aabbs[s], m.obstacle_aabb, field):
+            continue
+        if _cells_vs_scene(obj, nt, nv, rs, m, field, sc, rs.dirs[s]):
             return True
     return False
 
@@ -171,6 +184,14 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
         for sm in range(S):
             if shape_body[sm] != mb:
                 continue
+            _ball_box_in_frame(rs, P, f, mb, rs.bound[sm], grow + pad, rel_aabb)
+            near = False
+            for sf in range(S):
+                if shape_body[sf] == f:
+                    row_aabb(shapes[sf], verts, tmp6)
+                    near = near or not _aabb_apart(rel_aabb, tmp6)
+            if not near:
+                continue
             for c in range(P):
                 # X_fm = X_Wf^-1 X_Wm at grid point c.
                 Rf = RP[c, f]
@@ -183,7 +204,7 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
                     p_fm[r] = Rf[0, r] * dp[0] + Rf[1, r] * dp[1] + Rf[2, r] * dp[2]
                 pose_shape(shapes[sm], R_fm, p_fm, relP[c])
                 set_motion(relP[c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
-            object_aabb(relP, verts, rel_aabb, tmp6)
+            _row_boxes(relP, verts, rs.rowbox, rel_aabb)
             for sf in range(S):
                 if shape_body[sf] != f:
                     continue
@@ -191,7 +212,7 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
                 row_aabb(shapes[sf], verts, tmp6)
                 if _aabb_apart(rel_aabb, tmp6):
                     continue
-                if _gjk_from(relP, verts, shapes[sf:sf + 1], verts, 64, ws, rs.dirs[sm, O + sf]):
+                if _cells_hit_row(relP, nt, nv, rs, shapes[sf:sf + 1], tmp6, verts, ws, rs.dirs[sm, O + sf]):
                     return True
     return False
 
@@ -222,6 +243,8 @@ def _region_hits(W, i, j, ts, vs, m, field, sc, rs, pad):
     ``field`` a :class:`HeightField`, ``sc`` and ``rs`` the thread's
     :class:`Scratch` and :class:`RegionScratch`.
     """
+    if region_quick_free(W, i, j, ts, vs, m, field, rs, pad):
+        return False
     _region_poses(W, i, j, ts, vs, m, rs, sc.ws[8:11])  # ws rows 8-10 as a 3x3 (free outside GJK)
     if _region_vs_scene(W, i, j, ts, vs, m, field, sc, rs, pad):
         return True
@@ -299,12 +322,14 @@ def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
 
 
 @njit(cache=True)
-def _region_workspace(B, S, k, O):
+def _region_workspace(B, S, k, O, N):
     """Scratch arrays of one thread's region tests (:func:`_region_hits`)
-    for B bodies, S shapes, k joints and O obstacles."""
+    for B bodies, S shapes, k joints, O obstacles and N cover balls."""
     P = MAX_T_SAMPLES * MAX_V_SAMPLES
     return RegionScratch(np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
-                         np.empty((P, SHAPE_W)), np.empty(6), np.empty(k), np.zeros((S, O + S, 3)), np.empty(6))
+                         np.empty((P, SHAPE_W)), np.empty(6), np.empty(k), np.zeros((S, O + S, 3)), np.empty(6),
+                         np.empty((P, 6)), np.empty((4, SHAPE_W)), np.empty((P, 3)), np.empty(k),
+                         np.empty((N, 4)), np.empty(6), np.empty((S, 4)))
 
 
 @njit(cache=True, parallel=True)
@@ -334,19 +359,20 @@ def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses):
     # arrays go in one by one, the model is rebuilt inside.
     parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
     (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
-     curvature_, revolute_, joint_body_) = m[1:]
+     curvature_, revolute_, joint_body_, spheres_, shape_spheres_) = m[1:]
     lim_lo, lim_hi, delta = lims
     table, ox, oy, side = field
     for n in prange(n_chains):
         mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
                    obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
-                   joint_body_)
+                   joint_body_, spheres_, shape_spheres_)
         fld = HeightField(table, ox, oy, side)
         lm = (lim_lo, lim_hi, delta)
         j = chains[n, 0]
         sgn = chains[n, 1]
         sc = new_scratch()
-        rs = _region_workspace(B, S, k, obstacles_.shape[0])
+        rs = _region_workspace(B, S, k, obstacles_.shape[0], spheres_.shape[0])
+        shape_bounds(spheres_, shape_spheres_, rs.bound)
         guess = guesses[n]
         count = 0
         for i in range(n_st):
@@ -387,14 +413,15 @@ def regions_hit(A, B, js, va, vb, nts, nvs, pads, m):
     # arrays go in one by one, the model is rebuilt inside.
     parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
     (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
-     curvature_, revolute_, joint_body_) = m[1:]
+     curvature_, revolute_, joint_body_, spheres_, shape_spheres_) = m[1:]
     for c in prange(n_chunks):
         mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
                    obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
-                   joint_body_)
+                   joint_body_, spheres_, shape_spheres_)
         no_field = no_height_field()
         sc = new_scratch()
-        rs = _region_workspace(B_n, S, k, obstacles_.shape[0])
+        rs = _region_workspace(B_n, S, k, obstacles_.shape[0], spheres_.shape[0])
+        shape_bounds(spheres_, shape_spheres_, rs.bound)
         W = np.empty((2, k))
         for n in range(c * 64, min(n_tasks, (c + 1) * 64)):
             W[0] = A[n]

@@ -57,6 +57,8 @@ class Model(NamedTuple):
     curvature: np.ndarray  #: (k, k, B): second-derivative bounds of b's points
     revolute: np.ndarray  #: (k,) bool
     joint_body: np.ndarray  #: (k,) int: the body each joint moves first
+    spheres: np.ndarray  #: (N, 4) balls covering the robot shapes: centre in the body frame, radius, m
+    shape_spheres: np.ndarray  #: (S, 2) int: shape s's balls are spheres[start:stop]
 
 
 class HeightField(NamedTuple):
@@ -89,6 +91,13 @@ class RegionScratch(NamedTuple):
     q_c: np.ndarray
     dirs: np.ndarray  #: (S, O + S, 3) each pair's last separating direction (zero: none yet)
     fp: np.ndarray  #: (6,) the union of the boxes tested against the scene (min xyz, max xyz), m
+    rowbox: np.ndarray  #: (P, 6) each grid pose's axis-aligned box
+    cell: np.ndarray  #: (4, SHAPE_W) one grid cell's corner poses
+    cen: np.ndarray  #: (P, 3) one cover ball's centre at each grid pose
+    half: np.ndarray  #: (k,) each joint's half range over the region
+    balls: np.ndarray  #: (N, 4) the cover balls in the world
+    qbox: np.ndarray  #: (6,) a ball's box
+    bound: np.ndarray  #: (S, 4) each shape's bounding ball (centre in its body frame, radius)
 
 
 #: Most poses sampled along t and along v in one region test.

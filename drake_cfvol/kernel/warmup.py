@@ -50,7 +50,7 @@ def _scene():
     no_pairs = np.zeros((0, 2), np.int64)
     m = Model(chain, shapes, np.array([0], np.int64), verts, obstacles, obs_aabb, no_pairs, no_pairs,
               np.array([True]), np.array([[True]]), np.array([[1.01]]), np.array([[[1.01]]]), np.array([True]),
-              np.array([0], np.int64))
+              np.array([0], np.int64), np.array([[0.5, 0.0, 0.0, 0.52]]), np.array([[0, 1]], np.int64))
     return m, verts
 
 

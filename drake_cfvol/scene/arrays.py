@@ -33,6 +33,7 @@ from pydrake.geometry import (
 from pydrake.multibody.tree import JointIndex
 
 from drake_cfvol import kernel as K
+from drake_cfvol.scene.covers import robot_covers
 from drake_cfvol.exceptions import WorkcellError
 from drake_cfvol.scene.robot import robot_bodies
 
@@ -166,6 +167,16 @@ class SceneArrays:
 
     def __post_init__(self):
         self._model = None  # the kernel's Model, built once
+        self._covers = None
+
+    @property
+    def covers(self) -> tuple[np.ndarray, np.ndarray]:
+        """The robot shapes' outer sphere covers, checked when built
+        (:func:`drake_cfvol.scene.covers.robot_covers`): (balls (N, 4) in
+        body frames, shape_spheres (S, 2) row ranges)."""
+        if self._covers is None:
+            self._covers = robot_covers(self.shapes, self.verts)
+        return self._covers
 
     @property
     def num_bodies(self) -> int:
@@ -203,18 +214,21 @@ class SceneArrays:
         rows[:, K._R:K._R + 9] = np.eye(3).ravel()
         rows[:, K._S:K._S + 3] = sizes / 2
         aabb = np.concatenate([centres - sizes / 2, centres + sizes / 2], axis=1)
-        return dataclasses.replace(self, obstacles=np.ascontiguousarray(np.concatenate([self.obstacles, rows])),
-                                   obstacle_names=list(self.obstacle_names) + [name] * len(rows),
-                                   obstacle_aabb=np.ascontiguousarray(np.concatenate([self.obstacle_aabb, aabb])))
+        out = dataclasses.replace(self, obstacles=np.ascontiguousarray(np.concatenate([self.obstacles, rows])),
+                                  obstacle_names=list(self.obstacle_names) + [name] * len(rows),
+                                  obstacle_aabb=np.ascontiguousarray(np.concatenate([self.obstacle_aabb, aabb])))
+        out._covers = self._covers  # the robot is the same
+        return out
 
     @property
     def model(self) -> K.Model:
         """The kernel's typed view of these arrays (built once)."""
         if self._model is None:
+            spheres, shape_spheres = self.covers
             self._model = K.Model(
                 self.chain, self.shapes, self.shape_body, self.verts, self.obstacles, self.obstacle_aabb,
                 self.self_pairs, self.shape_pairs, self.moved_by.any(axis=0), self.moved_by, self.reach,
-                self.curvature, self.revolute, self.joint_body)
+                self.curvature, self.revolute, self.joint_body, spheres, shape_spheres)
         return self._model
 
     @property

@@ -1,0 +1,108 @@
+"""The broad phase on sphere covers: balls that contain the robot's shapes
+(:mod:`drake_cfvol.scene.covers`, checked when built) against obstacle rows,
+the height field and each other. Each test answers "certainly apart" or
+"undecided"; an undecided pair goes to the exact test.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from drake_cfvol.kernel.types import BOX, SEP_EPS, _C, _ED, _EI, _ES, _K, _R, _S
+from drake_cfvol.kernel.heightfield import range_max
+
+__all__ = ["ball_apart_row", "box_above_columns", "place_balls", "balls_apart_row", "balls_apart"]
+
+
+@njit(cache=True, inline="always")
+def ball_apart_row(x, y, z, r, row, aabb):
+    """True if the ball (centre x, y, z; radius r, m) is farther than
+    SEP_EPS from an obstacle row: exact for a box (its inflation and motion
+    terms added to r), against the row's axis-aligned box ``aabb``
+    otherwise."""
+    d2 = 0.0
+    if int(row[_K]) == BOX:
+        r += row[_EI] + row[_ED] + row[_ES]
+        dx = x - row[_C]
+        dy = y - row[_C + 1]
+        dz = z - row[_C + 2]
+        for a in range(3):
+            la = row[_R + a] * dx + row[_R + 3 + a] * dy + row[_R + 6 + a] * dz
+            e = abs(la) - row[_S + a]
+            if e > 0.0:
+                d2 += e * e
+    else:
+        ex = max(aabb[0] - x, x - aabb[3])
+        ey = max(aabb[1] - y, y - aabb[4])
+        ez = max(aabb[2] - z, z - aabb[5])
+        if ex > 0.0:
+            d2 += ex * ex
+        if ey > 0.0:
+            d2 += ey * ey
+        if ez > 0.0:
+            d2 += ez * ez
+    rr = r + SEP_EPS
+    return d2 > rr * rr
+
+
+@njit(cache=True, inline="always")
+def box_above_columns(box, field):
+    """True if an axis-aligned box (min xyz, max xyz) is certainly clear of
+    the height field's columns: the tallest column under its footprint is
+    lower than its bottom (an empty table: no columns)."""
+    table, ox, oy, side = field
+    if table.shape[2] == 0:
+        return True
+    top = range_max(table, int(np.floor((box[0] - ox) / side)), int(np.floor((box[3] - ox) / side)),
+                    int(np.floor((box[1] - oy) / side)), int(np.floor((box[4] - oy) / side)))
+    return not (top > 0.0) or box[2] > top + SEP_EPS
+
+
+@njit(cache=True)
+def place_balls(R_WB, p_WB, shape_body, spheres, ranges, pad, balls, box):
+    """Every cover ball (``spheres`` (N, 4) in body frames, shape s's rows
+    ``ranges[s]``) in the world at body poses X_WB, radius grown by
+    ``pad``: balls (N, 4); box (S, 6) each shape's balls' axis-aligned box."""
+    for s in range(ranges.shape[0]):
+        b = shape_body[s]
+        for a in range(3):
+            box[s, a] = np.inf
+            box[s, 3 + a] = -np.inf
+        for q in range(ranges[s, 0], ranges[s, 1]):
+            c0 = spheres[q, 0]
+            c1 = spheres[q, 1]
+            c2 = spheres[q, 2]
+            r = spheres[q, 3] + pad
+            balls[q, 3] = r
+            for a in range(3):
+                v = p_WB[b, a] + R_WB[b, a, 0] * c0 + R_WB[b, a, 1] * c1 + R_WB[b, a, 2] * c2
+                balls[q, a] = v
+                if v - r < box[s, a]:
+                    box[s, a] = v - r
+                if v + r > box[s, 3 + a]:
+                    box[s, 3 + a] = v + r
+
+
+@njit(cache=True, inline="always")
+def balls_apart_row(balls, start, stop, row, aabb):
+    """True if every ball in balls[start:stop] is apart from the row."""
+    for q in range(start, stop):
+        if not ball_apart_row(balls[q, 0], balls[q, 1], balls[q, 2], balls[q, 3], row, aabb):
+            return False
+    return True
+
+
+@njit(cache=True, inline="always")
+def balls_apart(balls, a0, a1, b0, b1, shrink):
+    """True if every ball of balls[a0:a1] is apart from every ball of
+    balls[b0:b1], each radius less ``shrink`` (m)."""
+    for p in range(a0, a1):
+        for q in range(b0, b1):
+            dx = balls[p, 0] - balls[q, 0]
+            dy = balls[p, 1] - balls[q, 1]
+            dz = balls[p, 2] - balls[q, 2]
+            rr = balls[p, 3] + balls[q, 3] - 2.0 * shrink + SEP_EPS
+            if dx * dx + dy * dy + dz * dz <= rr * rr:
+                return False
+    return True

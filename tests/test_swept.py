@@ -1,0 +1,106 @@
+"""The region tests' broad phase (lever-arm balls at the region's centre)
+and cell-by-cell hulls: never free where Drake finds a collision in the
+region, and bounds at least as wide as the whole-grid hull test gave."""
+
+import numpy as np
+import pytest
+
+from drake_cfvol import kernel as K
+from drake_cfvol.kernel.heightfield import no_height_field
+from drake_cfvol.kernel.regions import _region_workspace
+from drake_cfvol.kernel.spheres import ball_apart_row
+from drake_cfvol.kernel.swept import region_quick_free
+from drake_cfvol.kernel.types import _EI
+from drake_cfvol.scene.covers import robot_covers
+
+#: Sweep inputs and bounds recorded from the kernel before sphere covers and
+#: cell-by-cell hulls (commit e475662, R = 1000, seed 0): the regression
+#: baseline for "at least today's widths".
+BEFORE = "tests/data/sweep_before_v3.npz"
+
+
+def _recorded(case):
+    d = np.load(BEFORE)
+    g = {k.split("/", 1)[1]: d[k] for k in d.files if k.startswith(case + "/")}
+    chain = K.Chain(*(g["chain." + n] for n in K.Chain._fields))
+    fields = {n: g["model." + n] for n in K.Model._fields[1:14]}
+    spheres, ranges = robot_covers(fields["shapes"], fields["verts"])
+    m = K.Model(chain, *fields.values(), spheres, ranges)
+    field = K.HeightField(g["table"], *map(float, g["grid"]))
+    return g, m, field
+
+
+@pytest.mark.parametrize("case", ["automotive_path1", "aerospace_path1"])
+def test_bounds_at_least_as_wide_as_the_whole_grid_hull(case):
+    """On the recorded inputs, every bound is at least the recorded one
+    less the search's delta (the searches' steps differ, each stops within
+    delta of its true end)."""
+    g, m, field = _recorded(case)
+    bounds, tests, _ = K.sweep_chains(g["chains"], (g["lim_lo"], g["lim_hi"], g["delta"]), g["nts"], g["v_steps"],
+                                      g["W"], m, field, g["pads"], g["guesses"])
+    sign = g["chains"][:, 1][:, None].astype(float)
+    gain = sign * (bounds - g["bounds"])
+    delta = g["delta"][g["chains"][:, 0]][:, None]
+    assert np.all(gain >= -delta - 1e-9), f"narrower by {(-gain - delta).max():.4f} past delta"
+
+
+def test_ball_against_a_box_by_hand():
+    """A ball against a rotated box: apart exactly when its centre is
+    farther than its radius from the box (distance worked by hand)."""
+    row = np.zeros(K.SHAPE_W)
+    row[K._K] = K.BOX
+    c, s = np.cos(0.3), np.sin(0.3)
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    row[K._C:K._C + 3] = (1.0, 2.0, 0.5)
+    row[K._R:K._R + 9] = R.ravel()
+    row[K._S:K._S + 3] = (0.5, 0.2, 0.5)
+    aabb = np.zeros(6)
+    K.row_aabb(row, np.zeros((0, 3)), aabb)
+    # 0.3 m beyond the +x face and 0.4 m beyond the +y face: 0.5 m away.
+    x = np.array([1.0, 2.0, 0.5]) + R @ np.array([0.8, 0.6, 0.0])
+    assert ball_apart_row(*x, 0.49, row, aabb)
+    assert not ball_apart_row(*x, 0.51, row, aabb)
+    row[_EI] = 0.02  # the row's inflation counts
+    assert not ball_apart_row(*x, 0.49, row, aabb)
+
+
+@pytest.mark.parametrize("cell", ["automotive", "mesh"])
+def test_quick_pass_never_frees_a_colliding_region(cell, request):
+    """Random regions (a stretch of two random free configurations with one
+    joint swept): wherever the broad phase calls a region free, Drake's
+    padded checker finds every configuration of a dense grid over it free."""
+    if cell == "mesh":
+        import drake_cfvol as cf
+        wc = cf.load_workcell("tests/data/mesh_cell.yaml")
+    else:
+        wc = request.getfixturevalue(cell)
+    m = wc.scene_arrays().model
+    k = wc.num_joints
+    rs = _region_workspace(m.chain.parent.shape[0], m.shapes.shape[0], k, m.obstacles.shape[0], m.spheres.shape[0])
+    rng = np.random.default_rng(0)
+    lo, hi = wc.position_lower, wc.position_upper
+    checker = wc.padded_checker(0.02)
+    freed, tried, checked = 0, 0, []
+    while tried < 300:
+        a = rng.uniform(lo, hi)
+        b = np.clip(a + rng.normal(scale=0.01, size=k), lo, hi)
+        # The region test takes the nominal stretch as free (it tests what
+        # joint j moves): draw stretches Drake finds free at 11 points.
+        if not all(checker.CheckConfigsCollisionFree(a + np.linspace(0, 1, 11)[:, None] * (b - a))):
+            continue
+        tried += 1
+        j = int(rng.integers(k))
+        va = a[j]
+        vb = min(va + rng.uniform(0.002, 0.03), hi[j])
+        W = np.stack([a, b])
+        if not region_quick_free(W, 0, j, (0.0, 1.0, 5), (va, vb, 9), m, no_height_field(), rs, 0.02):
+            continue
+        freed += 1
+        t, v = np.meshgrid(np.linspace(0, 1, 11), np.linspace(va, vb, 11))
+        Q = a + t.reshape(-1, 1) * (b - a)
+        Q[:, j] = v.ravel()
+        checked.append(Q)
+    assert freed >= 10, "too few regions decided to say anything"
+    Q = np.concatenate(checked)
+    free = np.array(checker.CheckConfigsCollisionFree(Q, parallelize=True), bool)
+    assert free.all(), f"{(~free).sum()} colliding configurations in regions called free"
