@@ -74,7 +74,8 @@ def region_quick_free(W, i, j, ts, vs, m, field, rs, pad):
     lever arm per unit of each joint along the straight pieces of the
     region) and ``pad``, is clear of the obstacles and V; and each self
     pair j moves apart keeps its balls apart, grown by the joints that move
-    one body and not the other (the others move both rigidly). False:
+    one body and not the other, each by its lever arm to the body it moves
+    (a joint that moves both moves them rigidly together). False:
     undecided (the exact test decides). The balls' boxes join rs.fp."""
     q_c, half, balls, box = rs.q_c, rs.half, rs.balls, rs.qbox
     _centre_and_half(W, i, j, ts, vs, q_c, half)
@@ -103,9 +104,11 @@ def region_quick_free(W, i, j, ts, vs, m, field, rs, pad):
         f = a if not m.moved[j, a] else bb
         mb = bb if f == a else a
         g = pad
-        for kk in range(k):
+        for kk in range(k):  # a joint that moves both moves them rigidly together
             if not m.moved[kk, f]:
                 g += half[kk] * _lever(m, kk, mb)
+            elif not m.moved[kk, mb]:  # a branch of a tree (a finger): it moves f alone
+                g += half[kk] * _lever(m, kk, f)
         for sm in range(ranges.shape[0]):
             if shape_body[sm] != mb:
                 continue
