@@ -42,6 +42,33 @@ def _slab_count(length: float, width: float) -> int:
     return int(min(MAX_SLABS, max(1, round(length / width))))
 
 
+#: Vertex pairs handled at once when a plane's crossings are computed (a
+#: mesh's hull may have thousands of vertices: memory stays bounded).
+_PAIRS_PER_BLOCK = 1 << 18
+
+
+def _crossings(T: np.ndarray, plane: float):
+    """Blocks of the points where the segments between a vertex at or below
+    the plane x = plane and one at or above it cross it (T (m, 3))."""
+    below = T[T[:, 0] <= plane]
+    above = T[T[:, 0] >= plane]
+    step = max(1, _PAIRS_PER_BLOCK // max(len(above), 1))
+    for s in range(0, len(below), step):
+        a = below[s:s + step, None, :]
+        da = a[..., 0] - plane
+        den = da - (above[None, :, 0] - plane)
+        w = np.divide(da, den, out=np.zeros_like(den), where=den != 0.0)
+        yield (a + w[..., None] * (above[None, :, :] - a)).reshape(-1, 3)
+
+
+def _slab_points(T: np.ndarray, lo: float, hi: float):
+    """Blocks of points whose hull is conv(T) between the planes x = lo and
+    x = hi: the vertices between them and both planes' crossings."""
+    yield T[(T[:, 0] >= lo) & (T[:, 0] <= hi)]
+    yield from _crossings(T, lo)
+    yield from _crossings(T, hi)
+
+
 def _polytope_cover(V: np.ndarray) -> np.ndarray:
     """(n, 4) balls (centre, radius) covering conv(V), V (m, 3)."""
     centred = V - V.mean(axis=0)
@@ -52,20 +79,13 @@ def _polytope_cover(V: np.ndarray) -> np.ndarray:
     n = _slab_count(ext[0], max(ext[1], ext[2]))
     cuts = np.linspace(T[:, 0].min(), T[:, 0].max(), n + 1)
     balls = []
-    ia, ib = np.triu_indices(len(T), 1)
     for lo, hi in zip(cuts[:-1], cuts[1:]):
-        pts = [T[(T[:, 0] >= lo) & (T[:, 0] <= hi)]]
-        for plane in (lo, hi):
-            ta, tb = T[ia, 0] - plane, T[ib, 0] - plane
-            straddle = (ta * tb) <= 0.0
-            a, b = T[ia[straddle]], T[ib[straddle]]
-            da, db = ta[straddle], tb[straddle]
-            den = da - db
-            w = np.where(den != 0.0, da / np.where(den != 0.0, den, 1.0), 0.0)
-            pts.append(a + w[:, None] * (b - a))
-        P = np.concatenate(pts)
-        c = (P.min(axis=0) + P.max(axis=0)) / 2
-        r = float(np.linalg.norm(P - c, axis=1).max())
+        low, high = np.full(3, np.inf), np.full(3, -np.inf)
+        for P in _slab_points(T, lo, hi):
+            if len(P):
+                low, high = np.minimum(low, P.min(axis=0)), np.maximum(high, P.max(axis=0))
+        c = (low + high) / 2
+        r = max(float(np.linalg.norm(P - c, axis=1).max()) for P in _slab_points(T, lo, hi) if len(P))
         balls.append(np.concatenate([c @ axes, [r]]))
     return np.array(balls)
 
