@@ -104,3 +104,48 @@ def test_quick_pass_never_frees_a_colliding_region(cell, request):
     Q = np.concatenate(checked)
     free = np.array(checker.CheckConfigsCollisionFree(Q, parallelize=True), bool)
     assert free.all(), f"{(~free).sum()} colliding configurations in regions called free"
+
+
+def _two_finger_model():
+    """A fixed palm with two fingers on revolute joints about z, 0.4 m apart
+    along x (a tree): finger 0 a 4 cm knuckle on its joint, finger 1 a box
+    from 0.3 to 0.45 m along -x from its joint (towards finger 0 at 0 rad);
+    the fingers are a self pair."""
+    eye = np.eye(3)
+    chain = K.Chain(np.array([-1, -1], np.int64), np.array([1, 1], np.int64), np.array([0, 1], np.int64),
+                    np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]), np.stack([eye, eye]),
+                    np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0]]), np.stack([eye, eye]), np.zeros((2, 3)))
+    shapes = np.zeros((2, K.SHAPE_W))
+    shapes[:, K._K] = K.BOX
+    shapes[:, K._R:K._R + 9] = eye.ravel()
+    shapes[0, K._S:K._S + 3] = (0.02, 0.02, 0.02)
+    shapes[1, K._S:K._S + 3] = (0.075, 0.02, 0.02)
+    shapes[1, K._C:K._C + 3] = (-0.375, 0.0, 0.0)
+    verts = np.zeros((0, 3))
+    spheres, ranges = robot_covers(shapes, verts)
+    moved = np.array([[True, False], [False, True]])
+    reach = np.array([[0.03, 0.0], [0.0, 0.46]])
+    curvature = np.zeros((2, 2, 2))
+    curvature[0, 0, 0], curvature[1, 1, 1] = 0.03, 0.46
+    return K.Model(chain, shapes, np.array([0, 1], np.int64), verts, np.zeros((0, K.SHAPE_W)), np.zeros((0, 6)),
+                   np.array([[0, 1]], np.int64), np.array([[0, 1]], np.int64), np.array([True, True]), moved, reach,
+                   curvature, np.array([True, True]), np.array([0, 1], np.int64), spheres, ranges)
+
+
+def test_a_moving_second_branch_is_never_called_free():
+    """Two fingers of a tree: the knuckle (finger 0, swept 0-0.04 rad) sits
+    0.4 m from finger 1's joint while the stretch turns finger 1 from -1 to
+    +1 rad. At 0 rad finger 1 covers x in [-0.05, 0.1] on y = 0, over the
+    knuckle (by hand); at the stretch's two grid poses (+-1 rad), seen from
+    finger 1, the knuckle sits 0.4 cos 1 = 0.22 m from its joint, short of
+    the box that starts at 0.3 m, so the grid's hull misses what the arc
+    hits: the region may collide. With finger 1 held at -1 rad the same
+    sweep is proven free (the test does not simply always fail)."""
+    m = _two_finger_model()
+    one = np.ones(1, np.int64)
+
+    def hit(b1):
+        return K.regions_hit(np.array([[0.0, -1.0]]), np.array([[0.0, b1]]), np.zeros(1, np.int64),
+                             np.array([0.0]), np.array([0.04]), 2 * one, 2 * one, np.zeros(1), m)[0]
+    assert hit(1.0)
+    assert not hit(-1.0)

@@ -180,6 +180,12 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
             continue
         f = a if not moved[j, a] else bb  # the body j does not move
         mb = bb if f == a else a
+        for kk in range(W.shape[1]):
+            if kk != j and moved[kk, f] and not moved[kk, mb] and W[i + 1, kk] != W[i, kk]:
+                # A tree's other branch (a second finger) moves body f along
+                # the stretch: f's frame turns under mb, and nothing bounds
+                # that between grid poses. May collide (conservative).
+                return True
         grow = _relative_growth(W, i, j, f, mb, L_t, L_v, moved, curvature, reach, revolute)
         for sm in range(S):
             if shape_body[sm] != mb:
