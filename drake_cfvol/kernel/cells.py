@@ -109,16 +109,10 @@ def _cells_vs_scene(obj, nt, nv, rs, m, field, sc, dirs):
         t1 = min(ti + 1, nt - 1)
         for vi in range(max(nv - 1, 1)):
             c00, c01, c10, c11 = _corners(ti, t1, vi, nv)
-            for r in range(3):
-                box[r] = min(min(rowbox[c00, r], rowbox[c01, r]), min(rowbox[c10, r], rowbox[c11, r]))
-                box[r + 3] = max(max(rowbox[c00, r + 3], rowbox[c01, r + 3]),
-                                 max(rowbox[c10, r + 3], rowbox[c11, r + 3]))
+            _cell_box(rowbox, c00, c01, c10, c11, box)
             if _scene_clear_of_box(box, m.obstacle_aabb, field):
                 continue
-            cell[0] = obj[c00]
-            cell[1] = obj[c01]
-            cell[2] = obj[c10]
-            cell[3] = obj[c11]
+            _cell_rows(obj, c00, c01, c10, c11, cell)
             if _object_vs_scene(cell, box, m, field, sc, dirs):
                 return True
     return False
@@ -167,6 +161,23 @@ def shape_bounds(spheres, ranges, out):
         out[s, 3] = r
 
 
+@njit(cache=True, inline="always")
+def _cell_box(rowbox, c00, c01, c10, c11, box):
+    """The union of a cell's four corner rows' boxes into ``box``."""
+    for r in range(3):
+        box[r] = min(min(rowbox[c00, r], rowbox[c01, r]), min(rowbox[c10, r], rowbox[c11, r]))
+        box[r + 3] = max(max(rowbox[c00, r + 3], rowbox[c01, r + 3]), max(rowbox[c10, r + 3], rowbox[c11, r + 3]))
+
+
+@njit(cache=True, inline="always")
+def _cell_rows(obj, c00, c01, c10, c11, cell):
+    """A cell's four corner rows of ``obj`` into ``cell`` (4, SHAPE_W)."""
+    cell[0] = obj[c00]
+    cell[1] = obj[c01]
+    cell[2] = obj[c10]
+    cell[3] = obj[c11]
+
+
 @njit(cache=True)
 def _cells_hit_row(obj, nt, nv, rs, row, row_box, verts, ws, dirs):
     """The grid object ``obj`` (nt x nv rows, their boxes in rs.rowbox)
@@ -178,18 +189,10 @@ def _cells_hit_row(obj, nt, nv, rs, row, row_box, verts, ws, dirs):
         t1 = min(ti + 1, nt - 1)
         for vi in range(max(nv - 1, 1)):
             c00, c01, c10, c11 = _corners(ti, t1, vi, nv)
-            apart = False
-            for r in range(3):
-                lo = min(min(rowbox[c00, r], rowbox[c01, r]), min(rowbox[c10, r], rowbox[c11, r]))
-                hi = max(max(rowbox[c00, r + 3], rowbox[c01, r + 3]), max(rowbox[c10, r + 3], rowbox[c11, r + 3]))
-                if lo > row_box[r + 3] or row_box[r] > hi:
-                    apart = True
-            if apart:
+            _cell_box(rowbox, c00, c01, c10, c11, rs.qbox)
+            if _aabb_apart(rs.qbox, row_box):
                 continue
-            cell[0] = obj[c00]
-            cell[1] = obj[c01]
-            cell[2] = obj[c10]
-            cell[3] = obj[c11]
+            _cell_rows(obj, c00, c01, c10, c11, cell)
             if _gjk_from(cell, verts, row, verts, 64, ws, dirs):
                 return True
     return False
