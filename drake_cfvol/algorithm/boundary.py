@@ -45,7 +45,7 @@ import numpy as np
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.algorithm.table import rate_limited
-from drake_cfvol.algorithm.regions import (MAX_SPLITS, S_SPLITS, _box, _edge_key, _Item, _test, corner_points, edge_tasks,
+from drake_cfvol.algorithm.regions import (MAX_SPLITS, S_SPLITS, _box, _edge_key, _ends_many, _Item, _test, corner_points, edge_tasks,
                                            regions_may_collide)
 from drake_cfvol.algorithm.cuts import cut_for, cut_point, cut_slacks, reaching_joints
 
@@ -100,7 +100,7 @@ def _halvings(arrays, lower, upper, nominal, items, margins):
         if depth == MAX_SPLITS or not bad:
             failed += bad
             break
-        ends = np.array([q for it in bad for q in it.ends(lower, upper)])
+        ends = _ends_many(bad, lower, upper)
         pads = np.repeat([margins[it.i] for it in bad], 4)
         real = np.zeros(len(ends), bool)
         for p in np.unique(pads):

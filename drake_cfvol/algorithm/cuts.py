@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drake_cfvol.algorithm.regions import _Item, _box, _test
+from drake_cfvol.algorithm.regions import _Item, _box, _test, regions_may_collide
 
 __all__ = ['reaching_joints', 'cut_point', 'cut_slacks']
 
@@ -91,60 +91,91 @@ def _width_loss(lower, upper, nominal, rate, i, lo, hi):
     return float(np.sum(np.log(w0 / w1)))
 
 
+def _scaled_many(lower, upper, nominal, i, members, sides, lams):
+    """:func:`_scaled` for many scales at once: the joints ``members``,
+    each on its side ``sides[l]``, all scaled by each lam of ``lams`` (n,):
+    (lo, hi), (n, 2, k) each (the same arithmetic, element by element)."""
+    n = len(lams)
+    lo = np.repeat(lower[None, i:i + 2], n, axis=0)
+    hi = np.repeat(upper[None, i:i + 2], n, axis=0)
+    nom = nominal[i:i + 2]
+    lam = np.asarray(lams, float)[:, None]
+    for l in members:
+        if sides[l] > 0:
+            hi[:, :, l] = nom[:, l] + lam * (hi[:, :, l] - nom[:, l])
+        else:
+            lo[:, :, l] = nom[:, l] - lam * (nom[:, l] - lo[:, :, l])
+    return lo, hi
+
+
+def _edge_regions(fail: _Item, lo, hi, pad, arrays) -> np.ndarray:
+    """(n,) True where the failing region's edge, its stretch's waypoint
+    boxes replaced by lo[n], hi[n] ((n, 2, k) each), may still come nearer
+    than ``pad``: the other joints on the corner path of sign row fail.S
+    between fail.sa and fail.sb."""
+    t = (np.array([fail.sa, fail.sb]) - fail.i)[None, :, None]
+    a_lo = (1 - t) * lo[:, 0:1] + t * lo[:, 1:2]
+    a_hi = (1 - t) * hi[:, 0:1] + t * hi[:, 1:2]
+    ca = np.where(fail.S == 1, a_hi, a_lo)
+    n = len(lo)
+    return regions_may_collide(arrays, ca[:, 0], ca[:, 1], np.full(n, fail.j, np.int64), np.full(n, fail.va),
+                               np.full(n, fail.vb), np.full(n, float(pad)))
+
+
 def _joint_scale_options(arrays, lower, upper, nominal, rate, fail: _Item, reach, pad: float) -> list:
     """Cut options (loss, lo, hi, key) of a failing region: each other joint
     on its bound in the region whose motion reaches the nearest pair, and
     all of them together (a collision that two bounds make at once), each
     at CUT_SCALES of its deviation, the largest passing scale bisected
-    toward the failing one above it; the region must keep ``pad``."""
+    toward the failing one above it; the region must keep ``pad``. All
+    candidates' scales go to the kernel in one batch, each bisection step
+    in another."""
     i, j = fail.i, fail.j
-    ss = np.array([fail.sa, fail.sb])
-    options = []
     group = [int(l) for l in np.flatnonzero(reach) if l != j]
     sides = {l: 1 if fail.S[l] == 1 else -1 for l in group}
-    cands = [((l, sides[l]), [l]) for l in group] + ([((-1, 0), group)] if len(group) > 1 else [])
-    members_of = dict(cands)
-
-    def trial(key, lam):
-        lo, hi = _scaled(lower, upper, nominal, i, [(m, sides[m], lam) for m in members_of[key]])
-        a_lo, a_hi, _ = _box(lo, hi, nominal[i:i + 2], 0, ss - i)
-        ca = np.where(fail.S == 1, a_hi, a_lo)
-        return lo, hi, _Item(i, fail.sa, fail.sb, j, fail.va, fail.vb, fail.S, ca[0], ca[1])
-
-    trials = []
-    for key in members_of:
-        for lam in CUT_SCALES:
-            lo, hi, item = trial(key, lam)
-            if np.array_equal(lo, lower[i:i + 2]) and np.array_equal(hi, upper[i:i + 2]):
-                continue
-            trials.append((key, lam, lo, hi, item))
-    if trials:
-        ok = ~_test(arrays, [t[4] for t in trials], {i: pad})
-        best_l, failing = {}, {}  # key -> (passing scale, lo, hi); key -> largest failing scale
-        for (key, lam, lo, hi, _), good in zip(trials, ok):
-            if key in best_l:
-                continue
-            if good:  # scales run largest first: the first pass is the best of the list
-                best_l[key] = (lam, lo, hi)
+    members_of = dict([((l, sides[l]), [l]) for l in group] + ([((-1, 0), group)] if len(group) > 1 else []))
+    if not members_of:
+        return []
+    lams = np.array(CUT_SCALES)
+    keys, LO, HI, LAM = [], [], [], []
+    for key, members in members_of.items():
+        lo, hi = _scaled_many(lower, upper, nominal, i, members, sides, lams)
+        changed = ~(np.all(lo == lower[i:i + 2], axis=(1, 2)) & np.all(hi == upper[i:i + 2], axis=(1, 2)))
+        keys += [key] * int(changed.sum())
+        LO.append(lo[changed])
+        HI.append(hi[changed])
+        LAM.append(lams[changed])
+    if not keys:
+        return []
+    LO, HI, LAM = np.concatenate(LO), np.concatenate(HI), np.concatenate(LAM)
+    ok = ~_edge_regions(fail, LO, HI, pad, arrays)
+    best_l, failing = {}, {}  # key -> (passing scale, lo, hi); key -> largest failing scale
+    for n, key in enumerate(keys):
+        if key in best_l:
+            continue
+        if ok[n]:  # scales run largest first: the first pass is the best of the list
+            best_l[key] = (LAM[n], LO[n], HI[n])
+        else:
+            failing[key] = LAM[n]
+    # Cut no deeper than needed: bisect each passing scale toward the
+    # failing one above it (as cut_point does), all keys in one batch.
+    bracket = {key: (failing.get(key, 1.0), best_l[key][0]) for key in best_l}
+    for _ in range(REFINE_STEPS if bracket else 0):
+        mids = {key: 0.5 * (f + p_) for key, (f, p_) in bracket.items()}
+        tried = [_scaled_many(lower, upper, nominal, i, members_of[key], sides, [lam]) for key, lam in mids.items()]
+        good = ~_edge_regions(fail, np.concatenate([t[0] for t in tried]), np.concatenate([t[1] for t in tried]),
+                              pad, arrays)
+        for (key, (lo, hi)), gd in zip(zip(mids, tried), good):
+            f, p_ = bracket[key]
+            if gd:
+                bracket[key] = (f, mids[key])
+                best_l[key] = (mids[key], lo[0], hi[0])
             else:
-                failing[key] = lam
-        # Cut no deeper than needed: bisect each passing scale toward the
-        # failing one above it (as cut_point does), all keys in one batch.
-        bracket = {key: (failing.get(key, 1.0), best_l[key][0]) for key in best_l}
-        for _ in range(REFINE_STEPS if bracket else 0):
-            mids = {key: 0.5 * (f + p_) for key, (f, p_) in bracket.items()}
-            tried = {key: trial(key, lam) for key, lam in mids.items()}
-            good = ~_test(arrays, [t[2] for t in tried.values()], {i: pad})
-            for (key, (lo, hi, _)), gd in zip(tried.items(), good):
-                f, p_ = bracket[key]
-                if gd:
-                    bracket[key] = (f, mids[key])
-                    best_l[key] = (mids[key], lo, hi)
-                else:
-                    bracket[key] = (mids[key], p_)
-        for (l, side), (_, lo, hi) in best_l.items():
-            key = (i, int(l), side) if l >= 0 else (i, -2, 0)
-            options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, key))
+                bracket[key] = (mids[key], p_)
+    options = []
+    for (l, side), (_, lo, hi) in best_l.items():
+        key = (i, int(l), side) if l >= 0 else (i, -2, 0)
+        options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, key))
     return options
 
 
