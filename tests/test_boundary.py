@@ -123,3 +123,26 @@ def test_proven_edges_are_not_tested_again(corner):
     assert not failed and tests == 1  # joint 1's edge with joint 0 on its (moved) upper bound
     # A larger margin than the proven one is tested again.
     assert B._failures(arrays, lower, upper, nominal, [0], np.full(1, 0.01), memo)[1] == 4
+
+
+def test_failed_edges_are_remembered_and_cut_once_per_round(corner):
+    """A box whose corner (0.4, 0.8) rad reaches into the post: some edges
+    fail. Asked again with nothing changed, the same regions fail without
+    a single region test (the result is a function of the edge, its range
+    and the margin); a new margin tests again. A round cuts the first
+    failing region of each failing edge only."""
+    wc, arrays = corner
+    lower = np.array([[-0.1, -0.1], [-0.1, -0.1]])
+    upper = np.array([[0.4, 0.8], [0.4, 0.8]])
+    nominal = np.zeros((2, 2))
+    memo: dict = {}
+    failed, tests = B._failures(arrays, lower, upper, nominal, [0], np.zeros(1), memo)
+    assert failed and tests > 0
+    again, tests_again = B._failures(arrays, lower, upper, nominal, [0], np.zeros(1), memo)
+    assert tests_again == 0
+    assert [(f.sa, f.sb, f.j, f.va, f.vb) for f in again] == [(f.sa, f.sb, f.j, f.va, f.vb) for f in failed]
+    assert B._failures(arrays, lower, upper, nominal, [0], np.full(1, 0.01), memo)[1] > 0
+    first = B._one_per_edge(failed)
+    edges = {(f.j, f.S.tobytes(), f.root) for f in failed}
+    assert len(first) == len(edges) and {(f.j, f.S.tobytes(), f.root) for f in first} == edges
+    assert all(f is next(g for g in failed if g.root == f.root) for f in first)

@@ -194,6 +194,8 @@ def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: 
     anew). Returns False (nothing cut) only if the region on the nominal
     itself fails the margin."""
     i, j = fail.i, fail.j
+    if taken and not _edge_regions(fail, lower[None, i:i + 2], upper[None, i:i + 2], margin, arrays)[0]:
+        return True  # an earlier cut of this round freed the region already
     sm = 0.5 * (fail.sa + fail.sb)
     lo_m, hi_m, nom_m = _box(lower, upper, nominal, i, np.array([sm]))
     q = np.where(fail.S == 1, hi_m[0], lo_m[0])
