@@ -37,23 +37,6 @@ def test_width_loss_counts_what_the_rate_limit_takes():
     assert C._width_loss(lower, upper, nominal, np.array([np.inf]), 1, lo, hi) == pytest.approx(np.log(2 / 1.2))
 
 
-def test_region_ends_clip_the_joint_to_the_box_at_each_end():
-    """A joint whose box widens from [-1, 1] at s = 0 to [-2, 2] at s = 1
-    (the other joint on its upper bound, 1): an edge region over the whole
-    stretch with the joint's range [-1.5, 1.5] has the ends (-1, 1),
-    (1, 1) at s = 0 (clipped) and (-1.5, 1), (1.5, 1) at s = 1; the same
-    region from s = 0.5, where the box is [-1.5, 1.5], keeps its range."""
-    from drake_cfvol.algorithm.regions import _ends_many, _Item
-    lower = np.array([[-1.0, -1.0], [-2.0, -1.0]])
-    upper = -lower
-    S = np.array([0, 1])
-    whole = _Item(0, 0.0, 1.0, 0, -1.5, 1.5, S, np.array([0.0, 1.0]), np.array([0.0, 1.0]))
-    half = _Item(0, 0.5, 1.0, 0, -1.5, 1.5, S, np.array([0.0, 1.0]), np.array([0.0, 1.0]))
-    got = _ends_many([whole, half], lower, upper)
-    want = [[-1, 1], [1, 1], [-1.5, 1], [1.5, 1], [-1.5, 1], [1.5, 1], [-1.5, 1], [1.5, 1]]
-    np.testing.assert_array_equal(got, want)
-
-
 def test_cut_slacks_never_exceed_the_nominals_own_room(corner):
     """The nominal keeps 0.45 m (the floor): asked for 1 m of room, each
     stretch gets the largest rung that fits, 0.25 m; asked for 3 m, 0.375 m;

@@ -115,25 +115,6 @@ class _Item:
         self.root = root  # the whole edge this region was halved from (an index of _failures' edges)
 
 
-def _ends_many(items, lower, upper) -> np.ndarray:
-    """(4 n, k) four configurations of the box's edge in each of n
-    regions (:class:`_Item`), region by region: at either end in s, joint j
-    at either end of the region's range clipped to the box's range there
-    (a region's range may reach beyond the box where the joint's width
-    changes along the stretch)."""
-    n = len(items)
-    I = np.array([it.i for it in items], np.int64)
-    J = np.array([it.j for it in items], np.int64)
-    t = np.array([[it.sa, it.sb] for it in items], float) - I[:, None]
-    lo_j = (1 - t) * lower[I, J][:, None] + t * lower[I + 1, J][:, None]
-    hi_j = (1 - t) * upper[I, J][:, None] + t * upper[I + 1, J][:, None]
-    Q = np.repeat(np.stack([np.array([it.A for it in items]), np.array([it.B for it in items])], axis=1), 2, axis=1)
-    V = np.array([[it.va, it.vb] for it in items], float)[:, [0, 1, 0, 1]]
-    e = [0, 0, 1, 1]
-    Q[np.arange(n)[:, None], np.arange(4)[None], J[:, None]] = np.minimum(np.maximum(V, lo_j[:, e]), hi_j[:, e])
-    return Q.reshape(4 * n, -1)
-
-
 def _test(arrays, items, margins):
     A = np.array([it.A for it in items])
     B = np.array([it.B for it in items])
