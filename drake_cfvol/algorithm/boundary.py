@@ -19,8 +19,9 @@ proving every edge proves every corner too.
 A region that may collide is halved (in s and along the joint) a few
 times, until a 5 x 5 grid of kernel point checks in it finds a point
 that may come nearer than the margin (the edge then fails there, and its
-other regions are not halved further). Where a configuration of the failing part really comes nearer than
-the margin (a 9 x 9 grid of kernel point checks) it is cut as a point
+other regions are not halved further). Where a configuration of the
+failing part really comes nearer than the margin (a 9 x 9 grid of kernel
+point checks) it is cut as a point
 (:func:`cut_point`); else the region is cut (:func:`cut_for`) by scaling
 one bound's deviation from the nominal at both ends of the stretch: the
 edge's own joint if the failing part lies off the nominal, else one of the

@@ -112,7 +112,7 @@ class _Item:
 
     def __init__(self, i, sa, sb, j, va, vb, S, A, B, root=-1):
         self.i, self.sa, self.sb, self.j, self.va, self.vb, self.S, self.A, self.B = i, sa, sb, j, va, vb, S, A, B
-        self.root = root  # the whole edge this region was halved from (an index of _failures' edges)
+        self.root = root  # the edge it was halved from (an index of _failures' edges), or ("again", n): a remembered failed edge
 
 
 def _test(arrays, items, margins):
