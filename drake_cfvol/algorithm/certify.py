@@ -98,18 +98,18 @@ class Certify:
             ``focus_rounds``).
         boundary: prove every edge and corner of the box at every s
             (:mod:`drake_cfvol.algorithm.boundary`), where a clamp pushed steadily
-            lands (default). False: the sampled certificate only, faster
-            (automotive path 1 at the 2 cm margin: 102 s against 167 s,
-            freedom 0.353 against 0.325) but a corner may then come nearer
-            than the margin, and only the runtime safety filter keeps the
-            margin there; the report says so.
+            lands (default). False: the sampled certificate only, a little
+            faster and wider (automotive path 1 at the 2 cm margin: 76 s
+            against 83 s, freedom 0.349 against 0.345) but a corner may then
+            come nearer than the margin, and only the runtime safety filter
+            keeps the margin there; the report says so.
         regrow: after the certificate, widen each cut bound back by half of
             what it lost where the stretches on both sides stay proven, then
             run the sampled certificate again (needs ``boundary``). Cuts are
             chosen one failing region at a time; this gives back what later
-            cuts made unneeded: automotive path 1 at clearance 0, freedom
-            0.358 against 0.349, at over twice the time (237 s against
-            96-104 s).
+            cuts made unneeded: automotive path 1 at the 2 cm margin,
+            freedom 0.353 against 0.345, at twice the time (170 s against
+            83 s).
         cache: reuse a certificate computed before for exactly the same
             inputs (scene, path, bounds, settings; see :func:`cache_dir`).
             Certification is deterministic, so a cached result is the
