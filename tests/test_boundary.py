@@ -104,6 +104,11 @@ def test_proven_edges_are_not_tested_again(corner):
     upper[:, 0] = 0.05
     failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
     assert not failed and tests == 1  # joint 1's edge with joint 0 on its (moved) upper bound
+    # Joint 0's lower bound moved at the far waypoint only: joint 1's edge
+    # on that bound is a new region (the other joint's path changed).
+    lower[1, 0] = -0.04
+    failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
+    assert not failed and tests == 1
     # A larger margin than the proven one is tested again.
     assert B._failures(arrays, lower, upper, nominal, [0], np.full(1, 0.01), memo)[1] == 4
 
@@ -123,9 +128,54 @@ def test_failed_edges_are_remembered_and_cut_once_per_round(corner):
     assert failed and tests > 0
     again, tests_again = B._failures(arrays, lower, upper, nominal, [0], np.zeros(1), memo)
     assert tests_again == 0
-    assert [(f.sa, f.sb, f.j, f.va, f.vb) for f in again] == [(f.sa, f.sb, f.j, f.va, f.vb) for f in failed]
+    fresh, fresh_tests = B._failures(arrays, lower, upper, nominal, [0], np.zeros(1), None)
+    assert fresh_tests == tests
+    regions = [(f.sa, f.sb, f.j, f.va, f.vb, f.S.tobytes()) for f in fresh]
+    assert [(f.sa, f.sb, f.j, f.va, f.vb, f.S.tobytes()) for f in again] == regions
+    # The failing edges' own range changed at one end only: tested again.
+    lower_1 = lower.copy()
+    lower_1[1] += 0.01
+    assert B._failures(arrays, lower_1, upper, nominal, [0], np.zeros(1), memo)[1] > 0
     assert B._failures(arrays, lower, upper, nominal, [0], np.full(1, 0.01), memo)[1] > 0
     first = B._one_per_edge(failed)
     edges = {(f.j, f.S.tobytes(), f.root) for f in failed}
     assert len(first) == len(edges) and {(f.j, f.S.tobytes(), f.root) for f in first} == edges
     assert all(f is next(g for g in failed if g.root == f.root) for f in first)
+
+
+def test_prove_boundary_leaves_no_failing_edge(corner):
+    """The proof on the box reaching into the post: afterwards a fresh
+    region test of every edge (no memo) finds nothing, the corners on a
+    fine grid of s are free by Drake, and the box only shrank."""
+    wc, arrays = corner
+    lower = np.array([[-0.4, -0.8]] * 3)
+    upper = -lower.copy()
+    nominal = np.zeros((3, 2))
+    lo0, hi0 = lower.copy(), upper.copy()
+    margins = np.zeros(2)
+    stats = B.prove_boundary(wc, arrays, lower, upper, nominal, np.full(2, np.inf), margins)
+    assert stats["unproven"] == [] and stats["edge_cuts"] > 0
+    assert np.all(lower >= lo0) and np.all(upper <= hi0)
+    assert B._failures(arrays, lower, upper, nominal, [0, 1], margins, None)[0] == []
+    Q = B.corner_points(lower, upper, nominal, np.linspace(0.0, 2.0, 41))
+    assert all(wc.is_free(q) for q in Q)
+
+
+def test_a_cut_that_changes_nothing_leaves_the_stretch_unproven(corner, monkeypatch):
+    """Cuts stubbed to change no bound (but report a cut taken): the
+    failing edges must not count as proven; the proof runs out of rounds
+    and names the stretch."""
+    wc, arrays = corner
+
+    def no_cut(*args, **kwargs):
+        fail_or_i = args[6]
+        args[-1].add((getattr(fail_or_i, "i", fail_or_i), "nothing"))
+        return True
+
+    monkeypatch.setattr(B, "cut_point", no_cut)
+    monkeypatch.setattr(B, "cut_for", no_cut)
+    lower = np.array([[-0.1, -0.1], [-0.1, -0.1]])
+    upper = np.array([[0.4, 0.8], [0.4, 0.8]])
+    stats = B.prove_boundary(wc, arrays, lower, upper, np.zeros((2, 2)), np.full(2, np.inf), np.zeros(1),
+                             max_rounds=3)
+    assert stats["unproven"] == [0] and stats["edge_rounds"] == 3

@@ -58,8 +58,8 @@ __all__ = ['prove_boundary', 'corner_pass', 'edge_tasks', 'regions_may_collide',
 
 
 def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | None = None):
-    """The edge regions of the given stretches that still may collide after
-    MAX_SPLITS halvings (a region with a point of its REAL_GRID x REAL_GRID
+    """The edge regions of the given stretches (``margins``: (g-1,) array,
+    m) that still may collide after MAX_SPLITS halvings (a region with a point of its REAL_GRID x REAL_GRID
     grid that may collide is not halved further, nor is the rest of its
     edge). Returns (failed items, region tests run).
 
@@ -104,6 +104,7 @@ def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | No
             memo[("failed",) + key] = (lo_j, hi_j, m, by_root[r])
         else:
             memo[key] = (lo_j, hi_j, m)
+            memo.pop(("failed",) + key, None)  # a failure of a wider range: stale
     return failed + again, tests
 
 
@@ -295,8 +296,10 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
         fails, t = _failures(arrays, lower, upper, nominal, todo, margins, memo)
         tests += t
         fails = _one_per_edge(fails)
+        failing = {f.i for f in fails}
         for i in todo:
-            proven[i] = _signature(lower, upper, i)
+            if i not in failing:  # a failing one is asked again, even if its cut changed nothing
+                proven[i] = _signature(lower, upper, i)
         taken: set = set()
         stuck = set()
         points = _colliding_points(arrays, lower, upper, nominal, fails, margins, slacks)
@@ -326,8 +329,6 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
         cuts += len(taken)
         new_lo, new_hi = rate_limited(lower, upper, nominal, rate)
         lower[:], upper[:] = new_lo, new_hi
-        for i in {f.i for f in fails} - {key[0] for key in taken} - stuck:
-            proven.pop(i, None)  # a failure left for the next round (its bound was taken)
     unproven = [i for i in range(n_st) if proven.get(i) != _signature(lower, upper, i)]
     return {"edge_tests": tests, "edge_cuts": cuts, "edge_rounds": rounds, "margins_lowered": lowered,
             "unproven": unproven}
