@@ -10,7 +10,8 @@ from numba import njit, prange
 
 from drake_cfvol.kernel.types import HULL, Chain, Model, SHAPE_W, _C, _EI, _K
 from drake_cfvol.kernel.kinematics import fk_into
-from drake_cfvol.kernel.shapes import _aabb_apart, _obb_apart, pose_shape, row_aabb, set_motion
+from drake_cfvol.kernel.shapes import (_aabb_apart, _obb_apart, _obb_apart_inline, pose_shape, pose_shape_inline,
+                                      row_aabb, row_aabb_inline, set_motion)
 from drake_cfvol.kernel.gjk import _gjk, _gjk_from
 from drake_cfvol.kernel.heightfield import _clip_block, new_scratch, object_hits_columns
 from drake_cfvol.kernel.spheres import balls_apart, balls_apart_row, place_balls
@@ -63,9 +64,9 @@ def _pose_padded(s, R_WB, p_WB, shapes, shape_body, verts, pad, objs, aabbs):
     axis-aligned box (the arrays, not the model: a tuple passed per call
     costs a reference count per array)."""
     b = shape_body[s]
-    pose_shape(shapes[s], R_WB[b], p_WB[b], objs[s, 0])
+    pose_shape_inline(shapes[s], R_WB[b], p_WB[b], objs[s, 0])
     objs[s, 0, _EI] = shapes[s, _EI] + pad
-    row_aabb(objs[s, 0], verts, aabbs[s])
+    row_aabb_inline(objs[s, 0], verts, aabbs[s])
 
 
 @njit(cache=True, inline="always")
@@ -76,7 +77,7 @@ def _boxes_apart_at(A, i, Bx, j):
             or A[i, 2] > Bx[j, 5] or Bx[j, 2] > A[i, 5])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _undecided_obstacles(s, ball_box, balls, ranges, hull, obstacles, obs_aabb, near):
     """The obstacles shape s's balls leave undecided, into near[:count];
     returns count."""
@@ -91,21 +92,21 @@ def _undecided_obstacles(s, ball_box, balls, ranges, hull, obstacles, obs_aabb, 
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hits_obstacles(obj, aabb, verts, obstacles, obs_aabb, near, count, ws, dirs):
     """The exact test of a posed shape against obstacles near[:count]:
     axis-aligned boxes, oriented boxes, GJK from the pair's last
     separating direction (dirs (O, 3))."""
     for c in range(count):
         o = near[c]
-        if _aabb_apart(aabb, obs_aabb[o]) or _obb_apart(obj[0], obstacles[o], ws[8:17]):
+        if _aabb_apart(aabb, obs_aabb[o]) or _obb_apart_inline(obj[0], obstacles[o], ws[8:17]):
             continue
         if _gjk_from(obj, verts, obstacles[o:o + 1], verts, 64, ws, dirs[o]):
             return True
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _undecided_pairs(ball_box, balls, ranges, hull, shape_pairs, shrink, near):
     """The shape pairs the balls leave undecided (radii less ``shrink``
     each), into near[:count]; returns count."""
@@ -123,7 +124,7 @@ def _undecided_pairs(ball_box, balls, ranges, hull, shape_pairs, shrink, near):
     return count
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hits_pairs(objs, aabbs, verts, shape_pairs, near, count, ws, pair_dirs):
     """The exact test of shape pairs near[:count] (posed in objs, half the
     margin each): axis-aligned boxes, oriented boxes, GJK from the pair's
@@ -132,7 +133,7 @@ def _hits_pairs(objs, aabbs, verts, shape_pairs, near, count, ws, pair_dirs):
         p = near[c]
         sa = shape_pairs[p, 0]
         sb = shape_pairs[p, 1]
-        if _aabb_apart(aabbs[sa], aabbs[sb]) or _obb_apart(objs[sa, 0], objs[sb, 0], ws[8:17]):
+        if _aabb_apart(aabbs[sa], aabbs[sb]) or _obb_apart_inline(objs[sa, 0], objs[sb, 0], ws[8:17]):
             continue
         if _gjk_from(objs[sa], verts, objs[sb], verts, 64, ws, pair_dirs[p]):
             return True

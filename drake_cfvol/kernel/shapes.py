@@ -13,8 +13,7 @@ from drake_cfvol.kernel.types import SEP_EPS, SHAPE_W, _C, _ED, _EI, _ES, _K, _R
 __all__ = ['row_aabb']
 
 
-@njit(cache=True)
-def pose_shape(local, R_WB, p_WB, out):
+def _pose_shape(local, R_WB, p_WB, out):
     """A shape row posed in the world: out = local with the body pose applied
     (centre and rotation); the motion fields are left as in ``local``.
     Element by element (a slice copy and nested sums cost twice as much)."""
@@ -30,6 +29,12 @@ def pose_shape(local, R_WB, p_WB, out):
         out[_C + i] = p_WB[i] + r0 * l0 + r1 * l1 + r2 * l2
         for j in range(3):
             out[_R + 3 * i + j] = r0 * local[_R + j] + r1 * local[_R + 3 + j] + r2 * local[_R + 6 + j]
+
+
+pose_shape = njit(cache=True)(_pose_shape)
+#: :func:`pose_shape` inlined into the batch check's loop (a call with row
+#: views cost 180 ns a shape there, the posing itself about 40).
+pose_shape_inline = njit(inline="always")(_pose_shape)
 
 
 @njit(cache=True)
@@ -171,8 +176,7 @@ def support_multi(obj, verts, d0, d1, d2, out, tmp):
             out[2] = tmp[2]
 
 
-@njit(cache=True)
-def row_aabb(row, verts, out):
+def _row_aabb(row, verts, out):
     """A shape row's (with its motion set) axis-aligned box, closed form:
     out = [xmin, ymin, zmin, xmax, ymax, zmax]."""
     kind = int(row[_K])
@@ -220,6 +224,11 @@ def row_aabb(row, verts, out):
         out[3 + a] = c + hi + m
 
 
+row_aabb = njit(cache=True)(_row_aabb)
+#: :func:`row_aabb` inlined into the batch check's loop (see pose_shape_inline).
+row_aabb_inline = njit(inline="always")(_row_aabb)
+
+
 @njit(cache=True)
 def object_aabb(obj, verts, out, tmp6):
     """The axis-aligned box of an object (union over its rows)."""
@@ -233,7 +242,7 @@ def object_aabb(obj, verts, out, tmp6):
                 out[3 + a] = tmp6[3 + a]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _obb_half(row, out):
     """A shape row's oriented bounding box: half extents along its own axes
     (its inflation and motion terms added), into ``out``; False for a hull
@@ -268,8 +277,7 @@ def obb_apart(a, b):
     return _obb_apart(a, b, np.empty((9, 3)))
 
 
-@njit(cache=True)
-def _obb_apart(a, b, w):
+def _obb_apart_py(a, b, w):
     """:func:`obb_apart` with scratch ``w`` (9, 3) (the batch loops call it
     millions of times: no allocation per call)."""
     ha = w[0]
@@ -316,6 +324,11 @@ def _obb_apart(a, b, w):
             if d > ra + rb + SEP_EPS * np.sqrt(n2):
                 return True
     return False
+
+
+_obb_apart = njit(cache=True)(_obb_apart_py)
+#: :func:`_obb_apart` inlined into the batch check's loops (see pose_shape_inline).
+_obb_apart_inline = njit(inline="always")(_obb_apart_py)
 
 
 @njit(cache=True, inline="always")
