@@ -13,7 +13,7 @@ from numba import njit
 
 from drake_cfvol.kernel.checks import _object_vs_scene
 from drake_cfvol.kernel.gjk import _gjk_from
-from drake_cfvol.kernel.shapes import _aabb_apart, row_aabb
+from drake_cfvol.kernel.shapes import _aabb_apart, row_aabb_inline
 from drake_cfvol.kernel.spheres import box_above_columns
 
 __all__ = ["shape_bounds"]
@@ -78,7 +78,7 @@ def _balls_clear_over_region(s, nt, nv, m, e, field, rs, box):
 def _row_boxes(obj, verts, rowbox, box):
     """Each row's axis-aligned box into rowbox, their union into box."""
     for c in range(obj.shape[0]):
-        row_aabb(obj[c], verts, rowbox[c])
+        row_aabb_inline(obj[c], verts, rowbox[c])
         for r in range(3):
             if c == 0 or rowbox[c, r] < box[r]:
                 box[r] = rowbox[c, r]

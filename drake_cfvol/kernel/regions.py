@@ -10,7 +10,7 @@ from numba import njit, prange
 
 from drake_cfvol.kernel.types import Chain, HeightField, MAX_T_SAMPLES, MAX_V_SAMPLES, Model, RegionScratch, SHAPE_W
 from drake_cfvol.kernel.kinematics import _axis_rotation, fk_into
-from drake_cfvol.kernel.shapes import _aabb_apart, pose_shape, row_aabb, set_motion
+from drake_cfvol.kernel.shapes import _aabb_apart, pose_shape_inline, row_aabb_inline, set_motion
 from drake_cfvol.kernel.cells import (_ball_box_in_frame, _balls_clear_over_region, _cells_hit_row, _cells_vs_scene,
                                       _row_boxes, _scene_clear_of_box, shape_bounds)
 from drake_cfvol.kernel.heightfield import new_scratch, no_height_field
@@ -140,7 +140,7 @@ def _region_vs_scene(W, i, j, ts, vs, m, field, sc, rs, pad):
         if _balls_clear_over_region(s, nt, nv, m, grow + pad, field, rs, sc.tmp6):
             continue
         for c in range(P):
-            pose_shape(shapes[s], RP[c, b], pP[c, b], objs[s, c])
+            pose_shape_inline(shapes[s], RP[c, b], pP[c, b], objs[s, c])
             set_motion(objs[s, c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
         obj = objs[s, :P]
         _row_boxes(obj, verts, rs.rowbox, aabbs[s])
@@ -194,7 +194,7 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
             near = False
             for sf in range(S):
                 if shape_body[sf] == f:
-                    row_aabb(shapes[sf], verts, tmp6)
+                    row_aabb_inline(shapes[sf], verts, tmp6)
                     near = near or not _aabb_apart(rel_aabb, tmp6)
             if not near:
                 continue
@@ -208,14 +208,14 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
                     dp[r] = pP[c, mb, r] - pP[c, f, r]
                 for r in range(3):
                     p_fm[r] = Rf[0, r] * dp[0] + Rf[1, r] * dp[1] + Rf[2, r] * dp[2]
-                pose_shape(shapes[sm], R_fm, p_fm, relP[c])
+                pose_shape_inline(shapes[sm], R_fm, p_fm, relP[c])
                 set_motion(relP[c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
             _row_boxes(relP, verts, rs.rowbox, rel_aabb)
             for sf in range(S):
                 if shape_body[sf] != f:
                     continue
                 # Body f's shape in its own frame: the local row as it is.
-                row_aabb(shapes[sf], verts, tmp6)
+                row_aabb_inline(shapes[sf], verts, tmp6)
                 if _aabb_apart(rel_aabb, tmp6):
                     continue
                 if _cells_hit_row(relP, nt, nv, rs, shapes[sf:sf + 1], tmp6, verts, ws, rs.dirs[sm, O + sf]):

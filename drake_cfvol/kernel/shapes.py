@@ -37,7 +37,7 @@ pose_shape = njit(cache=True)(_pose_shape)
 pose_shape_inline = njit(inline="always")(_pose_shape)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def set_motion(row, e_iso, u0, u1, u2, e_disc, e_seg):
     row[_EI] = e_iso
     row[_U] = u0
