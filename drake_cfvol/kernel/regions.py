@@ -166,7 +166,7 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
     shapes, shape_body, verts, pairs = m.shapes, m.shape_body, m.verts, m.body_pairs
     moved, reach, curvature, revolute = m.moved, m.reach, m.curvature, m.revolute
     RP, pP, rel, rel_aabb = rs.RP, rs.pP, rs.rel, rs.rel_aabb
-    ws, tmp6 = sc.ws, sc.tmp6
+    ws = sc.ws
     L_t = (tb - ta) / max(nt - 1, 1)
     L_v = (vb - va) / max(nv - 1, 1)
     R_fm = np.empty((3, 3))
@@ -194,8 +194,7 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
             near = False
             for sf in range(S):
                 if shape_body[sf] == f:
-                    row_aabb_inline(shapes[sf], verts, tmp6)
-                    near = near or not _aabb_apart(rel_aabb, tmp6)
+                    near = near or not _aabb_apart(rel_aabb, rs.local_box[sf])
             if not near:
                 continue
             for c in range(P):
@@ -215,10 +214,10 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
                 if shape_body[sf] != f:
                     continue
                 # Body f's shape in its own frame: the local row as it is.
-                row_aabb_inline(shapes[sf], verts, tmp6)
-                if _aabb_apart(rel_aabb, tmp6):
+                if _aabb_apart(rel_aabb, rs.local_box[sf]):
                     continue
-                if _cells_hit_row(relP, nt, nv, rs, shapes[sf:sf + 1], tmp6, verts, ws, rs.dirs[sm, O + sf]):
+                if _cells_hit_row(relP, nt, nv, rs, shapes[sf:sf + 1], rs.local_box[sf], verts, ws,
+                                  rs.dirs[sm, O + sf]):
                     return True
     return False
 
@@ -328,6 +327,14 @@ def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
 
 
 @njit(cache=True)
+def _local_boxes(shapes, verts, out):
+    """Each shape's axis-aligned box in its body's frame into out (S, 6)
+    (the fixed body's side of a self pair: the same for every region)."""
+    for s in range(shapes.shape[0]):
+        row_aabb_inline(shapes[s], verts, out[s])
+
+
+@njit(cache=True)
 def _region_workspace(B, S, k, O, N):
     """Scratch arrays of one thread's region tests (:func:`_region_hits`)
     for B bodies, S shapes, k joints, O obstacles and N cover balls."""
@@ -335,7 +342,7 @@ def _region_workspace(B, S, k, O, N):
     return RegionScratch(np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
                          np.empty((P, SHAPE_W)), np.empty(6), np.empty(k), np.zeros((S, O + S, 3)), np.empty(6),
                          np.empty((P, 6)), np.empty((4, SHAPE_W)), np.empty((P, 3)), np.empty(k),
-                         np.empty((N, 4)), np.empty(6), np.empty((S, 4)))
+                         np.empty((N, 4)), np.empty(6), np.empty((S, 4)), np.empty((S, 6)))
 
 
 @njit(cache=True, parallel=True)
@@ -379,6 +386,7 @@ def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses):
         sc = new_scratch()
         rs = _region_workspace(B, S, k, obstacles_.shape[0], spheres_.shape[0])
         shape_bounds(spheres_, shape_spheres_, rs.bound)
+        _local_boxes(shapes_, verts_, rs.local_box)
         guess = guesses[n]
         count = 0
         for i in range(n_st):
@@ -428,6 +436,7 @@ def regions_hit(A, B, js, va, vb, nts, nvs, pads, m):
         sc = new_scratch()
         rs = _region_workspace(B_n, S, k, obstacles_.shape[0], spheres_.shape[0])
         shape_bounds(spheres_, shape_spheres_, rs.bound)
+        _local_boxes(shapes_, verts_, rs.local_box)
         W = np.empty((2, k))
         for n in range(c * 64, min(n_tasks, (c + 1) * 64)):
             W[0] = A[n]

@@ -98,6 +98,7 @@ class RegionScratch(NamedTuple):
     balls: np.ndarray  #: (N, 4) the cover balls in the world
     qbox: np.ndarray  #: (6,) a ball's box
     bound: np.ndarray  #: (S, 4) each shape's bounding ball (centre in its body frame, radius)
+    local_box: np.ndarray  #: (S, 6) each shape's axis-aligned box in its body's frame (min xyz, max xyz), m
 
 
 #: Most poses sampled along t and along v in one region test.
