@@ -76,7 +76,7 @@ def test_quick_pass_never_frees_a_colliding_region(cell, request):
         wc = request.getfixturevalue(cell)
     m = wc.scene_arrays().model
     k = wc.num_joints
-    rs = _region_workspace(m.chain.parent.shape[0], m.shapes.shape[0], k, m.obstacles.shape[0], m.spheres.shape[0])
+    rs = _region_workspace(m.chain.parent.shape[0], k, m.obstacles.shape[0], m.shapes, m.verts, m.spheres, m.shape_spheres)
     rng = np.random.default_rng(0)
     lo, hi = wc.position_lower, wc.position_upper
     checker = wc.padded_checker(0.02)

@@ -210,9 +210,7 @@ def _colliding_points(arrays, lower, upper, nominal, fails, margins, slacks, n: 
     ab = np.array([[f.sa, f.sb, f.va, f.vb] for f in fails], float)
     s = ab[:, :1] + u[None] * (ab[:, 1:2] - ab[:, :1])  # (F, n)
     v = ab[:, 2:3] + u[None] * (ab[:, 3:4] - ab[:, 2:3])
-    t = (s - I[:, None])[:, :, None]
-    lo = (1 - t) * lower[I][:, None] + t * lower[I + 1][:, None]  # (F, n, k)
-    hi = (1 - t) * upper[I][:, None] + t * upper[I + 1][:, None]
+    lo, hi, _ = _box(lower, upper, nominal, I[:, None], s)  # (F, n, k)
     c = np.where(np.array([f.S for f in fails])[:, None] == 1, hi, lo)
     F, k = len(fails), lower.shape[1]
     Q = np.repeat(c[:, :, None], n, axis=2)  # (F, s, v, k)

@@ -83,8 +83,9 @@ def regions_may_collide(arrays, A, B, js, va, vb, pads) -> np.ndarray:
 
 
 def _box(lower, upper, nominal, i, s):
-    """(lo, hi, nom) of the linear rule on stretch i at path parameters s (n,)."""
-    t = (np.asarray(s, float) - i)[:, None]
+    """(lo, hi, nom) of the linear rule on stretch i at path parameters s
+    (n,); or on stretches i (m, 1) at s (m, n): (m, n, k) each."""
+    t = (np.asarray(s, float) - i)[..., None]
     lo = (1 - t) * lower[i] + t * lower[i + 1]
     hi = (1 - t) * upper[i] + t * upper[i + 1]
     nom = (1 - t) * nominal[i] + t * nominal[i + 1]
@@ -96,10 +97,7 @@ def corner_points(lower, upper, nominal, s):
     table: (n * 2^k, k) configurations, the n boxes one after the other."""
     g, k = nominal.shape
     s = np.asarray(s, float)
-    i = np.clip(np.floor(s).astype(int), 0, g - 2)
-    t = (s - i)[:, None]
-    lo = (1 - t) * lower[i] + t * lower[i + 1]
-    hi = (1 - t) * upper[i] + t * upper[i + 1]
+    lo, hi, _ = _box(lower, upper, nominal, np.clip(np.floor(s).astype(int), 0, g - 2), s)
     pat = np.array(list(itertools.product((0, 1), repeat=k)), bool)
     return np.where(pat[None], hi[:, None], lo[:, None]).reshape(-1, k)
 

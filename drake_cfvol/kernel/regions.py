@@ -335,14 +335,20 @@ def _local_boxes(shapes, verts, out):
 
 
 @njit(cache=True)
-def _region_workspace(B, S, k, O, N):
+def _region_workspace(B, k, O, shapes, verts, spheres, ranges):
     """Scratch arrays of one thread's region tests (:func:`_region_hits`)
-    for B bodies, S shapes, k joints, O obstacles and N cover balls."""
+    for B bodies, k joints, O obstacles and the robot's shapes and cover
+    balls, with what depends on the shapes alone filled in (each shape's
+    bounding ball and its box in its body's frame)."""
     P = MAX_T_SAMPLES * MAX_V_SAMPLES
-    return RegionScratch(np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
-                         np.empty((P, SHAPE_W)), np.empty(6), np.empty(k), np.zeros((S, O + S, 3)), np.empty(6),
-                         np.empty((P, 6)), np.empty((4, SHAPE_W)), np.empty((P, 3)), np.empty(k),
-                         np.empty((N, 4)), np.empty(6), np.empty((S, 4)), np.empty((S, 6)))
+    S = shapes.shape[0]
+    rs = RegionScratch(np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
+                       np.empty((P, SHAPE_W)), np.empty(6), np.empty(k), np.zeros((S, O + S, 3)), np.empty(6),
+                       np.empty((P, 6)), np.empty((4, SHAPE_W)), np.empty((P, 3)), np.empty(k),
+                       np.empty((spheres.shape[0], 4)), np.empty(6), np.empty((S, 4)), np.empty((S, 6)))
+    shape_bounds(spheres, ranges, rs.bound)
+    _local_boxes(shapes, verts, rs.local_box)
+    return rs
 
 
 @njit(cache=True, parallel=True)
@@ -366,7 +372,6 @@ def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses):
     fps = np.empty((n_chains, n_st, 6))
     tests = np.zeros(n_chains, np.int64)
     B = m.chain.parent.shape[0]
-    S = m.shapes.shape[0]
     k = W.shape[1]
     # numba passes no tuples of arrays into a parallel loop: the model's
     # arrays go in one by one, the model is rebuilt inside.
@@ -384,9 +389,7 @@ def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses):
         j = chains[n, 0]
         sgn = chains[n, 1]
         sc = new_scratch()
-        rs = _region_workspace(B, S, k, obstacles_.shape[0], spheres_.shape[0])
-        shape_bounds(spheres_, shape_spheres_, rs.bound)
-        _local_boxes(shapes_, verts_, rs.local_box)
+        rs = _region_workspace(B, k, obstacles_.shape[0], shapes_, verts_, spheres_, shape_spheres_)
         guess = guesses[n]
         count = 0
         for i in range(n_st):
@@ -420,7 +423,6 @@ def regions_hit(A, B, js, va, vb, nts, nvs, pads, m):
     n_tasks = A.shape[0]
     out = np.zeros(n_tasks, np.bool_)
     B_n = m.chain.parent.shape[0]
-    S = m.shapes.shape[0]
     k = A.shape[1]
     n_chunks = (n_tasks + 63) // 64
     # numba passes no tuples of arrays into a parallel loop: the model's
@@ -434,9 +436,7 @@ def regions_hit(A, B, js, va, vb, nts, nvs, pads, m):
                    joint_body_, spheres_, shape_spheres_)
         no_field = no_height_field()
         sc = new_scratch()
-        rs = _region_workspace(B_n, S, k, obstacles_.shape[0], spheres_.shape[0])
-        shape_bounds(spheres_, shape_spheres_, rs.bound)
-        _local_boxes(shapes_, verts_, rs.local_box)
+        rs = _region_workspace(B_n, k, obstacles_.shape[0], shapes_, verts_, spheres_, shape_spheres_)
         W = np.empty((2, k))
         for n in range(c * 64, min(n_tasks, (c + 1) * 64)):
             W[0] = A[n]
