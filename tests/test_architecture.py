@@ -9,14 +9,11 @@ from pathlib import Path
 import pytest
 
 import drake_cfvol as cf
+from drake_cfvol._layers import BASE as _BASE
+from drake_cfvol._layers import LAYERS
 
 PACKAGE = Path(cf.__file__).parent
-
-#: The subpackages in pipeline order: each may import only those before it.
-#: ``exceptions`` and ``_version`` (top-level modules) import nothing of the
-#: package, and every layer may use them.
-LAYERS = ["io", "kernel", "scene", "algorithm", "online", "systems", "comanip", "apps"]
-BASE = {"exceptions", "_version"}
+BASE = set(_BASE)
 
 
 def _modules() -> dict[str, Path]:
@@ -112,7 +109,18 @@ def test_every_module_sits_in_a_layer():
     _version), or the package's own entry points (__init__, __main__)."""
     stray = [m for m in _modules() if _layer(m) is None and m not in BASE | {"__init__", "__main__"}]
     assert not stray, f"modules outside the subpackages: {stray}"
-    assert len(LAYERS) >= 4
+
+
+def test_every_folder_of_code_is_a_package_and_a_layer():
+    """setup.py finds the wheel's packages on disk (folders with an
+    ``__init__.py``): a folder of modules without one would be left out of
+    the wheel, and a subpackage missing from ``_layers.LAYERS`` would escape
+    the layer check."""
+    folders = {p.parent for p in PACKAGE.rglob("*.py") if "__pycache__" not in p.parts}
+    no_init = sorted(str(f.relative_to(PACKAGE)) for f in folders if not (f / "__init__.py").is_file())
+    assert not no_init, f"folders of modules without __init__.py (left out of the wheel): {no_init}"
+    tops = {f.relative_to(PACKAGE).parts[0] for f in folders if f != PACKAGE} - {"_compat"}
+    assert tops == set(LAYERS), f"subpackages {sorted(tops ^ set(LAYERS))} differ from _layers.LAYERS"
 
 
 def test_imports_go_down_the_layers():

@@ -1,32 +1,53 @@
 #!/usr/bin/env bash
-# Builds the wheel from this checkout, installs it (no deps: the venv's
-# dependencies are reused) into a temporary target, and runs the built-in
-# cells and a bundled scenario's loader from a temporary directory, so that
-# nothing is found through the repository. Used by CI.
+# The installed wheel, as a user gets it: builds the wheel from this
+# checkout, installs it with its dependencies into a fresh virtual
+# environment (not editable), and from a folder outside the checkout imports
+# every module of the package, then runs `cfvol --help`, `cfvol plan` and a
+# short uncertified `cfvol simulate`. Used by CI (.ci/run).
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
-py="$repo/.venv/bin/python"
+PY=${PYTHON:-python3}
 tmp="$(mktemp -d)"
 trap 'rm -rf "$tmp"' EXIT
-"$py" -m pip wheel --no-deps -q -w "$tmp/dist" "$repo" >/dev/null 2>&1
-"$py" -m pip install --no-deps -q --target "$tmp/site" "$tmp"/dist/*.whl
-cd "$tmp"
-export PYTHONPATH="$tmp/site"
+"$PY" -m venv "$tmp/venv"
+py="$tmp/venv/bin/python"
+"$py" -m pip install -q --upgrade pip >/dev/null
+"$py" -m pip wheel --no-deps -q -w "$tmp/dist" "$repo" >/dev/null
+"$py" -m pip install -q "$tmp"/dist/*.whl
+mkdir "$tmp/work"
+cd "$tmp/work"
 "$py" - <<PYEOF
-import drake_cfvol, pathlib
+import importlib, pathlib, pkgutil
+import drake_cfvol
 from drake_cfvol.comanip import diagrams_dir, load_scenario
-from drake_cfvol.workcell import models_dir
+from drake_cfvol.scene.workcell import models_dir
+site = pathlib.Path("$tmp/venv")
 where = pathlib.Path(drake_cfvol.__file__).resolve()
-assert str(where).startswith("$tmp/site"), f"imported from {where}, not from the installed wheel"
-assert str(models_dir()).startswith("$tmp/site"), models_dir()
-print("wheel", drake_cfvol.__version__, "cells:", ", ".join(drake_cfvol.builtin_cells()),
-      "| scenarios:", ", ".join(sorted(p.stem for p in diagrams_dir().glob("*.yaml"))))
+assert site in where.parents, f"imported from {where}, not from the installed wheel"
+assert site in pathlib.Path(models_dir()).resolve().parents, models_dir()
+# Every module of the package (its own folder, not the old names' folder;
+# __main__ is the command line itself, run below).
+root = pathlib.Path(drake_cfvol.__file__).parent
+names = [m.name for m in pkgutil.walk_packages([str(root)], "drake_cfvol.")
+         if not m.name.startswith("drake_cfvol._compat") and m.name != "drake_cfvol.__main__"]
+on_disk = {".".join(p.relative_to(root.parent).with_suffix("").parts).removesuffix(".__init__")
+           for p in root.rglob("*.py") if "_compat" not in p.parts and p.stem != "__main__"}
+missing = sorted(on_disk - set(names) - {"drake_cfvol"})
+assert not missing, f"modules on disk that the walk did not find: {missing}"
+for name in names:
+    importlib.import_module(name)
+print("wheel", drake_cfvol.__version__, f"imports all {len(names)} modules | cells:",
+      ", ".join(drake_cfvol.builtin_cells()), "| scenarios:",
+      ", ".join(sorted(p.stem for p in diagrams_dir().glob("*.yaml"))))
 load_scenario("automotive_push")
 PYEOF
-"$py" -m drake_cfvol plan automotive --path 1 --json
-"$py" -m drake_cfvol plan aerospace --path 1 --json >/dev/null
+cfvol="$tmp/venv/bin/cfvol"
+"$cfvol" --help >/dev/null
+"$py" -m drake_cfvol --help >/dev/null
+"$cfvol" plan automotive --path 1 --json
+"$cfvol" plan aerospace --path 1 --json >/dev/null
 # Uncertified: the wheel's data and recording are what is checked here;
-# certification is the tests' (it would add about 2 minutes).
-"$py" -m drake_cfvol simulate automotive_push --out run --json --scenario-text "{certify: false}" >/dev/null
+# certification is the tests'.
+"$cfvol" simulate automotive_push --out run --json --scenario-text "{certify: false}" >/dev/null
 test -s run/recording.html && test -s run/summary.json
 echo "wheel check: OK"

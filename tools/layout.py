@@ -14,7 +14,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "drake_cfvol"
-LAYERS = ["io", "kernel", "scene", "algorithm", "systems", "comanip", "apps"]
+sys.path.insert(0, str(ROOT))
+from drake_cfvol._layers import LAYERS  # noqa: E402  (the one list of the layers)
 START, END = "<!-- layout: drawn by tools/layout.py -->", "<!-- layout end -->"
 
 
