@@ -11,9 +11,14 @@ tmp="$(mktemp -d)"
 trap 'rm -rf "$tmp"' EXIT
 "$PY" -m venv "$tmp/venv"
 py="$tmp/venv/bin/python"
-"$py" -m pip install -q --upgrade pip >/dev/null
-"$py" -m pip wheel --no-deps -q -w "$tmp/dist" "$repo" >/dev/null
-"$py" -m pip install -q "$tmp"/dist/*.whl
+# pip's and setuptools' chatter goes to a log, shown only if a step fails.
+log="$tmp/pip.log"
+if ! { "$py" -m pip install -q --upgrade pip && "$py" -m pip wheel --no-deps -q -w "$tmp/dist" "$repo" &&
+       "$py" -m pip install -q "$tmp"/dist/*.whl; } >"$log" 2>&1; then
+  cat "$log" >&2
+  echo "check_wheel.sh: error: building or installing the wheel failed (log above)" >&2
+  exit 1
+fi
 mkdir "$tmp/work"
 cd "$tmp/work"
 "$py" - <<PYEOF
