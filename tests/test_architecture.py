@@ -194,10 +194,11 @@ def test_bundled_data_found_through_package_resources():
     assert (diagrams_dir() / "automotive_push.yaml").is_file()
 
 
-def test_readme_layout_is_drawn_from_the_tree():
-    """The README's layout section is what tools/layout.py draws from the
-    package tree now (every subpackage and module, with its docstring's
-    first sentence): rerun ``tools/layout.py --write`` after a change."""
+def test_layout_page_is_drawn_from_the_tree():
+    """The guide's layout section (docs/layout.md) is what tools/layout.py
+    draws from the package tree now (every subpackage and module, with its
+    docstring's first sentence): rerun ``tools/layout.py --write`` after a
+    change."""
     import importlib.util
 
     root = PACKAGE.parent
@@ -206,7 +207,7 @@ def test_readme_layout_is_drawn_from_the_tree():
     spec.loader.exec_module(tool)
     drawn = tool.layout()
     assert "`algorithm/`" in drawn and "`safety`" in drawn
-    assert drawn in (root / "README.md").read_text()
+    assert drawn in (root / "docs" / "layout.md").read_text()
 
 
 def test_size_report_sees_planted_long_function():
