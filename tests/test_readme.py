@@ -92,6 +92,31 @@ def test_pages_tell_no_history(page):
     assert not found, f"{page.name}: {found}"
 
 
+def _anchors(page: Path) -> set[str]:
+    """The anchors of a page: its headings as GitHub spells them, and explicit ``<a id>``s."""
+    text = page.read_text()
+    heads = re.findall(r"^#+ (.+)$", _FENCE.sub("", text), re.M)
+    slugs = {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in heads}
+    return slugs | set(re.findall(r'<a id="([^"]+)"', text))
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_links_resolve(page):
+    """Every relative link (and image) of the README and the guide names a
+    file that exists, and an anchor on a Markdown page names one of its
+    headings."""
+    text = _FENCE.sub("", page.read_text())
+    links = re.findall(r"\]\(([^)\s]+)\)", text) + re.findall(r'src="([^"]+)"', text)
+    for link in links:
+        if re.match(r"[a-z]+:", link):
+            continue
+        target, _, anchor = link.partition("#")
+        file = (page.parent / target).resolve() if target else page
+        assert file.exists(), f"{page.name}: {link}"
+        if anchor and file.suffix == ".md":
+            assert anchor in _anchors(file), f"{page.name}: {link} (anchors: {sorted(_anchors(file))[:8]}...)"
+
+
 # --- Python blocks -------------------------------------------------------------------------------------------
 
 
