@@ -194,10 +194,11 @@ def test_bundled_data_found_through_package_resources():
     assert (diagrams_dir() / "automotive_push.yaml").is_file()
 
 
-def test_readme_layout_is_drawn_from_the_tree():
-    """The README's layout section is what tools/layout.py draws from the
-    package tree now (every subpackage and module, with its docstring's
-    first sentence): rerun ``tools/layout.py --write`` after a change."""
+def test_layout_page_is_drawn_from_the_tree():
+    """The guide's layout section (docs/layout.md) is what tools/layout.py
+    draws from the package tree now (every subpackage and module, with its
+    docstring's first sentence): rerun ``tools/layout.py --write`` after a
+    change."""
     import importlib.util
 
     root = PACKAGE.parent
@@ -206,27 +207,29 @@ def test_readme_layout_is_drawn_from_the_tree():
     spec.loader.exec_module(tool)
     drawn = tool.layout()
     assert "`algorithm/`" in drawn and "`safety`" in drawn
-    assert drawn in (root / "README.md").read_text()
+    assert drawn in (root / "docs" / "layout.md").read_text()
 
 
-def test_sizes_within_limits():
-    """No module over 600 lines, no function over 80, no class over 300 (a
-    TemplateSystem function counts as its class), no compiled function with
-    more than 12 parameters (tools/sizes.py); the counter itself sees a
-    planted long function."""
+def test_size_report_sees_planted_long_function():
+    """tools/sizes.py is a report, not a gate: it lists, and the counter sees
+    a planted function over 80 lines and a compiled function with more than
+    12 parameters, and nothing in a short module beside them."""
     import importlib.util
+    import tempfile
 
     spec = importlib.util.spec_from_file_location("sizes_tool", PACKAGE.parent / "tools" / "sizes.py")
     tool = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(tool)
-    assert tool.violations() == []
-    import tempfile
-
     with tempfile.TemporaryDirectory() as d:
         pkg = Path(d) / "pkg"
         pkg.mkdir()
         body = "\n".join(f"    x{i} = {i}" for i in range(90))
         (pkg / "m.py").write_text(f"def long():\n{body}\n\n\nfrom numba import njit\n\n\n@njit\n"
                                   f"def many({', '.join(f'a{i}' for i in range(13))}):\n    return a0\n")
-        found = {(kind, where.split()[-1]) for kind, where, _ in tool.violations(pkg)}
-    assert found == {("function", "long"), ("compiled parameters", "many")}
+        short = "\n".join(f"    y{i} = {i}" for i in range(79))
+        (pkg / "ok.py").write_text(f"def short():\n{short}\n")
+        planted = tool.violations(pkg)
+        found = {(kind, where.split()[-1], size) for kind, where, size in planted}
+    assert found == {("function", "long", 91), ("compiled parameters", "many", 13)}
+    tool.violations = lambda: planted  # the report on a tree over the limits still exits 0
+    assert tool.main() == 0
