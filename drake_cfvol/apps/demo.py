@@ -50,7 +50,7 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
     print(f"\n2. Bounds for {path.label} at R = {resolution}" + (", certified" if scenario.certify else ""))
     table = estimate_bounds(wc, path, resolution=resolution, progress=True,
                             certify=Certify(seed=scenario.random_seed) if scenario.certify else None)
-    cf = confidence_factor(wc, table, samples=2000 if quick else 10000, seed=seed, progress=True)
+    cf = confidence_factor(wc, table, samples=2000 if quick else 10000, seed=seed, judge="kernel", progress=True)
     fr = freedom(table, wc.revolute)
     stem = output_stem(wc.name, path.label, resolution, certified=scenario.certify)
     table.save(out_dir / f"{stem}_bounds.npz", overwrite=True)
@@ -65,7 +65,9 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
         print(f"   certified whole boxes ({how}): freedom {rep['freedom_before']:.3f} -> {rep['freedom_after']:.3f}; "
               f"{rep['n_samples']} consecutive samples free (epsilon {rep['epsilon']:g}, confidence "
               f"{rep['confidence']:g})")
-    print(f"   CF {shown_percent(cf.percent, cf.colliding, 3):.3f} % ({cf.colliding} of {cf.samples} samples collide); freedom {fr.mean:.3f}")
+    print(f"   CF {shown_percent(cf.percent, cf.colliding, 3):.3f} % ({cf.colliding} of {cf.samples} samples collide; "
+          f"Drake agrees on {cf.cross_checked - cf.kernel_only_colliding} of {cf.cross_checked} cross-checked); "
+          f"freedom {fr.mean:.3f}")
     cats = table.info["categories"]
     print(f"   trail: {', '.join(cats['trail']) or '-'} | goal: {', '.join(cats['goal']) or '-'} | "
           f"no-goal: {', '.join(cats['no_goal'])}")
