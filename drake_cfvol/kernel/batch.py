@@ -125,13 +125,40 @@ class _Lanes(NamedTuple):
     und: np.ndarray  #: (candidates, NB) undecided lanes per candidate
     cand: np.ndarray  #: (candidates, 2) (shape, obstacle) or (-1, pair)
     lane: np.ndarray  #: (NB,) any candidate undecided
+    box: np.ndarray  #: (S, 6) each shape's bounding balls over all the block's lanes: an axis-aligned box
 
 
 @njit(cache=True)
 def _lanes(S, balls, C):
     return _Lanes(np.empty((balls, 3 * NB)), np.empty((S, 3 * NB)), np.empty((S, 12 * NB)), np.zeros(S, np.bool_),
                   np.empty(NB), np.empty(NB), np.empty(NB), np.zeros((C, NB)), np.empty((C, 2), np.int64),
-                  np.empty(NB))
+                  np.empty(NB), np.empty((S, 6)))
+
+
+@njit(cache=True)
+def _block_boxes(L, bounds, n):
+    """Each shape's bounding ball on every lane of the block, as one
+    axis-aligned box (a block of nearby configurations gives a small box
+    that clears most obstacles and pairs at once)."""
+    for s in range(L.SC.shape[0]):
+        c = L.SC[s]
+        r = bounds[s, 3]
+        for a in range(3):
+            lo = np.inf
+            hi = -np.inf
+            for i in range(n):
+                v = c[a * NB + i]
+                lo = min(lo, v)
+                hi = max(hi, v)
+            L.box[s, a] = lo - r
+            L.box[s, 3 + a] = hi + r
+
+
+@njit(cache=True, inline="always")
+def _boxes_apart(A, i, Bx, j, grow):
+    """Boxes A[i] and Bx[j] (min xyz, max xyz) farther apart than ``grow`` (m)."""
+    return (A[i, 0] > Bx[j, 3] + grow or Bx[j, 0] > A[i, 3] + grow or A[i, 1] > Bx[j, 4] + grow
+            or Bx[j, 1] > A[i, 4] + grow or A[i, 2] > Bx[j, 5] + grow or Bx[j, 2] > A[i, 5] + grow)
 
 
 @njit(cache=True)
@@ -200,6 +227,9 @@ def _broad_obstacles(m, blk, obs, pad, L, n):
         if not m.movable[m.shape_body[s]]:
             continue
         for o in range(OP.shape[0]):
+            # The obstacle's box holds its shape with its inflation and motion terms.
+            if _boxes_apart(L.box, s, m.obstacle_aabb, o, pad + SEP_EPS):
+                continue
             for i in range(n):
                 L.near[i] = 1.0
             if _near_exact(L.SC[s], bounds[s, 3] + pad + oextra[o], okind[o], OP[o], osize[o], L.near, n) == 0:
@@ -219,6 +249,8 @@ def _broad_pairs(m, blk, X, pad, L, nc, n):
     for p in range(pairs.shape[0]):
         sa = pairs[p, 0]
         sb = pairs[p, 1]
+        if _boxes_apart(L.box, sa, L.box, sb, pad + SEP_EPS):
+            continue
         if _near_ball(L.SC[sa], L.SC[sb], bounds[sa, 3] + bounds[sb, 3] + pad, L.near, n) == 0:
             continue
         u = L.und[nc]
@@ -339,6 +371,7 @@ def _check_blocks(Q, b0, b1, m, blk, pad, out):
                 _place(Xb, blk.balls[q, 0], blk.balls[q, 1], blk.balls[q, 2], L.BC[q], n)
         L.posed[:] = False
         L.lane[:] = 0.0
+        _block_boxes(L, blk.bounds, n)
         nc = _broad_obstacles(m, blk, obs, pad, L, n)
         nc = _broad_pairs(m, blk, X, pad, L, nc, n)
         for i in range(n):
