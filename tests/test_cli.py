@@ -58,7 +58,7 @@ def test_simulate_json(tmp_path, capsys):
                  "--scenario-text", "{certify: false}"]) == 0
     d = json.loads(capsys.readouterr().out)
     for key in ("scenario", "steps", "min_clearance_m", "max_bound_violation", "recording_html", "plot_png",
-                "max_velocity_ratio", "collisions", "filter_steps", "guard_steps", "faults"):
+                "max_velocity_ratio", "collisions", "filter_steps", "faults"):
         assert key in d
     # Inside the bounds to rounding (the filter set each command against the
     # bounds one period ahead, at a path index rounded differently).

@@ -359,7 +359,7 @@ def test_random_pushes_seeded_through_the_context():
     assert np.abs(a).max() > 0 and not np.array_equal(a, c)
 
 
-_KEYS = ("max_velocity_ratio", "volume_penetrations", "filter_steps", "guard_steps", "faults", "min_clearance_m")
+_KEYS = ("max_velocity_ratio", "volume_penetrations", "filter_steps", "faults", "min_clearance_m")
 
 
 @pytest.mark.slow

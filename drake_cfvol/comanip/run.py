@@ -129,7 +129,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "min_clearance_m": rates["min_clearance_m"],
         "max_velocity_ratio": rates["max_velocity_ratio"], "volume_penetrations": penetrations,
         "collisions": rates["collisions"], "max_bound_violation": violation,
-        "filter_steps": _count(cm, ctx, "filter_count"), "guard_steps": _count(cm, ctx, "filter_count"),
+        "filter_steps": _count(cm, ctx, "filter_count"),
         "filter_fallbacks": _count(cm, ctx, "filter_fallbacks"),
         "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
         "filter_box_exits": _count(cm, ctx, "filter_box_exits"), "faults": _count(cm, ctx, "fault_count"),

@@ -5,7 +5,7 @@
   nominal, clamped inside the bounds without wind-up.
 - :class:`HumanInputCheck`: the sensed push checked for plausibility; a
   fault holds the admittance's last safe command.
-- :class:`SafetyFilter` (from :mod:`drake_cfvol.safety`): between the
+- :class:`SafetyFilter` (from :mod:`drake_cfvol.systems.safety`): between the
   admittance and the robot, the motion closest to the one asked for that
   keeps the velocity limits, the box ahead and a clearance margin (a
   velocity damper on the SceneGraph's signed distances).
