@@ -47,6 +47,6 @@ cfvol="$tmp/venv/bin/cfvol"
 "$cfvol" plan aerospace --path 1 --json >/dev/null
 # Uncertified: the wheel's data and recording are what is checked here;
 # certification is the tests'.
-"$cfvol" simulate automotive_push --out run --json --scenario-text "{certify: false}" >/dev/null
+"$cfvol" simulate automotive_push --out run --json --scenario-text "{bounds: {certify: null}}" >/dev/null
 test -s run/recording.html && test -s run/summary.json
 echo "wheel check: OK"
