@@ -202,3 +202,32 @@ def test_bundled_scenarios_load_in_the_new_form():
         assert isinstance(s.control.admittance, AdmittanceConfig)
         assert isinstance(s.control.safety_filter, SafetyFilterConfig)
         assert s.certify() == cf.Certify(seed=s.random_seed)
+
+
+def test_config_field_types_are_ones_drakes_reader_takes():
+    """Drake's YAML reader takes each dataclass field's type as written: a
+    string (a module with ``from __future__ import annotations``) fails with
+    an empty message. No config class a scenario reaches (the systems' own
+    among them) has one."""
+    import dataclasses
+    import typing
+
+    from drake_cfvol.comanip import Scenario
+
+    seen, bad = set(), []
+
+    def walk(cls):
+        if cls in seen:
+            return
+        seen.add(cls)
+        for f in dataclasses.fields(cls):
+            if isinstance(f.type, str):
+                bad.append(f"{cls.__module__}.{cls.__name__}.{f.name}: {f.type!r} (a string)")
+                continue
+            for a in typing.get_args(f.type) or (f.type,):
+                for b in typing.get_args(a) or (a,):
+                    if dataclasses.is_dataclass(b):
+                        walk(b)
+
+    walk(Scenario)
+    assert len(seen) >= 12 and not bad, bad

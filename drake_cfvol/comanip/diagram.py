@@ -1,6 +1,6 @@
 """The co-manipulation diagram built from a scenario: plant and SceneGraph with
-the robot, the obstacles and the volume's proximity boxes; path progress,
-bounds, admittance, the safety filter, monitors and loggers; Meshcat.
+the robot, the obstacles and the volume's proximity boxes; the control chain
+(``AddCoManipulation``), the co-worker, monitors and loggers; Meshcat.
 """
 
 
@@ -467,7 +467,14 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
 def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: Path | None = None,
                                  path=None, bounds=None, progress: bool = False,
                                  scenario_file: Path | None = None) -> Comanipulation:
-    """Builds a co-manipulation diagram from a scenario.
+    """Builds a co-manipulation diagram from a scenario, composing its parts
+    as Drake's ``hardware_sim`` composes its ``Apply*Config`` calls: the
+    scene (plant, SceneGraph, the volume's boxes), the perception (moving
+    obstacles, camera, online bounds), the control chain
+    (:func:`~drake_cfvol.systems.AddCoManipulation` with ``scenario.control``:
+    the same call as in a user's station), the co-worker, what moves the
+    robot (its pose from the command, or a driver), the monitor, the loggers
+    and Meshcat.
 
     Args:
         scenario: the scenario.
