@@ -479,14 +479,12 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     Args:
         scenario: the scenario.
         meshcat: a ``Meshcat`` to visualise into (None: no visualiser).
-        base_dir: folder that relative cell paths are taken from (default:
-            the scenario file's).
+        base_dir: folder that relative cell paths are taken from (default: the scenario file's).
         scenario_file: the scenario's file (errors name it; a scenario that
             holds its cell is read from it).
         path, bounds: a precomputed nominal path and bounds table (otherwise
             planned and estimated here).
-        progress: progress bars on a terminal for long steps (the kernel's
-            first compile).
+        progress: progress bars on a terminal for long steps (the kernel's first compile).
 
     Returns:
         The :class:`Comanipulation`.
