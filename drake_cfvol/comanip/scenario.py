@@ -24,7 +24,7 @@ from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.schema import CfvolSection, read_yaml
 from drake_cfvol.systems import (CoManipulationConfig, MovingObstacle, OnlineBoundsConfig, PathProgressConfig,
-                                 PerceptionConfig, Push)
+                                 PerceptionConfig, Push, RandomPushes, Reactive)
 
 __all__ = ['check_scenario_against_cell', 'scenario_file_path', 'InverseDynamicsDriver', 'RandomPushes', 'Reactive',
            'CellConfig', 'PathConfig', 'BoundsConfig', 'VolumeParamsConfig', 'CertifyConfig', 'HumanConfig',
@@ -35,45 +35,6 @@ __all__ = ['check_scenario_against_cell', 'scenario_file_path', 'InverseDynamics
 def diagrams_dir() -> Path:
     """The folder of the bundled scenarios."""
     return Path(str(resources.files("drake_cfvol.diagrams")))
-
-
-@dataclasses.dataclass
-class RandomPushes:
-    """Random joint-torque pushes (count 0: none), drawn by Drake's
-    ``RandomSource`` and seeded through the context: the run calls
-    ``diagram.SetRandomContext(context, RandomGenerator(random_seed))``
-    with the scenario's one ``random_seed``.
-
-    Attributes:
-        count: expected number of pushes over the run.
-        max_torque: N m (N), per joint.
-        mean_duration: s, the length of one push (the source's sampling
-            interval).
-    """
-
-    count: int = 0
-    max_torque: float = 300.0
-    mean_duration: float = 1.0
-
-
-@dataclasses.dataclass
-class Reactive:
-    """A co-worker who reacts to the robot's position (gain 0: none): see
-    :class:`drake_cfvol.systems.ReactiveCoworker`.
-
-    Attributes:
-        gain: N m/rad (N/m), per joint.
-        offset: rad (m) per joint from the nominal: the pose the person wants
-            (empty: zeros).
-        start, duration: the window, s.
-        max_torque: N m (N), per joint.
-    """
-
-    gain: float = 0.0
-    offset: list[float] = dataclasses.field(default_factory=list)
-    start: float = 0.0
-    duration: float = 1e9
-    max_torque: float = 400.0
 
 
 @dataclasses.dataclass

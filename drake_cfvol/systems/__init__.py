@@ -39,7 +39,7 @@ One system per module. Imports ``online``, ``algorithm`` (the bounds table), ``s
 from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformation, AdmittanceDeformation_
 from drake_cfvol.systems.bounds_source import JointBoundsSource, JointBoundsSource_
 from drake_cfvol.systems.human_input import HumanInputCheck, HumanInputCheck_
-from drake_cfvol.systems.humans import Push, RandomPushShaper, ReactiveCoworker, ScriptedHuman
+from drake_cfvol.systems.humans import Push, RandomPushes, RandomPushShaper, Reactive, ReactiveCoworker, ScriptedHuman
 from drake_cfvol.systems.columns import PerceivedColumns
 from drake_cfvol.systems.monitor import ClearanceMonitor
 from drake_cfvol.systems.moving_boxes import MovingBoxes, MovingObstacle
@@ -54,5 +54,5 @@ __all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "
            "ClearanceMonitor", "HumanInputCheck", "HumanInputCheck_", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate",
            "AddCoManipulation", "CoManipulationSystems", "ToolPushForce", "MovingBoxes", "MovingObstacle",
            "PerceivedColumns", "OnlineBoundsEstimator", "AddCellCamera", "AddCellModel", "CellCamera", "CellModel", "ObstacleMapper",
-           "AdmittanceConfig", "SafetyFilterConfig", "PathProgressConfig", "PerceptionConfig", "OnlineBoundsConfig",
+           "RandomPushes", "Reactive", "AdmittanceConfig", "SafetyFilterConfig", "PathProgressConfig", "PerceptionConfig", "OnlineBoundsConfig",
            "CoManipulationConfig"]
