@@ -231,3 +231,23 @@ def test_config_field_types_are_ones_drakes_reader_takes():
 
     walk(Scenario)
     assert len(seen) >= 12 and not bad, bad
+
+
+def test_bounds_section_is_volume_params_and_certify():
+    """The scenario's bounds.params and bounds.certify are VolumeParams' and
+    Certify's own fields (made from the classes, not copied): params all
+    null (not given: the cell's), certify at Certify's defaults; a value
+    given reaches the VolumeParams and the Certify the run uses."""
+    import dataclasses
+
+    from drake_cfvol.comanip.scenario import CertifyConfig, VolumeParamsConfig
+
+    names = lambda cls: [f.name for f in dataclasses.fields(cls)]  # noqa: E731
+    assert names(VolumeParamsConfig) == [n for n in names(cf.VolumeParams) if n != "resolution"]
+    assert names(CertifyConfig) == [n for n in names(cf.Certify) if n != "seed"]
+    assert all(v is None for v in dataclasses.asdict(VolumeParamsConfig()).values())
+    s, _ = load_scenario("automotive_push", scenario_text="{random_seed: 5, bounds: {resolution: 300, params: "
+                                                          "{h_max: 1.2, reach: null}, certify: {confidence: 0.9}}}")
+    assert s.certify() == cf.Certify(seed=5, confidence=0.9)
+    params = cf.VolumeParams.for_workcell(cf.load_workcell("automotive"), **s.bounds.overrides())
+    assert (params.resolution, params.h_max, params.clearance) == (300, 1.2, cf.VolumeParams().clearance)

@@ -57,13 +57,6 @@ class InverseDynamicsDriver:
 DriverConfig = typing.Union[InverseDynamicsDriver, IiwaDriver]
 
 
-def _plain_type(t):
-    """``X | None`` as ``typing.Optional[X]`` (Drake's YAML reader knows the latter only)."""
-    if isinstance(t, types.UnionType):
-        return typing.Union[typing.get_args(t)]
-    return t
-
-
 def _loadable(cls, name: str, doc: str, *, optional: bool = False, exclude=()):
     """A plain dataclass with the fields of the frozen dataclass ``cls``
     (Drake's YAML reader sets fields one at a time, which a frozen
@@ -75,7 +68,7 @@ def _loadable(cls, name: str, doc: str, *, optional: bool = False, exclude=()):
     for f in dataclasses.fields(cls):
         if f.name in exclude:
             continue
-        t = _plain_type(hints[f.name])
+        t = hints[f.name]
         if optional:
             fields.append((f.name, typing.Optional[t], dataclasses.field(default=None)))
         else:
