@@ -39,7 +39,6 @@ def layout() -> str:
                 continue
             lines.append(f"     - `{mod.stem}`: {_first_sentence(mod)}.")
     lines += ["  - `exceptions`: " + _first_sentence(PACKAGE / "exceptions.py") + ".",
-              "  - `_compat/`: the old flat module names (`drake_cfvol.certify`, ...), each the new module.",
               "", END]
     return "\n".join(lines)
 

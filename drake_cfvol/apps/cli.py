@@ -257,8 +257,8 @@ def cmd_bounds(args) -> int:
 def cmd_simulate(args) -> int:
     from drake_cfvol.comanip import load_scenario, run_scenario
 
-    files = {name: str(_out_path(getattr(args, name))) for name in ("path_file", "bounds_file")
-             if getattr(args, name)}
+    files = {key: str(_out_path(value)) for key, value in (("path.file", args.path_file),
+                                                           ("bounds.file", args.bounds_file)) if value}
     # Every field checked before planning.
     load_scenario(args.scenario, scenario_text=args.scenario_text, overrides=files)
     out = _out_path(args.out) or Path("out").resolve() / Path(args.scenario).stem
@@ -450,7 +450,7 @@ def _add_simulate(sub) -> None:
     m.add_argument("--bounds-file", help="a saved bounds table (cfvol bounds --out) instead of bounding; checked "
                    "against the cell")
     m.add_argument("--scenario-text", help="YAML overriding the scenario's fields, e.g. "
-                   "'{resolution: 2000, random_seed: 3}'")
+                   "'{bounds: {resolution: 2000}, random_seed: 3}'")
     m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=cmd_simulate)
 
