@@ -279,3 +279,50 @@ def test_box_separation_before_gjk_is_exact_for_boxes_and_never_wrong():
             apart += 1
             assert not K.gjk_intersect(A, V, B, V)
     assert apart > 1000  # the broad phase decides a good share
+
+
+def _row(kind, centre, verts_range=(0, 0)):
+    row = np.zeros(K.SHAPE_W)
+    row[K._K] = kind
+    row[K._C:K._C + 3] = centre
+    row[K._R:K._R + 9] = np.eye(3).ravel()
+    row[K._S:K._S + 3] = (0.2, 0.3, 0.25)
+    row[K._V0], row[K._V1] = verts_range
+    return row
+
+
+def test_every_kind_through_every_kernel_function():
+    """Each shape kind's support, box and oriented box against hand-computed
+    extents (a unit-free 0.2 / 0.3 / 0.25 shape at the origin), and GJK
+    against a box 1 m away (apart) and one touching it (may collide); a kind
+    the kernel does not know reaches everywhere: its box is infinite and
+    nothing is ever apart from it (never a silent "free")."""
+    from drake_cfvol.kernel.shapes import obb_apart, support
+
+    cube = np.array([[x, y, z] for x in (-0.2, 0.2) for y in (-0.3, 0.3) for z in (-0.25, 0.25)])
+    # extent along +x, +z, and the oriented box's half sizes (None: none) per kind
+    expect = {K.BOX: (0.2, 0.25), K.SPHERE: (0.2, 0.2), K.CAPSULE: (0.2, 0.5), K.CYLINDER: (0.2, 0.3),
+              K.ELLIPSOID: (0.2, 0.25), K.HULL: (0.2, 0.25)}
+    far = _row(K.BOX, (1.2 + 0.2 + 0.05, 0.0, 0.0))
+    for kind, (ex, ez) in expect.items():
+        row = _row(kind, (0.0, 0.0, 0.0), (0, 8) if kind == K.HULL else (0, 0))
+        out = np.empty(3)
+        support(row, cube, 1.0, 0.0, 0.0, out)
+        assert out[0] == pytest.approx(ex, abs=1e-12), kind
+        support(row, cube, 0.0, 0.0, 1.0, out)
+        assert out[2] == pytest.approx(ez, abs=1e-12), kind
+        box = np.empty(6)
+        K.row_aabb(row, cube, box)
+        np.testing.assert_allclose(box[[3, 5]], [ex, ez], atol=1e-12)
+        touching = _row(K.BOX, (ex + 0.2 - 1e-6, 0.0, 0.0))
+        assert not K.gjk_intersect(row[None], cube, far[None], cube), kind
+        assert K.gjk_intersect(row[None], cube, touching[None], cube), kind
+        assert obb_apart(row, far) == (kind != K.HULL)  # a hull has no oriented box of its own
+    unknown = _row(9, (0.0, 0.0, 0.0))
+    box = np.empty(6)
+    K.row_aabb(unknown, cube, box)
+    assert np.all(box[:3] == -np.inf) and np.all(box[3:] == np.inf)
+    assert K.gjk_intersect(unknown[None], cube, far[None], cube)
+    assert not obb_apart(unknown, far)
+    empty_hull = _row(K.HULL, (0.0, 0.0, 0.0))  # no vertices: not a shape, never free
+    assert K.gjk_intersect(empty_hull[None], cube, far[None], cube)

@@ -13,7 +13,18 @@ trap 'rm -rf "$tmp"' EXIT
 py="$tmp/venv/bin/python"
 # pip's and setuptools' chatter goes to a log, shown only if a step fails.
 log="$tmp/pip.log"
-if ! { "$py" -m pip install -q --upgrade pip && "$py" -m pip wheel --no-deps -q -w "$tmp/dist" "$repo" &&
+# Built from a copy of the checkout's files (tracked, and new ones git does
+# not ignore): a build/ folder left by an earlier build would otherwise
+# slip its stale modules into the wheel.
+src="$tmp/src"
+mkdir "$src"
+if git -C "$repo" rev-parse --git-dir >/dev/null 2>&1; then
+  (cd "$repo" && git ls-files -co --exclude-standard -z |
+     while IFS= read -r -d '' f; do if [ -e "$f" ]; then cp --parents "$f" "$src"; fi; done)
+else
+  cp -r "$repo/." "$src"
+fi
+if ! { "$py" -m pip install -q --upgrade pip && "$py" -m pip wheel --no-deps -q -w "$tmp/dist" "$src" &&
        "$py" -m pip install -q "$tmp"/dist/*.whl; } >"$log" 2>&1; then
   cat "$log" >&2
   echo "check_wheel.sh: error: building or installing the wheel failed (log above)" >&2

@@ -8,7 +8,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.kernel.types import SEP_EPS, SHAPE_W, _C, _ED, _EI, _ES, _K, _R, _S, _U, _V0, _V1
+from drake_cfvol.kernel.types import (BOX, CAPSULE, CYLINDER, ELLIPSOID, HULL, SEP_EPS, SHAPE_W, SPHERE, _C, _ED,
+                                      _EI, _ES, _K, _R, _S, _U, _V0, _V1)
+
+#: The support of a shape of a kind this kernel does not know, m: far
+#: beyond any cell along every direction, so nothing is ever separated from
+#: it ("may collide"), never a silent "free".
+_UNKNOWN_REACH = 1e12
 
 __all__ = ['row_aabb']
 
@@ -57,30 +63,30 @@ def _local_support(row, verts, l0, l1, l2):
     x = 0.0
     y = 0.0
     z = 0.0
-    if kind == 0:  # box: half extents
+    if kind == BOX:  # half extents
         x = s0 if l0 >= 0 else -s0
         y = s1 if l1 >= 0 else -s1
         z = s2 if l2 >= 0 else -s2
-    elif kind == 1:  # sphere: radius
+    elif kind == SPHERE:  # radius
         n = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
         if n > 0:
             x = s0 * l0 / n
             y = s0 * l1 / n
             z = s0 * l2 / n
-    elif kind == 2:  # capsule along z: radius, half length
+    elif kind == CAPSULE:  # along z: radius, half length
         n = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
         z = s1 if l2 >= 0 else -s1
         if n > 0:
             x = s0 * l0 / n
             y = s0 * l1 / n
             z += s0 * l2 / n
-    elif kind == 3:  # cylinder along z: radius, half length
+    elif kind == CYLINDER:  # along z: radius, half length
         n = np.sqrt(l0 * l0 + l1 * l1)
         z = s1 if l2 >= 0 else -s1
         if n > 0:
             x = s0 * l0 / n
             y = s0 * l1 / n
-    elif kind == 4:  # ellipsoid: semi-axes
+    elif kind == ELLIPSOID:  # semi-axes
         a0 = s0 * s0 * l0
         a1 = s1 * s1 * l1
         a2 = s2 * s2 * l2
@@ -89,7 +95,7 @@ def _local_support(row, verts, l0, l1, l2):
             x = a0 / n
             y = a1 / n
             z = a2 / n
-    else:  # convex hull: its vertices
+    elif kind == HULL and int(row[_V1]) > int(row[_V0]):  # its vertices
         best = -1e300
         for v in range(int(row[_V0]), int(row[_V1])):
             h = verts[v, 0] * l0 + verts[v, 1] * l1 + verts[v, 2] * l2
@@ -98,6 +104,10 @@ def _local_support(row, verts, l0, l1, l2):
                 x = verts[v, 0]
                 y = verts[v, 1]
                 z = verts[v, 2]
+    else:  # an unknown kind (or a hull without vertices): reaches everywhere
+        x = _UNKNOWN_REACH if l0 >= 0 else -_UNKNOWN_REACH
+        y = _UNKNOWN_REACH if l1 >= 0 else -_UNKNOWN_REACH
+        z = _UNKNOWN_REACH if l2 >= 0 else -_UNKNOWN_REACH
     return x, y, z
 
 
@@ -190,25 +200,28 @@ def _row_aabb(row, verts, out):
         c = row[_C + a]
         lo = 0.0
         hi = 0.0
-        if kind == 0:
+        if kind == BOX:
             h = abs(r0) * s0 + abs(r1) * s1 + abs(r2) * s2
             lo = -h
             hi = h
-        elif kind == 1:
+        elif kind == SPHERE:
             lo = -s0
             hi = s0
-        elif kind == 2:
+        elif kind == CAPSULE:
             h = abs(r2) * s1 + s0
             lo = -h
             hi = h
-        elif kind == 3:
+        elif kind == CYLINDER:
             h = abs(r2) * s1 + s0 * np.sqrt(max(1.0 - r2 * r2, 0.0))
             lo = -h
             hi = h
-        elif kind == 4:
+        elif kind == ELLIPSOID:
             h = np.sqrt((r0 * s0) ** 2 + (r1 * s1) ** 2 + (r2 * s2) ** 2)
             lo = -h
             hi = h
+        elif kind != HULL or int(row[_V1]) <= int(row[_V0]):  # unknown, or no vertices: everywhere
+            lo = -np.inf
+            hi = np.inf
         else:
             lo = np.inf
             hi = -np.inf
@@ -251,15 +264,15 @@ def _obb_half(row, out):
     s0 = row[_S]
     s1 = row[_S + 1]
     s2 = row[_S + 2]
-    if kind == 0 or kind == 4:
+    if kind == BOX or kind == ELLIPSOID:
         out[0], out[1], out[2] = s0, s1, s2
-    elif kind == 1:
+    elif kind == SPHERE:
         out[0], out[1], out[2] = s0, s0, s0
-    elif kind == 2:
+    elif kind == CAPSULE:
         out[0], out[1], out[2] = s0, s0, s1 + s0
-    elif kind == 3:
+    elif kind == CYLINDER:
         out[0], out[1], out[2] = s0, s0, s1
-    else:
+    else:  # a hull, or a kind not known here: no box
         return False
     e = row[_EI] + row[_ED] + row[_ES]
     for i in range(3):
