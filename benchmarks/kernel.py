@@ -100,6 +100,49 @@ def rate(fn, Q, repeats: int) -> tuple[float, object]:
     return len(Q) / statistics.median(times), out
 
 
+def _fk_checksums():
+    """Forward kinematics alone, as the batch check uses it (poses in a
+    thread's scratch, nothing written out per configuration), one
+    configuration at a time and in blocks, on 2 threads each: jitted here
+    (benchmark only). Each returns a sum of the last body's positions, so
+    nothing is optimised away."""
+    from numba import njit, prange
+
+    from drake_cfvol.kernel.blocks import NB, _fk_scratch, fk_block
+
+    @njit(parallel=True)
+    def one(Q, chain):
+        N = Q.shape[0]
+        B = chain.parent.shape[0]
+        chunks = (N + 255) // 256
+        acc = np.zeros(chunks)
+        for c in prange(chunks):
+            R = np.empty((B, 3, 3))
+            p = np.empty((B, 3))
+            for n in range(c * 256, min(N, (c + 1) * 256)):
+                K.fk_into(Q[n], chain, R, p)
+                acc[c] += p[B - 1, 0]
+        return acc.sum()
+
+    @njit(parallel=True)
+    def blocks(Q, chain, KR, Kp):
+        N = Q.shape[0]
+        B = chain.parent.shape[0]
+        n_blocks = (N + NB - 1) // NB
+        chunks = (n_blocks + 3) // 4
+        acc = np.zeros(chunks)
+        for c in prange(chunks):
+            ws = _fk_scratch(B, Q.shape[1])
+            for b in range(c * 4, min(n_blocks, (c + 1) * 4)):
+                n = min(NB, N - b * NB)
+                fk_block(Q, b * NB, n, chain, KR, Kp, ws)
+                for i in range(n):
+                    acc[c] += ws[0][B - 1, 9 * NB + i]
+        return acc.sum()
+
+    return one, blocks
+
+
 def throughput(wc, table, samples: int, repeats: int) -> dict:
     """The kernel's batch check, Drake's checker and forward kinematics
     alone on the same samples (configurations per second, medians)."""
@@ -109,11 +152,10 @@ def throughput(wc, table, samples: int, repeats: int) -> dict:
     drake, ok = rate(lambda X: np.array(wc.checker.CheckConfigsCollisionFree(X, parallelize=True), bool), Q, repeats)
     arrays = wc.scene_arrays()
     chain, blk = arrays.model.chain, arrays.blocks
-    K.fk(Q[:10], chain)
-    K.fk_blocks(Q[:10], chain, blk.KR, blk.Kp)
-    # Both write every body's pose of every configuration: (N, B, 3, 3), (N, B, 3).
-    fk_one, _ = rate(lambda X: K.fk(X, chain), Q, repeats)
-    fk, _ = rate(lambda X: K.fk_blocks(X, chain, blk.KR, blk.Kp), Q, repeats)
+    one, blocks = _fk_checksums()
+    assert abs(one(Q[:1000], chain) - blocks(Q[:1000], chain, blk.KR, blk.Kp)) < 1e-6  # the same poses
+    fk_one, _ = rate(lambda X: one(X, chain), Q, repeats)
+    fk, _ = rate(lambda X: blocks(X, chain, blk.KR, blk.Kp), Q, repeats)
     return {"samples": len(Q), "kernel_per_s": kernel, "drake_per_s": drake, "fk_per_s": fk,
             "fk_one_at_a_time_per_s": fk_one, "fk_blocks_over_one_at_a_time": fk / fk_one,
             "ratio": kernel / drake, "fk_ratio": fk / drake, "colliding": int((~ok).sum()),
