@@ -1,6 +1,7 @@
 """The admittance: the human's push -> a deviation from the nominal, clamped
 inside the bounds without wind-up (SPEC 9); its gains (:class:`AdmittanceConfig`)."""
 
+import sys
 import dataclasses
 
 import numpy as np
@@ -34,7 +35,7 @@ class AdmittanceConfig:
     stiffness: float = 400.0
 
 
-@TemplateSystem.define("AdmittanceDeformation_", T_list=(float, AutoDiffXd))
+@TemplateSystem.define("AdmittanceDeformation_", T_list=(float, AutoDiffXd), scope=sys.modules[__name__])
 def AdmittanceDeformation_(T):
 
     class Impl(LeafSystem_[T]):

@@ -2,6 +2,7 @@
 
 
 
+import sys
 import numpy as np
 from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
@@ -13,7 +14,7 @@ from drake_cfvol.algorithm.table import BoundsTable
 __all__ = ['JointBoundsSource', 'JointBoundsSource_']
 
 
-@TemplateSystem.define("JointBoundsSource_", T_list=(float, AutoDiffXd))
+@TemplateSystem.define("JointBoundsSource_", T_list=(float, AutoDiffXd), scope=sys.modules[__name__])
 def JointBoundsSource_(T):
 
     class Impl(LeafSystem_[T]):

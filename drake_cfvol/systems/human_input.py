@@ -2,6 +2,7 @@
 admittance, anything else raises a fault that holds its last safe command
 (SPEC 9)."""
 
+import sys
 import numpy as np
 from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
@@ -21,7 +22,7 @@ MAX_TORQUE = 2000.0
 MAX_WRENCH = (500.0, 500.0, 500.0, 1500.0, 1500.0, 1500.0)
 
 
-@TemplateSystem.define("HumanInputCheck_", T_list=(float, AutoDiffXd))
+@TemplateSystem.define("HumanInputCheck_", T_list=(float, AutoDiffXd), scope=sys.modules[__name__])
 def HumanInputCheck_(T):
 
     class Impl(LeafSystem_[T]):
