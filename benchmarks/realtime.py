@@ -138,7 +138,7 @@ def _instrument(timers, cm):
 def _counters(timers):
     """(class, method, wrapper factory) that count the filter's QP solves
     and the pairs its damper measured."""
-    from drake_cfvol.systems import damper, safety
+    from drake_cfvol.systems import damper
 
     def solves(fn):
         def counted(*args, **kwargs):
@@ -154,7 +154,9 @@ def _counters(timers):
             return rows
         return counted
 
-    return [(safety.StagedQP, "solve", solves), (damper.VelocityDamper, "rows", pairs)]
+    from drake_cfvol.systems import constraints
+
+    return [(constraints.PriorityQP, "solve", solves), (damper.VelocityDamper, "rows", pairs)]
 
 
 def station(wc, table, *, period: float, push: str, torque: float, seed: int):

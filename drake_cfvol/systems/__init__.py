@@ -8,7 +8,9 @@
 - :class:`SafetyFilter` (from :mod:`drake_cfvol.safety`): between the
   admittance and the robot, the motion closest to the one asked for that
   keeps the velocity limits, the box ahead and a clearance margin (a
-  velocity damper on the SceneGraph's signed distances).
+  velocity damper on the SceneGraph's signed distances); its constraints
+  (:class:`FilterConstraint`: rows with a priority; :class:`ToolSpeedLimit`
+  for the tool's Cartesian speed).
 - :class:`PathProgress`: the path index over time.
 - :class:`ScriptedHuman`: pushes with set magnitude, direction and timing.
 - :class:`RandomPushShaper`: random pushes from Drake's ``RandomSource``
@@ -42,10 +44,12 @@ from drake_cfvol.systems.moving_boxes import MovingBoxes, MovingObstacle
 from drake_cfvol.systems.online_bounds import OnlineBoundsEstimator
 from drake_cfvol.systems.perception import AddCellCamera, AddCellModel, CellCamera, CellModel, ObstacleMapper
 from drake_cfvol.systems.path import PathProgress, safe_path_rate
+from drake_cfvol.systems.constraints import FilterConstraint, ToolSpeedLimit
 from drake_cfvol.systems.safety import SafetyFilter
 from drake_cfvol.systems.station import AddCoManipulation, CoManipulationSystems, ToolPushForce
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
            "ClearanceMonitor", "HumanInputCheck", "HumanInputCheck_", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate",
            "AddCoManipulation", "CoManipulationSystems", "ToolPushForce", "MovingBoxes", "MovingObstacle",
-           "PerceivedColumns", "OnlineBoundsEstimator", "AddCellCamera", "AddCellModel", "CellCamera", "CellModel", "ObstacleMapper"]
+           "PerceivedColumns", "OnlineBoundsEstimator", "AddCellCamera", "AddCellModel", "CellCamera", "CellModel", "ObstacleMapper",
+           "FilterConstraint", "ToolSpeedLimit"]
