@@ -149,7 +149,7 @@ def _counters(timers):
     def pairs(fn):
         def counted(*args, **kwargs):
             rows = fn(*args, **kwargs)
-            timers.count("distance_pairs", int(np.count_nonzero(~np.isnan(rows.distances))))
+            timers.count("distance_pairs", int(np.count_nonzero(rows.measured)))
             timers.count("rows", len(rows.b))
             return rows
         return counted

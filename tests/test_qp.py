@@ -108,29 +108,42 @@ def _kkt(h, g, C, c, x):
 
 def _agree(n, seed):
     """Per instance: the same stage as Clarabel's staged QP (the same
-    feasibility verdicts), the same optimal cost within 1e-7, the same
-    minimiser within Clarabel's own accuracy (1e-5: an interior-point
-    solution is about the square root of its tolerance from the
-    minimiser), and at stage 0 the KKT conditions to 1e-9 (an exact
-    certificate of ours). Returns the stages' counts."""
+    feasibility verdicts); a cost never above Clarabel's, and the same
+    optimal cost within 1e-7 (relative) except on at most 0.5 % of the
+    instances, all with rows missed (stage 2, costs near 1e6), where
+    Clarabel stops above the optimum; elsewhere the minimiser within 1e-4
+    of Clarabel's (an interior-point solution lies about the square root
+    of its tolerance from the minimiser); and the KKT conditions of the
+    stage's QP to 1e-9 (an exact certificate of ours). Returns the stages'
+    counts."""
     rng = np.random.default_rng(seed)
     qp = PriorityQP()
-    stages = []
+    stages, clarabel_short = [], 0
     for _ in range(n):
         v_t, vmax, lo, hi, A, b = _instance(rng)
         blocks = _blocks(vmax, lo, hi, A, b)
         stage, v_ref = _staged_clarabel(v_t, vmax, lo, hi, A, b)
         v, ours = qp.solve_staged(v_t, blocks)
         assert ours == stage  # the same verdict at every stage
-        assert _cost(v, v_t, lo, hi, A, b, stage) == pytest.approx(_cost(v_ref, v_t, lo, hi, A, b, stage),
-                                                                    rel=1e-7, abs=1e-7)
-        np.testing.assert_allclose(v, v_ref, atol=1e-5)
+        ours_cost, ref_cost = _cost(v, v_t, lo, hi, A, b, stage), _cost(v_ref, v_t, lo, hi, A, b, stage)
+        # Never worse than Clarabel (whose point may break a hard limit by
+        # 1e-9, worth 1e-9 of a cost near 1e6).
+        assert ours_cost <= ref_cost + 1e-8 * (1.0 + ref_cost)
+        if ref_cost - ours_cost > 1e-7 * (1.0 + ours_cost):
+            clarabel_short += 1  # Clarabel stopped above the optimum (ours is certified below)
+            assert stage == 2
+        else:
+            np.testing.assert_allclose(v, v_ref, atol=1e-4)
         assert np.all(np.abs(v) <= vmax + 1e-12)
-        if stage == 0:
-            k = len(v)
-            C, c = np.vstack([np.eye(k), -np.eye(k), A]), np.concatenate([lo, -hi, b])
-            assert _kkt(np.full(k, 2.0), -2.0 * v_t, C, c, v) < 1e-9
+        # Ours is the stage's exact minimiser: KKT of the stage's whole QP,
+        # the slacks at their best for v.
+        levels = [None, BOX, ROW]
+        h, g, C, c, soft = PriorityQP.stage_problem(v_t, blocks, levels[stage])
+        slacks = [np.maximum(0.0, blk.b - blk.A @ v) for blk, s in zip(blocks, soft) if s]
+        x = np.concatenate([v] + slacks)
+        assert _kkt(h, g, C, c, x) < 1e-9 * (1.0 + np.abs(h * x + g).max())
         stages.append(stage)
+    assert clarabel_short <= 0.005 * n
     return np.bincount(stages, minlength=3)
 
 

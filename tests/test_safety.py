@@ -410,3 +410,41 @@ def test_tool_speed_limit_caps_the_tip_speed(speed):
     _fix(diagram, ctx, target)
     sim.AdvanceTo(101 * H)
     np.testing.assert_allclose(sf.commanded_position_output.Eval(sctx), target, atol=1e-12)
+
+
+def test_a_tightened_box_is_reentered_at_the_limits():
+    """A live box tightened around the command (joint 1 left 0.049 rad
+    above it, joint 2 0.2 rad), the request held where it was: each joint
+    returns at its velocity limit, q_j(n) = max(upper_j, q0_j - n vmax_j
+    dt), so joint 1 is back after 5 updates and joint 2 after 14; the
+    command never leaves the base box it started in; and the run's bound
+    figures (comanip.run.bound_figures) report 0 against the base table,
+    0.2 rad of live excess and 14 updates of catch-up."""
+    from drake_cfvol.comanip.run import bound_figures
+
+    diagram, sf, tip, wall_id = _arm("wall", clearance=0.02)
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    q0 = np.array([2.0, 0.5])
+    base_lo, base_hi = np.array([1.5, 0.0]), np.array([2.5, 1.0])
+    live_lo, live_hi = np.array([1.9, 0.0]), np.array([1.951, 0.3])
+    sf.set_initial_position(sctx, q0)
+    _fix(diagram, ctx, q0, live_lo, live_hi)
+    sim = Simulator(diagram, ctx)
+    t, q = [0.0], [q0]
+    for n in range(1, 31):
+        sim.AdvanceTo(n * H)
+        t.append(n * H)
+        q.append(sf.commanded_position_output.Eval(sctx).copy())
+    t, q = np.array(t), np.array(q)
+    n = np.arange(len(t))[:, None]
+    expected = np.maximum(live_hi, q0 - n * VMAX * (1 - 1e-9) * H)
+    np.testing.assert_allclose(q, expected, atol=1e-12)
+    assert np.all((q >= base_lo) & (q <= base_hi))
+    inside = np.all(q <= live_hi + 1e-12, axis=1)
+    assert np.flatnonzero(q[:, 0] <= live_hi[0] + 1e-12)[0] == 5 and np.flatnonzero(inside)[0] == 14
+    figures = bound_figures(t, q, np.tile(base_lo, (len(t), 1)), np.tile(base_hi, (len(t), 1)),
+                            np.tile(live_lo, (len(t), 1)), np.tile(live_hi, (len(t), 1)))
+    assert figures["max_bound_violation"] == 0.0
+    assert figures["live_box_excess_max"] == pytest.approx(0.2, abs=1e-12)
+    assert figures["live_box_catchup_s"] == pytest.approx(14 * H, abs=1e-12)

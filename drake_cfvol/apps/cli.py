@@ -43,7 +43,8 @@ _LABELS = {
 }
 _UNITS = {"plan_time_ms": " ms", "total_time_ms": " ms", "time_ms": " ms", "certify_ms": " ms", "cf_percent": " %",
           "sim_wall_s": " s", "duration_s": " s", "min_clearance_m": " m", "bounds_time_ms": " ms", "build_ms": " ms",
-          "max_bound_violation": " rad/m", "max_deviation": " rad/m", "path_length": " rad/m"}
+          "max_bound_violation": " rad/m", "max_deviation": " rad/m", "path_length": " rad/m",
+          "live_box_excess_max": " rad/m", "live_box_catchup_s": " s"}
 
 
 def _fmt(v, unit: str = "") -> str:

@@ -21,7 +21,7 @@ import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
 
 from drake_cfvol.exceptions import ParameterError
-from drake_cfvol.systems.qp import QP_INFEASIBLE, QP_OPTIMAL, solve_qp
+from drake_cfvol.systems.qp import QP_OPTIMAL, solve_qp
 
 __all__ = ["HARD", "ROW", "BOX", "ConstraintRows", "FilterStep", "FilterConstraint", "VelocityLimits", "JointBox",
            "DamperConstraint", "ToolSpeedLimit", "PriorityQP", "solve_rounds"]
@@ -250,37 +250,46 @@ class PriorityQP:
                 return v, stage
         return None, None
 
-    def _stage(self, v_t, blocks, soft_from):
+    @staticmethod
+    def stage_problem(v_t, blocks, soft_from):
+        """The stage's QP for :func:`~drake_cfvol.systems.qp.solve_qp`:
+        (h, g, C, c, soft) over x = [v; one slack per soft row], ``soft``
+        per block; blocks of priority >= ``soft_from`` (None: none) soft."""
         k = len(v_t)
         soft = [soft_from is not None and blk.priority != HARD and blk.priority >= soft_from for blk in blocks]
         n_s = sum(len(blk.b) for blk, s in zip(blocks, soft) if s)
         n = k + n_s
         h = np.concatenate([np.full(k, 2.0)] + [np.full(len(blk.b), 2.0 * blk.weight)
                                                  for blk, s in zip(blocks, soft) if s])
-        g = np.concatenate([-2.0 * v_t, np.zeros(n_s)])
-        Cs, cs, warm = [], [], []
+        g = np.concatenate([-2.0 * np.asarray(v_t, float), np.zeros(n_s)])
+        Cs, cs = [], []
         col = k
         for blk, s in zip(blocks, soft):
             m = len(blk.b)
             C = np.zeros((m, n))
             C[:, :k] = blk.A
-            if s:
+            Cs.append(C)
+            cs.append(blk.b)
+            if s:  # A v + s >= b and s >= 0
                 C[:, col:col + m] = np.eye(m)
                 slack = np.zeros((m, n))
                 slack[:, col:col + m] = np.eye(m)
-                Cs += [C, slack]
-                cs += [blk.b, np.zeros(m)]
-                warm += [self._hint(blk.name, m), np.zeros(m, bool)]
+                Cs.append(slack)
+                cs.append(np.zeros(m))
                 col += m
-            else:
-                Cs.append(C)
-                cs.append(blk.b)
-                warm.append(self._hint(blk.name, m))
         C = np.vstack(Cs) if Cs else np.zeros((0, n))
         c = np.concatenate(cs) if cs else np.zeros(0)
+        return h, g, C, c, soft
+
+    def _stage(self, v_t, blocks, soft_from):
+        k = len(v_t)
+        h, g, C, c, soft = self.stage_problem(v_t, blocks, soft_from)
+        warm = []
+        for blk, s in zip(blocks, soft):
+            warm.append(self._hint(blk.name, len(blk.b)))
+            if s:
+                warm.append(np.zeros(len(blk.b), bool))
         status, x, active = solve_qp(h, g, C, c, warm=np.concatenate(warm) if warm else None)
-        if status == QP_INFEASIBLE:
-            return None
         if status != QP_OPTIMAL:
             return None
         at = 0

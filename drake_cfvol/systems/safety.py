@@ -128,7 +128,9 @@ a simulation: a non-finite or crossed input holds q_c the same way.
 
 Cost: a pair known to lie beyond the influence distance is measured
 again only once the commanded motion could have brought it within
-(``skip_far_pairs``).
+(``skip_far_pairs``); a pair whose bounding shapes lie that far apart is
+not measured at all (the damper's broad phase), and the near pairs' rows
+come from one compiled call (:mod:`~drake_cfvol.systems.damper_kernel`).
 """
 
 from __future__ import annotations
