@@ -149,14 +149,18 @@ def _counters(timers):
     def pairs(fn):
         def counted(*args, **kwargs):
             rows = fn(*args, **kwargs)
-            timers.count("distance_pairs", int(np.count_nonzero(rows.measured)))
+            measured = getattr(rows, "measured", None)  # before the broad phase: every non-NaN distance
+            timers.count("distance_pairs", int(np.count_nonzero(~np.isnan(rows.distances) if measured is None
+                                                                else measured)))
             timers.count("rows", len(rows.b))
             return rows
         return counted
 
-    from drake_cfvol.systems import constraints
-
-    return [(constraints.PriorityQP, "solve", solves), (damper.VelocityDamper, "rows", pairs)]
+    try:  # the QP class of this checkout (StagedQP before the constraint interface)
+        from drake_cfvol.systems.constraints import PriorityQP as qp
+    except ImportError:
+        from drake_cfvol.systems.safety import StagedQP as qp
+    return [(qp, "solve", solves), (damper.VelocityDamper, "rows", pairs)]
 
 
 def station(wc, table, *, period: float, push: str, torque: float, seed: int):
@@ -202,13 +206,13 @@ def run_case(wc, table, *, period: float, push: str, updates: int, torque: float
         sim.Initialize()
         sctx = cm.safety.GetMyContextFromRoot(ctx)
         steps = int(updates)
-        wall, dmin, ratio = np.zeros(steps), np.inf, 0.0
+        wall, cpu, dmin, ratio = np.zeros(steps), np.zeros(steps), np.inf, 0.0
         per_step = {}
         for i in range(steps):
             before = dict(timers.total)
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.thread_time()
             sim.AdvanceTo((i + 1) * period)
-            wall[i] = time.perf_counter() - t0
+            wall[i], cpu[i] = time.perf_counter() - t0, time.thread_time() - c0
             for label, t in timers.total.items():
                 per_step.setdefault(label, []).append(t - before.get(label, 0.0))
             dmin = min(dmin, float(cm.safety.min_distance_output.Eval(sctx)[0]))
@@ -220,6 +224,7 @@ def run_case(wc, table, *, period: float, push: str, updates: int, torque: float
     updates = steps  # one filter update per step
     return {"cell": wc.name, "period_s": period, "push": push, "seed": seed, "steps": steps,
             "median_s": float(np.median(wall)), "p99_s": float(np.percentile(wall, 99)), "max_s": float(wall.max()),
+            "cpu_median_s": float(np.median(cpu)), "cpu_p99_s": float(np.percentile(cpu, 99)),
             "per_system": {label: {"median_s": float(np.median(ts)), "p99_s": float(np.percentile(ts, 99)),
                                    "max_s": float(np.max(ts))} for label, ts in per_step.items()},
             "qp_solves_per_update": timers.counts.get("qp_solves", 0) / updates,
@@ -266,6 +271,7 @@ def _summary(runs) -> list[dict]:
         out.append({"cell": cell, "period_s": period, "push": push, "repeats": len(rs),
                     "median_s": med(lambda r: r["median_s"]), "p99_s": med(lambda r: r["p99_s"]),
                     "max_s": max(r["max_s"] for r in rs),
+                    "cpu_median_s": med(lambda r: r["cpu_median_s"]), "cpu_p99_s": med(lambda r: r["cpu_p99_s"]),
                     "per_system_median_s": {lb: med(lambda r: r["per_system"].get(lb, {}).get("median_s", 0.0))
                                             for lb in labels},
                     "per_system_p99_s": {lb: med(lambda r: r["per_system"].get(lb, {}).get("p99_s", 0.0))
@@ -300,13 +306,14 @@ def realtime_markdown(result: dict, machine: dict | None = None) -> str:
              f"The control stack alone on a kinematic station built with `AddCoManipulation` ({cfg['updates']} "
              f"updates per run, {cfg['repeats']} seeded runs per row, medians over the runs; p99 is the median "
              f"of the runs' p99s, max the largest step of any run; pushes {cfg['torque']:g} N m per joint). "
-             "Wall time per simulator step (one control update), each system's own time per update, the filter's "
+             "Wall time per simulator step (one control update; and the step's CPU time, the thread's own, which "
+             "other work on a shared machine disturbs less), each system's own wall time per update, the filter's "
              "QP solves and measured distance pairs per update. `cfvol bench --realtime` writes it.", ""]
     if machine:
         lines += [f"Machine: {machine.get('cpu', '?')}, {machine.get('cores', '?')} cores, shared with other work "
                   "while measured (timings are noisy).", ""]
     labels = sorted({lb for s in result["summary"] for lb in s["per_system_median_s"]})
-    head = ("| cell | period | push | step median ms | p99 ms | max ms | "
+    head = ("| cell | period | push | step median ms | p99 ms | max ms | CPU median ms | CPU p99 ms | "
             + " | ".join(f"{lb} ms" for lb in labels)
             + " | QP solves/upd | pairs/upd | rows/upd | active | min dist mm | v ratio | wall/sim s |")
     lines += [head, "|" + "---|" * (head.count("|") - 1)]
@@ -314,7 +321,8 @@ def realtime_markdown(result: dict, machine: dict | None = None) -> str:
         sys_cols = " | ".join(f"{s['per_system_median_s'].get(lb, 0.0) * 1e3:.3f}" for lb in labels)
         lines.append(
             f"| {s['cell']} | {s['period_s'] * 1e3:g} ms | {s['push']} | {s['median_s'] * 1e3:.3f} | "
-            f"{s['p99_s'] * 1e3:.3f} | {s['max_s'] * 1e3:.3f} | {sys_cols} | {s['qp_solves_per_update']:.2f} | "
+            f"{s['p99_s'] * 1e3:.3f} | {s['max_s'] * 1e3:.3f} | {s['cpu_median_s'] * 1e3:.3f} | "
+            f"{s['cpu_p99_s'] * 1e3:.3f} | {sys_cols} | {s['qp_solves_per_update']:.2f} | "
             f"{s['distance_pairs_per_update']:.1f} / {s['num_pairs']} | {s['rows_per_update']:.1f} | "
             f"{s['filter_active_share']:.2f} | {s['min_distance_m'] * 1e3:.1f} | {s['max_velocity_ratio']:.3f} | "
             f"{s['wall_per_sim_s']:.2f} |")
