@@ -13,7 +13,7 @@ import numpy as np
 from numba import njit
 from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Sphere
 
-__all__ = ["NO_POINT_QUERY", "SPHERE", "CAPSULE", "BOX", "CYLINDER", "point_distance", "pair_rows", "probes",
+__all__ = ["bounding_gaps", "NO_POINT_QUERY", "SPHERE", "CAPSULE", "BOX", "CYLINDER", "point_distance", "pair_rows", "probes",
            "ball_radius", "local_box", "round_radius", "point_query_shape"]
 
 #: Shape kinds of :func:`point_distance` (NO_POINT_QUERY: none).
@@ -322,3 +322,34 @@ def pair_rows(near, sides, kin, gains):
                   round_r[p, 0] if sa >= 0 else 0.0, round_r[p, 1] if sb >= 0 else 0.0, p, kin)
         m = _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains)
     return A[:m], b[:m], dirs[:m], points[:m], slots[:m], rounds[:m], owner[:m]
+
+
+@njit(cache=True)
+def bounding_gaps(pairs, slot, centre, half, box_R, box_p, R, o):
+    """The broad phase's lower bounds of ``pairs``' distances, m: per pair
+    side a ball (``slot`` >= 0: on that moving body, its centre in the body
+    frame, radius |half|) or a box (centre in the geometry frame, half
+    extents ``half``, posed at box_R / box_p in the world); ball to ball:
+    their gap; ball to box: the ball centre's distance from the box less
+    the radius; box to box: -inf (measure). Bodies posed at R, o."""
+    out = np.full(len(pairs), -np.inf)
+    c = np.zeros((2, 3))
+    for i in range(len(pairs)):
+        n = pairs[i]
+        for j in range(2):
+            s = slot[n, j]
+            if s >= 0:
+                c[j] = R[s] @ centre[n, j] + o[s]
+        b0, b1 = slot[n, 0] >= 0, slot[n, 1] >= 0
+        if b0 and b1:
+            out[i] = (np.sqrt(np.sum((c[0] - c[1]) ** 2)) - np.sqrt(np.sum(half[n, 0] ** 2))
+                      - np.sqrt(np.sum(half[n, 1] ** 2)))
+        elif b0 or b1:
+            j = 0 if b0 else 1
+            k = 1 - j
+            local = box_R[n, k].T @ (c[j] - box_p[n, k]) - centre[n, k]
+            gap = 0.0
+            for a in range(3):
+                gap += max(abs(local[a]) - half[n, k, a], 0.0) ** 2
+            out[i] = np.sqrt(gap) - np.sqrt(np.sum(half[n, j] ** 2))
+    return out

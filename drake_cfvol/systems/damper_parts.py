@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drake_cfvol.systems.damper_kernel import NO_POINT_QUERY, local_box, point_query_shape
+from drake_cfvol.systems.damper_kernel import NO_POINT_QUERY, bounding_gaps, local_box, point_query_shape
 
 __all__ = ["BroadPhase", "RowList", "side_arrays", "drake_pair_rows"]
 
@@ -69,7 +69,7 @@ class BroadPhase:
             b for b in plant.GetFloatingBaseBodies()}
         defaults = plant.CreateDefaultContext()
         P = len(self._pairs)
-        self._ball_slot = np.full((P, 2), -1)
+        self._ball_slot = np.full((P, 2), -1, np.int64)
         self._ball_centre = np.zeros((P, 2, 3))  # moving: in the body frame; else the box's centre, geometry frame
         self._ball_half = np.zeros((P, 2, 3))  # the box's half extents (a ball's radius: their norm)
         self._box_R = np.tile(np.eye(3), (P, 2, 1, 1))  # a fixed box's pose in the world
@@ -99,34 +99,17 @@ class BroadPhase:
         two balls, their gap; between a ball and a box, the ball centre's
         distance from the box less its radius; between two boxes, -inf
         (measure). The bodies posed at R, o."""
-        slot, half = self._ball_slot[pairs], self._ball_half[pairs]
-        centre = self._ball_centre[pairs].copy()
-        box_R, box_p = self._box_R[pairs].copy(), self._box_p[pairs].copy()
-        where = {n: i for i, n in enumerate(pairs)}
-        posed = {}  # one pose look-up per geometry
-        for n, j, gid in self._ball_query:
-            if n in where:
-                if gid not in posed:
-                    X = query.GetPoseInWorld(gid)
-                    posed[gid] = (X.rotation().matrix(), X.translation())
-                box_R[where[n], j], box_p[where[n], j] = posed[gid]
-        ball = slot >= 0
-        radius = np.linalg.norm(half, axis=2)
-        for j in range(2):
-            s = slot[ball[:, j], j]
-            centre[ball[:, j], j] = np.einsum("mij,mj->mi", R[s], centre[ball[:, j], j]) + o[s]
-        out = np.full(len(pairs), -np.inf)
-        both = ball.all(axis=1)
-        out[both] = np.linalg.norm(centre[both, 0] - centre[both, 1], axis=1) - radius[both].sum(axis=1)
-        for j in range(2):  # side j the ball, side 1 - j the box
-            one = ball[:, j] & ~ball[:, 1 - j]
-            if not one.any():
-                continue
-            i = 1 - j
-            local = np.einsum("mji,mj->mi", box_R[one, i], centre[one, j] - box_p[one, i]) - centre[one, i]
-            out[one] = (np.linalg.norm(np.maximum(np.abs(local) - half[one, i], 0.0), axis=1) - radius[one, j])
-        return out
-
+        if self._ball_query:  # boxes that move on their own: one pose look-up per geometry
+            look = set(pairs.tolist())
+            posed = {}
+            for n, j, gid in self._ball_query:
+                if n in look:
+                    if gid not in posed:
+                        X = query.GetPoseInWorld(gid)
+                        posed[gid] = (X.rotation().matrix(), X.translation())
+                    self._box_R[n, j], self._box_p[n, j] = posed[gid]
+        return bounding_gaps(np.asarray(pairs, np.int64), self._ball_slot, self._ball_centre, self._ball_half,
+                             self._box_R, self._box_p, R, o)
 
 
 def side_arrays(damper, inspector) -> tuple[tuple, np.ndarray]:
