@@ -475,7 +475,7 @@ def markdown(result: dict) -> str:
     out += adversarial_markdown(result.get("adversarial") or [])
     out += ["## Targets", ""] + targets(result) + [""]
     out += ["Columns: *tests* = region tests of the bounding (each tests the convex hull of the moving bodies' "
-            "poses over a whole stretch and an interval of one joint, see README); "
+            "poses over a whole stretch and an interval of one joint, see docs/bounds.md); "
             "*floor* = tests x the cheapest per-configuration time of Drake's checker measured in this run; "
             "*ref.* = the reference backend (one SceneGraph box per column + Drake's checker); *cert.* = "
             f"certified bounds (epsilon = {result['config']['certify_epsilon']}, confidence = "

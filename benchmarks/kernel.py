@@ -42,8 +42,9 @@ __all__ = ["KernelBenchConfig", "TARGETS", "samples_in_bounds", "rate", "through
            "run_kernel_bench", "kernel_targets", "kernel_markdown", "write_kernel_outputs"]
 
 #: The issue's targets.
-TARGETS = {"throughput_over_drake": 80.0, "paper_over_bounding": 10.0, "growth_20000_over_100": 2.0,
-           "certify_s": 2.0, "cf_300k_s": 0.3, "compile_eta_error": 0.3}
+TARGETS = {"throughput_over_drake": 80.0, "fk_blocks_over_one_at_a_time": 4.0, "paper_over_bounding": 10.0,
+           "growth_20000_over_100": 2.0, "certify_s": 2.0, "cf_300k_s": 0.3, "compile_s": 30.0,
+           "compile_eta_error": 0.3}
 
 
 @dataclasses.dataclass
@@ -106,10 +107,15 @@ def throughput(wc, table, samples: int, repeats: int) -> dict:
     wc.collision_free(Q[:100])  # compiled and warm
     kernel, free = rate(wc.collision_free, Q, repeats)
     drake, ok = rate(lambda X: np.array(wc.checker.CheckConfigsCollisionFree(X, parallelize=True), bool), Q, repeats)
-    chain = wc.scene_arrays().model.chain
+    arrays = wc.scene_arrays()
+    chain, blk = arrays.model.chain, arrays.blocks
     K.fk(Q[:10], chain)
-    fk, _ = rate(lambda X: K.fk(X, chain), Q, repeats)
+    K.fk_blocks(Q[:10], chain, blk.KR, blk.Kp)
+    # Both write every body's pose of every configuration: (N, B, 3, 3), (N, B, 3).
+    fk_one, _ = rate(lambda X: K.fk(X, chain), Q, repeats)
+    fk, _ = rate(lambda X: K.fk_blocks(X, chain, blk.KR, blk.Kp), Q, repeats)
     return {"samples": len(Q), "kernel_per_s": kernel, "drake_per_s": drake, "fk_per_s": fk,
+            "fk_one_at_a_time_per_s": fk_one, "fk_blocks_over_one_at_a_time": fk / fk_one,
             "ratio": kernel / drake, "fk_ratio": fk / drake, "colliding": int((~ok).sum()),
             "wrong": int((free & ~ok).sum())}
 
@@ -183,11 +189,13 @@ def run_kernel_bench(cfg: KernelBenchConfig) -> dict:
         table = estimate_bounds(wc, path, resolution=1000, clearance=cfg.clearance)
         out["throughput"].append({"cell": cell, "path": label, **throughput(wc, table, cfg.samples, cfg.repeats)})
         t = time.perf_counter()
-        res = confidence_factor(wc, table, windows=cfg.cf_windows, samples=cfg.cf_samples, seed=0)
+        res = confidence_factor(wc, table, windows=cfg.cf_windows, samples=cfg.cf_samples, seed=0, judge="kernel")
         cf_s = time.perf_counter() - t
         drake_rate = out["throughput"][-1]["drake_per_s"]
+        exact = confidence_factor(wc, table, windows=cfg.cf_windows, samples=cfg.cf_samples, seed=0, judge="drake")
         out["cf"].append({"cell": cell, "path": label, "samples": res.samples, "seconds": cf_s,
                           "drake_checked": res.drake_checked, "percent": res.percent,
+                          "kernel_only_colliding": res.kernel_only_colliding, "drake_percent": exact.percent,
                           "drake_floor_s": res.drake_checked / drake_rate})
     out["bounding"] = _bounding(cfg)
     out["certify"] = _certification(cfg)
@@ -209,8 +217,12 @@ def kernel_targets(result: dict) -> list[tuple[str, bool, str]]:
                     + ("" if r["ratio"] >= T["throughput_over_drake"] else
                        f", {T['throughput_over_drake'] / r['ratio']:.1f}x short. {per:.2f} us per configuration "
                        f"per thread; forward kinematics alone runs at {r['fk_per_s']:,.0f}/s ({r['fk_ratio']:.0f}x "
-                       "Drake): the rest is posing the shapes, their boxes and the broad and narrow phases, one "
-                       "configuration at a time")))
+                       "Drake): the rest is the broad phase on blocks and the exact test of the lanes it leaves "
+                       "undecided")))
+        out.append((f"{r['cell']} {r['path']}: forward kinematics in blocks >= {T['fk_blocks_over_one_at_a_time']:.0f}x "
+                    "one configuration at a time", r["fk_blocks_over_one_at_a_time"] >= T["fk_blocks_over_one_at_a_time"],
+                    f"{r['fk_per_s']:,.0f}/s against {r['fk_one_at_a_time_per_s']:,.0f}/s: "
+                    f"{r['fk_blocks_over_one_at_a_time']:.1f}x"))
     by_cell = {}
     for r in result["bounding"]:
         ok = r["paper_over_ours"] >= T["paper_over_bounding"]
@@ -237,11 +249,14 @@ def kernel_targets(result: dict) -> list[tuple[str, bool, str]]:
         ok = r["seconds"] <= T["cf_300k_s"]
         out.append((f"{r['cell']} {r['path']}: CF with {r['samples']:,} samples <= {T['cf_300k_s']} s", ok,
                     f"{r['seconds']:.2f} s" + ("" if ok else
-                    f", {r['seconds'] / T['cf_300k_s']:.1f}x over: Drake judges the {r['drake_checked']:,} samples "
-                    f"the kernel cannot clear (the CF is {r['percent']:.2f} %), {r['drake_floor_s']:.2f} s at "
-                    "Drake's rate alone")))
+                    f", {r['seconds'] / T['cf_300k_s']:.1f}x over: the kernel judges every sample and Drake "
+                    f"cross-checks {r['drake_checked']:,} ({r['drake_floor_s']:.2f} s at Drake's rate alone); "
+                    f"CF {r['percent']:.3f} %")))
     c = result.get("compile")
     if c:
+        out.append((f"first compile <= {T['compile_s']:.0f} s", c["seconds"] <= T["compile_s"],
+                    f"{c['seconds']:.1f} s" + ("" if c["seconds"] <= T["compile_s"] else
+                                               f", {c['seconds'] / T['compile_s']:.1f}x over")))
         worst = max(c["eta_error"].values()) if c["eta_error"] else float("nan")
         out.append((f"first compile's progress bar right within {100 * T['compile_eta_error']:.0f} %",
                     worst <= T["compile_eta_error"],
@@ -260,12 +275,12 @@ def kernel_markdown(result: dict, machine: dict | None = None) -> str:
     for name, ok, text in kernel_targets(result):
         lines.append(f"| {name} | {'yes' if ok else 'no'} | {text} |")
     lines += ["", "## Configurations per second (2 threads each, same samples, medians)", "",
-              "| cell | path | samples | colliding | kernel /s | Drake /s | kernel / Drake | FK alone /s | "
-              "called free where Drake collides |", "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+              "| cell | path | samples | colliding | kernel /s | Drake /s | kernel / Drake | FK in blocks /s | "
+              "FK one at a time /s | called free where Drake collides |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in result["throughput"]:
         lines.append(f"| {r['cell']} | {r['path']} | {r['samples']:,} | {r['colliding']:,} | "
                      f"{r['kernel_per_s']:,.0f} | {r['drake_per_s']:,.0f} | {r['ratio']:.1f} | {r['fk_per_s']:,.0f} "
-                     f"| {r['wrong']} |")
+                     f"| {r.get('fk_one_at_a_time_per_s', float('nan')):,.0f} | {r['wrong']} |")
     lines += ["", "## Bounding (the paper's time: categorization + volume + joint bounding; medians)", "",
               "| cell | path | R | ours ms | paper ms | paper / ours | region tests | us per test |",
               "|---|---|---:|---:|---:|---:|---:|---:|"]
@@ -279,11 +294,15 @@ def kernel_markdown(result: dict, machine: dict | None = None) -> str:
         lines.append(f"| {r['cell']} | {r['path']} | {r['certify_ms'] / 1e3:.1f} | {r['certify_region_tests']:,} | "
                      f"{r['certify_samples']:,} | {r['certify_n_samples']:,} | {r['certify_shrinks']} | "
                      f"{r['certified_freedom_kept']:.3f} | {r['cf_percent']:.4f} |")
-    lines += ["", "## CF (R = 1000)", "", "| cell | path | samples | seconds | judged by Drake | Drake's share alone s |",
-              "|---|---|---:|---:|---:|---:|"]
+    lines += ["", "## CF (R = 1000; the kernel judges, Drake cross-checks a random share: a sample the kernel calls "
+              "free that Drake finds colliding would stop the run)", "",
+              "| cell | path | samples | seconds | CF % (kernel) | CF % (Drake judges all) | cross-checked by Drake | "
+              "kernel colliding, Drake free | Drake's share alone s |",
+              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     for r in result["cf"]:
-        lines.append(f"| {r['cell']} | {r['path']} | {r['samples']:,} | {r['seconds']:.2f} | {r['drake_checked']:,} | "
-                     f"{r['drake_floor_s']:.2f} |")
+        lines.append(f"| {r['cell']} | {r['path']} | {r['samples']:,} | {r['seconds']:.2f} | {r['percent']:.4f} | "
+                     f"{r.get('drake_percent', float('nan')):.4f} | {r['drake_checked']:,} | "
+                     f"{r.get('kernel_only_colliding', 0)} | {r['drake_floor_s']:.2f} |")
     c = result.get("compile")
     if c:
         lines += ["", f"## First compile (empty numba cache, fresh process): {c['seconds']:.1f} s", "",

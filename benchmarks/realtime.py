@@ -37,7 +37,7 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import plan_nominal_path
 from drake_cfvol.scene.workcell import load_workcell
-from drake_cfvol.systems import AddCoManipulation, RandomPushShaper
+from drake_cfvol.systems import AddCoManipulation, CoManipulationConfig, RandomPushShaper
 
 __all__ = ["RealtimeBenchConfig", "TARGETS", "CELLS", "station", "run_case", "run_realtime_bench",
            "realtime_targets", "realtime_markdown", "write_realtime_outputs"]
@@ -175,7 +175,7 @@ def station(wc, table, *, period: float, push: str, torque: float, seed: int):
     plant.Finalize()
     cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot=wc.robot_name, table=table,
                            tool_frame=wc.tool_frame.name(), period=period, measured_state=False,
-                           velocity_limits=wc.velocity_limits)
+                           config=CoManipulationConfig(velocity_limits=list(wc.velocity_limits)))
     to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
     builder.Connect(cm.commanded_position_output, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), sg.get_source_pose_port(plant.get_source_id()))
@@ -308,7 +308,8 @@ def realtime_markdown(result: dict, machine: dict | None = None) -> str:
              f"of the runs' p99s, max the largest step of any run; pushes {cfg['torque']:g} N m per joint). "
              "Wall time per simulator step (one control update; and the step's CPU time, the thread's own, which "
              "other work on a shared machine disturbs less), each system's own wall time per update, the filter's "
-             "QP solves and measured distance pairs per update. `cfvol bench --realtime` writes it.", ""]
+             "QP solves and measured distance pairs per update. `cfvol bench --realtime` writes it; paired runs "
+             "against the code before the filter's rework: [before_after.md](before_after.md).", ""]
     if machine:
         lines += [f"Machine: {machine.get('cpu', '?')}, {machine.get('cores', '?')} cores, shared with other work "
                   "while measured (timings are noisy).", ""]

@@ -29,17 +29,10 @@ from ``exceptions`` and ``_version``, which import nothing of the package);
 8. ``apps``: the ``cfvol`` command line and the demo.
 
 The benchmark harness (the paper's tables) lives outside the library, in
-``benchmarks/`` of a development checkout. The old flat module names
-(``drake_cfvol.certify``, ``drake_cfvol.workcell``, ...) still import: they
-are the new modules (see ``_compat``).
+``benchmarks/`` of a development checkout.
 """
 
-from pathlib import Path as _Path
-
 from drake_cfvol._version import __version__
-
-# The old module names resolve to the new modules (drake_cfvol/_compat).
-__path__.append(str(_Path(__file__).parent / "_compat"))
 
 from drake_cfvol.algorithm.certify import Certify
 from drake_cfvol.exceptions import (

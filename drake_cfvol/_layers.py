@@ -1,7 +1,7 @@
 """The package's layers: its subpackages in pipeline order, each importing
 only from those before it and from the base modules. The one list of them:
 ``tests/test_architecture.py`` checks the imports against it and
-``tools/layout.py`` draws the README's layout section from it."""
+``tools/layout.py`` draws the guide's layout section (docs/layout.md) from it."""
 
 #: Subpackages of ``drake_cfvol`` in pipeline order.
 LAYERS = ("io", "kernel", "scene", "algorithm", "online", "systems", "comanip", "apps")

@@ -55,10 +55,10 @@ def test_bounds_json_and_files(tmp_path, capsys):
 def test_simulate_json(tmp_path, capsys):
     """cfvol simulate --json prints the run's summary with the promised keys."""
     assert main(["simulate", "automotive_push", "--out", str(tmp_path), "--json",
-                 "--scenario-text", "{certify: false}"]) == 0
+                 "--scenario-text", "{bounds: {certify: null}}"]) == 0
     d = json.loads(capsys.readouterr().out)
     for key in ("scenario", "steps", "min_clearance_m", "max_bound_violation", "recording_html", "plot_png",
-                "max_velocity_ratio", "collisions", "filter_steps", "guard_steps", "faults"):
+                "max_velocity_ratio", "collisions", "filter_steps", "faults"):
         assert key in d
     # Inside the bounds to rounding (the filter set each command against the
     # bounds one period ahead, at a path index rounded differently).

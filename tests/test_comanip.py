@@ -17,7 +17,7 @@ import drake_cfvol as cf
 #: Most tests run the bundled scenarios on uncertified bounds: certifying a
 #: path takes tens of seconds, and what they test does not depend on it.
 #: The scenarios' own default (certified) runs in the slow group.
-FAST = "{certify: false}"
+FAST = "{bounds: {certify: null}}"
 
 #: The scenario whose run writes the recording, the plot and the diagram
 #: (the other writes its logs and summary only, as record=False asks).
@@ -66,9 +66,9 @@ def test_run_within_velocity_limits(run):
     ratio = (np.abs(np.diff(q, axis=0)) / 0.01 / wc.velocity_limits).max()
     assert ratio == pytest.approx(summary["max_velocity_ratio"]) and ratio <= 1.0
     scenario, _ = load_scenario(name)
-    assert summary["path_duration_s"] >= scenario.path_duration - 1e-9
-    assert summary["duration_s"] == pytest.approx(scenario.start_time + summary["path_duration_s"]
-                                                  + scenario.end_hold)
+    assert summary["path_duration_s"] >= scenario.path.duration - 1e-9
+    assert summary["duration_s"] == pytest.approx(scenario.control.path_progress.start_time
+                                                  + summary["path_duration_s"] + scenario.path.end_hold)
 
 
 def test_run_reports_volume_and_clearance(run):
@@ -203,7 +203,7 @@ def test_volume_in_the_diagrams_scene_at_r20000():
     from pydrake.geometry import Role
 
     scenario, file = load_scenario("aerospace_push", scenario_text=FAST)
-    scenario = dataclasses.replace(scenario, resolution=20000)
+    scenario = dataclasses.replace(scenario, bounds=dataclasses.replace(scenario.bounds, resolution=20000))
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     vol = cm.bounds.volume.volume
     assert vol.n_boxes > 1500 and cm.volume_boxes["count"] <= 1500
@@ -222,12 +222,40 @@ def test_volume_in_the_diagrams_scene_at_r20000():
 def test_every_system_named():
     """Every system of a built diagram (log sinks, adders, the visualizer,
     SceneGraph) has a chosen name, so the diagram's SVG names them all."""
-    scenario, file = load_scenario("automotive_random", scenario_text="{reactive: {gain: 10.0}, certify: false}")
+    scenario, file = load_scenario("automotive_random",
+                                   scenario_text="{human: {reactive: {gain: 10.0}}, bounds: {certify: null}}")
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent, meshcat=None)
     names = [sys.get_name() for sys in cm.diagram.GetSystems()]
     assert len(names) == len(set(names)) and not any(n.startswith("drake/") or "@" in n for n in names)
-    assert {"admittance", "joint_bounds", "clearance_monitor", "reactive_coworker", "random_pushes", "push_sum",
-            "log_commanded_position", "scene_graph"} <= set(names)
+    assert {"admittance", "joint_bounds", "joint_bounds_now", "safety_filter", "clearance_monitor",
+            "reactive_coworker", "random_pushes", "push_sum", "log_commanded_position", "scene_graph"} <= set(names)
+
+
+def test_scenario_diagram_is_built_by_add_comanipulation(monkeypatch):
+    """The scenario runner wires the control chain with the same
+    AddCoManipulation call a user's station makes: called once, with the
+    scenario's control section (its period, gains and filter), and the
+    systems it returns are the diagram's."""
+    import drake_cfvol.comanip.diagram as C
+
+    calls = []
+    real = C.AddCoManipulation
+
+    def spy(builder, **kw):
+        calls.append(kw)
+        return real(builder, **kw)
+
+    monkeypatch.setattr(C, "AddCoManipulation", spy)
+    scenario, file = load_scenario("automotive_push", scenario_text="{bounds: {certify: null}, control: {period: "
+                                   "0.02, admittance: {mass: 4.0}, safety_filter: {damper_gain: 0.7}}}")
+    cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
+    (kw,) = calls
+    assert kw["period"] == 0.02 and not kw["measured_state"]
+    assert kw["config"].admittance == scenario.control.admittance and kw["config"].admittance.mass == 4.0
+    assert kw["config"].safety_filter == scenario.control.safety_filter
+    assert cm.diagram.GetSubsystemByName("safety_filter") is cm.control.safety
+    assert cm.control.safety.damper_gain == 0.7 and cm.control.admittance.period == 0.02
+    assert cm.progress is cm.control.progress
 
 
 def test_diagram_ports_named():
@@ -244,9 +272,9 @@ def test_table_loaded_from_disk_builds_a_diagram(tmp_path):
     from pydrake.systems.analysis import Simulator
 
     scenario, file = load_scenario("automotive_push", scenario_text=FAST)
-    wc = cf.load_workcell(scenario.cell)
-    path = cf.plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.random_seed)
-    table = cf.estimate_bounds(wc, path, resolution=scenario.resolution)
+    wc = cf.load_workcell(scenario.cell.name)
+    path = cf.plan_nominal_path(wc, *wc.configuration(scenario.path.name), seed=scenario.random_seed)
+    table = cf.estimate_bounds(wc, path, resolution=scenario.bounds.resolution)
     loaded = cf.BoundsTable.load(table.save(tmp_path / "b.npz"))
     assert loaded.volume is None
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent, path=path, bounds=loaded)
@@ -265,13 +293,13 @@ def test_unknown_scenario():
 
 
 @pytest.mark.parametrize("text, field, says", [
-    ("resolution: abc\n", "resolution", "must be an integer, got 'abc'"),
-    ("cell: nocell\n", "cell", "neither a built-in cell"),
-    ("cell: ../nope.yaml\n", "cell", "does not exist"),
-    ("admittance:\n  mass: x\n", "admittance.mass", "must be a number"),
+    ("bounds:\n  resolution: abc\n", "bounds.resolution", "must be an integer, got 'abc'"),
+    ("cell:\n  name: nocell\n", "cell.name", "neither a built-in cell"),
+    ("cell:\n  name: ../nope.yaml\n", "cell.name", "does not exist"),
+    ("control:\n  admittance:\n    mass: x\n", "control.admittance.mass", "must be a number"),
     ("resolutoin: 5\n", "resolutoin", "not a field of Scenario"),
-    ("log_period: 0\n", "log_period", "must be > 0"),
-    ("params:\n  h_maks: 1.0\n", "params.h_maks", "not a VolumeParams field"),
+    ("simulation:\n  log_period: 0\n", "simulation.log_period", "must be > 0"),
+    ("bounds:\n  params:\n    h_maks: 1.0\n", "bounds.params.h_maks", "not a field of VolumeParamsConfig"),
 ])
 def test_scenario_field_errors(tmp_path, text, field, says):
     """Each bad scenario field is named with its file and the fix, at load time
@@ -310,12 +338,15 @@ def test_scenario_text_overrides_the_file():
     defaults): the named fields change, every other field keeps the file's
     value, nested configs merge."""
     base, _ = load_scenario("automotive_push")
-    s, _ = load_scenario("automotive_push", scenario_text="{resolution: 2000, simulator_config: "
-                                                          "{target_realtime_rate: 0.5}, random_pushes: {max_torque: 11.0}}")
-    assert s.resolution == 2000 and s.simulator_config.target_realtime_rate == 0.5
-    assert s.random_pushes.max_torque == 11.0 and s.random_pushes.count == base.random_pushes.count
-    assert s.pushes == base.pushes and s.path == base.path
-    assert s.simulator_config.integration_scheme == base.simulator_config.integration_scheme
+    s, _ = load_scenario("automotive_push", scenario_text="{bounds: {resolution: 2000}, simulation: {simulator_config: "
+                                                          "{target_realtime_rate: 0.5}}, human: {random_pushes: "
+                                                          "{max_torque: 11.0}}, control: {admittance: {mass: 3.0}}}")
+    assert s.bounds.resolution == 2000 and s.simulation.simulator_config.target_realtime_rate == 0.5
+    assert s.human.random_pushes.max_torque == 11.0 and s.human.random_pushes.count == base.human.random_pushes.count
+    assert s.human.pushes == base.human.pushes and s.path == base.path
+    assert s.control.admittance.mass == 3.0 and s.control.admittance.damping == base.control.admittance.damping
+    assert s.control.safety_filter == base.control.safety_filter and s.bounds.certify == base.bounds.certify
+    assert s.simulation.simulator_config.integration_scheme == base.simulation.simulator_config.integration_scheme
 
 
 def test_minimal_scenario_gets_the_defaults(tmp_path):
@@ -324,12 +355,13 @@ def test_minimal_scenario_gets_the_defaults(tmp_path):
     from drake_cfvol.comanip import Scenario
 
     f = tmp_path / "mini.yaml"
-    f.write_text("cell: aerospace\n")
+    f.write_text("cell: {name: aerospace}\n")
     s, _ = load_scenario(f)
     d = Scenario()
-    assert s.cell == "aerospace" and s.resolution == d.resolution and s.pushes == []
-    assert s.simulator_config.max_step_size == d.simulator_config.max_step_size
-    assert s.visualization.publish_period == d.visualization.publish_period and not s.visualization.publish_contacts
+    assert s.cell.name == "aerospace" and s.bounds.resolution == d.bounds.resolution and s.human.pushes == []
+    assert s.simulation.simulator_config.max_step_size == d.simulation.simulator_config.max_step_size
+    vis = s.simulation.visualization
+    assert vis.publish_period == d.simulation.visualization.publish_period and not vis.publish_contacts
 
 
 @pytest.mark.slow
@@ -340,7 +372,8 @@ def test_random_pushes_seeded_through_the_context():
     from pydrake.systems.analysis import Simulator
 
     scenario, file = load_scenario("automotive_push",
-                                   scenario_text="{pushes: [], random_pushes: {count: 6}, certify: false}")
+                                   scenario_text="{human: {pushes: [], random_pushes: {count: 6}}, "
+                                                 "bounds: {certify: null}}")
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     port = cm.diagram.GetOutputPort("human_torque")
 
@@ -359,7 +392,7 @@ def test_random_pushes_seeded_through_the_context():
     assert np.abs(a).max() > 0 and not np.array_equal(a, c)
 
 
-_KEYS = ("max_velocity_ratio", "volume_penetrations", "filter_steps", "guard_steps", "faults", "min_clearance_m")
+_KEYS = ("max_velocity_ratio", "volume_penetrations", "filter_steps", "faults", "min_clearance_m")
 
 
 @pytest.mark.slow
@@ -390,19 +423,20 @@ def test_push_toward_nearest_obstacle_points_at_it():
 
     scenario, file = load_scenario("automotive_push", scenario_text=FAST)
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
-    i = next(n for n, p in enumerate(scenario.pushes) if p.toward_nearest_obstacle)
+    i = next(n for n, p in enumerate(scenario.human.pushes) if p.toward_nearest_obstacle)
     push = _resolve_pushes(scenario, cm.workcell, cm.path, cm.progress)[i]
     q = cm.path.at(cm.progress.index_at(push.start))
     _, dist, p_WR, p_WO = cm.workcell.nearest_obstacle(q)
     f = np.asarray(push.wrench[3:])
-    assert np.linalg.norm(f) == pytest.approx(scenario.pushes[i].toward_nearest_obstacle)
+    assert np.linalg.norm(f) == pytest.approx(scenario.human.pushes[i].toward_nearest_obstacle)
     np.testing.assert_allclose(f / np.linalg.norm(f), (p_WO - p_WR) / np.linalg.norm(p_WO - p_WR), atol=1e-9)
     assert dist == pytest.approx(min(cm.workcell.obstacle_distances(q, 5.0, changeable_only=True).values()))
 
 
 def test_scenario_certify_asks_for_certified_bounds(monkeypatch):
-    """certify: true builds the diagram on certified bounds (Certify at its
-    defaults, seeded with the scenario's seed); false, on the paper's."""
+    """bounds.certify given builds the diagram on certified bounds (Certify
+    with those settings, seeded with the scenario's seed); null, on the
+    paper's."""
     import drake_cfvol.comanip.diagram as C
     from drake_cfvol.algorithm.certify import Certify
 
@@ -414,10 +448,11 @@ def test_scenario_certify_asks_for_certified_bounds(monkeypatch):
         return real(*a, **kw)  # the uncertified table: only the request is under test
 
     monkeypatch.setattr(C, "estimate_bounds", spy)
-    for flag in ("true", "false"):
-        scenario, file = load_scenario("automotive_reactive", scenario_text=f"{{certify: {flag}, resolution: 200}}")
+    for flag in ("{}", "{confidence: 0.9}", "null"):
+        scenario, file = load_scenario("automotive_reactive", scenario_text=f"{{bounds: {{certify: {flag}, "
+                                                                            "resolution: 200}, random_seed: 3}")
         build_comanipulation_diagram(scenario, base_dir=file.parent)
-    assert asked[0] == Certify(seed=scenario.random_seed) and asked[1] is None
+    assert asked == [Certify(seed=3), Certify(seed=3, confidence=0.9), None]
 
 
 # Certifies automotive path 1 with the boundary proof (~170 s, shared within the
@@ -431,7 +466,7 @@ def test_certified_scenarios_run_safely_with_the_filter(name, tmp_path):
     and every configuration at the update rate is free (Drake, recounted)
     and inside the bounds at the logged samples."""
     scenario, _ = load_scenario(name)
-    assert scenario.certify and scenario.collision_guard
+    assert scenario.bounds.certify is not None and scenario.control.safety_filter is not None
     s = run_scenario(name, tmp_path, record=False, plot=False, svg=False)
     assert s["collisions"] == 0 and s["filter_fallbacks"] == 0 and s["filter_damper_misses"] == 0
     assert s["max_velocity_ratio"] <= 1.0
@@ -447,10 +482,10 @@ def test_sensor_faults_are_held_and_reported(tmp_path):
     force (0.2 s) in a run: no exception, every command finite, and the
     summary counts exactly the faulted updates (50 + 30 + 20)."""
     s = run_scenario("automotive_push", tmp_path, record=False, plot=False, svg=False, scenario_text=(
-        "{certify: false, collision_guard: false, pushes: ["
+        "{bounds: {certify: null}, control: {safety_filter: null}, human: {pushes: ["
         "{start: 1.0, duration: 0.5, joint_torque: [.nan, 0, 0, 0, 0, 0]}, "
         "{start: 2.0, duration: 0.3, joint_torque: [0, 1.0e6, 0, 0, 0, 0]}, "
-        "{start: 3.0, duration: 0.2, wrench: [0, 0, 0, 0, .inf, 0]}]}"))
+        "{start: 3.0, duration: 0.2, wrench: [0, 0, 0, 0, .inf, 0]}]}}"))
     assert s["faults"] == 100 and s["collisions"] == 0
     logs = np.load(tmp_path / "logs.npz")
     assert np.isfinite(logs["update_commanded_position"]).all()
@@ -467,8 +502,8 @@ def test_steady_push_into_an_obstacle_keeps_the_margin(tmp_path):
     distances in the workcell's scene, not the run's) is >= 2 cm - 2 mm, no
     joint moves faster than its limit, and the co-worker still deforms the
     motion."""
-    scenario_text = ("{certify: false, safety_filter: {clearance: 0.02}, "
-                     "pushes: [{start: 1.0, duration: 1.0e9, toward_nearest_obstacle: 300.0}]}")
+    scenario_text = ("{bounds: {certify: null}, control: {safety_filter: {clearance: 0.02}}, "
+                     "human: {pushes: [{start: 1.0, duration: 1.0e9, toward_nearest_obstacle: 300.0}]}}")
     s = run_scenario("automotive_push", tmp_path, record=False, plot=False, svg=False, scenario_text=scenario_text)
     logs = np.load(tmp_path / "logs.npz")
     q = logs["update_commanded_position"]
@@ -515,8 +550,9 @@ def test_run_problems_name_what_went_wrong():
 
 #: A trolley that is not in the repository, rolled next to path 1's start
 #: and back while the co-worker pushes (the automotive cell).
-TROLLEY = ("{certify: false, moving_obstacles: [{name: trolley, box: [0.6, 1.0, 1.0], waypoints: [[0.0, -2.4, 2.5, 0.5],"
-           " [1.0, -2.4, 2.5, 0.5], [4.5, -0.8, 2.5, 0.5], [5.0, -0.8, 2.5, 0.5], [7.5, -2.4, 2.5, 0.5]]}]}")
+TROLLEY = ("{bounds: {certify: null}, cell: {moving_obstacles: [{name: trolley, box: [0.6, 1.0, 1.0], waypoints: "
+           "[[0.0, -2.4, 2.5, 0.5], [1.0, -2.4, 2.5, 0.5], [4.5, -0.8, 2.5, 0.5], [5.0, -0.8, 2.5, 0.5], "
+           "[7.5, -2.4, 2.5, 0.5]]}]}}")
 
 
 @pytest.mark.slow  # about 45 s: a depth camera at 20 Hz and the bounds re-estimated online
@@ -534,7 +570,7 @@ def test_moving_obstacle_run_meets_its_targets(tmp_path):
     assert summary["bounds_latency_s"] <= 0.2 and summary["bounds_updates"] > 10
     assert summary["freedom_end_ratio"] > 0.999
     scenario, _ = load_scenario("automotive_moving_obstacle", scenario_text=TROLLEY)
-    ob = scenario.moving_obstacles[0]
+    ob = scenario.cell.moving_obstacles[0]
     logs = np.load(tmp_path / "logs.npz")
     t, q = logs["update_commanded_position_t"], logs["update_commanded_position"]
     arrays = cf.load_workcell("automotive").scene_arrays()
@@ -550,7 +586,7 @@ def test_truth_perception_run_keeps_the_margin(tmp_path):
     """With the boxes' own map (perception truth) the bundled cart run keeps
     the margin too: the filter measures the map's columns, whose dilation
     covers the cart's motion between maps."""
-    summary = run_scenario("automotive_moving_obstacle", tmp_path, scenario_text="{certify: false, perception: truth}",
+    summary = run_scenario("automotive_moving_obstacle", tmp_path, scenario_text="{bounds: {certify: null}, perception: {mode: truth}}",
                            record=False, plot=False, svg=False)
     assert summary["perception"] == "truth" and summary["collisions"] == 0 and summary["problems"] == []
     assert summary["min_clearance_m"] >= summary["clearance_m"] - 0.002 and summary["bounds_latency_s"] <= 0.2

@@ -31,7 +31,7 @@ def test_lcm_loopback_between_controller_and_simulated_station():
     simulated driver (its commanded position is ours) and the driver's status
     comes back (measured position equal to the plant's, external torque equal
     to the plant's filtered contact forces: zero before any contact)."""
-    scenario, file = load_scenario("cobot_push", scenario_text="{certify: false, resolution: 300, pushes: []}")
+    scenario, file = load_scenario("cobot_push", scenario_text="{bounds: {certify: null, resolution: 300}, human: {pushes: []}}")
     cm = build_comanipulation_diagram(scenario, scenario_file=file)
     sim = Simulator(cm.diagram)
     ctx = sim.get_mutable_context()
@@ -55,7 +55,7 @@ def test_joint_torque_pushes_refused_for_a_torque_sensing_arm(tmp_path):
     """A joint-torque push in the cobot cell is refused before loading: the
     arm feels pushes through contact only."""
     with pytest.raises(cf.ScenarioError, match="pushes item 1: joint_torque.*tool wrenches"):
-        load_scenario("cobot_push", scenario_text="{pushes: [{joint_torque: [1, 0, 0, 0, 0, 0, 0]}]}")
+        load_scenario("cobot_push", scenario_text="{human: {pushes: [{joint_torque: [1, 0, 0, 0, 0, 0, 0]}]}}")
 
 
 @pytest.mark.slow
@@ -88,7 +88,7 @@ def test_hardware_controller_drives_the_simulated_station_over_lcm_only():
     from pydrake.systems.primitives import LogVectorOutput
 
     from drake_cfvol.comanip.iiwa import add_hand, add_iiwa_controller, add_iiwa_station, grip_point, tool_radius
-    from drake_cfvol.systems import Push, ScriptedHuman
+    from drake_cfvol.systems import AdmittanceConfig, CoManipulationConfig, PathProgressConfig, Push, ScriptedHuman
     from drake_cfvol.systems.hand import add_hand_body, waiting_point
 
     wc = cf.load_workcell("cobot")
@@ -106,8 +106,9 @@ def test_hardware_controller_drives_the_simulated_station_over_lcm_only():
     human = builder.AddSystem(ScriptedHuman(7, [Push(1.0, 1.5, [], [0, 0, 0, 0, 40.0, 0])]))
     add_hand(builder, plant, hand, plant.GetFrameByName(wc.tool_frame.name(), iiwa), human.human_wrench_output,
              tool_radius=tool_radius(wc), initial_direction=[0, 1, 0], p_BG=grip_point(wc))
-    cm, status = add_iiwa_controller(builder, workcell=wc, table=table, lcm=lcm, mass=2.0, damping=80.0,
-                                     stiffness=300.0, start_time=0.5)
+    config = CoManipulationConfig(admittance=AdmittanceConfig(mass=2.0, damping=80.0, stiffness=300.0),
+                                  path_progress=PathProgressConfig(start_time=0.5))
+    cm, status = add_iiwa_controller(builder, workcell=wc, table=table, lcm=lcm, config=config)
     truth = LogVectorOutput(plant.get_state_output_port(iiwa), builder, publish_period=0.01)
     felt = LogVectorOutput(status.get_torque_external_output_port(), builder, publish_period=0.01)
     commanded = LogVectorOutput(cm.commanded_position_output, builder, publish_period=0.01)

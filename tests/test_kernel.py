@@ -27,13 +27,22 @@ def _random_configs(wc, n, seed):
     return np.random.default_rng(seed).uniform(wc.position_lower, wc.position_upper, (n, wc.num_joints))
 
 
-@pytest.mark.parametrize("cell", ["automotive", "aerospace", "mesh"])
+def _cell(cell, request, mesh_cell):
+    if cell == "mesh":
+        return mesh_cell
+    if cell == "cobot":
+        return cf.load_workcell("cobot")
+    return request.getfixturevalue(cell)
+
+
+@pytest.mark.parametrize("cell", ["automotive", "aerospace", "cobot", "mesh"])
 def test_fk_matches_drake(cell, request, mesh_cell):
-    """Body poses from the kernel's chain equal Drake's to 1e-12 on random
-    configurations."""
-    wc = mesh_cell if cell == "mesh" else request.getfixturevalue(cell)
+    """Body poses from the kernel's chain, computed in blocks of NB
+    configurations (45: a full block and a partial one), equal Drake's to
+    1e-12 on random configurations."""
+    wc = _cell(cell, request, mesh_cell)
     arrays = wc.scene_arrays()
-    Q = _random_configs(wc, 40, 1)
+    Q = _random_configs(wc, K.NB + 45, 1)
     R, p = arrays.fk(Q)
     for n, q in enumerate(Q):
         ctx = wc.plant_context(q)
@@ -43,19 +52,59 @@ def test_fk_matches_drake(cell, request, mesh_cell):
             np.testing.assert_allclose(p[n, b], X.translation(), atol=1e-12, rtol=0)
 
 
-@pytest.mark.parametrize("cell", ["automotive", "aerospace", "mesh"])
+@pytest.mark.parametrize("cell", ["automotive", "aerospace", "cobot", "mesh"])
 def test_never_calls_free_where_drake_collides(cell, request, mesh_cell):
     """On random configurations (about half colliding), the kernel reports
     every configuration Drake finds in collision; and since every shape is
     represented exactly (meshes by their convex hulls, as Drake does), it
     calls nothing else a collision either."""
-    wc = mesh_cell if cell == "mesh" else request.getfixturevalue(cell)
+    wc = _cell(cell, request, mesh_cell)
     Q = _random_configs(wc, 3000, 2)
     drake_hit = ~np.array(wc.checker.CheckConfigsCollisionFree(Q, parallelize=True), bool)
     kernel_hit = wc.scene_arrays().may_collide(Q)
     assert 0.05 * len(Q) < drake_hit.sum() < 0.95 * len(Q)
     assert not (drake_hit & ~kernel_hit).any(), "the kernel called a colliding configuration free"
     assert (kernel_hit & ~drake_hit).sum() <= 0.002 * len(Q)
+
+
+@pytest.mark.parametrize("cell", ["automotive", "mesh"])
+def test_batch_check_answers_do_not_depend_on_the_batch(cell, request, mesh_cell):
+    """A configuration's answer is the same alone (the calling thread's
+    path), in a partial block, and in a large parallel batch, and agrees
+    with Drake's checker, at a pad of 0 and of 2 cm (Drake's padding)."""
+    wc = _cell(cell, request, mesh_cell)
+    arrays = wc.scene_arrays()
+    Q = _random_configs(wc, 600, 3)
+    for pad in (0.0, 0.02):
+        whole = arrays.may_collide(Q, pad)
+        alone = np.array([arrays.may_collide(q[None], pad)[0] for q in Q[:80]])
+        partial = arrays.may_collide(Q[:K.NB + 7], pad)
+        np.testing.assert_array_equal(alone, whole[:80])
+        np.testing.assert_array_equal(partial, whole[:K.NB + 7])
+    checker = wc.checker
+    for i in range(100):
+        if not whole[i]:  # certified free at 2 cm: Drake finds no body within 2 cm
+            assert checker.CalcRobotClearance(Q[i], 0.05).distances().min(initial=np.inf) >= 0.02 - 1e-9
+
+
+def test_sincos_matches_the_library():
+    """The kernel's branch-free sine and cosine equal libm's within 3e-16
+    over the angles a joint can have, quadrant boundaries included."""
+    from numba import njit
+
+    @njit
+    def both(x):
+        s = np.empty_like(x)
+        c = np.empty_like(x)
+        for i in range(x.shape[0]):
+            s[i], c[i] = K.blocks.sincos(x[i])
+        return s, c
+
+    x = np.concatenate([np.random.default_rng(0).uniform(-4 * np.pi, 4 * np.pi, 200_000),
+                        np.arange(-16, 17) * np.pi / 4, np.arange(-16, 17) * np.pi / 4 + 1e-12])
+    s, c = both(x)
+    np.testing.assert_allclose(s, np.sin(x), atol=3e-16, rtol=0)
+    np.testing.assert_allclose(c, np.cos(x), atol=3e-16, rtol=0)
 
 
 def _box_row(c, half, R=np.eye(3)):

@@ -82,6 +82,31 @@ def test_cf_with_kernel_prefilter_is_drakes_answer(automotive, bounded):
     assert full.drake_checked == full.samples and fast.drake_checked < 0.5 * fast.samples
 
 
+def test_cf_judged_by_the_kernel_is_drakes_within_its_grazing_calls(automotive, bounded):
+    """Judged by the kernel, on the same draws: every sample Drake finds
+    colliding counts as colliding, the CF is at most Drake's and within
+    0.2 % of it, and the cross-check counts what it says."""
+    table = bounded("automotive", "path1", 1000)
+    fast = cf.confidence_factor(automotive, table, windows=6, samples=1500, seed=3, judge="kernel", cross_check=4000)
+    full = cf.confidence_factor(automotive, table, windows=6, samples=1500, seed=3, prefilter=False)
+    assert fast.judge == "kernel" and fast.cross_checked == fast.drake_checked == 4000
+    assert full.colliding <= fast.colliding <= full.colliding + 0.002 * full.samples
+    assert fast.percent <= full.percent and np.all(fast.per_window <= full.per_window)
+    assert 0 <= fast.kernel_only_colliding <= fast.colliding - full.colliding
+
+
+def test_cf_judged_by_the_kernel_stops_on_a_sample_it_wrongly_calls_free(automotive, bounded, monkeypatch):
+    """A kernel that called everything free (a planted defect) is caught by
+    Drake's cross-check, not reported as a CF."""
+    table = bounded("automotive", "path1", 1000)
+    arrays = automotive.scene_arrays()
+    monkeypatch.setattr(type(arrays), "may_collide", lambda self, Q, pad=0.0: np.zeros(len(Q), bool))
+    with pytest.raises(cf.WorkcellError, match="cross-checked samples free"):
+        cf.confidence_factor(automotive, table, windows=6, samples=1500, seed=3, judge="kernel")
+    with pytest.raises(cf.ParameterError, match="judge"):
+        cf.confidence_factor(automotive, table, judge="oracle")
+
+
 def test_shown_percent_never_rounds_a_collision_to_100():
     """One colliding sample in 10^7 is shown below 100 %; none is 100 %."""
     from drake_cfvol.algorithm.metrics import shown_percent

@@ -316,6 +316,28 @@ def test_add_comanipulation_ports_on_a_plant_with_more_dofs(station_bounds):
     np.testing.assert_array_equal(x, np.concatenate([table.nominal[0], np.zeros(7)]))
 
 
+def test_add_comanipulation_tool_speed_limit_from_the_config(station_bounds):
+    """SafetyFilterConfig(tool_speed=...) gives the filter a ToolSpeedLimit
+    at the tool frame; the default gives it none."""
+    from drake_cfvol.systems import CoManipulationConfig, SafetyFilterConfig, ToolSpeedLimit
+
+    _, table = station_bounds
+    for speed in (None, 0.25):
+        builder = DiagramBuilder()
+        plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
+        add_station_models(plant, Parser(plant), part=False)
+        plant.Finalize()
+        cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table,
+                               tool_frame="tool", config=CoManipulationConfig(
+                                   safety_filter=SafetyFilterConfig(tool_speed=speed)))
+        limits = [c for c in cm.safety.constraints if isinstance(c, ToolSpeedLimit)]
+        if speed is None:
+            assert limits == []
+        else:
+            (limit,) = limits
+            assert limit.speed == speed and limit.frame.name() == "tool"
+
+
 def test_add_comanipulation_refuses_a_table_of_other_joints(station_bounds, bounded):
     """A table for another robot, an unknown robot or frame: a StationError that names it."""
     _, table = station_bounds
@@ -330,3 +352,60 @@ def test_add_comanipulation_refuses_a_table_of_other_joints(station_bounds, boun
         AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="abb", table=table, tool_frame="tool")
     with pytest.raises(cf.StationError, match="tool_frame 'tcp'"):
         AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table, tool_frame="tcp")
+
+
+def test_add_comanipulation_config_reaches_the_systems(station_bounds):
+    """The config's gains and limits are the systems' own: the admittance's
+    M, D, K parameters, the filter's margin and damper (its clearance the
+    table's when left null), the path's rate at the config's share capped
+    by its max_rate, and its start time; the period is the rate of every
+    update."""
+    from drake_cfvol.systems import (AdmittanceConfig, CoManipulationConfig, PathProgressConfig,
+                                     SafetyFilterConfig, safe_path_rate)
+
+    _, table = station_bounds
+    builder = DiagramBuilder()
+    plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
+    add_station_models(plant, Parser(plant))
+    plant.Finalize()
+    limits = plant.GetVelocityUpperLimits()[:7]
+    slow = safe_path_rate(table, limits, share=0.3) / 2
+    config = CoManipulationConfig(
+        admittance=AdmittanceConfig(mass=3.0, damping=50.0, stiffness=0.0),
+        safety_filter=SafetyFilterConfig(influence_distance=0.2, damper_gain=0.5),
+        path_progress=PathProgressConfig(velocity_share=0.3, start_time=1.5, max_rate=slow))
+    cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table, tool_frame="tool",
+                           period=0.02, config=config)
+    np.testing.assert_array_equal([cm.admittance.M, cm.admittance.D, cm.admittance.K], [[3.0] * 7, [50.0] * 7,
+                                                                                        [0.0] * 7])
+    assert cm.admittance.period == cm.safety.period == 0.02 and cm.admittance.path_share == 0.3
+    assert cm.safety.clearance == table.params["clearance"] and cm.safety.influence_distance == 0.2
+    assert cm.safety.damper_gain == 0.5 and cm.safety.allowance == SafetyFilterConfig().allowance
+    assert cm.progress.rate == slow and cm.progress.start_time == 1.5
+    assert cm.duration == pytest.approx(1.5 + (table.g - 1) / slow)
+
+
+def test_add_comanipulation_without_the_filter(station_bounds):
+    """safety_filter null: no filter is added, the admittance's command is
+    the output and there is no desired state; the filter's margin, when
+    given, is the config's."""
+    import dataclasses
+
+    from drake_cfvol.systems import CoManipulationConfig, SafetyFilterConfig
+
+    _, table = station_bounds
+    for filter_config in (None, SafetyFilterConfig(clearance=0.05)):
+        builder = DiagramBuilder()
+        plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
+        add_station_models(plant, Parser(plant))
+        plant.Finalize()
+        config = dataclasses.replace(CoManipulationConfig(), safety_filter=filter_config)
+        cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table,
+                               tool_frame="tool", config=config, name="arm")
+        names = {s.get_name() for s in builder.GetSystems()}
+        if filter_config is None:
+            assert cm.safety is None and cm.desired_state_output is None and "arm_safety_filter" not in names
+            assert cm.commanded_position_output is cm.admittance.commanded_position_output
+        else:
+            assert cm.safety.clearance == 0.05 and "arm_safety_filter" in names
+            assert cm.commanded_position_output is cm.safety.commanded_position_output

@@ -84,6 +84,32 @@ def test_user_robot_package_with_stl_meshes(tmp_path, monkeypatch):
     assert wc.colliding_pairs([np.pi / 2]) == [("link1", "post")]
 
 
+def test_cache_off_writes_no_cache_anywhere(tmp_path, monkeypatch):
+    """DRAKE_CFVOL_CACHE=off turns every cache off: an STL robot still loads
+    (its meshes converted into a folder of the process's own), nothing is
+    written into ./off or the user's cache folder, and the certificate cache
+    is off too."""
+    from drake_cfvol.algorithm.cert_cache import cache_dir as certificate_dir
+    from drake_cfvol.scene.meshes import cache_dir as mesh_dir
+
+    work, user_cache = tmp_path / "work", tmp_path / "xdg"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(user_cache))
+    monkeypatch.setenv("DRAKE_CFVOL_CACHE", "off")
+    path = write_arm_cell(
+        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+        obstacles={"post": ((0.2, 0.2, 2.0), (0.0, 0.8, 1.0))}, mesh_links=True)
+    wc = cf.load_workcell(path)
+    assert any("STL" in n for n in wc.notes)
+    assert wc.colliding_pairs([np.pi / 2]) == [("link1", "post")]  # the converted mesh is the link
+    assert certificate_dir() is None
+    assert not (work / "off").exists() and list(work.iterdir()) == []
+    assert not user_cache.exists()
+    assert list((mesh_dir() / "meshes").glob("*.obj")), "the converted meshes are in the process's folder"
+    assert tmp_path not in mesh_dir().parents
+
+
 def test_wrong_length_configuration(automotive):
     """A configuration of the wrong size names the expected size and joints."""
     with pytest.raises(cf.DimensionError, match="expected 6, got 5.*joint_1"):

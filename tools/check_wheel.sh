@@ -11,9 +11,14 @@ tmp="$(mktemp -d)"
 trap 'rm -rf "$tmp"' EXIT
 "$PY" -m venv "$tmp/venv"
 py="$tmp/venv/bin/python"
-"$py" -m pip install -q --upgrade pip >/dev/null
-"$py" -m pip wheel --no-deps -q -w "$tmp/dist" "$repo" >/dev/null
-"$py" -m pip install -q "$tmp"/dist/*.whl
+# pip's and setuptools' chatter goes to a log, shown only if a step fails.
+log="$tmp/pip.log"
+if ! { "$py" -m pip install -q --upgrade pip && "$py" -m pip wheel --no-deps -q -w "$tmp/dist" "$repo" &&
+       "$py" -m pip install -q "$tmp"/dist/*.whl; } >"$log" 2>&1; then
+  cat "$log" >&2
+  echo "check_wheel.sh: error: building or installing the wheel failed (log above)" >&2
+  exit 1
+fi
 mkdir "$tmp/work"
 cd "$tmp/work"
 "$py" - <<PYEOF
@@ -25,13 +30,12 @@ site = pathlib.Path("$tmp/venv")
 where = pathlib.Path(drake_cfvol.__file__).resolve()
 assert site in where.parents, f"imported from {where}, not from the installed wheel"
 assert site in pathlib.Path(models_dir()).resolve().parents, models_dir()
-# Every module of the package (its own folder, not the old names' folder;
-# __main__ is the command line itself, run below).
+# Every module of the package (__main__ is the command line itself, run below).
 root = pathlib.Path(drake_cfvol.__file__).parent
 names = [m.name for m in pkgutil.walk_packages([str(root)], "drake_cfvol.")
-         if not m.name.startswith("drake_cfvol._compat") and m.name != "drake_cfvol.__main__"]
+         if m.name != "drake_cfvol.__main__"]
 on_disk = {".".join(p.relative_to(root.parent).with_suffix("").parts).removesuffix(".__init__")
-           for p in root.rglob("*.py") if "_compat" not in p.parts and p.stem != "__main__"}
+           for p in root.rglob("*.py") if p.stem != "__main__"}
 missing = sorted(on_disk - set(names) - {"drake_cfvol"})
 assert not missing, f"modules on disk that the walk did not find: {missing}"
 for name in names:
@@ -48,6 +52,6 @@ cfvol="$tmp/venv/bin/cfvol"
 "$cfvol" plan aerospace --path 1 --json >/dev/null
 # Uncertified: the wheel's data and recording are what is checked here;
 # certification is the tests'.
-"$cfvol" simulate automotive_push --out run --json --scenario-text "{certify: false}" >/dev/null
+"$cfvol" simulate automotive_push --out run --json --scenario-text "{bounds: {certify: null}}" >/dev/null
 test -s run/recording.html && test -s run/summary.json
 echo "wheel check: OK"

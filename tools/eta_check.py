@@ -21,9 +21,9 @@ import time
 import drake_cfvol as cf
 from drake_cfvol.io import progress
 from drake_cfvol.apps.cli import bench_harness
+from drake_cfvol.comanip import run_scenario
 
 BenchConfig, run_bench = bench_harness().BenchConfig, bench_harness().run_bench
-from drake_cfvol.comanip import run_scenario
 
 
 fresh_compile = bench_harness("kernel").fresh_compile

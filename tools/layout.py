@@ -1,9 +1,9 @@
-"""Draws the README's layout section from the package tree: each
+"""Draws the guide's layout section (docs/layout.md) from the package tree: each
 subpackage (in pipeline order) with the first sentence of its docstring, and
 each of its modules with the first sentence of its own.
 
     tools/dev.sh python tools/layout.py            # print it
-    tools/dev.sh python tools/layout.py --write    # replace it in README.md
+    tools/dev.sh python tools/layout.py --write    # replace it in docs/layout.md
 """
 
 import argparse
@@ -14,6 +14,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "drake_cfvol"
+PAGE = ROOT / "docs" / "layout.md"
 sys.path.insert(0, str(ROOT))
 from drake_cfvol._layers import LAYERS  # noqa: E402  (the one list of the layers)
 START, END = "<!-- layout: drawn by tools/layout.py -->", "<!-- layout end -->"
@@ -38,23 +39,22 @@ def layout() -> str:
                 continue
             lines.append(f"     - `{mod.stem}`: {_first_sentence(mod)}.")
     lines += ["  - `exceptions`: " + _first_sentence(PACKAGE / "exceptions.py") + ".",
-              "  - `_compat/`: the old flat module names (`drake_cfvol.certify`, ...), each the new module.",
               "", END]
     return "\n".join(lines)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--write", action="store_true", help="replace the section in README.md")
+    ap.add_argument("--write", action="store_true", help="replace the section in docs/layout.md")
     args = ap.parse_args()
     text = layout()
     if not args.write:
         print(text)
         return 0
-    readme = ROOT / "README.md"
+    readme = PAGE
     old = readme.read_text()
     if START not in old or END not in old:
-        print(f"README.md lacks the markers {START!r} ... {END!r}", file=sys.stderr)
+        print(f"{PAGE.relative_to(ROOT)} lacks the markers {START!r} ... {END!r}", file=sys.stderr)
         return 1
     i, j = old.index(START), old.index(END) + len(END)
     readme.write_text(old[:i] + text + old[j:])

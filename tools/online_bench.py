@@ -34,17 +34,17 @@ SCENARIOS = ("automotive_moving_obstacle", "aerospace_moving_obstacle")
 
 def replay(name: str, full: bool) -> list[float]:
     """Update times (ms) of the updates whose map changed."""
-    scenario, file = load_scenario(name, scenario_text="{certify: false}")
+    scenario, file = load_scenario(name, scenario_text="{bounds: {certify: null}}")
     wc, path, bounds, _ = _workcell_path_bounds(scenario, None, file, None, None, False)
-    o = scenario.online
-    grid = map_grid(wc, o.cell)
-    boxes = MovingBoxes(SceneGraph(), scenario.moving_obstacles, grid=grid, params=perception_params(scenario))
+    o = scenario.bounds.online
+    grid = map_grid(wc, scenario.perception.cell)
+    boxes = MovingBoxes(SceneGraph(), scenario.cell.moving_obstacles, grid=grid, params=perception_params(scenario))
     online = OnlineBounds(wc, bounds, horizon=None if full else o.horizon)
-    rate = (path.g - 1) / scenario.path_duration
+    rate = (path.g - 1) / scenario.path.duration
     times, last = [], None
-    for t in np.arange(0.0, scenario.duration, o.bounds_period):
+    for t in np.arange(0.0, scenario.duration, o.period):
         m = boxes.obstacle_map(float(t))
-        s = float(np.clip((t - scenario.start_time) * rate, 0.0, path.g - 1.0))
+        s = float(np.clip((t - scenario.control.path_progress.start_time) * rate, 0.0, path.g - 1.0))
         t0 = time.perf_counter()
         online.update(m, s, full=full and not m.same_as(last))
         ms = (time.perf_counter() - t0) * 1e3

@@ -1,6 +1,7 @@
 """Lists the library's modules over 600 lines, functions over 80 and classes
 over 300 (a TemplateSystem function that wraps a class counts as a class),
-and compiled (numba) functions with more than 12 parameters.
+and compiled (numba) functions with more than 12 parameters: a report for a
+reviewer looking for seams, not a gate (it always exits 0).
 
     tools/dev.sh python tools/sizes.py
 """
@@ -40,7 +41,7 @@ def main() -> int:
     for kind, where, size in found:
         print(f"{kind:20s} {size:5d}  {where}  (limit {LIMITS[kind]})")
     print(f"{len(found)} over the limits")
-    return 1 if found else 0
+    return 0
 
 
 if __name__ == "__main__":

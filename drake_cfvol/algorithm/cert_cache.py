@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drake_cfvol.io.cache import cache_root
 
 __all__ = ["cache_dir", "cache_key", "cache_load", "cache_store"]
 
@@ -23,11 +24,7 @@ def cache_dir() -> Path | None:
     (and of the certifier's and kernel's source), so a changed scene, path,
     bound, setting or method never reuses a stale one; delete the folder to
     clear it."""
-    env = os.environ.get("DRAKE_CFVOL_CACHE")
-    if env is not None:
-        return None if env.strip().lower() in ("", "off", "0", "no", "false") else Path(env).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "drake_cfvol"
+    return cache_root()
 
 
 def _versions() -> str:

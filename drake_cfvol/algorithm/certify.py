@@ -99,17 +99,15 @@ class Certify:
         boundary: prove every edge and corner of the box at every s
             (:mod:`drake_cfvol.algorithm.boundary`), where a clamp pushed steadily
             lands (default). False: the sampled certificate only, a little
-            faster and wider (automotive path 1 at the 2 cm margin: 76 s
-            against 83 s, freedom 0.349 against 0.345) but a corner may then
-            come nearer than the margin, and only the runtime safety filter
-            keeps the margin there; the report says so.
+            faster and a little wider, but a corner may then come nearer
+            than the margin, and only the runtime safety filter keeps the
+            margin there; the report says so.
         regrow: after the certificate, widen each cut bound back by half of
             what it lost where the stretches on both sides stay proven, then
             run the sampled certificate again (needs ``boundary``). Cuts are
             chosen one failing region at a time; this gives back what later
-            cuts made unneeded: automotive path 1 at the 2 cm margin,
-            freedom 0.353 against 0.345, at twice the time (170 s against
-            83 s).
+            cuts made unneeded, for a little more freedom at about twice
+            the time.
         cache: reuse a certificate computed before for exactly the same
             inputs (scene, path, bounds, settings; see :func:`cache_dir`).
             Certification is deterministic, so a cached result is the

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.exceptions import DimensionError, ParameterError, WorkcellError
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.algorithm.table import BoundsTable
 
@@ -31,8 +31,17 @@ class CFResult:
         samples: total number of samples (N_tw N_m).
         colliding: how many collided.
         seed: the seed used.
-        drake_checked: how many samples Drake's checker judged (the rest the
-            kernel certified free).
+        drake_checked: how many samples Drake's checker judged (judge
+            "drake": those the kernel could not certify free; judge
+            "kernel": the cross-checked ones).
+        judge: who judged every sample: "kernel" (the compiled kernel,
+            conservative: a sample it cannot certify free counts as
+            colliding, so the CF is a lower bound of Drake's) or "drake".
+        cross_checked: with judge "kernel", how many random samples Drake
+            judged as well.
+        kernel_only_colliding: of those, how many the kernel counted as
+            colliding and Drake found free (its conservative calls; none
+            is ever the other way: see :func:`confidence_factor`).
     """
 
     percent: float
@@ -41,49 +50,79 @@ class CFResult:
     colliding: int
     seed: int
     drake_checked: int = 0
+    judge: str = "drake"
+    cross_checked: int = 0
+    kernel_only_colliding: int = 0
+
+
+#: Samples Drake cross-checks when the kernel judges (judge "kernel").
+CROSS_CHECK = 10_000
 
 
 def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, samples: int = 10000,
-                      seed: int = 0, checker=None, prefilter: bool = True, progress: bool = False) -> CFResult:
+                      seed: int = 0, checker=None, judge: str = "drake", prefilter: bool = True,
+                      cross_check: int = CROSS_CHECK, progress: bool = False) -> CFResult:
     """The paper's Confidence Factor (eq. 3-4, SPEC 8).
 
     The path parameter s in [0, g-1] is split into ``windows`` equal windows;
     in each, ``samples`` draws of s uniform in the window and q uniform in
     the box at s are checked against the real scene (obstacles + self, not the
-    volume). Drake's checker is the judge: with ``prefilter`` the compiled
-    kernel first certifies the samples it can prove free (it never calls a
-    colliding configuration free), and Drake judges the rest, so the result
-    is Drake's, sample by sample, at a fraction of the cost.
+    volume).
+
+    Who judges: with ``judge="drake"`` Drake's checker (with ``prefilter``
+    the compiled kernel first certifies the samples it can prove free, and
+    Drake judges the rest, so the result is Drake's, sample by sample). With
+    ``judge="kernel"`` the kernel judges every sample (exact shapes, so it
+    differs from Drake only on configurations that graze within rounding,
+    always towards colliding: the CF is then a lower bound of Drake's), and
+    Drake cross-checks ``cross_check`` random samples: the result says how
+    many it counted as colliding that Drake finds free; one it called free
+    that Drake finds colliding would be a defect, and raises.
 
     Args:
         workcell: the workcell.
         bounds: the bounds table.
         windows: N_tw.
         samples: N_m, per window.
-        seed: random seed.
+        seed: random seed (the samples and the cross-checked ones).
         checker: a Drake collision checker (default: the workcell's).
-        prefilter: let the kernel certify free samples first.
+        judge: "drake" or "kernel".
+        prefilter: with judge "drake", let the kernel certify free samples first.
+        cross_check: with judge "kernel", how many random samples Drake
+            judges as well (all of them, if fewer).
         progress: show a progress bar on a terminal (one unit per window).
+
+    Raises:
+        ParameterError: windows or samples below 1, an unknown judge, a
+            negative cross_check.
+        DimensionError: bounds for another number of joints.
+        WorkcellError: (judge "kernel") the kernel called free a sample
+            Drake finds colliding.
     """
     if windows < 1 or samples < 1:
         raise ParameterError(f"windows and samples must be >= 1, got {windows} and {samples}.")
+    if judge not in ("drake", "kernel"):
+        raise ParameterError(f"judge must be 'drake' or 'kernel', got {judge!r}.")
+    if cross_check < 0:
+        raise ParameterError(f"cross_check must be >= 0 samples, got {cross_check}.")
     if bounds.k != workcell.num_joints:
         raise DimensionError("the bounds' joints", workcell.num_joints, bounds.k)
     checker = checker or workcell.checker
-    arrays = workcell.scene_arrays() if prefilter else None
     rng = np.random.default_rng(seed)
-    edges = np.linspace(0.0, bounds.g - 1, windows + 1)
+    Q = _draw(bounds, windows, samples, rng)
+    if judge == "kernel":
+        return _kernel_cf(workcell, Q, windows, samples, seed, checker, cross_check, rng, progress)
+    arrays = workcell.scene_arrays() if prefilter else None
     per = np.empty(windows)
     colliding = 0
     judged = 0
     bar = Progress(windows, "Confidence Factor", enabled=progress, unit="window")
     for w in range(windows):
-        s = rng.uniform(edges[w], edges[w + 1], samples)
-        Q = sample_boxes(bounds, s, rng)
-        free = np.ones(len(Q), bool)
-        maybe = arrays.may_collide(Q) if arrays is not None else np.ones(len(Q), bool)
+        Qw = Q[w * samples:(w + 1) * samples]
+        free = np.ones(len(Qw), bool)
+        maybe = arrays.may_collide(Qw) if arrays is not None else np.ones(len(Qw), bool)
         if maybe.any():
-            free[maybe] = np.array(checker.CheckConfigsCollisionFree(Q[maybe], parallelize=True), bool)
+            free[maybe] = np.array(checker.CheckConfigsCollisionFree(Qw[maybe], parallelize=True), bool)
         judged += int(maybe.sum())
         per[w] = 100.0 * free.mean()
         colliding += int((~free).sum())
@@ -91,6 +130,34 @@ def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, sampl
     bar.close()
     total = windows * samples
     return CFResult(100.0 * (total - colliding) / total, per, total, colliding, seed, judged)
+
+
+def _draw(bounds, windows, samples, rng) -> np.ndarray:
+    """The CF's samples, window after window: (windows samples, k)."""
+    edges = np.linspace(0.0, bounds.g - 1, windows + 1)
+    s = np.concatenate([rng.uniform(edges[w], edges[w + 1], samples) for w in range(windows)])
+    return sample_boxes(bounds, s, rng)
+
+
+def _kernel_cf(workcell, Q, windows, samples, seed, checker, cross_check, rng, progress) -> CFResult:
+    """:func:`confidence_factor` judged by the kernel, cross-checked by Drake."""
+    bar = Progress(windows, "Confidence Factor", enabled=progress, unit="window")
+    hit = workcell.scene_arrays().may_collide(Q)
+    bar.update(windows)
+    bar.close()
+    total = windows * samples
+    pick = rng.choice(total, size=min(cross_check, total), replace=False) if cross_check else np.zeros(0, int)
+    drake_free = np.array(checker.CheckConfigsCollisionFree(Q[pick], parallelize=True), bool) if len(pick) else \
+        np.zeros(0, bool)
+    missed = int((~hit[pick] & ~drake_free).sum())
+    if missed:
+        raise WorkcellError(f"the collision kernel called {missed} of {len(pick)} cross-checked samples free where "
+                            "Drake's checker finds a collision; use judge='drake' and please report this with the "
+                            "robot's model.")
+    colliding = int(hit.sum())
+    per = 100.0 * (1.0 - hit.reshape(windows, samples).mean(axis=1))
+    return CFResult(100.0 * (total - colliding) / total, per, total, colliding, seed, len(pick), "kernel", len(pick),
+                    int((hit[pick] & drake_free).sum()))
 
 
 @dataclasses.dataclass

@@ -174,13 +174,13 @@ def expand_jobs(jobs: BatchJobs, base_dir: Path | None = None) -> list[Job]:
     files relative to ``base_dir`` (the jobs file's folder)."""
     from drake_cfvol.scene.schema import builtin_cells
 
-    from drake_cfvol.comanip.scenario import _cell_path
+    from drake_cfvol.comanip.checks import cell_file
 
     labels = [path_label(label) for label in jobs.paths]
     out = []
     for cell in jobs.cells:
         if cell not in builtin_cells():
-            p = _cell_path(str(Path(cell).expanduser()), base_dir)
+            p = cell_file(str(Path(cell).expanduser()), base_dir)
             if not p.is_file():
                 raise BatchError(base_dir or "<text>", "cells", f"'{cell}' is neither a built-in cell "
                                  f"({', '.join(sorted(builtin_cells()))}) nor a workcell file")

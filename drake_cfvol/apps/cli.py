@@ -218,7 +218,7 @@ def cmd_bounds(args) -> int:
     bars = not args.json
     path, table = _path_and_table(args, wc, label, params, bars)
     cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
-                           progress=bars)
+                           judge=args.cf_judge, progress=bars)
     fr = freedom(table, wc.revolute)
     files = {}
     if out is not None:
@@ -238,7 +238,8 @@ def cmd_bounds(args) -> int:
         "timing_ms": {k: round(v, 3) for k, v in table.timing_ms.items()},
         "certified": "certificate" in table.info, "clearance_m": table.params.get("clearance", params.clearance),
         "cf_percent": shown_percent(cf.percent, cf.colliding, 4), "cf_samples": cf.samples,
-        "cf_colliding": cf.colliding,
+        "cf_colliding": cf.colliding, "cf_judge": cf.judge, "cf_drake_checked": cf.drake_checked,
+        "cf_kernel_only_colliding": cf.kernel_only_colliding,
         "freedom": round(fr.mean, 5),
         "median_width": dict(zip(table.joint_names, [round(float(x), 3) for x in fr.median_width])),
         "median_width_units": dict(zip(table.joint_names, fr.units)),
@@ -257,8 +258,8 @@ def cmd_bounds(args) -> int:
 def cmd_simulate(args) -> int:
     from drake_cfvol.comanip import load_scenario, run_scenario
 
-    files = {name: str(_out_path(getattr(args, name))) for name in ("path_file", "bounds_file")
-             if getattr(args, name)}
+    files = {key: str(_out_path(value)) for key, value in (("path.file", args.path_file),
+                                                           ("bounds.file", args.bounds_file)) if value}
     # Every field checked before planning.
     load_scenario(args.scenario, scenario_text=args.scenario_text, overrides=files)
     out = _out_path(args.out) or Path("out").resolve() / Path(args.scenario).stem
@@ -420,6 +421,9 @@ def _add_bounds(sub) -> None:
                    help="fast (any R) or drake (reference, one SceneGraph box per column)")
     b.add_argument("--cf-windows", type=int, default=30, help="CF time windows N_tw (default 30)")
     b.add_argument("--cf-samples", type=int, default=10000, help="CF samples per window N_m (default 10000)")
+    b.add_argument("--cf-judge", choices=("kernel", "drake"), default="kernel",
+                   help="who judges the CF's samples: the kernel, with Drake cross-checking 10,000 of them "
+                        "(default), or Drake's checker on every sample the kernel cannot certify free")
     b.add_argument("--certify", action="store_true",
                    help="shrink the boxes until each stretch holds a sampled safety certificate")
     b.add_argument("--epsilon", type=float, default=None,
@@ -455,7 +459,7 @@ def _add_simulate(sub) -> None:
     m.add_argument("--bounds-file", help="a saved bounds table (cfvol bounds --out) instead of bounding; checked "
                    "against the cell")
     m.add_argument("--scenario-text", help="YAML overriding the scenario's fields, e.g. "
-                   "'{resolution: 2000, random_seed: 3}'")
+                   "'{bounds: {resolution: 2000}, random_seed: 3}'")
     m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=cmd_simulate)
 

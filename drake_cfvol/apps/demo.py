@@ -6,7 +6,6 @@ import time
 from pathlib import Path
 
 from drake_cfvol.io.records import output_stem
-from drake_cfvol.algorithm.certify import Certify
 from drake_cfvol.comanip import load_scenario, run_scenario
 from drake_cfvol.algorithm.metrics import confidence_factor, freedom, shown_percent
 from drake_cfvol.algorithm.pipeline import estimate_bounds
@@ -43,19 +42,19 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
               f"{p.stats['total_time_ms']:>9.1f}  {p.sha256[:12]}")
 
     scenario, _ = load_scenario("automotive_push")
-    path = paths[scenario.path] if scenario.random_seed == seed else None
+    name, certify = scenario.path.name, scenario.certify()
+    path = paths[name] if scenario.random_seed == seed else None
     if path is None:
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.random_seed, label=scenario.path,
-                             clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
-    print(f"\n2. Bounds for {path.label} at R = {resolution}" + (", certified" if scenario.certify else ""))
-    table = estimate_bounds(wc, path, resolution=resolution, progress=True,
-                            certify=Certify(seed=scenario.random_seed) if scenario.certify else None)
-    cf = confidence_factor(wc, table, samples=2000 if quick else 10000, seed=seed, progress=True)
+        path = plan_nominal_path(wc, *wc.configuration(name), seed=scenario.random_seed, label=name,
+                                 clearance=VolumeParams.for_workcell(wc, **scenario.bounds.overrides()).clearance)
+    print(f"\n2. Bounds for {path.label} at R = {resolution}" + (", certified" if certify else ""))
+    table = estimate_bounds(wc, path, resolution=resolution, progress=True, certify=certify)
+    cf = confidence_factor(wc, table, samples=2000 if quick else 10000, seed=seed, judge="kernel", progress=True)
     fr = freedom(table, wc.revolute)
-    stem = output_stem(wc.name, path.label, resolution, certified=scenario.certify)
+    stem = output_stem(wc.name, path.label, resolution, certified=certify is not None)
     table.save(out_dir / f"{stem}_bounds.npz", overwrite=True)
     plot_bounds(table, out_dir / f"{stem}_bounds.png", revolute=wc.revolute,
-                title=f"{wc.name} {path.label}, R = {resolution}" + (", certified" if scenario.certify else ""))
+                title=f"{wc.name} {path.label}, R = {resolution}" + (", certified" if certify else ""))
     t = table.timing_ms
     print(f"   time {t['total']:.0f} ms (categorize {t['categorize']:.0f}, volume {t['volume']:.0f}, "
           f"bounding {t['bounding']:.0f}); {table.info['n_boxes']} columns")
@@ -65,14 +64,16 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
         print(f"   certified whole boxes ({how}): freedom {rep['freedom_before']:.3f} -> {rep['freedom_after']:.3f}; "
               f"{rep['n_samples']} consecutive samples free (epsilon {rep['epsilon']:g}, confidence "
               f"{rep['confidence']:g})")
-    print(f"   CF {shown_percent(cf.percent, cf.colliding, 3):.3f} % ({cf.colliding} of {cf.samples} samples collide); freedom {fr.mean:.3f}")
+    print(f"   CF {shown_percent(cf.percent, cf.colliding, 3):.3f} % ({cf.colliding} of {cf.samples} samples collide; "
+          f"Drake agrees on {cf.cross_checked - cf.kernel_only_colliding} of {cf.cross_checked} cross-checked); "
+          f"freedom {fr.mean:.3f}")
     cats = table.info["categories"]
     print(f"   trail: {', '.join(cats['trail']) or '-'} | goal: {', '.join(cats['goal']) or '-'} | "
           f"no-goal: {', '.join(cats['no_goal'])}")
 
     print("\n3. Co-manipulation run (scenario automotive_push), recorded offscreen")
     s = run_scenario("automotive_push", out_dir, path=path,
-                     bounds=table if scenario.resolution == resolution else None, progress=True)
+                     bounds=table if scenario.bounds.resolution == resolution else None, progress=True)
     print(f"   {s['steps']} logged steps over {s['duration_s']:.1f} s (simulated in {s['sim_wall_s']:.2f} s)")
     print(f"   min clearance {s['min_clearance_m'] * 100:.1f} cm, collisions {s['collisions']}, "
           f"bound violation {s['max_bound_violation']:.1e}, safety filter acted on {s['filter_steps']} updates")

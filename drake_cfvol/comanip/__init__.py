@@ -1,9 +1,13 @@
 """Co-manipulation runs: a scenario file -> a Drake diagram -> a recorded run.
 
-A scenario (``diagrams/*.yaml``, loaded with ``yaml_load_typed``) names a
-cell and path, the volume's resolution, the admittance gains and the human's
-pushes. :func:`build_comanipulation_diagram` plans the path, estimates the
-bounds and wires::
+A scenario (``diagrams/*.yaml``, loaded with ``yaml_load_typed``) has the
+sections ``cell``, ``path``, ``bounds``, ``human``, ``control`` (the
+systems' :class:`~drake_cfvol.systems.CoManipulationConfig` and the control
+period), ``perception`` and ``simulation``.
+:func:`build_comanipulation_diagram` plans the path, estimates the bounds,
+adds the control chain with :func:`~drake_cfvol.systems.AddCoManipulation`
+(the same call as in a user's station) and around it the scene, the
+co-worker, the perception, the monitor and the loggers::
 
     PathProgress -> JointBoundsSource (ahead) -> AdmittanceDeformation <- ScriptedHuman
                               |                       | commanded_position
@@ -12,26 +16,29 @@ bounds and wires::
                               MultibodyPositionToGeometryPose -> SceneGraph ------+-> ClearanceMonitor
 
 The robot follows the safety filter's ``commanded_position`` kinematically
-(with ``collision_guard: false``, the admittance's, fed the bounds now). The diagram's own
+(with ``control: {safety_filter: null}``, the admittance's). The diagram's own
 SceneGraph holds the robot, the obstacles (coloured by category) and the
 volume (its columns merged, conservatively, into at most 1500 boxes at any
 R), all as proximity geometry; the clearance monitor asks it through its
 query port, which the diagram also exports (``query_object``).
 
-Modules: ``scenario`` (the file schema), ``diagram`` (the diagram),
+Modules: ``scenario`` (the file schema), ``checks`` (its values' checks), ``diagram`` (the diagram),
 ``run`` (simulate and summarise), ``report`` (plots, SVG), ``recording``
 (Meshcat helpers), ``adversarial`` (steady pushes, the benchmark's
 adversarial section). Imports ``systems``, ``algorithm``, ``scene``,
 ``kernel`` and ``io``.
 """
 
-from drake_cfvol.comanip.scenario import AdmittanceGains, RandomPushes, Reactive, SafetyFilterConfig, Scenario, diagrams_dir, load_scenario, validate_scenario
+from drake_cfvol.comanip.scenario import (BoundsConfig, CellConfig, ControlConfig, HumanConfig, PathConfig,
+                                          PerceptionSection, RandomPushes, Reactive, Scenario, SimulationConfig,
+                                          diagrams_dir, load_scenario, validate_scenario)
 from drake_cfvol.comanip.diagram import Comanipulation, MAX_PROXIMITY_BOXES, UPDATE_RATE_LOGS, build_comanipulation_diagram, frame_camera, meshcat_params, show_category_legend
 from drake_cfvol.comanip.run import MARGIN_TOLERANCE, run_problems, run_scenario, update_rate_figures
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
 from drake_cfvol.io.style import CATEGORY_COLOURS
 
-__all__ = ["AdmittanceGains", "RandomPushes", "Reactive", "SafetyFilterConfig", "Scenario", "load_scenario",
+__all__ = ["CellConfig", "PathConfig", "BoundsConfig", "HumanConfig", "ControlConfig", "PerceptionSection",
+           "SimulationConfig", "RandomPushes", "Reactive", "Scenario", "load_scenario",
            "validate_scenario", "diagrams_dir", "Comanipulation", "build_comanipulation_diagram", "frame_camera",
            "show_category_legend", "meshcat_params", "UPDATE_RATE_LOGS", "MAX_PROXIMITY_BOXES", "run_scenario",
            "run_problems", "update_rate_figures", "MARGIN_TOLERANCE", "plot_run", "missing_dot_notice",

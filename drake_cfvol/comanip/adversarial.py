@@ -80,8 +80,8 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
         cell: ``automotive`` or ``aerospace`` (the scenario ``<cell>_push``).
         runs: seeds 0 .. runs-1 (unless ``seeds`` is given).
         torque: N m (N for a prismatic joint) per joint.
-        safety_filter: the scenario's ``collision_guard`` (the runtime
-            safety filter on or off).
+        safety_filter: the runtime safety filter on or off (the
+            scenario's ``control.safety_filter``).
         certify: certified bounds (the scenario's default) or not.
         clearance: the filter's margin, m (None: the bounds' own).
         seeds: explicit push seeds.
@@ -117,13 +117,13 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
         raise ParameterError(f"pattern must be one of {', '.join(map(repr, PATTERNS))}, got {pattern!r}.")
     name = f"{cell}_random" if pattern == "random_pushes" else f"{cell}_push"
     scenario, _ = load_scenario(name)
-    wc = load_workcell(scenario.cell)
+    wc = load_workcell(scenario.cell.name)
+    overrides = scenario.bounds.overrides()
     if path is None:
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.random_seed, label=scenario.path,
-                             clearance=VolumeParams.for_workcell(wc, **dict(scenario.params)).clearance)
+        path = plan_nominal_path(wc, *wc.configuration(scenario.path.name), seed=scenario.random_seed,
+                                 label=scenario.path.name, clearance=VolumeParams.for_workcell(wc, **overrides).clearance)
     if bounds is None:
-        bounds = estimate_bounds(wc, path, resolution=scenario.resolution, **dict(scenario.params),
-                                 certify=Certify(seed=scenario.random_seed) if certify else None)
+        bounds = estimate_bounds(wc, path, **overrides, certify=Certify(seed=scenario.random_seed) if certify else None)
     seeds = list(range(runs)) if seeds is None else list(seeds)
     margin_default = float(bounds.params.get("clearance", 0.0)) if clearance is None else float(clearance)
     nominal_clearance: dict[float, float] = {}
@@ -148,7 +148,8 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
 def _push_text(wc, path, pattern, seed, n_seeds, torque, certify, safety_filter, clearance):
     """(signs, scenario text) of one run: the push of its pattern and seed."""
     k = wc.num_joints
-    text = f"{{certify: {str(certify).lower()}, collision_guard: {str(safety_filter).lower()}, "
+    sf = "null" if not safety_filter else "{}" if clearance is None else f"{{clearance: {float(clearance)!r}}}"
+    text = f"{{bounds: {{certify: {'{}' if certify else 'null'}}}, control: {{safety_filter: {sf}}}, "
     if pattern == "random_pushes":
         signs = np.zeros(k)
         text += f"random_seed: {int(seed)}"
@@ -159,9 +160,7 @@ def _push_text(wc, path, pattern, seed, n_seeds, torque, certify, safety_filter,
         else:
             signs = _signs(seed, k)
         tau = ", ".join(f"{x:.6g}" for x in torque * signs)
-        text += f"pushes: [{{start: 0.0, duration: 1.0e9, joint_torque: [{tau}]}}]"
-    if clearance is not None:
-        text += f", safety_filter: {{clearance: {float(clearance)!r}}}"
+        text += f"human: {{pushes: [{{start: 0.0, duration: 1.0e9, joint_torque: [{tau}]}}]}}"
     return signs, text + "}"
 
 
@@ -174,7 +173,7 @@ def _recount(wc, path, bounds, scenario, summary, logs, margin, nominal_clearanc
     dist = logs["update_min_distance"][:, 0]
     # The path index at each update, as PathProgress has it.
     rate = (path.g - 1) / summary["path_duration_s"] if summary["path_duration_s"] > 0 else np.inf
-    s_at = np.clip((t - scenario.start_time) * rate, 0.0, path.g - 1.0)
+    s_at = np.clip((t - scenario.control.path_progress.start_time) * rate, 0.0, path.g - 1.0)
     s_at = np.round(s_at, 9)
     q_nom = bounds.boxes_at(s_at)[2] if len(t) else np.empty_like(q)
     nom = np.empty(len(t))
@@ -259,14 +258,13 @@ def adversarial_suite(cell: str, runs: int = 16, patterns=PATTERNS, *, torque: f
     if runs < 1:
         raise ParameterError(f"runs must be >= 1, got {runs}.")
     scenario, _ = load_scenario(f"{cell}_push")
-    wc = load_workcell(scenario.cell)
-    params = dict(scenario.params)
-    path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.random_seed, label=scenario.path,
-                             clearance=VolumeParams.for_workcell(wc, **params).clearance)
-    tables = {"uncertified": estimate_bounds(wc, path, resolution=scenario.resolution, **params)}
+    wc = load_workcell(scenario.cell.name)
+    params = scenario.bounds.overrides()
+    path = plan_nominal_path(wc, *wc.configuration(scenario.path.name), seed=scenario.random_seed,
+                             label=scenario.path.name, clearance=VolumeParams.for_workcell(wc, **params).clearance)
+    tables = {"uncertified": estimate_bounds(wc, path, **params)}
     t0 = time.perf_counter()
-    tables["certified"] = estimate_bounds(wc, path, resolution=scenario.resolution, **params,
-                                          certify=Certify(seed=scenario.random_seed))
+    tables["certified"] = estimate_bounds(wc, path, **params, certify=Certify(seed=scenario.random_seed))
     certify_s = time.perf_counter() - t0
     out = {"cell": cell, "clearance_m": float(tables["certified"].params.get("clearance", 0.0)),
            "certify_s": certify_s, "certificate_cached": bool(tables["certified"].info["certificate"].get("cached")),

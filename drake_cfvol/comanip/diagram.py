@@ -1,6 +1,6 @@
 """The co-manipulation diagram built from a scenario: plant and SceneGraph with
-the robot, the obstacles and the volume's proximity boxes; path progress,
-bounds, admittance, the safety filter, monitors and loggers; Meshcat.
+the robot, the obstacles and the volume's proximity boxes; the control chain
+(``AddCoManipulation``), the co-worker, monitors and loggers; Meshcat.
 """
 
 
@@ -22,7 +22,6 @@ from pydrake.systems.primitives import (Adder, LogVectorOutput, RandomSource,
 from pydrake.visualization import VisualizationConfig
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from drake_cfvol.algorithm.certify import Certify
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.algorithm.pipeline import estimate_bounds
@@ -30,17 +29,15 @@ from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
 from drake_cfvol.algorithm.reference import register_volume_boxes
 from drake_cfvol.io.style import CATEGORY_COLOURS, COLOUR_NAMES, FLOOR_COLOUR, ROBOT_COLOUR, VOLUME_COLOUR
 from drake_cfvol.systems import (
-    AdmittanceDeformation,
+    AddCoManipulation,
     ClearanceMonitor,
-    HumanInputCheck,
+    CoManipulationSystems,
     JointBoundsSource,
     PathProgress,
     Push,
     RandomPushShaper,
     ReactiveCoworker,
-    SafetyFilter,
     ScriptedHuman,
-    safe_path_rate,
 )
 from drake_cfvol.comanip.dynamics import add_driver, add_simulated_plant, driver_of
 from drake_cfvol.comanip.iiwa import (add_hand, add_iiwa_controller_interface, add_iiwa_station, add_measured,
@@ -51,8 +48,9 @@ from drake_cfvol.comanip.recording import show_tool_path
 from drake_cfvol.algorithm.volume import build_volume, height_map_of
 from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
 from drake_cfvol.scene.workcell import Workcell, geometry_key, load_workcell, robot_geometry_ids
-from drake_cfvol.comanip.scenario import (Scenario, _cell_path, _looks_like_path, check_scenario_against_cell,
-                                          scenario_file_path, validate_scenario)
+from drake_cfvol.comanip.checks import cell_file, looks_like_path
+from drake_cfvol.comanip.scenario import (Scenario, check_scenario_against_cell, scenario_file_path,
+                                          validate_scenario)
 
 __all__ = ['Comanipulation', 'build_comanipulation_diagram']
 
@@ -73,7 +71,7 @@ class Comanipulation:
     Attributes:
         diagram: the Drake diagram (exported ports: ``path_index``, ``lower``,
             ``upper``, ``nominal``, ``commanded_position`` (the safety
-            filter's, or with ``collision_guard`` false the admittance's),
+            filter's, or without it the admittance's),
             ``deviation``, ``fault``, ``fault_count``, ``human_torque``,
             ``human_wrench``, ``min_distance``, ``in_collision``,
             ``in_volume``, ``query_object``; with the filter also
@@ -82,9 +80,9 @@ class Comanipulation:
         plant, scene_graph: the visual/kinematic plant and its SceneGraph.
         loggers: VectorLogSinks by name, every exported vector port at the
             scenario's ``log_period``, and ``update_<name>`` for
-            :data:`UPDATE_RATE_LOGS` at the admittance's period.
+            :data:`UPDATE_RATE_LOGS` at the control period.
         progress: the PathProgress system (its ``rate`` may be below the
-            scenario's: see ``Scenario.path_velocity_share``).
+            scenario's: see ``control.path_progress.velocity_share``).
         meshcat: the Meshcat instance, if any.
         volume_boxes: the volume's boxes in the diagram's SceneGraph (columns
             merged, :meth:`~drake_cfvol.algorithm.heightmap.Volume.merged_boxes`):
@@ -94,6 +92,7 @@ class Comanipulation:
         filter_clearance: the safety filter's margin, m (None without it).
         online: the moving obstacles, their perception and the online
             bounds (:func:`drake_cfvol.comanip.online.add_online`), or None.
+        control: what :func:`~drake_cfvol.systems.AddCoManipulation` added.
     """
 
     diagram: object
@@ -110,12 +109,13 @@ class Comanipulation:
     build_ms: dict = dataclasses.field(default_factory=dict)
     filter_clearance: float | None = None
     online: OnlineParts | None = None
+    control: CoManipulationSystems | None = None
 
     @property
     def duration(self) -> float:
         """Simulated time of the run, s: start, the path at its (possibly
         slowed) progress, and the hold at the goal."""
-        return self.progress.duration + self.scenario.end_hold
+        return self.progress.duration + self.scenario.path.end_hold
 
 
 def frame_camera(meshcat, workcell, path) -> None:
@@ -180,14 +180,14 @@ def _resolve_pushes(scenario: Scenario, workcell, path, progress) -> list[Push]:
     turned into a tool force towards the obstacle nearest the robot's moving
     links at the nominal when the push starts."""
     out = []
-    for i, p in enumerate(scenario.pushes):
+    for i, p in enumerate(scenario.human.pushes):
         if not p.toward_nearest_obstacle:
             out.append(p)
             continue
         q = path.at(progress.index_at(p.start))
         near = workcell.nearest_obstacle(q)
         if near is None:
-            raise ScenarioError(Path("scenario"), f"pushes[{i}].toward_nearest_obstacle",
+            raise ScenarioError(Path("scenario"), f"human.pushes item {i + 1}: toward_nearest_obstacle",
                                 "has no obstacle within 5 m of the robot at that time")
         _, _, p_WR, p_WO = near
         u = np.asarray(p_WO - p_WR, float)
@@ -244,9 +244,9 @@ def _scenario_workcell(scenario: Scenario, base_dir, file):
             raise ScenarioError(Path("scenario"), "directives", "a scenario that holds its cell must be a file "
                                 "(the cell is read from it): pass scenario_file=")
         return Workcell(file, embedded=True)
-    cell = scenario.cell
-    if _looks_like_path(cell):
-        cell = str(_cell_path(cell, base_dir))
+    cell = scenario.cell.name
+    if looks_like_path(cell):
+        cell = str(cell_file(cell, base_dir))
     return load_workcell(cell)
 
 
@@ -262,27 +262,27 @@ def _workcell_path_bounds(scenario: Scenario, base_dir, file, path, bounds, prog
     validate_scenario(scenario, file, base_dir=base_dir)
     wc = _scenario_workcell(scenario, base_dir, file)
     check_scenario_against_cell(scenario, wc, file)
-    params = VolumeParams.for_workcell(wc, resolution=scenario.resolution, **dict(scenario.params))
+    params = VolumeParams.for_workcell(wc, **scenario.bounds.overrides())
     height_map_of(wc, params)
-    if path is None and scenario.path_file is not None:
-        path = load_path_for(wc, scenario_file_path(scenario.path_file, base_dir))
-    if bounds is None and scenario.bounds_file is not None:
-        bounds = load_bounds_for(wc, scenario_file_path(scenario.bounds_file, base_dir), path)
+    name = scenario.path.name
+    if path is None and scenario.path.file is not None:
+        path = load_path_for(wc, scenario_file_path(scenario.path.file, base_dir))
+    if bounds is None and scenario.bounds.file is not None:
+        bounds = load_bounds_for(wc, scenario_file_path(scenario.bounds.file, base_dir), path)
     if path is None and bounds is not None:
-        path = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.random_seed)
+        path = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, name, scenario.random_seed)
     if path is None:
-        wc.configuration(scenario.path)  # an unknown path name fails here, before planning
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path), seed=scenario.random_seed,
-                                 label=scenario.path, clearance=params.clearance)
+        wc.configuration(name)  # an unknown path name fails here, before planning
+        path = plan_nominal_path(wc, *wc.configuration(name), seed=scenario.random_seed, label=name,
+                                 clearance=params.clearance)
     t1 = time.perf_counter()
     if bounds is None:
-        bounds = estimate_bounds(wc, path, resolution=scenario.resolution, progress=progress,
-                                 certify=Certify(seed=scenario.random_seed) if scenario.certify else None,
-                                 **dict(scenario.params))
+        bounds = estimate_bounds(wc, path, progress=progress, certify=scenario.certify(),
+                                 **scenario.bounds.overrides())
     if bounds.volume is None:  # a table loaded from disk: grow its volume again
         known = {f.name for f in dataclasses.fields(VolumeParams)}
         params = VolumeParams(**{k: v for k, v in bounds.params.items() if k in known})
-        nominal = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, scenario.path, scenario.random_seed)
+        nominal = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, name, scenario.random_seed)
         bounds = dataclasses.replace(bounds, volume=build_volume(wc, nominal, params))
     t2 = time.perf_counter()
     return wc, path, bounds, {"plan": (t1 - t0) * 1e3, "bounds": (t2 - t1) * 1e3}
@@ -309,24 +309,25 @@ def _add_scene(builder, wc, vb, scenario, q0) -> Scene:
     push the robot; the robot starts at ``q0``; a torque-sensing arm's run
     gets the co-worker's hand)."""
     models, hand = [], None
-    if scenario.plant_config is None:
+    plant_config = scenario.simulation.plant_config
+    if plant_config is None:
         scene_graph = builder.AddNamedSystem("scene_graph", SceneGraph())
         plant = MultibodyPlant(0.0)
         plant.RegisterAsSourceForSceneGraph(scene_graph)
         robot = wc.add_to_plant(plant)
     else:
         plant, scene_graph, robot, models, hand = add_simulated_plant(
-            builder, wc, scenario.plant_config, hand=isinstance(driver_of(scenario, wc), IiwaDriver))
+            builder, wc, plant_config, hand=isinstance(driver_of(scenario, wc), IiwaDriver))
     centres, sizes, merge_info = vb.volume.merged_boxes(MAX_PROXIMITY_BOXES)
     volume_ids = register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR, boxes=(centres, sizes),
-                                       proximity=scenario.plant_config is None)
+                                       proximity=plant_config is None)
     plant.Finalize()
-    if scenario.plant_config is not None:
+    if plant_config is not None:
         plant.SetDefaultPositions(robot, q0)
     if hand is not None:  # waiting beside the tool, on the first push's side
         p_WG = wc.tool_frame.body().EvalPoseInWorld(wc.plant_context(q0)).multiply(grip_point(wc))
         plant.SetDefaultFloatingBaseBodyPose(hand, RigidTransform(waiting_point(
-            p_WG, first_push_direction(scenario.pushes), tool_radius(wc))))
+            p_WG, first_push_direction(scenario.human.pushes), tool_radius(wc))))
     _colour_obstacles(plant, scene_graph, wc, vb.categories)
     return Scene(plant, scene_graph, robot, volume_ids, merge_info, models, hand)
 
@@ -352,48 +353,22 @@ def _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids, hand=None)
     return robot_ids, moving_ids, obstacle_ids, ignored
 
 
-def _add_safety_filter(builder, scenario, bounds, wc, plant, scene_graph, robot, obstacle_ids, progress, adm, path,
-                       online=None):
-    """The runtime safety filter between the admittance and the robot. A
-    command computed at an update takes effect until the next one, so the
-    admittance and the filter work on the bounds one period ahead (the
-    filter's output is its state: at the next update it is what the robot
-    holds, inside the box there). Returns the filter."""
-    f, a = scenario.safety_filter, scenario.admittance
-    margin = f.clearance if f.clearance is not None else float(bounds.params.get("clearance", 0.0))
-    source_ahead = builder.AddNamedSystem("joint_bounds_ahead", JointBoundsSource(bounds, clamp=True))
-    builder.Connect(progress.path_index_ahead_output, source_ahead.path_index_input)
-    dynamic = [] if online is None else online.filter_ids
-    if online is not None:
-        builder.Connect(online.estimator.bounds_output, source_ahead.bounds_input)
-    safety = builder.AddNamedSystem("safety_filter", SafetyFilter(
-        plant, scene_graph, robot, velocity_limits=wc.velocity_limits, obstacle_ids=list(obstacle_ids) + dynamic,
-        clearance=margin, influence_distance=f.influence_distance, damper_gain=f.damper_gain,
-        period=a.period, initial_position=path.waypoints[0], dynamic_ids=dynamic))
-    for name in ("nominal", "lower", "upper"):
-        builder.Connect(source_ahead.GetOutputPort(name), adm.GetInputPort(name))
-        builder.Connect(source_ahead.GetOutputPort(name), safety.GetInputPort(name))
-    builder.Connect(adm.commanded_position_output, safety.desired_position_input)
-    builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
-    return safety
-
-
 def _add_pushes(builder, scenario, k, human, progress, commanded, source):
     """The human's joint torques: the scripted pushes, random pushes
     (Drake's RandomSource, its state the randomness, seeded with
     SetRandomContext, shaped into torques) and the reactive co-worker,
     summed. Returns the torque output port."""
     torques = [human.human_torque_output]
-    rp = scenario.random_pushes
+    rp = scenario.human.random_pushes
     if rp.count > 0:
         noise = builder.AddNamedSystem("random_numbers", RandomSource(
             RandomDistribution.kUniform, k + 1, sampling_interval_sec=rp.mean_duration))
         shaper = builder.AddNamedSystem("random_pushes", RandomPushShaper(
-            k, probability=min(1.0, rp.count * rp.mean_duration / (progress.duration + scenario.end_hold)),
+            k, probability=min(1.0, rp.count * rp.mean_duration / (progress.duration + scenario.path.end_hold)),
             max_torque=rp.max_torque))
         builder.Connect(noise.get_output_port(), shaper.uniform_input)
         torques.append(shaper.human_torque_output)
-    re = scenario.reactive
+    re = scenario.human.reactive
     if re.gain > 0:
         coworker = builder.AddNamedSystem("reactive_coworker", ReactiveCoworker(
             k, gain=re.gain, offset=re.offset or np.zeros(k), start=re.start, duration=re.duration,
@@ -412,46 +387,34 @@ def _add_pushes(builder, scenario, k, human, progress, commanded, source):
 def _add_meshcat(builder, scene_graph, meshcat, scenario, wc, path, categories) -> None:
     """Meshcat's visualizers (the scenario's layers), the tool path, the
     category legend and the camera."""
-    for params in meshcat_params(scenario.visualization):
+    for params in meshcat_params(scenario.simulation.visualization):
         MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat, params)
     show_tool_path(meshcat, wc, path)
     show_category_legend(meshcat, wc, categories)
     frame_camera(meshcat, wc, path)
 
 
-def _add_check(builder, k, period, torque, wrench, adm):
-    """The push as sensed, checked: an implausible one holds the admittance."""
-    check = builder.AddNamedSystem("human_input_check", HumanInputCheck(k, period=period))
-    builder.Connect(torque, check.human_torque_input)
-    if wrench is not None:
-        builder.Connect(wrench, check.human_wrench_input)
-    builder.Connect(check.human_torque_output, adm.human_torque_input)
-    builder.Connect(check.human_wrench_output, adm.human_wrench_input)
-    builder.Connect(check.fault_output, adm.hold_input)
-    return check
-
-
-def _drive(builder, scenario, wc, scene, commanded, torque, human, adm, safety):
+def _drive(builder, scenario, wc, scene, torque, human, control: CoManipulationSystems):
     """What moves the robot: a kinematic run poses the plant from the
     command; a dynamic run adds the driver, applies the push as real forces
     and feeds the measured position to the admittance and the safety filter.
     Returns (the measured position's port, the push as the robot senses it
     (a torque-sensing arm's external torque), each None where there is none)."""
     plant, robot = scene.plant, scene.robot
-    if scenario.plant_config is None:
+    commanded, safety, period = control.commanded_position_output, control.safety, scenario.control.period
+    if scenario.simulation.plant_config is None:
         to_pose = builder.AddNamedSystem("to_pose", MultibodyPositionToGeometryPose(plant))
         builder.Connect(commanded, to_pose.get_input_port())
         builder.Connect(to_pose.get_output_port(), scene.scene_graph.get_source_pose_port(plant.get_source_id()))
         return None, None
-    desired = safety.desired_state_output if safety is not None else None
+    desired = control.desired_state_output
     driver, sensed = driver_of(scenario, wc), None
     if isinstance(driver, IiwaDriver):
         measured, sensed = _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human)
     else:
         measured = add_driver(builder, scenario, wc, plant, robot, commanded=commanded, torque=torque,
-                              wrench=human.human_wrench_output, period=scenario.admittance.period,
-                              desired_state=desired)
-    builder.Connect(measured, adm.measured_position_input)
+                              wrench=human.human_wrench_output, period=period, desired_state=desired)
+    builder.Connect(measured, control.admittance.measured_position_input)
     if safety is not None:
         builder.Connect(measured, safety.measured_position_input)
     return measured, sensed
@@ -463,22 +426,22 @@ def _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human)
     torque) from the iiwa's status."""
     if desired is None:
         interp = builder.AddNamedSystem("desired_state", StateInterpolatorWithDiscreteDerivative(
-            wc.num_joints, scenario.admittance.period, suppress_initial_transient=True))
+            wc.num_joints, scenario.control.period, suppress_initial_transient=True))
         builder.Connect(commanded, interp.get_input_port())
         desired = interp.get_output_port()
     lcm = add_iiwa_station(builder, driver, wc.robot_name, scene.plant, scene.models)
     status = add_iiwa_controller_interface(builder, lcm, desired, wc.num_joints)
     tool = scene.plant.GetFrameByName(wc.tool_frame.name(), scene.robot)
     add_hand(builder, scene.plant, scene.hand, tool, human.human_wrench_output, tool_radius=tool_radius(wc),
-             initial_direction=first_push_direction(scenario.pushes), p_BG=grip_point(wc))
+             initial_direction=first_push_direction(scenario.human.pushes), p_BG=grip_point(wc))
     return add_measured(builder, status, commanded, wc.num_joints), status.get_torque_external_output_port()
 
 
 def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
     """Exports the named ports and logs them at the log period, and the
     update-rate signals (speed, clearance, collisions; the log period may
-    be coarser: a step between two updates must not hide) at the
-    admittance's period. Returns the loggers by name."""
+    be coarser: a step between two updates must not hide) at the control
+    period. Returns the loggers by name."""
     if safety is not None:
         exported.update({"filter_active": safety.filter_active_output, "filter_count": safety.filter_count_output,
                          "filter_fallbacks": safety.fallback_count_output,
@@ -487,7 +450,7 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
     loggers = {}
     for name, port in exported.items():
         builder.ExportOutput(port, name)
-        loggers[name] = LogVectorOutput(port, builder, publish_period=scenario.log_period)
+        loggers[name] = LogVectorOutput(port, builder, publish_period=scenario.simulation.log_period)
         loggers[name].set_name(f"log_{name}")
     if safety is not None:
         # What the admittance asked the filter for, beside what it commanded.
@@ -496,7 +459,7 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
         ("measured_position",) if "measured_position" in exported else ())
     for name in UPDATE_RATE_LOGS + extra:
         loggers[f"update_{name}"] = LogVectorOutput(exported[name], builder,
-                                                    publish_period=scenario.admittance.period)
+                                                    publish_period=scenario.control.period)
         loggers[f"update_{name}"].set_name(f"log_update_{name}")
     return loggers
 
@@ -504,71 +467,71 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
 def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: Path | None = None,
                                  path=None, bounds=None, progress: bool = False,
                                  scenario_file: Path | None = None) -> Comanipulation:
-    """Builds a co-manipulation diagram from a scenario.
+    """Builds a co-manipulation diagram from a scenario, composing its parts
+    as Drake's ``hardware_sim`` composes its ``Apply*Config`` calls: the
+    scene (plant, SceneGraph, the volume's boxes), the perception (moving
+    obstacles, camera, online bounds), the control chain
+    (:func:`~drake_cfvol.systems.AddCoManipulation` with ``scenario.control``:
+    the same call as in a user's station), the co-worker, what moves the
+    robot (its pose from the command, or a driver), the monitor, the loggers
+    and Meshcat.
 
     Args:
         scenario: the scenario.
         meshcat: a ``Meshcat`` to visualise into (None: no visualiser).
-        base_dir: folder that relative cell paths are taken from (default:
-            the scenario file's).
+        base_dir: folder that relative cell paths are taken from (default: the scenario file's).
         scenario_file: the scenario's file (errors name it; a scenario that
             holds its cell is read from it).
         path, bounds: a precomputed nominal path and bounds table (otherwise
             planned and estimated here).
-        progress: progress bars on a terminal for long steps (the kernel's
-            first compile).
+        progress: progress bars on a terminal for long steps (the kernel's first compile).
 
     Returns:
         The :class:`Comanipulation`.
     """
     wc, path, bounds, times = _workcell_path_bounds(scenario, base_dir, scenario_file, path, bounds, progress)
     t2 = time.perf_counter()
-    vb, k, g = bounds.volume, wc.num_joints, path.g
+    vb, k = bounds.volume, wc.num_joints
     builder = DiagramBuilder()
     scene = _add_scene(builder, wc, vb, scenario, path.waypoints[0])
     plant, scene_graph, robot, volume_ids = scene.plant, scene.scene_graph, scene.robot, scene.volume_ids
-    a, share = scenario.admittance, scenario.path_velocity_share
-    rate = min((g - 1) / scenario.path_duration, safe_path_rate(bounds, wc.velocity_limits, share=share))
-    progress = builder.AddNamedSystem("path_progress", PathProgress(g, rate=rate, start_time=scenario.start_time,
-                                                                    lead=a.period))
-    source = builder.AddNamedSystem("joint_bounds", JointBoundsSource(bounds))
-    adm = builder.AddNamedSystem("admittance", AdmittanceDeformation(
-        k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=a.period, plant=plant,
-        tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot), velocity_limits=wc.velocity_limits,
-        path_share=share, robot=robot))
-    human = builder.AddNamedSystem("human", ScriptedHuman(k, _resolve_pushes(scenario, wc, path, progress)))
     robot_ids, moving_ids, obstacle_ids, ignored = _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids,
                                                                           scene.hand)
     online = None
     if scenario.perception_mode is not None:
-        online = add_online(builder, scenario, wc, plant, scene_graph, robot, bounds, progress.path_index_output)
+        online = add_online(builder, scenario, wc, plant, scene_graph, robot, bounds)
+    control = AddCoManipulation(
+        builder, plant=plant, scene_graph=scene_graph, robot=robot, table=bounds,
+        tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot), period=scenario.control.period,
+        measured_state=False, config=_control_config(scenario, wc, path), obstacle_ids=obstacle_ids,
+        dynamic_ids=online.filter_ids if online is not None else (), name="")
+    progress, adm, safety = control.progress, control.admittance, control.safety
+    commanded = control.commanded_position_output
+    # The bounds at the path index now, for the logs and the reactive co-worker.
+    source = builder.AddNamedSystem("joint_bounds_now", JointBoundsSource(bounds))
+    builder.Connect(progress.path_index_output, source.path_index_input)
+    if online is not None:
+        builder.Connect(progress.path_index_output, online.estimator.path_index_input)
         builder.Connect(online.estimator.bounds_output, source.bounds_input)
+        builder.Connect(online.estimator.bounds_output, control.bounds.bounds_input)
+        if online.model_position_input is not None:
+            builder.Connect(commanded, online.model_position_input)  # the camera's model of the cell
+    human = builder.AddNamedSystem("human", ScriptedHuman(k, _resolve_pushes(scenario, wc, path, progress)))
     monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
         robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids,
         obstacle_ids=obstacle_ids + (online.monitor_ids if online else []), ignored_pairs=ignored))
-    builder.Connect(progress.path_index_output, source.path_index_input)
-    safety = None
-    if scenario.collision_guard:
-        safety = _add_safety_filter(builder, scenario, bounds, wc, plant, scene_graph, robot, obstacle_ids,
-                                    progress, adm, path, online)
-        commanded = safety.commanded_position_output
-    else:
-        for name in ("nominal", "lower", "upper"):
-            builder.Connect(source.GetOutputPort(name), adm.GetInputPort(name))
-        commanded = adm.commanded_position_output
-    if online is not None and online.model_position_input is not None:
-        builder.Connect(commanded, online.model_position_input)  # the camera's model of the cell
-    torque_port = _add_pushes(builder, scenario, k, human, progress, commanded, source)
-    measured, sensed = _drive(builder, scenario, wc, scene, commanded, torque_port, human, adm, safety)
-    check = _add_check(builder, k, a.period, sensed or torque_port,
-                       None if sensed is not None else human.human_wrench_output, adm)
-    torque_port = sensed or torque_port
     builder.Connect(scene_graph.get_query_output_port(), monitor.query_object_input)
+    torque_port = _add_pushes(builder, scenario, k, human, progress, commanded, source)
+    measured, sensed = _drive(builder, scenario, wc, scene, torque_port, human, control)
+    builder.Connect(sensed or torque_port, control.human_torque_input)
+    if sensed is None:
+        builder.Connect(human.human_wrench_output, control.human_wrench_input)
+    check = control.check
     loggers = _export_and_log(builder, {**({"measured_position": measured} if measured is not None else {}),
         "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
         "nominal": source.nominal_output, "commanded_position": commanded,
         "deviation": adm.deviation_output, "fault": check.fault_output, "fault_count": check.fault_count_output,
-        "human_torque": torque_port, "human_wrench": human.human_wrench_output,
+        "human_torque": sensed or torque_port, "human_wrench": human.human_wrench_output,
         "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
         "in_volume": monitor.in_volume_output, **_online_exports(online)}, scenario, safety, adm)
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
@@ -579,7 +542,19 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     times["diagram"] = (time.perf_counter() - t2) * 1e3
     return Comanipulation(diagram, scenario, wc, path, bounds, plant, scene_graph, loggers, progress, meshcat,
                           {"count": len(volume_ids), **scene.merge_info}, times,
-                          safety.clearance if safety is not None else None, online)
+                          safety.clearance if safety is not None else None, online, control)
+
+
+def _control_config(scenario: Scenario, wc, path):
+    """The scenario's control section for AddCoManipulation: the cell's
+    velocity limits unless given, and the path no faster than its
+    ``path.duration``."""
+    c = scenario.control
+    pp = c.path_progress
+    rate = (path.g - 1) / scenario.path.duration
+    return dataclasses.replace(
+        c, velocity_limits=list(c.velocity_limits) or list(wc.velocity_limits),
+        path_progress=dataclasses.replace(pp, max_rate=rate if pp.max_rate is None else min(pp.max_rate, rate)))
 
 
 def _online_exports(online) -> dict:

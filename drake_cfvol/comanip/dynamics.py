@@ -1,5 +1,5 @@
 """A dynamic co-manipulation run: a time-stepping ``MultibodyPlant`` (the
-scenario's ``plant_config``), the robot under its driver (Drake's
+scenario's ``simulation.plant_config``), the robot under its driver (Drake's
 ``InverseDynamicsController`` on a plant of the robot alone), and the
 co-worker's push acting on the plant as real forces: joint torques as
 generalized forces, the tool wrench as a spatial force at the tool.
@@ -28,11 +28,12 @@ def driver_of(scenario, wc):
     Raises:
         ScenarioError: a driver named for a model that is not the robot.
     """
-    unknown = sorted(set(scenario.model_drivers) - {wc.robot_name})
+    drivers = scenario.simulation.model_drivers
+    unknown = sorted(set(drivers) - {wc.robot_name})
     if unknown:
-        raise ScenarioError("scenario", f"model_drivers.{unknown[0]}", f"names no robot of cell '{wc.name}' (its "
-                            f"robot is '{wc.robot_name}')")
-    return scenario.model_drivers.get(wc.robot_name, InverseDynamicsDriver())
+        raise ScenarioError("scenario", f"simulation.model_drivers.{unknown[0]}", f"names no robot of cell "
+                            f"'{wc.name}' (its robot is '{wc.robot_name}')")
+    return drivers.get(wc.robot_name, InverseDynamicsDriver())
 
 
 def add_simulated_plant(builder, wc, plant_config, *, hand: bool = False):

@@ -26,7 +26,8 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
 
 from drake_cfvol.systems.hand import CoworkerHand
-from drake_cfvol.systems.station import AddCoManipulation
+from drake_cfvol.exceptions import StationError
+from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig
 
 __all__ = ["IIWA_STATUS_PERIOD", "UntilFirstStatus", "add_iiwa_controller", "add_iiwa_station", "add_iiwa_controller_interface", "add_hand",
            "add_measured", "grip_point",
@@ -150,7 +151,8 @@ def add_hand(builder, plant, hand_body, tool_frame, wrench, *, tool_radius: floa
     return hand
 
 
-def add_iiwa_controller(builder, *, workcell, table, lcm, name: str = "controller", **comanipulation):
+def add_iiwa_controller(builder, *, workcell, table, lcm, period: float = 0.01,
+                        config: CoManipulationConfig = CoManipulationConfig(), name: str = "controller"):
     """The co-manipulation controller of a torque-sensing iiwa, talking to
     it over LCM only: what runs beside the real robot. Its SceneGraph holds
     the workcell (a plant posed from the status's measured positions, never
@@ -165,13 +167,18 @@ def add_iiwa_controller(builder, *, workcell, table, lcm, name: str = "controlle
         table: the bounds table.
         lcm: the LCM instance (a ``LcmInterfaceSystem`` on it must be in
             the diagram, as :func:`add_iiwa_station` adds).
+        period: the control period, s.
+        config: the gains and limits (``AddCoManipulation``'s); the safety
+            filter is needed (its desired state is the iiwa's command).
         name: prefix of the added systems' names.
-        **comanipulation: passed to ``AddCoManipulation`` (gains, clearance, ...).
 
     Returns:
         (the :class:`~drake_cfvol.systems.CoManipulationSystems`, the
         ``IiwaStatusReceiver``)
     """
+    if config.safety_filter is None:
+        raise StationError("add_iiwa_controller: the iiwa is commanded the safety filter's desired state; give "
+                           "config.safety_filter (not None).")
     scene_graph = builder.AddNamedSystem(f"{name}_scene_graph", SceneGraph())
     plant = MultibodyPlant(0.0)
     plant.RegisterAsSourceForSceneGraph(scene_graph)
@@ -179,7 +186,8 @@ def add_iiwa_controller(builder, *, workcell, table, lcm, name: str = "controlle
     plant.Finalize()
     k = workcell.num_joints
     cm = AddCoManipulation(builder, plant=plant, scene_graph=scene_graph, robot=robot, table=table,
-                           tool_frame=workcell.tool_frame.name(), measured_state=False, name=name, **comanipulation)
+                           tool_frame=workcell.tool_frame.name(), period=period, measured_state=False, config=config,
+                           name=name)
     status = add_iiwa_controller_interface(builder, lcm, cm.desired_state_output, k, prefix=f"{name}_")
     measured = add_measured(builder, status, cm.commanded_position_output, k, prefix=f"{name}_")
     to_pose = builder.AddNamedSystem(f"{name}_to_pose", MultibodyPositionToGeometryPose(plant))

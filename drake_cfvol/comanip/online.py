@@ -38,13 +38,13 @@ class OnlineParts(typing.NamedTuple):
 
 def perception_params(scenario) -> PerceptionParams:
     """The map's settings: cells lend their height as far as an obstacle at
-    ``online.obstacle_speed`` moves until newer bounds are in force (an
+    ``perception.obstacle_speed`` moves until newer bounds are in force (an
     image's age, half a camera period to the bounds update, a bounds
     period, and the next image), plus one cell for pixel gaps; occupancy
     spreads into unseen cells as fast as that speed (at least a cell per
     image)."""
-    o = scenario.online
-    lag = 2 * o.camera_period + 0.5 * o.camera_period + o.bounds_period
+    o = scenario.perception
+    lag = 2 * o.camera_period + 0.5 * o.camera_period + scenario.bounds.online.period
     return PerceptionParams(cell=o.cell, dilation=1 + int(math.ceil(o.obstacle_speed * lag / o.cell - 1e-9)),
                             speed=o.obstacle_speed)
 
@@ -96,19 +96,20 @@ def _hide_volume_from_cameras(plant, scene_graph) -> None:
             scene_graph.RemoveRole(plant.get_source_id(), gid, Role.kPerception)
 
 
-def add_online(builder, scenario, workcell, plant, scene_graph, robot, bounds, path_index_port) -> OnlineParts:
+def add_online(builder, scenario, workcell, plant, scene_graph, robot, bounds) -> OnlineParts:
     """Adds the scenario's moving boxes, their perception (``camera``: the
     cell camera, its obstacle map and the perceived columns; ``truth``: the
-    boxes' own map) and the online bounds estimator, reading the path index
-    from ``path_index_port``."""
-    o = scenario.online
+    boxes' own map) and the online bounds estimator (its ``path_index``
+    input left for the caller to connect)."""
+    o = scenario.perception
     mode = scenario.perception_mode
+    obstacles = scenario.cell.moving_obstacles
     grid = map_grid(workcell, o.cell)
     params = perception_params(scenario)
     boxes = None
-    if scenario.moving_obstacles:
+    if obstacles:
         boxes = builder.AddNamedSystem("moving_obstacles", MovingBoxes(
-            scene_graph, scenario.moving_obstacles, grid=grid, params=params))
+            scene_graph, obstacles, grid=grid, params=params))
         builder.Connect(boxes.geometry_pose_output, scene_graph.get_source_pose_port(boxes.source_id))
     camera = model_input = None
     if mode == "camera":
@@ -134,12 +135,12 @@ def add_online(builder, scenario, workcell, plant, scene_graph, robot, bounds, p
     builder.Connect(map_port, columns.obstacle_map_input)
     builder.Connect(columns.geometry_pose_output, scene_graph.get_source_pose_port(columns.source_id))
     filter_ids = list(columns.geometry_ids)
+    ob = scenario.bounds.online
     estimator = builder.AddNamedSystem("online_bounds", OnlineBoundsEstimator(
-        OnlineBounds(workcell, bounds, horizon=o.horizon), grid, period=o.bounds_period,
+        OnlineBounds(workcell, bounds, horizon=ob.horizon), grid, period=ob.period,
         offset=0.5 * o.camera_period))
     _filter_from_all_but_the_robot(scene_graph, plant, robot, filter_ids + (list(boxes.geometry_ids) if boxes else []))
     builder.Connect(map_port, estimator.obstacle_map_input)
-    builder.Connect(path_index_port, estimator.path_index_input)
     return OnlineParts(mode, grid, boxes, camera, columns, estimator, filter_ids,
                        list(boxes.geometry_ids) if boxes is not None else [], map_port, model_input)
 
@@ -165,7 +166,7 @@ def online_figures(parts: OnlineParts | None, context, scenario) -> dict:
            "bounds_update_ms_max": float(ms[re].max()) if re.any() else 0.0,
            "bounds_versions": int(version.max()) if len(version) else 0, "bounds_latency_s": None}
     late = []
-    for ob in scenario.moving_obstacles:
+    for ob in scenario.cell.moving_obstacles:
         t0 = ob.first_motion()
         if t0 is None:
             continue

@@ -30,11 +30,11 @@ def _simulate(cm, scenario, meshcat, progress: bool):
     pushes' numbers live in the context, seeded Drake's way. Returns (the
     simulator's context, wall time s)."""
     sim = Simulator(cm.diagram)
-    ApplySimulatorConfig(scenario.simulator_config, sim)
+    ApplySimulatorConfig(scenario.simulation.simulator_config, sim)
     ctx = sim.get_mutable_context()
     cm.diagram.SetRandomContext(ctx, RandomGenerator(scenario.random_seed))
     if meshcat is not None:
-        meshcat.StartRecording(frames_per_second=1.0 / scenario.visualization.publish_period,
+        meshcat.StartRecording(frames_per_second=1.0 / scenario.simulation.visualization.publish_period,
                                set_visualizations_while_recording=False)
     t0 = time.perf_counter()
     duration = cm.duration
@@ -69,12 +69,13 @@ def _tracking(logs, scenario) -> dict:
     the measured position and the command it was to reach (the previous
     update's), rad (m); the volume's boxes are drawn only (not proximity
     geometry of a simulated plant), so volume contacts are not counted."""
-    if scenario.plant_config is None:
+    pc = scenario.simulation.plant_config
+    if pc is None:
         return {"dynamic": False}
     m, c = logs["update_measured_position"][1], logs["update_commanded_position"][1]
     n = min(len(m), len(c))
     err = np.abs(m[1:n] - c[:n - 1]).max(axis=1) if n > 1 else np.zeros(1)
-    return {"dynamic": True, "time_step_s": scenario.plant_config.time_step,
+    return {"dynamic": True, "time_step_s": pc.time_step,
             "tracking_error_max": float(err.max()), "tracking_error_median": float(np.median(err)),
             "volume_penetrations": None}
 
@@ -83,7 +84,8 @@ def _margins(cm, scenario) -> tuple[float, float]:
     """The margin in force, and the nominal's own clearance (moving links
     against the obstacles, Drake, at every waypoint): a run keeps the margin
     if it never comes nearer than min(margin, the nominal's own)."""
-    margin = cm.filter_clearance if scenario.collision_guard else float(cm.bounds.params.get("clearance", 0.0) or 0.0)
+    margin = (cm.filter_clearance if cm.filter_clearance is not None
+              else float(cm.bounds.params.get("clearance", 0.0) or 0.0))
     nominal_own = min((min(d.values(), default=1.0) for d in
                        (cm.workcell.obstacle_distances(qn, 1.0, changeable_only=True) for qn in cm.path.waypoints)),
                       default=1.0)
@@ -123,18 +125,18 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     np.savez(out / "logs.npz", **{f"{k}_t": v[0] for k, v in logs.items()}, **{k: v[1] for k, v in logs.items()})
     summary = {
         "scenario": str(file) if file else str(scenario_name_or_path), "cell": cm.workcell.name,
-        "path": scenario.path, "resolution": scenario.resolution, "g": cm.path.g, "steps": int(len(t)),
-        "duration_s": cm.duration, "path_duration_s": cm.progress.duration - scenario.start_time,
+        "path": scenario.path.name, "resolution": scenario.bounds.resolution, "g": cm.path.g, "steps": int(len(t)),
+        "duration_s": cm.duration, "path_duration_s": cm.progress.duration - cm.progress.start_time,
         "sim_wall_s": sim_s,
         "min_clearance_m": rates["min_clearance_m"],
         "max_velocity_ratio": rates["max_velocity_ratio"], "volume_penetrations": penetrations,
         "collisions": rates["collisions"],
         **bound_figures(t, q, *cm.bounds.boxes_at(np.clip(s_log[:, 0], 0.0, cm.bounds.g - 1))[:2], lo, hi),
-        "filter_steps": _count(cm, ctx, "filter_count"), "guard_steps": _count(cm, ctx, "filter_count"),
+        "filter_steps": _count(cm, ctx, "filter_count"),
         "filter_fallbacks": _count(cm, ctx, "filter_fallbacks"),
         "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
         "filter_box_exits": _count(cm, ctx, "filter_box_exits"), "faults": _count(cm, ctx, "fault_count"),
-        "collision_guard": scenario.collision_guard, "filter_clearance_m": cm.filter_clearance,
+        "safety_filter": cm.control.safety is not None, "filter_clearance_m": cm.filter_clearance,
         "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
         "n_boxes": cm.bounds.info["n_boxes"], "volume_boxes_in_scene": cm.volume_boxes["count"],
         "bounds_time_ms": cm.bounds.timing_ms["total"], "build_ms": cm.build_ms,
@@ -145,7 +147,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     summary["clearance_m"], summary["nominal_min_clearance_m"] = _margins(cm, scenario)
     summary.update(online_figures(cm.online, ctx, scenario))
     if cm.online is not None:
-        summary["moving_obstacles"] = [o.name for o in scenario.moving_obstacles]
+        summary["moving_obstacles"] = [o.name for o in scenario.cell.moving_obstacles]
         summary["column_overflow"] = _count(cm, ctx, "column_overflow")
     summary.update(_tracking(logs, scenario))
     summary["problems"] = run_problems(summary)
@@ -230,7 +232,7 @@ def update_rate_figures(logs: dict, cm: Comanipulation) -> dict:
     _, q = logs["update_commanded_position"]
     _, dist = logs["update_min_distance"]
     _, coll = logs["update_in_collision"]
-    h = cm.scenario.admittance.period
+    h = cm.scenario.control.period
     vmax = np.asarray(cm.workcell.velocity_limits, float)
     ratio = 0.0
     if len(q) > 1:

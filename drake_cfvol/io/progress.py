@@ -8,7 +8,7 @@ it is never written into a pipe or a file. The CLI enables bars unless
 The estimated time left is tqdm's, computed from the average rate since the
 start (``smoothing=0``), so a bar's units must be proportional to the work:
 callers count work in units of equal cost (waypoints, samples, simulated
-seconds) or weigh unequal tasks by a cost model (:mod:`drake_cfvol.bench`).
+seconds) or weigh unequal tasks by a cost model (``benchmarks/harness.py``).
 ``tools/eta_check.py`` measures how far the estimates are from the truth.
 """
 

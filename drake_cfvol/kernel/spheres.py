@@ -12,7 +12,7 @@ from numba import njit
 from drake_cfvol.kernel.types import BOX, SEP_EPS, _C, _ED, _EI, _ES, _K, _R, _S
 from drake_cfvol.kernel.heightfield import range_max
 
-__all__ = ["ball_apart_row", "box_above_columns", "place_balls", "balls_apart_row", "balls_apart"]
+__all__ = ["ball_apart_row", "box_above_columns", "place_balls"]
 
 
 @njit(cache=True, inline="always")
@@ -82,27 +82,3 @@ def place_balls(R_WB, p_WB, shape_body, spheres, ranges, pad, balls, box):
                     box[s, a] = v - r
                 if v + r > box[s, 3 + a]:
                     box[s, 3 + a] = v + r
-
-
-@njit(cache=True, inline="always")
-def balls_apart_row(balls, start, stop, row, aabb):
-    """True if every ball in balls[start:stop] is apart from the row."""
-    for q in range(start, stop):
-        if not ball_apart_row(balls[q, 0], balls[q, 1], balls[q, 2], balls[q, 3], row, aabb):
-            return False
-    return True
-
-
-@njit(cache=True, inline="always")
-def balls_apart(balls, a0, a1, b0, b1, shrink):
-    """True if every ball of balls[a0:a1] is apart from every ball of
-    balls[b0:b1], each radius less ``shrink`` (m)."""
-    for p in range(a0, a1):
-        for q in range(b0, b1):
-            dx = balls[p, 0] - balls[q, 0]
-            dy = balls[p, 1] - balls[q, 1]
-            dz = balls[p, 2] - balls[q, 2]
-            rr = balls[p, 3] + balls[q, 3] - 2.0 * shrink + SEP_EPS
-            if dx * dx + dy * dy + dz * dz <= rr * rr:
-                return False
-    return True

@@ -7,7 +7,7 @@ from __future__ import annotations
 from typing import NamedTuple
 import numpy as np
 
-__all__ = ['Chain', 'Model', 'HeightField', 'Scratch', 'RegionScratch', 'BOX', 'SPHERE', 'CAPSULE', 'CYLINDER', 'ELLIPSOID', 'HULL', 'SHAPE_W']
+__all__ = ['Chain', 'Model', 'Blocks', 'HeightField', 'Scratch', 'RegionScratch', 'BOX', 'SPHERE', 'CAPSULE', 'CYLINDER', 'ELLIPSOID', 'HULL', 'SHAPE_W']
 
 
 BOX, SPHERE, CAPSULE, CYLINDER, ELLIPSOID, HULL = 0, 1, 2, 3, 4, 5
@@ -59,6 +59,19 @@ class Model(NamedTuple):
     joint_body: np.ndarray  #: (k,) int: the body each joint moves first
     spheres: np.ndarray  #: (N, 4) balls covering the robot shapes: centre in the body frame, radius, m
     shape_spheres: np.ndarray  #: (S, 2) int: shape s's balls are spheres[start:stop]
+
+
+class Blocks(NamedTuple):
+    """What the block kernel (:mod:`drake_cfvol.kernel.blocks`) adds to a
+    :class:`Model`, built once per robot
+    (:meth:`drake_cfvol.scene.arrays.SceneArrays.blocks`)."""
+
+    KR: np.ndarray  #: (B, 3, 9) each body's rotation in its parent: constant, cos q and sin q terms
+    Kp: np.ndarray  #: (B, 3, 3) its translation: constant, cos q and sin q terms (prismatic: constant, q)
+    balls: np.ndarray  #: (N, 4) the block check's cover balls: centre in the body frame, radius, m
+    ranges: np.ndarray  #: (S, 2) int: shape s's balls are balls[start:stop]
+    bounds: np.ndarray  #: (S, 4) a ball around each shape's balls (centre in the body frame, radius), m
+    kind: np.ndarray  #: (S,) int: the shape's kind where a ball's distance to it has a closed form, else -1
 
 
 class HeightField(NamedTuple):

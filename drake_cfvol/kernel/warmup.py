@@ -5,23 +5,25 @@ from __future__ import annotations
 
 import numpy as np
 
-from drake_cfvol.kernel.types import BOX, Chain, FOOTPRINT_DIRECTIONS, HeightField, Model, SHAPE_W, _C, _K, _R, _S
+from drake_cfvol.kernel.types import BOX, Blocks, Chain, FOOTPRINT_DIRECTIONS, HeightField, Model, SHAPE_W, _C, _K, _R, _S
 from drake_cfvol.kernel.kinematics import fk
 from drake_cfvol.kernel.shapes import row_aabb
 from drake_cfvol.kernel.gjk import gjk_intersect
 from drake_cfvol.kernel.heightfield import range_max_table
-from drake_cfvol.kernel.checks import configs_may_collide, configs_may_collide_serial, lower_columns_under, obstacle_distances
+from drake_cfvol.kernel.checks import lower_columns_under, obstacle_distances
+from drake_cfvol.kernel.blocks import block_chain, fk_blocks, shape_bounds
+from drake_cfvol.kernel.batch import configs_may_collide, configs_may_collide_serial
 from drake_cfvol.kernel.regions import regions_hit, sweep_chains
 from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint
 
 
 #: Each step's share of a fresh compile, s (measured on this 2-core machine
-#: with an empty numba cache, tools/eta_check.py --compile; the shares, not
-#: the seconds, carry over to other machines). A step compiles what the
-#: steps before it have not.
-STEP_SHARES = {"fk": 2.6, "configs_may_collide": 21.0, "configs_may_collide_serial": 11.3, "sweep_chains": 48.5,
-               "regions_hit": 27.5, "lower_columns_under": 0.9, "obstacle_distances": 3.8, "footprints": 2.1,
-               "gjk_intersect": 0.2}
+#: with an empty numba cache, one fresh compile after the kernel moved to
+#: blocks, scaled to the earlier total; the shares, not the seconds, carry
+#: over to other machines). A step compiles what the steps before it have not.
+STEP_SHARES = {"fk": 3.7, "configs_may_collide": 25.1, "configs_may_collide_serial": 3.8, "sweep_chains": 49.5,
+               "regions_hit": 27.0, "lower_columns_under": 1.5, "obstacle_distances": 4.6, "footprints": 2.7,
+               "gjk_intersect": 0.3}
 
 
 def _scene():
@@ -58,6 +60,9 @@ def _steps():
     """(name, call) for every kernel entry point, on the tiny scene."""
     m, verts = _scene()
     chain, shapes, obstacles = m.chain, m.shapes, m.obstacles
+    KR, Kp = block_chain(chain)
+    blk = Blocks(KR, Kp, m.spheres, m.shape_spheres, shape_bounds(m.spheres, m.shape_spheres),
+                 np.array([BOX], np.int64))
     W = np.array([[0.0], [0.1]])
     Q = np.ascontiguousarray(W)
     heights = np.array([[0.0, 0.3], [0.2, 0.0]])
@@ -77,9 +82,9 @@ def _steps():
         distance_map(mask)
 
     return [
-        ("fk", lambda: fk(Q, chain)),
-        ("configs_may_collide", lambda: configs_may_collide(Q, m, 0.0)),
-        ("configs_may_collide_serial", lambda: configs_may_collide_serial(Q, m, 0.0)),
+        ("fk", lambda: (fk(Q, chain), fk_blocks(Q, chain, KR, Kp))),
+        ("configs_may_collide", lambda: configs_may_collide(Q, m, blk, 0.0)),
+        ("configs_may_collide_serial", lambda: configs_may_collide_serial(Q, m, blk, 0.0)),
         ("sweep_chains", sweep),
         ("regions_hit", lambda: regions_hit(W[:1].copy(), W[1:].copy(), np.array([0], np.int64), np.array([-0.1]),
                                             np.array([0.1]), np.array([2], np.int64), np.array([2], np.int64),

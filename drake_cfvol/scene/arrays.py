@@ -168,6 +168,7 @@ class SceneArrays:
     def __post_init__(self):
         self._model = None  # the kernel's Model, built once
         self._covers = None
+        self._blocks = None
 
     @property
     def covers(self) -> tuple[np.ndarray, np.ndarray]:
@@ -185,7 +186,7 @@ class SceneArrays:
     def fk(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Body poses (N, B, 3, 3), (N, B, 3) for configurations (N, k)."""
         Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
-        return K.fk(Q, self.chain)
+        return K.fk_blocks(Q, self.chain, self.blocks.KR, self.blocks.Kp)
 
     def may_collide(self, Q: np.ndarray, pad: float = 0.0) -> np.ndarray:
         """(N,) True where a configuration may collide with the obstacles or
@@ -195,7 +196,7 @@ class SceneArrays:
         # A few configurations (a guard's checks): on this thread, since
         # waking numba's thread pool costs milliseconds.
         fn = K.configs_may_collide_serial if len(Q) <= _SERIAL_MAX else K.configs_may_collide
-        return fn(Q, self.model, float(pad))
+        return fn(Q, self.model, self.blocks, float(pad))
 
     def with_boxes(self, centres: np.ndarray, sizes: np.ndarray, name: str = "perceived") -> "SceneArrays":
         """These arrays with axis-aligned boxes added to the obstacles (the
@@ -218,6 +219,7 @@ class SceneArrays:
                                   obstacle_names=list(self.obstacle_names) + [name] * len(rows),
                                   obstacle_aabb=np.ascontiguousarray(np.concatenate([self.obstacle_aabb, aabb])))
         out._covers = self._covers  # the robot is the same
+        out._blocks = self._blocks
         return out
 
     @property
@@ -230,6 +232,20 @@ class SceneArrays:
                 self.self_pairs, self.shape_pairs, self.moved_by.any(axis=0), self.moved_by, self.reach,
                 self.curvature, self.revolute, self.joint_body, spheres, shape_spheres)
         return self._model
+
+    @property
+    def blocks(self) -> K.Blocks:
+        """What the block kernel adds to :attr:`model` (built once): the
+        chain's affine terms, the block check's covers (a capsule's balls
+        along its segment, :func:`~drake_cfvol.scene.covers.robot_covers`
+        with ``tight``) and their bounding balls, and each shape's closed-form
+        kind."""
+        if self._blocks is None:
+            balls, ranges = robot_covers(self.shapes, self.verts, tight=True)
+            KR, Kp = K.block_chain(self.chain)
+            kind = np.array([int(k) if int(k) in K.EXACT_KINDS else -1 for k in self.shapes[:, K._K]], np.int64)
+            self._blocks = K.Blocks(KR, Kp, balls, ranges, K.shape_bounds(balls, ranges), kind)
+        return self._blocks
 
     @property
     def shape_pairs(self) -> np.ndarray:

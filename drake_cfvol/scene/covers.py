@@ -27,7 +27,8 @@ from drake_cfvol import kernel as K
 from drake_cfvol.kernel.types import _ED, _EI, _ES
 from drake_cfvol.exceptions import WorkcellError
 
-__all__ = ["shape_cover", "robot_covers", "check_cover", "MAX_SLABS"]
+__all__ = ["shape_cover", "robot_covers", "check_cover", "MAX_SLABS", "SEGMENT_SLACK",
+           "MAX_SEGMENT_BALLS"]
 
 #: Most balls per shape.
 MAX_SLABS = 8
@@ -122,12 +123,33 @@ def _axial_cover(radius: float, half_length: float) -> np.ndarray:
     return np.array([[0.0, 0.0, (a + b) / 2, r] for a, b in zip(cuts[:-1], cuts[1:])])
 
 
-def shape_cover(row: np.ndarray, verts: np.ndarray) -> np.ndarray:
+#: A capsule's balls for the block check exceed it by at most this (m) ...
+SEGMENT_SLACK = 0.01
+
+#: ... unless that takes more balls than this.
+MAX_SEGMENT_BALLS = 24
+
+
+def _segment_cover(radius: float, half_length: float) -> np.ndarray:
+    """Balls of radius r + d centred along a capsule's segment at spacing
+    2 d: each holds every ball of radius r centred within d of its centre,
+    so together the whole capsule; d is :data:`SEGMENT_SLACK` or what
+    :data:`MAX_SEGMENT_BALLS` allows."""
+    n = int(min(MAX_SEGMENT_BALLS, max(2, np.ceil(half_length / SEGMENT_SLACK) + 1)))
+    d = half_length / (n - 1)
+    z = np.linspace(-half_length, half_length, n)
+    return np.column_stack([np.zeros(n), np.zeros(n), z, np.full(n, radius + d)])
+
+
+def shape_cover(row: np.ndarray, verts: np.ndarray, tight: bool = False) -> np.ndarray:
     """The balls covering a shape row, in the row's own (parent) frame.
 
     Args:
         row: a kernel shape row (SHAPE_W,).
         verts: the kernel's hull vertices (V, 3).
+        tight: a capsule as balls along its segment, within
+            :data:`SEGMENT_SLACK` of it (the block check's cover), instead
+            of a few slabs' balls.
 
     Returns:
         (n, 4): ball centres (m, in the frame the row is posed in) and radii
@@ -138,7 +160,7 @@ def shape_cover(row: np.ndarray, verts: np.ndarray) -> np.ndarray:
     if kind == K.SPHERE:
         local = np.array([[0.0, 0.0, 0.0, s[0]]])
     elif kind == K.CAPSULE:
-        local = _axial_cover(s[0], s[1] + s[0])
+        local = _segment_cover(s[0], s[1]) if tight else _axial_cover(s[0], s[1] + s[0])
     elif kind == K.CYLINDER:
         local = _axial_cover(s[0], s[1])
     elif kind in (K.BOX, K.ELLIPSOID):
@@ -202,8 +224,8 @@ def check_cover(row: np.ndarray, verts: np.ndarray, cover: np.ndarray) -> None:
                             "please report this with the robot's model.")
 
 
-def robot_covers(shapes: np.ndarray, verts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Every robot shape's cover, checked.
+def robot_covers(shapes: np.ndarray, verts: np.ndarray, tight: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Every robot shape's cover (``tight``: see :func:`shape_cover`), checked.
 
     Returns:
         (spheres (N, 4) in body frames, shape_spheres (S, 2) int: the rows
@@ -211,7 +233,7 @@ def robot_covers(shapes: np.ndarray, verts: np.ndarray) -> tuple[np.ndarray, np.
     """
     balls, ranges, start = [], [], 0
     for row in shapes:
-        cover = shape_cover(row, verts)
+        cover = shape_cover(row, verts, tight)
         check_cover(row, verts, cover)
         balls.append(cover)
         ranges.append((start, start + len(cover)))

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import hashlib
 import logging
-import os
 import re
 import struct
 from pathlib import Path
@@ -14,19 +13,17 @@ from pathlib import Path
 import numpy as np
 
 from drake_cfvol.exceptions import WorkcellFormatError
+from drake_cfvol.io.cache import files_dir
 
 _URDF_MESH = re.compile(r'(<mesh\b[^>]*?\bfilename\s*=\s*")([^"]+)(")', re.IGNORECASE)
 _SDF_URI = re.compile(r"(<mesh\b[^>]*>\s*<uri>\s*)([^<\s]+)(\s*</uri>)", re.IGNORECASE | re.DOTALL)
 
 
 def cache_dir() -> Path:
-    """The folder for converted meshes: ``$DRAKE_CFVOL_CACHE`` or
-    ``$XDG_CACHE_HOME/drake_cfvol`` (default ``~/.cache/drake_cfvol``)."""
-    root = os.environ.get("DRAKE_CFVOL_CACHE")
-    if root:
-        return Path(root)
-    xdg = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(xdg) / "drake_cfvol"
+    """The folder for converted meshes and model files: the cache folder
+    (:func:`drake_cfvol.io.cache.cache_root`), or a temporary one of this
+    process's own when ``$DRAKE_CFVOL_CACHE`` is ``off``."""
+    return files_dir()
 
 
 def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:

@@ -83,7 +83,11 @@ class HeightMapExtent:
 
 @dataclasses.dataclass
 class NamedConfiguration:
-    """A named start/goal pair, rad (m for prismatic joints)."""
+    """A named start/goal pair.
+
+    Attributes:
+        start, goal: one value per robot joint, rad (m for prismatic joints).
+    """
 
     start: list[float] = dataclasses.field(default_factory=list)
     goal: list[float] = dataclasses.field(default_factory=list)
@@ -121,7 +125,12 @@ class CfvolSection:
 @dataclasses.dataclass
 class WorkcellFile:
     """A workcell file: Drake model directives plus the ``cfvol:`` section
-    (loaded with ``yaml_load_typed``, as Drake's hardware_sim scenarios)."""
+    (loaded with ``yaml_load_typed``, as Drake's hardware_sim scenarios).
+
+    Attributes:
+        directives: Drake model directives: the robot and the obstacles.
+        cfvol: which model is the robot, and the method's settings.
+    """
 
     directives: list[ModelDirective] = dataclasses.field(default_factory=list)
     cfvol: CfvolSection = dataclasses.field(default_factory=CfvolSection)

@@ -5,7 +5,7 @@
   nominal, clamped inside the bounds without wind-up.
 - :class:`HumanInputCheck`: the sensed push checked for plausibility; a
   fault holds the admittance's last safe command.
-- :class:`SafetyFilter` (from :mod:`drake_cfvol.safety`): between the
+- :class:`SafetyFilter` (from :mod:`drake_cfvol.systems.safety`): between the
   admittance and the robot, the motion closest to the one asked for that
   keeps the velocity limits, the box ahead and a clearance margin (a
   velocity damper on the SceneGraph's signed distances); its constraints
@@ -26,7 +26,11 @@
 - :class:`OnlineBoundsEstimator`: the bounds re-estimated from the map,
   published to :class:`JointBoundsSource`'s ``bounds`` input.
 - :func:`AddCoManipulation`: all of the above a station needs, added to a
-  user's own builder and wired to its plant and SceneGraph;
+  user's own builder and wired to its plant and SceneGraph, its gains and
+  limits a :class:`CoManipulationConfig` (each system's own config:
+  :class:`AdmittanceConfig`, :class:`SafetyFilterConfig`,
+  :class:`PathProgressConfig`; the camera's :class:`PerceptionConfig`, the
+  online bounds' :class:`OnlineBoundsConfig`);
   :class:`ToolPushForce`: a push at the tool as a real force on a plant.
 
 One system per module. Imports ``online``, ``algorithm`` (the bounds table), ``scene``,
@@ -34,22 +38,24 @@ One system per module. Imports ``online``, ``algorithm`` (the bounds table), ``s
 """
 
 
-from drake_cfvol.systems.admittance import AdmittanceDeformation, AdmittanceDeformation_
+from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformation, AdmittanceDeformation_
 from drake_cfvol.systems.bounds_source import JointBoundsSource, JointBoundsSource_
 from drake_cfvol.systems.human_input import HumanInputCheck, HumanInputCheck_
-from drake_cfvol.systems.humans import Push, RandomPushShaper, ReactiveCoworker, ScriptedHuman
+from drake_cfvol.systems.humans import Push, RandomPushes, RandomPushShaper, Reactive, ReactiveCoworker, ScriptedHuman
 from drake_cfvol.systems.columns import PerceivedColumns
 from drake_cfvol.systems.monitor import ClearanceMonitor
 from drake_cfvol.systems.moving_boxes import MovingBoxes, MovingObstacle
-from drake_cfvol.systems.online_bounds import OnlineBoundsEstimator
-from drake_cfvol.systems.perception import AddCellCamera, AddCellModel, CellCamera, CellModel, ObstacleMapper
-from drake_cfvol.systems.path import PathProgress, safe_path_rate
+from drake_cfvol.systems.online_bounds import OnlineBoundsConfig, OnlineBoundsEstimator
+from drake_cfvol.systems.perception import (AddCellCamera, AddCellModel, CellCamera, CellModel, ObstacleMapper,
+                                           PerceptionConfig)
+from drake_cfvol.systems.path import PathProgress, PathProgressConfig, safe_path_rate
 from drake_cfvol.systems.constraints import FilterConstraint, ToolSpeedLimit
-from drake_cfvol.systems.safety import SafetyFilter
-from drake_cfvol.systems.station import AddCoManipulation, CoManipulationSystems, ToolPushForce
+from drake_cfvol.systems.safety import SafetyFilter, SafetyFilterConfig
+from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig, CoManipulationSystems, ToolPushForce
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
            "ClearanceMonitor", "HumanInputCheck", "HumanInputCheck_", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate",
            "AddCoManipulation", "CoManipulationSystems", "ToolPushForce", "MovingBoxes", "MovingObstacle",
            "PerceivedColumns", "OnlineBoundsEstimator", "AddCellCamera", "AddCellModel", "CellCamera", "CellModel", "ObstacleMapper",
-           "FilterConstraint", "ToolSpeedLimit"]
+           "RandomPushes", "Reactive", "AdmittanceConfig", "SafetyFilterConfig", "PathProgressConfig", "PerceptionConfig", "OnlineBoundsConfig",
+           "CoManipulationConfig", "FilterConstraint", "ToolSpeedLimit"]

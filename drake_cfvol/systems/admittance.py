@@ -1,7 +1,7 @@
 """The admittance: the human's push -> a deviation from the nominal, clamped
-inside the bounds without wind-up (SPEC 9)."""
+inside the bounds without wind-up (SPEC 9); its gains (:class:`AdmittanceConfig`)."""
 
-
+import dataclasses
 
 import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
@@ -14,7 +14,24 @@ from drake_cfvol.scene.robot import RobotSlice
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.systems._util import _clip, _values, _vector
 
-__all__ = ['AdmittanceDeformation', 'AdmittanceDeformation_']
+__all__ = ['AdmittanceConfig', 'AdmittanceDeformation', 'AdmittanceDeformation_']
+
+
+@dataclasses.dataclass
+class AdmittanceConfig:
+    """The admittance's gains, the same for every joint (the defaults of
+    :class:`AdmittanceDeformation`; :func:`~drake_cfvol.systems.AddCoManipulation`
+    and the scenarios read them from here).
+
+    Attributes:
+        mass: M, kg m^2 per joint (kg for a prismatic joint); > 0.
+        damping: D, N m s/rad (N s/m); >= 0.
+        stiffness: K, N m/rad (N/m), towards the nominal; >= 0.
+    """
+
+    mass: float = 10.0
+    damping: float = 200.0
+    stiffness: float = 400.0
 
 
 @TemplateSystem.define("AdmittanceDeformation_", T_list=(float, AutoDiffXd))
@@ -76,7 +93,7 @@ def AdmittanceDeformation_(T):
         ``upper`` come from the planner, not a sensor: they raise a
         :class:`~drake_cfvol.ParameterError` naming the port.
 
-        The collision checks are not here: a :class:`drake_cfvol.safety.SafetyFilter`
+        The collision checks are not here: a :class:`drake_cfvol.systems.safety.SafetyFilter`
         between this system and the robot keeps the clearance.
 
         Scalar types: float and AutoDiffXd (``ToAutoDiffXd()``); with
@@ -103,7 +120,8 @@ def AdmittanceDeformation_(T):
             path_share: see above; in (0, 1).
         """
 
-        def _construct(self, k: int, *, mass=10.0, damping=200.0, stiffness=400.0, period: float = 0.01,
+        def _construct(self, k: int, *, mass=AdmittanceConfig.mass, damping=AdmittanceConfig.damping,
+                       stiffness=AdmittanceConfig.stiffness, period: float = 0.01,
                        plant=None, tool_frame=None, velocity_limits=None, path_share: float = 0.5,
                        robot=None, converter=None):
             LeafSystem_[T].__init__(self, converter)

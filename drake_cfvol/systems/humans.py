@@ -11,7 +11,7 @@ from pydrake.systems.framework import LeafSystem
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.systems._util import _vector
 
-__all__ = ['Push', 'ScriptedHuman', 'ReactiveCoworker', 'RandomPushShaper']
+__all__ = ['Push', 'RandomPushes', 'Reactive', 'ScriptedHuman', 'ReactiveCoworker', 'RandomPushShaper']
 
 
 @dataclasses.dataclass
@@ -34,6 +34,45 @@ class Push:
     joint_torque: list[float] = dataclasses.field(default_factory=list)
     wrench: list[float] = dataclasses.field(default_factory=list)
     toward_nearest_obstacle: float = 0.0
+
+
+@dataclasses.dataclass
+class RandomPushes:
+    """Random joint-torque pushes (count 0: none), drawn by Drake's
+    ``RandomSource`` and seeded through the context: the run calls
+    ``diagram.SetRandomContext(context, RandomGenerator(random_seed))``
+    with the scenario's one ``random_seed``.
+
+    Attributes:
+        count: expected number of pushes over the run.
+        max_torque: N m (N), per joint.
+        mean_duration: s, the length of one push (the source's sampling
+            interval).
+    """
+
+    count: int = 0
+    max_torque: float = 300.0
+    mean_duration: float = 1.0
+
+
+@dataclasses.dataclass
+class Reactive:
+    """A co-worker who reacts to the robot's position (gain 0: none): see
+    :class:`ReactiveCoworker`.
+
+    Attributes:
+        gain: N m/rad (N/m), per joint.
+        offset: rad (m) per joint from the nominal: the pose the person wants
+            (empty: zeros).
+        start, duration: the window, s.
+        max_torque: N m (N), per joint.
+    """
+
+    gain: float = 0.0
+    offset: list[float] = dataclasses.field(default_factory=list)
+    start: float = 0.0
+    duration: float = 1e9
+    max_torque: float = 400.0
 
 
 class ScriptedHuman(LeafSystem):

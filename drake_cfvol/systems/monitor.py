@@ -47,7 +47,7 @@ class ClearanceMonitor(LeafSystem):
             ``in_collision`` ignores any other geometry.
         ignored_pairs: (moving link geometry, obstacle geometry) pairs left
             out of ``min_distance``: those whose distance no joint motion
-            changes (:meth:`drake_cfvol.workcell.Workcell.invariant_pairs`),
+            changes (:meth:`drake_cfvol.scene.workcell.Workcell.invariant_pairs`),
             which a push cannot bring closer. ``in_collision`` still counts them.
     """
 

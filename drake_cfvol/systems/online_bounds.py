@@ -1,7 +1,7 @@
 """Bounds re-estimated online from the perceived obstacles, as a Drake
 system (SPEC 12)."""
 
-from __future__ import annotations
+import dataclasses
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -11,7 +11,22 @@ from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap
 from drake_cfvol.online.reestimate import FrozenLog, OnlineBounds
 
-__all__ = ["OnlineBoundsEstimator"]
+__all__ = ["OnlineBoundsConfig", "OnlineBoundsEstimator"]
+
+
+@dataclasses.dataclass
+class OnlineBoundsConfig:
+    """How often and how far ahead the bounds are re-estimated.
+
+    Attributes:
+        period: s between updates (an update computed at t is in force from
+            t + period); > 0.
+        horizon: stretches ahead of the path index searched again at an
+            update; >= 1.
+    """
+
+    period: float = 0.05
+    horizon: int = 8
 
 
 class OnlineBoundsEstimator(LeafSystem):
@@ -52,7 +67,8 @@ class OnlineBoundsEstimator(LeafSystem):
     #: version in force after publishing, map changed (1/0).
     LOG_FIELDS = ("time", "compute_ms", "map_stamp", "recomputed", "version", "map_changed")
 
-    def __init__(self, online: OnlineBounds, grid: MapGrid, *, period: float = 0.05, offset: float = 0.0):
+    def __init__(self, online: OnlineBounds, grid: MapGrid, *, period: float = OnlineBoundsConfig.period,
+                 offset: float = 0.0):
         super().__init__()
         if not period > 0:
             raise ParameterError(f"OnlineBoundsEstimator: period must be > 0 s, got {period!r}.")

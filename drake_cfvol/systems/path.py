@@ -1,6 +1,8 @@
-"""The path's progress over time, and the fastest safe rate for a table."""
+"""The path's progress over time, the fastest safe rate for a table, and
+their settings (:class:`PathProgressConfig`)."""
 
-
+import dataclasses
+import typing
 
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder
@@ -10,10 +12,30 @@ from pydrake.trajectories import PiecewisePolynomial
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.algorithm.table import BoundsTable
 
-__all__ = ['PathProgress', 'safe_path_rate']
+__all__ = ['PathProgress', 'PathProgressConfig', 'safe_path_rate']
 
 
-def safe_path_rate(bounds: BoundsTable, velocity_limits, *, share: float = 0.5) -> float:
+@dataclasses.dataclass
+class PathProgressConfig:
+    """How the path advances (:func:`~drake_cfvol.systems.AddCoManipulation`
+    reads it).
+
+    Attributes:
+        velocity_share: the share of each joint's velocity limit that the
+            path's own motion (nominal and bounds) may use; the push gets
+            the rest (:func:`safe_path_rate`); in (0, 1).
+        start_time: when the path starts, s (>= 0).
+        max_rate: a cap on the path's rate, waypoints/s (None: the safe
+            rate alone).
+    """
+
+    velocity_share: float = 0.5
+    start_time: float = 0.0
+    max_rate: typing.Optional[float] = None
+
+
+def safe_path_rate(bounds: BoundsTable, velocity_limits, *,
+                   share: float = PathProgressConfig.velocity_share) -> float:
     """The fastest path progress, in waypoints per second, at which the
     nominal and the bounds move no joint faster than ``share`` of its
     velocity limit.

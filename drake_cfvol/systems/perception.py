@@ -1,8 +1,8 @@
-"""The cell camera: a depth camera over the cell, and the system that turns
-its points into an obstacle map (SPEC 12)."""
+"""The cell camera: a depth camera over the cell, the system that turns
+its points into an obstacle map (SPEC 12), and their settings
+(:class:`PerceptionConfig`)."""
 
-from __future__ import annotations
-
+import dataclasses
 import math
 import typing
 
@@ -21,7 +21,27 @@ from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap, PerceptionParams
 from drake_cfvol.scene.robot import robot_bodies
 
-__all__ = ["make_renderable", "floor_points", "ObstacleMapper", "AddCellCamera", "CellCamera", "AddCellModel", "CellModel", "CAMERA_RENDERER", "MODEL_RENDERER", "overhead_pose"]
+__all__ = ["make_renderable", "floor_points", "ObstacleMapper", "AddCellCamera", "CellCamera", "AddCellModel", "CellModel", "CAMERA_RENDERER", "MODEL_RENDERER", "overhead_pose", "PerceptionConfig"]
+
+
+@dataclasses.dataclass
+class PerceptionConfig:
+    """The cell camera and its obstacle map.
+
+    Attributes:
+        camera_period: s between camera images; > 0.
+        width, height: the camera's image, px (at least 16 x 16).
+        cell: the obstacle map's cell side, m; > 0.
+        obstacle_speed: the speed assumed for what the camera sees, m/s
+            (>= 0): the map lends each occupied cell's height to the cells
+            it could reach before newer bounds are in force.
+    """
+
+    camera_period: float = 0.05
+    width: int = 320
+    height: int = 240
+    cell: float = 0.05
+    obstacle_speed: float = 0.5
 
 #: The renderer that draws the real cell (everything with a perception role).
 CAMERA_RENDERER = "cell_camera"
@@ -242,8 +262,9 @@ def robot_render_labels(plant, scene_graph, robot) -> set[int]:
 
 
 def AddCellCamera(builder, *, scene_graph, model: CellModel, grid: MapGrid,
-                  params: PerceptionParams = PerceptionParams(), width: int = 320, height: int = 240,
-                  fov_y: float = math.radians(70.0), period: float = 0.05, offset: float = 0.0,
+                  params: PerceptionParams = PerceptionParams(), width: int = PerceptionConfig.width,
+                  height: int = PerceptionConfig.height, fov_y: float = math.radians(70.0),
+                  period: float = PerceptionConfig.camera_period, offset: float = 0.0,
                   X_WC: RigidTransform | None = None) -> CellCamera:
     """Adds an overhead depth camera over the map's grid and its obstacle
     mapper to someone's builder: a camera on the station's SceneGraph (the

@@ -1,8 +1,7 @@
 """A smooth runtime safety filter between the admittance and the robot
 (SPEC 9): every update it commands the motion closest to the one asked for
 that keeps the joint velocity limits, the box at the next path position and
-a clearance margin, the last through the diagram's own SceneGraph
-(:class:`SafetyFilter`).
+a clearance margin, the last through the diagram's own SceneGraph (:class:`SafetyFilter`).
 
 **Outputs**: ``filter_active`` is 1 after an update that changed the
 request (the commanded position differs from ``desired_position`` by more
@@ -133,7 +132,8 @@ not measured at all (the damper's broad phase), and the near pairs' rows
 come from one compiled call (:mod:`~drake_cfvol.systems.damper_kernel`).
 """
 
-from __future__ import annotations
+import dataclasses
+import typing
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -146,7 +146,28 @@ from drake_cfvol.systems.constraints import (DamperConstraint, FilterStep, Joint
                                              solve_rounds)
 from drake_cfvol.systems.damper import DamperRows, VelocityDamper, dynamic_pairs, measure_dynamic
 
-__all__ = ["SafetyFilter"]
+__all__ = ["SafetyFilter", "SafetyFilterConfig"]
+
+
+@dataclasses.dataclass
+class SafetyFilterConfig:
+    """The filter's margin and damper (:class:`SafetyFilter`'s defaults).
+
+    Attributes:
+        clearance: the margin, m (>= 0); None: the bounds table's own (``AddCoManipulation``; by hand: 0).
+        influence_distance: d_inf, m (> clearance + allowance): farther pairs do not constrain.
+        damper_gain: xi, m/s (> 0): the approach speed allowed at d_inf.
+        allowance: m (>= 0): the damper aims this far above the margin (what the rows' second-order bound misses).
+        tool_speed: m/s (> 0): the tool frame's origin moves at most this fast (a
+            :class:`~drake_cfvol.systems.constraints.ToolSpeedLimit`); None: no such limit.
+    """
+
+    clearance: typing.Optional[float] = None
+    influence_distance: float = 0.15
+    damper_gain: float = 1.0
+    allowance: float = 0.001
+    tool_speed: typing.Optional[float] = None
+
 
 #: Status state layout: [acted at the last update, updates it acted,
 #: smallest signed distance seen at the last update (m), largest
@@ -264,12 +285,8 @@ class SafetyFilter(LeafSystem):
         - damper_misses
         - box_exits
 
-    The update, its constraints and what they guarantee: see the module's
-    documentation (:mod:`drake_cfvol.systems.safety`).
-
-    The outputs and the measured position: see the module's documentation.
-
-    Scalar type: float only.
+    The update, its constraints and guarantees, the outputs and the measured
+    position: see :mod:`drake_cfvol.systems.safety`. Scalar type: float only.
 
     Args:
         plant: the finalized MultibodyPlant registered with ``scene_graph``;
@@ -281,17 +298,11 @@ class SafetyFilter(LeafSystem):
         obstacle_ids: the real obstacles' geometry ids (default: every
             proximity geometry not on the robot; pass them to leave out
             virtual geometry such as the volume V's boxes).
-        clearance: the margin, m (>= 0).
-        influence_distance: d_inf, m (> clearance + allowance): pairs
-            farther apart than this do not constrain.
-        damper_gain: xi, m/s (> 0).
+        clearance, influence_distance, damper_gain, allowance: see :class:`SafetyFilterConfig` (clearance: 0).
         period: update period dt, s (> 0).
         acceleration_limits: (k,) rad/s^2 (m/s^2), or None.
         initial_position: the default q_c (k,); default zeros (see
             :meth:`set_initial_position`).
-        allowance: m (>= 0): the damper aims this far above the margin,
-            for what the rows' second-order bound leaves out (a witness
-            moving between features; two moving links).
         skip_far_pairs: measure a pair again only once the commanded motion
             (body displacements bounded from the poses at both ends of each
             step) could have brought it within the influence distance. Valid
@@ -316,10 +327,11 @@ class SafetyFilter(LeafSystem):
     #: Most QP solves per update for the rows' second-order term.
     SECOND_ORDER_ROUNDS = 4
 
-    def __init__(self, plant, scene_graph, robot, *, velocity_limits=None, obstacle_ids=None,
-                 clearance: float = 0.0, influence_distance: float = 0.15, damper_gain: float = 1.0,
-                 period: float = 0.01, acceleration_limits=None, initial_position=None, allowance: float = 0.001,
-                 skip_far_pairs: bool = True, dynamic_ids=(), constraints=()):
+    def __init__(self, plant, scene_graph, robot, *, velocity_limits=None, obstacle_ids=None, clearance: float = 0.0,
+                 influence_distance: float = SafetyFilterConfig.influence_distance, period: float = 0.01,
+                 damper_gain: float = SafetyFilterConfig.damper_gain, allowance: float = SafetyFilterConfig.allowance,
+                 acceleration_limits=None, initial_position=None, skip_far_pairs: bool = True, dynamic_ids=(),
+                 constraints=()):
         super().__init__()
         robot_slice = RobotSlice(plant, robot)
         k = robot_slice.k

@@ -6,9 +6,8 @@ wired to the plant's measured state and the SceneGraph's query port; and
 real force.
 """
 
-from __future__ import annotations
-
 import dataclasses
+import typing
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -20,13 +19,14 @@ from pydrake.systems.primitives import Demultiplexer
 
 from drake_cfvol.exceptions import StationError
 from drake_cfvol.scene.robot import RobotSlice, robot_instances
-from drake_cfvol.systems.admittance import AdmittanceDeformation
+from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformation
 from drake_cfvol.systems.bounds_source import JointBoundsSource
 from drake_cfvol.systems.human_input import HumanInputCheck
-from drake_cfvol.systems.path import PathProgress, safe_path_rate
-from drake_cfvol.systems.safety import SafetyFilter
+from drake_cfvol.systems.path import PathProgress, PathProgressConfig, safe_path_rate
+from drake_cfvol.systems.constraints import ToolSpeedLimit
+from drake_cfvol.systems.safety import SafetyFilter, SafetyFilterConfig
 
-__all__ = ["AddCoManipulation", "CoManipulationSystems", "ToolPushForce"]
+__all__ = ["AddCoManipulation", "CoManipulationConfig", "CoManipulationSystems", "ToolPushForce"]
 
 
 @dataclasses.dataclass
@@ -41,14 +41,15 @@ class CoManipulationSystems:
         desired_state_output: 2k, the commanded position and velocity (for
             Drake's ``InverseDynamicsController`` or a driver): the straight
             line between consecutive commands, continuous in time (the
-            safety filter's ``desired_state``).
-        commanded_position_output: k, rad (m).
+            safety filter's ``desired_state``; None without the filter).
+        commanded_position_output: k, rad (m): the safety filter's (without
+            it, the admittance's).
         path_index_output: 1, the path index s.
         duration: seconds to run the path at its safe rate, the start time
             included.
         progress, bounds, check, admittance, safety: the systems themselves
             (their other ports: the filter's status, the check's fault
-            count, the bounds).
+            count, the bounds); ``safety`` is None without the filter.
     """
 
     human_wrench_input: object
@@ -61,7 +62,7 @@ class CoManipulationSystems:
     bounds: JointBoundsSource
     check: HumanInputCheck
     admittance: object
-    safety: SafetyFilter
+    safety: SafetyFilter | None
 
 
 def _robot_instance(plant, robot):
@@ -83,60 +84,81 @@ def _check_table(table, robot_slice, plant, robot) -> None:
             "on a workcell of the same robot (Workcell.FromRobotDiagram of the same models).")
 
 
-def _wire(builder, progress, bounds, check, adm, safety, scene_graph) -> None:
-    """Connects the added systems among themselves and to the SceneGraph."""
-    builder.Connect(progress.path_index_ahead_output, bounds.path_index_input)
-    for port in ("nominal", "lower", "upper"):
-        builder.Connect(bounds.GetOutputPort(port), adm.GetInputPort(port))
-        builder.Connect(bounds.GetOutputPort(port), safety.GetInputPort(port))
-    builder.Connect(check.human_torque_output, adm.human_torque_input)
-    builder.Connect(check.human_wrench_output, adm.human_wrench_input)
-    builder.Connect(check.fault_output, adm.hold_input)
-    builder.Connect(adm.commanded_position_output, safety.desired_position_input)
-    builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
+@dataclasses.dataclass
+class CoManipulationConfig:
+    """The gains and limits of :func:`AddCoManipulation` (its rate and wiring
+    are its keyword arguments).
+
+    Attributes:
+        admittance: the admittance's gains.
+        safety_filter: the runtime safety filter's margin and damper; None:
+            no filter (the admittance's command drives the robot).
+        path_progress: the path's share of the velocity limits, start time
+            and rate cap.
+        velocity_limits: (k,) rad/s (m/s); empty: the plant's.
+    """
+
+    admittance: AdmittanceConfig = dataclasses.field(default_factory=AdmittanceConfig)
+    safety_filter: typing.Optional[SafetyFilterConfig] = dataclasses.field(default_factory=SafetyFilterConfig)
+    path_progress: PathProgressConfig = dataclasses.field(default_factory=PathProgressConfig)
+    velocity_limits: list[float] = dataclasses.field(default_factory=list)
 
 
-def _resolve(plant, robot, table, tool_frame, velocity_limits, clearance, share, max_path_rate):
+def _named(name: str, what: str) -> str:
+    return f"{name}_{what}" if name else what
+
+
+def _resolve(plant, robot, table, tool_frame, config):
     """AddCoManipulation's arguments checked and defaulted: (robot, k,
-    tool frame, velocity limits, margin, path rate)."""
+    tool frame, velocity limits, path rate)."""
     robot = _robot_instance(plant, robot)
     rs = RobotSlice(plant, robot)
     _check_table(table, rs, plant, robot)
-    k = rs.k
     if isinstance(tool_frame, str):
         owner = next((i for i in robot_instances(plant, robot) if plant.HasFrameNamed(tool_frame, i)), None)
         if owner is None:
             raise StationError(f"AddCoManipulation: tool_frame '{tool_frame}' is not a frame of "
                                f"'{plant.GetModelInstanceName(robot)}' (or of a body it carries).")
         tool_frame = plant.GetFrameByName(tool_frame, owner)
-    limits = (plant.GetVelocityUpperLimits()[rs.vidx] if velocity_limits is None
-              else np.asarray(velocity_limits, float))
-    margin = float(table.params.get("clearance", 0.0)) if clearance is None else float(clearance)
-    rate = safe_path_rate(table, limits, share=share)
-    if max_path_rate is not None:
-        rate = min(rate, float(max_path_rate))
-    return robot, k, tool_frame, limits, margin, rate
+    limits = (np.asarray(config.velocity_limits, float) if len(config.velocity_limits)
+              else plant.GetVelocityUpperLimits()[rs.vidx])
+    pp = config.path_progress
+    rate = safe_path_rate(table, limits, share=pp.velocity_share)
+    if pp.max_rate is not None:
+        rate = min(rate, float(pp.max_rate))
+    return robot, rs.k, tool_frame, limits, rate
+
+
+def _safety_filter(f: SafetyFilterConfig, plant, scene_graph, robot, table, limits, period, obstacle_ids,
+                   dynamic_ids, tool_frame=None) -> SafetyFilter:
+    """The filter of a config: its margin the table's where the config leaves it None."""
+    margin = float(table.params.get("clearance", 0.0)) if f.clearance is None else float(f.clearance)
+    dynamic = list(dynamic_ids)
+    return SafetyFilter(plant, scene_graph, robot, velocity_limits=limits,
+                        obstacle_ids=None if obstacle_ids is None else list(obstacle_ids) + dynamic,
+                        clearance=margin, influence_distance=f.influence_distance, damper_gain=f.damper_gain,
+                        allowance=f.allowance, period=period, initial_position=table.nominal[0], dynamic_ids=dynamic,
+                        constraints=[] if f.tool_speed is None else [ToolSpeedLimit(tool_frame, f.tool_speed)])
 
 
 def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, period: float = 0.01,
-                      clearance: float | None = None, velocity_limits=None, path_velocity_share: float = 0.5,
-                      max_path_rate: float | None = None, start_time: float = 0.0, mass=10.0, damping=200.0,
-                      stiffness=400.0, measured_state: bool = True, obstacle_ids=None,
-                      influence_distance: float = 0.15, damper_gain: float = 1.0,
-                      name: str = "cfvol") -> CoManipulationSystems:
+                      measured_state: bool = True, config: CoManipulationConfig = CoManipulationConfig(),
+                      obstacle_ids=None, dynamic_ids=(), name: str = "cfvol") -> CoManipulationSystems:
     """Adds co-manipulation to a user's builder: path progress, the bounds
     of ``table`` one control period ahead, the push's check, the admittance
     and the runtime safety filter (velocity limits, the box, the clearance
-    margin by the SceneGraph's signed distances).
+    margin by the SceneGraph's signed distances), wired among themselves and
+    to the SceneGraph's query port.
 
     The plant may hold more than the robot (a gripper, free parts, other
     machines). With ``measured_state`` the plant's state output for the
     robot's model instance feeds the admittance (the wrench's Jacobian at
     the measured configuration) and the safety filter (its rows taken where
     the robot is, constraining the command's own step): for a
-    time-stepping plant under a controller. Without it the plant is posed
-    from ``commanded_position_output`` (a kinematic run; the caller wires
-    the poses).
+    time-stepping plant under a controller. Without it the caller poses the
+    plant from ``commanded_position_output`` (a kinematic run) or connects
+    a measured position to ``admittance.measured_position_input`` and
+    ``safety.measured_position_input`` itself.
 
     Args:
         builder: the user's ``DiagramBuilder`` (the plant and the SceneGraph
@@ -148,18 +170,12 @@ def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, 
         tool_frame: the frame the human's wrench acts at (a ``Frame`` or a
             frame name of ``robot``).
         period: the control period, s.
-        clearance: the safety filter's margin, m (default: the table's).
-        velocity_limits: (k,) rad/s (m/s); default: the plant's.
-        path_velocity_share: the share of the velocity limits the path may
-            use (:func:`safe_path_rate`); the rest is the push's.
-        max_path_rate: a cap on the path's rate, waypoints/s.
-        start_time: when the path starts, s.
-        mass, damping, stiffness: the admittance's gains (scalars or (k,)).
         measured_state: wire the plant's state output (see above).
+        config: the gains and limits (:class:`CoManipulationConfig`).
         obstacle_ids: the geometries the filter keeps the margin to
             (default: every proximity geometry not on the robot).
-        influence_distance, damper_gain: the filter's damper.
-        name: prefix of the added systems' names (unique per builder).
+        dynamic_ids: those of them that move on their own (measured at every update).
+        name: prefix of the added systems' names (unique per builder; empty: none).
 
     Returns:
         The :class:`CoManipulationSystems`.
@@ -169,30 +185,41 @@ def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, 
     """
     if not plant.is_finalized():
         raise StationError("AddCoManipulation: finalize the plant first (plant.Finalize()).")
-    robot, k, tool_frame, limits, margin, rate = _resolve(plant, robot, table, tool_frame, velocity_limits,
-                                                          clearance, path_velocity_share, max_path_rate)
-    progress = builder.AddNamedSystem(f"{name}_path_progress", PathProgress(
-        table.g, rate=rate, start_time=start_time, lead=period))
-    bounds = builder.AddNamedSystem(f"{name}_joint_bounds", JointBoundsSource(table, clamp=True))
-    check = builder.AddNamedSystem(f"{name}_human_input_check", HumanInputCheck(k, period=period))
-    adm = builder.AddNamedSystem(f"{name}_admittance", AdmittanceDeformation(
-        k, mass=mass, damping=damping, stiffness=stiffness, period=period, plant=plant, tool_frame=tool_frame,
-        velocity_limits=limits, path_share=path_velocity_share, robot=robot))
-    safety = builder.AddNamedSystem(f"{name}_safety_filter", SafetyFilter(
-        plant, scene_graph, robot, velocity_limits=limits, obstacle_ids=obstacle_ids, clearance=margin,
-        influence_distance=influence_distance, damper_gain=damper_gain, period=period,
-        initial_position=table.nominal[0]))
-    _wire(builder, progress, bounds, check, adm, safety, scene_graph)
+    robot, k, tool_frame, limits, rate = _resolve(plant, robot, table, tool_frame, config)
+    a, f = config.admittance, config.safety_filter
+    progress = builder.AddNamedSystem(_named(name, "path_progress"), PathProgress(
+        table.g, rate=rate, start_time=config.path_progress.start_time, lead=period))
+    bounds = builder.AddNamedSystem(_named(name, "joint_bounds"), JointBoundsSource(table, clamp=True))
+    check = builder.AddNamedSystem(_named(name, "human_input_check"), HumanInputCheck(k, period=period))
+    adm = builder.AddNamedSystem(_named(name, "admittance"), AdmittanceDeformation(
+        k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=period, plant=plant,
+        tool_frame=tool_frame, velocity_limits=limits, path_share=config.path_progress.velocity_share, robot=robot))
+    builder.Connect(progress.path_index_ahead_output, bounds.path_index_input)
+    for port in ("nominal", "lower", "upper"):
+        builder.Connect(bounds.GetOutputPort(port), adm.GetInputPort(port))
+    builder.Connect(check.human_torque_output, adm.human_torque_input)
+    builder.Connect(check.human_wrench_output, adm.human_wrench_input)
+    builder.Connect(check.fault_output, adm.hold_input)
+    safety, commanded = None, adm.commanded_position_output
+    if f is not None:
+        safety = builder.AddNamedSystem(_named(name, "safety_filter"), _safety_filter(
+            f, plant, scene_graph, robot, table, limits, period, obstacle_ids, dynamic_ids, tool_frame))
+        for port in ("nominal", "lower", "upper"):
+            builder.Connect(bounds.GetOutputPort(port), safety.GetInputPort(port))
+        builder.Connect(adm.commanded_position_output, safety.desired_position_input)
+        builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
+        commanded = safety.commanded_position_output
     if measured_state:
-        split = builder.AddNamedSystem(f"{name}_measured_state", Demultiplexer([k, k]))
+        split = builder.AddNamedSystem(_named(name, "measured_state"), Demultiplexer([k, k]))
         builder.Connect(plant.get_state_output_port(robot), split.get_input_port(0))
         builder.Connect(split.get_output_port(0), adm.measured_position_input)
-        builder.Connect(split.get_output_port(0), safety.measured_position_input)
+        if safety is not None:
+            builder.Connect(split.get_output_port(0), safety.measured_position_input)
     return CoManipulationSystems(
         human_wrench_input=check.human_wrench_input, human_torque_input=check.human_torque_input,
-        desired_state_output=safety.desired_state_output, commanded_position_output=safety.commanded_position_output,
-        path_index_output=progress.path_index_output, duration=progress.duration, progress=progress,
-        bounds=bounds, check=check, admittance=adm, safety=safety)
+        desired_state_output=safety.desired_state_output if safety is not None else None,
+        commanded_position_output=commanded, path_index_output=progress.path_index_output,
+        duration=progress.duration, progress=progress, bounds=bounds, check=check, admittance=adm, safety=safety)
 
 
 class ToolPushForce(LeafSystem):
