@@ -232,7 +232,7 @@ def _emit(out, m, d, p1, p2, s1, s2, rhs, r1, r2, pair, kin):
 def _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains):
     """Pair p's probe rows (its sides' witnesses w, probes P and geometry
     poses XR, Xt in the world), from row m on; returns the next row."""
-    side_slot, probes, n_probes, radii, kind, prm = sides[0], sides[3], sides[4], sides[5], sides[6], sides[7]
+    side_slot, n_probes, radii, kind, prm = sides[0], sides[4], sides[5], sides[6], sides[7]
     influence, rate, target = gains
     g, near, q_local, gw, nw, neg = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
     for s in range(2):

@@ -142,8 +142,14 @@ from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.scene.robot import RobotSlice
-from drake_cfvol.systems.constraints import (DamperConstraint, FilterStep, JointBox, PriorityQP, VelocityLimits,
-                                             solve_rounds)
+from drake_cfvol.systems.constraints import (
+    DamperConstraint,
+    FilterStep,
+    JointBox,
+    PriorityQP,
+    VelocityLimits,
+    solve_rounds,
+)
 from drake_cfvol.systems.damper import DamperRows, VelocityDamper, dynamic_pairs, measure_dynamic
 
 __all__ = ["SafetyFilter", "SafetyFilterConfig"]
