@@ -4,7 +4,8 @@ inputs (hypothesis)."""
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydrake.geometry import Box, Cylinder, SceneGraph, Sphere
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
@@ -14,7 +15,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 import drake_cfvol as cf
-from drake_cfvol.systems import SafetyFilter
+from drake_cfvol.systems import SafetyFilter, ToolSpeedLimit
 
 L1, L2, R = 0.5, 0.4, 0.05  # link lengths and the tip sphere's radius, m
 VMAX = np.array([1.0, 1.5])  # rad/s
@@ -48,7 +49,11 @@ def _arm(obstacle: str, **kw):
         obs = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), Cylinder(0.2, 1.0), "column",
                                               friction)
     plant.Finalize()
-    sf = builder.AddSystem(SafetyFilter(plant, sg, arm, velocity_limits=VMAX, period=H, **kw))
+    speed = kw.pop("tool_speed", None)  # a ToolSpeedLimit (m/s) at the tip sphere's centre
+    if speed is not None:
+        kw["constraints"] = [ToolSpeedLimit(link2.body_frame(), speed, point=[L2, 0, 0])]
+    kw.setdefault("period", H)
+    sf = builder.AddSystem(SafetyFilter(plant, sg, arm, velocity_limits=VMAX, **kw))
     to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
     builder.Connect(sf.commanded_position_output, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), sg.get_source_pose_port(plant.get_source_id()))
@@ -166,22 +171,29 @@ def test_second_order_term_by_hand_and_against_drake(wall):
         checked += 1
 
 
-def test_push_into_the_wall_stops_at_the_margin(wall):
+@pytest.fixture(scope="module")
+def wall_1ms():
+    return _arm("wall", clearance=0.02, period=0.001)
+
+
+@pytest.mark.parametrize("arm", ["wall", "wall_1ms"])
+def test_push_into_the_wall_stops_at_the_margin(arm, request):
     """Asked to swing straight through the wall, the tip approaches it ever
     slower and stops at the margin: Drake's distance (and the hand formula)
-    never below 0.02 m, and within 3 mm of it at the end; no update moves a
-    joint faster than its limit."""
-    diagram, sf, tip, wall_id = wall
+    never below 0.02 m, and within 3 mm of it at the end (4 s); no update
+    moves a joint faster than its limit. At 10 ms and at 1 ms."""
+    diagram, sf, tip, wall_id = request.getfixturevalue(arm)
+    h = sf.period
     ctx = diagram.CreateDefaultContext()
     sctx = sf.GetMyContextFromRoot(ctx)
     sf.set_initial_position(sctx, [1.2, 0.0])
     _fix(diagram, ctx, [-0.3, 0.0])
     sim = Simulator(diagram, ctx)
     q_prev, dists = np.array([1.2, 0.0]), []
-    for n in range(1, 401):
-        sim.AdvanceTo(n * H)
+    for n in range(1, int(round(4.0 / h)) + 1):
+        sim.AdvanceTo(n * h)
         q = sf.commanded_position_output.Eval(sctx)
-        assert np.all(np.abs(q - q_prev) <= VMAX * H + 1e-12)
+        assert np.all(np.abs(q - q_prev) <= VMAX * h + 1e-12)
         d = _drake_distance(diagram, ctx, tip, wall_id)
         assert d == pytest.approx(0.8 - _tip(q)[0] - R, abs=1e-9) or _tip(q)[0] < 0.3
         dists.append(d)
@@ -323,20 +335,28 @@ def arm_with_accel():
     return _arm("wall", clearance=0.02, acceleration_limits=[20.0, 30.0])
 
 
+@pytest.fixture(scope="module")
+def arm_1ms():
+    return _arm("wall", clearance=0.02, period=0.001, acceleration_limits=[20.0, 30.0])
+
+
 @settings(max_examples=60, deadline=None)
 @given(q=st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=2),
        desired=st.lists(st.floats(-5.0, 5.0), min_size=2, max_size=2),
        centre=st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=2),
        width=st.lists(st.floats(0.0, 1.0), min_size=2, max_size=2),
        nominal_at=st.lists(st.floats(0.0, 1.0), min_size=2, max_size=2),
-       accel=st.booleans())
-def test_never_faster_than_the_limits(wall, arm_with_accel, q, desired, centre, width, nominal_at, accel):
+       accel=st.booleans(), fast=st.booleans())
+def test_never_faster_than_the_limits(wall, arm_with_accel, arm_1ms, q, desired, centre, width, nominal_at, accel,
+                                      fast):
     """Random states, requests, boxes and nominals (the arm may start in
     the wall): no update moves a joint more than limit x period; the
     command lands in the box wherever the box is within one step, unless
     the filter reports leaving it (``box_exits``), which it does only with
-    the wall inside the influence distance (a damper row needed the room)."""
-    diagram, sf, tip, wall_id = arm_with_accel if accel else wall
+    the wall inside the influence distance (a damper row needed the room).
+    At a 10 ms period and (``fast``) at 1 ms."""
+    diagram, sf, tip, wall_id = arm_1ms if fast else arm_with_accel if accel else wall
+    H = sf.period
     ctx = diagram.CreateDefaultContext()
     sctx = sf.GetMyContextFromRoot(ctx)
     q = np.array(q)
@@ -355,3 +375,77 @@ def test_never_faster_than_the_limits(wall, arm_with_accel, q, desired, centre, 
     assert inside or exited
     if exited:
         assert status[2] < sf.influence_distance
+
+
+@pytest.mark.parametrize("speed", [None, 0.3])
+def test_tool_speed_limit_caps_the_tip_speed(speed):
+    """A ToolSpeedLimit (one FilterConstraint class, no change to the QP)
+    at the tip, 0.3 m/s: asked to swing far from the wall at the joints'
+    limits, the tip's chord per update (the hand formula) never exceeds
+    0.3 m/s beyond the step's second-order term (1e-3 m/s here), and the
+    limit binds (the tip reaches 0.3 / 1.13 m/s, the rows' inner
+    polytope's worst direction, or more). Without it the same request moves
+    the tip at about 1 m/s; requests under the limit pass unchanged."""
+    diagram, sf, tip, wall_id = _arm("wall", clearance=0.02, tool_speed=speed)
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    q0 = np.array([2.0, 0.5])
+    sf.set_initial_position(sctx, q0)
+    _fix(diagram, ctx, [4.0, 2.5])
+    sim = Simulator(diagram, ctx)
+    q_prev, speeds = q0, []
+    for n in range(1, 101):
+        sim.AdvanceTo(n * H)
+        q = sf.commanded_position_output.Eval(sctx).copy()
+        assert np.all(np.abs(q - q_prev) <= VMAX * H + 1e-12)
+        speeds.append(np.linalg.norm(_tip(q) - _tip(q_prev)) / H)
+        q_prev = q
+    if speed is None:
+        assert max(speeds) > 0.9
+        return
+    assert max(speeds) <= speed + 1e-3
+    assert max(speeds) >= speed / 1.13 - 1e-3
+    # A slow request (0.1 m/s at most) is commanded as is.
+    q = sf.commanded_position_output.Eval(sctx).copy()
+    target = q + np.array([0.1, -0.05]) * H
+    _fix(diagram, ctx, target)
+    sim.AdvanceTo(101 * H)
+    np.testing.assert_allclose(sf.commanded_position_output.Eval(sctx), target, atol=1e-12)
+
+
+def test_a_tightened_box_is_reentered_at_the_limits():
+    """A live box tightened around the command (joint 1 left 0.049 rad
+    above it, joint 2 0.2 rad), the request held where it was: each joint
+    returns at its velocity limit, q_j(n) = max(upper_j, q0_j - n vmax_j
+    dt), so joint 1 is back after 5 updates and joint 2 after 14; the
+    command never leaves the base box it started in; and the run's bound
+    figures (comanip.run.bound_figures) report 0 against the base table,
+    0.2 rad of live excess and 14 updates of catch-up."""
+    from drake_cfvol.comanip.run import bound_figures
+
+    diagram, sf, tip, wall_id = _arm("wall", clearance=0.02)
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    q0 = np.array([2.0, 0.5])
+    base_lo, base_hi = np.array([1.5, 0.0]), np.array([2.5, 1.0])
+    live_lo, live_hi = np.array([1.9, 0.0]), np.array([1.951, 0.3])
+    sf.set_initial_position(sctx, q0)
+    _fix(diagram, ctx, q0, live_lo, live_hi)
+    sim = Simulator(diagram, ctx)
+    t, q = [0.0], [q0]
+    for n in range(1, 31):
+        sim.AdvanceTo(n * H)
+        t.append(n * H)
+        q.append(sf.commanded_position_output.Eval(sctx).copy())
+    t, q = np.array(t), np.array(q)
+    n = np.arange(len(t))[:, None]
+    expected = np.maximum(live_hi, q0 - n * VMAX * (1 - 1e-9) * H)
+    np.testing.assert_allclose(q, expected, atol=1e-12)
+    assert np.all((q >= base_lo) & (q <= base_hi))
+    inside = np.all(q <= live_hi + 1e-12, axis=1)
+    assert np.flatnonzero(q[:, 0] <= live_hi[0] + 1e-12)[0] == 5 and np.flatnonzero(inside)[0] == 14
+    figures = bound_figures(t, q, np.tile(base_lo, (len(t), 1)), np.tile(base_hi, (len(t), 1)),
+                            np.tile(live_lo, (len(t), 1)), np.tile(live_hi, (len(t), 1)))
+    assert figures["max_bound_violation"] == 0.0
+    assert figures["live_box_excess_max"] == pytest.approx(0.2, abs=1e-12)
+    assert figures["live_box_catchup_s"] == pytest.approx(14 * H, abs=1e-12)

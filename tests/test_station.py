@@ -316,6 +316,28 @@ def test_add_comanipulation_ports_on_a_plant_with_more_dofs(station_bounds):
     np.testing.assert_array_equal(x, np.concatenate([table.nominal[0], np.zeros(7)]))
 
 
+def test_add_comanipulation_tool_speed_limit_from_the_config(station_bounds):
+    """SafetyFilterConfig(tool_speed=...) gives the filter a ToolSpeedLimit
+    at the tool frame; the default gives it none."""
+    from drake_cfvol.systems import CoManipulationConfig, SafetyFilterConfig, ToolSpeedLimit
+
+    _, table = station_bounds
+    for speed in (None, 0.25):
+        builder = DiagramBuilder()
+        plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
+        add_station_models(plant, Parser(plant), part=False)
+        plant.Finalize()
+        cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table,
+                               tool_frame="tool", config=CoManipulationConfig(
+                                   safety_filter=SafetyFilterConfig(tool_speed=speed)))
+        limits = [c for c in cm.safety.constraints if isinstance(c, ToolSpeedLimit)]
+        if speed is None:
+            assert limits == []
+        else:
+            (limit,) = limits
+            assert limit.speed == speed and limit.frame.name() == "tool"
+
+
 def test_add_comanipulation_refuses_a_table_of_other_joints(station_bounds, bounded):
     """A table for another robot, an unknown robot or frame: a StationError that names it."""
     _, table = station_bounds

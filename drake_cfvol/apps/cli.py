@@ -43,7 +43,8 @@ _LABELS = {
 }
 _UNITS = {"plan_time_ms": " ms", "total_time_ms": " ms", "time_ms": " ms", "certify_ms": " ms", "cf_percent": " %",
           "sim_wall_s": " s", "duration_s": " s", "min_clearance_m": " m", "bounds_time_ms": " ms", "build_ms": " ms",
-          "max_bound_violation": " rad/m", "max_deviation": " rad/m", "path_length": " rad/m"}
+          "max_bound_violation": " rad/m", "max_deviation": " rad/m", "path_length": " rad/m",
+          "live_box_excess_max": " rad/m", "live_box_catchup_s": " s"}
 
 
 def _fmt(v, unit: str = "") -> str:
@@ -300,18 +301,24 @@ def bench_harness(module: str = "harness"):
     return importlib.import_module(f"benchmarks.{module}")
 
 
-def _bench_kernel(args) -> int:
-    """``cfvol bench --kernel``: the kernel issue's targets in one run."""
-    bench = bench_harness("kernel")
-    out = _out_path(args.out if args.out != "out/bench" else "out/bench-kernel")
+def _bench_targets(args, module: str, config: str, trials: str, folder: str) -> int:
+    """A target benchmark of the checkout's ``benchmarks/<module>.py``: its
+    ``config`` dataclass (``--quick``: its ``quick()``; ``--trials`` sets
+    its field ``trials``; ``--cells`` its ``cells``), run, written to
+    ``--out`` (default ``out/<folder>``) and its targets printed."""
+    bench = bench_harness(module)
+    out = _out_path(args.out if args.out != "out/bench" else f"out/{folder}")
     prepare_output(out, overwrite=True, folder=True)
-    cfg = bench.KernelBenchConfig.quick() if args.quick else bench.KernelBenchConfig()
+    cls = getattr(bench, config)
+    cfg = cls.quick() if args.quick else cls()
     if args.trials:
-        cfg.trials = args.trials
-    result = bench.run_kernel_bench(cfg)
-    files = bench.write_kernel_outputs(result, out, bench_harness().machine_info())
+        setattr(cfg, trials, args.trials)
+    if args.cells and hasattr(cfg, "cells"):
+        cfg.cells = list(args.cells)
+    result = getattr(bench, f"run_{module}_bench")(cfg)
+    files = getattr(bench, f"write_{module}_outputs")(result, out, bench_harness().machine_info())
     if args.json:
-        print(json.dumps({"targets": bench.kernel_targets(result), "files": files}, default=float))
+        print(json.dumps({"targets": getattr(bench, f"{module}_targets")(result), "files": files}, default=float))
     else:
         print(Path(files["markdown"]).read_text())
         print(f"Written to {out}")
@@ -319,8 +326,10 @@ def _bench_kernel(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    if args.kernel:
-        return _bench_kernel(args)
+    if args.kernel:  # the kernel issue's targets in one run
+        return _bench_targets(args, "kernel", "KernelBenchConfig", "trials", "bench-kernel")
+    if args.realtime:  # the control stack's wall time per update
+        return _bench_targets(args, "realtime", "RealtimeBenchConfig", "repeats", "bench-realtime")
     harness = bench_harness()
     BenchConfig, run_bench, write_outputs = harness.BenchConfig, harness.run_bench, harness.write_outputs
 
@@ -463,6 +472,10 @@ def _add_bench(sub) -> None:
                    help="the kernel benchmark instead: configurations per second against Drake, bounding against "
                         "the paper, certification as batch jobs, CF, the first compile (default --out "
                         "out/bench-kernel; uses --quick, --trials, --json)")
+    n.add_argument("--realtime", action="store_true",
+                   help="the control-rate benchmark instead: the control stack's wall time per update on a "
+                        "kinematic station at 10 ms and 1 ms periods (default --out out/bench-realtime; uses "
+                        "--quick, --cells, --trials as repeats, --json)")
     n.add_argument("--cells", nargs="+", help="cells (default both)")
     n.add_argument("--paths", nargs="+", help="paths, e.g. 1 2 3 (default all)")
     n.add_argument("--resolutions", nargs="+", type=int, help="R values (default the paper's)")

@@ -17,7 +17,7 @@ from drake_cfvol.comanip.diagram import Comanipulation, build_comanipulation_dia
 from drake_cfvol.comanip.online import online_figures, show_online_freedom
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
 
-__all__ = ['run_scenario']
+__all__ = ["bound_figures", 'run_scenario']
 
 
 def _log(sim_context, logger):
@@ -118,7 +118,7 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     _, lo = logs["lower"]
     _, hi = logs["upper"]
     _, nom = logs["nominal"]
-    violation = float(np.max(np.maximum(np.maximum(lo - q, q - hi), 0.0))) if len(q) else 0.0
+    _, s_log = logs["path_index"]
     rates = update_rate_figures(logs, cm)
     penetrations = int(logs["in_volume"][1].sum())
     files = _write_files(cm, logs, out, meshcat, plot, svg, ctx)
@@ -130,7 +130,8 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
         "sim_wall_s": sim_s,
         "min_clearance_m": rates["min_clearance_m"],
         "max_velocity_ratio": rates["max_velocity_ratio"], "volume_penetrations": penetrations,
-        "collisions": rates["collisions"], "max_bound_violation": violation,
+        "collisions": rates["collisions"],
+        **bound_figures(t, q, *cm.bounds.boxes_at(np.clip(s_log[:, 0], 0.0, cm.bounds.g - 1))[:2], lo, hi),
         "filter_steps": _count(cm, ctx, "filter_count"),
         "filter_fallbacks": _count(cm, ctx, "filter_fallbacks"),
         "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
@@ -161,11 +162,43 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
 MARGIN_TOLERANCE = 0.002
 
 
+def bound_figures(t, q, base_lower, base_upper, lower, upper) -> dict:
+    """The command against the bounds, from the logs (times t (n,),
+    commands q (n, k); the static table's box at the logged path indices
+    and the live box, lower / upper (n, k) each):
+
+    - ``max_bound_violation``: how far the command ever left the base
+      table's box at its path index, rad (m): 0, unless the safety filter
+      gave the box way to a damper row (``filter_box_exits``: dodging a
+      moving obstacle);
+    - ``live_box_excess_max``: how far it ever lay outside the live box
+      (after a tightening it catches up at its velocity limits, by design);
+    - ``live_box_catchup_s``: the longest time it stayed outside the live
+      box, s (from the first sample outside to the first back inside, or
+      to the end of the run)."""
+    if not len(q):
+        return {"max_bound_violation": 0.0, "live_box_excess_max": 0.0, "live_box_catchup_s": 0.0}
+    base_excess = np.maximum(np.maximum(base_lower - q, q - base_upper), 0.0).max(axis=1)
+    live_excess = np.maximum(np.maximum(lower - q, q - upper), 0.0).max(axis=1)
+    outside = live_excess > 1e-9
+    longest, start = 0.0, None
+    for i, out in enumerate(outside):
+        if out and start is None:
+            start = i
+        elif not out and start is not None:
+            longest, start = max(longest, t[i] - t[start]), None
+    if start is not None:
+        longest = max(longest, t[-1] - t[start])
+    return {"max_bound_violation": float(base_excess.max()), "live_box_excess_max": float(live_excess.max()),
+            "live_box_catchup_s": float(longest)}
+
+
 def run_problems(summary: dict) -> list[str]:
     """What went wrong in a run, one sentence each (empty: nothing): it
     collided, came nearer than min(margin, the nominal's own clearance) -
     MARGIN_TOLERANCE, or moved a joint faster than its limit (measured at
-    the control update rate)."""
+    the control update rate), or left the base table's box where the
+    filter did not give the box way to a damper row (``filter_box_exits``)."""
     out = []
     if summary.get("collisions", 0) > 0:
         out.append(f"the robot collided at {summary['collisions']} update(s)")
@@ -175,6 +208,9 @@ def run_problems(summary: dict) -> list[str]:
         out.append(f"the clearance fell to {low * 1e3:.1f} mm, below the margin of {need * 1e3:.1f} mm")
     if summary.get("max_velocity_ratio", 0.0) > 1.0 + 1e-9:
         out.append(f"a joint moved at {summary['max_velocity_ratio']:.2f} x its velocity limit")
+    if summary.get("max_bound_violation", 0.0) > 1e-6 and not summary.get("filter_box_exits", 0):
+        out.append(f"the command left the bounds table by {summary['max_bound_violation']:.2e} rad (m) "
+                   "without the filter giving the box way to a damper row")
     return out
 
 

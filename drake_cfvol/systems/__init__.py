@@ -8,7 +8,9 @@
 - :class:`SafetyFilter` (from :mod:`drake_cfvol.systems.safety`): between the
   admittance and the robot, the motion closest to the one asked for that
   keeps the velocity limits, the box ahead and a clearance margin (a
-  velocity damper on the SceneGraph's signed distances).
+  velocity damper on the SceneGraph's signed distances); its constraints
+  (:class:`FilterConstraint`: rows with a priority; :class:`ToolSpeedLimit`
+  for the tool's Cartesian speed).
 - :class:`PathProgress`: the path index over time.
 - :class:`ScriptedHuman`: pushes with set magnitude, direction and timing.
 - :class:`RandomPushShaper`: random pushes from Drake's ``RandomSource``
@@ -47,6 +49,7 @@ from drake_cfvol.systems.online_bounds import OnlineBoundsConfig, OnlineBoundsEs
 from drake_cfvol.systems.perception import (AddCellCamera, AddCellModel, CellCamera, CellModel, ObstacleMapper,
                                            PerceptionConfig)
 from drake_cfvol.systems.path import PathProgress, PathProgressConfig, safe_path_rate
+from drake_cfvol.systems.constraints import FilterConstraint, ToolSpeedLimit
 from drake_cfvol.systems.safety import SafetyFilter, SafetyFilterConfig
 from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig, CoManipulationSystems, ToolPushForce
 
@@ -55,4 +58,4 @@ __all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "
            "AddCoManipulation", "CoManipulationSystems", "ToolPushForce", "MovingBoxes", "MovingObstacle",
            "PerceivedColumns", "OnlineBoundsEstimator", "AddCellCamera", "AddCellModel", "CellCamera", "CellModel", "ObstacleMapper",
            "RandomPushes", "Reactive", "AdmittanceConfig", "SafetyFilterConfig", "PathProgressConfig", "PerceptionConfig", "OnlineBoundsConfig",
-           "CoManipulationConfig"]
+           "CoManipulationConfig", "FilterConstraint", "ToolSpeedLimit"]

@@ -10,73 +10,14 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Sphere
+from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
 from pydrake.multibody.tree import JacobianWrtVariable
 
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies
+from drake_cfvol.systems.damper_kernel import ball_radius, pair_rows, probes, round_radius
+from drake_cfvol.systems.damper_parts import BroadPhase, RowList, drake_pair_rows, side_arrays
 
 __all__ = ["DamperRows", "VelocityDamper"]
-
-#: The Levi-Civita symbol arranged so that (r @ _EPS).reshape(3, 3) is the
-#: cross-product matrix [r]x of a vector r.
-_EPS = np.zeros((3, 3, 3))
-_EPS[0, 1, 2] = _EPS[1, 2, 0] = _EPS[2, 0, 1] = 1.0
-_EPS[0, 2, 1] = _EPS[2, 1, 0] = _EPS[1, 0, 2] = -1.0
-_EPS = _EPS.transpose(1, 0, 2).reshape(3, 9)
-
-#: Points sampled on each rim of a cylinder (probe points).
-_RIM_POINTS = 12
-
-
-def _probes(shape) -> tuple[np.ndarray, np.ndarray]:
-    """Probe spheres of a shape, in its frame: centres (3 x m) and radii
-    (m,). Their lowest points along a direction reach the shape's support
-    there wherever the support set may be flat (a face, an edge, a rim, a
-    capsule's side), so rows at them see a face tilt towards an obstacle;
-    smooth, strictly convex shapes (sphere, ellipsoid) need none."""
-    if isinstance(shape, Box):
-        half = np.array([shape.width(), shape.depth(), shape.height()]) / 2
-        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
-        return corners.T, np.zeros(8)
-    if isinstance(shape, Cylinder):
-        a = np.linspace(0.0, 2 * np.pi, _RIM_POINTS, endpoint=False)
-        ring = np.stack([shape.radius() * np.cos(a), shape.radius() * np.sin(a)], axis=1)
-        rims = [np.column_stack([ring, np.full(len(a), z)]) for z in (-shape.length() / 2, shape.length() / 2)]
-        return np.concatenate(rims).T, np.zeros(2 * _RIM_POINTS)
-    if isinstance(shape, Capsule):
-        ends = np.array([[0.0, 0.0, -shape.length() / 2], [0.0, 0.0, shape.length() / 2]])
-        return ends.T, np.full(2, shape.radius())
-    if isinstance(shape, (Convex, Mesh)):
-        try:
-            hull = shape.GetConvexHull()
-            pts = np.array([hull.vertex(i) for i in range(hull.num_vertices())], float).reshape(-1, 3)
-            return pts.T, np.zeros(len(pts))
-        except Exception:  # no hull: the witness row alone
-            return np.zeros((3, 0)), np.zeros(0)
-    return np.zeros((3, 0)), np.zeros(0)  # smooth (sphere, ellipsoid): the witness row suffices
-
-
-def _radius(shape) -> float:
-    """The radius of a ball about the shape's frame origin that holds the
-    shape, m (inf if unknown)."""
-    if isinstance(shape, Box):
-        return 0.5 * float(np.linalg.norm([shape.width(), shape.depth(), shape.height()]))
-    if isinstance(shape, Sphere):
-        return shape.radius()
-    if isinstance(shape, Capsule):
-        return shape.radius() + shape.length() / 2
-    if isinstance(shape, Cylinder):
-        return float(np.hypot(shape.radius(), shape.length() / 2))
-    if isinstance(shape, Ellipsoid):
-        return max(shape.a(), shape.b(), shape.c())
-    if isinstance(shape, (Convex, Mesh)):
-        try:
-            hull = shape.GetConvexHull()
-            return max(float(np.linalg.norm(hull.vertex(i))) for i in range(hull.num_vertices()))
-        except Exception:
-            return np.inf
-    return np.inf
-
 
 class DamperRows(NamedTuple):
     """The damper's rows at one configuration (:meth:`SafetyFilter.damper_rows`).
@@ -87,7 +28,9 @@ class DamperRows(NamedTuple):
     A: np.ndarray
     #: (m,): the rows' right-hand sides, A v >= b, m/s.
     b: np.ndarray
-    #: (pairs,): every watched pair's signed distance, m (NaN: not measured).
+    #: (pairs,): every watched pair's signed distance, m; for a pair the
+    #: broad phase found beyond the influence distance, a lower bound of it
+    #: (>= the influence distance); NaN: not looked at.
     distances: np.ndarray
     #: (m, 3): each row's direction (unit) in the world frame.
     dirs: np.ndarray
@@ -100,6 +43,8 @@ class DamperRows(NamedTuple):
     rounds: np.ndarray
     #: (m,): the watched pair each row belongs to.
     pair: np.ndarray
+    #: (pairs,): the pairs whose distance Drake measured at this update.
+    measured: np.ndarray = np.zeros(0, bool)
 
 
 def dynamic_pairs(damper, dynamic_ids) -> list[tuple]:
@@ -124,17 +69,6 @@ def measure_dynamic(dynamic: list, query, measure: np.ndarray) -> None:
     measure[list(pairs)] = [active[g] for g in gids]
 
 
-def _round_radius(shape) -> float:
-    """The radius of the round part of a shape, m: its witness point's
-    lever arm grows by it (0 for a polytope, whose probes are its
-    vertices)."""
-    if isinstance(shape, (Sphere, Capsule, Cylinder)):
-        return float(shape.radius())
-    if isinstance(shape, Ellipsoid):
-        return float(max(shape.a(), shape.b(), shape.c()))
-    return 0.0
-
-
 class VelocityDamper:
     """The velocity damper's geometry: the watched pairs, their probe
     points, and at a configuration the damper's rows and their second-order
@@ -156,6 +90,7 @@ class VelocityDamper:
     def __init__(self, plant, scene_graph, robot, *, obstacle_ids, target_distance: float,
                  influence_distance: float, rate: float):
         self._slice = RobotSlice(plant, robot)
+        self._robot = robot
         self.k = self._slice.k
         self.target_distance = float(target_distance)
         self.influence_distance = float(influence_distance)
@@ -167,7 +102,7 @@ class VelocityDamper:
         self._point_query = {g: isinstance(inspector.GetShape(g), (Box, Capsule, Cylinder, Sphere, Ellipsoid))
                              for a, b, _, _ in self._pairs for g in (a, b)}
         #: Per geometry, the radius of its round part (see second_order).
-        self._round = {g: _round_radius(inspector.GetShape(g)) for a, b, _, _ in self._pairs for g in (a, b)}
+        self._round = {g: round_radius(inspector.GetShape(g)) for a, b, _, _ in self._pairs for g in (a, b)}
         # The moving bodies, the radius of a ball about each one's origin
         # holding its geometry, and each pair's bodies (-1: welded).
         bodies = sorted({side[0].index(): side[0] for _, _, sa, sb in self._pairs for side in (sa, sb)
@@ -179,12 +114,34 @@ class VelocityDamper:
             for gid, side in ((a, sa), (b, sb)):
                 if side[0] is not None:
                     n = self._slot[side[0].index()]
-                    r = float(np.linalg.norm(side[1].translation())) + _radius(inspector.GetShape(gid))
+                    r = float(np.linalg.norm(side[1].translation())) + ball_radius(inspector.GetShape(gid))
                     self._body_radius[n] = max(self._body_radius[n], r)
+        self._broad = BroadPhase(self, inspector)
         self._pair_bodies = np.array([[self._slot[sa[0].index()] if sa[0] is not None else -1,
                                        self._slot[sb[0].index()] if sb[0] is not None else -1]
                                       for _, _, sa, sb in self._pairs], dtype=int).reshape(-1, 2)
         self._chain_masks(plant, robot)
+        self._memo = {}  # q's bytes -> the bodies' poses there (poses(); at most a few entries)
+        self._sides, self._drake_rows = side_arrays(self, inspector)
+
+    def poses(self, pctx, q):
+        """The moving bodies' rotations (S, 3, 3) and origins (S, 3) at q
+        (``pctx`` is posed at q on a miss; remembered for a few q)."""
+        key = np.asarray(q, float).tobytes()
+        hit = self._memo.get(key)
+        if hit is not None:
+            return hit
+        plant = self._plant
+        self._slice.set_positions(pctx, q)
+        S = len(self._bodies)
+        R, o = np.zeros((S, 3, 3)), np.zeros((S, 3))
+        for n, body in enumerate(self._bodies):
+            X = plant.EvalBodyPoseInWorld(pctx, body)
+            R[n], o[n] = X.rotation().matrix(), X.translation()
+        if len(self._memo) >= 4:
+            self._memo.pop(next(iter(self._memo)))
+        self._memo[key] = (R, o)
+        return R, o
 
     @property
     def num_pairs(self) -> int:
@@ -194,7 +151,8 @@ class VelocityDamper:
     def empty(self) -> DamperRows:
         """No rows, no distances measured."""
         return DamperRows(np.zeros((0, self.k)), np.zeros(0), np.full(len(self._pairs), np.nan), np.zeros((0, 3)),
-                          np.zeros((0, 2, 3)), np.full((0, 2), -1, dtype=int), np.zeros((0, 2)), np.zeros(0, int))
+                          np.zeros((0, 2, 3)), np.full((0, 2), -1, dtype=int), np.zeros((0, 2)), np.zeros(0, int),
+                          np.zeros(len(self._pairs), bool))
 
     @staticmethod
     def _make_pairs(plant, scene_graph, robot, obstacle_ids) -> list[tuple]:
@@ -232,7 +190,7 @@ class VelocityDamper:
                 if body is None or body.index() not in moved:
                     sides[gid] = (None, X_BG, np.zeros((0, 3)), np.zeros(0))
                 else:
-                    centres, radii = _probes(inspector.GetShape(gid))
+                    centres, radii = probes(inspector.GetShape(gid))
                     P_B = X_BG.multiply(centres).T if centres.shape[1] else np.zeros((0, 3))
                     sides[gid] = (body, X_BG, P_B, radii)
             return sides[gid]
@@ -253,6 +211,19 @@ class VelocityDamper:
                 if body.index() in moved:
                     self._rev[n, self._slice.velocity_index(joint)] = 1.0
 
+    def jacobians(self, pctx, q, slots):
+        """The moving bodies' Jacobians at q: (J_w, J_v) (S, 3, k), J_v at
+        the body's origin, for ``slots`` (the others zero)."""
+        plant, world = self._plant, self._plant.world_frame()
+        self._slice.set_positions(pctx, q)
+        S = len(self._bodies)
+        J_w, J_v = np.zeros((S, 3, self.k)), np.zeros((S, 3, self.k))
+        for n in slots:
+            J = self._slice.columns(plant.CalcJacobianSpatialVelocity(
+                pctx, JacobianWrtVariable.kV, self._bodies[n].body_frame(), np.zeros(3), world, world))
+            J_w[n], J_v[n] = J[:3], J[3:]
+        return J_w, J_v
+
     def rows(self, pctx, query, q, measure=None) -> DamperRows:
         """The damper's rows at q (``pctx``: a plant context to pose; ``query``:
         the SceneGraph's query object, posed at q): for
@@ -260,128 +231,69 @@ class VelocityDamper:
         with the constraint A v >= b (first order; before the second-order
         term and the relaxation towards the nominal), every watched pair's
         signed distance, and the rows' points' lever arms for
-        :meth:`second_order`.
+        :meth:`second_order`. Each row is kept as its direction, its two
+        points and their bodies; A is computed from them at the end, every
+        row's Jacobian in one array operation.
 
         Args:
             measure: (pairs,) bools, the pairs to measure (default all);
                 the others' distances are NaN.
         """
-        plant = self._plant
-        self._slice.set_positions(pctx, q)
-        world = plant.world_frame()
-        rows, rhs = [], []
-        ends = []  # per row: ((slot, p_W) of side A, of side B); slot -1: welded
         dists = np.full(len(self._pairs), np.nan)
-        owner = []  # per row: its pair
-        kin = {}  # per moving body at q: (R_WB, p_WBo, J_w, J_v), its Jacobian at Bo
-
-        def points(side, P_B):
-            """World positions (m x 3) and translational Jacobians
-            (m x 3 x k) of points given in a moving body's frame."""
-            body = side[0]
-            if body.index() not in kin:
-                X_WB = plant.EvalBodyPoseInWorld(pctx, body)
-                J = self._slice.columns(plant.CalcJacobianSpatialVelocity(
-                    pctx, JacobianWrtVariable.kV, body.body_frame(), np.zeros(3), world, world))
-                kin[body.index()] = (X_WB.rotation().matrix(), X_WB.translation(), J[:3], J[3:])
-            R, o, J_w, J_v = kin[body.index()]
-            # v_P = v_Bo + w x r, r = p_P - p_Bo: J_P = J_v - [r]x J_w, with
-            # [r]x = r . eps (the Levi-Civita symbol) for all points at once.
-            r = P_B @ R.T
-            p_W = r + o
-            J = J_v[None] - (r @ _EPS).reshape(-1, 3, 3) @ J_w
-            return p_W, J
-
-        def witness(side, p_GC, X_WG, probes: bool = False):
-            """A witness point (in the geometry frame G, posed at X_WG) and,
-            if asked, the side's probe centres: world positions (m x 3) and
-            translational Jacobians (m x 3 x k; zero on a welded body),
-            the witness first."""
-            body, X_BG = side[0], side[1]
-            p_GC = np.asarray(p_GC, float).reshape(1, 3)
-            if body is None:
-                return X_WG.multiply(p_GC.T).T, np.zeros((1, 3, self.k))
-            P_B = X_BG.multiply(p_GC.T).T
-            return points(side, np.vstack([P_B, side[2]]) if probes and len(side[2]) else P_B)
-
-        for index, (id_a, id_b, side_a, side_b) in enumerate(self._pairs):
-            if measure is not None and not measure[index]:
-                continue
+        measured = np.zeros(len(self._pairs), bool)
+        R, o = self.poses(pctx, q)
+        # Broad phase: a pair whose bounding balls lie apart by the influence
+        # distance or more is not measured (its distance is at least that).
+        look = np.arange(len(self._pairs)) if measure is None else np.flatnonzero(measure)
+        lower = self._broad.lower_bounds(query, R, o, look)
+        far = lower >= self.influence_distance
+        dists[look[far]] = lower[far]
+        near = []  # (pair index, Drake's result)
+        for index in look[~far]:
+            id_a, id_b = self._pairs[index][:2]
+            measured[index] = True
             try:
                 pair = query.ComputeSignedDistancePairClosestPoints(id_a, id_b)
             except RuntimeError:  # a shape pair Drake cannot measure: not watched
                 continue
-            d = pair.distance
-            dists[index] = d
-            if d >= self.influence_distance:
-                continue
-            n = np.asarray(pair.nhat_BA_W, float).reshape(3)
-            P_a, J_a = witness(side_a, pair.p_ACa, query.GetPoseInWorld(id_a), probes=True)
-            P_b, J_b = witness(side_b, pair.p_BCb, query.GetPoseInWorld(id_b), probes=True)
-            rows.append(n @ (J_a[0] - J_b[0]))
-            rhs.append(-self.rate * (d - self.target_distance))
-            ends.append((n, self._end(side_a, P_a[0], self._round[id_a]), self._end(side_b, P_b[0], self._round[id_b])))
-            self._probe_rows(query, n, (id_a, side_a, P_a, J_a), (id_b, side_b, P_b, J_b), witness,
-                             rows, rhs, ends)
-            owner.extend([index] * (len(rows) - len(owner)))
-        A = np.array(rows).reshape(-1, self.k)
-        m = len(ends)
-        return DamperRows(A, np.array(rhs, float), dists,
-                          dirs=np.array([e[0] for e in ends], float).reshape(m, 3),
-                          points=np.array([[e[1][1], e[2][1]] for e in ends], float).reshape(m, 2, 3),
-                          slots=np.array([[e[1][0], e[2][0]] for e in ends], int).reshape(m, 2),
-                          rounds=np.array([[e[1][2], e[2][2]] for e in ends], float).reshape(m, 2),
-                          pair=np.array(owner, int))
+            dists[index] = pair.distance
+            if pair.distance < self.influence_distance:
+                near.append((index, pair))
+        if not near:
+            return self.empty()._replace(distances=dists, measured=measured)
+        J_w, J_v = self.jacobians(pctx, q, sorted({s for index, _ in near for s in self._pair_bodies[index] if s >= 0}))
+        fast = [(index, pair) for index, pair in near if not self._drake_rows[index]]
+        parts = [self._kernel_rows(query, fast, R, o, J_w, J_v)] if fast else []
+        slow = [(index, pair) for index, pair in near if self._drake_rows[index]]
+        if slow:
+            out = RowList()
+            for index, pair in slow:
+                drake_pair_rows(self, query, index, pair, R, o, out)
+            parts.append(out.build(o, J_w, J_v, self.k))
+        fields = [np.concatenate(x) for x in zip(*(p[:2] + p[3:8] for p in parts))]
+        A, b, dirs, points, slots, rounds, pair = fields
+        return DamperRows(A, b, dists, dirs, points, slots, rounds, pair, measured)
 
-    def _probe_rows(self, query, n, a, b, witness, rows, rhs, ends) -> None:
-        """Appends the rows of A's probes against B and of B's against A
-        (a = (id, side, points, Jacobians) of A, the witness first; b the
-        same of B) to ``rows``, ``rhs`` and ``ends``."""
-        (id_a, side_a, P_a, J_a), (id_b, side_b, P_b, J_b) = a, b
-        # A's probes against B, and B's against A: a face tilting
-        # towards the other shape shows at its corners. The plane
-        # through the other's witness (normal n, resp. -n) bounds from
-        # below the distance of every point of a probing shape from a
-        # static shape (an obstacle), to first order in the motion:
-        # those rows are the plane's. Against a moving shape (a robot
-        # link) the plane moves too, so a probe gets its own distance
-        # from Drake's point query and its gradient instead; a probe
-        # whose plane gap exceeds the influence distance is skipped
-        # either way (the plane gap is a lower bound).
-        for side, sign, id_other, side_other, P, J_P, other, J_other in (
-                (side_a, 1.0, id_b, side_b, P_a, J_a, P_b[0], J_b[0]),
-                (side_b, -1.0, id_a, side_a, P_b, J_b, P_a[0], J_a[0])):
-            if len(P) < 2:
-                continue
-            radii = side[3]
-            gaps = sign * (P[1:] - other) @ n - radii
-            near = np.flatnonzero(gaps < self.influence_distance)
-            if not len(near):
-                continue
-            if side_other[0] is None:  # a static obstacle: the plane's rows
-                rows.extend((sign * n) @ (J_P[1 + near] - J_other))
-                rhs.extend(-self.rate * (gaps[near] - self.target_distance))
-                ends.extend((sign * n, self._end(side, P[1 + i]), self._end(side_other, other)) for i in near)
-                continue
-            if not self._point_query[id_other]:
-                continue  # a moving shape without a point query: the witness row only
-            X_WO = query.GetPoseInWorld(id_other)
-            for i in near:
-                found = [r for r in query.ComputeSignedDistanceToPoint(P[1 + i], self.influence_distance + radii[i])
-                         if r.id_G == id_other]
-                if not found or found[0].distance - radii[i] >= self.influence_distance:
-                    continue
-                p_near, J_near = witness(side_other, found[0].p_GN, X_WO)
-                grad = np.asarray(found[0].grad_W, float).reshape(3)
-                rows.append(grad @ (J_P[1 + i] - J_near[0]))
-                rhs.append(-self.rate * (found[0].distance - radii[i] - self.target_distance))
-                ends.append((grad, self._end(side, P[1 + i]), self._end(side_other, p_near[0])))
-
-    def _end(self, side, p_W, round_radius: float = 0.0) -> tuple:
-        """A row's point on one side: (the moving body's slot, p_W, the
-        round shape's radius), slot -1 and radius 0 on a welded body."""
-        p_W = np.asarray(p_W, float).reshape(3)
-        return (-1, p_W, 0.0) if side[0] is None else (self._slot[side[0].index()], p_W, round_radius)
+    def _kernel_rows(self, query, near, R, o, J_w, J_v) -> tuple:
+        """The rows of ``near`` pairs ((index, Drake's result)) by
+        :func:`~.damper_kernel.pair_rows`: (A, b, None, dirs, points, slots,
+        rounds, pair)."""
+        N = len(near)
+        pairs = np.array([index for index, _ in near], np.int64)
+        dist = np.array([pair.distance for _, pair in near])
+        normal = np.array([pair.nhat_BA_W for _, pair in near], float).reshape(N, 3)
+        witness = np.array([[pair.p_ACa, pair.p_BCb] for _, pair in near], float).reshape(N, 2, 3)
+        pose_R, pose_t = np.zeros((N, 2, 3, 3)), np.zeros((N, 2, 3))
+        for i, (index, _) in enumerate(near):
+            for j in range(2):
+                if self._sides[0][index, j] < 0:
+                    X = query.GetPoseInWorld(self._pairs[index][j])
+                    pose_R[i, j], pose_t[i, j] = X.rotation().matrix(), X.translation()
+        A, b, dirs, points, slots, rounds, owner = pair_rows(
+            (pairs, dist, normal, witness, pose_R, pose_t),
+            self._sides, (R, o, J_w, J_v),
+            (self.influence_distance, self.rate, self.target_distance))
+        return A, b, None, dirs, points, slots, rounds, owner
 
     def second_order(self, pctx, q, rows: DamperRows, dq: np.ndarray) -> np.ndarray:
         """Per row, how far a joint step ``dq`` (k,) from q falls short of the row's first-order change
@@ -398,18 +310,12 @@ class VelocityDamper:
         m = len(rows.b)
         if not m:
             return np.zeros(0)
-        plant = self._plant
-        used = np.unique(rows.slots[rows.slots >= 0])
-        moved = np.zeros((len(self._bodies) + 1, 3, 4))  # per slot: [R | t] of X_WB(q + dq) X_WB(q)^-1
-        moved[-1, :, :3] = np.eye(3)  # slot -1: welded
-        self._slice.set_positions(pctx, q)
-        before = {n: plant.EvalBodyPoseInWorld(pctx, self._bodies[n]) for n in used}
-        self._slice.set_positions(pctx, q + dq)
-        for n in used:
-            X = plant.EvalBodyPoseInWorld(pctx, self._bodies[n]).multiply(before[n].inverse())
-            moved[n, :, :3], moved[n, :, 3] = X.rotation().matrix(), X.translation()
-        T = moved[rows.slots]  # (m, 2, 3, 4)
-        after = np.einsum("msij,msj->msi", T[..., :3], rows.points) + T[..., 3]
+        R0, o0 = self.poses(pctx, q)
+        R1, o1 = self.poses(pctx, q + dq)
+        # Per slot, X_WB(q + dq) X_WB(q)^-1 = [R1 R0^T | o1 - R1 R0^T o0]; slot -1 (welded): the identity.
+        Rm = np.concatenate([R1 @ R0.transpose(0, 2, 1), np.eye(3)[None]])
+        tm = np.concatenate([o1 - np.einsum("sij,sj->si", Rm[:-1], o0), np.zeros((1, 3))])
+        after = np.einsum("msij,msj->msi", Rm[rows.slots], rows.points) + tm[rows.slots]
         delta = after - rows.points
         actual = np.einsum("mi,mi->m", rows.dirs, delta[:, 0] - delta[:, 1])
         theta = np.append(self._rev @ np.abs(dq), 0.0)[rows.slots]
@@ -424,14 +330,12 @@ class VelocityDamper:
         at updates, so the poses at both ends bound it. Negative: measure
         at the next update. (Valid while the SceneGraph is posed from the
         configurations the steps go through.)"""
-        plant = self._plant
-        moved = np.zeros(len(self._bodies) + 1)  # the last slot: welded, 0
-        self._slice.set_positions(pctx, q)
-        before = [plant.EvalBodyPoseInWorld(pctx, body) for body in self._bodies]
-        self._slice.set_positions(pctx, q_next)
-        for n, body in enumerate(self._bodies):
-            after = plant.EvalBodyPoseInWorld(pctx, body)
-            turn = before[n].rotation().InvertAndCompose(after.rotation()).ToAngleAxis().angle()
-            moved[n] = np.linalg.norm(after.translation() - before[n].translation()) + turn * self._body_radius[n]
+        R0, o0 = self.poses(pctx, q)
+        R1, o1 = self.poses(pctx, q_next)
+        Rr = R0.transpose(0, 2, 1) @ R1
+        # The turn's angle: atan2(sin, cos) from the rotation's skew part and trace.
+        skew = np.stack([Rr[:, 2, 1] - Rr[:, 1, 2], Rr[:, 0, 2] - Rr[:, 2, 0], Rr[:, 1, 0] - Rr[:, 0, 1]], axis=1)
+        turn = np.arctan2(0.5 * np.linalg.norm(skew, axis=1), 0.5 * (np.trace(Rr, axis1=1, axis2=2) - 1.0))
+        moved = np.append(np.linalg.norm(o1 - o0, axis=1) + turn * self._body_radius, 0.0)  # the last: welded
         left = np.where(np.isnan(dists), budget, dists - self.influence_distance)
         return left - moved[self._pair_bodies[:, 0]] - moved[self._pair_bodies[:, 1]]

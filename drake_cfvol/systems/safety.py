@@ -107,11 +107,16 @@ linearisation says nothing reliable about the nominal's distances (a
 straight joint-space line back to the nominal may cross an obstacle).
 
 **Solver**: where the request (clipped to the velocity limits and the
-box) meets every damper row, it is commanded as is: away from obstacles
-the filter is the identity and ``filter_active`` is 0. Otherwise a small
-QP through Drake's ``MathematicalProgram`` and ``ClarabelSolver``
-(about 0.1 ms; OSQP is as fast but prints polishing notes and lands
-1e-5 away), in stages by priority, the velocity limits hard in all:
+box) meets every row of every constraint, it is commanded as is: away
+from obstacles the filter is the identity and ``filter_active`` is 0.
+Otherwise a small QP over the constraints' rows
+(:mod:`~drake_cfvol.systems.constraints`: each constraint contributes
+rows A v >= b with a priority; a user's own, such as a
+:class:`~drake_cfvol.systems.constraints.ToolSpeedLimit`, come through
+``constraints``), solved by a dense dual active-set method warm-started
+from the last solve (:mod:`~drake_cfvol.systems.qp`; no program built
+per update), in stages by priority, the velocity limits (and any other
+hard rows) hard in all:
 (1) the box and the rows hard; (2) if nothing meets both, the rows hard
 and the box soft (weight ``BOX_WEIGHT``: left as little as it must be);
 (3) if the limits leave nothing that meets the rows, the rows soft too
@@ -122,7 +127,9 @@ a simulation: a non-finite or crossed input holds q_c the same way.
 
 Cost: a pair known to lie beyond the influence distance is measured
 again only once the commanded motion could have brought it within
-(``skip_far_pairs``).
+(``skip_far_pairs``); a pair whose bounding shapes lie that far apart is
+not measured at all (the damper's broad phase), and the near pairs' rows
+come from one compiled call (:mod:`~drake_cfvol.systems.damper_kernel`).
 """
 
 import dataclasses
@@ -131,14 +138,21 @@ import typing
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
-from pydrake.solvers import ClarabelSolver, MathematicalProgram
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.scene.robot import RobotSlice
+from drake_cfvol.systems.constraints import (
+    DamperConstraint,
+    FilterStep,
+    JointBox,
+    PriorityQP,
+    VelocityLimits,
+    solve_rounds,
+)
 from drake_cfvol.systems.damper import DamperRows, VelocityDamper, dynamic_pairs, measure_dynamic
 
-__all__ = ["SafetyFilter", "SafetyFilterConfig", "StagedQP"]
+__all__ = ["SafetyFilter", "SafetyFilterConfig"]
 
 
 @dataclasses.dataclass
@@ -150,12 +164,15 @@ class SafetyFilterConfig:
         influence_distance: d_inf, m (> clearance + allowance): farther pairs do not constrain.
         damper_gain: xi, m/s (> 0): the approach speed allowed at d_inf.
         allowance: m (>= 0): the damper aims this far above the margin (what the rows' second-order bound misses).
+        tool_speed: m/s (> 0): the tool frame's origin moves at most this fast (a
+            :class:`~drake_cfvol.systems.constraints.ToolSpeedLimit`); None: no such limit.
     """
 
     clearance: typing.Optional[float] = None
     influence_distance: float = 0.15
     damper_gain: float = 1.0
     allowance: float = 0.001
+    tool_speed: typing.Optional[float] = None
 
 
 #: Status state layout: [acted at the last update, updates it acted,
@@ -211,66 +228,6 @@ def _relax(q, nominal, lo, hi, A, b, vmax, h):
         return b
     v_ref = np.clip((nominal - q) / h, lo, hi)
     return b + w * np.minimum(0.0, A @ v_ref - b)
-
-
-class StagedQP:
-    """The filter's QP, argmin |v - v_t|^2 in stages by priority, the
-    velocity limits |v| <= vmax always hard:
-
-    1. the box and the damper's rows hard: lo <= v <= hi, A v >= b;
-    2. if no v meets both, the rows hard and the box soft: the command
-       leaves the box (an uncertified box's corner sweeping into an
-       obstacle) as little as it must, weight ``box_weight``;
-    3. if the limits leave no v that meets the rows, both soft, the rows
-       weighted ``slack_weight``: missed as little as possible.
-
-    Through Drake's ``MathematicalProgram`` and ``ClarabelSolver``.
-    """
-
-    def __init__(self, vmax, *, box_weight: float, slack_weight: float):
-        self._vmax = np.asarray(vmax, float)
-        self.box_weight, self.slack_weight = float(box_weight), float(slack_weight)
-        self._solver = ClarabelSolver()
-
-    def solve(self, v_t, lo, hi, A, b):
-        """The solution of the first stage that has one; None if the solver fails."""
-        for box_soft, rows_soft in ((False, False), (True, False), (True, True)):
-            v = self._stage(v_t, lo, hi, A, b, box_soft=box_soft, rows_soft=rows_soft)
-            if v is not None:
-                return v
-        return None
-
-    def _stage(self, v_t, lo, hi, A, b, *, box_soft: bool, rows_soft: bool):
-        m, k = len(b), len(v_t)
-        prog = MathematicalProgram()
-        v = prog.NewContinuousVariables(k, "v")
-        prog.AddQuadraticCost(2.0 * np.eye(k), -2.0 * v_t, v, is_convex=True)
-        vmax = self._vmax
-        if box_soft:
-            prog.AddBoundingBoxConstraint(-vmax, vmax, v)
-            e = prog.NewContinuousVariables(k, "e")
-            prog.AddQuadraticCost(2.0 * self.box_weight * np.eye(k), np.zeros(k), e, is_convex=True)
-            prog.AddBoundingBoxConstraint(0.0, np.inf, e)
-            eye = np.eye(k)
-            prog.AddLinearConstraint(np.hstack([eye, eye]), lo, np.full(k, np.inf), np.concatenate([v, e]))
-            prog.AddLinearConstraint(np.hstack([eye, -eye]), np.full(k, -np.inf), hi, np.concatenate([v, e]))
-        else:
-            prog.AddBoundingBoxConstraint(lo, hi, v)
-        if rows_soft:
-            s = prog.NewContinuousVariables(m, "s")
-            prog.AddQuadraticCost(2.0 * self.slack_weight * np.eye(m), np.zeros(m), s, is_convex=True)
-            prog.AddBoundingBoxConstraint(0.0, np.inf, s)
-            prog.AddLinearConstraint(np.hstack([A, np.eye(m)]), b, np.full(m, np.inf), np.concatenate([v, s]))
-        else:
-            prog.AddLinearConstraint(A, b, np.full(m, np.inf), v)
-        try:
-            result = self._solver.Solve(prog)
-        except RuntimeError:
-            return None
-        if not result.is_success():
-            return None
-        x = np.clip(result.GetSolution(v), -vmax, vmax)
-        return x if box_soft else np.clip(x, lo, hi)
 
 
 def _check_parameters(period, clearance, allowance, influence_distance, damper_gain) -> None:
@@ -360,6 +317,8 @@ class SafetyFilter(LeafSystem):
             anything else (a measured state).
         dynamic_ids: geometry that moves on its own: measured at every
             update (:func:`~.damper.measure_dynamic`), rows never relaxed.
+        constraints: further :class:`~drake_cfvol.systems.constraints.FilterConstraint`
+            objects (e.g. a :class:`~drake_cfvol.systems.constraints.ToolSpeedLimit`).
     """
 
     #: Weight of a damper row's miss (slack) against the request's, (s/m)^2
@@ -377,7 +336,8 @@ class SafetyFilter(LeafSystem):
     def __init__(self, plant, scene_graph, robot, *, velocity_limits=None, obstacle_ids=None, clearance: float = 0.0,
                  influence_distance: float = SafetyFilterConfig.influence_distance, period: float = 0.01,
                  damper_gain: float = SafetyFilterConfig.damper_gain, allowance: float = SafetyFilterConfig.allowance,
-                 acceleration_limits=None, initial_position=None, skip_far_pairs: bool = True, dynamic_ids=()):
+                 acceleration_limits=None, initial_position=None, skip_far_pairs: bool = True, dynamic_ids=(),
+                 constraints=()):
         super().__init__()
         robot_slice = RobotSlice(plant, robot)
         k = robot_slice.k
@@ -406,10 +366,26 @@ class SafetyFilter(LeafSystem):
         self._damper = VelocityDamper(plant, scene_graph, robot, obstacle_ids=obstacle_ids,
                                       target_distance=self.target_distance,
                                       influence_distance=self.influence_distance, rate=self.rate)
-        self._qp = StagedQP(self._vmax, box_weight=self.BOX_WEIGHT, slack_weight=self.SLACK_WEIGHT)
+        self._qp = PriorityQP()
         self.skip_far_pairs = bool(skip_far_pairs)
         n_pairs = self._damper.num_pairs
         self._dynamic = dynamic_pairs(self._damper, dynamic_ids)
+        dynamic = np.array([n for n, _ in self._dynamic], int)
+
+        def relax(q, nominal, lo, hi, A, b):
+            return _relax(q, nominal, lo, hi, A, b, self.velocity_limits, self.period)
+
+        #: The QP's constraints (:mod:`~drake_cfvol.systems.constraints`):
+        #: the velocity limits, the box, the damper's rows (the static
+        #: scene's, relaxed near the nominal; the moving geometry's, never),
+        #: then ``constraints``.
+        self.constraints = [VelocityLimits(), JointBox(self.BOX_WEIGHT),
+                            DamperConstraint(weight=self.SLACK_WEIGHT, relax=relax, name="damper",
+                                             select=lambda rows: ~np.isin(rows.pair, dynamic)),
+                            DamperConstraint(weight=self.SLACK_WEIGHT, relax=None, name="perceived_obstacles",
+                                             select=lambda rows: np.isin(rows.pair, dynamic))]
+        self.constraints += list(constraints)
+        self._robot_slice = robot_slice
 
         self.desired_position_input = self.DeclareVectorInputPort(name="desired_position", size=k)
         self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
@@ -538,9 +514,8 @@ class SafetyFilter(LeafSystem):
             # Skipped pairs lie at least their budget beyond the influence distance.
             known = np.where(np.isnan(dists), self.influence_distance + np.maximum(budget, 0.0), dists)
             dmin = float(known.min()) if len(known) else np.inf
-            v, b, solved = self._filter(context, q, v_t, lo, hi, rows, nominal)
+            v, missed, solved = self._filter(context, q, v_t, lo, hi, rows, nominal)
             fallback = fallback or not solved
-            missed = bool(len(b) and np.any(rows.A @ v < b - 1e-6))
         vmax = self._vmax
         v = np.clip(v, -vmax, vmax)
         exited = bool(np.any((v < lo - 1e-9) | (v > hi + 1e-9)))
@@ -560,41 +535,21 @@ class SafetyFilter(LeafSystem):
              status[_MISSES] + missed, status[_EXITS] + exited])
 
     def _filter(self, context, q, v_t, lo, hi, rows: DamperRows, nominal):
-        """The velocity commanded for the request v_t: (v, the rows'
-        right-hand sides at v, solved (False: the fallback)). A row holds
-        when its distance after the step, first order plus the second-order
-        bound :meth:`second_order` at the step taken, meets the damper:
-        A v >= b + e(v dt) / dt, then relaxed towards the nominal. e
-        depends on v, so the QP is solved with e at the last solution until
-        that solution meets its own e (at most ``SECOND_ORDER_ROUNDS``
+        """The velocity commanded for the request v_t: (v, missed: a
+        :data:`~drake_cfvol.systems.constraints.ROW` row missed at v,
+        solved (False: the fallback)). Each constraint's rows at the step
+        taken (the damper's: first order plus the second-order bound
+        :meth:`second_order` at v, then relaxed towards the nominal): they
+        depend on v, so the QP is solved with them at the last solution
+        until that solution meets its own (at most ``SECOND_ORDER_ROUNDS``
         solves; the right-hand sides only grow)."""
-        A, h = rows.A, self.period
-        relax = nominal is not None and np.all(np.isfinite(nominal))
         # The rows are taken at the base (the measured position, if given)
         # and constrain the command's own step v h: a tracking error is the
         # controller's to close (demanding that the command undo it at once
         # would chase the robot).
-
-        fixed = np.isin(rows.pair, [n for n, _ in self._dynamic])  # the nominal is not free of them
-
-        def need(v):
-            b = rows.b + self.second_order(context, rows, v * h) / h
-            return np.where(fixed, b, _relax(q, nominal, lo, hi, A, b, self.velocity_limits, self.period)) if relax else b
-
-        if not len(rows.b):
-            return v_t, rows.b, True
-        b = need(v_t)
-        if np.all(A @ v_t >= b - 1e-12):
-            return v_t, b, True
-        v = v_t
-        for _ in range(self.SECOND_ORDER_ROUNDS):
-            v = self._qp.solve(v_t, lo, hi, A, b)
-            if v is None:
-                v = np.clip(np.zeros(self.k), lo, hi)
-                return v, need(v), False
-            b_v = need(v)
-            short = A @ v < b_v - 1e-9
-            if not short.any():
-                return v, b_v, True
-            b = np.maximum(b, b_v) + _NUDGE * short
-        return v, need(v), True
+        base = self.base_position(context)
+        step = FilterStep(q=base, q_c=q, period=self.period, lo=lo, hi=hi, vmax=self._vmax, nominal=nominal,
+                          damper=rows, plant=self._plant, robot_slice=self._robot_slice,
+                          plant_context=self._pctx(context),
+                          second_order=lambda dq: self._damper.second_order(self._pctx(context), base, rows, dq))
+        return solve_rounds(self._qp, self.constraints, step, v_t, rounds=self.SECOND_ORDER_ROUNDS, nudge=_NUDGE)

@@ -23,6 +23,7 @@ from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformati
 from drake_cfvol.systems.bounds_source import JointBoundsSource
 from drake_cfvol.systems.human_input import HumanInputCheck
 from drake_cfvol.systems.path import PathProgress, PathProgressConfig, safe_path_rate
+from drake_cfvol.systems.constraints import ToolSpeedLimit
 from drake_cfvol.systems.safety import SafetyFilter, SafetyFilterConfig
 
 __all__ = ["AddCoManipulation", "CoManipulationConfig", "CoManipulationSystems", "ToolPushForce"]
@@ -129,14 +130,15 @@ def _resolve(plant, robot, table, tool_frame, config):
 
 
 def _safety_filter(f: SafetyFilterConfig, plant, scene_graph, robot, table, limits, period, obstacle_ids,
-                   dynamic_ids) -> SafetyFilter:
+                   dynamic_ids, tool_frame=None) -> SafetyFilter:
     """The filter of a config: its margin the table's where the config leaves it None."""
     margin = float(table.params.get("clearance", 0.0)) if f.clearance is None else float(f.clearance)
     dynamic = list(dynamic_ids)
     return SafetyFilter(plant, scene_graph, robot, velocity_limits=limits,
                         obstacle_ids=None if obstacle_ids is None else list(obstacle_ids) + dynamic,
                         clearance=margin, influence_distance=f.influence_distance, damper_gain=f.damper_gain,
-                        allowance=f.allowance, period=period, initial_position=table.nominal[0], dynamic_ids=dynamic)
+                        allowance=f.allowance, period=period, initial_position=table.nominal[0], dynamic_ids=dynamic,
+                        constraints=[] if f.tool_speed is None else [ToolSpeedLimit(tool_frame, f.tool_speed)])
 
 
 def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, period: float = 0.01,
@@ -201,7 +203,7 @@ def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, 
     safety, commanded = None, adm.commanded_position_output
     if f is not None:
         safety = builder.AddNamedSystem(_named(name, "safety_filter"), _safety_filter(
-            f, plant, scene_graph, robot, table, limits, period, obstacle_ids, dynamic_ids))
+            f, plant, scene_graph, robot, table, limits, period, obstacle_ids, dynamic_ids, tool_frame))
         for port in ("nominal", "lower", "upper"):
             builder.Connect(bounds.GetOutputPort(port), safety.GetInputPort(port))
         builder.Connect(adm.commanded_position_output, safety.desired_position_input)

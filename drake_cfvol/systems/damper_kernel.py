@@ -1,0 +1,355 @@
+"""The velocity damper's shapes and its rows in compiled code (numba):
+each shape's probe points, bounding ball and box and round radius; from Drake's
+witness points of the near pairs, each pair's witness row and its probe
+rows, and every row's Jacobian row, in one call (:func:`pair_rows`); the
+exact signed distance of a point from a box, sphere, capsule or cylinder
+(:func:`point_distance`, what Drake's ``ComputeSignedDistanceToPoint``
+reports) for a probe against a moving link.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Sphere
+
+__all__ = ["bounding_gaps", "NO_POINT_QUERY", "SPHERE", "CAPSULE", "BOX", "CYLINDER", "point_distance", "pair_rows", "probes",
+           "ball_radius", "local_box", "round_radius", "point_query_shape"]
+
+#: Shape kinds of :func:`point_distance` (NO_POINT_QUERY: none).
+NO_POINT_QUERY, SPHERE, CAPSULE, BOX, CYLINDER = 0, 1, 2, 3, 4
+
+
+#: Points sampled on each rim of a cylinder (probe points).
+_RIM_POINTS = 12
+
+
+def point_query_shape(shape) -> tuple[int, np.ndarray]:
+    """(kind, parameters) of a shape for :func:`point_distance`
+    (NO_POINT_QUERY for any other)."""
+    if isinstance(shape, Box):
+        return BOX, np.array([shape.width(), shape.depth(), shape.height()]) / 2
+    if isinstance(shape, Sphere):
+        return SPHERE, np.array([shape.radius(), 0.0, 0.0])
+    if isinstance(shape, Capsule):
+        return CAPSULE, np.array([shape.radius(), shape.length() / 2, 0.0])
+    if isinstance(shape, Cylinder):
+        return CYLINDER, np.array([shape.radius(), shape.length() / 2, 0.0])
+    return NO_POINT_QUERY, np.zeros(3)
+
+
+def probes(shape) -> tuple[np.ndarray, np.ndarray]:
+    """Probe spheres of a shape, in its frame: centres (3 x m) and radii
+    (m,). Their lowest points along a direction reach the shape's support
+    there wherever the support set may be flat (a face, an edge, a rim, a
+    capsule's side), so rows at them see a face tilt towards an obstacle;
+    smooth, strictly convex shapes (sphere, ellipsoid) need none."""
+    if isinstance(shape, Box):
+        half = np.array([shape.width(), shape.depth(), shape.height()]) / 2
+        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
+        return corners.T, np.zeros(8)
+    if isinstance(shape, Cylinder):
+        a = np.linspace(0.0, 2 * np.pi, _RIM_POINTS, endpoint=False)
+        ring = np.stack([shape.radius() * np.cos(a), shape.radius() * np.sin(a)], axis=1)
+        rims = [np.column_stack([ring, np.full(len(a), z)]) for z in (-shape.length() / 2, shape.length() / 2)]
+        return np.concatenate(rims).T, np.zeros(2 * _RIM_POINTS)
+    if isinstance(shape, Capsule):
+        ends = np.array([[0.0, 0.0, -shape.length() / 2], [0.0, 0.0, shape.length() / 2]])
+        return ends.T, np.full(2, shape.radius())
+    if isinstance(shape, (Convex, Mesh)):
+        try:
+            hull = shape.GetConvexHull()
+            pts = np.array([hull.vertex(i) for i in range(hull.num_vertices())], float).reshape(-1, 3)
+            return pts.T, np.zeros(len(pts))
+        except Exception:  # no hull: the witness row alone
+            return np.zeros((3, 0)), np.zeros(0)
+    return np.zeros((3, 0)), np.zeros(0)  # smooth (sphere, ellipsoid): the witness row suffices
+
+
+def ball_radius(shape) -> float:
+    """The radius of a ball about the shape's frame origin that holds the
+    shape, m (inf if unknown)."""
+    if isinstance(shape, Box):
+        return 0.5 * float(np.linalg.norm([shape.width(), shape.depth(), shape.height()]))
+    if isinstance(shape, Sphere):
+        return shape.radius()
+    if isinstance(shape, Capsule):
+        return shape.radius() + shape.length() / 2
+    if isinstance(shape, Cylinder):
+        return float(np.hypot(shape.radius(), shape.length() / 2))
+    if isinstance(shape, Ellipsoid):
+        return max(shape.a(), shape.b(), shape.c())
+    if isinstance(shape, (Convex, Mesh)):
+        try:
+            hull = shape.GetConvexHull()
+            return max(float(np.linalg.norm(hull.vertex(i))) for i in range(hull.num_vertices()))
+        except Exception:
+            return np.inf
+    return np.inf
+
+
+def local_box(shape) -> tuple[np.ndarray, np.ndarray]:
+    """A box holding the shape, in its frame: (centre, half extents), m
+    (a huge box for a shape of unknown extent)."""
+    if isinstance(shape, Box):
+        return np.zeros(3), np.array([shape.width(), shape.depth(), shape.height()]) / 2
+    if isinstance(shape, Sphere):
+        return np.zeros(3), np.full(3, shape.radius())
+    if isinstance(shape, Cylinder):
+        return np.zeros(3), np.array([shape.radius(), shape.radius(), shape.length() / 2])
+    if isinstance(shape, Capsule):
+        return np.zeros(3), np.array([shape.radius(), shape.radius(), shape.length() / 2 + shape.radius()])
+    if isinstance(shape, Ellipsoid):
+        return np.zeros(3), np.array([shape.a(), shape.b(), shape.c()])
+    if isinstance(shape, (Convex, Mesh)):
+        try:
+            hull = shape.GetConvexHull()
+            pts = np.array([hull.vertex(i) for i in range(hull.num_vertices())], float).reshape(-1, 3)
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            return (lo + hi) / 2, (hi - lo) / 2
+        except Exception:
+            pass
+    return np.zeros(3), np.full(3, 1e6)
+
+
+def round_radius(shape) -> float:
+    """The radius of the round part of a shape, m: its witness point's
+    lever arm grows by it (0 for a polytope, whose probes are its
+    vertices)."""
+    if isinstance(shape, (Sphere, Capsule, Cylinder)):
+        return float(shape.radius())
+    if isinstance(shape, Ellipsoid):
+        return float(max(shape.a(), shape.b(), shape.c()))
+    return 0.0
+
+
+
+
+@njit(cache=True)
+def _normalised(x, y, z, fx, fy, fz):
+    norm = np.sqrt(x * x + y * y + z * z)
+    if norm > 1e-12:
+        return x / norm, y / norm, z / norm
+    return fx, fy, fz
+
+
+@njit(cache=True)
+def point_distance(kind, prm, q, out_g, out_near):
+    """Signed distance of point q (shape frame) from a shape of ``kind``
+    with parameters ``prm`` (sphere: radius; capsule, cylinder: radius,
+    half length about z; box: half extents), m; the unit gradient and the
+    nearest surface point written into ``out_g`` and ``out_near`` (shape
+    frame). Inside a box: the nearest face; inside a cylinder: the nearer
+    of its side and its caps."""
+    x, y, z = q[0], q[1], q[2]
+    if kind == SPHERE:
+        gx, gy, gz = _normalised(x, y, z, 0.0, 0.0, 1.0)
+        out_g[0], out_g[1], out_g[2] = gx, gy, gz
+        out_near[0], out_near[1], out_near[2] = prm[0] * gx, prm[0] * gy, prm[0] * gz
+        return np.sqrt(x * x + y * y + z * z) - prm[0]
+    if kind == CAPSULE:
+        cz = min(max(z, -prm[1]), prm[1])
+        gx, gy, gz = _normalised(x, y, z - cz, 1.0, 0.0, 0.0)
+        out_g[0], out_g[1], out_g[2] = gx, gy, gz
+        out_near[0], out_near[1], out_near[2] = prm[0] * gx, prm[0] * gy, cz + prm[0] * gz
+        return np.sqrt(x * x + y * y + (z - cz) ** 2) - prm[0]
+    if kind == BOX:
+        outside = abs(x) > prm[0] or abs(y) > prm[1] or abs(z) > prm[2]
+        if outside:
+            cx, cy, cz = min(max(x, -prm[0]), prm[0]), min(max(y, -prm[1]), prm[1]), min(max(z, -prm[2]), prm[2])
+            gx, gy, gz = _normalised(x - cx, y - cy, z - cz, 0.0, 0.0, 1.0)
+            out_g[0], out_g[1], out_g[2] = gx, gy, gz
+            out_near[0], out_near[1], out_near[2] = cx, cy, cz
+            return np.sqrt((x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2)
+        face, best = 0, abs(x) - prm[0]
+        for i in range(1, 3):
+            if abs(q[i]) - prm[i] > best:
+                face, best = i, abs(q[i]) - prm[i]
+        sign = 1.0 if q[face] >= 0 else -1.0
+        for i in range(3):
+            out_g[i] = 0.0
+            out_near[i] = q[i]
+        out_g[face] = sign
+        out_near[face] = sign * prm[face]
+        return best
+    # CYLINDER
+    rho = np.sqrt(x * x + y * y)
+    rx, ry, _ = _normalised(x, y, 0.0, 1.0, 0.0, 0.0)
+    zs = 1.0 if z >= 0 else -1.0
+    dr, dz = rho - prm[0], abs(z) - prm[1]
+    if dr > 0 or dz > 0:
+        nr = min(rho, prm[0])
+        nx, ny, nz = rx * nr, ry * nr, min(max(z, -prm[1]), prm[1])
+        gx, gy, gz = _normalised(x - nx, y - ny, z - nz, 1.0, 0.0, 0.0)
+        out_g[0], out_g[1], out_g[2] = gx, gy, gz
+        out_near[0], out_near[1], out_near[2] = nx, ny, nz
+        return np.sqrt((x - nx) ** 2 + (y - ny) ** 2 + (z - nz) ** 2)
+    if dr >= dz:
+        out_g[0], out_g[1], out_g[2] = rx, ry, 0.0
+        out_near[0], out_near[1], out_near[2] = rx * prm[0], ry * prm[0], z
+        return dr
+    out_g[0], out_g[1], out_g[2] = 0.0, 0.0, zs
+    out_near[0], out_near[1], out_near[2] = x, y, zs * prm[1]
+    return dz
+
+
+@njit(cache=True)
+def _jacobian_row(d, p, slot, o, J_w, J_v, out, sign):
+    """out += sign * d . J(p), J(p) the translational Jacobian of point p on
+    body ``slot`` (v_P = v_o + w x r, r = p - o: d . v_P = d . J_v v +
+    (r x d) . J_w v); nothing on a welded body (slot < 0)."""
+    if slot < 0:
+        return
+    rx, ry, rz = p[0] - o[slot, 0], p[1] - o[slot, 1], p[2] - o[slot, 2]
+    cx, cy, cz = ry * d[2] - rz * d[1], rz * d[0] - rx * d[2], rx * d[1] - ry * d[0]
+    for j in range(out.shape[0]):
+        out[j] += sign * (d[0] * J_v[slot, 0, j] + d[1] * J_v[slot, 1, j] + d[2] * J_v[slot, 2, j]
+                          + cx * J_w[slot, 0, j] + cy * J_w[slot, 1, j] + cz * J_w[slot, 2, j])
+
+
+@njit(cache=True)
+def _emit(out, m, d, p1, p2, s1, s2, rhs, r1, r2, pair, kin):
+    """Writes row m of ``out`` (A, b, dirs, points, slots, rounds, owner):
+    direction d, points p1 / p2 on slots s1 / s2, right-hand side, round
+    radii, pair; its Jacobian row from ``kin`` (R, o, J_w, J_v)."""
+    A, b, dirs, points, slots, rounds, owner = out
+    o, J_w, J_v = kin[1], kin[2], kin[3]
+    for i in range(3):
+        dirs[m, i] = d[i]
+        points[m, 0, i] = p1[i]
+        points[m, 1, i] = p2[i]
+    slots[m, 0], slots[m, 1] = s1, s2
+    rounds[m, 0], rounds[m, 1] = r1, r2
+    b[m] = rhs
+    owner[m] = pair
+    A[m, :] = 0.0
+    _jacobian_row(d, p1, s1, o, J_w, J_v, A[m], 1.0)
+    _jacobian_row(d, p2, s2, o, J_w, J_v, A[m], -1.0)
+    return m + 1
+
+
+@njit(cache=True)
+def _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains):
+    """Pair p's probe rows (its sides' witnesses w, probes P and geometry
+    poses XR, Xt in the world), from row m on; returns the next row."""
+    side_slot, n_probes, radii, kind, prm = sides[0], sides[4], sides[5], sides[6], sides[7]
+    influence, rate, target = gains
+    g, near, q_local, gw, nw, neg = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    for s in range(2):
+        t = 1 - s
+        sign = 1.0 if s == 0 else -1.0
+        slot, s_other = side_slot[p, s], side_slot[p, t]
+        if slot < 0:
+            continue
+        for i3 in range(3):
+            neg[i3] = sign * n[i3]
+        for c in range(n_probes[p, s]):
+            gap = sign * ((P[s, c, 0] - w[t, 0]) * n[0] + (P[s, c, 1] - w[t, 1]) * n[1]
+                          + (P[s, c, 2] - w[t, 2]) * n[2]) - radii[p, s, c]
+            if gap >= influence:
+                continue
+            if s_other < 0:  # a static obstacle: the plane through its witness
+                m = _emit(out, m, neg, P[s, c], w[t], slot, -1, -rate * (gap - target), 0.0, 0.0, p, kin)
+                continue
+            if kind[p, t] == NO_POINT_QUERY:
+                break  # a moving shape without a point query: the witness row only
+            for i3 in range(3):
+                q_local[i3] = (XR[t, 0, i3] * (P[s, c, 0] - Xt[t, 0]) + XR[t, 1, i3] * (P[s, c, 1] - Xt[t, 1])
+                               + XR[t, 2, i3] * (P[s, c, 2] - Xt[t, 2]))
+            dist_p = point_distance(kind[p, t], prm[p, t], q_local, g, near)
+            if dist_p - radii[p, s, c] >= influence:
+                continue
+            gw[:] = XR[t] @ g
+            nw[:] = XR[t] @ near + Xt[t]
+            m = _emit(out, m, gw, P[s, c], nw, slot, s_other, -rate * (dist_p - radii[p, s, c] - target),
+                      0.0, 0.0, p, kin)
+    return m
+
+
+@njit(cache=True)
+def pair_rows(near, sides, kin, gains):
+    """Every near pair's rows (SPEC 9; see
+    :meth:`~drake_cfvol.systems.damper.VelocityDamper.rows`).
+
+    Args:
+        near: (pairs, dist, normal, witness, pose_R, pose_t):
+        pairs: (N,) the near pairs' indices; dist (N,), normal (N, 3)
+            (Drake's nhat_BA_W), witness (N, 2, 3) (p_ACa, p_BCb in the
+            geometry frames), pose_R (N, 2, 3, 3) / pose_t (N, 2, 3): each
+            side's geometry pose in the world (used for a side on no moving
+            body of the robot).
+        sides: (side_slot, side_R, side_t, probes, n_probes, radii, kind,
+            prm, round_r): side_slot (P, 2), each pair side's moving body slot (-1: none);
+            side_R / side_t (P, 2, ...): X_BG; probes (P, 2, n, 3) in the
+            body frame, n_probes (P, 2), radii (P, 2, n); kind / prm
+            (P, 2, ...) the side's shape for point queries; round_r (P, 2).
+        kin: (R, o, J_w, J_v), the moving bodies' poses and Jacobians (per slot).
+        gains: (influence, rate, target): d_inf, the rate, d_t.
+
+    Returns:
+        (A, b, dirs, points, slots, rounds, pair), the rows.
+    """
+    pairs, dist, normal, witness, pose_R, pose_t = near
+    side_slot, side_R, side_t, probes, n_probes, radii, kind, prm, round_r = sides
+    R, o = kin[0], kin[1]
+    influence, rate, target = gains
+    N, k = len(pairs), kin[2].shape[2]
+    cap = N * (1 + 2 * probes.shape[2])
+    A, b = np.zeros((cap, k)), np.zeros(cap)
+    dirs, points = np.zeros((cap, 3)), np.zeros((cap, 2, 3))
+    slots, rounds, owner = np.full((cap, 2), -1, np.int64), np.zeros((cap, 2)), np.zeros(cap, np.int64)
+    out = (A, b, dirs, points, slots, rounds, owner)
+    w = np.zeros((2, 3))
+    P = np.zeros((2, probes.shape[2], 3))
+    XR, Xt = np.zeros((2, 3, 3)), np.zeros((2, 3))
+    m = 0
+    for i in range(N):
+        p = pairs[i]
+        n = normal[i]
+        for s in range(2):
+            slot = side_slot[p, s]
+            if slot < 0:
+                XR[s], Xt[s] = pose_R[i, s], pose_t[i, s]
+            else:  # the geometry's pose from its body's: R_WB R_BG, R_WB t_BG + o
+                XR[s] = R[slot] @ side_R[p, s]
+                Xt[s] = R[slot] @ side_t[p, s] + o[slot]
+            w[s] = XR[s] @ witness[i, s] + Xt[s]
+            if slot >= 0:
+                for c in range(n_probes[p, s]):
+                    P[s, c] = R[slot] @ probes[p, s, c] + o[slot]
+        sa, sb = side_slot[p, 0], side_slot[p, 1]
+        m = _emit(out, m, n, w[0], w[1], sa, sb, -rate * (dist[i] - target),
+                  round_r[p, 0] if sa >= 0 else 0.0, round_r[p, 1] if sb >= 0 else 0.0, p, kin)
+        m = _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains)
+    return A[:m], b[:m], dirs[:m], points[:m], slots[:m], rounds[:m], owner[:m]
+
+
+@njit(cache=True)
+def bounding_gaps(pairs, slot, centre, half, box_R, box_p, R, o):
+    """The broad phase's lower bounds of ``pairs``' distances, m: per pair
+    side a ball (``slot`` >= 0: on that moving body, its centre in the body
+    frame, radius |half|) or a box (centre in the geometry frame, half
+    extents ``half``, posed at box_R / box_p in the world); ball to ball:
+    their gap; ball to box: the ball centre's distance from the box less
+    the radius; box to box: -inf (measure). Bodies posed at R, o."""
+    out = np.full(len(pairs), -np.inf)
+    c = np.zeros((2, 3))
+    for i in range(len(pairs)):
+        n = pairs[i]
+        for j in range(2):
+            s = slot[n, j]
+            if s >= 0:
+                c[j] = R[s] @ centre[n, j] + o[s]
+        b0, b1 = slot[n, 0] >= 0, slot[n, 1] >= 0
+        if b0 and b1:
+            out[i] = (np.sqrt(np.sum((c[0] - c[1]) ** 2)) - np.sqrt(np.sum(half[n, 0] ** 2))
+                      - np.sqrt(np.sum(half[n, 1] ** 2)))
+        elif b0 or b1:
+            j = 0 if b0 else 1
+            k = 1 - j
+            local = box_R[n, k].T @ (c[j] - box_p[n, k]) - centre[n, k]
+            gap = 0.0
+            for a in range(3):
+                gap += max(abs(local[a]) - half[n, k, a], 0.0) ** 2
+            out[i] = np.sqrt(gap) - np.sqrt(np.sum(half[n, j] ** 2))
+    return out
