@@ -176,7 +176,7 @@ def wall_1ms():
     return _arm("wall", clearance=0.02, period=0.001)
 
 
-@pytest.mark.parametrize("arm", ["wall", "wall_1ms"])
+@pytest.mark.parametrize("arm", ["wall", pytest.param("wall_1ms", marks=pytest.mark.slow)])
 def test_push_into_the_wall_stops_at_the_margin(arm, request):
     """Asked to swing straight through the wall, the tip approaches it ever
     slower and stops at the margin: Drake's distance (and the hand formula)
