@@ -39,15 +39,28 @@ from drake_cfvol.algorithm.planning import plan_nominal_path
 from drake_cfvol.scene.workcell import load_workcell
 from drake_cfvol.systems import AddCoManipulation, CoManipulationConfig, RandomPushShaper
 
-__all__ = ["RealtimeBenchConfig", "TARGETS", "CELLS", "station", "run_case", "run_realtime_bench",
-           "realtime_targets", "realtime_markdown", "write_realtime_outputs"]
+__all__ = [
+    "RealtimeBenchConfig",
+    "TARGETS",
+    "CELLS",
+    "station",
+    "run_case",
+    "run_realtime_bench",
+    "realtime_targets",
+    "realtime_markdown",
+    "write_realtime_outputs",
+]
 
 #: The issue's targets at a 1 ms period, whole stack per step (s).
 TARGETS = {"median_s": 0.5e-3, "p99_s": 1.0e-3}
 
 #: Cell name -> workcell file (the mesh test robot's from the tests' data).
-CELLS = {"automotive": "automotive", "aerospace": "aerospace", "cobot": "cobot",
-         "mesh": str(Path(__file__).resolve().parents[1] / "tests" / "data" / "mesh_cell.yaml")}
+CELLS = {
+    "automotive": "automotive",
+    "aerospace": "aerospace",
+    "cobot": "cobot",
+    "mesh": str(Path(__file__).resolve().parents[1] / "tests" / "data" / "mesh_cell.yaml"),
+}
 
 
 @dataclasses.dataclass
@@ -99,6 +112,7 @@ class _Timers:
                 self.total[label] = self.total.get(label, 0.0) + dt - inner
                 if self._stack:
                     self._stack[-1] += dt
+
         return timed
 
     def count(self, label, n=1):
@@ -111,14 +125,16 @@ def _instrument(timers, cm):
     pairs. Returns an undo function."""
     from drake_cfvol.systems import admittance, bounds_source, human_input, safety
 
-    patches = [(admittance.AdmittanceDeformation_[float], "_update", "admittance"),
-               (admittance.AdmittanceDeformation_[float], "_calc_commanded", "admittance"),
-               (human_input.HumanInputCheck_[float], "_update", "input check"),
-               (human_input.HumanInputCheck_[float], "_torque", "input check"),
-               (human_input.HumanInputCheck_[float], "_wrench", "input check"),
-               (human_input.HumanInputCheck_[float], "plausible", "input check"),
-               (bounds_source.JointBoundsSource_[float], "_at", "bounds"),
-               (safety.SafetyFilter, "_update", "safety filter")]
+    patches = [
+        (admittance.AdmittanceDeformation_[float], "_update", "admittance"),
+        (admittance.AdmittanceDeformation_[float], "_calc_commanded", "admittance"),
+        (human_input.HumanInputCheck_[float], "_update", "input check"),
+        (human_input.HumanInputCheck_[float], "_torque", "input check"),
+        (human_input.HumanInputCheck_[float], "_wrench", "input check"),
+        (human_input.HumanInputCheck_[float], "plausible", "input check"),
+        (bounds_source.JointBoundsSource_[float], "_at", "bounds"),
+        (safety.SafetyFilter, "_update", "safety filter"),
+    ]
     saved = []
     for cls, name, label in patches:
         if name in cls.__dict__:
@@ -132,6 +148,7 @@ def _instrument(timers, cm):
     def undo():
         for cls, name, fn in saved:
             setattr(cls, name, fn)
+
     return undo
 
 
@@ -144,16 +161,19 @@ def _counters(timers):
         def counted(*args, **kwargs):
             timers.count("qp_solves")
             return fn(*args, **kwargs)
+
         return counted
 
     def pairs(fn):
         def counted(*args, **kwargs):
             rows = fn(*args, **kwargs)
             measured = getattr(rows, "measured", None)  # before the broad phase: every non-NaN distance
-            timers.count("distance_pairs", int(np.count_nonzero(~np.isnan(rows.distances) if measured is None
-                                                                else measured)))
+            timers.count(
+                "distance_pairs", int(np.count_nonzero(~np.isnan(rows.distances) if measured is None else measured))
+            )
             timers.count("rows", len(rows.b))
             return rows
+
         return counted
 
     try:  # the QP class of this checkout (StagedQP before the constraint interface)
@@ -173,9 +193,17 @@ def station(wc, table, *, period: float, push: str, torque: float, seed: int):
     plant.RegisterAsSourceForSceneGraph(sg)
     wc.add_to_plant(plant)
     plant.Finalize()
-    cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot=wc.robot_name, table=table,
-                           tool_frame=wc.tool_frame.name(), period=period, measured_state=False,
-                           config=CoManipulationConfig(velocity_limits=list(wc.velocity_limits)))
+    cm = AddCoManipulation(
+        builder,
+        plant=plant,
+        scene_graph=sg,
+        robot=wc.robot_name,
+        table=table,
+        tool_frame=wc.tool_frame.name(),
+        period=period,
+        measured_state=False,
+        config=CoManipulationConfig(velocity_limits=list(wc.velocity_limits)),
+    )
     to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
     builder.Connect(cm.commanded_position_output, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), sg.get_source_pose_port(plant.get_source_id()))
@@ -183,8 +211,9 @@ def station(wc, table, *, period: float, push: str, torque: float, seed: int):
     builder.Connect(builder.AddSystem(ConstantVectorSource(np.zeros(6))).get_output_port(), cm.human_wrench_input)
     if push == "steady":
         signs = np.random.default_rng(seed).choice([-1.0, 1.0], size=k)
-        builder.Connect(builder.AddSystem(ConstantVectorSource(torque * signs)).get_output_port(),
-                        cm.human_torque_input)
+        builder.Connect(
+            builder.AddSystem(ConstantVectorSource(torque * signs)).get_output_port(), cm.human_torque_input
+        )
     else:
         source = builder.AddSystem(RandomSource(RandomDistribution.kUniform, k + 1, sampling_interval_sec=0.5))
         shaper = builder.AddSystem(RandomPushShaper(k, probability=0.7, max_torque=torque))
@@ -217,23 +246,40 @@ def run_case(wc, table, *, period: float, push: str, updates: int, torque: float
                 per_step.setdefault(label, []).append(t - before.get(label, 0.0))
             dmin = min(dmin, float(cm.safety.min_distance_output.Eval(sctx)[0]))
             ratio = max(ratio, float(cm.safety.velocity_ratio_output.Eval(sctx)[0]))
-        status = {n: float(cm.safety.GetOutputPort(n).Eval(sctx)[0])
-                  for n in ("filter_count", "fallback_count", "damper_misses", "box_exits")}
+        status = {
+            n: float(cm.safety.GetOutputPort(n).Eval(sctx)[0])
+            for n in ("filter_count", "fallback_count", "damper_misses", "box_exits")
+        }
     finally:
         undo()
     updates = steps  # one filter update per step
-    return {"cell": wc.name, "period_s": period, "push": push, "seed": seed, "steps": steps,
-            "median_s": float(np.median(wall)), "p99_s": float(np.percentile(wall, 99)), "max_s": float(wall.max()),
-            "cpu_median_s": float(np.median(cpu)), "cpu_p99_s": float(np.percentile(cpu, 99)),
-            "per_system": {label: {"median_s": float(np.median(ts)), "p99_s": float(np.percentile(ts, 99)),
-                                   "max_s": float(np.max(ts))} for label, ts in per_step.items()},
-            "qp_solves_per_update": timers.counts.get("qp_solves", 0) / updates,
-            "distance_pairs_per_update": timers.counts.get("distance_pairs", 0) / updates,
-            "rows_per_update": timers.counts.get("rows", 0) / updates,
-            "num_pairs": cm.safety.num_pairs, "min_distance_m": dmin, "max_velocity_ratio": ratio,
-            "filter_active_share": status["filter_count"] / updates,
-            "fallbacks": status["fallback_count"], "damper_misses": status["damper_misses"],
-            "box_exits": status["box_exits"], "wall_per_sim_s": float(wall.sum()) / (steps * period)}
+    return {
+        "cell": wc.name,
+        "period_s": period,
+        "push": push,
+        "seed": seed,
+        "steps": steps,
+        "median_s": float(np.median(wall)),
+        "p99_s": float(np.percentile(wall, 99)),
+        "max_s": float(wall.max()),
+        "cpu_median_s": float(np.median(cpu)),
+        "cpu_p99_s": float(np.percentile(cpu, 99)),
+        "per_system": {
+            label: {"median_s": float(np.median(ts)), "p99_s": float(np.percentile(ts, 99)), "max_s": float(np.max(ts))}
+            for label, ts in per_step.items()
+        },
+        "qp_solves_per_update": timers.counts.get("qp_solves", 0) / updates,
+        "distance_pairs_per_update": timers.counts.get("distance_pairs", 0) / updates,
+        "rows_per_update": timers.counts.get("rows", 0) / updates,
+        "num_pairs": cm.safety.num_pairs,
+        "min_distance_m": dmin,
+        "max_velocity_ratio": ratio,
+        "filter_active_share": status["filter_count"] / updates,
+        "fallbacks": status["fallback_count"],
+        "damper_misses": status["damper_misses"],
+        "box_exits": status["box_exits"],
+        "wall_per_sim_s": float(wall.sum()) / (steps * period),
+    }
 
 
 def _cell(name: str, cfg: RealtimeBenchConfig):
@@ -250,13 +296,17 @@ def run_realtime_bench(cfg: RealtimeBenchConfig, *, progress: bool = True) -> di
         for period in cfg.periods:
             for push in cfg.pushes:
                 for seed in range(cfg.repeats):
-                    row = run_case(wc, table, period=period, push=push, updates=cfg.updates, torque=cfg.torque,
-                                   seed=seed)
+                    row = run_case(
+                        wc, table, period=period, push=push, updates=cfg.updates, torque=cfg.torque, seed=seed
+                    )
                     row["cell"] = name
                     runs.append(row)
                     if progress:
-                        print(f"{name} {period * 1e3:g} ms {push} seed {seed}: median {row['median_s'] * 1e3:.3f} "
-                              f"ms, p99 {row['p99_s'] * 1e3:.3f} ms, max {row['max_s'] * 1e3:.3f} ms", flush=True)
+                        print(
+                            f"{name} {period * 1e3:g} ms {push} seed {seed}: median {row['median_s'] * 1e3:.3f} "
+                            f"ms, p99 {row['p99_s'] * 1e3:.3f} ms, max {row['max_s'] * 1e3:.3f} ms",
+                            flush=True,
+                        )
     return {"config": dataclasses.asdict(cfg), "runs": runs, "summary": _summary(runs)}
 
 
@@ -268,23 +318,33 @@ def _summary(runs) -> list[dict]:
         rs = [r for r in runs if (r["cell"], r["period_s"], r["push"]) == (cell, period, push)]
         med = lambda f: statistics.median(f(r) for r in rs)  # noqa: E731
         labels = sorted({label for r in rs for label in r["per_system"]})
-        out.append({"cell": cell, "period_s": period, "push": push, "repeats": len(rs),
-                    "median_s": med(lambda r: r["median_s"]), "p99_s": med(lambda r: r["p99_s"]),
-                    "max_s": max(r["max_s"] for r in rs),
-                    "cpu_median_s": med(lambda r: r["cpu_median_s"]), "cpu_p99_s": med(lambda r: r["cpu_p99_s"]),
-                    "per_system_median_s": {lb: med(lambda r: r["per_system"].get(lb, {}).get("median_s", 0.0))
-                                            for lb in labels},
-                    "per_system_p99_s": {lb: med(lambda r: r["per_system"].get(lb, {}).get("p99_s", 0.0))
-                                         for lb in labels},
-                    "qp_solves_per_update": med(lambda r: r["qp_solves_per_update"]),
-                    "distance_pairs_per_update": med(lambda r: r["distance_pairs_per_update"]),
-                    "rows_per_update": med(lambda r: r["rows_per_update"]),
-                    "num_pairs": rs[0]["num_pairs"],
-                    "filter_active_share": med(lambda r: r["filter_active_share"]),
-                    "min_distance_m": min(r["min_distance_m"] for r in rs),
-                    "max_velocity_ratio": max(r["max_velocity_ratio"] for r in rs),
-                    "fallbacks": sum(r["fallbacks"] for r in rs), "damper_misses": sum(r["damper_misses"] for r in rs),
-                    "wall_per_sim_s": med(lambda r: r["wall_per_sim_s"])})
+        out.append(
+            {
+                "cell": cell,
+                "period_s": period,
+                "push": push,
+                "repeats": len(rs),
+                "median_s": med(lambda r: r["median_s"]),
+                "p99_s": med(lambda r: r["p99_s"]),
+                "max_s": max(r["max_s"] for r in rs),
+                "cpu_median_s": med(lambda r: r["cpu_median_s"]),
+                "cpu_p99_s": med(lambda r: r["cpu_p99_s"]),
+                "per_system_median_s": {
+                    lb: med(lambda r: r["per_system"].get(lb, {}).get("median_s", 0.0)) for lb in labels
+                },
+                "per_system_p99_s": {lb: med(lambda r: r["per_system"].get(lb, {}).get("p99_s", 0.0)) for lb in labels},
+                "qp_solves_per_update": med(lambda r: r["qp_solves_per_update"]),
+                "distance_pairs_per_update": med(lambda r: r["distance_pairs_per_update"]),
+                "rows_per_update": med(lambda r: r["rows_per_update"]),
+                "num_pairs": rs[0]["num_pairs"],
+                "filter_active_share": med(lambda r: r["filter_active_share"]),
+                "min_distance_m": min(r["min_distance_m"] for r in rs),
+                "max_velocity_ratio": max(r["max_velocity_ratio"] for r in rs),
+                "fallbacks": sum(r["fallbacks"] for r in rs),
+                "damper_misses": sum(r["damper_misses"] for r in rs),
+                "wall_per_sim_s": med(lambda r: r["wall_per_sim_s"]),
+            }
+        )
     return out
 
 
@@ -295,28 +355,42 @@ def realtime_targets(result: dict) -> list[tuple[str, bool, str]]:
         if abs(s["period_s"] - 1e-3) > 1e-12:
             continue
         met = s["median_s"] <= TARGETS["median_s"] and s["p99_s"] <= TARGETS["p99_s"]
-        out.append((f"{s['cell']} {s['push']} 1 ms", met,
-                    f"median {s['median_s'] * 1e3:.3f} ms (<= 0.5), p99 {s['p99_s'] * 1e3:.3f} ms (<= 1.0)"))
+        out.append(
+            (
+                f"{s['cell']} {s['push']} 1 ms",
+                met,
+                f"median {s['median_s'] * 1e3:.3f} ms (<= 0.5), p99 {s['p99_s'] * 1e3:.3f} ms (<= 1.0)",
+            )
+        )
     return out
 
 
 def realtime_markdown(result: dict, machine: dict | None = None) -> str:
     cfg = result["config"]
-    lines = ["# Control-rate benchmark", "",
-             f"The control stack alone on a kinematic station built with `AddCoManipulation` ({cfg['updates']} "
-             f"updates per run, {cfg['repeats']} seeded runs per row, medians over the runs; p99 is the median "
-             f"of the runs' p99s, max the largest step of any run; pushes {cfg['torque']:g} N m per joint). "
-             "Wall time per simulator step (one control update; and the step's CPU time, the thread's own, which "
-             "other work on a shared machine disturbs less), each system's own wall time per update, the filter's "
-             "QP solves and measured distance pairs per update. `cfvol bench --realtime` writes it; paired runs "
-             "against the code before the filter's rework: [before_after.md](before_after.md).", ""]
+    lines = [
+        "# Control-rate benchmark",
+        "",
+        f"The control stack alone on a kinematic station built with `AddCoManipulation` ({cfg['updates']} "
+        f"updates per run, {cfg['repeats']} seeded runs per row, medians over the runs; p99 is the median "
+        f"of the runs' p99s, max the largest step of any run; pushes {cfg['torque']:g} N m per joint). "
+        "Wall time per simulator step (one control update; and the step's CPU time, the thread's own, which "
+        "other work on a shared machine disturbs less), each system's own wall time per update, the filter's "
+        "QP solves and measured distance pairs per update. `cfvol bench --realtime` writes it; paired runs "
+        "against the code before the filter's rework: [before_after.md](before_after.md).",
+        "",
+    ]
     if machine:
-        lines += [f"Machine: {machine.get('cpu', '?')}, {machine.get('cores', '?')} cores, shared with other work "
-                  "while measured (timings are noisy).", ""]
+        lines += [
+            f"Machine: {machine.get('cpu', '?')}, {machine.get('cores', '?')} cores, shared with other work "
+            "while measured (timings are noisy).",
+            "",
+        ]
     labels = sorted({lb for s in result["summary"] for lb in s["per_system_median_s"]})
-    head = ("| cell | period | push | step median ms | p99 ms | max ms | CPU median ms | CPU p99 ms | "
-            + " | ".join(f"{lb} ms" for lb in labels)
-            + " | QP solves/upd | pairs/upd | rows/upd | active | min dist mm | v ratio | wall/sim s |")
+    head = (
+        "| cell | period | push | step median ms | p99 ms | max ms | CPU median ms | CPU p99 ms | "
+        + " | ".join(f"{lb} ms" for lb in labels)
+        + " | QP solves/upd | pairs/upd | rows/upd | active | min dist mm | v ratio | wall/sim s |"
+    )
     lines += [head, "|" + "---|" * (head.count("|") - 1)]
     for s in result["summary"]:
         sys_cols = " | ".join(f"{s['per_system_median_s'].get(lb, 0.0) * 1e3:.3f}" for lb in labels)
@@ -326,7 +400,8 @@ def realtime_markdown(result: dict, machine: dict | None = None) -> str:
             f"{s['cpu_p99_s'] * 1e3:.3f} | {sys_cols} | {s['qp_solves_per_update']:.2f} | "
             f"{s['distance_pairs_per_update']:.1f} / {s['num_pairs']} | {s['rows_per_update']:.1f} | "
             f"{s['filter_active_share']:.2f} | {s['min_distance_m'] * 1e3:.1f} | {s['max_velocity_ratio']:.3f} | "
-            f"{s['wall_per_sim_s']:.2f} |")
+            f"{s['wall_per_sim_s']:.2f} |"
+        )
     lines += ["", "## Targets at 1 ms (median <= 0.5 ms, p99 <= 1.0 ms per step)", ""]
     lines += [f"- {name}: {'met' if met else 'missed'} ({text})" for name, met, text in realtime_targets(result)]
     return "\n".join(lines) + "\n"

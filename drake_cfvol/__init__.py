@@ -33,9 +33,13 @@ The benchmark harness (the paper's tables) lives outside the library, in
 """
 
 from drake_cfvol._version import __version__
-
 from drake_cfvol.algorithm.certify import Certify
+from drake_cfvol.algorithm.metrics import CFResult, Freedom, confidence_factor, freedom
+from drake_cfvol.algorithm.pipeline import estimate_bounds
+from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
+from drake_cfvol.algorithm.table import BoundsTable
 from drake_cfvol.exceptions import (
+    BatchError,
     CfvolError,
     CollisionError,
     ConfigurationError,
@@ -49,7 +53,6 @@ from drake_cfvol.exceptions import (
     PlanningError,
     RecordFormatError,
     ScenarioError,
-    BatchError,
     SingularityError,
     StationError,
     UnknownCellError,
@@ -57,20 +60,44 @@ from drake_cfvol.exceptions import (
     WorkcellFileNotFoundError,
     WorkcellFormatError,
 )
-from drake_cfvol.algorithm.metrics import CFResult, Freedom, confidence_factor, freedom
 from drake_cfvol.scene.params import VolumeParams
-from drake_cfvol.algorithm.pipeline import estimate_bounds
-from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
-from drake_cfvol.algorithm.table import BoundsTable
 from drake_cfvol.scene.urdf import AddModels
 from drake_cfvol.scene.workcell import Workcell, builtin_cells, load_workcell
 
 __all__ = [
     "__version__",
-    "CfvolError", "CollisionError", "ConfigurationError", "DimensionError", "JointLimitError",
-    "MissingJointLimitsError", "ParameterError", "PlanningError", "SingularityError",
-    "UnknownCellError", "WorkcellError", "WorkcellFileNotFoundError", "WorkcellFormatError", "FileError",
-    "RecordFormatError", "OutputExistsError", "OutputPathError", "ScenarioError", "BatchError",
-    "StationError", "NominalPath", "plan_nominal_path", "Workcell", "AddModels", "builtin_cells", "load_workcell",
-    "BoundsTable", "estimate_bounds", "Certify", "VolumeParams", "CFResult", "Freedom", "confidence_factor", "freedom",
+    "CfvolError",
+    "CollisionError",
+    "ConfigurationError",
+    "DimensionError",
+    "JointLimitError",
+    "MissingJointLimitsError",
+    "ParameterError",
+    "PlanningError",
+    "SingularityError",
+    "UnknownCellError",
+    "WorkcellError",
+    "WorkcellFileNotFoundError",
+    "WorkcellFormatError",
+    "FileError",
+    "RecordFormatError",
+    "OutputExistsError",
+    "OutputPathError",
+    "ScenarioError",
+    "BatchError",
+    "StationError",
+    "NominalPath",
+    "plan_nominal_path",
+    "Workcell",
+    "AddModels",
+    "builtin_cells",
+    "load_workcell",
+    "BoundsTable",
+    "estimate_bounds",
+    "Certify",
+    "VolumeParams",
+    "CFResult",
+    "Freedom",
+    "confidence_factor",
+    "freedom",
 ]

@@ -38,7 +38,8 @@ class WorkcellFileNotFoundError(UnknownCellError):
         CfvolError.__init__(
             self,
             f"workcell file '{path}' does not exist. Check the path (relative paths start from the current "
-            f"folder), or use a built-in cell: {', '.join(self.known)}.")
+            f"folder), or use a built-in cell: {', '.join(self.known)}.",
+        )
 
 
 class WorkcellFormatError(WorkcellError):
@@ -108,8 +109,7 @@ class CollisionError(ConfigurationError):
         self.pairs = list(pairs)
         listed = ", ".join(f"{a} <-> {b}" for a, b in self.pairs) or "(unknown bodies)"
         super().__init__(
-            f"{what} is in collision: {listed}. Choose a collision-free "
-            "configuration or move the obstacle."
+            f"{what} is in collision: {listed}. Choose a collision-free configuration or move the obstacle."
         )
 
 
@@ -134,8 +134,10 @@ class RecordFormatError(FileError, ValueError):
 
     def __init__(self, path, what: str, reason: str):
         self.path = str(path)
-        super().__init__(f"cannot read {what} file '{path}': {reason}. Expected a file written by drake_cfvol "
-                         f"({what} .npz or .json); write it again with its save() or the cfvol command.")
+        super().__init__(
+            f"cannot read {what} file '{path}': {reason}. Expected a file written by drake_cfvol "
+            f"({what} .npz or .json); write it again with its save() or the cfvol command."
+        )
 
 
 class OutputExistsError(FileError, FileExistsError):

@@ -77,8 +77,20 @@ def box_stl_bytes(size, centre=(0, 0, 0)) -> bytes:
     sx, sy, sz = (s / 2 for s in size)
     cx, cy, cz = centre
     v = np.array([[x, y, z] for x in (-sx, sx) for y in (-sy, sy) for z in (-sz, sz)]) + [cx, cy, cz]
-    faces = [(0, 1, 3), (0, 3, 2), (4, 6, 7), (4, 7, 5), (0, 4, 5), (0, 5, 1),
-             (2, 3, 7), (2, 7, 6), (0, 2, 6), (0, 6, 4), (1, 5, 7), (1, 7, 3)]
+    faces = [
+        (0, 1, 3),
+        (0, 3, 2),
+        (4, 6, 7),
+        (4, 7, 5),
+        (0, 4, 5),
+        (0, 5, 1),
+        (2, 3, 7),
+        (2, 7, 6),
+        (0, 2, 6),
+        (0, 6, 4),
+        (1, 5, 7),
+        (1, 7, 3),
+    ]
     out = bytearray(b"\0" * 80) + struct.pack("<I", len(faces))
     for f in faces:
         out += struct.pack("<3f", 0, 0, 0)
@@ -113,14 +125,19 @@ def write_arm_cell(
     pkg = folder / "toy_description"
     (pkg / "urdf").mkdir(parents=True, exist_ok=True)
     (pkg / "meshes").mkdir(exist_ok=True)
-    (pkg / "package.xml").write_text(textwrap.dedent("""\
+    (pkg / "package.xml").write_text(
+        textwrap.dedent("""\
         <?xml version="1.0"?>
         <package format="2"><name>toy_description</name><version>0.0.1</version>
         <description>test arm</description><maintainer email="a@b.c">t</maintainer>
         <license>BSD</license></package>
-        """))
-    parts = ['<?xml version="1.0"?>', '<robot name="toy">',
-             '<link name="base"><collision><origin xyz="0 0 -0.05"/><geometry><box size="0.2 0.2 0.1"/></geometry></collision></link>']
+        """)
+    )
+    parts = [
+        '<?xml version="1.0"?>',
+        '<robot name="toy">',
+        '<link name="base"><collision><origin xyz="0 0 -0.05"/><geometry><box size="0.2 0.2 0.1"/></geometry></collision></link>',
+    ]
     parent = "base"
     x_prev = 0.0
     for i, ln in enumerate(links, start=1):
@@ -130,17 +147,23 @@ def write_arm_cell(
             geom = f'<origin xyz="0 0 0"/><geometry><mesh filename="package://toy_description/meshes/link{i}.stl"/></geometry>'
         else:
             geom = f'<origin xyz="{L / 2} 0 0"/><geometry><box size="{L} {2 * w} {2 * w}"/></geometry>'
-        parts.append(f'<link name="link{i}"><inertial><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial>'
-                     f'<visual>{geom}</visual><collision>{geom}</collision></link>')
+        parts.append(
+            f'<link name="link{i}"><inertial><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial>'
+            f"<visual>{geom}</visual><collision>{geom}</collision></link>"
+        )
         if ln.get("lower") is None:
             jt, lim = "continuous", '<limit velocity="1" effort="1"/>'
         else:
             jt, lim = "revolute", f'<limit lower="{ln["lower"]}" upper="{ln["upper"]}" velocity="1" effort="1"/>'
-        parts.append(f'<joint name="joint{i}" type="{jt}"><parent link="{parent}"/><child link="link{i}"/>'
-                     f'<origin xyz="{x_prev} 0 0"/><axis xyz="0 0 1"/>{lim}</joint>')
+        parts.append(
+            f'<joint name="joint{i}" type="{jt}"><parent link="{parent}"/><child link="link{i}"/>'
+            f'<origin xyz="{x_prev} 0 0"/><axis xyz="0 0 1"/>{lim}</joint>'
+        )
         parent, x_prev = f"link{i}", L
-    parts.append(f'<link name="tool"/><joint name="tool_joint" type="fixed"><parent link="{parent}"/>'
-                 f'<child link="tool"/><origin xyz="{x_prev} 0 0"/></joint>')
+    parts.append(
+        f'<link name="tool"/><joint name="tool_joint" type="fixed"><parent link="{parent}"/>'
+        f'<child link="tool"/><origin xyz="{x_prev} 0 0"/></joint>'
+    )
     parts.append("</robot>")
     (pkg / "urdf" / "toy.urdf").write_text("\n".join(parts))
 
@@ -150,20 +173,30 @@ def write_arm_cell(
     sdf = ['<?xml version="1.0"?><sdf version="1.9"><model name="scene"><static>true</static>']
     for name, (size, centre) in obs.items():
         s = " ".join(map(str, size))
-        sdf.append(f'<link name="{name}"><pose>{" ".join(map(str, centre))} 0 0 0</pose>'
-                   f'<collision name="c"><geometry><box><size>{s}</size></box></geometry></collision></link>')
+        sdf.append(
+            f'<link name="{name}"><pose>{" ".join(map(str, centre))} 0 0 0</pose>'
+            f'<collision name="c"><geometry><box><size>{s}</size></box></geometry></collision></link>'
+        )
     sdf.append("</model></sdf>")
     (folder / "scene.sdf").write_text("\n".join(sdf))
-    cfvol = {"robot": "toy", "tool_frame": "tool", "base_frame": "base", "reach": 3.0,
-             "package_paths": {"toy_description": "toy_description"},
-             "height_map": {"origin": [-3.0, -3.0], "size": [6.0, 6.0]},
-             "configurations": configurations or {}}
+    cfvol = {
+        "robot": "toy",
+        "tool_frame": "tool",
+        "base_frame": "base",
+        "reach": 3.0,
+        "package_paths": {"toy_description": "toy_description"},
+        "height_map": {"origin": [-3.0, -3.0], "size": [6.0, 6.0]},
+        "configurations": configurations or {},
+    }
     cfvol.update(cfvol_extra or {})
-    doc = {"directives": [
-        {"add_model": {"name": "toy", "file": "package://toy_description/urdf/toy.urdf"}},
-        {"add_weld": {"parent": "world", "child": "toy::base", "X_PC": {"translation": [0.0, 0.0, base_z]}}},
-        {"add_model": {"name": "scene", "file": "scene.sdf"}},
-    ], "cfvol": cfvol}
+    doc = {
+        "directives": [
+            {"add_model": {"name": "toy", "file": "package://toy_description/urdf/toy.urdf"}},
+            {"add_weld": {"parent": "world", "child": "toy::base", "X_PC": {"translation": [0.0, 0.0, base_z]}}},
+            {"add_model": {"name": "scene", "file": "scene.sdf"}},
+        ],
+        "cfvol": cfvol,
+    }
     path = folder / "toy_cell.yaml"
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
     return path

@@ -1,10 +1,10 @@
 """Adversarial pushes: sign patterns and run summaries."""
 
 import numpy as np
+from conftest import write_arm_cell
 
 import drake_cfvol as cf
 from drake_cfvol.comanip.adversarial import nearest_obstacle_signs, summarize_runs
-from conftest import write_arm_cell
 
 
 def _post_distance(wc, q):
@@ -17,10 +17,17 @@ def test_nearest_obstacle_signs_push_toward_the_post(tmp_path):
     distance to the post by Drake shrink for a small step along them and
     grow for a step against them (a finite difference, independent of the
     gradient the signs came from)."""
-    wc = cf.load_workcell(write_arm_cell(
-        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
-                         {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8}],
-        obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))}, base_z=0.5))
+    wc = cf.load_workcell(
+        write_arm_cell(
+            tmp_path,
+            links=[
+                {"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
+                {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8},
+            ],
+            obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))},
+            base_z=0.5,
+        )
+    )
     q = np.zeros(2)
     signs = nearest_obstacle_signs(wc, q)
     assert set(np.unique(signs)) <= {-1.0, 1.0}
@@ -29,19 +36,39 @@ def test_nearest_obstacle_signs_push_toward_the_post(tmp_path):
 
 
 def _row(cell, seed, *, on=True, collisions=0, clearance=0.03, ratio=0.5, pattern="random"):
-    return {"cell": cell, "seed": seed, "pattern": pattern, "certify": False, "safety_filter": on,
-            "margin_m": 0.02, "collisions": collisions, "drake_colliding_updates": 0,
-            "min_clearance_m": clearance, "nominal_min_clearance_m": 0.05, "worst_shortfall_m": 0.02 - clearance,
-            "margin_kept": clearance >= 0.018, "max_velocity_ratio": ratio, "filter_steps": seed,
-            "filter_damper_misses": 0, "filter_box_exits": 0, "max_bound_violation": 0.0, "filter_fallbacks": 0,
-            "max_deviation": 0.1 * (seed + 1), "sim_wall_s": 1.0}
+    return {
+        "cell": cell,
+        "seed": seed,
+        "pattern": pattern,
+        "certify": False,
+        "safety_filter": on,
+        "margin_m": 0.02,
+        "collisions": collisions,
+        "drake_colliding_updates": 0,
+        "min_clearance_m": clearance,
+        "nominal_min_clearance_m": 0.05,
+        "worst_shortfall_m": 0.02 - clearance,
+        "margin_kept": clearance >= 0.018,
+        "max_velocity_ratio": ratio,
+        "filter_steps": seed,
+        "filter_damper_misses": 0,
+        "filter_box_exits": 0,
+        "max_bound_violation": 0.0,
+        "filter_fallbacks": 0,
+        "max_deviation": 0.1 * (seed + 1),
+        "sim_wall_s": 1.0,
+    }
 
 
 def test_summary_by_hand():
     """Rows group by cell, pattern, certification, filter and margin; the
     counts, extremes and medians are those of the rows."""
-    rows = [_row("a", 0), _row("a", 1, collisions=3, clearance=-0.01, ratio=0.9), _row("a", 2, on=False),
-            _row("a", 3, pattern="nearest")]
+    rows = [
+        _row("a", 0),
+        _row("a", 1, collisions=3, clearance=-0.01, ratio=0.9),
+        _row("a", 2, on=False),
+        _row("a", 3, pattern="nearest"),
+    ]
     out = {(s["pattern"], s["safety_filter"]): s for s in summarize_runs(rows)}
     assert set(out) == {("random", True), ("random", False), ("nearest", True)}
     on = out[("random", True)]

@@ -56,17 +56,17 @@ def _import_graph(package: Path = PACKAGE) -> dict[str, set[str]]:
             if isinstance(node, ast.ImportFrom):
                 if node.level:
                     base = package.split(".") if package else []
-                    base = base[:len(base) - (node.level - 1)] if node.level > 1 else base
+                    base = base[: len(base) - (node.level - 1)] if node.level > 1 else base
                     root = ".".join(base + ([node.module] if node.module else []))
                 elif node.module == "drake_cfvol":
                     root = ""
                 elif (node.module or "").startswith("drake_cfvol."):
-                    root = node.module[len("drake_cfvol."):]
+                    root = node.module[len("drake_cfvol.") :]
                 else:
                     continue
                 names = [f"{root}.{a.name}" if root else a.name for a in node.names] + ([root] if root else [])
             elif isinstance(node, ast.Import):
-                names = [a.name[len("drake_cfvol."):] for a in node.names if a.name.startswith("drake_cfvol.")]
+                names = [a.name[len("drake_cfvol.") :] for a in node.names if a.name.startswith("drake_cfvol.")]
             for n in names:
                 target = _resolve(n, modules)
                 if target and target != m:
@@ -88,7 +88,7 @@ def _find_cycle(graph):
         stack.append(u)
         for v in sorted(graph[u]):
             if state.get(v) == 1:
-                return stack[stack.index(v):] + [v]
+                return stack[stack.index(v) :] + [v]
             if v not in state:
                 found = visit(v)
                 if found:
@@ -166,26 +166,41 @@ def test_layer_check_catches_a_planted_upward_import(tmp_path):
     importing a system (inside a function, relatively, or by ``import``)
     and a base module importing the package are caught; a system importing
     the algorithm, a module importing its own layer or the base, are not."""
-    package = _plant_tree(tmp_path, {
-        "exceptions.py": "from drake_cfvol.io import records\n",
-        "io/records.py": "X = 1\n",
-        "algorithm/certify.py": "def f():\n    from drake_cfvol.systems.safety import SafetyFilter\n",
-        "algorithm/sweep.py": "from ..comanip import run\nfrom drake_cfvol.algorithm import certify\n",
-        "algorithm/table.py": "import drake_cfvol.apps.cli\nfrom drake_cfvol.io.records import X\n",
-        "systems/safety.py": "from drake_cfvol.algorithm.certify import f\nfrom drake_cfvol.exceptions import E\n",
-        "comanip/run.py": "", "apps/cli.py": ""})
+    package = _plant_tree(
+        tmp_path,
+        {
+            "exceptions.py": "from drake_cfvol.io import records\n",
+            "io/records.py": "X = 1\n",
+            "algorithm/certify.py": "def f():\n    from drake_cfvol.systems.safety import SafetyFilter\n",
+            "algorithm/sweep.py": "from ..comanip import run\nfrom drake_cfvol.algorithm import certify\n",
+            "algorithm/table.py": "import drake_cfvol.apps.cli\nfrom drake_cfvol.io.records import X\n",
+            "systems/safety.py": "from drake_cfvol.algorithm.certify import f\nfrom drake_cfvol.exceptions import E\n",
+            "comanip/run.py": "",
+            "apps/cli.py": "",
+        },
+    )
     assert _upward_imports(_import_graph(package)) == [
-        ("algorithm.certify", "systems.safety"), ("algorithm.sweep", "comanip"), ("algorithm.sweep", "comanip.run"),
-        ("algorithm.table", "apps.cli"), ("exceptions", "io"), ("exceptions", "io.records")]
+        ("algorithm.certify", "systems.safety"),
+        ("algorithm.sweep", "comanip"),
+        ("algorithm.sweep", "comanip.run"),
+        ("algorithm.table", "apps.cli"),
+        ("exceptions", "io"),
+        ("exceptions", "io.records"),
+    ]
 
 
 def test_cycle_check_catches_a_planted_cycle(tmp_path):
     """The import graph of a planted tree whose modules import each other
     in a ring (one import inside a function, one relative) has that cycle."""
-    package = _plant_tree(tmp_path, {
-        "scene/a.py": "from drake_cfvol.scene.b import B\n",
-        "scene/b.py": "def g():\n    import drake_cfvol.scene.c\n",
-        "scene/c.py": "from . import a\n", "scene/d.py": "from drake_cfvol.scene import a\n"})
+    package = _plant_tree(
+        tmp_path,
+        {
+            "scene/a.py": "from drake_cfvol.scene.b import B\n",
+            "scene/b.py": "def g():\n    import drake_cfvol.scene.c\n",
+            "scene/c.py": "from . import a\n",
+            "scene/d.py": "from drake_cfvol.scene import a\n",
+        },
+    )
     assert _find_cycle(_import_graph(package)) == ["scene.a", "scene.b", "scene.c", "scene.a"]
 
 
@@ -213,8 +228,13 @@ def test_public_api_and_readme_paths_import():
     shows (systems, exceptions, comanip, kernel) still import."""
     for name in cf.__all__:
         assert hasattr(cf, name), name
-    for mod, attr in (("systems", "JointBoundsSource"), ("systems", "SafetyFilter"), ("exceptions", "CfvolError"),
-                      ("comanip", "run_scenario"), ("kernel", "warm_up")):
+    for mod, attr in (
+        ("systems", "JointBoundsSource"),
+        ("systems", "SafetyFilter"),
+        ("exceptions", "CfvolError"),
+        ("comanip", "run_scenario"),
+        ("kernel", "warm_up"),
+    ):
         assert hasattr(importlib.import_module(f"drake_cfvol.{mod}"), attr), (mod, attr)
 
 
@@ -264,8 +284,10 @@ def test_size_report_sees_planted_long_function():
         pkg = Path(d) / "pkg"
         pkg.mkdir()
         body = "\n".join(f"    x{i} = {i}" for i in range(90))
-        (pkg / "m.py").write_text(f"def long():\n{body}\n\n\nfrom numba import njit\n\n\n@njit\n"
-                                  f"def many({', '.join(f'a{i}' for i in range(13))}):\n    return a0\n")
+        (pkg / "m.py").write_text(
+            f"def long():\n{body}\n\n\nfrom numba import njit\n\n\n@njit\n"
+            f"def many({', '.join(f'a{i}' for i in range(13))}):\n    return a0\n"
+        )
         short = "\n".join(f"    y{i} = {i}" for i in range(79))
         (pkg / "ok.py").write_text(f"def short():\n{short}\n")
         planted = tool.violations(pkg)

@@ -24,8 +24,9 @@ settings:
 def _same(a, b):
     """Two job results agree in everything but where and how fast they ran."""
     skip = {"worker", "time_ms", "timing_ms", "cf_ms", "job_ms", "certify_ms"}
-    assert {k: v for k, v in a.summary.items() if k not in skip} == {k: v for k, v in b.summary.items()
-                                                                      if k not in skip}
+    assert {k: v for k, v in a.summary.items() if k not in skip} == {
+        k: v for k, v in b.summary.items() if k not in skip
+    }
     for name in ("lower", "upper", "nominal", "stretch_lower", "stretch_upper", "rate"):
         np.testing.assert_array_equal(getattr(a.table, name), getattr(b.table, name))
 
@@ -34,21 +35,31 @@ def test_jobs_expand_cells_paths_settings_in_order():
     """Every cell x path x setting is a job, numbered in that order, with its own file stem."""
     jobs, _ = load_jobs(text=SMALL)
     todo = expand_jobs(jobs)
-    assert [(j.path, j.setting.label) for j in todo] == [("path1", "R100-c0"), ("path1", "fine"),
-                                                          ("path2", "R100-c0"), ("path2", "fine")]
+    assert [(j.path, j.setting.label) for j in todo] == [
+        ("path1", "R100-c0"),
+        ("path1", "fine"),
+        ("path2", "R100-c0"),
+        ("path2", "fine"),
+    ]
     assert [j.index for j in todo] == [0, 1, 2, 3]
     assert len({j.stem for j in todo}) == 4
 
 
-@pytest.mark.parametrize("text, field, words", [
-    ("cells: [automotive]\nsettings: [{resolutoin: 10}]", "settings item 1: resolutoin", "known fields"),
-    ("cells: [automotive]\nsettings: [{resolution: many}]", "settings item 1: resolution", "an integer"),
-    ("cells: []", "cells", "at least one cell"),
-    ("cells: [automotive]\nsettings: [{resolution: 0}]", "settings item 1: resolution", ">= 1"),
-    ("cells: [automotive]\nsettings: [{epsilon: 2}]", "settings item 1: epsilon", "(0, 1)"),
-    ("cells: [automotive]\nsettings: [{resolution: 100}, {resolution: 100}]", "settings item 2: name",
-     "its own name"),
-])
+@pytest.mark.parametrize(
+    "text, field, words",
+    [
+        ("cells: [automotive]\nsettings: [{resolutoin: 10}]", "settings item 1: resolutoin", "known fields"),
+        ("cells: [automotive]\nsettings: [{resolution: many}]", "settings item 1: resolution", "an integer"),
+        ("cells: []", "cells", "at least one cell"),
+        ("cells: [automotive]\nsettings: [{resolution: 0}]", "settings item 1: resolution", ">= 1"),
+        ("cells: [automotive]\nsettings: [{epsilon: 2}]", "settings item 1: epsilon", "(0, 1)"),
+        (
+            "cells: [automotive]\nsettings: [{resolution: 100}, {resolution: 100}]",
+            "settings item 2: name",
+            "its own name",
+        ),
+    ],
+)
 def test_bad_jobs_file_names_the_field(text, field, words):
     """A wrong field, type or value raises BatchError naming the field and the fix."""
     with pytest.raises(cf.BatchError) as e:
@@ -139,8 +150,10 @@ def test_cli_batch_on_a_local_cluster_equals_serial(tmp_path, capsys):
     b = json.loads((tmp_path / "serial" / "results.json").read_text())
     skip = {"worker", "time_ms", "timing_ms", "cf_ms", "job_ms", "bounds_file"}
     assert [{k: v for k, v in r.items() if k not in skip} for r in a] == [
-        {k: v for k, v in r.items() if k not in skip} for r in b]
+        {k: v for k, v in r.items() if k not in skip} for r in b
+    ]
     assert len({r["worker"] for r in a}) >= 1
     for r, s in zip(a, b):
-        np.testing.assert_array_equal(cf.BoundsTable.load(r["bounds_file"]).lower,
-                                      cf.BoundsTable.load(s["bounds_file"]).lower)
+        np.testing.assert_array_equal(
+            cf.BoundsTable.load(r["bounds_file"]).lower, cf.BoundsTable.load(s["bounds_file"]).lower
+        )

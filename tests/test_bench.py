@@ -10,9 +10,19 @@ from benchmarks.harness import PAPER, BenchConfig, markdown, run_bench, write_ou
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
-    cfg = BenchConfig(cells=["automotive"], paths=["path1"], resolutions=[100, 500], trials=2, cf_windows=3,
-                      cf_samples=100, reference_resolutions=[], iris=False, certify_resolutions=[], adversarial_runs=0,
-                      engine=False)
+    cfg = BenchConfig(
+        cells=["automotive"],
+        paths=["path1"],
+        resolutions=[100, 500],
+        trials=2,
+        cf_windows=3,
+        cf_samples=100,
+        reference_resolutions=[],
+        iris=False,
+        certify_resolutions=[],
+        adversarial_runs=0,
+        engine=False,
+    )
     result = run_bench(cfg, progress=False)
     out = tmp_path_factory.mktemp("bench")
     return result, write_outputs(result, out)
@@ -23,8 +33,10 @@ def test_rows_hold_paper_and_ours(tiny):
     and paper / ours is the ratio of the two medians."""
     result, _ = tiny
     rows = result["rows"]
-    assert [(r["cell"], r["path"], r["resolution"]) for r in rows] == [("automotive", "path1", 100),
-                                                                        ("automotive", "path1", 500)]
+    assert [(r["cell"], r["path"], r["resolution"]) for r in rows] == [
+        ("automotive", "path1", 100),
+        ("automotive", "path1", 500),
+    ]
     for r in rows:
         t, c = PAPER[("automotive", "path1")][r["resolution"]]
         assert r["paper_time_ms"] == t and r["paper_cf_percent"] == c
@@ -76,9 +88,19 @@ def test_clock_uses_measured_time_of_a_kind(monkeypatch):
     estimated by its measured time, not by the prior."""
     import benchmarks.harness as B
 
-    cfg = BenchConfig(cells=["automotive"], paths=["path1"], resolutions=[100], trials=3, cf_windows=1,
-                      cf_samples=1, reference_resolutions=[], iris=False, certify_resolutions=[], adversarial_runs=0,
-                      engine=False)
+    cfg = BenchConfig(
+        cells=["automotive"],
+        paths=["path1"],
+        resolutions=[100],
+        trials=3,
+        cf_windows=1,
+        cf_samples=1,
+        reference_resolutions=[],
+        iris=False,
+        certify_resolutions=[],
+        adversarial_runs=0,
+        engine=False,
+    )
     now = [100.0]
     monkeypatch.setattr(B.time, "perf_counter", lambda: now[0])
     clock = B._BenchClock(cfg, enabled=False, tick_s=3600)
@@ -107,8 +129,12 @@ def test_adversarial_suite_on_automotive():
 
     sec = adversarial_suite("automotive", 1, ["random"])
     rows = sec["rows"]
-    assert sorted((r["certify"], r["safety_filter"]) for r in rows) == [(False, False), (False, True),
-                                                                        (True, False), (True, True)]
+    assert sorted((r["certify"], r["safety_filter"]) for r in rows) == [
+        (False, False),
+        (False, True),
+        (True, False),
+        (True, True),
+    ]
     for r in rows:
         if r["safety_filter"]:
             assert r["collisions"] == 0 and r["drake_colliding_updates"] == 0
@@ -121,16 +147,40 @@ def test_adversarial_suite_on_automotive():
 
 def _section(corners_bad=0, collisions=0, ratio=0.9, kept=2):
     def summ(certify, on, dev):
-        return {"cell": "automotive", "pattern": "random", "certify": certify, "safety_filter": on, "margin_m": 0.02,
-                "runs": 2, "runs_with_collisions": collisions if on else 1, "runs_margin_kept": kept,
-                "min_clearance_m": 0.019, "nominal_min_clearance_m": 0.05, "worst_shortfall_m": 0.001,
-                "max_velocity_ratio": ratio, "filter_steps_median": 3.0, "median_mean_deviation": dev,
-                "max_deviation": 0.4}
-    b = {"positions": 3, "corners": 192, "corners_colliding": corners_bad, "edge_points": 192, "edges_colliding": 0,
-         "clearance": 0.019}
-    return {"cell": "automotive", "clearance_m": 0.02, "freedom": {"certified": 0.3, "uncertified": 0.5},
-            "boundary": {"certified": b, "uncertified": dict(b, corners_colliding=50)},
-            "summary": [summ(True, True, 0.1), summ(True, False, 0.2), summ(False, True, 0.15)], "rows": []}
+        return {
+            "cell": "automotive",
+            "pattern": "random",
+            "certify": certify,
+            "safety_filter": on,
+            "margin_m": 0.02,
+            "runs": 2,
+            "runs_with_collisions": collisions if on else 1,
+            "runs_margin_kept": kept,
+            "min_clearance_m": 0.019,
+            "nominal_min_clearance_m": 0.05,
+            "worst_shortfall_m": 0.001,
+            "max_velocity_ratio": ratio,
+            "filter_steps_median": 3.0,
+            "median_mean_deviation": dev,
+            "max_deviation": 0.4,
+        }
+
+    b = {
+        "positions": 3,
+        "corners": 192,
+        "corners_colliding": corners_bad,
+        "edge_points": 192,
+        "edges_colliding": 0,
+        "clearance": 0.019,
+    }
+    return {
+        "cell": "automotive",
+        "clearance_m": 0.02,
+        "freedom": {"certified": 0.3, "uncertified": 0.5},
+        "boundary": {"certified": b, "uncertified": dict(b, corners_colliding=50)},
+        "summary": [summ(True, True, 0.1), summ(True, False, 0.2), summ(False, True, 0.15)],
+        "rows": [],
+    }
 
 
 def test_adversarial_targets_by_hand():
@@ -156,20 +206,74 @@ def test_kernel_targets_say_met_or_by_how_much_missed():
     from benchmarks.kernel import kernel_targets
 
     result = {
-        "throughput": [{"cell": "a", "path": "path1", "kernel_per_s": 4.0e6, "drake_per_s": 4.0e4, "ratio": 100.0,
-                        "fk_per_s": 8.0e6, "fk_ratio": 200.0, "fk_one_at_a_time_per_s": 1.6e6,
-                        "fk_blocks_over_one_at_a_time": 5.0},
-                       {"cell": "b", "path": "path2", "kernel_per_s": 4.0e5, "drake_per_s": 5.0e4, "ratio": 8.0,
-                        "fk_per_s": 2.0e6, "fk_ratio": 40.0, "fk_one_at_a_time_per_s": 1.0e6,
-                        "fk_blocks_over_one_at_a_time": 2.0}],
-        "bounding": [{"cell": "a", "path": "path1", "resolution": 100, "time_ms": 8.0, "paper_ms": 82,
-                      "paper_over_ours": 10.25, "region_tests": 100, "us_per_test": 80.0},
-                     {"cell": "a", "path": "path1", "resolution": 20000, "time_ms": 574.5, "paper_ms": 1149,
-                      "paper_over_ours": 2.0, "region_tests": 14000, "us_per_test": 41.0}],
-        "certify": [{"cell": "a", "path": "path1", "certify_ms": 5000.0, "certify_region_tests": 10,
-                     "certify_samples": 20, "certify_n_samples": 5, "certify_shrinks": 1}],
-        "cf": [{"cell": "a", "path": "path1", "samples": 300000, "seconds": 0.25, "drake_checked": 10, "percent": 99.0,
-                "drake_floor_s": 0.01}],
+        "throughput": [
+            {
+                "cell": "a",
+                "path": "path1",
+                "kernel_per_s": 4.0e6,
+                "drake_per_s": 4.0e4,
+                "ratio": 100.0,
+                "fk_per_s": 8.0e6,
+                "fk_ratio": 200.0,
+                "fk_one_at_a_time_per_s": 1.6e6,
+                "fk_blocks_over_one_at_a_time": 5.0,
+            },
+            {
+                "cell": "b",
+                "path": "path2",
+                "kernel_per_s": 4.0e5,
+                "drake_per_s": 5.0e4,
+                "ratio": 8.0,
+                "fk_per_s": 2.0e6,
+                "fk_ratio": 40.0,
+                "fk_one_at_a_time_per_s": 1.0e6,
+                "fk_blocks_over_one_at_a_time": 2.0,
+            },
+        ],
+        "bounding": [
+            {
+                "cell": "a",
+                "path": "path1",
+                "resolution": 100,
+                "time_ms": 8.0,
+                "paper_ms": 82,
+                "paper_over_ours": 10.25,
+                "region_tests": 100,
+                "us_per_test": 80.0,
+            },
+            {
+                "cell": "a",
+                "path": "path1",
+                "resolution": 20000,
+                "time_ms": 574.5,
+                "paper_ms": 1149,
+                "paper_over_ours": 2.0,
+                "region_tests": 14000,
+                "us_per_test": 41.0,
+            },
+        ],
+        "certify": [
+            {
+                "cell": "a",
+                "path": "path1",
+                "certify_ms": 5000.0,
+                "certify_region_tests": 10,
+                "certify_samples": 20,
+                "certify_n_samples": 5,
+                "certify_shrinks": 1,
+            }
+        ],
+        "cf": [
+            {
+                "cell": "a",
+                "path": "path1",
+                "samples": 300000,
+                "seconds": 0.25,
+                "drake_checked": 10,
+                "percent": 99.0,
+                "drake_floor_s": 0.01,
+            }
+        ],
         "compile": {"seconds": 60.0, "eta_error": {"25%": 0.1, "50%": 0.4}},
     }
     got = {name: (ok, text) for name, ok, text in kernel_targets(result)}

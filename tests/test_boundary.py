@@ -2,11 +2,11 @@
 
 import numpy as np
 import pytest
+from conftest import write_arm_cell
 
 import drake_cfvol as cf
 from drake_cfvol.algorithm import boundary as B
 from drake_cfvol.algorithm import cuts as C
-from conftest import write_arm_cell
 
 
 @pytest.fixture(scope="module")
@@ -15,11 +15,17 @@ def corner(tmp_path_factory):
     floor) straight along x at (0, 0) rad, and a 0.3 m post at (1.15, 1.0):
     the nominal keeps 0.45 m from the floor and 0.8 m from the post. At the
     corner (0.4, 0.8) rad link 2 reaches into the post."""
-    wc = cf.load_workcell(write_arm_cell(
-        tmp_path_factory.mktemp("corner"),
-        links=[{"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
-               {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8}],
-        obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))}, base_z=0.5))
+    wc = cf.load_workcell(
+        write_arm_cell(
+            tmp_path_factory.mktemp("corner"),
+            links=[
+                {"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
+                {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8},
+            ],
+            obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))},
+            base_z=0.5,
+        )
+    )
     return wc, wc.scene_arrays()
 
 
@@ -176,6 +182,5 @@ def test_a_cut_that_changes_nothing_leaves_the_stretch_unproven(corner, monkeypa
     monkeypatch.setattr(B, "cut_for", no_cut)
     lower = np.array([[-0.1, -0.1], [-0.1, -0.1]])
     upper = np.array([[0.4, 0.8], [0.4, 0.8]])
-    stats = B.prove_boundary(wc, arrays, lower, upper, np.zeros((2, 2)), np.full(2, np.inf), np.zeros(1),
-                             max_rounds=3)
+    stats = B.prove_boundary(wc, arrays, lower, upper, np.zeros((2, 2)), np.full(2, np.inf), np.zeros(1), max_rounds=3)
     assert stats["unproven"] == [0] and stats["edge_rounds"] == 3

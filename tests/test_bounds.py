@@ -2,18 +2,19 @@
 
 import numpy as np
 import pytest
+from conftest import write_arm_cell
 
 import drake_cfvol as cf
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.table import BoundsTable, box_at
-from conftest import write_arm_cell
 
 L, W, Z = 1.0, 0.05, 0.5  # link length, half width, height of the arm
 
 
 def arm(tmp_path, obstacles, lower=-3.0, upper=3.0):
-    path = write_arm_cell(tmp_path, links=[{"length": L, "half_width": W, "lower": lower, "upper": upper}],
-                          obstacles=obstacles, base_z=Z)
+    path = write_arm_cell(
+        tmp_path, links=[{"length": L, "half_width": W, "lower": lower, "upper": upper}], obstacles=obstacles, base_z=Z
+    )
     return cf.load_workcell(path)
 
 
@@ -201,8 +202,15 @@ def test_linear_table_round_trips(tmp_path):
     format version is refused with a message that says so."""
     import json
 
-    t = BoundsTable(np.array([[-1.0], [-2.0]]), np.array([[1.0], [3.0]]), np.zeros((2, 1)), ["j"],
-                    np.array([-3.0]), np.array([3.0]), interpolation="linear")
+    t = BoundsTable(
+        np.array([[-1.0], [-2.0]]),
+        np.array([[1.0], [3.0]]),
+        np.zeros((2, 1)),
+        ["j"],
+        np.array([-3.0]),
+        np.array([3.0]),
+        interpolation="linear",
+    )
     f = t.save(tmp_path / "b.json")
     assert BoundsTable.load(f).interpolation == "linear"
     np.testing.assert_allclose(BoundsTable.load(f).at(0.5)[1], [2.0])
@@ -223,12 +231,14 @@ def test_within_stretches_by_hand():
     from drake_cfvol.algorithm.table import within_stretches
 
     nominal = np.array([[2.0], [0.0]])
-    lo, hi = within_stretches(np.array([[-1.0], [-1.0]]), np.array([[2.0], [1.5]]), nominal,
-                              np.array([[-1.0]]), np.array([[1.0]]))
+    lo, hi = within_stretches(
+        np.array([[-1.0], [-1.0]]), np.array([[2.0], [1.5]]), nominal, np.array([[-1.0]]), np.array([[1.0]])
+    )
     np.testing.assert_allclose(hi[:, 0], [2.0, 0.0])
     np.testing.assert_allclose(lo[:, 0], [-1.0, -1.0])
     t = np.linspace(0, 1, 11)
     assert np.all((1 - t) * hi[0, 0] + t * hi[1, 0] <= np.maximum(1.0, 2.0 - 2.0 * t) + 1e-12)
-    lo2, hi2 = within_stretches(np.array([[-1.0], [-1.0]]), np.array([[0.5], [0.8]]), np.zeros((2, 1)),
-                                np.array([[-1.0]]), np.array([[1.0]]))
+    lo2, hi2 = within_stretches(
+        np.array([[-1.0], [-1.0]]), np.array([[0.5], [0.8]]), np.zeros((2, 1)), np.array([[-1.0]]), np.array([[1.0]])
+    )
     np.testing.assert_array_equal(hi2[:, 0], [0.5, 0.8])

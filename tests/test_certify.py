@@ -2,17 +2,25 @@
 
 import numpy as np
 import pytest
+from conftest import write_arm_cell
 
 import drake_cfvol as cf
 from drake_cfvol.algorithm.certify import Certify, certification_rng
-from conftest import write_arm_cell
 
 
 def _corner_cell(folder, mesh_links=False):
-    wc = cf.load_workcell(write_arm_cell(
-        folder, links=[{"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
-                       {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8}],
-        obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))}, base_z=0.5, mesh_links=mesh_links))
+    wc = cf.load_workcell(
+        write_arm_cell(
+            folder,
+            links=[
+                {"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
+                {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8},
+            ],
+            obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))},
+            base_z=0.5,
+            mesh_links=mesh_links,
+        )
+    )
     return wc, cf.NominalPath(np.zeros((3, 2)), wc.joint_names, wc.name)
 
 
@@ -43,13 +51,13 @@ def test_corner_is_excluded(corner):
     plain = cf.estimate_bounds(wc, path, h_max=0.0)
     cert = cf.estimate_bounds(wc, path, h_max=0.0, certify=Certify(epsilon=1e-3, confidence=0.99))
     up, upc = plain.upper[1], cert.upper[1]
-    np.testing.assert_allclose(up, [0.4, 0.8])       # each joint alone reaches its limit
-    assert not wc.is_free(up)                        # the corner collides
+    np.testing.assert_allclose(up, [0.4, 0.8])  # each joint alone reaches its limit
+    assert not wc.is_free(up)  # the corner collides
     assert not (np.all(up <= upc) and np.all(up >= cert.lower[1]))  # ... and is excluded
     before = cf.confidence_factor(wc, plain, windows=2, samples=10000, seed=3)
     after = cf.confidence_factor(wc, cert, windows=2, samples=10000, seed=3)
-    assert before.colliding > 200                    # the plain box collides often
-    assert after.colliding <= 40                     # <= 0.2 %: the certificate (0.1 %) with slack
+    assert before.colliding > 200  # the plain box collides often
+    assert after.colliding <= 40  # <= 0.2 %: the certificate (0.1 %) with slack
     rep = cert.info["certificate"]
     assert rep["shrinks"] >= 1 and rep["n_samples"] == 4606
     assert rep["freedom_after"] < rep["freedom_before"]
@@ -82,9 +90,18 @@ def test_seed_stream_differs_from_cf():
     assert certification_rng(0).random() != np.random.default_rng(0).random()
 
 
-@pytest.mark.parametrize("kwargs", [{"epsilon": 0.0}, {"epsilon": 1.0}, {"confidence": 1.0},
-                                    {"confidence": -0.1}, {"epsilon": 2}, {"clamp_epsilon": 0.0},
-                                    {"clamp_epsilon": 1.5}])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"epsilon": 0.0},
+        {"epsilon": 1.0},
+        {"confidence": 1.0},
+        {"confidence": -0.1},
+        {"epsilon": 2},
+        {"clamp_epsilon": 0.0},
+        {"clamp_epsilon": 1.5},
+    ],
+)
 def test_invalid_certificate(kwargs):
     """epsilon, clamp_epsilon or confidence outside (0, 1) raise a clear error."""
     with pytest.raises(cf.ParameterError, match="must lie in"):
@@ -209,11 +226,13 @@ def test_cache_reuses_exact_inputs_only(corner, tmp_path, monkeypatch):
     np.testing.assert_array_equal(a.upper, b.upper)
     assert b.info["certificate"]["time_ms"] == a.info["certificate"]["time_ms"]  # the original run's
     assert len(list((tmp_path / "certificates").glob("*.npz"))) == 1
-    other = cf.estimate_bounds(wc, path, h_max=0.0, certify=Certify(epsilon=1e-3, confidence=0.99, batch=200,
-                                                                      search_rounds=1, seed=5))
+    other = cf.estimate_bounds(
+        wc, path, h_max=0.0, certify=Certify(epsilon=1e-3, confidence=0.99, batch=200, search_rounds=1, seed=5)
+    )
     assert not other.info["certificate"]["cached"]
-    fresh = cf.estimate_bounds(wc, path, h_max=0.0, certify=Certify(epsilon=1e-3, confidence=0.99, batch=200,
-                                                                      search_rounds=1, cache=False))
+    fresh = cf.estimate_bounds(
+        wc, path, h_max=0.0, certify=Certify(epsilon=1e-3, confidence=0.99, batch=200, search_rounds=1, cache=False)
+    )
     assert not fresh.info["certificate"]["cached"]
     monkeypatch.setenv("DRAKE_CFVOL_CACHE", "off")
     assert cache_dir() is None
@@ -267,8 +286,9 @@ def test_independent_cf_of_certified_bounds(cell, settings, bounded, planned, re
     # What the sweep proved still covers the certified box: at every s
     # (waypoints, quarters, and just either side of them) each bound lies
     # within the plain table's stretch box or at the nominal.
-    s = np.unique(np.clip(np.concatenate([np.arange(0.0, cert.g - 1 + 1e-9, 0.25) + d for d in (-1e-6, 0, 1e-6)]),
-                          0, cert.g - 1))
+    s = np.unique(
+        np.clip(np.concatenate([np.arange(0.0, cert.g - 1 + 1e-9, 0.25) + d for d in (-1e-6, 0, 1e-6)]), 0, cert.g - 1)
+    )
     lo_c, hi_c, nom = cert.boxes_at(s)
     i = np.clip(np.floor(s).astype(int), 0, cert.g - 2)
     for st in (i, np.clip(np.ceil(s).astype(int) - 1, 0, cert.g - 2)):  # a waypoint belongs to both stretches
@@ -326,10 +346,10 @@ def test_regrow_gives_back_an_unneeded_cut_and_keeps_the_proof(cell, request):
     narrows, the report counts it, and every corner and edge point of the
     box at every waypoint and stretch midpoint still keeps the margin by
     Drake's padded checker. Regrow without the proof is refused."""
+    import dataclasses
+
     from drake_cfvol.algorithm.certify import _Certification
     from drake_cfvol.algorithm.metrics import boundary_check
-
-    import dataclasses
 
     wc, path = request.getfixturevalue(cell)
     # Without a rate limit (as a table of the reference backend): this path

@@ -39,8 +39,22 @@ def test_plan_refuses_to_overwrite(tmp_path, capsys):
 
 def test_bounds_json_and_files(tmp_path, capsys):
     """cfvol bounds --json --out --plot writes bounds, path and a PNG."""
-    rc = main(["bounds", "aerospace", "--path", "1", "--resolution", "300", "--cf-samples", "200",
-               "--out", str(tmp_path), "--plot", "--json"])
+    rc = main(
+        [
+            "bounds",
+            "aerospace",
+            "--path",
+            "1",
+            "--resolution",
+            "300",
+            "--cf-samples",
+            "200",
+            "--out",
+            str(tmp_path),
+            "--plot",
+            "--json",
+        ]
+    )
     assert rc == 0
     d = json.loads(capsys.readouterr().out)
     for key in ("cell", "path", "resolution", "g", "k", "time_ms", "cf_percent", "freedom", "n_boxes", "out"):
@@ -54,11 +68,33 @@ def test_bounds_json_and_files(tmp_path, capsys):
 @pytest.mark.slow  # 5.5 s: a whole co-manipulation run through the CLI
 def test_simulate_json(tmp_path, capsys):
     """cfvol simulate --json prints the run's summary with the promised keys."""
-    assert main(["simulate", "automotive_push", "--out", str(tmp_path), "--json",
-                 "--scenario-text", "{bounds: {certify: null}}"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "automotive_push",
+                "--out",
+                str(tmp_path),
+                "--json",
+                "--scenario-text",
+                "{bounds: {certify: null}}",
+            ]
+        )
+        == 0
+    )
     d = json.loads(capsys.readouterr().out)
-    for key in ("scenario", "steps", "min_clearance_m", "max_bound_violation", "recording_html", "plot_png",
-                "max_velocity_ratio", "collisions", "filter_steps", "faults"):
+    for key in (
+        "scenario",
+        "steps",
+        "min_clearance_m",
+        "max_bound_violation",
+        "recording_html",
+        "plot_png",
+        "max_velocity_ratio",
+        "collisions",
+        "filter_steps",
+        "faults",
+    ):
         assert key in d
     # Inside the bounds to rounding (the filter set each command against the
     # bounds one period ahead, at a path index rounded differently).
@@ -69,8 +105,28 @@ def test_simulate_json(tmp_path, capsys):
 
 def test_bounds_certify_json(capsys):
     """cfvol bounds --certify reports the certificate it holds."""
-    assert main(["bounds", "automotive", "-R", "300", "--certify", "--no-boundary-proof", "--epsilon", "0.05", "--confidence", "0.9",
-                 "--cf-windows", "3", "--cf-samples", "100", "--json"]) == 0
+    assert (
+        main(
+            [
+                "bounds",
+                "automotive",
+                "-R",
+                "300",
+                "--certify",
+                "--no-boundary-proof",
+                "--epsilon",
+                "0.05",
+                "--confidence",
+                "0.9",
+                "--cf-windows",
+                "3",
+                "--cf-samples",
+                "100",
+                "--json",
+            ]
+        )
+        == 0
+    )
     d = json.loads(capsys.readouterr().out)
     c = d["certificate"]
     assert c["epsilon"] == 0.05 and c["n_samples"] == 47
@@ -79,8 +135,28 @@ def test_bounds_certify_json(capsys):
 
 def test_bench_quick_flags(tmp_path, capsys):
     """cfvol bench parses its flags and writes its tables (tiny run)."""
-    assert main(["bench", "--quick", "--cells", "automotive", "--resolutions", "200", "--trials", "1",
-                 "--cf-samples", "20", "--no-iris", "--no-engine", "--out", str(tmp_path), "--json"]) == 0
+    assert (
+        main(
+            [
+                "bench",
+                "--quick",
+                "--cells",
+                "automotive",
+                "--resolutions",
+                "200",
+                "--trials",
+                "1",
+                "--cf-samples",
+                "20",
+                "--no-iris",
+                "--no-engine",
+                "--out",
+                str(tmp_path),
+                "--json",
+            ]
+        )
+        == 0
+    )
     d = json.loads(capsys.readouterr().out)
     assert [r["resolution"] for r in d["rows"]] == [200]
     assert (tmp_path / "results.md").is_file() and (tmp_path / "trials.csv").is_file()
@@ -89,15 +165,19 @@ def test_bench_quick_flags(tmp_path, capsys):
 def test_push_patterns_agree():
     """The CLI's push-pattern choices are the library's (spelled out in the
     CLI so that --help does not import Drake)."""
-    from drake_cfvol.comanip.adversarial import PATTERNS
     from drake_cfvol.apps.cli import PUSH_PATTERNS
+    from drake_cfvol.comanip.adversarial import PATTERNS
 
     assert PUSH_PATTERNS == PATTERNS
 
 
-@pytest.mark.parametrize("flags, message", [(["--adversarial-runs", "-1"], "--adversarial-runs must be >= 0"),
-                                            (["--adversarial-only", "--adversarial-runs", "0"],
-                                             "--adversarial-only needs --adversarial-runs >= 1")])
+@pytest.mark.parametrize(
+    "flags, message",
+    [
+        (["--adversarial-runs", "-1"], "--adversarial-runs must be >= 0"),
+        (["--adversarial-only", "--adversarial-runs", "0"], "--adversarial-only needs --adversarial-runs >= 1"),
+    ],
+)
 def test_bench_adversarial_flags_refused(tmp_path, flags, message, capsys):
     """A negative run count, or an adversarial-only run with no runs, is
     refused in one line before anything runs."""
@@ -153,8 +233,17 @@ def test_bad_cf_samples_before_planning(capsys):
     assert "--cf-samples must be >= 1" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("flag", [["--epsilon", "1e-4"], ["--clamp-epsilon", "1e-3"], ["--confidence", "0.9"],
-                                  ["--no-cache"], ["--no-boundary-proof"], ["--regrow"]])
+@pytest.mark.parametrize(
+    "flag",
+    [
+        ["--epsilon", "1e-4"],
+        ["--clamp-epsilon", "1e-3"],
+        ["--confidence", "0.9"],
+        ["--no-cache"],
+        ["--no-boundary-proof"],
+        ["--regrow"],
+    ],
+)
 def test_certificate_options_need_certify(flag, capsys):
     """An option that does nothing without --certify is refused, not ignored."""
     assert main(["bounds", "automotive", *flag]) == 2

@@ -4,10 +4,10 @@ runs out, and stand where the map says in the SceneGraph."""
 
 import numpy as np
 import pytest
+from pydrake.common.value import AbstractValue
 from pydrake.geometry import SceneGraph
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantValueSource
-from pydrake.common.value import AbstractValue
 
 from drake_cfvol.online import MapGrid, ObstacleMap
 from drake_cfvol.systems import PerceivedColumns
@@ -18,7 +18,7 @@ def _random_map(rng, shape=(40, 30)) -> np.ndarray:
     H = np.zeros(shape)
     for _ in range(6):
         i, j = rng.integers(0, shape[0] - 8), rng.integers(0, shape[1] - 8)
-        H[i:i + rng.integers(1, 9), j:j + rng.integers(1, 9)] = np.round(rng.uniform(0.1, 2.0), 2)
+        H[i : i + rng.integers(1, 9), j : j + rng.integers(1, 9)] = np.round(rng.uniform(0.1, 2.0), 2)
     return H
 
 
@@ -26,7 +26,7 @@ def _cover(tiles, shape):
     top = np.zeros(shape)
     for level, i, j, h in tiles:
         t = 1 << level
-        top[i:i + t, j:j + t] = np.maximum(top[i:i + t, j:j + t], h)
+        top[i : i + t, j : j + t] = np.maximum(top[i : i + t, j : j + t], h)
     return top
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drake_cfvol.comanip import build_comanipulation_diagram, load_scenario, run_scenario
 import drake_cfvol as cf
+from drake_cfvol.comanip import build_comanipulation_diagram, load_scenario, run_scenario
 
 #: Most tests run the bundled scenarios on uncertified bounds: certifying a
 #: path takes tens of seconds, and what they test does not depend on it.
@@ -29,8 +29,7 @@ RECORDED = "automotive_push"
 def run(request, tmp_path_factory):
     out = tmp_path_factory.mktemp(request.param)
     files = request.param == RECORDED
-    return request.param, out, run_scenario(request.param, out, scenario_text=FAST, record=files, plot=files,
-                                            svg=files)
+    return request.param, out, run_scenario(request.param, out, scenario_text=FAST, record=files, plot=files, svg=files)
 
 
 def test_run_inside_bounds_and_free(run):
@@ -67,8 +66,9 @@ def test_run_within_velocity_limits(run):
     assert ratio == pytest.approx(summary["max_velocity_ratio"]) and ratio <= 1.0
     scenario, _ = load_scenario(name)
     assert summary["path_duration_s"] >= scenario.path.duration - 1e-9
-    assert summary["duration_s"] == pytest.approx(scenario.control.path_progress.start_time
-                                                  + summary["path_duration_s"] + scenario.path.end_hold)
+    assert summary["duration_s"] == pytest.approx(
+        scenario.control.path_progress.start_time + summary["path_duration_s"] + scenario.path.end_hold
+    )
 
 
 def test_run_reports_volume_and_clearance(run):
@@ -87,8 +87,9 @@ def test_run_reports_volume_and_clearance(run):
     assert summary["volume_penetrations"] >= int(hits.sum())
     # The clearance, recounted by the workcell's own Drake scene at every
     # update (not the diagram's monitor that the summary read).
-    recount = min(min(wc.obstacle_distances(q, 2.0, changeable_only=True).values())
-                  for q in logs["update_commanded_position"])
+    recount = min(
+        min(wc.obstacle_distances(q, 2.0, changeable_only=True).values()) for q in logs["update_commanded_position"]
+    )
     assert summary["min_clearance_m"] == pytest.approx(recount, abs=1e-9)
 
 
@@ -142,8 +143,11 @@ def _screenshot(cmd, shot, *, tries=3, timeout_s=90.0):
     for _ in range(tries):
         shot.unlink(missing_ok=True)
         profile = tempfile.mkdtemp()
-        proc = subprocess.Popen([c if not c.startswith("--user-data-dir=") else f"--user-data-dir={profile}"
-                                 for c in cmd], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        proc = subprocess.Popen(
+            [c if not c.startswith("--user-data-dir=") else f"--user-data-dir={profile}" for c in cmd],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         deadline, last = time.monotonic() + timeout_s, -1
         try:
             while time.monotonic() < deadline:
@@ -176,10 +180,23 @@ def test_recording_renders_in_headless_chromium(run):
             pytest.fail("CI must install Debian's chromium (see .ci/run)")
         pytest.skip("chromium is not installed")
     shot = out / "shot.png"
-    cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-           "--disable-background-networking", "--disable-component-update", "--disable-sync",
-           "--enable-unsafe-swiftshader", f"--user-data-dir={tempfile.mkdtemp()}", "--window-size=400,300",
-           "--virtual-time-budget=1000", f"--screenshot={shot}", Path(summary["recording_html"]).as_uri()]
+    cmd = [
+        exe,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--enable-unsafe-swiftshader",
+        f"--user-data-dir={tempfile.mkdtemp()}",
+        "--window-size=400,300",
+        "--virtual-time-budget=1000",
+        f"--screenshot={shot}",
+        Path(summary["recording_html"]).as_uri(),
+    ]
     assert _screenshot(cmd, shot), f"headless Chromium wrote no screenshot in 3 tries: {' '.join(cmd)}"
     from matplotlib.image import imread
 
@@ -222,13 +239,24 @@ def test_volume_in_the_diagrams_scene_at_r20000():
 def test_every_system_named():
     """Every system of a built diagram (log sinks, adders, the visualizer,
     SceneGraph) has a chosen name, so the diagram's SVG names them all."""
-    scenario, file = load_scenario("automotive_random",
-                                   scenario_text="{human: {reactive: {gain: 10.0}}, bounds: {certify: null}}")
+    scenario, file = load_scenario(
+        "automotive_random", scenario_text="{human: {reactive: {gain: 10.0}}, bounds: {certify: null}}"
+    )
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent, meshcat=None)
     names = [sys.get_name() for sys in cm.diagram.GetSystems()]
     assert len(names) == len(set(names)) and not any(n.startswith("drake/") or "@" in n for n in names)
-    assert {"admittance", "joint_bounds", "joint_bounds_now", "safety_filter", "clearance_monitor",
-            "reactive_coworker", "random_pushes", "push_sum", "log_commanded_position", "scene_graph"} <= set(names)
+    assert {
+        "admittance",
+        "joint_bounds",
+        "joint_bounds_now",
+        "safety_filter",
+        "clearance_monitor",
+        "reactive_coworker",
+        "random_pushes",
+        "push_sum",
+        "log_commanded_position",
+        "scene_graph",
+    } <= set(names)
 
 
 def test_scenario_diagram_is_built_by_add_comanipulation(monkeypatch):
@@ -246,8 +274,11 @@ def test_scenario_diagram_is_built_by_add_comanipulation(monkeypatch):
         return real(builder, **kw)
 
     monkeypatch.setattr(C, "AddCoManipulation", spy)
-    scenario, file = load_scenario("automotive_push", scenario_text="{bounds: {certify: null}, control: {period: "
-                                   "0.02, admittance: {mass: 4.0}, safety_filter: {damper_gain: 0.7}}}")
+    scenario, file = load_scenario(
+        "automotive_push",
+        scenario_text="{bounds: {certify: null}, control: {period: "
+        "0.02, admittance: {mass: 4.0}, safety_filter: {damper_gain: 0.7}}}",
+    )
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     (kw,) = calls
     assert kw["period"] == 0.02 and not kw["measured_state"]
@@ -292,15 +323,18 @@ def test_unknown_scenario():
         load_scenario("nope")
 
 
-@pytest.mark.parametrize("text, field, says", [
-    ("bounds:\n  resolution: abc\n", "bounds.resolution", "must be an integer, got 'abc'"),
-    ("cell:\n  name: nocell\n", "cell.name", "neither a built-in cell"),
-    ("cell:\n  name: ../nope.yaml\n", "cell.name", "does not exist"),
-    ("control:\n  admittance:\n    mass: x\n", "control.admittance.mass", "must be a number"),
-    ("resolutoin: 5\n", "resolutoin", "not a field of Scenario"),
-    ("simulation:\n  log_period: 0\n", "simulation.log_period", "must be > 0"),
-    ("bounds:\n  params:\n    h_maks: 1.0\n", "bounds.params.h_maks", "not a field of VolumeParamsConfig"),
-])
+@pytest.mark.parametrize(
+    "text, field, says",
+    [
+        ("bounds:\n  resolution: abc\n", "bounds.resolution", "must be an integer, got 'abc'"),
+        ("cell:\n  name: nocell\n", "cell.name", "neither a built-in cell"),
+        ("cell:\n  name: ../nope.yaml\n", "cell.name", "does not exist"),
+        ("control:\n  admittance:\n    mass: x\n", "control.admittance.mass", "must be a number"),
+        ("resolutoin: 5\n", "resolutoin", "not a field of Scenario"),
+        ("simulation:\n  log_period: 0\n", "simulation.log_period", "must be > 0"),
+        ("bounds:\n  params:\n    h_maks: 1.0\n", "bounds.params.h_maks", "not a field of VolumeParamsConfig"),
+    ],
+)
 def test_scenario_field_errors(tmp_path, text, field, says):
     """Each bad scenario field is named with its file and the fix, at load time
     (before anything is planned)."""
@@ -320,9 +354,10 @@ def test_scenario_missing_file(tmp_path):
 def test_missing_dot_notice(tmp_path, monkeypatch):
     """Without Graphviz the diagram's source is written and a one-line
     notice names what was skipped and how to get it."""
-    from drake_cfvol.comanip import missing_dot_notice, write_diagram_svg
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
+
+    from drake_cfvol.comanip import missing_dot_notice, write_diagram_svg
 
     b = DiagramBuilder()
     b.AddSystem(ConstantVectorSource([1.0]))
@@ -338,9 +373,12 @@ def test_scenario_text_overrides_the_file():
     defaults): the named fields change, every other field keeps the file's
     value, nested configs merge."""
     base, _ = load_scenario("automotive_push")
-    s, _ = load_scenario("automotive_push", scenario_text="{bounds: {resolution: 2000}, simulation: {simulator_config: "
-                                                          "{target_realtime_rate: 0.5}}, human: {random_pushes: "
-                                                          "{max_torque: 11.0}}, control: {admittance: {mass: 3.0}}}")
+    s, _ = load_scenario(
+        "automotive_push",
+        scenario_text="{bounds: {resolution: 2000}, simulation: {simulator_config: "
+        "{target_realtime_rate: 0.5}}, human: {random_pushes: "
+        "{max_torque: 11.0}}, control: {admittance: {mass: 3.0}}}",
+    )
     assert s.bounds.resolution == 2000 and s.simulation.simulator_config.target_realtime_rate == 0.5
     assert s.human.random_pushes.max_torque == 11.0 and s.human.random_pushes.count == base.human.random_pushes.count
     assert s.human.pushes == base.human.pushes and s.path == base.path
@@ -371,9 +409,9 @@ def test_random_pushes_seeded_through_the_context():
     from pydrake.common import RandomGenerator
     from pydrake.systems.analysis import Simulator
 
-    scenario, file = load_scenario("automotive_push",
-                                   scenario_text="{human: {pushes: [], random_pushes: {count: 6}}, "
-                                                 "bounds: {certify: null}}")
+    scenario, file = load_scenario(
+        "automotive_push", scenario_text="{human: {pushes: [], random_pushes: {count: 6}}, bounds: {certify: null}}"
+    )
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     port = cm.diagram.GetOutputPort("human_torque")
 
@@ -396,8 +434,7 @@ _KEYS = ("max_velocity_ratio", "volume_penetrations", "filter_steps", "faults", 
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["automotive_random", "aerospace_random", "automotive_reactive",
-                                  "aerospace_reactive"])
+@pytest.mark.parametrize("name", ["automotive_random", "aerospace_random", "automotive_reactive", "aerospace_reactive"])
 def test_every_bundled_scenario_runs_safely(name, tmp_path):
     """The random and reactive scenarios of both cells (the push ones run in
     the fixture): every logged configuration inside the bounds and free
@@ -449,8 +486,9 @@ def test_scenario_certify_asks_for_certified_bounds(monkeypatch):
 
     monkeypatch.setattr(C, "estimate_bounds", spy)
     for flag in ("{}", "{confidence: 0.9}", "null"):
-        scenario, file = load_scenario("automotive_reactive", scenario_text=f"{{bounds: {{certify: {flag}, "
-                                                                            "resolution: 200}, random_seed: 3}")
+        scenario, file = load_scenario(
+            "automotive_reactive", scenario_text=f"{{bounds: {{certify: {flag}, resolution: 200}}, random_seed: 3}}"
+        )
         build_comanipulation_diagram(scenario, base_dir=file.parent)
     assert asked == [Certify(seed=3), Certify(seed=3, confidence=0.9), None]
 
@@ -481,11 +519,19 @@ def test_sensor_faults_are_held_and_reported(tmp_path):
     """A NaN torque (0.5 s), a 1e6 N m torque (0.3 s) and an infinite tool
     force (0.2 s) in a run: no exception, every command finite, and the
     summary counts exactly the faulted updates (50 + 30 + 20)."""
-    s = run_scenario("automotive_push", tmp_path, record=False, plot=False, svg=False, scenario_text=(
-        "{bounds: {certify: null}, control: {safety_filter: null}, human: {pushes: ["
-        "{start: 1.0, duration: 0.5, joint_torque: [.nan, 0, 0, 0, 0, 0]}, "
-        "{start: 2.0, duration: 0.3, joint_torque: [0, 1.0e6, 0, 0, 0, 0]}, "
-        "{start: 3.0, duration: 0.2, wrench: [0, 0, 0, 0, .inf, 0]}]}}"))
+    s = run_scenario(
+        "automotive_push",
+        tmp_path,
+        record=False,
+        plot=False,
+        svg=False,
+        scenario_text=(
+            "{bounds: {certify: null}, control: {safety_filter: null}, human: {pushes: ["
+            "{start: 1.0, duration: 0.5, joint_torque: [.nan, 0, 0, 0, 0, 0]}, "
+            "{start: 2.0, duration: 0.3, joint_torque: [0, 1.0e6, 0, 0, 0, 0]}, "
+            "{start: 3.0, duration: 0.2, wrench: [0, 0, 0, 0, .inf, 0]}]}}"
+        ),
+    )
     assert s["faults"] == 100 and s["collisions"] == 0
     logs = np.load(tmp_path / "logs.npz")
     assert np.isfinite(logs["update_commanded_position"]).all()
@@ -502,8 +548,10 @@ def test_steady_push_into_an_obstacle_keeps_the_margin(tmp_path):
     distances in the workcell's scene, not the run's) is >= 2 cm - 2 mm, no
     joint moves faster than its limit, and the co-worker still deforms the
     motion."""
-    scenario_text = ("{bounds: {certify: null}, control: {safety_filter: {clearance: 0.02}}, "
-                     "human: {pushes: [{start: 1.0, duration: 1.0e9, toward_nearest_obstacle: 300.0}]}}")
+    scenario_text = (
+        "{bounds: {certify: null}, control: {safety_filter: {clearance: 0.02}}, "
+        "human: {pushes: [{start: 1.0, duration: 1.0e9, toward_nearest_obstacle: 300.0}]}}"
+    )
     s = run_scenario("automotive_push", tmp_path, record=False, plot=False, svg=False, scenario_text=scenario_text)
     logs = np.load(tmp_path / "logs.npz")
     q = logs["update_commanded_position"]
@@ -539,8 +587,13 @@ def test_run_problems_name_what_went_wrong():
     nominal's own) - 2 mm, or exceeded a velocity limit; otherwise nothing."""
     from drake_cfvol.comanip import run_problems
 
-    ok = {"collisions": 0, "clearance_m": 0.02, "nominal_min_clearance_m": 0.05, "min_clearance_m": 0.0185,
-          "max_velocity_ratio": 1.0}
+    ok = {
+        "collisions": 0,
+        "clearance_m": 0.02,
+        "nominal_min_clearance_m": 0.05,
+        "min_clearance_m": 0.0185,
+        "max_velocity_ratio": 1.0,
+    }
     assert run_problems(ok) == []
     assert run_problems({**ok, "nominal_min_clearance_m": 0.01, "min_clearance_m": 0.0085}) == []
     assert "collided" in run_problems({**ok, "collisions": 3})[0]
@@ -550,9 +603,11 @@ def test_run_problems_name_what_went_wrong():
 
 #: A trolley that is not in the repository, rolled next to path 1's start
 #: and back while the co-worker pushes (the automotive cell).
-TROLLEY = ("{bounds: {certify: null}, cell: {moving_obstacles: [{name: trolley, box: [0.6, 1.0, 1.0], waypoints: "
-           "[[0.0, -2.4, 2.5, 0.5], [1.0, -2.4, 2.5, 0.5], [4.5, -0.8, 2.5, 0.5], [5.0, -0.8, 2.5, 0.5], "
-           "[7.5, -2.4, 2.5, 0.5]]}]}}")
+TROLLEY = (
+    "{bounds: {certify: null}, cell: {moving_obstacles: [{name: trolley, box: [0.6, 1.0, 1.0], waypoints: "
+    "[[0.0, -2.4, 2.5, 0.5], [1.0, -2.4, 2.5, 0.5], [4.5, -0.8, 2.5, 0.5], [5.0, -0.8, 2.5, 0.5], "
+    "[7.5, -2.4, 2.5, 0.5]]}]}}"
+)
 
 
 @pytest.mark.slow  # about 45 s: a depth camera at 20 Hz and the bounds re-estimated online
@@ -562,8 +617,9 @@ def test_moving_obstacle_run_meets_its_targets(tmp_path):
     every update, the trolley where it was then), bounds following within
     0.2 s (simulated time) and the freedom back at the end. Compute time is
     the benchmark's (tools/online_bench.py), not a test's."""
-    summary = run_scenario("automotive_moving_obstacle", tmp_path, scenario_text=TROLLEY, record=False,
-                           plot=False, svg=False)
+    summary = run_scenario(
+        "automotive_moving_obstacle", tmp_path, scenario_text=TROLLEY, record=False, plot=False, svg=False
+    )
     assert summary["moving_obstacles"] == ["trolley"] and summary["perception"] == "camera"
     assert summary["collisions"] == 0 and summary["problems"] == []
     assert summary["min_clearance_m"] >= summary["clearance_m"] - 0.002
@@ -586,7 +642,13 @@ def test_truth_perception_run_keeps_the_margin(tmp_path):
     """With the boxes' own map (perception truth) the bundled cart run keeps
     the margin too: the filter measures the map's columns, whose dilation
     covers the cart's motion between maps."""
-    summary = run_scenario("automotive_moving_obstacle", tmp_path, scenario_text="{bounds: {certify: null}, perception: {mode: truth}}",
-                           record=False, plot=False, svg=False)
+    summary = run_scenario(
+        "automotive_moving_obstacle",
+        tmp_path,
+        scenario_text="{bounds: {certify: null}, perception: {mode: truth}}",
+        record=False,
+        plot=False,
+        svg=False,
+    )
     assert summary["perception"] == "truth" and summary["collisions"] == 0 and summary["problems"] == []
     assert summary["min_clearance_m"] >= summary["clearance_m"] - 0.002 and summary["bounds_latency_s"] <= 0.2

@@ -17,15 +17,16 @@ MESH_CELL = "tests/data/mesh_cell.yaml"
 @pytest.fixture(scope="module")
 def mesh_cell():
     import drake_cfvol as cf
+
     return cf.load_workcell(MESH_CELL)
 
 
 def _row(kind, size, R=np.eye(3), c=(0.0, 0.0, 0.0), inflation=0.0):
     row = np.zeros(K.SHAPE_W)
     row[K._K] = kind
-    row[K._C:K._C + 3] = c
-    row[K._R:K._R + 9] = np.asarray(R).ravel()
-    row[K._S:K._S + 3] = size
+    row[K._C : K._C + 3] = c
+    row[K._R : K._R + 9] = np.asarray(R).ravel()
+    row[K._S : K._S + 3] = size
     row[_EI] = inflation
     return row
 
@@ -34,9 +35,9 @@ def _points_inside(row, verts, n, rng):
     """n points drawn inside the shape (its own geometry, not the cover's),
     in the row's parent frame."""
     kind = int(row[K._K])
-    s = row[K._S:K._S + 3]
+    s = row[K._S : K._S + 3]
     if kind == K.HULL:
-        V = verts[int(row[K._V0]):int(row[K._V1])]
+        V = verts[int(row[K._V0]) : int(row[K._V1])]
         w = rng.dirichlet(np.full(len(V), 0.3), n)
         local = w @ V
     elif kind == K.BOX:
@@ -61,8 +62,8 @@ def _points_inside(row, verts, n, rng):
     g = rng.normal(size=(n, 3))
     g /= np.linalg.norm(g, axis=1, keepdims=True)
     local = local + g * row[_EI] * rng.random((n, 1))
-    R = row[K._R:K._R + 9].reshape(3, 3)
-    return row[K._C:K._C + 3] + local @ R.T
+    R = row[K._R : K._R + 9].reshape(3, 3)
+    return row[K._C : K._C + 3] + local @ R.T
 
 
 def _outside(points, cover):
@@ -82,13 +83,13 @@ def test_covers_contain_every_vertex_and_points_inside(cell, request, mesh_cell)
     assert len(ranges) == len(arrays.shapes)
     kinds = set()
     for s, row in enumerate(arrays.shapes):
-        cover = spheres[ranges[s, 0]:ranges[s, 1]]
+        cover = spheres[ranges[s, 0] : ranges[s, 1]]
         assert 1 <= len(cover) <= MAX_SLABS
         kinds.add(int(row[K._K]))
         if int(row[K._K]) == K.HULL:  # the vertices themselves, by hand
-            V = arrays.verts[int(row[K._V0]):int(row[K._V1])]
-            R = row[K._R:K._R + 9].reshape(3, 3)
-            assert _outside(row[K._C:K._C + 3] + V @ R.T, cover).max() <= 0.0
+            V = arrays.verts[int(row[K._V0]) : int(row[K._V1])]
+            R = row[K._R : K._R + 9].reshape(3, 3)
+            assert _outside(row[K._C : K._C + 3] + V @ R.T, cover).max() <= 0.0
         assert _outside(_points_inside(row, arrays.verts, 4000, rng), cover).max() <= 0.0
     if cell == "mesh":
         assert K.HULL in kinds
@@ -156,9 +157,12 @@ def test_placed_balls_follow_drakes_body_poses(automotive):
     for s in range(len(ranges)):
         body = plant.get_body(arrays.body_indices[arrays.shape_body[s]])
         X_WB = plant.EvalBodyPoseInWorld(ctx, body)
-        mine = spheres[ranges[s, 0]:ranges[s, 1]]
-        np.testing.assert_allclose(balls[ranges[s, 0]:ranges[s, 1], :3], mine[:, :3] @ X_WB.rotation().matrix().T
-                                   + X_WB.translation(), atol=1e-9)
-        np.testing.assert_allclose(balls[ranges[s, 0]:ranges[s, 1], 3], mine[:, 3] + 0.05)
-        b = balls[ranges[s, 0]:ranges[s, 1]]
+        mine = spheres[ranges[s, 0] : ranges[s, 1]]
+        np.testing.assert_allclose(
+            balls[ranges[s, 0] : ranges[s, 1], :3],
+            mine[:, :3] @ X_WB.rotation().matrix().T + X_WB.translation(),
+            atol=1e-9,
+        )
+        np.testing.assert_allclose(balls[ranges[s, 0] : ranges[s, 1], 3], mine[:, 3] + 0.05)
+        b = balls[ranges[s, 0] : ranges[s, 1]]
         assert np.all(b[:, :3] - b[:, 3:] >= box[s, :3] - 1e-12) and np.all(b[:, :3] + b[:, 3:] <= box[s, 3:] + 1e-12)

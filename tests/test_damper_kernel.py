@@ -11,8 +11,11 @@ from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 from drake_cfvol.systems.damper_kernel import point_distance, point_query_shape
 
 
-@pytest.mark.parametrize("shape", [Box(0.3, 0.2, 0.5), Sphere(0.15), Capsule(0.1, 0.4), Cylinder(0.12, 0.3)],
-                         ids=["box", "sphere", "capsule", "cylinder"])
+@pytest.mark.parametrize(
+    "shape",
+    [Box(0.3, 0.2, 0.5), Sphere(0.15), Capsule(0.1, 0.4), Cylinder(0.12, 0.3)],
+    ids=["box", "sphere", "capsule", "cylinder"],
+)
 def test_point_distance_is_drakes(shape):
     """For 2,000 points around and inside a posed shape (half of them near its centre): the signed
     distance, the gradient and the nearest point are Drake's (1e-9), the
@@ -62,8 +65,9 @@ def test_compiled_rows_are_the_drake_assembled_rows():
     diagram = builder.Build()
     ctx = diagram.CreateDefaultContext()
     pctx, sgctx = plant.GetMyMutableContextFromRoot(ctx), sg.GetMyContextFromRoot(ctx)
-    damper = VelocityDamper(plant, sg, robot, obstacle_ids=None, target_distance=0.021, influence_distance=0.15,
-                            rate=10.0)
+    damper = VelocityDamper(
+        plant, sg, robot, obstacle_ids=None, target_distance=0.021, influence_distance=0.15, rate=10.0
+    )
     scratch = plant.CreateDefaultContext()
     lo, hi = wc.position_lower, wc.position_upper
     rng = np.random.default_rng(0)

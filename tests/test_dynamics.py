@@ -37,8 +37,14 @@ def test_dynamic_automotive_push_keeps_the_margin_on_the_measured_robot(tmp_path
     inverse-dynamics driver: the measured robot never collides and keeps the
     margin (Drake's distances through the plant's SceneGraph), it tracks the
     command with a real error, the push deforms the motion, the path ends."""
-    s = run_scenario("automotive_push", tmp_path, record=False, plot=False, svg=False,
-                     scenario_text="{simulation: {plant_config: {time_step: 0.001}}, bounds: {certify: null}}")
+    s = run_scenario(
+        "automotive_push",
+        tmp_path,
+        record=False,
+        plot=False,
+        svg=False,
+        scenario_text="{simulation: {plant_config: {time_step: 0.001}}, bounds: {certify: null}}",
+    )
     assert s["dynamic"] and s["collisions"] == 0 and s["problems"] == []
     assert s["min_clearance_m"] >= s["clearance_m"] - 0.002
     assert 1e-4 < s["tracking_error_max"] < 0.05

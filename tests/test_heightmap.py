@@ -9,12 +9,15 @@ from drake_cfvol.algorithm.heightmap import HeightMap, height_function
 from drake_cfvol.scene.params import VolumeParams
 
 
-@pytest.mark.parametrize("x,y,R,side,m,n", [
-    (5.6, 5.6, 100, 0.56, 10, 10),
-    (5.6, 5.6, 1000, np.sqrt(5.6 * 5.6 / 1000), 31, 31),
-    (11.8, 6.0, 100, np.sqrt(11.8 * 6.0 / 100), 14, 7),
-    (4.0, 1.0, 4, 1.0, 4, 1),
-])
+@pytest.mark.parametrize(
+    "x,y,R,side,m,n",
+    [
+        (5.6, 5.6, 100, 0.56, 10, 10),
+        (5.6, 5.6, 1000, np.sqrt(5.6 * 5.6 / 1000), 31, 31),
+        (11.8, 6.0, 100, np.sqrt(11.8 * 6.0 / 100), 14, 7),
+        (4.0, 1.0, 4, 1.0, 4, 1),
+    ],
+)
 def test_side_rows_columns(x, y, R, side, m, n):
     """side = sqrt(x y / R), m = floor(x / side), n = floor(y / side), m n <= R."""
     hm = HeightMap((0.0, 0.0), x, y, R)
@@ -64,7 +67,7 @@ def test_range_max_matches_brute_force():
         i0, i1 = sorted(rng.integers(-3, 26, 2))
         j0, j1 = sorted(rng.integers(-3, 44, 2))
         a, b, c, d = max(i0, 0), min(i1, 22), max(j0, 0), min(j1, 40)
-        ref = v[a:b + 1, c:d + 1].max() if a <= b and c <= d else -np.inf
+        ref = v[a : b + 1, c : d + 1].max() if a <= b and c <= d else -np.inf
         assert K.range_max(t, int(i0), int(i1), int(j0), int(j1)) == ref
 
 
@@ -140,7 +143,7 @@ def test_merged_boxes_exact_when_they_fit():
     """Equal neighbours merge, nothing is added: two plateaus by hand."""
     H = np.zeros((4, 3))
     H[0:2, 0:3] = 0.5  # one 2 x 3 plateau
-    H[3, 1] = 0.2      # a single column
+    H[3, 1] = 0.2  # a single column
     c, s, info = _volume(H).merged_boxes(10)
     assert len(c) == 2 and info["added_volume_m3"] == pytest.approx(0.0)
     order = np.argsort(s[:, 2])

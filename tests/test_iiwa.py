@@ -19,8 +19,11 @@ def test_cobot_cell_model_from_public_data():
     assert wc.num_joints == 7 and wc.plant.num_actuated_dofs() == 7
     np.testing.assert_allclose(np.degrees(wc.position_upper), [170, 120, 170, 120, 170, 120, 175])
     np.testing.assert_allclose(np.degrees(wc.velocity_limits), [85, 85, 100, 75, 130, 135, 135], rtol=1e-6)
-    arm = sum(wc.plant.get_body(b).default_mass() for b in wc.plant.GetBodyIndices(wc.robot)
-              if wc.plant.get_body(b).name() not in ("gripper", "tcp"))
+    arm = sum(
+        wc.plant.get_body(b).default_mass()
+        for b in wc.plant.GetBodyIndices(wc.robot)
+        if wc.plant.get_body(b).name() not in ("gripper", "tcp")
+    )
     assert arm == pytest.approx(29.9, abs=0.1)
     for name in ("path1", "path2", "path3"):
         assert all(wc.is_free(q) for q in wc.configuration(name))
@@ -31,7 +34,9 @@ def test_lcm_loopback_between_controller_and_simulated_station():
     simulated driver (its commanded position is ours) and the driver's status
     comes back (measured position equal to the plant's, external torque equal
     to the plant's filtered contact forces: zero before any contact)."""
-    scenario, file = load_scenario("cobot_push", scenario_text="{bounds: {certify: null, resolution: 300}, human: {pushes: []}}")
+    scenario, file = load_scenario(
+        "cobot_push", scenario_text="{bounds: {certify: null, resolution: 300}, human: {pushes: []}}"
+    )
     cm = build_comanipulation_diagram(scenario, scenario_file=file)
     sim = Simulator(cm.diagram)
     ctx = sim.get_mutable_context()
@@ -45,7 +50,8 @@ def test_lcm_loopback_between_controller_and_simulated_station():
     assert np.abs(q_status - q_plant).max() <= 2 * 0.005 * v + 1e-9  # at most two status periods old
     commanded = status.get_position_commanded_output_port().Eval(sctx)
     ours = cm.diagram.GetSubsystemByName("safety_filter").desired_state_output.Eval(
-        cm.diagram.GetSubsystemByName("safety_filter").GetMyContextFromRoot(ctx))[:7]
+        cm.diagram.GetSubsystemByName("safety_filter").GetMyContextFromRoot(ctx)
+    )[:7]
     assert np.abs(commanded - ours).max() < 0.02 and np.abs(commanded - q_plant).max() < 0.02
     np.testing.assert_array_equal(status.get_torque_external_output_port().Eval(sctx), np.zeros(7))
     assert np.abs(q_plant - cm.path.waypoints[0]).max() > 1e-3  # the robot moved along its path
@@ -104,10 +110,20 @@ def test_hardware_controller_drives_the_simulated_station_over_lcm_only():
     plant.SetDefaultFloatingBaseBodyPose(hand, RigidTransform(waiting_point(p_WG, [0, 1, 0], tool_radius(wc))))
     lcm = add_iiwa_station(builder, IiwaDriver(), wc.robot_name, plant, models)
     human = builder.AddSystem(ScriptedHuman(7, [Push(1.0, 1.5, [], [0, 0, 0, 0, 40.0, 0])]))
-    add_hand(builder, plant, hand, plant.GetFrameByName(wc.tool_frame.name(), iiwa), human.human_wrench_output,
-             tool_radius=tool_radius(wc), initial_direction=[0, 1, 0], p_BG=grip_point(wc))
-    config = CoManipulationConfig(admittance=AdmittanceConfig(mass=2.0, damping=80.0, stiffness=300.0),
-                                  path_progress=PathProgressConfig(start_time=0.5))
+    add_hand(
+        builder,
+        plant,
+        hand,
+        plant.GetFrameByName(wc.tool_frame.name(), iiwa),
+        human.human_wrench_output,
+        tool_radius=tool_radius(wc),
+        initial_direction=[0, 1, 0],
+        p_BG=grip_point(wc),
+    )
+    config = CoManipulationConfig(
+        admittance=AdmittanceConfig(mass=2.0, damping=80.0, stiffness=300.0),
+        path_progress=PathProgressConfig(start_time=0.5),
+    )
     cm, status = add_iiwa_controller(builder, workcell=wc, table=table, lcm=lcm, config=config)
     truth = LogVectorOutput(plant.get_state_output_port(iiwa), builder, publish_period=0.01)
     felt = LogVectorOutput(status.get_torque_external_output_port(), builder, publish_period=0.01)
@@ -115,9 +131,12 @@ def test_hardware_controller_drives_the_simulated_station_over_lcm_only():
     nominal = LogVectorOutput(cm.bounds.nominal_output, builder, publish_period=0.01)
     diagram = builder.Build()
     # No port joins the controller to the station: only LCM does.
-    crossing = [(f.get_name(), t.get_name()) for (t, _), (f, _) in diagram.connection_map().items()
-                if "LogSink" not in type(t).__name__  # the test's own loggers read both sides
-                and t.get_name().startswith("controller") != f.get_name().startswith("controller")]
+    crossing = [
+        (f.get_name(), t.get_name())
+        for (t, _), (f, _) in diagram.connection_map().items()
+        if "LogSink" not in type(t).__name__  # the test's own loggers read both sides
+        and t.get_name().startswith("controller") != f.get_name().startswith("controller")
+    ]
     assert crossing == []
     sim = Simulator(diagram)
     sim.AdvanceTo(cm.duration + 1.0)

@@ -78,9 +78,9 @@ def test_batch_check_answers_do_not_depend_on_the_batch(cell, request, mesh_cell
     for pad in (0.0, 0.02):
         whole = arrays.may_collide(Q, pad)
         alone = np.array([arrays.may_collide(q[None], pad)[0] for q in Q[:80]])
-        partial = arrays.may_collide(Q[:K.NB + 7], pad)
+        partial = arrays.may_collide(Q[: K.NB + 7], pad)
         np.testing.assert_array_equal(alone, whole[:80])
-        np.testing.assert_array_equal(partial, whole[:K.NB + 7])
+        np.testing.assert_array_equal(partial, whole[: K.NB + 7])
     checker = wc.checker
     for i in range(100):
         if not whole[i]:  # certified free at 2 cm: Drake finds no body within 2 cm
@@ -100,8 +100,13 @@ def test_sincos_matches_the_library():
             s[i], c[i] = K.blocks.sincos(x[i])
         return s, c
 
-    x = np.concatenate([np.random.default_rng(0).uniform(-4 * np.pi, 4 * np.pi, 200_000),
-                        np.arange(-16, 17) * np.pi / 4, np.arange(-16, 17) * np.pi / 4 + 1e-12])
+    x = np.concatenate(
+        [
+            np.random.default_rng(0).uniform(-4 * np.pi, 4 * np.pi, 200_000),
+            np.arange(-16, 17) * np.pi / 4,
+            np.arange(-16, 17) * np.pi / 4 + 1e-12,
+        ]
+    )
     s, c = both(x)
     np.testing.assert_allclose(s, np.sin(x), atol=3e-16, rtol=0)
     np.testing.assert_allclose(c, np.cos(x), atol=3e-16, rtol=0)
@@ -173,13 +178,19 @@ def test_height_field_test_matches_brute_force():
     ws, stack, box, tmp6 = K.new_workspace()
     aabb = np.empty(6)
     for _ in range(400):
-        obj = _box_row(rng.uniform([-1, -1, 0.2], [1, 1, 1.4]), rng.uniform(0.02, 0.3, 3),
-                       Rotation.random(random_state=rng).as_matrix())
+        obj = _box_row(
+            rng.uniform([-1, -1, 0.2], [1, 1, 1.4]),
+            rng.uniform(0.02, 0.3, 3),
+            Rotation.random(random_state=rng).as_matrix(),
+        )
         K.row_aabb(obj[0], V, aabb)
         fast = K.object_hits_columns(obj, V, aabb, table, ox, oy, side, ws, stack, box)
-        brute = any(K.gjk_intersect(obj, V, _box_row([X[i, j], Y[i, j], heights[i, j] / 2],
-                                                     [side / 2, side / 2, heights[i, j] / 2]), V)
-                    for i, j in zip(*np.nonzero(heights > 0)))
+        brute = any(
+            K.gjk_intersect(
+                obj, V, _box_row([X[i, j], Y[i, j], heights[i, j] / 2], [side / 2, side / 2, heights[i, j] / 2]), V
+            )
+            for i, j in zip(*np.nonzero(heights > 0))
+        )
         assert fast == brute
 
 
@@ -267,11 +278,16 @@ def test_box_separation_before_gjk_is_exact_for_boxes_and_never_wrong():
         assert obb_apart(A[0], B[0]) == (not _sat_overlap(A, B))
     apart = 0
     for _ in range(6000):
-        rows = [_box_row(rng.uniform(-1, 1, 3), rng.uniform(0.05, 0.5, 3),
-                         Rotation.random(random_state=rng).as_matrix()),
-                _capsule_row(rng.uniform(-1, 1, 3), rng.uniform(0.05, 0.3), rng.uniform(0.0, 0.5),
-                             Rotation.random(random_state=rng).as_matrix()),
-                _sphere_row(rng.uniform(-1, 1, 3), rng.uniform(0.05, 0.5))]
+        rows = [
+            _box_row(rng.uniform(-1, 1, 3), rng.uniform(0.05, 0.5, 3), Rotation.random(random_state=rng).as_matrix()),
+            _capsule_row(
+                rng.uniform(-1, 1, 3),
+                rng.uniform(0.05, 0.3),
+                rng.uniform(0.0, 0.5),
+                Rotation.random(random_state=rng).as_matrix(),
+            ),
+            _sphere_row(rng.uniform(-1, 1, 3), rng.uniform(0.05, 0.5)),
+        ]
         a, b = rng.choice(3, 2)
         A, B = rows[a].copy(), rows[b].copy()
         A[0, 18], B[0, 18] = rng.uniform(0, 0.1, 2)  # inflations (a pad)
@@ -284,9 +300,9 @@ def test_box_separation_before_gjk_is_exact_for_boxes_and_never_wrong():
 def _row(kind, centre, verts_range=(0, 0)):
     row = np.zeros(K.SHAPE_W)
     row[K._K] = kind
-    row[K._C:K._C + 3] = centre
-    row[K._R:K._R + 9] = np.eye(3).ravel()
-    row[K._S:K._S + 3] = (0.2, 0.3, 0.25)
+    row[K._C : K._C + 3] = centre
+    row[K._R : K._R + 9] = np.eye(3).ravel()
+    row[K._S : K._S + 3] = (0.2, 0.3, 0.25)
     row[K._V0], row[K._V1] = verts_range
     return row
 
@@ -301,8 +317,14 @@ def test_every_kind_through_every_kernel_function():
 
     cube = np.array([[x, y, z] for x in (-0.2, 0.2) for y in (-0.3, 0.3) for z in (-0.25, 0.25)])
     # extent along +x, +z, and the oriented box's half sizes (None: none) per kind
-    expect = {K.BOX: (0.2, 0.25), K.SPHERE: (0.2, 0.2), K.CAPSULE: (0.2, 0.5), K.CYLINDER: (0.2, 0.3),
-              K.ELLIPSOID: (0.2, 0.25), K.HULL: (0.2, 0.25)}
+    expect = {
+        K.BOX: (0.2, 0.25),
+        K.SPHERE: (0.2, 0.2),
+        K.CAPSULE: (0.2, 0.5),
+        K.CYLINDER: (0.2, 0.3),
+        K.ELLIPSOID: (0.2, 0.25),
+        K.HULL: (0.2, 0.25),
+    }
     far = _row(K.BOX, (1.2 + 0.2 + 0.05, 0.0, 0.0))
     for kind, (ex, ez) in expect.items():
         row = _row(kind, (0.0, 0.0, 0.0), (0, 8) if kind == K.HULL else (0, 0))

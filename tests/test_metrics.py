@@ -2,10 +2,10 @@
 
 import numpy as np
 import pytest
+from conftest import write_arm_cell
 
 import drake_cfvol as cf
 from drake_cfvol.algorithm.table import BoundsTable
-from conftest import write_arm_cell
 
 L, W, Z, D = 1.0, 0.05, 0.5, 0.6
 
@@ -13,15 +13,26 @@ L, W, Z, D = 1.0, 0.05, 0.5, 0.6
 @pytest.fixture(scope="module")
 def wall_arm(tmp_path_factory):
     folder = tmp_path_factory.mktemp("wall")
-    return cf.load_workcell(write_arm_cell(
-        folder, links=[{"length": L, "half_width": W, "lower": -3.0, "upper": 3.0}],
-        obstacles={"wall": ((1.8, 0.2, 1.0), (1.1, D + 0.1, Z))}, base_z=Z))
+    return cf.load_workcell(
+        write_arm_cell(
+            folder,
+            links=[{"length": L, "half_width": W, "lower": -3.0, "upper": 3.0}],
+            obstacles={"wall": ((1.8, 0.2, 1.0), (1.1, D + 0.1, Z))},
+            base_z=Z,
+        )
+    )
 
 
 def _table(lo, hi, nominal=0.0):
     g = 3
-    return BoundsTable(np.full((g, 1), lo), np.full((g, 1), hi), np.full((g, 1), nominal), ["joint1"],
-                       np.array([-3.0]), np.array([3.0]))
+    return BoundsTable(
+        np.full((g, 1), lo),
+        np.full((g, 1), hi),
+        np.full((g, 1), nominal),
+        ["joint1"],
+        np.array([-3.0]),
+        np.array([3.0]),
+    )
 
 
 def test_cf_free_box(wall_arm):
@@ -49,8 +60,14 @@ def test_cf_seeded(wall_arm):
 
 def test_freedom_by_hand():
     """Freedom: geometric mean of width / range; median width in degrees."""
-    t = BoundsTable(np.array([[-1.0, 0.0], [-0.5, 0.0]]), np.array([[1.0, 0.5], [0.5, 0.5]]),
-                    np.zeros((2, 2)), ["a", "b"], np.array([-2.0, -1.0]), np.array([2.0, 1.0]))
+    t = BoundsTable(
+        np.array([[-1.0, 0.0], [-0.5, 0.0]]),
+        np.array([[1.0, 0.5], [0.5, 0.5]]),
+        np.zeros((2, 2)),
+        ["a", "b"],
+        np.array([-2.0, -1.0]),
+        np.array([2.0, 1.0]),
+    )
     fr = cf.freedom(t, [True, False])
     # waypoint 0: sqrt(0.5 * 0.25); waypoint 1: sqrt(0.25 * 0.25)
     assert fr.mean == pytest.approx((np.sqrt(0.125) + 0.25) / 2)

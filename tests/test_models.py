@@ -18,12 +18,14 @@ def test_abb_wrist_centre_at_zero_pose(automotive):
 
 def test_abb_wrist_centre_with_j1_and_j2(automotive):
     """J1 = 90 deg turns the wrist onto +y; J2 = 90 deg lays the lower arm forward."""
-    np.testing.assert_allclose(_p_FW(automotive, np.radians([90, 0, 0, 0, 0, 0]), "base_link"),
-                               [0, 1.5025, 2.26], atol=1e-9)
+    np.testing.assert_allclose(
+        _p_FW(automotive, np.radians([90, 0, 0, 0, 0, 0]), "base_link"), [0, 1.5025, 2.26], atol=1e-9
+    )
     # J3 at (0.32 + 1.28, 0, 0.78); the wrist offset (1.1825, 0, 0.2) turned
     # by +90 deg about y is (0.2, 0, -1.1825).
-    np.testing.assert_allclose(_p_FW(automotive, np.radians([0, 90, 0, 0, 0, 0]), "base_link"),
-                               [1.6 + 0.2, 0, 0.78 - 1.1825], atol=1e-9)
+    np.testing.assert_allclose(
+        _p_FW(automotive, np.radians([0, 90, 0, 0, 0, 0]), "base_link"), [1.6 + 0.2, 0, 0.78 - 1.1825], atol=1e-9
+    )
 
 
 def test_kuka_wrist_centre(aerospace):
@@ -37,10 +39,13 @@ def test_kuka_wrist_centre(aerospace):
     np.testing.assert_allclose(p_rail, [1.75 + 2.5, 0, 1.984 + 0.385 + 0.40], atol=1e-9)
 
 
-@pytest.mark.parametrize("cell,limits_deg", [
-    ("automotive", [(-170, 170), (-65, 85), (-180, 70), (-300, 300), (-130, 130), (-360, 360)]),
-    ("aerospace", [(-185, 185), (-140, -5), (-120, 155), (-350, 350), (-122.5, 122.5), (-350, 350)]),
-])
+@pytest.mark.parametrize(
+    "cell,limits_deg",
+    [
+        ("automotive", [(-170, 170), (-65, 85), (-180, 70), (-300, 300), (-130, 130), (-360, 360)]),
+        ("aerospace", [(-185, 185), (-140, -5), (-120, 155), (-350, 350), (-122.5, 122.5), (-350, 350)]),
+    ],
+)
 def test_position_limits_match_reference(cell, limits_deg, request):
     """Position limits are the reference's (the rail travels 8 m)."""
     wc = request.getfixturevalue(cell)

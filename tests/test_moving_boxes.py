@@ -22,9 +22,16 @@ def test_motion_is_piecewise_linear_and_held_at_the_ends():
     assert MovingObstacle("still", [1, 1, 1], [[0.0, 1, 1, 0.5]]).first_motion() is None
 
 
-@pytest.mark.parametrize("bad, match", [
-    (dict(box=[1, 1]), "3 sides"), (dict(box=[1, 0, 1]), "3 sides"), (dict(waypoints=[]), "at least one"),
-    (dict(waypoints=[[0, 1, 2]]), r"\[t, x, y, z\]"), (dict(waypoints=[[1, 0, 0, 0], [1, 1, 0, 0]]), "increase")])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (dict(box=[1, 1]), "3 sides"),
+        (dict(box=[1, 0, 1]), "3 sides"),
+        (dict(waypoints=[]), "at least one"),
+        (dict(waypoints=[[0, 1, 2]]), r"\[t, x, y, z\]"),
+        (dict(waypoints=[[1, 0, 0, 0], [1, 1, 0, 0]]), "increase"),
+    ],
+)
 def test_bad_obstacles_are_named(bad, match):
     """Wrong sides or waypoints raise a ParameterError naming the obstacle."""
     kw = dict(name="cart", box=[1, 1, 1], waypoints=[[0, 0, 0, 0.5]])

@@ -15,7 +15,7 @@ def _box_map(grid, wc, path):
     H = np.zeros(grid.shape)
     c = np.asarray(wc.tool_position(path.waypoints[path.g // 2]))[:2] + (0.6, 0.0)
     i, j, _ = grid.cells_of(np.array([c[0] - 0.3, c[0] + 0.3]), np.array([c[1] - 0.3, c[1] + 0.3]))
-    H[i[0]:i[1] + 1, j[0]:j[1] + 1] = 1.2
+    H[i[0] : i[1] + 1, j[0] : j[1] + 1] = 1.2
     return ObstacleMap(grid, H, 0.0)
 
 
@@ -47,8 +47,10 @@ def test_estimator_publishes_one_period_later_and_the_source_follows(bounded, pl
     lo, hi = src.lower_output.Eval(src.GetMyContextFromRoot(ctx)), src.upper_output.Eval(src.GetMyContextFromRoot(ctx))
     np.testing.assert_array_equal(lo, live.at(path.g / 2)[0])
     np.testing.assert_array_equal(hi, live.at(path.g / 2)[1])
-    narrower = [np.any(live.at(v)[1] - live.at(v)[0] < first.at(v)[1] - first.at(v)[0] - 1e-12)
-                for v in np.arange(path.g - 1) + 0.5]
+    narrower = [
+        np.any(live.at(v)[1] - live.at(v)[0] < first.at(v)[1] - first.at(v)[0] - 1e-12)
+        for v in np.arange(path.g - 1) + 0.5
+    ]
     assert any(narrower)
     for v in np.linspace(0, path.g - 1, 37):
         lo_b, hi_b, nom = table.at(v)

@@ -20,18 +20,21 @@ def test_workcell_reach_and_overrides(automotive, aerospace):
     assert VolumeParams.for_workcell(automotive, reach=2.0, resolution=500).resolution == 500
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    ({"resolution": 0}, "resolution"),
-    ({"resolution": -5}, "resolution"),
-    ({"d_t_lb": 1.5, "d_t_ub": 1.5}, "d_t_lb"),
-    ({"d_g_lb": 3.0}, "d_g_lb"),
-    ({"h_max": -0.1}, "h_max"),
-    ({"delta": 0.0}, "delta"),
-    ({"delta_prismatic": -1e-3}, "delta_prismatic"),
-    ({"alpha_t": 0}, "alpha_t"),
-    ({"d_ng_ub": 0}, "d_ng_ub"),
-    ({"h_max": float("nan")}, "h_max"),
-])
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"resolution": 0}, "resolution"),
+        ({"resolution": -5}, "resolution"),
+        ({"d_t_lb": 1.5, "d_t_ub": 1.5}, "d_t_lb"),
+        ({"d_g_lb": 3.0}, "d_g_lb"),
+        ({"h_max": -0.1}, "h_max"),
+        ({"delta": 0.0}, "delta"),
+        ({"delta_prismatic": -1e-3}, "delta_prismatic"),
+        ({"alpha_t": 0}, "alpha_t"),
+        ({"d_ng_ub": 0}, "d_ng_ub"),
+        ({"h_max": float("nan")}, "h_max"),
+    ],
+)
 def test_invalid_parameters(kwargs, match):
     """Invalid parameters raise a ParameterError naming the field."""
     with pytest.raises(cf.ParameterError, match=match):

@@ -47,8 +47,13 @@ def _map(wc, boxes, q, params):
 
 
 CASES = {
-    "mesh": (MESH_CELL, [MovingObstacle("crate", [0.3, 0.3, 0.5], [[0.0, 0.8, -0.8, 0.25]]),
-                         MovingObstacle("post", [0.2, 0.4, 0.8], [[0.0, -0.75, 0.7, 0.4]])]),
+    "mesh": (
+        MESH_CELL,
+        [
+            MovingObstacle("crate", [0.3, 0.3, 0.5], [[0.0, 0.8, -0.8, 0.25]]),
+            MovingObstacle("post", [0.2, 0.4, 0.8], [[0.0, -0.75, 0.7, 0.4]]),
+        ],
+    ),
     "automotive": ("automotive", [MovingObstacle("cart", [0.8, 0.8, 1.2], [[0.0, 3.4, 2.0, 0.6]])]),
 }
 
@@ -68,14 +73,15 @@ def test_camera_map_matches_the_true_boxes(case):
     near = np.zeros(g.shape, bool)
     for b in boxes:
         c, half = b.position(0.0), np.asarray(b.box) / 2
-        i, j, _ = g.cells_of(np.array([c[0] - half[0], c[0] + half[0] - 1e-9]),
-                             np.array([c[1] - half[1], c[1] + half[1] - 1e-9]))
+        i, j, _ = g.cells_of(
+            np.array([c[0] - half[0], c[0] + half[0] - 1e-9]), np.array([c[1] - half[1], c[1] + half[1] - 1e-9])
+        )
         top = c[2] + half[2]
-        under = m.heights[i[0]:i[1] + 1, j[0]:j[1] + 1]
+        under = m.heights[i[0] : i[1] + 1, j[0] : j[1] + 1]
         assert under.min() >= top - 1e-6, f"{b.name}: a cell under it reads {under.min():.3f} m < {top} m"
         assert under.max() <= top + params.height_step + 1e-6
         r = params.dilation + 1
-        near[max(i[0] - r, 0):i[1] + r + 1, max(j[0] - r, 0):j[1] + r + 1] = True
+        near[max(i[0] - r, 0) : i[1] + r + 1, max(j[0] - r, 0) : j[1] + r + 1] = True
     assert np.all(m.heights[~near] == 0.0), f"{np.count_nonzero(m.heights[~near])} cells away from the boxes occupied"
 
 

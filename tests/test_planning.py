@@ -2,18 +2,17 @@
 
 import numpy as np
 import pytest
+from conftest import write_arm_cell
 
 import drake_cfvol as cf
 from drake_cfvol.algorithm.planning import NominalPath, densify, plan_nominal_path
-from conftest import write_arm_cell
 
 
 def _fine_checker(wc):
     """A second Drake checker with a 4x finer edge step than the planner's."""
     from pydrake.planning import SceneGraphCollisionChecker
 
-    return SceneGraphCollisionChecker(model=wc.diagram, robot_model_instances=[wc.robot],
-                                      edge_step_size=0.0025)
+    return SceneGraphCollisionChecker(model=wc.diagram, robot_model_instances=[wc.robot], edge_step_size=0.0025)
 
 
 @pytest.mark.slow  # 4-5 s per cell; the default group stays under 90 s
@@ -102,8 +101,9 @@ def test_wrong_length(automotive):
 def test_robot_without_limits(tmp_path):
     """A continuous joint (no limits) cannot be planned for; the error names it
     and says how to add limits."""
-    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": None, "upper": None}],
-                          obstacles={})
+    path = write_arm_cell(
+        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": None, "upper": None}], obstacles={}
+    )
     wc = cf.load_workcell(path)
     with pytest.raises(cf.MissingJointLimitsError, match="joint1.*joint_limits"):
         plan_nominal_path(wc, [0.0], [1.0], seed=0)
@@ -119,8 +119,10 @@ def test_unreachable_goal_times_out(tmp_path):
     # A one-link arm of length 1 turning about z; posts at y = +-0.8 block
     # both ways round from 0 rad to pi rad.
     path = write_arm_cell(
-        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3.1, "upper": 3.1}],
-        obstacles={"post_a": ((0.1, 0.1, 2.0), (0.0, 0.8, 1.0)), "post_b": ((0.1, 0.1, 2.0), (0.0, -0.8, 1.0))})
+        tmp_path,
+        links=[{"length": 1.0, "half_width": 0.05, "lower": -3.1, "upper": 3.1}],
+        obstacles={"post_a": ((0.1, 0.1, 2.0), (0.0, 0.8, 1.0)), "post_b": ((0.1, 0.1, 2.0), (0.0, -0.8, 1.0))},
+    )
     wc = cf.load_workcell(path)
     with pytest.raises(cf.PlanningError, match=r"in 0.5 s \(\d+ attempt"):
         plan_nominal_path(wc, [0.0], [3.0], seed=0, time_limit=0.5)

@@ -81,9 +81,8 @@ def test_eta_error_by_hand():
 
 def test_library_is_quiet_by_default(capfd):
     """Library calls draw no bar unless asked (progress=False default)."""
-    from drake_cfvol.algorithm.metrics import confidence_factor
-
     import drake_cfvol as cf
+    from drake_cfvol.algorithm.metrics import confidence_factor
 
     wc = cf.load_workcell("automotive")
     path = cf.plan_nominal_path(wc, *wc.configuration("path1"), seed=0)

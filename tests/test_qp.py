@@ -82,16 +82,18 @@ def _instance(rng):
 def _blocks(vmax, lo, hi, A, b):
     k = len(vmax)
     eye = np.eye(k)
-    return [ConstraintRows(np.vstack([eye, -eye]), -np.concatenate([vmax, vmax]), HARD, 0.0, "limits"),
-            ConstraintRows(np.vstack([eye, -eye]), np.concatenate([lo, -hi]), BOX, BOX_WEIGHT, "box"),
-            ConstraintRows(A, b, ROW, SLACK_WEIGHT, "rows")]
+    return [
+        ConstraintRows(np.vstack([eye, -eye]), -np.concatenate([vmax, vmax]), HARD, 0.0, "limits"),
+        ConstraintRows(np.vstack([eye, -eye]), np.concatenate([lo, -hi]), BOX, BOX_WEIGHT, "box"),
+        ConstraintRows(A, b, ROW, SLACK_WEIGHT, "rows"),
+    ]
 
 
 def _cost(v, v_t, lo, hi, A, b, stage):
     """The stage's optimal cost at v (its slacks at their best for v)."""
     box = np.maximum(0.0, np.maximum(lo - v, v - hi)) if stage else 0.0
     rows = np.maximum(0.0, b - A @ v) if stage == 2 else 0.0
-    return np.sum((v - v_t) ** 2) + BOX_WEIGHT * np.sum(box ** 2) + SLACK_WEIGHT * np.sum(rows ** 2)
+    return np.sum((v - v_t) ** 2) + BOX_WEIGHT * np.sum(box**2) + SLACK_WEIGHT * np.sum(rows**2)
 
 
 def _kkt(h, g, C, c, x):
@@ -180,7 +182,7 @@ def test_solve_qp_on_general_instances():
         assert (status == QP_OPTIMAL) == ok
         verdicts[int(ok)] += 1
         if ok:
-            cost = lambda x: 0.5 * h @ x ** 2 + g @ x  # noqa: E731
+            cost = lambda x: 0.5 * h @ x**2 + g @ x  # noqa: E731
             assert cost(x) == pytest.approx(cost(x_ref), rel=1e-7, abs=1e-7)
             np.testing.assert_allclose(x, x_ref, atol=1e-5)
             assert _kkt(h, g, C, c, x) < 1e-9

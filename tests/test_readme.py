@@ -44,7 +44,7 @@ def _blocks():
         text = page.read_text()
         for m in _FENCE.finditer(text):
             line = text.count("\n", 0, m.start()) + 1
-            before = text[:m.start()].rstrip().splitlines()[-1:] or [""]
+            before = text[: m.start()].rstrip().splitlines()[-1:] or [""]
             out.append((page, line, m.group(1), m.group(2), before[0].strip() == "<!-- slow -->"))
     return out
 
@@ -87,8 +87,9 @@ def test_pages_tell_no_history(page):
     """No issue history or dated comparisons: no "issue", no month names,
     no "than before" in the README and the hand-written pages."""
     months = "January|February|March|April|June|July|August|September|October|November|December"
-    found = re.findall(rf"\b(issues?|{months}|than before|previous (?:run|version|certifier))\b", page.read_text(),
-                       re.I)
+    found = re.findall(
+        rf"\b(issues?|{months}|than before|previous (?:run|version|certifier))\b", page.read_text(), re.I
+    )
     assert not found, f"{page.name}: {found}"
 
 
@@ -166,8 +167,11 @@ def test_station_example_runs(capsys):
     assert "part" in scope["wc"].obstacles
 
 
-_OTHER_PYTHON = [pytest.param(b, id=_id(b), marks=[pytest.mark.slow] if b[4] else [])
-                 for b in BLOCKS if b[2] == "python" and not any(m in b[3] for m in OWN_TESTS.values())]
+_OTHER_PYTHON = [
+    pytest.param(b, id=_id(b), marks=[pytest.mark.slow] if b[4] else [])
+    for b in BLOCKS
+    if b[2] == "python" and not any(m in b[3] for m in OWN_TESTS.values())
+]
 
 
 @pytest.mark.parametrize("block", _OTHER_PYTHON or [pytest.param(None, marks=pytest.mark.skip("none"))])
@@ -183,8 +187,9 @@ def test_other_python_blocks_run(block, tmp_path, monkeypatch):
 
 def _commands(code: str) -> list[list[str]]:
     """The command lines of a shell block (continuations joined, comments dropped)."""
-    return [argv for argv in (shlex.split(line, comments=True) for line in code.replace("\\\n", " ").splitlines())
-            if argv]
+    return [
+        argv for argv in (shlex.split(line, comments=True) for line in code.replace("\\\n", " ").splitlines()) if argv
+    ]
 
 
 def _check_command(argv: list[str]) -> None:
@@ -225,8 +230,12 @@ def test_shell_block_commands_exist(block):
 def test_shell_check_catches_a_wrong_option():
     """The shell check itself works: a misspelt option, an unknown command
     and a scenario field that does not exist are refused."""
-    for line in ("cfvol bounds automotive --certfy", "cfvol plot automotive", "tools/nothing.sh",
-                 "cfvol simulate automotive_push --scenario-text '{no_such_field: 1}'"):
+    for line in (
+        "cfvol bounds automotive --certfy",
+        "cfvol plot automotive",
+        "tools/nothing.sh",
+        "cfvol simulate automotive_push --scenario-text '{no_such_field: 1}'",
+    ):
         with pytest.raises(Exception):
             for argv in _commands(line):
                 _check_command(argv)

@@ -29,7 +29,7 @@ def test_rows_are_consistent(tiny):
 def test_targets_and_markdown(tiny):
     """A target line per 1 ms (cell, push), met iff both figures are within
     the targets; the table has a line per summary row."""
-    (name, met, text), = realtime_targets(tiny)
+    ((name, met, text),) = realtime_targets(tiny)
     s = tiny["summary"][0]
     assert met == (s["median_s"] <= 0.5e-3 and s["p99_s"] <= 1e-3) and "automotive steady" in name
     md = realtime_markdown(tiny)

@@ -18,11 +18,14 @@ def saved(tmp_path_factory):
 
 
 @pytest.mark.parametrize("loader", [cf.NominalPath.load, cf.BoundsTable.load])
-@pytest.mark.parametrize("content, reason", [
-    (b"", "empty or truncated"),
-    (b"PK\x03\x04 truncated", "empty or truncated"),
-    (b"\x93NUMPY not a zip", "not valid"),
-])
+@pytest.mark.parametrize(
+    "content, reason",
+    [
+        (b"", "empty or truncated"),
+        (b"PK\x03\x04 truncated", "empty or truncated"),
+        (b"\x93NUMPY not a zip", "not valid"),
+    ],
+)
 def test_broken_npz(tmp_path, loader, content, reason):
     """An empty, truncated or foreign .npz is a RecordFormatError naming the file."""
     f = tmp_path / "x.npz"
@@ -33,12 +36,15 @@ def test_broken_npz(tmp_path, loader, content, reason):
 
 
 @pytest.mark.parametrize("loader", [cf.NominalPath.load, cf.BoundsTable.load])
-@pytest.mark.parametrize("content, reason", [
-    ("", "not valid"),
-    ('{"waypoints": [[0, 1]', "not valid"),
-    ("[1, 2, 3]", "no JSON object"),
-    ('{"something": "else"}', "lacks"),
-])
+@pytest.mark.parametrize(
+    "content, reason",
+    [
+        ("", "not valid"),
+        ('{"waypoints": [[0, 1]', "not valid"),
+        ("[1, 2, 3]", "no JSON object"),
+        ('{"something": "else"}', "lacks"),
+    ],
+)
 def test_broken_json(tmp_path, loader, content, reason):
     """An empty, truncated or foreign .json is a RecordFormatError."""
     f = tmp_path / "x.json"

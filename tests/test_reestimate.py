@@ -20,9 +20,10 @@ def _grid(wc) -> MapGrid:
 def _box_map(grid: MapGrid, centre, half, top: float) -> ObstacleMap:
     """A map with one box: the cells its footprint meets, at ``top``."""
     H = np.zeros(grid.shape)
-    i, j, _ = grid.cells_of(np.array([centre[0] - half, centre[0] + half]),
-                            np.array([centre[1] - half, centre[1] + half]))
-    H[i[0]:i[1] + 1, j[0]:j[1] + 1] = top
+    i, j, _ = grid.cells_of(
+        np.array([centre[0] - half, centre[0] + half]), np.array([centre[1] - half, centre[1] + half])
+    )
+    H[i[0] : i[1] + 1, j[0] : j[1] + 1] = top
     return ObstacleMap(grid, H)
 
 

@@ -43,11 +43,13 @@ def _arm(obstacle: str, **kw):
     friction = CoulombFriction(0.5, 0.5)
     tip = plant.RegisterCollisionGeometry(link2, RigidTransform([L2, 0, 0]), Sphere(R), "tip", friction)
     if obstacle == "wall":
-        obs = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform([1.3, 0, 0]), Box(1.0, 4.0, 1.0),
-                                              "wall", friction)
+        obs = plant.RegisterCollisionGeometry(
+            plant.world_body(), RigidTransform([1.3, 0, 0]), Box(1.0, 4.0, 1.0), "wall", friction
+        )
     else:
-        obs = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(), Cylinder(0.2, 1.0), "column",
-                                              friction)
+        obs = plant.RegisterCollisionGeometry(
+            plant.world_body(), RigidTransform(), Cylinder(0.2, 1.0), "column", friction
+        )
     plant.Finalize()
     speed = kw.pop("tool_speed", None)  # a ToolSpeedLimit (m/s) at the tip sphere's centre
     if speed is not None:
@@ -161,7 +163,7 @@ def test_second_order_term_by_hand_and_against_drake(wall):
         p_after = elbow(q + dq) + rot(q[0] + q[1] + dq[0] + dq[1]) @ p_link2
         theta = np.abs(dq).sum()
         change = -(p_after[0] - p_w[0])  # the witness point's gap change (n = -x)
-        e_hand = max(0.0, rows.A[0] @ dq - change) + 0.5 * R * theta ** 2
+        e_hand = max(0.0, rows.A[0] @ dq - change) + 0.5 * R * theta**2
         e = sf.second_order(sctx, rows, dq)
         assert e == pytest.approx([e_hand], abs=1e-12)
         sf.set_initial_position(sctx, q + dq)
@@ -211,7 +213,7 @@ def test_motion_along_an_obstacle_is_not_slowed():
     diagram, sf, tip, col = _arm("column", clearance=0.02, influence_distance=0.15)
     ctx = diagram.CreateDefaultContext()
     sctx = sf.GetMyContextFromRoot(ctx)
-    q2 = np.arccos(((0.2 + R + 0.05) ** 2 - L1 ** 2 - L2 ** 2) / (2 * L1 * L2))  # |p_tip| = 0.3
+    q2 = np.arccos(((0.2 + R + 0.05) ** 2 - L1**2 - L2**2) / (2 * L1 * L2))  # |p_tip| = 0.3
     sf.set_initial_position(sctx, [0.0, q2])
     assert _drake_distance(diagram, ctx, tip, col) == pytest.approx(0.05, abs=1e-9)
     _fix(diagram, ctx, [3.0, q2])
@@ -324,8 +326,7 @@ def test_constructor_checks(wall):
     diagram, sf, tip, wall_id = wall
     plant = sf._plant
     with pytest.raises(cf.ParameterError, match="influence_distance"):
-        SafetyFilter(plant, SceneGraph(), plant.GetModelInstanceByName("arm"), clearance=0.2,
-                     influence_distance=0.1)
+        SafetyFilter(plant, SceneGraph(), plant.GetModelInstanceByName("arm"), clearance=0.2, influence_distance=0.1)
     with pytest.raises(cf.DimensionError, match="velocity_limits"):
         SafetyFilter(plant, SceneGraph(), plant.GetModelInstanceByName("arm"), velocity_limits=[1.0, 1.0, 1.0])
 
@@ -341,14 +342,18 @@ def arm_1ms():
 
 
 @settings(max_examples=60, deadline=None)
-@given(q=st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=2),
-       desired=st.lists(st.floats(-5.0, 5.0), min_size=2, max_size=2),
-       centre=st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=2),
-       width=st.lists(st.floats(0.0, 1.0), min_size=2, max_size=2),
-       nominal_at=st.lists(st.floats(0.0, 1.0), min_size=2, max_size=2),
-       accel=st.booleans(), fast=st.booleans())
-def test_never_faster_than_the_limits(wall, arm_with_accel, arm_1ms, q, desired, centre, width, nominal_at, accel,
-                                      fast):
+@given(
+    q=st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=2),
+    desired=st.lists(st.floats(-5.0, 5.0), min_size=2, max_size=2),
+    centre=st.lists(st.floats(-3.0, 3.0), min_size=2, max_size=2),
+    width=st.lists(st.floats(0.0, 1.0), min_size=2, max_size=2),
+    nominal_at=st.lists(st.floats(0.0, 1.0), min_size=2, max_size=2),
+    accel=st.booleans(),
+    fast=st.booleans(),
+)
+def test_never_faster_than_the_limits(
+    wall, arm_with_accel, arm_1ms, q, desired, centre, width, nominal_at, accel, fast
+):
     """Random states, requests, boxes and nominals (the arm may start in
     the wall): no update moves a joint more than limit x period; the
     command lands in the box wherever the box is within one step, unless
@@ -444,8 +449,14 @@ def test_a_tightened_box_is_reentered_at_the_limits():
     assert np.all((q >= base_lo) & (q <= base_hi))
     inside = np.all(q <= live_hi + 1e-12, axis=1)
     assert np.flatnonzero(q[:, 0] <= live_hi[0] + 1e-12)[0] == 5 and np.flatnonzero(inside)[0] == 14
-    figures = bound_figures(t, q, np.tile(base_lo, (len(t), 1)), np.tile(base_hi, (len(t), 1)),
-                            np.tile(live_lo, (len(t), 1)), np.tile(live_hi, (len(t), 1)))
+    figures = bound_figures(
+        t,
+        q,
+        np.tile(base_lo, (len(t), 1)),
+        np.tile(base_hi, (len(t), 1)),
+        np.tile(live_lo, (len(t), 1)),
+        np.tile(live_hi, (len(t), 1)),
+    )
     assert figures["max_bound_violation"] == 0.0
     assert figures["live_box_excess_max"] == pytest.approx(0.2, abs=1e-12)
     assert figures["live_box_catchup_s"] == pytest.approx(14 * H, abs=1e-12)

@@ -92,8 +92,9 @@ def add_station_models(plant, parser, *, scene=True, part=True, finger=True, act
     shapes = [(palm, [0, 0, 0.02], Box(0.08, 0.08, 0.04))]
     if finger:
         tip = plant.AddRigidBody("finger", grip, SpatialInertia.SolidBoxWithMass(0.05, 0.02, 0.02, 0.05))
-        joint = plant.AddJoint(PrismaticJoint("finger_slide", palm.body_frame(), tip.body_frame(), [1, 0, 0],
-                                              -0.03, 0.03))
+        joint = plant.AddJoint(
+            PrismaticJoint("finger_slide", palm.body_frame(), tip.body_frame(), [1, 0, 0], -0.03, 0.03)
+        )
         joint.set_default_translation(0.02)
         shapes.append((tip, [0, 0, 0.065], Box(0.02, 0.02, 0.05)))
     if plant.geometry_source_is_registered():
@@ -126,8 +127,9 @@ def mesh_cell():
 
 @pytest.fixture(scope="module")
 def station_cell():
-    return cf.Workcell.FromRobotDiagram(robot_diagram(), robot="mesh_arm", tool_frame="tool",
-                                        configurations={"path1": (START, GOAL)}, name="station")
+    return cf.Workcell.FromRobotDiagram(
+        robot_diagram(), robot="mesh_arm", tool_frame="tool", configurations={"path1": (START, GOAL)}, name="station"
+    )
 
 
 @pytest.fixture(scope="module")
@@ -172,8 +174,11 @@ def test_robot_diagram_workcell_kernel_agrees_with_drake(station_cell):
     assert 0.05 * len(Q) < drake_hit.sum() < 0.95 * len(Q)
     assert not (drake_hit & ~kernel_hit).any()
     # Configurations whose only collision involves the gripper or the part: the kernel finds them too.
-    extra = [n for n in np.flatnonzero(drake_hit)[:300]
-             if all({"palm", "finger", "part"} & set(pair) for pair in wc.colliding_pairs(Q[n]))]
+    extra = [
+        n
+        for n in np.flatnonzero(drake_hit)[:300]
+        if all({"palm", "finger", "part"} & set(pair) for pair in wc.colliding_pairs(Q[n]))
+    ]
     assert extra and kernel_hit[extra].all()
 
 
@@ -188,8 +193,14 @@ def test_robot_diagram_workcell_gives_the_yaml_workcells_bounds(mesh_cell):
     parser.AddModels(SCENE)
     builder.plant().Finalize()
     wc = cf.Workcell.FromRobotDiagram(
-        builder.Build(), robot="mesh_arm", tool_frame="tool", base_frame="base", reach=mesh_cell.reach,
-        height_map_origin=mesh_cell.height_map_origin, height_map_size=mesh_cell.height_map_size)
+        builder.Build(),
+        robot="mesh_arm",
+        tool_frame="tool",
+        base_frame="base",
+        reach=mesh_cell.reach,
+        height_map_origin=mesh_cell.height_map_origin,
+        height_map_size=mesh_cell.height_map_size,
+    )
     np.testing.assert_array_equal(wc.position_lower, mesh_cell.position_lower)
     np.testing.assert_array_equal(wc.velocity_limits, mesh_cell.velocity_limits)
     assert set(wc.obstacles) == set(mesh_cell.obstacles)
@@ -209,8 +220,11 @@ def test_robot_diagram_workcell_defaults_cover_the_reach(station_cell):
     wc = station_cell
     c = wc.plant.GetFrameByName("link1").CalcPoseInWorld(wc.plant_context(np.zeros(7))).translation()
     Q = np.random.default_rng(0).uniform(wc.position_lower, wc.position_upper, (50, 7))
-    far = max(np.linalg.norm(wc.plant.get_body(b).EvalPoseInWorld(wc.plant_context(q)).translation() - c)
-              for q in Q for b in wc.scene_arrays().body_indices)
+    far = max(
+        np.linalg.norm(wc.plant.get_body(b).EvalPoseInWorld(wc.plant_context(q)).translation() - c)
+        for q in Q
+        for b in wc.scene_arrays().body_indices
+    )
     assert far <= wc.reach
     o, s = wc.height_map_origin, wc.height_map_size
     assert np.all(o <= c[:2] - wc.reach) and np.all(o + s >= c[:2] + wc.reach)
@@ -250,18 +264,26 @@ def _sim_station(table, pushes):
     control = MultibodyPlant(0.001)
     add_station_models(control, Parser(control), scene=False, part=False, finger=False)
     control.Finalize()
-    idc = builder.AddSystem(InverseDynamicsController(control, kp=[1e4] * 7, ki=[0.0] * 7, kd=[200.0] * 7,
-                                                      has_reference_acceleration=False))
+    idc = builder.AddSystem(
+        InverseDynamicsController(control, kp=[1e4] * 7, ki=[0.0] * 7, kd=[200.0] * 7, has_reference_acceleration=False)
+    )
     builder.Connect(plant.get_state_output_port(arm), idc.get_input_port_estimated_state())
     builder.Connect(cm.desired_state_output, idc.get_input_port_desired_state())
     builder.Connect(idc.get_output_port_control(), plant.get_actuation_input_port(arm))
     push = builder.AddSystem(ToolPushForce(plant.GetFrameByName("tool", arm)))
     builder.Connect(human.human_wrench_output, push.wrench_input)
     builder.Connect(push.spatial_forces_output, plant.get_applied_spatial_force_input_port())
-    logs = {name: LogVectorOutput(port, builder, publish_period=0.01) for name, port in (
-        ("measured", plant.get_state_output_port(arm)), ("commanded", cm.commanded_position_output),
-        ("s", cm.path_index_output), ("lower", cm.bounds.lower_output), ("upper", cm.bounds.upper_output),
-        ("nominal", cm.bounds.nominal_output))}
+    logs = {
+        name: LogVectorOutput(port, builder, publish_period=0.01)
+        for name, port in (
+            ("measured", plant.get_state_output_port(arm)),
+            ("commanded", cm.commanded_position_output),
+            ("s", cm.path_index_output),
+            ("lower", cm.bounds.lower_output),
+            ("upper", cm.bounds.upper_output),
+            ("nominal", cm.bounds.nominal_output),
+        )
+    }
     diagram = builder.Build()
     sim = Simulator(diagram)
     plant.SetPositions(plant.GetMyMutableContextFromRoot(sim.get_mutable_context()), arm, table.nominal[0])
@@ -283,7 +305,9 @@ def test_user_station_under_inverse_dynamics_control(station_cell, station_bound
     q_m, q_c = logs["measured"][:, :7], logs["commanded"]
     lo, hi, nom = logs["lower"], logs["upper"], logs["nominal"]
     # The command is the filter's state: it lies inside the box it was clamped to one update earlier.
-    assert np.all(q_c[1:] >= np.minimum(lo[:-1], lo[1:]) - 1e-9) and np.all(q_c[1:] <= np.maximum(hi[:-1], hi[1:]) + 1e-9)
+    assert np.all(q_c[1:] >= np.minimum(lo[:-1], lo[1:]) - 1e-9) and np.all(
+        q_c[1:] <= np.maximum(hi[:-1], hi[1:]) + 1e-9
+    )
     assert np.array(station_cell.checker.CheckConfigsCollisionFree(q_m), bool).all()
     assert np.abs(q_c - nom).max() > 0.05  # the push deformed the motion
     tracking = np.abs(q_m[1:] - q_c[:-1]).max()
@@ -303,8 +327,9 @@ def test_add_comanipulation_ports_on_a_plant_with_more_dofs(station_bounds):
     add_station_models(plant, Parser(plant))
     plant.Finalize()
     assert plant.num_positions() == 15
-    cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table, tool_frame="tool",
-                           period=0.01)
+    cm = AddCoManipulation(
+        builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table, tool_frame="tool", period=0.01
+    )
     assert cm.human_wrench_input.size() == 6 and cm.human_torque_input.size() == 7
     assert cm.desired_state_output.size() == 14 and cm.commanded_position_output.size() == 7
     assert cm.path_index_output.size() == 1
@@ -327,9 +352,15 @@ def test_add_comanipulation_tool_speed_limit_from_the_config(station_bounds):
         plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
         add_station_models(plant, Parser(plant), part=False)
         plant.Finalize()
-        cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table,
-                               tool_frame="tool", config=CoManipulationConfig(
-                                   safety_filter=SafetyFilterConfig(tool_speed=speed)))
+        cm = AddCoManipulation(
+            builder,
+            plant=plant,
+            scene_graph=sg,
+            robot="mesh_arm",
+            table=table,
+            tool_frame="tool",
+            config=CoManipulationConfig(safety_filter=SafetyFilterConfig(tool_speed=speed)),
+        )
         limits = [c for c in cm.safety.constraints if isinstance(c, ToolSpeedLimit)]
         if speed is None:
             assert limits == []
@@ -360,8 +391,13 @@ def test_add_comanipulation_config_reaches_the_systems(station_bounds):
     table's when left null), the path's rate at the config's share capped
     by its max_rate, and its start time; the period is the rate of every
     update."""
-    from drake_cfvol.systems import (AdmittanceConfig, CoManipulationConfig, PathProgressConfig,
-                                     SafetyFilterConfig, safe_path_rate)
+    from drake_cfvol.systems import (
+        AdmittanceConfig,
+        CoManipulationConfig,
+        PathProgressConfig,
+        SafetyFilterConfig,
+        safe_path_rate,
+    )
 
     _, table = station_bounds
     builder = DiagramBuilder()
@@ -373,11 +409,21 @@ def test_add_comanipulation_config_reaches_the_systems(station_bounds):
     config = CoManipulationConfig(
         admittance=AdmittanceConfig(mass=3.0, damping=50.0, stiffness=0.0),
         safety_filter=SafetyFilterConfig(influence_distance=0.2, damper_gain=0.5),
-        path_progress=PathProgressConfig(velocity_share=0.3, start_time=1.5, max_rate=slow))
-    cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table, tool_frame="tool",
-                           period=0.02, config=config)
-    np.testing.assert_array_equal([cm.admittance.M, cm.admittance.D, cm.admittance.K], [[3.0] * 7, [50.0] * 7,
-                                                                                        [0.0] * 7])
+        path_progress=PathProgressConfig(velocity_share=0.3, start_time=1.5, max_rate=slow),
+    )
+    cm = AddCoManipulation(
+        builder,
+        plant=plant,
+        scene_graph=sg,
+        robot="mesh_arm",
+        table=table,
+        tool_frame="tool",
+        period=0.02,
+        config=config,
+    )
+    np.testing.assert_array_equal(
+        [cm.admittance.M, cm.admittance.D, cm.admittance.K], [[3.0] * 7, [50.0] * 7, [0.0] * 7]
+    )
     assert cm.admittance.period == cm.safety.period == 0.02 and cm.admittance.path_share == 0.3
     assert cm.safety.clearance == table.params["clearance"] and cm.safety.influence_distance == 0.2
     assert cm.safety.damper_gain == 0.5 and cm.safety.allowance == SafetyFilterConfig().allowance
@@ -400,8 +446,16 @@ def test_add_comanipulation_without_the_filter(station_bounds):
         add_station_models(plant, Parser(plant))
         plant.Finalize()
         config = dataclasses.replace(CoManipulationConfig(), safety_filter=filter_config)
-        cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table,
-                               tool_frame="tool", config=config, name="arm")
+        cm = AddCoManipulation(
+            builder,
+            plant=plant,
+            scene_graph=sg,
+            robot="mesh_arm",
+            table=table,
+            tool_frame="tool",
+            config=config,
+            name="arm",
+        )
         names = {s.get_name() for s in builder.GetSystems()}
         if filter_config is None:
             assert cm.safety is None and cm.desired_state_output is None and "arm_safety_filter" not in names

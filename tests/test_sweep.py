@@ -14,8 +14,13 @@ CHECK_STEP = 0.01
 
 def independent_checker(wc):
     """A Drake checker of the real scene, built apart from the library's."""
-    return SceneGraphCollisionChecker(model=wc.diagram, robot_model_instances=[wc.robot], edge_step_size=0.01,
-                                      env_collision_padding=0.0, self_collision_padding=0.0)
+    return SceneGraphCollisionChecker(
+        model=wc.diagram,
+        robot_model_instances=[wc.robot],
+        edge_step_size=0.01,
+        env_collision_padding=0.0,
+        self_collision_padding=0.0,
+    )
 
 
 def single_joint_violations(wc, table, s_values, checker, step=CHECK_STEP):
@@ -84,8 +89,9 @@ def test_rate_comes_from_velocity_limits(automotive, planned):
     """With a given time per waypoint, the rate is velocity limit x time."""
     path = planned("automotive")
     table = cf.estimate_bounds(automotive, path, resolution=300, waypoint_time=0.1)
-    np.testing.assert_allclose(table.rate, np.maximum(automotive.velocity_limits * 0.1,
-                                                       np.abs(np.diff(path.waypoints, axis=0)).max(axis=0)))
+    np.testing.assert_allclose(
+        table.rate, np.maximum(automotive.velocity_limits * 0.1, np.abs(np.diff(path.waypoints, axis=0)).max(axis=0))
+    )
 
 
 @pytest.mark.slow

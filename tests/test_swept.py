@@ -36,8 +36,17 @@ def test_bounds_at_least_as_wide_as_the_whole_grid_hull(case):
     less the search's delta (the searches' steps differ, each stops within
     delta of its true end)."""
     g, m, field = _recorded(case)
-    bounds, tests, _ = K.sweep_chains(g["chains"], (g["lim_lo"], g["lim_hi"], g["delta"]), g["nts"], g["v_steps"],
-                                      g["W"], m, field, g["pads"], g["guesses"])
+    bounds, tests, _ = K.sweep_chains(
+        g["chains"],
+        (g["lim_lo"], g["lim_hi"], g["delta"]),
+        g["nts"],
+        g["v_steps"],
+        g["W"],
+        m,
+        field,
+        g["pads"],
+        g["guesses"],
+    )
     sign = g["chains"][:, 1][:, None].astype(float)
     gain = sign * (bounds - g["bounds"])
     delta = g["delta"][g["chains"][:, 0]][:, None]
@@ -51,9 +60,9 @@ def test_ball_against_a_box_by_hand():
     row[K._K] = K.BOX
     c, s = np.cos(0.3), np.sin(0.3)
     R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-    row[K._C:K._C + 3] = (1.0, 2.0, 0.5)
-    row[K._R:K._R + 9] = R.ravel()
-    row[K._S:K._S + 3] = (0.5, 0.2, 0.5)
+    row[K._C : K._C + 3] = (1.0, 2.0, 0.5)
+    row[K._R : K._R + 9] = R.ravel()
+    row[K._S : K._S + 3] = (0.5, 0.2, 0.5)
     aabb = np.zeros(6)
     K.row_aabb(row, np.zeros((0, 3)), aabb)
     # 0.3 m beyond the +x face and 0.4 m beyond the +y face: 0.5 m away.
@@ -71,12 +80,15 @@ def test_quick_pass_never_frees_a_colliding_region(cell, request):
     padded checker finds every configuration of a dense grid over it free."""
     if cell == "mesh":
         import drake_cfvol as cf
+
         wc = cf.load_workcell("tests/data/mesh_cell.yaml")
     else:
         wc = request.getfixturevalue(cell)
     m = wc.scene_arrays().model
     k = wc.num_joints
-    rs = _region_workspace(m.chain.parent.shape[0], k, m.obstacles.shape[0], m.shapes, m.verts, m.spheres, m.shape_spheres)
+    rs = _region_workspace(
+        m.chain.parent.shape[0], k, m.obstacles.shape[0], m.shapes, m.verts, m.spheres, m.shape_spheres
+    )
     rng = np.random.default_rng(0)
     lo, hi = wc.position_lower, wc.position_upper
     checker = wc.padded_checker(0.02)
@@ -112,24 +124,46 @@ def _two_finger_model():
     from 0.3 to 0.45 m along -x from its joint (towards finger 0 at 0 rad);
     the fingers are a self pair."""
     eye = np.eye(3)
-    chain = K.Chain(np.array([-1, -1], np.int64), np.array([1, 1], np.int64), np.array([0, 1], np.int64),
-                    np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]), np.stack([eye, eye]),
-                    np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0]]), np.stack([eye, eye]), np.zeros((2, 3)))
+    chain = K.Chain(
+        np.array([-1, -1], np.int64),
+        np.array([1, 1], np.int64),
+        np.array([0, 1], np.int64),
+        np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]),
+        np.stack([eye, eye]),
+        np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0]]),
+        np.stack([eye, eye]),
+        np.zeros((2, 3)),
+    )
     shapes = np.zeros((2, K.SHAPE_W))
     shapes[:, K._K] = K.BOX
-    shapes[:, K._R:K._R + 9] = eye.ravel()
-    shapes[0, K._S:K._S + 3] = (0.02, 0.02, 0.02)
-    shapes[1, K._S:K._S + 3] = (0.075, 0.02, 0.02)
-    shapes[1, K._C:K._C + 3] = (-0.375, 0.0, 0.0)
+    shapes[:, K._R : K._R + 9] = eye.ravel()
+    shapes[0, K._S : K._S + 3] = (0.02, 0.02, 0.02)
+    shapes[1, K._S : K._S + 3] = (0.075, 0.02, 0.02)
+    shapes[1, K._C : K._C + 3] = (-0.375, 0.0, 0.0)
     verts = np.zeros((0, 3))
     spheres, ranges = robot_covers(shapes, verts)
     moved = np.array([[True, False], [False, True]])
     reach = np.array([[0.03, 0.0], [0.0, 0.46]])
     curvature = np.zeros((2, 2, 2))
     curvature[0, 0, 0], curvature[1, 1, 1] = 0.03, 0.46
-    return K.Model(chain, shapes, np.array([0, 1], np.int64), verts, np.zeros((0, K.SHAPE_W)), np.zeros((0, 6)),
-                   np.array([[0, 1]], np.int64), np.array([[0, 1]], np.int64), np.array([True, True]), moved, reach,
-                   curvature, np.array([True, True]), np.array([0, 1], np.int64), spheres, ranges)
+    return K.Model(
+        chain,
+        shapes,
+        np.array([0, 1], np.int64),
+        verts,
+        np.zeros((0, K.SHAPE_W)),
+        np.zeros((0, 6)),
+        np.array([[0, 1]], np.int64),
+        np.array([[0, 1]], np.int64),
+        np.array([True, True]),
+        moved,
+        reach,
+        curvature,
+        np.array([True, True]),
+        np.array([0, 1], np.int64),
+        spheres,
+        ranges,
+    )
 
 
 def test_a_moving_second_branch_is_never_called_free():
@@ -145,7 +179,17 @@ def test_a_moving_second_branch_is_never_called_free():
     one = np.ones(1, np.int64)
 
     def hit(b1):
-        return K.regions_hit(np.array([[0.0, -1.0]]), np.array([[0.0, b1]]), np.zeros(1, np.int64),
-                             np.array([0.0]), np.array([0.04]), 2 * one, 2 * one, np.zeros(1), m)[0]
+        return K.regions_hit(
+            np.array([[0.0, -1.0]]),
+            np.array([[0.0, b1]]),
+            np.zeros(1, np.int64),
+            np.array([0.0]),
+            np.array([0.04]),
+            2 * one,
+            2 * one,
+            np.zeros(1),
+            m,
+        )[0]
+
     assert hit(1.0)
     assert not hit(-1.0)

@@ -4,7 +4,8 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pydrake.systems.analysis import Simulator
 
 import drake_cfvol as cf
@@ -50,8 +51,12 @@ def test_bounds_source_between_waypoints_with_stretch_boxes():
     rule), by hand: at s = 0.5 the first stretch's box, each bound capped by
     the second stretch's bound plus rate x 0.5 (joint 0; joint 1 has no
     limit); at s = 1.5 the second stretch's box."""
-    t = dataclasses.replace(_table(), stretch_lower=np.array([[-0.7, 0.1], [-0.3, 0.15]]),
-                            stretch_upper=np.array([[0.9, 0.45], [0.25, 0.5]]), rate=np.array([0.2, np.inf]))
+    t = dataclasses.replace(
+        _table(),
+        stretch_lower=np.array([[-0.7, 0.1], [-0.3, 0.15]]),
+        stretch_upper=np.array([[0.9, 0.45], [0.25, 0.5]]),
+        rate=np.array([0.2, np.inf]),
+    )
     src = JointBoundsSource(t)
     lo, hi, nom = _eval(src, 0.5)
     np.testing.assert_allclose(nom, [0.0, 0.4])
@@ -132,7 +137,9 @@ def test_large_push_sits_on_bound_and_releases_at_once():
 @settings(max_examples=40, deadline=None)
 @given(
     tau=st.lists(st.floats(-1e4, 1e4), min_size=3, max_size=3),
-    mass=st.floats(0.1, 50.0), damping=st.floats(0.0, 500.0), stiffness=st.floats(0.0, 2000.0),
+    mass=st.floats(0.1, 50.0),
+    damping=st.floats(0.0, 500.0),
+    stiffness=st.floats(0.0, 2000.0),
     width=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3),
 )
 def test_commanded_always_inside_bounds(tau, mass, damping, stiffness, width):
@@ -170,8 +177,13 @@ def _checked_admittance(**check_kw):
     builder.Connect(check.human_torque_output, adm.human_torque_input)
     builder.Connect(check.human_wrench_output, adm.human_wrench_input)
     builder.Connect(check.fault_output, adm.hold_input)
-    for port in (check.human_torque_input, check.human_wrench_input, adm.nominal_input, adm.lower_input,
-                 adm.upper_input):
+    for port in (
+        check.human_torque_input,
+        check.human_wrench_input,
+        adm.nominal_input,
+        adm.lower_input,
+        adm.upper_input,
+    ):
         builder.ExportInput(port, port.get_name())
     diagram = builder.Build()
     ctx = diagram.CreateDefaultContext()
@@ -256,15 +268,22 @@ def test_wrench_maps_through_jacobian(automotive):
     wc = automotive
     q0 = wc.configuration("path1")[0]
     K = 1e4
-    adm = AdmittanceDeformation(6, mass=1.0, damping=300.0, stiffness=K, period=0.002, plant=wc.plant,
-                                tool_frame=wc.tool_frame)
+    adm = AdmittanceDeformation(
+        6, mass=1.0, damping=300.0, stiffness=K, period=0.002, plant=wc.plant, tool_frame=wc.tool_frame
+    )
     ctx = adm.CreateDefaultContext()
     _fix(adm, ctx, q0, q0 - 1, q0 + 1, np.zeros(6))
     w = np.array([0, 0, 0, 0, 0, -20.0])
     adm.human_wrench_input.FixValue(ctx, w)
     Simulator(adm, ctx).AdvanceTo(3.0)
-    J = wc.plant.CalcJacobianSpatialVelocity(wc.plant_context(q0), JacobianWrtVariable.kQDot, wc.tool_frame,
-                                             np.zeros(3), wc.plant.world_frame(), wc.plant.world_frame())
+    J = wc.plant.CalcJacobianSpatialVelocity(
+        wc.plant_context(q0),
+        JacobianWrtVariable.kQDot,
+        wc.tool_frame,
+        np.zeros(3),
+        wc.plant.world_frame(),
+        wc.plant.world_frame(),
+    )
     # J is taken at the deviated configuration: entries move by O(deviation).
     np.testing.assert_allclose(adm.deviation_output.Eval(ctx), J.T @ w / K, rtol=0.02, atol=1e-4)
 
@@ -344,8 +363,7 @@ def test_velocity_limits_hold_the_deviation_rate():
     bounds), and the steady state is unchanged: d = K^-1 tau."""
     vmax = np.array([1.0, 2.0])
     K = np.array([100.0, 100.0])
-    adm, ctx = _admittance(mass=0.1, damping=1.0, stiffness=K, period=0.01, velocity_limits=vmax,
-                           path_share=0.5)
+    adm, ctx = _admittance(mass=0.1, damping=1.0, stiffness=K, period=0.01, velocity_limits=vmax, path_share=0.5)
     tau = np.array([80.0, -90.0])
     _fix(adm, ctx, [0.0, 0.0], [-2, -2], [2, 2], tau)
     sim = Simulator(adm, ctx)
@@ -377,8 +395,9 @@ def test_safe_path_rate_by_hand():
     from drake_cfvol.systems import safe_path_rate
 
     t = _table()
-    rated = BoundsTable(t.lower, t.upper, t.nominal, t.joint_names, t.limit_lower, t.limit_upper,
-                        rate=np.array([0.5, 0.2]))
+    rated = BoundsTable(
+        t.lower, t.upper, t.nominal, t.joint_names, t.limit_lower, t.limit_upper, rate=np.array([0.5, 0.2])
+    )
     assert safe_path_rate(rated, [1.0, 1.0], share=0.5) == pytest.approx(min(0.5 / 0.5, 0.5 / 0.2))
     # No rate: the largest neighbour change per joint is joint a's upper 2.0 -> 0.3 (1.7) and
     # joint b's upper 1.0 -> 0.4 (0.6); the rate is min(0.5 / 1.7, 0.5 / 0.6).
@@ -386,8 +405,9 @@ def test_safe_path_rate_by_hand():
     assert safe_path_rate(t, [np.inf, np.inf]) == np.inf
 
 
-@pytest.mark.parametrize("named_obstacles, ignore_invariant", [(False, False), (True, False), (False, True),
-                                                               (True, True)])
+@pytest.mark.parametrize(
+    "named_obstacles, ignore_invariant", [(False, False), (True, False), (False, True), (True, True)]
+)
 def test_clearance_monitor_agrees_with_the_workcell(named_obstacles, ignore_invariant):
     """Through the query port of a diagram holding the workcell and one
     volume box: the moving links' clearance and the collision flag equal the
@@ -411,26 +431,41 @@ def test_clearance_monitor_agrees_with_the_workcell(named_obstacles, ignore_inva
     builder = DiagramBuilder()
     plant, sg = AddMultibodyPlantSceneGraph(builder, 0.0)
     robot = wc.add_to_plant(plant)
-    box = plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(X_WT.translation()), Box(0.05, 0.05, 0.05),
-                                          "volume_box", CoulombFriction(0.5, 0.5))
+    box = plant.RegisterCollisionGeometry(
+        plant.world_body(),
+        RigidTransform(X_WT.translation()),
+        Box(0.05, 0.05, 0.05),
+        "volume_box",
+        CoulombFriction(0.5, 0.5),
+    )
     plant.Finalize()
     every, moving = robot_geometry_ids(plant, robot)
     obstacles = None
     if named_obstacles:
         inspector = sg.model_inspector()
-        obstacles = [g for g in inspector.GetAllGeometryIds() if g not in every and g != box
-                     and inspector.GetProximityProperties(g) is not None]
+        obstacles = [
+            g
+            for g in inspector.GetAllGeometryIds()
+            if g not in every and g != box and inspector.GetProximityProperties(g) is not None
+        ]
     ignored = []
     if ignore_invariant:
         from drake_cfvol.scene.workcell import geometry_key
 
         inspector = sg.model_inspector()
         names = wc.invariant_pair_names()
-        ignored = [(a, b) for a in moving for b in inspector.GetAllGeometryIds()
-                   if (geometry_key(inspector, a), geometry_key(inspector, b)) in names]
+        ignored = [
+            (a, b)
+            for a in moving
+            for b in inspector.GetAllGeometryIds()
+            if (geometry_key(inspector, a), geometry_key(inspector, b)) in names
+        ]
         assert ignored
-    mon = builder.AddSystem(ClearanceMonitor(robot_ids=every, moving_ids=moving, volume_ids=[box],
-                                             obstacle_ids=obstacles, ignored_pairs=ignored))
+    mon = builder.AddSystem(
+        ClearanceMonitor(
+            robot_ids=every, moving_ids=moving, volume_ids=[box], obstacle_ids=obstacles, ignored_pairs=ignored
+        )
+    )
     builder.Connect(sg.get_query_output_port(), mon.query_object_input)
     diagram = builder.Build()
     ctx = diagram.CreateDefaultContext()
@@ -443,8 +478,9 @@ def test_clearance_monitor_agrees_with_the_workcell(named_obstacles, ignore_inva
     for _ in range(25):
         q = rng.uniform(wc.position_lower, wc.position_upper)
         plant.SetPositions(pctx, robot, q)
-        expected = min(wc.obstacle_distances(q, 2.0, moving_only=True, changeable_only=ignore_invariant).values(),
-                       default=2.0)
+        expected = min(
+            wc.obstacle_distances(q, 2.0, moving_only=True, changeable_only=ignore_invariant).values(), default=2.0
+        )
         assert mon.min_distance_output.Eval(mctx)[0] == pytest.approx(min(expected, 2.0), abs=1e-9)
         collides = mon.in_collision_output.Eval(mctx)[0] == 1.0
         assert collides == (not wc.is_free(q))
@@ -476,10 +512,16 @@ def test_admittance_autodiff_derivative_by_hand():
     ctx = ad.CreateDefaultContext()
     K = [AutoDiffXd(50.0, np.array([1.0])), AutoDiffXd(50.0, np.array([0.0]))]
     ctx.get_mutable_numeric_parameter(ad.stiffness_parameter).SetFromVector(K)
-    ctx.SetDiscreteState(0, [AutoDiffXd(0.1, np.zeros(1)), AutoDiffXd(0.0, np.zeros(1)),
-                             AutoDiffXd(0.0, np.zeros(1)), AutoDiffXd(0.0, np.zeros(1))])
-    for port, value in ((ad.nominal_input, [0.0, 0.0]), (ad.lower_input, [-1.0, -1.0]),
-                        (ad.upper_input, [1.0, 1.0])):
+    ctx.SetDiscreteState(
+        0,
+        [
+            AutoDiffXd(0.1, np.zeros(1)),
+            AutoDiffXd(0.0, np.zeros(1)),
+            AutoDiffXd(0.0, np.zeros(1)),
+            AutoDiffXd(0.0, np.zeros(1)),
+        ],
+    )
+    for port, value in ((ad.nominal_input, [0.0, 0.0]), (ad.lower_input, [-1.0, -1.0]), (ad.upper_input, [1.0, 1.0])):
         port.FixValue(ctx, [AutoDiffXd(x, np.zeros(1)) for x in value])
     x = ad.EvalUniquePeriodicDiscreteUpdate(ctx).get_vector(0).CopyToVector()
     h, d, M = 0.01, 0.1, 2.0

@@ -17,13 +17,25 @@ DATA = Path(__file__).parent / "data"
 def _cell(tmp_path, weld: bool) -> Path:
     for name in ("ros_arm.urdf", "box_scene.sdf"):
         shutil.copy(DATA / name, tmp_path / name)
-    directives = [{"add_model": {"name": "arm", "file": "ros_arm.urdf"}},
-                  {"add_model": {"name": "scene", "file": "box_scene.sdf"}}]
+    directives = [
+        {"add_model": {"name": "arm", "file": "ros_arm.urdf"}},
+        {"add_model": {"name": "scene", "file": "box_scene.sdf"}},
+    ]
     if weld:
         directives.insert(1, {"add_weld": {"parent": "world", "child": "arm::base_link"}})
     p = tmp_path / "cell.yaml"
-    p.write_text(yaml.safe_dump({"directives": directives, "cfvol": {
-        "robot": "arm", "tool_frame": "tool0", "configurations": {"p": {"start": [0.0, 0.5], "goal": [1.5, 0.5]}}}}))
+    p.write_text(
+        yaml.safe_dump(
+            {
+                "directives": directives,
+                "cfvol": {
+                    "robot": "arm",
+                    "tool_frame": "tool0",
+                    "configurations": {"p": {"start": [0.0, 0.5], "goal": [1.5, 0.5]}},
+                },
+            }
+        )
+    )
     return p
 
 

@@ -2,12 +2,12 @@
 
 import numpy as np
 import pytest
+from conftest import write_arm_cell
 
 import drake_cfvol as cf
-from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.algorithm.reference import ReferenceScene
 from drake_cfvol.algorithm.volume import build_volume, categorize, ground_obstacles
-from conftest import write_arm_cell
+from drake_cfvol.scene.params import VolumeParams
 
 
 def test_categorization_of_a_hand_made_scene(tmp_path):
@@ -17,10 +17,15 @@ def test_categorization_of_a_hand_made_scene(tmp_path):
     goal_dir = np.array([np.cos(0.5), np.sin(0.5)])
     goal_box = 1.35 * goal_dir  # centre; its near face is 0.25 m past the tip
     path_yaml = write_arm_cell(
-        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}], base_z=z,
-        obstacles={"table": ((0.5, 0.2, 0.9), (0.55, 0.0, 0.45)),   # top 0.05 below the link
-                   "fixture": ((0.2, 0.2, 0.2), (goal_box[0], goal_box[1], z)),
-                   "cabinet": ((0.4, 0.4, 1.0), (-2.0, -2.0, 0.5))})
+        tmp_path,
+        links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+        base_z=z,
+        obstacles={
+            "table": ((0.5, 0.2, 0.9), (0.55, 0.0, 0.45)),  # top 0.05 below the link
+            "fixture": ((0.2, 0.2, 0.2), (goal_box[0], goal_box[1], z)),
+            "cabinet": ((0.4, 0.4, 1.0), (-2.0, -2.0, 0.5)),
+        },
+    )
     wc = cf.load_workcell(path_yaml)
     path = cf.NominalPath(np.linspace([0.0], [0.5], 11), wc.joint_names, wc.name)
     cats = categorize(wc, path, VolumeParams())
@@ -49,8 +54,9 @@ def test_coarse_columns_are_lowered(tmp_path):
     """At R = 4 over 6 x 6 m a cell is 3 m wide: its centre is far from the
     arm but its column would swallow it. Such columns are lowered or dropped,
     counted in the output, and the arm is then free of V (Drake)."""
-    path_yaml = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
-                               obstacles={}, base_z=1.0)
+    path_yaml = write_arm_cell(
+        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}], obstacles={}, base_z=1.0
+    )
     wc = cf.load_workcell(path_yaml)
     path = cf.NominalPath(np.linspace([0.0], [0.5], 11), wc.joint_names, wc.name)
     vb = build_volume(wc, path, VolumeParams.for_workcell(wc, resolution=4))

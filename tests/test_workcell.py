@@ -2,9 +2,9 @@
 
 import numpy as np
 import pytest
+from conftest import write_arm_cell
 
 import drake_cfvol as cf
-from conftest import write_arm_cell
 
 
 def test_builtin_cells_load(automotive, aerospace):
@@ -48,8 +48,7 @@ def test_malformed_yaml_names_file_and_line(tmp_path):
 
 def test_missing_cfvol_key_is_reported(tmp_path):
     """A workcell without cfvol.robot says which key is missing."""
-    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
-                          obstacles={})
+    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}], obstacles={})
     text = path.read_text().replace("  robot: toy\n", "")
     path.write_text(text)
     with pytest.raises(cf.WorkcellFormatError, match="'robot'"):
@@ -58,8 +57,7 @@ def test_missing_cfvol_key_is_reported(tmp_path):
 
 def test_wrong_robot_instance_lists_instances(tmp_path):
     """A cfvol.robot that is not a model instance lists the instances."""
-    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
-                          obstacles={})
+    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}], obstacles={})
     path.write_text(path.read_text().replace("robot: toy", "robot: tyo"))
     with pytest.raises(cf.WorkcellFormatError, match="'tyo'.*toy"):
         cf.load_workcell(path)
@@ -71,8 +69,11 @@ def test_user_robot_package_with_stl_meshes(tmp_path, monkeypatch):
     they describe does."""
     monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path / "cache"))
     path = write_arm_cell(
-        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
-        obstacles={"post": ((0.2, 0.2, 2.0), (0.0, 0.8, 1.0))}, mesh_links=True)
+        tmp_path,
+        links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+        obstacles={"post": ((0.2, 0.2, 2.0), (0.0, 0.8, 1.0))},
+        mesh_links=True,
+    )
     stl_before = (tmp_path / "toy_description" / "meshes" / "link1.stl").read_bytes()
     wc = cf.load_workcell(path)
     assert any("STL" in n for n in wc.notes)
@@ -98,8 +99,11 @@ def test_cache_off_writes_no_cache_anywhere(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(user_cache))
     monkeypatch.setenv("DRAKE_CFVOL_CACHE", "off")
     path = write_arm_cell(
-        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
-        obstacles={"post": ((0.2, 0.2, 2.0), (0.0, 0.8, 1.0))}, mesh_links=True)
+        tmp_path,
+        links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
+        obstacles={"post": ((0.2, 0.2, 2.0), (0.0, 0.8, 1.0))},
+        mesh_links=True,
+    )
     wc = cf.load_workcell(path)
     assert any("STL" in n for n in wc.notes)
     assert wc.colliding_pairs([np.pi / 2]) == [("link1", "post")]  # the converted mesh is the link
@@ -133,16 +137,18 @@ def test_collision_names_bodies(automotive):
     assert any("floor" in p or "cabinet" in p for pair in e.value.pairs for p in pair)
 
 
-@pytest.mark.parametrize("key, anchor", [
-    ("rail_jiont: rail", "  reach: 3.0\n"),          # a misspelled optional key in cfvol
-    ("flie: x.urdf", "    name: toy\n"),            # inside a model directive
-    ("orgin: [0, 0]", "    origin:\n"),             # inside the height map
-])
+@pytest.mark.parametrize(
+    "key, anchor",
+    [
+        ("rail_jiont: rail", "  reach: 3.0\n"),  # a misspelled optional key in cfvol
+        ("flie: x.urdf", "    name: toy\n"),  # inside a model directive
+        ("orgin: [0, 0]", "    origin:\n"),  # inside the height map
+    ],
+)
 def test_misspelled_key_is_rejected_with_its_name_and_line(tmp_path, key, anchor):
     """An unknown key anywhere in a workcell file is an error naming the key
     and the line it is on (it used to load silently, e.g. as a cell without a rail)."""
-    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
-                          obstacles={})
+    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}], obstacles={})
     text = path.read_text()
     assert anchor in text
     indent = anchor[: len(anchor) - len(anchor.lstrip())]
@@ -157,8 +163,7 @@ def test_misspelled_key_is_rejected_with_its_name_and_line(tmp_path, key, anchor
 
 def test_wrong_value_type_is_rejected(tmp_path):
     """A value of the wrong type (text for the reach) is a format error, not a crash."""
-    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
-                          obstacles={})
+    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}], obstacles={})
     path.write_text(path.read_text().replace("reach: 3.0", "reach: far"))
     with pytest.raises(cf.WorkcellFormatError, match="far"):
         cf.load_workcell(path)
@@ -168,8 +173,9 @@ def test_typed_file_is_kept_and_not_changed_by_loading(tmp_path, monkeypatch):
     """The typed file is kept on the workcell; STL conversion rewrites a copy
     of the directives, never the user's own entries."""
     monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path / "cache"))
-    path = write_arm_cell(tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
-                          obstacles={}, mesh_links=True)
+    path = write_arm_cell(
+        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}], obstacles={}, mesh_links=True
+    )
     wc = cf.load_workcell(path)
     assert wc.spec.directives[0].add_model.file == "package://toy_description/urdf/toy.urdf"
     assert wc.spec.cfvol.robot == "toy" and wc.spec.cfvol.reach == 3.0
@@ -192,8 +198,9 @@ def test_missing_workcell_file_named(tmp_path):
 
 
 def _mesh_cell(folder):
-    path = write_arm_cell(folder, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}],
-                          obstacles={}, mesh_links=True)
+    path = write_arm_cell(
+        folder, links=[{"length": 1.0, "half_width": 0.05, "lower": -3, "upper": 3}], obstacles={}, mesh_links=True
+    )
     return path, folder / "toy_description" / "urdf" / "toy.urdf"
 
 
@@ -204,8 +211,9 @@ def test_package_url_messages(tmp_path, monkeypatch):
     path, urdf = _mesh_cell(tmp_path)
     text = urdf.read_text()
     urdf.write_text(text.replace("meshes/link1.stl", "meshes/linkX.stl"))
-    with pytest.raises(cf.WorkcellFormatError, match="is the folder .*toy_description, but it has no file "
-                                                     "'meshes/linkX.stl'") as e:
+    with pytest.raises(
+        cf.WorkcellFormatError, match="is the folder .*toy_description, but it has no file 'meshes/linkX.stl'"
+    ) as e:
         cf.load_workcell(path)
     assert ".." not in str(e.value).replace("../", "")
     urdf.write_text(text.replace("package://toy_description", "package://nopkg"))
@@ -219,8 +227,9 @@ def test_converted_model_warnings_name_user_file(tmp_path, monkeypatch, caplog):
     user's file, not the converted copy in the cache."""
     monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path / "cache"))
     path, urdf = _mesh_cell(tmp_path)
-    urdf.write_text(urdf.read_text().replace(
-        '<axis xyz="0 0 1"/>', '<axis xyz="0 0 1"/><dynamics damping="0.1" friction="1"/>'))
+    urdf.write_text(
+        urdf.read_text().replace('<axis xyz="0 0 1"/>', '<axis xyz="0 0 1"/><dynamics damping="0.1" friction="1"/>')
+    )
     with caplog.at_level("WARNING", logger="drake"):
         cf.load_workcell(path)
     msgs = [r.getMessage() for r in caplog.records if "friction" in r.getMessage()]
@@ -255,10 +264,17 @@ def test_invariant_pairs_of_a_planar_arm(tmp_path):
     and left out of the changeable distances; the post's distance changes
     with the joints and stays."""
 
-    wc = cf.load_workcell(write_arm_cell(
-        tmp_path, links=[{"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
-                         {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8}],
-        obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))}, base_z=0.5))
+    wc = cf.load_workcell(
+        write_arm_cell(
+            tmp_path,
+            links=[
+                {"length": 1.0, "half_width": 0.05, "lower": -0.4, "upper": 0.4},
+                {"length": 0.8, "half_width": 0.05, "lower": -0.8, "upper": 0.8},
+            ],
+            obstacles={"post": ((0.3, 0.3, 1.0), (1.15, 1.0, 0.5))},
+            base_z=0.5,
+        )
+    )
     owner = {o: name for name, ob in wc.obstacles.items() for o in ob.geometry_ids}
     assert {owner[o] for _, o in wc.invariant_pairs()} == {"floor"}
     rng = np.random.default_rng(5)

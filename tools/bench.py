@@ -1,4 +1,5 @@
 """Thin CLI over benchmarks/harness.py (same as `cfvol bench`)."""
+
 import sys
 
 from drake_cfvol.apps.cli import main

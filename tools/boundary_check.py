@@ -27,11 +27,22 @@ def main() -> None:
     params = cf.VolumeParams.for_workcell(wc, resolution=a.resolution, clearance=a.clearance)
     path = cf.plan_nominal_path(wc, *wc.configuration(a.path), seed=0, clearance=params.clearance)
     t0 = time.perf_counter()
-    table = cf.estimate_bounds(wc, path, params, certify=cf.Certify(cache=not a.no_cache, boundary=not a.no_boundary_proof)
-                              if a.certify else None)
+    table = cf.estimate_bounds(
+        wc,
+        path,
+        params,
+        certify=cf.Certify(cache=not a.no_cache, boundary=not a.no_boundary_proof) if a.certify else None,
+    )
     t1 = time.perf_counter()
-    out = {"cell": a.cell, "path": a.path, "certified": a.certify, "boundary_proof": a.certify and not a.no_boundary_proof, "clearance_m": params.clearance,
-           "bounds_s": round(t1 - t0, 2), "freedom": round(cf.freedom(table).mean, 4)}
+    out = {
+        "cell": a.cell,
+        "path": a.path,
+        "certified": a.certify,
+        "boundary_proof": a.certify and not a.no_boundary_proof,
+        "clearance_m": params.clearance,
+        "bounds_s": round(t1 - t0, 2),
+        "freedom": round(cf.freedom(table).mean, 4),
+    }
     # Judged at the margin each stretch keeps (the nominal's own where it is nearer), less 1 mm.
     margin = float(table.info.get("min_margin_m", params.clearance))
     out["checked_at_m"] = max(0.0, margin - 1e-3)

@@ -19,9 +19,9 @@ import tempfile
 import time
 
 import drake_cfvol as cf
-from drake_cfvol.io import progress
 from drake_cfvol.apps.cli import bench_harness
 from drake_cfvol.comanip import run_scenario
+from drake_cfvol.io import progress
 
 BenchConfig, run_bench = bench_harness().BenchConfig, bench_harness().run_bench
 
@@ -38,8 +38,11 @@ def main() -> None:
     results = {}
     if args.compile or args.compile_only:
         run = fresh_compile()
-        results["compile"] = {"seconds": round(run["seconds"], 2), "steps_s": run["steps_s"],
-                              "eta_error_percent": {f: round(100 * e, 1) for f, e in run["eta_error"].items()}}
+        results["compile"] = {
+            "seconds": round(run["seconds"], 2),
+            "steps_s": run["steps_s"],
+            "eta_error_percent": {f: round(100 * e, 1) for f, e in run["eta_error"].items()},
+        }
         print(f"kernel compile: {run['seconds']:.1f} s", flush=True)
         if args.compile_only:
             print(json.dumps(results, indent=1))
@@ -52,19 +55,26 @@ def main() -> None:
         for desc, hist in progress.finished():
             if desc not in results and hist:
                 errs = progress.eta_errors(hist)
-                results[desc] = {"step": name, "seconds": round(hist[-1][0], 2),
-                                 "eta_error_percent": {f"{int(100 * f)}%": round(100 * e, 1) for f, e in errs.items()}}
+                results[desc] = {
+                    "step": name,
+                    "seconds": round(hist[-1][0], 2),
+                    "eta_error_percent": {f"{int(100 * f)}%": round(100 * e, 1) for f, e in errs.items()},
+                }
         print(f"{name}: {wall:.1f} s", flush=True)
 
     wc = cf.load_workcell("automotive")
     path = cf.plan_nominal_path(wc, *wc.configuration("path1"), seed=0, label="path1")
-    record("bounds --backend drake (automotive path 1, R = 1000)",
-           lambda: cf.estimate_bounds(wc, path, resolution=1000, backend="drake", progress=True))
+    record(
+        "bounds --backend drake (automotive path 1, R = 1000)",
+        lambda: cf.estimate_bounds(wc, path, resolution=1000, backend="drake", progress=True),
+    )
     table = cf.estimate_bounds(wc, path, resolution=1000)
     record("CF, 30 x 10000 samples", lambda: cf.confidence_factor(wc, table, seed=0, progress=True))
     with tempfile.TemporaryDirectory() as d:
-        record("simulate aerospace_push", lambda: run_scenario("aerospace_push", d, record=False, plot=False,
-                                                               svg=False, progress=True))
+        record(
+            "simulate aerospace_push",
+            lambda: run_scenario("aerospace_push", d, record=False, plot=False, svg=False, progress=True),
+        )
     if not args.skip_bench:
         with tempfile.TemporaryDirectory():
             record("bench --quick", lambda: run_bench(BenchConfig.quick(), progress=True))

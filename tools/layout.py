@@ -17,6 +17,7 @@ PACKAGE = ROOT / "drake_cfvol"
 PAGE = ROOT / "docs" / "layout.md"
 sys.path.insert(0, str(ROOT))
 from drake_cfvol._layers import LAYERS  # noqa: E402  (the one list of the layers)
+
 START, END = "<!-- layout: drawn by tools/layout.py -->", "<!-- layout end -->"
 
 
@@ -29,8 +30,12 @@ def _first_sentence(path: Path) -> str:
 
 def layout() -> str:
     """The layout as Markdown lines."""
-    lines = [START, "", "- `drake_cfvol/` the library, subpackages in pipeline order (each imports only the ones",
-             "  before it, and `exceptions`; `tests/test_architecture.py` checks):"]
+    lines = [
+        START,
+        "",
+        "- `drake_cfvol/` the library, subpackages in pipeline order (each imports only the ones",
+        "  before it, and `exceptions`; `tests/test_architecture.py` checks):",
+    ]
     for n, pkg in enumerate(LAYERS, 1):
         folder = PACKAGE / pkg
         lines.append(f"  {n}. `{pkg}/`: {_first_sentence(folder / '__init__.py')}.")
@@ -38,8 +43,7 @@ def layout() -> str:
             if mod.name == "__init__.py":
                 continue
             lines.append(f"     - `{mod.stem}`: {_first_sentence(mod)}.")
-    lines += ["  - `exceptions`: " + _first_sentence(PACKAGE / "exceptions.py") + ".",
-              "", END]
+    lines += ["  - `exceptions`: " + _first_sentence(PACKAGE / "exceptions.py") + ".", "", END]
     return "\n".join(lines)
 
 

@@ -22,12 +22,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from pydrake.geometry import SceneGraph  # noqa: E402
+
 from drake_cfvol.comanip import load_scenario  # noqa: E402
 from drake_cfvol.comanip.diagram import _workcell_path_bounds  # noqa: E402
 from drake_cfvol.comanip.online import map_grid, perception_params  # noqa: E402
 from drake_cfvol.online import OnlineBounds  # noqa: E402
 from drake_cfvol.systems import MovingBoxes  # noqa: E402
-from pydrake.geometry import SceneGraph  # noqa: E402
 
 SCENARIOS = ("automotive_moving_obstacle", "aerospace_moving_obstacle")
 
@@ -63,8 +64,15 @@ def main(argv=None) -> int:
     for name in SCENARIOS:
         inc = [np.median(replay(name, False)) for _ in range(args.repeats)]
         ref = [np.median(replay(name, True)) for _ in range(args.repeats)]
-        rows.append({"scenario": name, "incremental_ms": float(np.median(inc)), "full_ms": float(np.median(ref)),
-                     "ratio": float(np.median(inc) / np.median(ref)), "repeats": args.repeats})
+        rows.append(
+            {
+                "scenario": name,
+                "incremental_ms": float(np.median(inc)),
+                "full_ms": float(np.median(ref)),
+                "ratio": float(np.median(inc) / np.median(ref)),
+                "repeats": args.repeats,
+            }
+        )
     if args.json:
         print(json.dumps(rows, indent=1))
     else:

@@ -27,9 +27,11 @@ def main() -> None:
         wc = cf.load_workcell(cell)
         table = cf.estimate_bounds(wc, cf.plan_nominal_path(wc, *wc.configuration(label), seed=0), resolution=1000)
         r = throughput(wc, table, args.samples, args.repeats)
-        print(f"{cell} {label}: kernel {r['kernel_per_s']:,.0f}/s, Drake {r['drake_per_s']:,.0f}/s, ratio "
-              f"{r['ratio']:.1f}x, forward kinematics alone {r['fk_per_s']:,.0f}/s (medians of {args.repeats}; "
-              f"{r['samples']:,} samples, {r['colliding']:,} colliding, {r['wrong']} called free where Drake collides)")
+        print(
+            f"{cell} {label}: kernel {r['kernel_per_s']:,.0f}/s, Drake {r['drake_per_s']:,.0f}/s, ratio "
+            f"{r['ratio']:.1f}x, forward kinematics alone {r['fk_per_s']:,.0f}/s (medians of {args.repeats}; "
+            f"{r['samples']:,} samples, {r['colliding']:,} colliding, {r['wrong']} called free where Drake collides)"
+        )
 
 
 if __name__ == "__main__":

@@ -46,15 +46,34 @@ The regions are :mod:`drake_cfvol.algorithm.regions`; the cuts
 from __future__ import annotations
 
 import itertools
+
 import numpy as np
 
-from drake_cfvol.exceptions import ParameterError
-from drake_cfvol.algorithm.table import rate_limited
-from drake_cfvol.algorithm.regions import (MAX_SPLITS, S_SPLITS, _box, _edge_key, _Item, _test, corner_points, edge_tasks,
-                                           regions_may_collide)
 from drake_cfvol.algorithm.cuts import cut_for, cut_point, cut_slacks, reaching_joints
+from drake_cfvol.algorithm.regions import (
+    MAX_SPLITS,
+    S_SPLITS,
+    _box,
+    _edge_key,
+    _Item,
+    _test,
+    corner_points,
+    edge_tasks,
+    regions_may_collide,
+)
+from drake_cfvol.algorithm.table import rate_limited
+from drake_cfvol.exceptions import ParameterError
 
-__all__ = ['prove_boundary', 'corner_pass', 'edge_tasks', 'regions_may_collide', 'corner_points', 'reaching_joints', 'cut_point', 'cut_slacks']
+__all__ = [
+    "prove_boundary",
+    "corner_pass",
+    "edge_tasks",
+    "regions_may_collide",
+    "corner_points",
+    "reaching_joints",
+    "cut_point",
+    "cut_slacks",
+]
 
 
 def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | None = None):
@@ -79,19 +98,24 @@ def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | No
             key = _edge_key(i, j, sig[n], A[n], B[n])
             # The joint's own range at both ends: the edge is a subset of a
             # proven one if both ranges lie inside (the rule is linear in s).
-            lo_j, hi_j = lower[i:i + 2, j], upper[i:i + 2, j]
+            lo_j, hi_j = lower[i : i + 2, j], upper[i : i + 2, j]
             known = memo.get(key)
-            if (known is not None and np.all(known[0] <= lo_j) and np.all(hi_j <= known[1])
-                    and margins[i] <= known[2]):
+            if known is not None and np.all(known[0] <= lo_j) and np.all(hi_j <= known[1]) and margins[i] <= known[2]:
                 continue
             # The same edge failed before exactly as it is now (its result
             # is a function of the key, its own range and the margin): the
             # same regions fail again.
             seen = memo.get(("failed",) + key)
-            if (seen is not None and np.array_equal(seen[0], lo_j) and np.array_equal(seen[1], hi_j)
-                    and seen[2] == margins[i]):
-                again += [_Item(it.i, it.sa, it.sb, it.j, it.va, it.vb, it.S, it.A, it.B, ("again", len(again)))
-                          for it in seen[3]]  # a root of its own (_one_per_edge)
+            if (
+                seen is not None
+                and np.array_equal(seen[0], lo_j)
+                and np.array_equal(seen[1], hi_j)
+                and seen[2] == margins[i]
+            ):
+                again += [
+                    _Item(it.i, it.sa, it.sb, it.j, it.va, it.vb, it.S, it.A, it.B, ("again", len(again)))
+                    for it in seen[3]
+                ]  # a root of its own (_one_per_edge)
                 continue
             keys.append((key, lo_j.copy(), hi_j.copy(), float(margins[i])))
             items.append(_Item(i, float(i), float(i + 1), j, va[n], vb[n], sig[n], A[n], B[n], root=len(keys) - 1))
@@ -131,8 +155,14 @@ def _halvings(arrays, lower, upper, nominal, items, margins):
         if depth == MAX_SPLITS or not bad:
             failed += bad
             break
-        real = np.array([h is not None for h in _colliding_points(arrays, lower, upper, nominal, bad, margins,
-                                                                   np.zeros(len(margins)), n=REAL_GRID)])
+        real = np.array(
+            [
+                h is not None
+                for h in _colliding_points(
+                    arrays, lower, upper, nominal, bad, margins, np.zeros(len(margins)), n=REAL_GRID
+                )
+            ]
+        )
         failed += [it for it, r in zip(bad, real) if r]
         # An edge with a failing region is failed: a round cuts its first
         # failing region only (prove_boundary), so its others are not halved.
@@ -143,8 +173,10 @@ def _halvings(arrays, lower, upper, nominal, items, margins):
                 # Halved along the joint: the region's hull of poses bulges
                 # inwards by about reach * width^2 / 8, the usual false alarm.
                 vm = 0.5 * (it.va + it.vb)
-                items += [_Item(it.i, it.sa, it.sb, it.j, it.va, vm, it.S, it.A, it.B, it.root),
-                          _Item(it.i, it.sa, it.sb, it.j, vm, it.vb, it.S, it.A, it.B, it.root)]
+                items += [
+                    _Item(it.i, it.sa, it.sb, it.j, it.va, vm, it.S, it.A, it.B, it.root),
+                    _Item(it.i, it.sa, it.sb, it.j, vm, it.vb, it.S, it.A, it.B, it.root),
+                ]
                 continue
             ss = np.array([it.sa, 0.5 * (it.sa + it.sb), it.sb])
             lo, hi, _ = _box(lower, upper, nominal, it.i, ss)
@@ -154,13 +186,15 @@ def _halvings(arrays, lower, upper, nominal, items, margins):
                 v_hi = min(max(hi[h, it.j], hi[h + 1, it.j]), it.vb)
                 vm = 0.5 * (v_lo + v_hi)
                 for u0, u1 in ((v_lo, vm), (vm, v_hi)):
-                    items.append(_Item(it.i, ss[h], ss[h + 1], it.j, u0, u1, it.S, c[h].copy(), c[h + 1].copy(),
-                                       it.root))
+                    items.append(
+                        _Item(it.i, ss[h], ss[h + 1], it.j, u0, u1, it.S, c[h].copy(), c[h + 1].copy(), it.root)
+                    )
     return failed, tests
 
 
-def corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, slacks=None, *, per_stretch: int = 4,
-                max_rounds: int = 50) -> dict:
+def corner_pass(
+    workcell, arrays, lower, upper, nominal, rate, margins, slacks=None, *, per_stretch: int = 4, max_rounds: int = 50
+) -> dict:
     """A cheap pass before the proof: the box's corners at every quarter of
     every stretch, checked as points by the kernel; colliding ones are cut
     (:func:`cut_point`, at most ``per_stretch`` per stretch and round),
@@ -188,8 +222,20 @@ def corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, slacks=N
         for i in np.unique(rows_st[bad]):
             rows = np.flatnonzero(bad & (rows_st == i))
             for r in rows[:: max(1, len(rows) // per_stretch)][:per_stretch]:
-                cut_point(workcell, arrays, lower, upper, nominal, rate, int(i), float(s[r // len(pat)]), Q[r],
-                          float(margins[i]), float(slacks[i]), taken)
+                cut_point(
+                    workcell,
+                    arrays,
+                    lower,
+                    upper,
+                    nominal,
+                    rate,
+                    int(i),
+                    float(s[r // len(pat)]),
+                    Q[r],
+                    float(margins[i]),
+                    float(slacks[i]),
+                    taken,
+                )
         cuts += len(taken)
         lower[:], upper[:] = rate_limited(lower, upper, nominal, rate)
     return {"corner_rounds": rounds, "corner_cuts": cuts}
@@ -214,8 +260,9 @@ def _colliding_points(arrays, lower, upper, nominal, fails, margins, slacks, n: 
     c = np.where(np.array([f.S for f in fails])[:, None] == 1, hi, lo)
     F, k = len(fails), lower.shape[1]
     Q = np.repeat(c[:, :, None], n, axis=2)  # (F, s, v, k)
-    Q[np.arange(F)[:, None, None], np.arange(n)[None, :, None], np.arange(n)[None, None], J[:, None, None]] = \
-        v[:, None, :]
+    Q[np.arange(F)[:, None, None], np.arange(n)[None, :, None], np.arange(n)[None, None], J[:, None, None]] = v[
+        :, None, :
+    ]
     rows = np.arange(F)
     lo_j, hi_j = lo[rows, :, J], hi[rows, :, J]  # (F, n)
     ok = (v[:, None, :] >= lo_j[:, :, None]) & (v[:, None, :] <= hi_j[:, :, None])
@@ -252,8 +299,19 @@ def _signature(lower, upper, i) -> bytes:
     return np.concatenate([lower[i], lower[i + 1], upper[i], upper[i + 1]]).tobytes()
 
 
-def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, proven: dict | None = None, *,
-                   max_rounds: int = 200, memo: dict | None = None) -> dict:
+def prove_boundary(
+    workcell,
+    arrays,
+    lower,
+    upper,
+    nominal,
+    rate,
+    margins,
+    proven: dict | None = None,
+    *,
+    max_rounds: int = 200,
+    memo: dict | None = None,
+) -> dict:
     """Proves every edge (and corner) of the linear table's box at every s,
     cutting the waypoint boxes (in place) where a region may collide, until
     every stretch is proven as it is.
@@ -308,10 +366,33 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
                 # A real collision on the edge: cut as at a corner, the edge's
                 # own joint one of the candidates.
                 s_hit, q = hit
-                cut_point(workcell, arrays, lower, upper, nominal, rate, fail.i, s_hit, q, float(margins[fail.i]),
-                          float(slacks[fail.i]), taken, own=fail.j)
-            elif not cut_for(workcell, arrays, lower, upper, nominal, rate, fail, float(margins[fail.i]),
-                             float(slacks[fail.i]), taken):
+                cut_point(
+                    workcell,
+                    arrays,
+                    lower,
+                    upper,
+                    nominal,
+                    rate,
+                    fail.i,
+                    s_hit,
+                    q,
+                    float(margins[fail.i]),
+                    float(slacks[fail.i]),
+                    taken,
+                    own=fail.j,
+                )
+            elif not cut_for(
+                workcell,
+                arrays,
+                lower,
+                upper,
+                nominal,
+                rate,
+                fail,
+                float(margins[fail.i]),
+                float(slacks[fail.i]),
+                taken,
+            ):
                 stuck.add(fail.i)
         for i in stuck:
             # Nothing cut passes: the region sits on the nominal, which comes
@@ -320,7 +401,8 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
             if margins[i] == 0.0:
                 raise ParameterError(
                     f"boundary proof: the nominal of stretch {i} may collide between its waypoints; the path is "
-                    "not collision-free there (plan with a finer max_step).")
+                    "not collision-free there (plan with a finer max_step)."
+                )
             margins[i] = 0.5 * margins[i] if margins[i] > 1e-4 else 0.0
             proven.pop(i, None)
             lowered += 1
@@ -328,5 +410,10 @@ def prove_boundary(workcell, arrays, lower, upper, nominal, rate, margins, prove
         new_lo, new_hi = rate_limited(lower, upper, nominal, rate)
         lower[:], upper[:] = new_lo, new_hi
     unproven = [i for i in range(n_st) if proven.get(i) != _signature(lower, upper, i)]
-    return {"edge_tests": tests, "edge_cuts": cuts, "edge_rounds": rounds, "margins_lowered": lowered,
-            "unproven": unproven}
+    return {
+        "edge_tests": tests,
+        "edge_cuts": cuts,
+        "edge_rounds": rounds,
+        "margins_lowered": lowered,
+        "unproven": unproven,
+    }

@@ -47,8 +47,18 @@ def cache_key(arrays, table, certify) -> str:
         h.update(module.relative_to(package).as_posix().encode())
         h.update(module.read_bytes())
     h.update(_versions().encode())
-    for a in (table.nominal, table.stretch_lower, table.stretch_upper, table.rate, arrays.shapes, arrays.shape_body,
-              arrays.obstacles, arrays.verts, arrays.self_pairs, *arrays.chain):
+    for a in (
+        table.nominal,
+        table.stretch_lower,
+        table.stretch_upper,
+        table.rate,
+        arrays.shapes,
+        arrays.shape_body,
+        arrays.obstacles,
+        arrays.verts,
+        arrays.self_pairs,
+        *arrays.chain,
+    ):
         if a is None:
             h.update(b"none")
             continue

@@ -49,16 +49,23 @@ import time
 
 import numpy as np
 
-from drake_cfvol.algorithm.cert_cache import cache_dir, cache_key, cache_load, cache_store
 from drake_cfvol.algorithm.boundary import _failures, cut_point, cut_slacks, prove_boundary, reaching_joints
-from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.algorithm.cert_cache import cache_dir, cache_key, cache_load, cache_store
 from drake_cfvol.algorithm.metrics import freedom
-from drake_cfvol.io.progress import Progress
 from drake_cfvol.algorithm.sweep import stretch_margins
 from drake_cfvol.algorithm.table import rate_limited, within_stretches
+from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.io.progress import Progress
 
-__all__ = ["Certify", "CertificateReport", "certify_bounds", "certified_table", "certification_rng", "cache_dir",
-           "clamp_draws"]
+__all__ = [
+    "Certify",
+    "CertificateReport",
+    "certify_bounds",
+    "certified_table",
+    "certification_rng",
+    "cache_dir",
+    "clamp_draws",
+]
 
 #: Drake queries per stretch for the joints a sampled cut may use.
 _REACH_QUERIES = 16
@@ -147,8 +154,9 @@ class Certify:
         if not isinstance(self.regrow, bool):
             raise ParameterError(f"Certify: regrow must be True or False, got {self.regrow!r}.")
         if self.regrow and not self.boundary:
-            raise ParameterError("Certify: regrow=True widens bounds where the boundary proof still holds; it "
-                                 "needs boundary=True.")
+            raise ParameterError(
+                "Certify: regrow=True widens bounds where the boundary proof still holds; it needs boundary=True."
+            )
         if not 0.0 <= self.edge_share <= 1.0:
             raise ParameterError(f"Certify: edge_share must lie in [0, 1], got {self.edge_share!r}.")
 
@@ -223,7 +231,7 @@ def _greedy_cut(X, t, lower, upper, nominal, i, allowed=None):
     Returns the number of cuts, or -1 if a sample cannot be cut (it lies
     at its own nominal in every joint)."""
     cuts = 0
-    n2 = nominal[i:i + 2]
+    n2 = nominal[i : i + 2]
     allowed = np.ones(X.shape, bool) if allowed is None else np.asarray(allowed, bool)
     while len(X):
         T = t[:, None]
@@ -237,7 +245,7 @@ def _greedy_cut(X, t, lower, upper, nominal, i, allowed=None):
         lo, hi, nom = lo[inside], hi[inside], nom[inside]
         off = X != nom
         allowed = np.where((allowed & off).any(axis=1)[:, None], allowed, True)
-        w0 = upper[i:i + 2] - lower[i:i + 2]
+        w0 = upper[i : i + 2] - lower[i : i + 2]
         best = (np.inf, -1, 0, 1.0)
         for j in range(X.shape[1]):
             for side in (1, -1):
@@ -247,7 +255,7 @@ def _greedy_cut(X, t, lower, upper, nominal, i, allowed=None):
                 if not sel.any():
                     continue
                 lam = np.sort(np.minimum(e[sel] / D[sel], 1.0))[::-1]
-                dev = (upper[i:i + 2, j] - n2[:, j]) if side > 0 else (n2[:, j] - lower[i:i + 2, j])
+                dev = (upper[i : i + 2, j] - n2[:, j]) if side > 0 else (n2[:, j] - lower[i : i + 2, j])
                 w1 = np.maximum(w0[:, j][None] - (1 - lam[:, None]) * dev[None], 1e-12)
                 loss = np.log(np.maximum(w0[:, j], 1e-12)[None] / w1).sum(axis=1)
                 score = loss / np.arange(1, len(lam) + 1)
@@ -260,13 +268,13 @@ def _greedy_cut(X, t, lower, upper, nominal, i, allowed=None):
         # Just below the sample's threshold, by a relative 1e-6: a cut of a
         # deviation a few ulps wide must still move the bound.
         lam = max(0.0, lam * (1 - 1e-6))
-        before = (upper if side > 0 else lower)[i:i + 2, j].copy()
+        before = (upper if side > 0 else lower)[i : i + 2, j].copy()
         while True:
             if side > 0:
-                upper[i:i + 2, j] = n2[:, j] + lam * (before - n2[:, j])
+                upper[i : i + 2, j] = n2[:, j] + lam * (before - n2[:, j])
             else:
-                lower[i:i + 2, j] = n2[:, j] - lam * (n2[:, j] - before)
-            if lam == 0.0 or not np.array_equal((upper if side > 0 else lower)[i:i + 2, j], before):
+                lower[i : i + 2, j] = n2[:, j] - lam * (n2[:, j] - before)
+            if lam == 0.0 or not np.array_equal((upper if side > 0 else lower)[i : i + 2, j], before):
                 break
             lam = 0.5 * lam if lam > 1e-3 else 0.0
         cuts += 1
@@ -303,9 +311,14 @@ def certified_table(table, lower, upper):
     """The table with certified waypoint boxes and the "linear" rule; its
     stretch boxes are the hulls of their two waypoint boxes (within the
     sweep's, so its single-joint proof still holds)."""
-    return dataclasses.replace(table, lower=lower, upper=upper, interpolation="linear",
-                               stretch_lower=np.minimum(lower[:-1], lower[1:]),
-                               stretch_upper=np.maximum(upper[:-1], upper[1:]))
+    return dataclasses.replace(
+        table,
+        lower=lower,
+        upper=upper,
+        interpolation="linear",
+        stretch_lower=np.minimum(lower[:-1], lower[1:]),
+        stretch_upper=np.maximum(upper[:-1], upper[1:]),
+    )
 
 
 def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False):
@@ -358,9 +371,11 @@ class _Certification:
         self.nominal = nominal
         self.rate = np.full(nominal.shape[1], np.inf) if rate is None else rate
         self.g = nominal.shape[0]
-        self.lower, self.upper = rate_limited(*within_stretches(table.lower, table.upper, nominal,
-                                                                table.stretch_lower, table.stretch_upper),
-                                              nominal, self.rate)
+        self.lower, self.upper = rate_limited(
+            *within_stretches(table.lower, table.upper, nominal, table.stretch_lower, table.stretch_upper),
+            nominal,
+            self.rate,
+        )
         self.clearance = float(table.params.get("clearance", 0.0) or 0.0)
         self.margins = stretch_margins(arrays, nominal, self.clearance)
         self.point_slacks = cut_slacks(arrays, nominal, self.margins, _POINT_SLACK)
@@ -409,8 +424,20 @@ class _Certification:
         for st in np.unique(i[on_bound]):
             rows = np.flatnonzero(on_bound & (i == st))
             for r in rows[:: max(1, len(rows) // _POINT_CUTS)][:_POINT_CUTS]:
-                cut_point(self.workcell, self.arrays, self.lower, self.upper, self.nominal, self.rate, int(st),
-                          float(sf[r]), X[r], float(self.margins[st]), float(self.point_slacks[st]), taken)
+                cut_point(
+                    self.workcell,
+                    self.arrays,
+                    self.lower,
+                    self.upper,
+                    self.nominal,
+                    self.rate,
+                    int(st),
+                    float(sf[r]),
+                    X[r],
+                    float(self.margins[st]),
+                    float(self.point_slacks[st]),
+                    taken,
+                )
         self.shrinks += len(taken)
         keep = ~on_bound
         self._cut_inner(X[keep], i[keep], t[keep])
@@ -442,15 +469,25 @@ class _Certification:
             if n < 0:
                 raise ParameterError(
                     f"certification: a configuration at the nominal of stretch {st} may collide; the path is not "
-                    "collision-free between waypoints (plan with a finer max_step).")
+                    "collision-free between waypoints (plan with a finer max_step)."
+                )
             self.shrinks += n
 
     def prove(self):
         """The boundary proof (when asked), from where it stopped last."""
         if not self.certify.boundary:
             return
-        stats = prove_boundary(self.workcell, self.arrays, self.lower, self.upper, self.nominal, self.rate,
-                               self.margins, self.proven, memo=self.memo)
+        stats = prove_boundary(
+            self.workcell,
+            self.arrays,
+            self.lower,
+            self.upper,
+            self.nominal,
+            self.rate,
+            self.margins,
+            self.proven,
+            memo=self.memo,
+        )
         for key in ("edge_tests", "edge_cuts", "edge_rounds", "margins_lowered"):
             self.boundary[key] += stats[key]
         self.boundary["unproven"] = stats["unproven"]
@@ -483,8 +520,9 @@ class _Certification:
                         continue
                     lower, upper = self.lower.copy(), self.upper.copy()
                     (upper if side > 0 else lower)[w, j] += side * step
-                    failed, tests = _failures(self.arrays, lower, upper, self.nominal, stretches, self.margins,
-                                              self.memo)
+                    failed, tests = _failures(
+                        self.arrays, lower, upper, self.nominal, stretches, self.margins, self.memo
+                    )
                     self.boundary["edge_tests"] += tests
                     if not failed:
                         self.lower[:], self.upper[:] = lower, upper
@@ -540,8 +578,9 @@ class _Certification:
             nc = int(math.ceil((run + n) * share)) - int(math.ceil(run * share))
             s = rng.uniform(0.0, self.g - 1, n + nc)
             lo, hi, nom = self.current.boxes_at(s)
-            Q = np.concatenate([lo[:n] + rng.random(lo[:n].shape) * (hi[:n] - lo[:n]),
-                                clamp_draws(rng, lo[n:], hi[n:], nom[n:])])
+            Q = np.concatenate(
+                [lo[:n] + rng.random(lo[:n].shape) * (hi[:n] - lo[:n]), clamp_draws(rng, lo[n:], hi[n:], nom[n:])]
+            )
             flagged = self.flagged(s, Q)
             self.samples += n + nc
             if len(flagged):
@@ -566,32 +605,55 @@ class _Certification:
     def report(self, time_ms: float) -> "CertificateReport":
         """The report, in words."""
         certify, clearance, margins, boundary = self.certify, self.clearance, self.margins, self.boundary
-        margin = (f"{clearance * 1e3:g} mm from the obstacles and the robot itself (less only where the nominal "
-                  f"itself is nearer: {int((margins < clearance).sum())} of {len(margins)} stretches)"
-                  if clearance > 0 else "free of collision with the obstacles and the robot itself (clearance 0)")
+        margin = (
+            f"{clearance * 1e3:g} mm from the obstacles and the robot itself (less only where the nominal "
+            f"itself is nearer: {int((margins < clearance).sum())} of {len(margins)} stretches)"
+            if clearance > 0
+            else "free of collision with the obstacles and the robot itself (clearance 0)"
+        )
         unproven = boundary["unproven"]
-        single = ("Every single-joint motion from the nominal to that joint's bound, at every s along the path, "
-                  f"keeps {margin} and the volume.")
+        single = (
+            "Every single-joint motion from the nominal to that joint's bound, at every s along the path, "
+            f"keeps {margin} and the volume."
+        )
         if not certify.boundary:
-            proven = single + (" The box's edges and corners are NOT proven (Certify(boundary=False) asked for the "
-                               "sampled certificate only); the runtime safety filter keeps the margin where a clamp "
-                               "lands.")
+            proven = single + (
+                " The box's edges and corners are NOT proven (Certify(boundary=False) asked for the "
+                "sampled certificate only); the runtime safety filter keeps the margin where a clamp "
+                "lands."
+            )
         elif not unproven:
-            proven = single + (" So does every edge of the box (one joint over its whole width, every other joint at "
-                               "one of its bounds), and so every corner, at every s: the kernel's region tests "
-                               f"({boundary['edge_tests']} regions).")
+            proven = single + (
+                " So does every edge of the box (one joint over its whole width, every other joint at "
+                "one of its bounds), and so every corner, at every s: the kernel's region tests "
+                f"({boundary['edge_tests']} regions)."
+            )
         else:
-            proven = single + (" So does every edge and corner of the box at every s except on stretches "
-                               f"{unproven}, where the proof ran out of rounds.")
-        sampled = (f"The faces and the interior, all joints at once, sampled from two distributions (s uniform over "
-                   f"the path): {self.N} consecutive samples uniform in the box at s, and alongside them {self.Nc} "
-                   "consecutive samples where a clamp lands (the nominal pushed on a random half of its joints, "
-                   "clamped into the box, so about half of the pushed joints on a bound), all kept the margin. So "
-                   f"with probability {certify.confidence:g} at most a share {certify.epsilon:g} of the uniform "
-                   f"configurations comes nearer (about {certify.epsilon * 3e5:g} of 300,000), and at most a share "
-                   f"{certify.clamp_share:g} of the clamp's. Beyond the box, the runtime safety filter keeps the "
-                   "margin.")
-        return CertificateReport(certify.epsilon, certify.confidence, self.N, time_ms, self.samples,
-                                 self.shrinks + boundary["edge_cuts"], freedom(self.table).mean,
-                                 freedom(self.current).mean, proven, sampled, clearance_m=clearance,
-                                 boundary=boundary)
+            proven = single + (
+                " So does every edge and corner of the box at every s except on stretches "
+                f"{unproven}, where the proof ran out of rounds."
+            )
+        sampled = (
+            f"The faces and the interior, all joints at once, sampled from two distributions (s uniform over "
+            f"the path): {self.N} consecutive samples uniform in the box at s, and alongside them {self.Nc} "
+            "consecutive samples where a clamp lands (the nominal pushed on a random half of its joints, "
+            "clamped into the box, so about half of the pushed joints on a bound), all kept the margin. So "
+            f"with probability {certify.confidence:g} at most a share {certify.epsilon:g} of the uniform "
+            f"configurations comes nearer (about {certify.epsilon * 3e5:g} of 300,000), and at most a share "
+            f"{certify.clamp_share:g} of the clamp's. Beyond the box, the runtime safety filter keeps the "
+            "margin."
+        )
+        return CertificateReport(
+            certify.epsilon,
+            certify.confidence,
+            self.N,
+            time_ms,
+            self.samples,
+            self.shrinks + boundary["edge_cuts"],
+            freedom(self.table).mean,
+            freedom(self.current).mean,
+            proven,
+            sampled,
+            clearance_m=clearance,
+            boundary=boundary,
+        )

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from drake_cfvol.algorithm.regions import _Item, _box, _test, regions_may_collide
+from drake_cfvol.algorithm.regions import _box, _Item, _test, regions_may_collide
 
-__all__ = ['reaching_joints', 'cut_point', 'cut_slacks']
+__all__ = ["reaching_joints", "cut_point", "cut_slacks"]
 
 
 #: Scales of a bound's deviation tried by a cut, largest first.
@@ -57,8 +57,8 @@ def _scaled(lower, upper, nominal, i, moves):
     """Copies of stretch i's waypoint bounds with the deviation of each
     (joint, side, lam) of ``moves`` scaled by lam at both ends:
     ((lo_i, lo_i1), (hi_i, hi_i1))."""
-    lo, hi = lower[i:i + 2].copy(), upper[i:i + 2].copy()
-    nom = nominal[i:i + 2]
+    lo, hi = lower[i : i + 2].copy(), upper[i : i + 2].copy()
+    nom = nominal[i : i + 2]
     for l, side, lam in moves:
         if side > 0:
             hi[:, l] = nom[:, l] + lam * (hi[:, l] - nom[:, l])
@@ -75,8 +75,8 @@ def _width_loss(lower, upper, nominal, rate, i, lo, hi):
     g = len(nominal)
     lo_f = lower.copy()
     hi_f = upper.copy()
-    lo_f[i:i + 2] = np.maximum(lo_f[i:i + 2], lo)
-    hi_f[i:i + 2] = np.minimum(hi_f[i:i + 2], hi)
+    lo_f[i : i + 2] = np.maximum(lo_f[i : i + 2], lo)
+    hi_f[i : i + 2] = np.minimum(hi_f[i : i + 2], hi)
     lim = np.isfinite(rate)
     if lim.any():
         m = np.arange(g)[:, None]
@@ -96,9 +96,9 @@ def _scaled_many(lower, upper, nominal, i, members, sides, lams):
     each on its side ``sides[l]``, all scaled by each lam of ``lams`` (n,):
     (lo, hi), (n, 2, k) each (the same arithmetic, element by element)."""
     n = len(lams)
-    lo = np.repeat(lower[None, i:i + 2], n, axis=0)
-    hi = np.repeat(upper[None, i:i + 2], n, axis=0)
-    nom = nominal[i:i + 2]
+    lo = np.repeat(lower[None, i : i + 2], n, axis=0)
+    hi = np.repeat(upper[None, i : i + 2], n, axis=0)
+    nom = nominal[i : i + 2]
     lam = np.asarray(lams, float)[:, None]
     for l in members:
         if sides[l] > 0:
@@ -118,8 +118,15 @@ def _edge_regions(fail: _Item, lo, hi, pad, arrays) -> np.ndarray:
     a_hi = (1 - t) * hi[:, 0:1] + t * hi[:, 1:2]
     ca = np.where(fail.S == 1, a_hi, a_lo)
     n = len(lo)
-    return regions_may_collide(arrays, ca[:, 0], ca[:, 1], np.full(n, fail.j, np.int64), np.full(n, fail.va),
-                               np.full(n, fail.vb), np.full(n, float(pad)))
+    return regions_may_collide(
+        arrays,
+        ca[:, 0],
+        ca[:, 1],
+        np.full(n, fail.j, np.int64),
+        np.full(n, fail.va),
+        np.full(n, fail.vb),
+        np.full(n, float(pad)),
+    )
 
 
 def _joint_scale_options(arrays, lower, upper, nominal, rate, fail: _Item, reach, pad: float) -> list:
@@ -140,7 +147,7 @@ def _joint_scale_options(arrays, lower, upper, nominal, rate, fail: _Item, reach
     keys, LO, HI, LAM = [], [], [], []
     for key, members in members_of.items():
         lo, hi = _scaled_many(lower, upper, nominal, i, members, sides, lams)
-        changed = ~(np.all(lo == lower[i:i + 2], axis=(1, 2)) & np.all(hi == upper[i:i + 2], axis=(1, 2)))
+        changed = ~(np.all(lo == lower[i : i + 2], axis=(1, 2)) & np.all(hi == upper[i : i + 2], axis=(1, 2)))
         keys += [key] * int(changed.sum())
         LO.append(lo[changed])
         HI.append(hi[changed])
@@ -163,8 +170,9 @@ def _joint_scale_options(arrays, lower, upper, nominal, rate, fail: _Item, reach
     for _ in range(REFINE_STEPS if bracket else 0):
         mids = {key: 0.5 * (f + p_) for key, (f, p_) in bracket.items()}
         tried = [_scaled_many(lower, upper, nominal, i, members_of[key], sides, [lam]) for key, lam in mids.items()]
-        good = ~_edge_regions(fail, np.concatenate([t[0] for t in tried]), np.concatenate([t[1] for t in tried]),
-                              pad, arrays)
+        good = ~_edge_regions(
+            fail, np.concatenate([t[0] for t in tried]), np.concatenate([t[1] for t in tried]), pad, arrays
+        )
         for (key, (lo, hi)), gd in zip(zip(mids, tried), good):
             f, p_ = bracket[key]
             if gd:
@@ -179,8 +187,9 @@ def _joint_scale_options(arrays, lower, upper, nominal, rate, fail: _Item, reach
     return options
 
 
-def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: float, slack: float,
-            taken: set) -> bool:
+def cut_for(
+    workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: float, slack: float, taken: set
+) -> bool:
     """Tightens the waypoint boxes of a failing region's stretch (in place)
     so that the region, recomputed, passes: the candidates are the edge's
     own joint (its failing range off the nominal cut away) and every joint
@@ -194,7 +203,7 @@ def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: 
     anew). Returns False (nothing cut) only if the region on the nominal
     itself fails the margin."""
     i, j = fail.i, fail.j
-    if taken and not _edge_regions(fail, lower[None, i:i + 2], upper[None, i:i + 2], margin, arrays)[0]:
+    if taken and not _edge_regions(fail, lower[None, i : i + 2], upper[None, i : i + 2], margin, arrays)[0]:
         return True  # an earlier cut of this round freed the region already
     sm = 0.5 * (fail.sa + fail.sb)
     lo_m, hi_m, nom_m = _box(lower, upper, nominal, i, np.array([sm]))
@@ -218,8 +227,9 @@ def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: 
         lo, hi = _scaled(lower, upper, nominal, i, [(j, side, lam)])
         options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i, j, side)))
     options += _joint_scale_options(arrays, lower, upper, nominal, rate, fail, reach, margin + slack)
-    options = [o for o in options
-               if not (np.array_equal(o[1], lower[i:i + 2]) and np.array_equal(o[2], upper[i:i + 2]))]
+    options = [
+        o for o in options if not (np.array_equal(o[1], lower[i : i + 2]) and np.array_equal(o[2], upper[i : i + 2]))
+    ]
     if not options:
         # No single bound clears it: if the nominal's own stretch keeps the
         # margin here, every bound of the stretch moves halfway to it (the
@@ -230,16 +240,16 @@ def cut_for(workcell, arrays, lower, upper, nominal, rate, fail: _Item, margin: 
         if _test(arrays, [on_nominal], {i: margin})[0]:
             return False
         key = (i, -1, 0)
-        nom2 = nominal[i:i + 2]
-        lo = nom2 - 0.5 * (nom2 - lower[i:i + 2])
-        hi = nom2 + 0.5 * (upper[i:i + 2] - nom2)
+        nom2 = nominal[i : i + 2]
+        lo = nom2 - 0.5 * (nom2 - lower[i : i + 2])
+        hi = nom2 + 0.5 * (upper[i : i + 2] - nom2)
         options.append((0.0, lo, hi, key))
     _, lo, hi, key = min(options, key=lambda o: o[0])
     if key in taken:
         return True  # this bound moved already this round: test again first
     taken.add(key)
-    lower[i:i + 2] = np.maximum(lower[i:i + 2], lo)
-    upper[i:i + 2] = np.minimum(upper[i:i + 2], hi)
+    lower[i : i + 2] = np.maximum(lower[i : i + 2], lo)
+    upper[i : i + 2] = np.minimum(upper[i : i + 2], hi)
     return True
 
 
@@ -250,10 +260,10 @@ def _variants(lower, upper, nominal, i, t, moves):
     end, moved just enough (when that is possible). Returns a list of
     (lo, hi), stretch i's two waypoint boxes, (2, k) each."""
     out = [_scaled(lower, upper, nominal, i, moves)]
-    nom2 = nominal[i:i + 2]
+    nom2 = nominal[i : i + 2]
     e = 0 if t <= 0.5 else 1
     w = max((1 - t) if e == 0 else t, 1e-12)
-    lo, hi = lower[i:i + 2].copy(), upper[i:i + 2].copy()
+    lo, hi = lower[i : i + 2].copy(), upper[i : i + 2].copy()
     for l, side, lam in moves:
         d = (hi[:, l] - nom2[:, l]) if side > 0 else (nom2[:, l] - lo[:, l])
         new_e = d[e] - (1 - lam) * ((1 - t) * d[0] + t * d[1]) / w
@@ -339,14 +349,14 @@ def cut_point(workcell, arrays, lower, upper, nominal, rate, i, s, q, margin, sl
         for lo, hi in _variants(lower, upper, nominal, i, t, mv):
             options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i,) + key))
     if not options:
-        nom2 = nominal[i:i + 2]
-        options.append((0.0, nom2 - 0.5 * (nom2 - lower[i:i + 2]), nom2 + 0.5 * (upper[i:i + 2] - nom2), (i, -1)))
+        nom2 = nominal[i : i + 2]
+        options.append((0.0, nom2 - 0.5 * (nom2 - lower[i : i + 2]), nom2 + 0.5 * (upper[i : i + 2] - nom2), (i, -1)))
     _, lo, hi, key = min(options, key=lambda o: o[0])
     if key in taken:
         return
     taken.add(key)
-    lower[i:i + 2] = np.maximum(lower[i:i + 2], lo)
-    upper[i:i + 2] = np.minimum(upper[i:i + 2], hi)
+    lower[i : i + 2] = np.maximum(lower[i : i + 2], lo)
+    upper[i : i + 2] = np.minimum(upper[i : i + 2], hi)
 
 
 def cut_slacks(arrays, nominal, margins, slack: float | None = None) -> np.ndarray:

@@ -45,11 +45,13 @@ class HeightMap:
             raise ParameterError(f"resolution R must be a positive number of cells, got {self.resolution}.")
         if self.m < 1 or self.n < 1:
             raise ParameterError(
-                f"R = {self.resolution} gives no whole cell on a {self.x_dim} x {self.y_dim} m map; raise R.")
+                f"R = {self.resolution} gives no whole cell on a {self.x_dim} x {self.y_dim} m map; raise R."
+            )
         if self.memory_bytes > MAX_VOLUME_BYTES:
             raise ParameterError(
                 f"R = {self.resolution} would need about {self.memory_bytes / 1e9:.1f} GB for the volume's tables "
-                f"(at most {MAX_VOLUME_BYTES / 1e9:.1f} GB allowed); lower R (the paper uses up to 20000).")
+                f"(at most {MAX_VOLUME_BYTES / 1e9:.1f} GB allowed); lower R (the paper uses up to 20000)."
+            )
 
     @property
     def memory_bytes(self) -> float:
@@ -110,7 +112,7 @@ def height_function(d_t, d_g, d_ng, active, params: VolumeParams) -> np.ndarray:
         delta_ng = np.clip((p.d_ng_ub - d_ng) / p.d_ng_ub, 0.0, 1.0)
     # inf - inf never occurs: each Delta uses one distance; clip(inf) = 1 and
     # clip(-inf) = 0 as an empty set requires.
-    h = p.h_max * (delta_t ** p.alpha_t + delta_g ** p.alpha_g + delta_ng ** p.alpha_ng)
+    h = p.h_max * (delta_t**p.alpha_t + delta_g**p.alpha_g + delta_ng**p.alpha_ng)
     on = np.asarray(active, bool) & (d_t >= p.d_t_lb)
     return np.where(on, h, 0.0)
 
@@ -188,7 +190,7 @@ class Volume:
         m, n = H.shape
         side = self.heightmap.side
         base = float(H.sum()) * side * side
-        steps = [0.0] + [f * 10.0 ** e for e in range(-3, 2) for f in (1, 2, 5)]
+        steps = [0.0] + [f * 10.0**e for e in range(-3, 2) for f in (1, 2, 5)]
         best = None
         for blk in (1, 2, 3, 4, 6, 8, 12, 16):
             mb, nb = -(-m // blk), -(-n // blk)
@@ -213,11 +215,15 @@ class Volume:
             raise ValueError(f"the volume cannot be merged into {max_boxes} boxes; raise max_boxes.")
         vol, r, blk, q = best
         x0, y0 = self.heightmap.origin[0], self.heightmap.origin[1]
-        centres = np.stack([x0 + (r[:, 0] + r[:, 1]) / 2 * side, y0 + (r[:, 2] + r[:, 3]) / 2 * side, r[:, 4] / 2],
-                           axis=1)
+        centres = np.stack(
+            [x0 + (r[:, 0] + r[:, 1]) / 2 * side, y0 + (r[:, 2] + r[:, 3]) / 2 * side, r[:, 4] / 2], axis=1
+        )
         sizes = np.stack([(r[:, 1] - r[:, 0]) * side, (r[:, 3] - r[:, 2]) * side, r[:, 4]], axis=1)
-        return centres, sizes, {"block": blk, "height_step_m": q, "added_volume_m3": vol - base,
-                                "column_volume_m3": base}
+        return (
+            centres,
+            sizes,
+            {"block": blk, "height_step_m": q, "added_volume_m3": vol - base, "column_volume_m3": base},
+        )
 
 
 def _merge_equal(H: np.ndarray) -> list[tuple[int, int, int, int, float]]:
@@ -249,4 +255,3 @@ def _merge_equal(H: np.ndarray) -> list[tuple[int, int, int, int, float]]:
         for key in runs:
             open_.setdefault(key, j)
     return out
-

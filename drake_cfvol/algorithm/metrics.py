@@ -7,11 +7,20 @@ import math
 
 import numpy as np
 
+from drake_cfvol.algorithm.table import BoundsTable
 from drake_cfvol.exceptions import DimensionError, ParameterError, WorkcellError
 from drake_cfvol.io.progress import Progress
-from drake_cfvol.algorithm.table import BoundsTable
 
-__all__ = ["shown_percent", "BoundaryCheck", "boundary_check", "CFResult", "Freedom", "confidence_factor", "freedom", "sample_boxes"]
+__all__ = [
+    "shown_percent",
+    "BoundaryCheck",
+    "boundary_check",
+    "CFResult",
+    "Freedom",
+    "confidence_factor",
+    "freedom",
+    "sample_boxes",
+]
 
 
 def sample_boxes(bounds: BoundsTable, s: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -59,9 +68,19 @@ class CFResult:
 CROSS_CHECK = 10_000
 
 
-def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, samples: int = 10000,
-                      seed: int = 0, checker=None, judge: str = "drake", prefilter: bool = True,
-                      cross_check: int = CROSS_CHECK, progress: bool = False) -> CFResult:
+def confidence_factor(
+    workcell,
+    bounds: BoundsTable,
+    *,
+    windows: int = 30,
+    samples: int = 10000,
+    seed: int = 0,
+    checker=None,
+    judge: str = "drake",
+    prefilter: bool = True,
+    cross_check: int = CROSS_CHECK,
+    progress: bool = False,
+) -> CFResult:
     """The paper's Confidence Factor (eq. 3-4, SPEC 8).
 
     The path parameter s in [0, g-1] is split into ``windows`` equal windows;
@@ -118,7 +137,7 @@ def confidence_factor(workcell, bounds: BoundsTable, *, windows: int = 30, sampl
     judged = 0
     bar = Progress(windows, "Confidence Factor", enabled=progress, unit="window")
     for w in range(windows):
-        Qw = Q[w * samples:(w + 1) * samples]
+        Qw = Q[w * samples : (w + 1) * samples]
         free = np.ones(len(Qw), bool)
         maybe = arrays.may_collide(Qw) if arrays is not None else np.ones(len(Qw), bool)
         if maybe.any():
@@ -147,17 +166,29 @@ def _kernel_cf(workcell, Q, windows, samples, seed, checker, cross_check, rng, p
     bar.close()
     total = windows * samples
     pick = rng.choice(total, size=min(cross_check, total), replace=False) if cross_check else np.zeros(0, int)
-    drake_free = np.array(checker.CheckConfigsCollisionFree(Q[pick], parallelize=True), bool) if len(pick) else \
-        np.zeros(0, bool)
+    drake_free = (
+        np.array(checker.CheckConfigsCollisionFree(Q[pick], parallelize=True), bool) if len(pick) else np.zeros(0, bool)
+    )
     missed = int((~hit[pick] & ~drake_free).sum())
     if missed:
-        raise WorkcellError(f"the collision kernel called {missed} of {len(pick)} cross-checked samples free where "
-                            "Drake's checker finds a collision; use judge='drake' and please report this with the "
-                            "robot's model.")
+        raise WorkcellError(
+            f"the collision kernel called {missed} of {len(pick)} cross-checked samples free where "
+            "Drake's checker finds a collision; use judge='drake' and please report this with the "
+            "robot's model."
+        )
     colliding = int(hit.sum())
     per = 100.0 * (1.0 - hit.reshape(windows, samples).mean(axis=1))
-    return CFResult(100.0 * (total - colliding) / total, per, total, colliding, seed, len(pick), "kernel", len(pick),
-                    int((hit[pick] & drake_free).sum()))
+    return CFResult(
+        100.0 * (total - colliding) / total,
+        per,
+        total,
+        colliding,
+        seed,
+        len(pick),
+        "kernel",
+        len(pick),
+        int((hit[pick] & drake_free).sum()),
+    )
 
 
 @dataclasses.dataclass
@@ -196,7 +227,7 @@ def shown_percent(percent: float, colliding: int, digits: int = 4) -> float:
     """A percentage rounded for people, never to 100 when a sample
     collided (rounded down then), so "CF 100 %" always means none did."""
     if colliding > 0:
-        return math.floor(percent * 10 ** digits) / 10 ** digits
+        return math.floor(percent * 10**digits) / 10**digits
     return round(percent, digits)
 
 
@@ -223,8 +254,9 @@ class BoundaryCheck:
     clearance: float
 
 
-def boundary_check(workcell, bounds: BoundsTable, *, clearance: float = 0.0, edge_points: int = 64,
-                   seed: int = 0) -> BoundaryCheck:
+def boundary_check(
+    workcell, bounds: BoundsTable, *, clearance: float = 0.0, edge_points: int = 64, seed: int = 0
+) -> BoundaryCheck:
     """Checks the box's corners and edge points at every waypoint and
     stretch midpoint with Drake's checker, padded by ``clearance`` (m; a
     configuration nearer than that to an obstacle or to the robot itself
@@ -234,7 +266,7 @@ def boundary_check(workcell, bounds: BoundsTable, *, clearance: float = 0.0, edg
     s = np.arange(0, bounds.g - 0.5, 0.5) if bounds.g > 1 else np.zeros(1)
     lo, hi, _ = bounds.boxes_at(s)
     k = bounds.k
-    pattern = (np.arange(2 ** k)[:, None] >> np.arange(k)[None, :]) & 1
+    pattern = (np.arange(2**k)[:, None] >> np.arange(k)[None, :]) & 1
     corners = bad_c = bad_e = 0
     for a in range(len(s)):
         C = np.where(pattern == 1, hi[a], lo[a])

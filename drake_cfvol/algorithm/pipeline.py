@@ -13,10 +13,7 @@ import numpy as np
 
 from drake_cfvol import kernel as K
 from drake_cfvol.algorithm.certify import Certify, certified_table, certify_bounds
-from drake_cfvol.exceptions import DimensionError, ParameterError
-from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.algorithm.planning import NominalPath
-from drake_cfvol.io.progress import timed_steps
 from drake_cfvol.algorithm.reference import drake_sweep_bounds
 from drake_cfvol.algorithm.sweep import default_rate, stretch_bounds
 from drake_cfvol.algorithm.table import (
@@ -26,6 +23,9 @@ from drake_cfvol.algorithm.table import (
     waypoint_boxes,
 )
 from drake_cfvol.algorithm.volume import build_volume, categorize, height_map_of
+from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.io.progress import timed_steps
+from drake_cfvol.scene.params import VolumeParams
 
 __all__ = ["estimate_bounds", "BACKENDS", "warm_up"]
 
@@ -45,8 +45,7 @@ def warm_up(*, progress: bool = False) -> float:
     global _warm_up_ms
     if _warm_up_ms is not None:
         return 0.0
-    with timed_steps(K.STEP_SHARES, "Compiling the collision kernel (once; numba caches it)",
-                     enabled=progress) as step:
+    with timed_steps(K.STEP_SHARES, "Compiling the collision kernel (once; numba caches it)", enabled=progress) as step:
         _warm_up_ms = K.warm_up(on_step=lambda name, seconds: step(name)) * 1e3
     return _warm_up_ms
 
@@ -55,8 +54,12 @@ def _check_inputs(workcell, path, backend: str, certify) -> None:
     if not isinstance(path, NominalPath):
         raise ParameterError(f"path must be a NominalPath, got {type(path).__name__}.")
     if path.k != workcell.num_joints:
-        raise DimensionError("the path's configurations", workcell.num_joints, path.k,
-                             f"The workcell's robot has joints {', '.join(workcell.joint_names)}.")
+        raise DimensionError(
+            "the path's configurations",
+            workcell.num_joints,
+            path.k,
+            f"The workcell's robot has joints {', '.join(workcell.joint_names)}.",
+        )
     if backend not in BACKENDS:
         raise ParameterError(f"backend must be one of {', '.join(map(repr, BACKENDS))}, got {backend!r}.")
     if certify is not None and not isinstance(certify, Certify):
@@ -72,8 +75,7 @@ def _bound(workcell, W, vb, params, backend: str, progress: bool):
         lo_w, hi_w = absolute_bounds(workcell.position_lower, workcell.position_upper, W)
         lim_lo_st = np.maximum(lo_w[:-1], lo_w[1:])
         lim_hi_st = np.minimum(hi_w[:-1], hi_w[1:])
-        st_lower, st_upper, stats = stretch_bounds(workcell.scene_arrays(), W, vb.volume, params,
-                                                   lim_lo_st, lim_hi_st)
+        st_lower, st_upper, stats = stretch_bounds(workcell.scene_arrays(), W, vb.volume, params, lim_lo_st, lim_hi_st)
         rate = default_rate(W, workcell.velocity_limits, params.waypoint_time)
         lower, upper = waypoint_boxes(st_lower, st_upper, W, rate)
         return lower, upper, st_lower, st_upper, rate, stats
@@ -82,9 +84,16 @@ def _bound(workcell, W, vb, params, backend: str, progress: bool):
     return lower, upper, st_lower, st_upper, None, stats
 
 
-def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = None, *,
-                    backend: str = "fast", certify: Certify | None = None, progress: bool = False,
-                    **overrides) -> BoundsTable:
+def estimate_bounds(
+    workcell,
+    path: NominalPath,
+    params: VolumeParams | None = None,
+    *,
+    backend: str = "fast",
+    certify: Certify | None = None,
+    progress: bool = False,
+    **overrides,
+) -> BoundsTable:
     """Algorithm 1: categorize, grow the volume, bound every joint at every
     waypoint.
 
@@ -129,17 +138,42 @@ def estimate_bounds(workcell, path: NominalPath, params: VolumeParams | None = N
     t3 = time.perf_counter()
     lim_lo, lim_hi = absolute_bounds(workcell.position_lower, workcell.position_upper, W[0])
     stats.setdefault("clearance_m", float(params.clearance))
-    info = {"cell": workcell.name, "path": path.label, "seed": path.seed, "backend": backend,
-            "resolution": params.resolution, "n_boxes": vb.volume.n_boxes,
-            "lowered_columns": vb.volume.lowered, "dropped_columns": vb.volume.dropped,
-            "categories": {"trail": cats.trail, "goal": cats.goal, "no_goal": cats.no_goal},
-            "cell_side_m": vb.volume.heightmap.side, "grid": list(vb.volume.heightmap.shape),
-            "jit_warmup_ms": jit_ms, **stats}
-    timing = {"categorize": (t1 - t0) * 1e3, "volume": (t2 - t1) * 1e3, "bounding": (t3 - t2) * 1e3,
-              "total": (t3 - t0) * 1e3}
-    table = BoundsTable(lower, upper, W.copy(), list(workcell.joint_names), lim_lo, lim_hi,
-                        params.to_dict(), timing, info, volume=vb, stretch_lower=st_lower, stretch_upper=st_upper,
-                        rate=rate)
+    info = {
+        "cell": workcell.name,
+        "path": path.label,
+        "seed": path.seed,
+        "backend": backend,
+        "resolution": params.resolution,
+        "n_boxes": vb.volume.n_boxes,
+        "lowered_columns": vb.volume.lowered,
+        "dropped_columns": vb.volume.dropped,
+        "categories": {"trail": cats.trail, "goal": cats.goal, "no_goal": cats.no_goal},
+        "cell_side_m": vb.volume.heightmap.side,
+        "grid": list(vb.volume.heightmap.shape),
+        "jit_warmup_ms": jit_ms,
+        **stats,
+    }
+    timing = {
+        "categorize": (t1 - t0) * 1e3,
+        "volume": (t2 - t1) * 1e3,
+        "bounding": (t3 - t2) * 1e3,
+        "total": (t3 - t0) * 1e3,
+    }
+    table = BoundsTable(
+        lower,
+        upper,
+        W.copy(),
+        list(workcell.joint_names),
+        lim_lo,
+        lim_hi,
+        params.to_dict(),
+        timing,
+        info,
+        volume=vb,
+        stretch_lower=st_lower,
+        stretch_upper=st_upper,
+        rate=rate,
+    )
     if certify is not None:
         info["uncertified_lower"], info["uncertified_upper"] = lower, upper
         t_c = time.perf_counter()

@@ -17,13 +17,13 @@ import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
 
 from drake_cfvol.algorithm import _ompl
-from drake_cfvol.io.records import load_record, save_record
 from drake_cfvol.exceptions import (
     DimensionError,
     ParameterError,
     PlanningError,
     SingularityError,
 )
+from drake_cfvol.io.records import load_record, save_record
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.workcell import Workcell
 
@@ -90,9 +90,17 @@ class NominalPath:
         return (1 - t) * self.waypoints[i] + t * self.waypoints[i + 1]
 
     def to_dict(self) -> dict:
-        return {"format": "drake_cfvol.NominalPath", "version": FORMAT_VERSION, "cell": self.cell,
-                "label": self.label, "seed": self.seed, "joint_names": list(self.joint_names),
-                "waypoints": self.waypoints.tolist(), "sha256": self.sha256, "stats": self.stats}
+        return {
+            "format": "drake_cfvol.NominalPath",
+            "version": FORMAT_VERSION,
+            "cell": self.cell,
+            "label": self.label,
+            "seed": self.seed,
+            "joint_names": list(self.joint_names),
+            "waypoints": self.waypoints.tolist(),
+            "sha256": self.sha256,
+            "stats": self.stats,
+        }
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
         """Saves as ``.npz`` or readable ``.json`` (by the suffix).
@@ -112,8 +120,14 @@ class NominalPath:
             RecordFormatError: the file is missing, empty, truncated or not a path.
         """
         d, arrays = load_record(path, ("waypoints",), "path", required=("joint_names",))
-        return cls(arrays["waypoints"], d["joint_names"], d.get("cell", ""), d.get("label", ""), d.get("seed", 0),
-                   d.get("stats", {}))
+        return cls(
+            arrays["waypoints"],
+            d["joint_names"],
+            d.get("cell", ""),
+            d.get("label", ""),
+            d.get("seed", 0),
+            d.get("stats", {}),
+        )
 
 
 def densify(vertices: np.ndarray, max_step: float) -> np.ndarray:
@@ -133,8 +147,8 @@ def min_singular_value(workcell: Workcell, q: np.ndarray) -> float:
     plant = workcell.plant
     ctx = workcell.plant_context(q)
     J = plant.CalcJacobianSpatialVelocity(
-        ctx, JacobianWrtVariable.kQDot, workcell.tool_frame, np.zeros(3),
-        plant.world_frame(), plant.world_frame())
+        ctx, JacobianWrtVariable.kQDot, workcell.tool_frame, np.zeros(3), plant.world_frame(), plant.world_frame()
+    )
     return float(np.linalg.svd(J, compute_uv=False)[-1])
 
 
@@ -181,7 +195,8 @@ def _checked_request(workcell, q_start, q_goal, seed, time_limit, max_step, sing
             raise SingularityError(
                 f"The {what} configuration is singular: the tool Jacobian's smallest singular value is "
                 f"{sv:.2e} <= {singular_threshold:.1e}. Move the wrist off the singularity (e.g. a "
-                "non-zero wrist bend).")
+                "non-zero wrist bend)."
+            )
     if clearance is None:
         clearance = VolumeParams.for_workcell(workcell).clearance
     if not (np.isfinite(clearance) and 0.0 <= clearance <= 0.5):
@@ -193,15 +208,34 @@ def _checked_request(workcell, q_start, q_goal, seed, time_limit, max_step, sing
     return start, goal, lower, upper, margin
 
 
-def _attempt(workcell, lower, upper, start, goal, checker, attempt_seed, time_left, max_step, shortcut_iterations,
-             singular_threshold):
+def _attempt(
+    workcell,
+    lower,
+    upper,
+    start,
+    goal,
+    checker,
+    attempt_seed,
+    time_left,
+    max_step,
+    shortcut_iterations,
+    singular_threshold,
+):
     """One planning attempt: RRT-Connect, seeded shortcuts, densified and
     verified (every edge by Drake's padded checker, every waypoint off the
     singularities). Returns (waypoints, stats) or why it failed (str)."""
     edge_free = checker.CheckEdgeCollisionFree
     t0 = time.perf_counter()
-    verts, ostats = _ompl.rrt_connect(lower, upper, start, goal, is_state_valid=checker.CheckConfigCollisionFree,
-                                      is_motion_valid=edge_free, seed=attempt_seed, time_limit=time_left)
+    verts, ostats = _ompl.rrt_connect(
+        lower,
+        upper,
+        start,
+        goal,
+        is_state_valid=checker.CheckConfigCollisionFree,
+        is_motion_valid=edge_free,
+        seed=attempt_seed,
+        time_limit=time_left,
+    )
     plan_ms = (time.perf_counter() - t0) * 1e3
     if verts is None:
         return "no solution"
@@ -218,10 +252,16 @@ def _attempt(workcell, lower, upper, start, goal, checker, attempt_seed, time_le
     verify_ms = (time.perf_counter() - t2) * 1e3
     if sv.min() <= singular_threshold:
         return f"waypoint {int(sv.argmin())} singular ({sv.min():.1e})"
-    return wp, {"plan_time_ms": plan_ms, "simplify_time_ms": simplify_ms, "verify_time_ms": verify_ms,
-                "raw_vertices": int(ostats.get("raw_vertices", 0)), "simplified_vertices": len(verts),
-                "state_checks": ostats["state_checks"], "motion_checks": ostats["motion_checks"],
-                "min_singular_value": float(sv.min())}
+    return wp, {
+        "plan_time_ms": plan_ms,
+        "simplify_time_ms": simplify_ms,
+        "verify_time_ms": verify_ms,
+        "raw_vertices": int(ostats.get("raw_vertices", 0)),
+        "simplified_vertices": len(verts),
+        "state_checks": ostats["state_checks"],
+        "motion_checks": ostats["motion_checks"],
+        "min_singular_value": float(sv.min()),
+    }
 
 
 def plan_nominal_path(
@@ -262,8 +302,9 @@ def plan_nominal_path(
         MissingJointLimitsError: a joint has no finite limits.
         PlanningError: no path within the time limit.
     """
-    start, goal, lower, upper, margin = _checked_request(workcell, q_start, q_goal, seed, time_limit, max_step,
-                                                         singular_threshold, clearance)
+    start, goal, lower, upper, margin = _checked_request(
+        workcell, q_start, q_goal, seed, time_limit, max_step, singular_threshold, clearance
+    )
     checker = workcell.padded_checker(margin)
 
     t_total = time.perf_counter()
@@ -273,16 +314,35 @@ def plan_nominal_path(
     while deadline - time.perf_counter() > 0:
         attempt_seed = int(seed) * 1009 + attempts
         attempts += 1
-        found = _attempt(workcell, lower, upper, start, goal, checker, attempt_seed, deadline - time.perf_counter(),
-                         max_step, shortcut_iterations, singular_threshold)
+        found = _attempt(
+            workcell,
+            lower,
+            upper,
+            start,
+            goal,
+            checker,
+            attempt_seed,
+            deadline - time.perf_counter(),
+            max_step,
+            shortcut_iterations,
+            singular_threshold,
+        )
         if isinstance(found, str):
             failures.append(found)
             continue
         wp, stats = found
-        stats.update({"total_time_ms": (time.perf_counter() - t_total) * 1e3, "attempts": attempts,
-                      "max_step": max_step, "rejected": list(failures), "clearance_m": margin})
+        stats.update(
+            {
+                "total_time_ms": (time.perf_counter() - t_total) * 1e3,
+                "attempts": attempts,
+                "max_step": max_step,
+                "rejected": list(failures),
+                "clearance_m": margin,
+            }
+        )
         return NominalPath(wp, list(workcell.joint_names), workcell.name, label, int(seed), stats)
     why = "; ".join(failures[-3:]) or "no attempt could start"
     raise PlanningError(
         f"No collision-free path from start to goal in {time_limit:g} s ({attempts} attempt(s); last: "
-        f"{why}). Raise time_limit (CLI: --time-limit), or check that the goal is reachable.")
+        f"{why}). Raise time_limit (CLI: --time-limit), or check that the goal is reachable."
+    )

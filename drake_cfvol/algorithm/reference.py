@@ -11,16 +11,21 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from pydrake.geometry import (AddContactMaterial, Box, GeometryInstance, MakePhongIllustrationProperties,
-                             ProximityProperties)
+from pydrake.geometry import (
+    AddContactMaterial,
+    Box,
+    GeometryInstance,
+    MakePhongIllustrationProperties,
+    ProximityProperties,
+)
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import CoulombFriction
 
-from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.algorithm.heightmap import Volume
-from drake_cfvol.scene.params import VolumeParams
-from drake_cfvol.io.progress import Progress
 from drake_cfvol.algorithm.table import absolute_bounds
+from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.io.progress import Progress
+from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.queries import RobotChecker
 
 __all__ = ["VOLUME_BOX_PREFIX", "register_volume_boxes", "ReferenceScene", "drake_sweep_bounds"]
@@ -32,8 +37,16 @@ VOLUME_BOX_PREFIX = "cfvol_volume_"
 MAX_REFERENCE_BOXES = 3000
 
 
-def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35), visual: bool = True,
-                          boxes=None, scene_graph=None, proximity: bool = True) -> list:
+def register_volume_boxes(
+    plant,
+    volume: Volume,
+    *,
+    colour=(0.2, 0.75, 0.3, 0.35),
+    visual: bool = True,
+    boxes=None,
+    scene_graph=None,
+    proximity: bool = True,
+) -> list:
     """Registers the volume's columns on the world body of a plant (before
     ``Finalize``): proximity geometry, and an illustration if ``visual``.
     A finalized plant's are registered on its SceneGraph instead, as
@@ -57,23 +70,28 @@ def register_volume_boxes(plant, volume: Volume, *, colour=(0.2, 0.75, 0.3, 0.35
     for i, (c, s) in enumerate(zip(centres, sizes)):
         X_WC = RigidTransform(c)
         if proximity:
-            ids.append(plant.RegisterCollisionGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}{i}",
-                                                       CoulombFriction(0.5, 0.5)))
+            ids.append(
+                plant.RegisterCollisionGeometry(
+                    world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}{i}", CoulombFriction(0.5, 0.5)
+                )
+            )
         if visual:
-            plant.RegisterVisualGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}visual_{i}",
-                                         np.asarray(colour))
+            plant.RegisterVisualGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}visual_{i}", np.asarray(colour))
     return ids
 
 
 def _register_anchored(plant, scene_graph, centres, sizes, colour, visual) -> list:
     """The volume's boxes as anchored geometry of a finalized plant's source."""
     if scene_graph is None:
-        raise ParameterError("register_volume_boxes: the plant is finalized; pass its scene_graph to register the "
-                             "boxes as anchored geometry.")
+        raise ParameterError(
+            "register_volume_boxes: the plant is finalized; pass its scene_graph to register the "
+            "boxes as anchored geometry."
+        )
     source, ids = plant.get_source_id(), []
     for i, (c, s) in enumerate(zip(centres, sizes)):
         gid = scene_graph.RegisterAnchoredGeometry(
-            source, GeometryInstance(RigidTransform(c), Box(*s), f"{VOLUME_BOX_PREFIX}{i}"))
+            source, GeometryInstance(RigidTransform(c), Box(*s), f"{VOLUME_BOX_PREFIX}{i}")
+        )
         props = ProximityProperties()
         AddContactMaterial(friction=CoulombFriction(0.5, 0.5), properties=props)
         scene_graph.AssignRole(source, gid, props)
@@ -96,13 +114,21 @@ class ReferenceScene:
             this to the volume, an obstacle or itself counts as colliding.
     """
 
-    def __init__(self, workcell, volume: Volume, *, edge_step: float = 0.01,
-                 max_boxes: int = MAX_REFERENCE_BOXES, clearance: float = 0.0):
+    def __init__(
+        self,
+        workcell,
+        volume: Volume,
+        *,
+        edge_step: float = 0.01,
+        max_boxes: int = MAX_REFERENCE_BOXES,
+        clearance: float = 0.0,
+    ):
         if volume.n_boxes > max_boxes:
             raise ParameterError(
                 f"the reference backend holds one SceneGraph box per column; {volume.n_boxes} columns "
                 f"exceed its practical limit of {max_boxes} (Drake's cost grows quadratically). "
-                "Use backend='fast' or a lower resolution.")
+                "Use backend='fast' or a lower resolution."
+            )
         t0 = time.perf_counter()
         holder = {}
 
@@ -113,8 +139,14 @@ class ReferenceScene:
         self.box_ids = set(holder["ids"])
         self.build_s = time.perf_counter() - t0
         t1 = time.perf_counter()
-        self.checker = RobotChecker(self.diagram, self.robot, workcell.slice.q_default, edge_step_size=edge_step,
-                                    env_collision_padding=clearance, self_collision_padding=clearance)
+        self.checker = RobotChecker(
+            self.diagram,
+            self.robot,
+            workcell.slice.q_default,
+            edge_step_size=edge_step,
+            env_collision_padding=clearance,
+            self_collision_padding=clearance,
+        )
         self.checker_s = time.perf_counter() - t1
         self._context = self.diagram.CreateDefaultContext()
 
@@ -141,9 +173,15 @@ class ReferenceScene:
         return out
 
 
-def drake_sweep_bounds(workcell, waypoints: np.ndarray, volume: Volume, params: VolumeParams,
-                       *, scene: ReferenceScene | None = None,
-                       progress: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:
+def drake_sweep_bounds(
+    workcell,
+    waypoints: np.ndarray,
+    volume: Volume,
+    params: VolumeParams,
+    *,
+    scene: ReferenceScene | None = None,
+    progress: bool = False,
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """Joint bounds by Drake alone: each single-joint motion is sampled every
     ``delta`` (the checker's resolution) from the nominal outwards; the bound
     is the last free sample before the first collision (a sample nearer
@@ -168,7 +206,7 @@ def drake_sweep_bounds(workcell, waypoints: np.ndarray, volume: Volume, params: 
                 steps = np.r_[np.arange(delta, span, delta), span] if span > 0 else np.zeros(0)
                 best = 0.0
                 for start in range(0, len(steps), chunk):
-                    part = steps[start: start + chunk]
+                    part = steps[start : start + chunk]
                     Q = np.repeat(q[None], len(part), axis=0)
                     Q[:, j] = q[j] + sign * part
                     free = scene.configs_free(Q)
@@ -184,5 +222,4 @@ def drake_sweep_bounds(workcell, waypoints: np.ndarray, volume: Volume, params: 
                     lower[i, j] = q[j] - best
         bar.update(1)
     bar.close()
-    return lower, upper, {"drake_checks": checks, "scene_build_s": scene.build_s,
-                          "checker_build_s": scene.checker_s}
+    return lower, upper, {"drake_checks": checks, "scene_build_s": scene.build_s, "checker_build_s": scene.checker_s}

@@ -6,11 +6,12 @@ region test, corners as points, and the shared constants of the proof.
 from __future__ import annotations
 
 import itertools
+
 import numpy as np
 
 from drake_cfvol import kernel as K
 
-__all__ = ['edge_tasks', 'regions_may_collide', 'corner_points']
+__all__ = ["edge_tasks", "regions_may_collide", "corner_points"]
 
 
 #: Halvings of a failing region before it is cut: along the joint, and in
@@ -52,8 +53,14 @@ def edge_tasks(lo_a, hi_a, lo_b, hi_b):
     if not A:
         k0 = np.zeros((0, k))
         return k0, k0, np.zeros(0, np.int64), np.zeros(0), np.zeros(0), np.zeros((0, k), np.int64)
-    return (np.concatenate(A), np.concatenate(B), np.concatenate(js).astype(np.int64), np.concatenate(va),
-            np.concatenate(vb), np.concatenate(sig))
+    return (
+        np.concatenate(A),
+        np.concatenate(B),
+        np.concatenate(js).astype(np.int64),
+        np.concatenate(va),
+        np.concatenate(vb),
+        np.concatenate(sig),
+    )
 
 
 def _grid(arrays, A, B, js, va, vb):
@@ -78,8 +85,9 @@ def regions_may_collide(arrays, A, B, js, va, vb, pads) -> np.ndarray:
     js = np.ascontiguousarray(js, np.int64)
     va, vb = np.ascontiguousarray(va, float), np.ascontiguousarray(vb, float)
     nts, nvs = _grid(arrays, A, B, js, va, vb)
-    return K.regions_hit(A, B, js, va, vb, nts, nvs, np.ascontiguousarray(np.broadcast_to(pads, js.shape), float),
-                         arrays.model)
+    return K.regions_hit(
+        A, B, js, va, vb, nts, nvs, np.ascontiguousarray(np.broadcast_to(pads, js.shape), float), arrays.model
+    )
 
 
 def _box(lower, upper, nominal, i, s):

@@ -20,7 +20,8 @@ def _joints(workcell, names, file, what: str) -> None:
         raise ConfigurationError(
             f"{file} holds a {what} for joints {', '.join(names)}, but cell '{workcell.name}' has joints "
             f"{', '.join(workcell.joint_names)}. Use a {what} made for this cell (cfvol plan/bounds ... --out), "
-            "or name the cell it was made for.")
+            "or name the cell it was made for."
+        )
 
 
 def _free(workcell, Q, file, what: str) -> None:
@@ -29,8 +30,10 @@ def _free(workcell, Q, file, what: str) -> None:
     free = np.array(workcell.checker.CheckConfigsCollisionFree(Q), bool)
     if not free.all():
         n = int(np.flatnonzero(~free)[0])
-        raise CollisionError(f"{file}: {what} waypoint {n + 1} (counted from 1) in cell '{workcell.name}'",
-                             workcell.colliding_pairs(Q[n]))
+        raise CollisionError(
+            f"{file}: {what} waypoint {n + 1} (counted from 1) in cell '{workcell.name}'",
+            workcell.colliding_pairs(Q[n]),
+        )
 
 
 def load_path_for(workcell, file: str | Path) -> NominalPath:
@@ -48,8 +51,10 @@ def load_path_for(workcell, file: str | Path) -> NominalPath:
     _free(workcell, path.waypoints, file, "path")
     for n, (a, b) in enumerate(zip(path.waypoints[:-1], path.waypoints[1:])):
         if not workcell.checker.CheckEdgeCollisionFree(a, b):
-            raise CollisionError(f"{file}: the path's edge from waypoint {n + 1} to {n + 2} in cell "
-                                 f"'{workcell.name}'", workcell.colliding_pairs(b))
+            raise CollisionError(
+                f"{file}: the path's edge from waypoint {n + 1} to {n + 2} in cell '{workcell.name}'",
+                workcell.colliding_pairs(b),
+            )
     return path
 
 
@@ -66,15 +71,21 @@ def load_bounds_for(workcell, file: str | Path, path: NominalPath | None = None)
     table = BoundsTable.load(file)
     _joints(workcell, table.joint_names, file, "bounds table")
     lo, hi = absolute_bounds(workcell.position_lower, workcell.position_upper, table.nominal[0])
-    same = (np.allclose(table.limit_lower, lo, atol=1e-9, equal_nan=True)
-            and np.allclose(table.limit_upper, hi, atol=1e-9, equal_nan=True))
+    same = np.allclose(table.limit_lower, lo, atol=1e-9, equal_nan=True) and np.allclose(
+        table.limit_upper, hi, atol=1e-9, equal_nan=True
+    )
     if not same:
-        raise ConfigurationError(f"{file} was made for joint limits {table.limit_lower.tolist()} .. "
-                                 f"{table.limit_upper.tolist()}; cell '{workcell.name}' has {lo.tolist()} .. "
-                                 f"{hi.tolist()}. Compute the bounds again on this cell.")
-    if path is not None and (path.waypoints.shape != table.nominal.shape
-                             or not np.allclose(path.waypoints, table.nominal, atol=1e-9)):
-        raise ConfigurationError(f"{file} was computed along another path than the one given ({path.g} waypoints); "
-                                 "give the path it was computed on, or leave the path out (the table holds it).")
+        raise ConfigurationError(
+            f"{file} was made for joint limits {table.limit_lower.tolist()} .. "
+            f"{table.limit_upper.tolist()}; cell '{workcell.name}' has {lo.tolist()} .. "
+            f"{hi.tolist()}. Compute the bounds again on this cell."
+        )
+    if path is not None and (
+        path.waypoints.shape != table.nominal.shape or not np.allclose(path.waypoints, table.nominal, atol=1e-9)
+    ):
+        raise ConfigurationError(
+            f"{file} was computed along another path than the one given ({path.g} waypoints); "
+            "give the path it was computed on, or leave the path out (the table holds it)."
+        )
     _free(workcell, table.nominal, file, "bounds table's nominal")
     return table

@@ -26,11 +26,20 @@ import math
 import numpy as np
 
 from drake_cfvol import kernel as K
-from drake_cfvol.scene.arrays import SceneArrays
 from drake_cfvol.algorithm.heightmap import Volume
+from drake_cfvol.scene.arrays import SceneArrays
 from drake_cfvol.scene.params import VolumeParams
 
-__all__ = ["stretch_bounds", "sweep_setup", "sweep_range", "SweepSetup", "volume_table", "nominal_growth", "default_rate", "stretch_margins"]
+__all__ = [
+    "stretch_bounds",
+    "sweep_setup",
+    "sweep_range",
+    "SweepSetup",
+    "volume_table",
+    "nominal_growth",
+    "default_rate",
+    "stretch_margins",
+]
 
 #: Poses are sampled along the stretch (up to kernel.MAX_T_SAMPLES) until
 #: the nominal's own motion grows a body by at most this much between
@@ -92,9 +101,15 @@ def stretch_margins(arrays: SceneArrays, waypoints: np.ndarray, clearance: float
     return np.minimum(np.minimum(per_wp[:-1], per_wp[1:]), mid)
 
 
-def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | None, params: VolumeParams,
-                   lower_limit: np.ndarray, upper_limit: np.ndarray, margins: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, dict]:
+def stretch_bounds(
+    arrays: SceneArrays,
+    waypoints: np.ndarray,
+    volume: Volume | None,
+    params: VolumeParams,
+    lower_limit: np.ndarray,
+    upper_limit: np.ndarray,
+    margins: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """Certified per-stretch joint bounds.
 
     Args:
@@ -117,8 +132,9 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     n_st = g - 1
     setup = sweep_setup(arrays, W, params, lower_limit, upper_limit, margins)
     margins = setup.margins
-    bounds, tests, _ = sweep_range(setup, arrays, W, volume_table(volume), 0, n_st - 1,
-                                   np.full(len(setup.chains), np.nan))
+    bounds, tests, _ = sweep_range(
+        setup, arrays, W, volume_table(volume), 0, n_st - 1, np.full(len(setup.chains), np.nan)
+    )
     lo_nom = np.minimum(W[:-1], W[1:])
     hi_nom = np.maximum(W[:-1], W[1:])
     upper = bounds[0::2].T.copy()
@@ -127,12 +143,16 @@ def stretch_bounds(arrays: SceneArrays, waypoints: np.ndarray, volume: Volume | 
     # A bound inside the nominal's own range over the stretch is kept as it
     # is: where the nominal passes it, the box is held at the nominal (the
     # box at s always holds nom(s); see table.box_at).
-    stats = {"region_tests": tests, "searches": 2 * n_st * k,
-             "pinned": int((upper < hi_nom).sum() + (lower > lo_nom).sum()),
-             "max_t_samples": int(setup.nts.max()) if setup.nts.size else 0,
-             "motion_tolerance_m": MOTION_TOLERANCE, "clearance_m": float(params.clearance),
-             "stretches_below_clearance": int((margins < params.clearance).sum()),
-             "min_margin_m": float(margins.min()) if len(margins) else float(params.clearance)}
+    stats = {
+        "region_tests": tests,
+        "searches": 2 * n_st * k,
+        "pinned": int((upper < hi_nom).sum() + (lower > lo_nom).sum()),
+        "max_t_samples": int(setup.nts.max()) if setup.nts.size else 0,
+        "motion_tolerance_m": MOTION_TOLERANCE,
+        "clearance_m": float(params.clearance),
+        "stretches_below_clearance": int((margins < params.clearance).sum()),
+        "min_margin_m": float(margins.min()) if len(margins) else float(params.clearance),
+    }
     return lower, upper, stats
 
 
@@ -152,8 +172,14 @@ class SweepSetup:
     margins: np.ndarray
 
 
-def sweep_setup(arrays: SceneArrays, W: np.ndarray, params: VolumeParams, lower_limit: np.ndarray,
-                upper_limit: np.ndarray, margins: np.ndarray | None = None) -> SweepSetup:
+def sweep_setup(
+    arrays: SceneArrays,
+    W: np.ndarray,
+    params: VolumeParams,
+    lower_limit: np.ndarray,
+    upper_limit: np.ndarray,
+    margins: np.ndarray | None = None,
+) -> SweepSetup:
     """The sweep's inputs for a path (see :func:`stretch_bounds`)."""
     W = np.ascontiguousarray(W, dtype=np.float64)
     k = W.shape[1]
@@ -166,13 +192,27 @@ def sweep_setup(arrays: SceneArrays, W: np.ndarray, params: VolumeParams, lower_
     if margins is None:
         margins = stretch_margins(arrays, W, params.clearance)
     chains = np.array([(j, sgn) for j in range(k) for sgn in (1, -1)], np.int64)
-    return SweepSetup(chains, delta, nts, v_steps, np.ascontiguousarray(lower_limit, dtype=np.float64),
-                      np.ascontiguousarray(upper_limit, dtype=np.float64),
-                      np.ascontiguousarray(margins, dtype=np.float64))
+    return SweepSetup(
+        chains,
+        delta,
+        nts,
+        v_steps,
+        np.ascontiguousarray(lower_limit, dtype=np.float64),
+        np.ascontiguousarray(upper_limit, dtype=np.float64),
+        np.ascontiguousarray(margins, dtype=np.float64),
+    )
 
 
-def sweep_range(setup: SweepSetup, arrays: SceneArrays, W: np.ndarray, field: tuple, a: int, b: int,
-                guesses: np.ndarray, chains: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sweep_range(
+    setup: SweepSetup,
+    arrays: SceneArrays,
+    W: np.ndarray,
+    field: tuple,
+    a: int,
+    b: int,
+    guesses: np.ndarray,
+    chains: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sweep over stretches a..b (inclusive), each chain starting from
     ``guesses`` (n,) (NaN: cold; a full sweep starts cold at stretch 0).
 
@@ -190,10 +230,17 @@ def sweep_range(setup: SweepSetup, arrays: SceneArrays, W: np.ndarray, field: tu
     table, ox, oy, side = field
     sl = slice(a, b + 1)
     chains = setup.chains if chains is None else np.ascontiguousarray(chains, dtype=np.int64)
-    return K.sweep_chains(chains, (setup.lim_lo[sl], setup.lim_hi[sl], setup.delta),
-                          np.ascontiguousarray(setup.nts[sl]), setup.v_steps, np.ascontiguousarray(W[a:b + 2]),
-                          arrays.model, K.HeightField(table, float(ox), float(oy), float(side)),
-                          setup.margins[sl], np.ascontiguousarray(guesses, dtype=np.float64))
+    return K.sweep_chains(
+        chains,
+        (setup.lim_lo[sl], setup.lim_hi[sl], setup.delta),
+        np.ascontiguousarray(setup.nts[sl]),
+        setup.v_steps,
+        np.ascontiguousarray(W[a : b + 2]),
+        arrays.model,
+        K.HeightField(table, float(ox), float(oy), float(side)),
+        setup.margins[sl],
+        np.ascontiguousarray(guesses, dtype=np.float64),
+    )
 
 
 #: Without a given time per waypoint, the nominal is taken to run at this

@@ -15,11 +15,20 @@ from typing import Any
 import numpy as np
 from pydrake.trajectories import PiecewisePolynomial
 
-from drake_cfvol.io.records import load_record, save_record
 from drake_cfvol.exceptions import DimensionError, ParameterError, RecordFormatError
+from drake_cfvol.io.records import load_record, save_record
 
-__all__ = ["BoundsTable", "absolute_bounds", "box_at", "nominal_trajectory", "waypoint_boxes", "intersection_stretches",
-           "rate_limited", "within_stretches", "INTERPOLATIONS"]
+__all__ = [
+    "BoundsTable",
+    "absolute_bounds",
+    "box_at",
+    "nominal_trajectory",
+    "waypoint_boxes",
+    "intersection_stretches",
+    "rate_limited",
+    "within_stretches",
+    "INTERPOLATIONS",
+]
 
 #: Version 3 added ``interpolation`` (a version-2 file is read as "stretch").
 FORMAT_VERSION = 3
@@ -95,8 +104,12 @@ def _stretch_envelopes(stretch_lower, stretch_upper, rate):
     place is never served stale envelopes)."""
     if _LAST_ENVELOPES:
         (lo, hi, r), out = _LAST_ENVELOPES[0]
-        if (lo.shape == stretch_lower.shape and np.array_equal(lo, stretch_lower) and np.array_equal(hi, stretch_upper)
-                and np.array_equal(r, rate)):
+        if (
+            lo.shape == stretch_lower.shape
+            and np.array_equal(lo, stretch_lower)
+            and np.array_equal(hi, stretch_upper)
+            and np.array_equal(r, rate)
+        ):
             return out
     Au, Bu = _envelopes(stretch_upper, rate, 1.0)
     Al, Bl = _envelopes(stretch_lower, rate, -1.0)
@@ -104,8 +117,9 @@ def _stretch_envelopes(stretch_lower, stretch_upper, rate):
     return Au, Bu, Al, Bl
 
 
-def _stretch_rule(stretch_lower: np.ndarray, stretch_upper: np.ndarray, rate: np.ndarray, s: np.ndarray,
-                  i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _stretch_rule(
+    stretch_lower: np.ndarray, stretch_upper: np.ndarray, rate: np.ndarray, s: np.ndarray, i: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """The rate-limited stretch bounds at path parameters s, each in stretch
     i (before the nominal is added; see :func:`box_at`)."""
     Au, Bu, Al, Bl = _stretch_envelopes(stretch_lower, stretch_upper, rate)
@@ -116,10 +130,18 @@ def _stretch_rule(stretch_lower: np.ndarray, stretch_upper: np.ndarray, rate: np
     return lo, hi
 
 
-def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
-           stretch_lower: np.ndarray | None = None, stretch_upper: np.ndarray | None = None,
-           rate: np.ndarray | None = None, trajectory: PiecewisePolynomial | None = None,
-           interpolation: str = "stretch") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def box_at(
+    lower: np.ndarray,
+    upper: np.ndarray,
+    nominal: np.ndarray,
+    s,
+    *,
+    stretch_lower: np.ndarray | None = None,
+    stretch_upper: np.ndarray | None = None,
+    rate: np.ndarray | None = None,
+    trajectory: PiecewisePolynomial | None = None,
+    interpolation: str = "stretch",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The box at path parameters s (docs/spec.md, section 7), vectorised.
 
     At an integer s: the waypoint's box. In stretch [i, i+1], by
@@ -149,8 +171,9 @@ def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
         ParameterError: an s outside [0, g-1] or not finite.
     """
     if interpolation not in INTERPOLATIONS:
-        raise ParameterError(f"interpolation must be one of {', '.join(map(repr, INTERPOLATIONS))}, "
-                             f"got {interpolation!r}.")
+        raise ParameterError(
+            f"interpolation must be one of {', '.join(map(repr, INTERPOLATIONS))}, got {interpolation!r}."
+        )
     g, k = nominal.shape
     scalar = np.ndim(s) == 0
     s = np.atleast_1d(np.asarray(s, float))
@@ -184,22 +207,29 @@ def box_at(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, s, *,
     return lo, hi, nom
 
 
-def waypoint_boxes(stretch_lower: np.ndarray, stretch_upper: np.ndarray, nominal: np.ndarray,
-                   rate: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def waypoint_boxes(
+    stretch_lower: np.ndarray, stretch_upper: np.ndarray, nominal: np.ndarray, rate: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """The waypoint boxes that the stretch rule gives at integer s (the limit
     from either side): both neighbouring stretches' bounds, rate-limited."""
     g = len(nominal)
     # The stretch rule at every integer s (s = g-1 lies in the last stretch).
-    lo, hi = _stretch_rule(stretch_lower, stretch_upper, np.asarray(rate, float), np.arange(g, dtype=float),
-                           np.clip(np.arange(g), 0, g - 2))
+    lo, hi = _stretch_rule(
+        stretch_lower,
+        stretch_upper,
+        np.asarray(rate, float),
+        np.arange(g, dtype=float),
+        np.clip(np.arange(g), 0, g - 2),
+    )
     # At an interior waypoint the previous stretch's cap also applies.
-    hi[1:g - 1] = np.minimum(hi[1:g - 1], stretch_upper[: g - 2])
-    lo[1:g - 1] = np.maximum(lo[1:g - 1], stretch_lower[: g - 2])
+    hi[1 : g - 1] = np.minimum(hi[1 : g - 1], stretch_upper[: g - 2])
+    lo[1 : g - 1] = np.maximum(lo[1 : g - 1], stretch_lower[: g - 2])
     return np.minimum(lo, nominal), np.maximum(hi, nominal)
 
 
-def rate_limited(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, rate: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def rate_limited(
+    lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, rate: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Waypoint boxes tightened (never widened) so that no bound changes
     by more than ``rate`` from one waypoint to the next: the upper bound
     becomes min over i' of (upper[i'] + rate |i - i'|), the lower bound the
@@ -220,8 +250,9 @@ def rate_limited(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, rate
     return np.minimum(lo, nominal), np.maximum(hi, nominal)
 
 
-def within_stretches(lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, stretch_lower: np.ndarray,
-                     stretch_upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def within_stretches(
+    lower: np.ndarray, upper: np.ndarray, nominal: np.ndarray, stretch_lower: np.ndarray, stretch_upper: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Waypoint boxes tightened (never widened) so that under the "linear"
     rule no bound leaves what the stretch boxes prove: on stretch i, the
     upper bound at s stays at most max(stretch_upper[i], nom(s)) (lower
@@ -312,8 +343,10 @@ class BoundsTable:
             raise DimensionError("stretch bounds", (g - 1, k), (self.stretch_lower.shape, self.stretch_upper.shape))
         self.rate = np.full(k, np.inf) if self.rate is None else np.asarray(self.rate, float).reshape(k)
         if self.interpolation not in INTERPOLATIONS:
-            raise ParameterError(f"BoundsTable: interpolation must be one of {', '.join(map(repr, INTERPOLATIONS))}"
-                                 f", got {self.interpolation!r}.")
+            raise ParameterError(
+                f"BoundsTable: interpolation must be one of {', '.join(map(repr, INTERPOLATIONS))}"
+                f", got {self.interpolation!r}."
+            )
         self._trajectory = nominal_trajectory(self.nominal)
 
     def __getstate__(self) -> dict:
@@ -352,29 +385,54 @@ class BoundsTable:
 
     def at(self, s: float):
         """(lower, upper, nominal) at path parameter s in [0, g-1]."""
-        return box_at(self.lower, self.upper, self.nominal, float(s), stretch_lower=self.stretch_lower,
-                      stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self._trajectory,
-                      interpolation=self.interpolation)
+        return box_at(
+            self.lower,
+            self.upper,
+            self.nominal,
+            float(s),
+            stretch_lower=self.stretch_lower,
+            stretch_upper=self.stretch_upper,
+            rate=self.rate,
+            trajectory=self._trajectory,
+            interpolation=self.interpolation,
+        )
 
     def boxes_at(self, s: np.ndarray):
         """:meth:`at` for many s at once: three (n, k) arrays."""
-        return box_at(self.lower, self.upper, self.nominal, np.asarray(s, float), stretch_lower=self.stretch_lower,
-                      stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self._trajectory,
-                      interpolation=self.interpolation)
+        return box_at(
+            self.lower,
+            self.upper,
+            self.nominal,
+            np.asarray(s, float),
+            stretch_lower=self.stretch_lower,
+            stretch_upper=self.stretch_upper,
+            rate=self.rate,
+            trajectory=self._trajectory,
+            interpolation=self.interpolation,
+        )
 
     def widths(self) -> np.ndarray:
         """(g, k) upper - lower."""
         return self.upper - self.lower
 
     def to_json_dict(self) -> dict:
-        return {"format": "drake_cfvol.BoundsTable", "version": FORMAT_VERSION,
-                "joint_names": list(self.joint_names), "lower": self.lower.tolist(),
-                "upper": self.upper.tolist(), "nominal": self.nominal.tolist(),
-                "limit_lower": self.limit_lower.tolist(), "limit_upper": self.limit_upper.tolist(),
-                "stretch_lower": self.stretch_lower.tolist(), "stretch_upper": self.stretch_upper.tolist(),
-                "rate": [v if np.isfinite(v) else None for v in self.rate.tolist()],
-                "interpolation": self.interpolation,
-                "params": self.params, "timing_ms": self.timing_ms, "info": _jsonable(self.info)}
+        return {
+            "format": "drake_cfvol.BoundsTable",
+            "version": FORMAT_VERSION,
+            "joint_names": list(self.joint_names),
+            "lower": self.lower.tolist(),
+            "upper": self.upper.tolist(),
+            "nominal": self.nominal.tolist(),
+            "limit_lower": self.limit_lower.tolist(),
+            "limit_upper": self.limit_upper.tolist(),
+            "stretch_lower": self.stretch_lower.tolist(),
+            "stretch_upper": self.stretch_upper.tolist(),
+            "rate": [v if np.isfinite(v) else None for v in self.rate.tolist()],
+            "interpolation": self.interpolation,
+            "params": self.params,
+            "timing_ms": self.timing_ms,
+            "info": _jsonable(self.info),
+        }
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
         """Saves as ``.npz`` (arrays + JSON metadata) or ``.json`` (the
@@ -388,19 +446,33 @@ class BoundsTable:
         Raises:
             RecordFormatError: the file is missing, empty, truncated or not a table.
         """
-        d, a = load_record(path, _ARRAYS, "bounds", optional=_STRETCH_ARRAYS,
-                           required=("joint_names", "limit_lower", "limit_upper"))
+        d, a = load_record(
+            path, _ARRAYS, "bounds", optional=_STRETCH_ARRAYS, required=("joint_names", "limit_lower", "limit_upper")
+        )
         version = d.get("version", 1)
         if not isinstance(version, int) or version > FORMAT_VERSION:
-            raise RecordFormatError(path, "bounds", f"it is of format version {version!r} and this drake_cfvol "
-                                    f"reads versions up to {FORMAT_VERSION} (update drake_cfvol to read it)")
+            raise RecordFormatError(
+                path,
+                "bounds",
+                f"it is of format version {version!r} and this drake_cfvol "
+                f"reads versions up to {FORMAT_VERSION} (update drake_cfvol to read it)",
+            )
         rate = d.get("rate")
-        return cls(a["lower"], a["upper"], a["nominal"], d["joint_names"],
-                   np.array(d["limit_lower"], float), np.array(d["limit_upper"], float),
-                   d.get("params", {}), d.get("timing_ms", {}), d.get("info", {}),
-                   stretch_lower=a.get("stretch_lower"), stretch_upper=a.get("stretch_upper"),
-                   rate=None if rate is None else np.array([np.inf if v is None else v for v in rate], float),
-                   interpolation=d.get("interpolation", "stretch"))
+        return cls(
+            a["lower"],
+            a["upper"],
+            a["nominal"],
+            d["joint_names"],
+            np.array(d["limit_lower"], float),
+            np.array(d["limit_upper"], float),
+            d.get("params", {}),
+            d.get("timing_ms", {}),
+            d.get("info", {}),
+            stretch_lower=a.get("stretch_lower"),
+            stretch_upper=a.get("stretch_upper"),
+            rate=None if rate is None else np.array([np.inf if v is None else v for v in rate], float),
+            interpolation=d.get("interpolation", "stretch"),
+        )
 
 
 def _jsonable(obj):

@@ -7,13 +7,21 @@ import dataclasses
 import numpy as np
 
 from drake_cfvol import kernel as K
-from drake_cfvol.exceptions import WorkcellError
 from drake_cfvol.algorithm.heightmap import HeightMap, Volume, height_function
-from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.algorithm.planning import NominalPath
+from drake_cfvol.exceptions import WorkcellError
+from drake_cfvol.scene.params import VolumeParams
 
-__all__ = ["Categories", "VolumeBuild", "Footprints", "categorize", "build_volume", "footprint_masks",
-           "volume_from_masks", "ground_obstacles"]
+__all__ = [
+    "Categories",
+    "VolumeBuild",
+    "Footprints",
+    "categorize",
+    "build_volume",
+    "footprint_masks",
+    "volume_from_masks",
+    "ground_obstacles",
+]
 
 #: An obstacle whose top is at most this high is ground (the floor).
 GROUND_TOP = 1e-3
@@ -71,9 +79,13 @@ def categorize(workcell, path: NominalPath, params: VolumeParams) -> Categories:
     trail = [n for n in names if trail_d.get(n, np.inf) < params.trail_radius]
     goal = [n for n in names if n not in trail and goal_d.get(n, np.inf) < params.goal_radius]
     no_goal = [n for n in names if n not in trail and n not in goal]
-    return Categories(trail, goal, no_goal,
-                      {n: float(trail_d.get(n, np.inf)) for n in names},
-                      {n: float(goal_d.get(n, np.inf)) for n in names})
+    return Categories(
+        trail,
+        goal,
+        no_goal,
+        {n: float(trail_d.get(n, np.inf)) for n in names},
+        {n: float(goal_d.get(n, np.inf)) for n in names},
+    )
 
 
 def ground_obstacles(workcell) -> set[str]:
@@ -113,7 +125,8 @@ def height_map_of(workcell, params: VolumeParams) -> HeightMap:
     if not (np.all(np.isfinite(o)) and np.all(np.isfinite(size))):
         raise WorkcellError(
             f"workcell '{workcell.name}' has no height map extent: set cfvol.height_map: "
-            "{origin: [x, y], size: [x_dim, y_dim]} (m).")
+            "{origin: [x, y], size: [x_dim, y_dim]} (m)."
+        )
     return HeightMap((float(o[0]), float(o[1])), float(size[0]), float(size[1]), params.resolution)
 
 
@@ -137,8 +150,9 @@ class VolumeBuild:
     active: np.ndarray
 
 
-def build_volume(workcell, path: NominalPath, params: VolumeParams, *,
-                 categories: Categories | None = None) -> VolumeBuild:
+def build_volume(
+    workcell, path: NominalPath, params: VolumeParams, *, categories: Categories | None = None
+) -> VolumeBuild:
     """Grows the volume V around a nominal path (SPEC 4-5).
 
     Footprints (xy projections) are drawn on a raster of ``params.raster``
@@ -171,8 +185,10 @@ class Footprints:
     def indices(self, X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Raster indices (clipped) of world points (X, Y), m."""
         shape = self.masks["trail"].shape
-        return (np.clip(np.floor((X - self.x0) / self.pixel).astype(int), 0, shape[0] - 1),
-                np.clip(np.floor((Y - self.y0) / self.pixel).astype(int), 0, shape[1] - 1))
+        return (
+            np.clip(np.floor((X - self.x0) / self.pixel).astype(int), 0, shape[0] - 1),
+            np.clip(np.floor((Y - self.y0) / self.pixel).astype(int), 0, shape[1] - 1),
+        )
 
 
 def footprint_masks(workcell, path: NominalPath, params: VolumeParams, cats: Categories) -> Footprints:
@@ -198,16 +214,18 @@ def footprint_masks(workcell, path: NominalPath, params: VolumeParams, cats: Cat
     return Footprints(masks, float(x0), float(y0), pixel)
 
 
-def volume_from_masks(workcell, path: NominalPath, params: VolumeParams, cats: Categories,
-                      fp: Footprints) -> VolumeBuild:
+def volume_from_masks(
+    workcell, path: NominalPath, params: VolumeParams, cats: Categories, fp: Footprints
+) -> VolumeBuild:
     """V from footprint rasters: exact distance transforms read at the cell
     centres, the height function, and the columns lowered under the
     nominal."""
     hm = height_map_of(workcell, params)
     X, Y = hm.centres()
     ix, iy = fp.indices(X, Y)
-    d = {c: (K.distance_map(m)[ix, iy] * fp.pixel if m.any() else np.full(hm.shape, np.inf))
-         for c, m in fp.masks.items()}
+    d = {
+        c: (K.distance_map(m)[ix, iy] * fp.pixel if m.any() else np.full(hm.shape, np.inf)) for c, m in fp.masks.items()
+    }
     reach = params.reach if params.reach is not None else workcell.reach
     active = reach_activation(workcell, path, hm, reach) if reach and reach > 0 else np.ones(hm.shape, bool)
     raw = height_function(d["trail"], d["goal"], d["no_goal"], active, params)
@@ -230,8 +248,9 @@ def lower_along_path(vol: Volume, arrays, waypoints: np.ndarray, clearance: floa
     W = np.asarray(waypoints, float)
     dq = np.abs(np.diff(W, axis=0))  # (g-1, k)
     rev = arrays.revolute
-    motion = np.where(rev[None, :, None], dq[:, :, None] * arrays.reach[None],
-                      dq[:, :, None] * arrays.moved_by[None]).sum(axis=1)  # (g-1, B)
+    motion = np.where(
+        rev[None, :, None], dq[:, :, None] * arrays.reach[None], dq[:, :, None] * arrays.moved_by[None]
+    ).sum(axis=1)  # (g-1, B)
     if not len(dq):
         return
     pieces = np.maximum(1, np.ceil(motion.max(axis=1) / (2 * LOWERING_MOTION))).astype(int)
@@ -244,8 +263,14 @@ def lower_along_path(vol: Volume, arrays, waypoints: np.ndarray, clearance: floa
     hm = vol.heightmap
     heights = np.ascontiguousarray(vol.heights, dtype=np.float64)
     a = arrays
-    K.lower_columns_under(np.ascontiguousarray(Q), np.ascontiguousarray(E), a.model, heights,
-                          (float(hm.origin[0]), float(hm.origin[1]), float(hm.side)), float(clearance))
+    K.lower_columns_under(
+        np.ascontiguousarray(Q),
+        np.ascontiguousarray(E),
+        a.model,
+        heights,
+        (float(hm.origin[0]), float(hm.origin[1]), float(hm.side)),
+        float(clearance),
+    )
     vol.heights = heights
     vol.changed()
     changed = vol.heights < vol.raw_heights

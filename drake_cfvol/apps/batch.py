@@ -35,8 +35,18 @@ from drake_cfvol.exceptions import BatchError, CfvolError, ScenarioError
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.io.records import path_label, prepare_output
 
-__all__ = ["BatchSettings", "BatchJobs", "Job", "JobResult", "load_jobs", "expand_jobs", "run_job", "run_batch",
-           "write_batch", "output_files"]
+__all__ = [
+    "BatchSettings",
+    "BatchJobs",
+    "Job",
+    "JobResult",
+    "load_jobs",
+    "expand_jobs",
+    "run_job",
+    "run_batch",
+    "write_batch",
+    "output_files",
+]
 
 
 @dataclasses.dataclass
@@ -73,8 +83,11 @@ class BatchSettings:
     def label(self) -> str:
         if self.name:
             return self.name
-        return (f"R{self.resolution}" + ("-certified" if self.certify else "")
-                + (f"-c{self.clearance:g}" if self.clearance is not None else ""))
+        return (
+            f"R{self.resolution}"
+            + ("-certified" if self.certify else "")
+            + (f"-c{self.clearance:g}" if self.clearance is not None else "")
+        )
 
 
 @dataclasses.dataclass
@@ -134,9 +147,10 @@ def _checked_settings(jobs: BatchJobs, file) -> None:
         for name in ("epsilon", "confidence"):
             if not 0.0 < getattr(s, name) < 1.0:
                 raise BatchError(file, f"{where}: {name}", f"must lie in (0, 1), got {getattr(s, name)}")
-        if s.label in labels[:i - 1]:
-            raise BatchError(file, f"{where}: name", f"'{s.label}' is used by another setting too: give each "
-                             "setting its own name")
+        if s.label in labels[: i - 1]:
+            raise BatchError(
+                file, f"{where}: name", f"'{s.label}' is used by another setting too: give each setting its own name"
+            )
 
 
 def load_jobs(file: str | Path | None = None, *, text: str | None = None) -> tuple[BatchJobs, Path | None]:
@@ -172,9 +186,8 @@ def load_jobs(file: str | Path | None = None, *, text: str | None = None) -> tup
 def expand_jobs(jobs: BatchJobs, base_dir: Path | None = None) -> list[Job]:
     """Every cell x path x setting as a :class:`Job`, in that order; cell
     files relative to ``base_dir`` (the jobs file's folder)."""
-    from drake_cfvol.scene.schema import builtin_cells
-
     from drake_cfvol.comanip.checks import cell_file
+    from drake_cfvol.scene.schema import builtin_cells
 
     labels = [path_label(label) for label in jobs.paths]
     out = []
@@ -182,8 +195,11 @@ def expand_jobs(jobs: BatchJobs, base_dir: Path | None = None) -> list[Job]:
         if cell not in builtin_cells():
             p = cell_file(str(Path(cell).expanduser()), base_dir)
             if not p.is_file():
-                raise BatchError(base_dir or "<text>", "cells", f"'{cell}' is neither a built-in cell "
-                                 f"({', '.join(sorted(builtin_cells()))}) nor a workcell file")
+                raise BatchError(
+                    base_dir or "<text>",
+                    "cells",
+                    f"'{cell}' is neither a built-in cell ({', '.join(sorted(builtin_cells()))}) nor a workcell file",
+                )
             cell = str(p.resolve())
         for label in labels:
             for s in jobs.settings:
@@ -229,30 +245,54 @@ def _run_job(job: Job, threads: int | None) -> JobResult:
     wc = _workcell(job.cell)
     t0 = time.perf_counter()
     path = plan_nominal_path(wc, *wc.configuration(job.path), seed=s.seed, label=job.path, clearance=s.clearance)
-    certify = (Certify(epsilon=s.epsilon, confidence=s.confidence, seed=s.seed, boundary=s.boundary_proof,
-                       cache=s.cache) if s.certify else None)
+    certify = (
+        Certify(epsilon=s.epsilon, confidence=s.confidence, seed=s.seed, boundary=s.boundary_proof, cache=s.cache)
+        if s.certify
+        else None
+    )
     extra = {} if s.clearance is None else {"clearance": s.clearance}
     table = estimate_bounds(wc, path, resolution=s.resolution, certify=certify, **extra)
     t_cf = time.perf_counter()
     cf = confidence_factor(wc, table, windows=s.cf_windows, samples=s.cf_samples, seed=s.seed)
     cf_ms = (time.perf_counter() - t_cf) * 1e3
     summary = {
-        "job": job.index, "cell": wc.name, "path": job.path, "setting": s.label, "seed": s.seed,
-        "resolution": s.resolution, "clearance_m": table.params.get("clearance"), "g": table.g, "k": table.k,
-        "waypoints_sha256": path.sha256, "time_ms": table.timing_ms["total"],
-        "timing_ms": dict(table.timing_ms), "cf_percent": cf.percent, "cf_samples": cf.samples,
-        "cf_colliding": cf.colliding, "cf_ms": cf_ms, "freedom": freedom(table, wc.revolute).mean,
-        "certified": "certificate" in table.info, "job_ms": (time.perf_counter() - t0) * 1e3,
+        "job": job.index,
+        "cell": wc.name,
+        "path": job.path,
+        "setting": s.label,
+        "seed": s.seed,
+        "resolution": s.resolution,
+        "clearance_m": table.params.get("clearance"),
+        "g": table.g,
+        "k": table.k,
+        "waypoints_sha256": path.sha256,
+        "time_ms": table.timing_ms["total"],
+        "timing_ms": dict(table.timing_ms),
+        "cf_percent": cf.percent,
+        "cf_samples": cf.samples,
+        "cf_colliding": cf.colliding,
+        "cf_ms": cf_ms,
+        "freedom": freedom(table, wc.revolute).mean,
+        "certified": "certificate" in table.info,
+        "job_ms": (time.perf_counter() - t0) * 1e3,
         "worker": os.getpid(),
     }
     if "certificate" in table.info:
         rep = table.info["certificate"]
-        summary.update({"certify_ms": rep["time_ms"], "certify_cached": bool(rep.get("cached")),
-                        "certify_shrinks": rep["shrinks"], "certify_n_samples": rep["n_samples"],
-                        "certify_samples": rep["samples"],
-                        "certify_region_tests": (rep.get("boundary") or {}).get("edge_tests", 0),
-                        "certified_freedom": rep["freedom_after"], "certified_freedom_kept":
-                        rep["freedom_after"] / rep["freedom_before"] if rep["freedom_before"] else None})
+        summary.update(
+            {
+                "certify_ms": rep["time_ms"],
+                "certify_cached": bool(rep.get("cached")),
+                "certify_shrinks": rep["shrinks"],
+                "certify_n_samples": rep["n_samples"],
+                "certify_samples": rep["samples"],
+                "certify_region_tests": (rep.get("boundary") or {}).get("edge_tests", 0),
+                "certified_freedom": rep["freedom_after"],
+                "certified_freedom_kept": rep["freedom_after"] / rep["freedom_before"]
+                if rep["freedom_before"]
+                else None,
+            }
+        )
     return JobResult(job, summary, table)
 
 
@@ -263,18 +303,26 @@ def _client(scheduler: str | None, workers: int | None):
     try:
         from distributed import Client, LocalCluster
     except ImportError:
-        raise BatchError("--scheduler" if scheduler else "the batch", None,
-                         "needs Dask's distributed scheduler, an optional extra: pip install "
-                         "'drake-cfvol[cluster]' (or run the jobs one after the other with --serial)") from None
+        raise BatchError(
+            "--scheduler" if scheduler else "the batch",
+            None,
+            "needs Dask's distributed scheduler, an optional extra: pip install "
+            "'drake-cfvol[cluster]' (or run the jobs one after the other with --serial)",
+        ) from None
     if scheduler:
         try:
             return Client(scheduler, timeout="20s"), None
         except (OSError, TimeoutError) as e:
-            raise BatchError(scheduler, None, f"no Dask scheduler answers there ({e}); start one (dask scheduler) "
-                             "or leave out --scheduler for a local cluster") from None
+            raise BatchError(
+                scheduler,
+                None,
+                f"no Dask scheduler answers there ({e}); start one (dask scheduler) "
+                "or leave out --scheduler for a local cluster",
+            ) from None
     n = workers or os.cpu_count() or 1
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR)
+    cluster = LocalCluster(
+        n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, silence_logs=logging.ERROR
+    )
     return Client(cluster), cluster
 
 
@@ -285,8 +333,9 @@ def _kernel_threads(workers: int) -> int:
     return max(1, (os.cpu_count() or 1) // max(1, workers))
 
 
-def run_batch(jobs: list[Job], *, scheduler: str | None = None, workers: int | None = None, progress: bool = True,
-              client=None) -> list[JobResult]:
+def run_batch(
+    jobs: list[Job], *, scheduler: str | None = None, workers: int | None = None, progress: bool = True, client=None
+) -> list[JobResult]:
     """Runs the jobs and returns their results in the jobs' order.
 
     Args:
@@ -357,8 +406,9 @@ def write_batch(results: list[JobResult], out: str | Path, *, overwrite: bool = 
     files = output_files([r.job for r in results], out, overwrite=overwrite)
     for r in results:
         r.table.save(files[r.job.stem], overwrite=overwrite)
-    files["results"].write_text(json.dumps([dict(r.summary, bounds_file=str(files[r.job.stem])) for r in results],
-                                           indent=1, default=_plain))
+    files["results"].write_text(
+        json.dumps([dict(r.summary, bounds_file=str(files[r.job.stem])) for r in results], indent=1, default=_plain)
+    )
     return {k: str(v) for k, v in files.items()}
 
 

@@ -1,6 +1,5 @@
 """The ``cfvol`` command line: thin wrappers over library functions."""
 
-
 from __future__ import annotations
 
 import argparse
@@ -8,16 +7,18 @@ import json
 import sys
 from pathlib import Path
 
-from drake_cfvol.io.records import output_stem, path_label, prepare_output
 from drake_cfvol._version import __version__
 from drake_cfvol.exceptions import CfvolError, ParameterError
+from drake_cfvol.io.records import output_stem, path_label, prepare_output
 
 #: drake_cfvol.comanip.adversarial.PATTERNS, spelled out so that ``cfvol --help``
 #: does not import Drake (tests/test_cli.py checks the two agree).
 PUSH_PATTERNS = ("random", "nearest", "random_pushes")
 
-_DESCRIPTION = ("Joint bounds that tell a robot how far a co-worker may push it off its planned path "
-                "without hitting anything (plan, bound, simulate, benchmark).")
+_DESCRIPTION = (
+    "Joint bounds that tell a robot how far a co-worker may push it off its planned path "
+    "without hitting anything (plan, bound, simulate, benchmark)."
+)
 
 
 def _quiet_drake() -> None:
@@ -31,20 +32,51 @@ def _quiet_drake() -> None:
 
 #: Plain-output labels: what each summary key means, with its unit.
 _LABELS = {
-    "cell": "cell", "path": "path", "seed": "seed", "g": "waypoints (g)", "k": "joints (k)",
-    "plan_time_ms": "planning time", "total_time_ms": "planning + checks", "attempts": "planner attempts",
-    "path_length": "path length (joint space)", "waypoints_sha256": "waypoints sha256", "out": "written to",
-    "resolution": "height-map cells (R)", "backend": "backend", "time_ms": "time to compute the bounds",
-    "timing_ms": "time per step", "cf_percent": "confidence factor (CF)", "cf_samples": "CF samples",
-    "cf_colliding": "CF samples colliding", "freedom": "freedom (mean geometric width share)",
-    "median_width": "median width per joint", "n_boxes": "volume columns", "lowered_columns": "columns lowered",
-    "dropped_columns": "columns dropped", "categories": "obstacle categories", "files": "files",
-    "certify_ms": "certification time", "certificate": "certificate",
+    "cell": "cell",
+    "path": "path",
+    "seed": "seed",
+    "g": "waypoints (g)",
+    "k": "joints (k)",
+    "plan_time_ms": "planning time",
+    "total_time_ms": "planning + checks",
+    "attempts": "planner attempts",
+    "path_length": "path length (joint space)",
+    "waypoints_sha256": "waypoints sha256",
+    "out": "written to",
+    "resolution": "height-map cells (R)",
+    "backend": "backend",
+    "time_ms": "time to compute the bounds",
+    "timing_ms": "time per step",
+    "cf_percent": "confidence factor (CF)",
+    "cf_samples": "CF samples",
+    "cf_colliding": "CF samples colliding",
+    "freedom": "freedom (mean geometric width share)",
+    "median_width": "median width per joint",
+    "n_boxes": "volume columns",
+    "lowered_columns": "columns lowered",
+    "dropped_columns": "columns dropped",
+    "categories": "obstacle categories",
+    "files": "files",
+    "certify_ms": "certification time",
+    "certificate": "certificate",
 }
-_UNITS = {"plan_time_ms": " ms", "total_time_ms": " ms", "time_ms": " ms", "certify_ms": " ms", "cf_percent": " %",
-          "sim_wall_s": " s", "duration_s": " s", "min_clearance_m": " m", "bounds_time_ms": " ms", "build_ms": " ms",
-          "max_bound_violation": " rad/m", "max_deviation": " rad/m", "path_length": " rad/m",
-          "live_box_excess_max": " rad/m", "live_box_catchup_s": " s"}
+_UNITS = {
+    "plan_time_ms": " ms",
+    "total_time_ms": " ms",
+    "time_ms": " ms",
+    "certify_ms": " ms",
+    "cf_percent": " %",
+    "sim_wall_s": " s",
+    "duration_s": " s",
+    "min_clearance_m": " m",
+    "bounds_time_ms": " ms",
+    "build_ms": " ms",
+    "max_bound_violation": " rad/m",
+    "max_deviation": " rad/m",
+    "path_length": " rad/m",
+    "live_box_excess_max": " rad/m",
+    "live_box_catchup_s": " s",
+}
 
 
 def _fmt(v, unit: str = "") -> str:
@@ -76,9 +108,14 @@ def _emit(summary: dict, as_json: bool) -> None:
         elif key == "categories" and isinstance(v, dict):
             text = "; ".join(f"{n.replace('_', '-')}: {', '.join(x) or '-'}" for n, x in v.items())
         elif key == "certificate" and isinstance(v, dict):
-            lines.append(("certificate", ("cached; " if v.get("cached") else "")
-                          + f"{v.get('shrinks', 0)} cuts, freedom {v.get('freedom_before', 0):.3f} -> "
-                          f"{v.get('freedom_after', 0):.3f}"))
+            lines.append(
+                (
+                    "certificate",
+                    ("cached; " if v.get("cached") else "")
+                    + f"{v.get('shrinks', 0)} cuts, freedom {v.get('freedom_before', 0):.3f} -> "
+                    f"{v.get('freedom_after', 0):.3f}",
+                )
+            )
             lines.append(("  proven", v.get("proven", "")))
             lines.append(("  sampled", v.get("sampled", "")))
             continue
@@ -120,17 +157,24 @@ def cmd_plan(args) -> int:
     wc = _load_cell(load_workcell, args.cell)
     label = path_label(args.path)
     start, goal = wc.configuration(label)
-    path = plan_nominal_path(wc, start, goal, seed=args.seed, time_limit=args.time_limit, label=label,
-                             clearance=args.clearance)
+    path = plan_nominal_path(
+        wc, start, goal, seed=args.seed, time_limit=args.time_limit, label=label, clearance=args.clearance
+    )
     if out is not None:
         out = str(path.save(out, overwrite=args.force))
     summary = {
-        "cell": wc.name, "path": label, "seed": args.seed, "g": path.g, "k": path.k,
+        "cell": wc.name,
+        "path": label,
+        "seed": args.seed,
+        "g": path.g,
+        "k": path.k,
         "clearance_m": path.stats["clearance_m"],
         "plan_time_ms": round(path.stats["plan_time_ms"], 3),
         "total_time_ms": round(path.stats["total_time_ms"], 3),
-        "attempts": path.stats["attempts"], "path_length": round(path.length, 6),
-        "waypoints_sha256": path.sha256, "out": out,
+        "attempts": path.stats["attempts"],
+        "path_length": round(path.length, 6),
+        "waypoints_sha256": path.sha256,
+        "out": out,
     }
     _emit(summary, args.json)
     return 0
@@ -175,35 +219,43 @@ def _path_and_table(args, wc, label: str, params, bars: bool):
     if args.certify:
         from drake_cfvol.algorithm.certify import Certify
 
-        given = {n: getattr(args, n) for n in ("epsilon", "clamp_epsilon", "confidence")
-                 if getattr(args, n) is not None}
-        certify = Certify(**given, seed=args.seed, cache=not args.no_cache,
-                          boundary=not args.no_boundary_proof, regrow=args.regrow)
+        given = {
+            n: getattr(args, n) for n in ("epsilon", "clamp_epsilon", "confidence") if getattr(args, n) is not None
+        }
+        certify = Certify(
+            **given, seed=args.seed, cache=not args.no_cache, boundary=not args.no_boundary_proof, regrow=args.regrow
+        )
     return path, estimate_bounds(wc, path, params, backend=args.backend, certify=certify, progress=bars)
 
 
 def cmd_bounds(args) -> int:
     from drake_cfvol.algorithm.metrics import confidence_factor, freedom, shown_percent
-    from drake_cfvol.scene.params import VolumeParams
     from drake_cfvol.algorithm.volume import height_map_of
+    from drake_cfvol.scene.params import VolumeParams
     from drake_cfvol.scene.workcell import load_workcell
 
     if args.plot and not args.out:
         raise ParameterError("--plot needs --out DIR (the folder to write the plot to).")
-    lonely = [f"--{n.replace('_', '-')}"
-              for n in ("epsilon", "clamp_epsilon", "confidence", "no_cache", "no_boundary_proof", "regrow")
-              if getattr(args, n) not in (None, False)]
+    lonely = [
+        f"--{n.replace('_', '-')}"
+        for n in ("epsilon", "clamp_epsilon", "confidence", "no_cache", "no_boundary_proof", "regrow")
+        if getattr(args, n) not in (None, False)
+    ]
     if lonely and not args.certify:
-        raise ParameterError(f"{', '.join(lonely)} only apply{'s' if len(lonely) == 1 else ''} to certified bounds: "
-                             "add --certify, or leave them out.")
+        raise ParameterError(
+            f"{', '.join(lonely)} only apply{'s' if len(lonely) == 1 else ''} to certified bounds: "
+            "add --certify, or leave them out."
+        )
     if args.bounds_file and args.certify:
-        raise ParameterError("--bounds-file evaluates a saved table as it is: leave out --certify (certify when you "
-                             "compute the table).")
+        raise ParameterError(
+            "--bounds-file evaluates a saved table as it is: leave out --certify (certify when you compute the table)."
+        )
     if args.regrow and args.no_boundary_proof:
         raise ParameterError("--regrow widens bounds where the boundary proof holds: leave out --no-boundary-proof.")
     if args.cf_windows < 1 or args.cf_samples < 1:
-        raise ParameterError(f"--cf-windows and --cf-samples must be >= 1, got {args.cf_windows} and "
-                             f"{args.cf_samples}.")
+        raise ParameterError(
+            f"--cf-windows and --cf-samples must be >= 1, got {args.cf_windows} and {args.cf_samples}."
+        )
     out = _out_path(args.out)
     wc = _load_cell(load_workcell, args.cell)
     label = path_label(args.path)
@@ -217,8 +269,9 @@ def cmd_bounds(args) -> int:
     height_map_of(wc, params)
     bars = not args.json
     path, table = _path_and_table(args, wc, label, params, bars)
-    cf = confidence_factor(wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed,
-                           judge=args.cf_judge, progress=bars)
+    cf = confidence_factor(
+        wc, table, windows=args.cf_windows, samples=args.cf_samples, seed=args.seed, judge=args.cf_judge, progress=bars
+    )
     fr = freedom(table, wc.revolute)
     files = {}
     if out is not None:
@@ -228,24 +281,41 @@ def cmd_bounds(args) -> int:
         if args.plot:
             from drake_cfvol.io.plotting import plot_bounds
 
-            files["plot_png"] = str(plot_bounds(table, out / f"{stem}_bounds.png", revolute=wc.revolute,
-                                                title=f"{wc.name} {label}, R = {args.resolution}"
-                                                + (", certified" if args.certify else "")))
+            files["plot_png"] = str(
+                plot_bounds(
+                    table,
+                    out / f"{stem}_bounds.png",
+                    revolute=wc.revolute,
+                    title=f"{wc.name} {label}, R = {args.resolution}" + (", certified" if args.certify else ""),
+                )
+            )
     summary = {
-        "cell": wc.name, "path": label, "seed": args.seed, "resolution": table.info.get("resolution", args.resolution),
-        "backend": table.info.get("backend", args.backend), "g": table.g, "k": table.k,
+        "cell": wc.name,
+        "path": label,
+        "seed": args.seed,
+        "resolution": table.info.get("resolution", args.resolution),
+        "backend": table.info.get("backend", args.backend),
+        "g": table.g,
+        "k": table.k,
         "time_ms": round(table.timing_ms["total"], 3),
         "timing_ms": {k: round(v, 3) for k, v in table.timing_ms.items()},
-        "certified": "certificate" in table.info, "clearance_m": table.params.get("clearance", params.clearance),
-        "cf_percent": shown_percent(cf.percent, cf.colliding, 4), "cf_samples": cf.samples,
-        "cf_colliding": cf.colliding, "cf_judge": cf.judge, "cf_drake_checked": cf.drake_checked,
+        "certified": "certificate" in table.info,
+        "clearance_m": table.params.get("clearance", params.clearance),
+        "cf_percent": shown_percent(cf.percent, cf.colliding, 4),
+        "cf_samples": cf.samples,
+        "cf_colliding": cf.colliding,
+        "cf_judge": cf.judge,
+        "cf_drake_checked": cf.drake_checked,
         "cf_kernel_only_colliding": cf.kernel_only_colliding,
         "freedom": round(fr.mean, 5),
         "median_width": dict(zip(table.joint_names, [round(float(x), 3) for x in fr.median_width])),
         "median_width_units": dict(zip(table.joint_names, fr.units)),
-        "n_boxes": table.info["n_boxes"], "lowered_columns": table.info["lowered_columns"],
-        "dropped_columns": table.info["dropped_columns"], "categories": table.info["categories"],
-        "out": str(out) if out else None, "files": files,
+        "n_boxes": table.info["n_boxes"],
+        "lowered_columns": table.info["lowered_columns"],
+        "dropped_columns": table.info["dropped_columns"],
+        "categories": table.info["categories"],
+        "out": str(out) if out else None,
+        "files": files,
         "bounds_file": str(_out_path(args.bounds_file)) if args.bounds_file else None,
     }
     if "certificate" in table.info:
@@ -258,16 +328,25 @@ def cmd_bounds(args) -> int:
 def cmd_simulate(args) -> int:
     from drake_cfvol.comanip import load_scenario, run_scenario
 
-    files = {key: str(_out_path(value)) for key, value in (("path.file", args.path_file),
-                                                           ("bounds.file", args.bounds_file)) if value}
+    files = {
+        key: str(_out_path(value))
+        for key, value in (("path.file", args.path_file), ("bounds.file", args.bounds_file))
+        if value
+    }
     # Every field checked before planning.
     load_scenario(args.scenario, scenario_text=args.scenario_text, overrides=files)
     out = _out_path(args.out) or Path("out").resolve() / Path(args.scenario).stem
     created = not out.exists()
     prepare_output(out, overwrite=True, folder=True)
     try:
-        summary = run_scenario(args.scenario, out, record=not args.no_record, progress=not args.json,
-                               scenario_text=args.scenario_text, overrides=files)
+        summary = run_scenario(
+            args.scenario,
+            out,
+            record=not args.no_record,
+            progress=not args.json,
+            scenario_text=args.scenario_text,
+            overrides=files,
+        )
     except BaseException:
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # a failed run leaves no empty folder behind
@@ -294,8 +373,10 @@ def bench_harness(module: str = "harness"):
 
     root = Path(__file__).resolve().parents[2]
     if not (root / "benchmarks" / "harness.py").is_file():
-        raise CfvolError(f"cfvol bench runs from a development checkout of drake_cfvol (its benchmarks/ folder); "
-                         f"this one is installed at {root}. Clone the repository and run tools/dev.sh cfvol bench.")
+        raise CfvolError(
+            f"cfvol bench runs from a development checkout of drake_cfvol (its benchmarks/ folder); "
+            f"this one is installed at {root}. Clone the repository and run tools/dev.sh cfvol bench."
+        )
     if str(root) not in sys.path:
         sys.path.insert(0, str(root))
     return importlib.import_module(f"benchmarks.{module}")
@@ -398,8 +479,12 @@ def _add_plan(sub) -> None:
     q.add_argument("--path", default="1", help="configuration pair: 1, 2, 3 or a name (default 1)")
     q.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     q.add_argument("--time-limit", type=float, default=10.0, help="planning time limit, s (default 10)")
-    q.add_argument("--clearance", type=float, default=None,
-                   help="margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)")
+    q.add_argument(
+        "--clearance",
+        type=float,
+        default=None,
+        help="margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)",
+    )
     q.add_argument("--out", help="save the path (.npz or .json)")
     q.add_argument("--force", action="store_true", help="overwrite --out if it exists")
     q.add_argument("--json", action="store_true", help="print one JSON object")
@@ -413,34 +498,64 @@ def _add_bounds(sub) -> None:
     b.add_argument("--path", default="1", help="configuration pair: 1, 2, 3 or a name (default 1)")
     b.add_argument("--resolution", "-R", type=int, default=1000, help="height-map cells R (default 1000)")
     b.add_argument("--seed", type=int, default=0, help="planner and CF seed (default 0)")
-    b.add_argument("--path-file", help="a saved path (cfvol plan --out) to bound instead of planning one; checked "
-                   "against the cell")
-    b.add_argument("--bounds-file", help="a saved bounds table to evaluate (CF, freedom) instead of computing one; "
-                   "checked against the cell")
-    b.add_argument("--backend", choices=["fast", "drake"], default="fast",
-                   help="fast (any R) or drake (reference, one SceneGraph box per column)")
+    b.add_argument(
+        "--path-file", help="a saved path (cfvol plan --out) to bound instead of planning one; checked against the cell"
+    )
+    b.add_argument(
+        "--bounds-file",
+        help="a saved bounds table to evaluate (CF, freedom) instead of computing one; checked against the cell",
+    )
+    b.add_argument(
+        "--backend",
+        choices=["fast", "drake"],
+        default="fast",
+        help="fast (any R) or drake (reference, one SceneGraph box per column)",
+    )
     b.add_argument("--cf-windows", type=int, default=30, help="CF time windows N_tw (default 30)")
     b.add_argument("--cf-samples", type=int, default=10000, help="CF samples per window N_m (default 10000)")
-    b.add_argument("--cf-judge", choices=("kernel", "drake"), default="kernel",
-                   help="who judges the CF's samples: the kernel, with Drake cross-checking 10,000 of them "
-                        "(default), or Drake's checker on every sample the kernel cannot certify free")
-    b.add_argument("--certify", action="store_true",
-                   help="shrink the boxes until each stretch holds a sampled safety certificate")
-    b.add_argument("--epsilon", type=float, default=None,
-                   help="certificate: colliding share allowed (1e-5; needs --certify)")
-    b.add_argument("--clamp-epsilon", type=float, default=None,
-                   help="certificate: colliding share allowed where a clamp lands (10 x epsilon; needs --certify)")
-    b.add_argument("--no-cache", action="store_true",
-                   help="certify again even if the same certificate is cached (see DRAKE_CFVOL_CACHE; needs --certify)")
+    b.add_argument(
+        "--cf-judge",
+        choices=("kernel", "drake"),
+        default="kernel",
+        help="who judges the CF's samples: the kernel, with Drake cross-checking 10,000 of them "
+        "(default), or Drake's checker on every sample the kernel cannot certify free",
+    )
+    b.add_argument(
+        "--certify", action="store_true", help="shrink the boxes until each stretch holds a sampled safety certificate"
+    )
+    b.add_argument(
+        "--epsilon", type=float, default=None, help="certificate: colliding share allowed (1e-5; needs --certify)"
+    )
+    b.add_argument(
+        "--clamp-epsilon",
+        type=float,
+        default=None,
+        help="certificate: colliding share allowed where a clamp lands (10 x epsilon; needs --certify)",
+    )
+    b.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="certify again even if the same certificate is cached (see DRAKE_CFVOL_CACHE; needs --certify)",
+    )
     b.add_argument("--confidence", type=float, default=None, help="certificate: confidence (0.99; needs --certify)")
-    b.add_argument("--no-boundary-proof", action="store_true",
-                   help="certificate: sampled only, without the proof of every edge and corner of the box (faster, "
-                        "but a clamp may land nearer than the margin; needs --certify)")
-    b.add_argument("--regrow", action="store_true",
-                   help="certificate: afterwards widen cut bounds back where the proof still holds (more freedom, "
-                        "about twice the time; needs --certify, not with --no-boundary-proof)")
-    b.add_argument("--clearance", type=float, default=None,
-                   help="safety margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)")
+    b.add_argument(
+        "--no-boundary-proof",
+        action="store_true",
+        help="certificate: sampled only, without the proof of every edge and corner of the box (faster, "
+        "but a clamp may land nearer than the margin; needs --certify)",
+    )
+    b.add_argument(
+        "--regrow",
+        action="store_true",
+        help="certificate: afterwards widen cut bounds back where the proof still holds (more freedom, "
+        "about twice the time; needs --certify, not with --no-boundary-proof)",
+    )
+    b.add_argument(
+        "--clearance",
+        type=float,
+        default=None,
+        help="safety margin kept from obstacles and the robot itself, m (default 0.02; 0: the paper's)",
+    )
     b.add_argument("--out", help="folder for bounds (.npz, .json), path and plot")
     b.add_argument("--plot", action="store_true", help="write a PNG of the bounds (needs --out)")
     b.add_argument("--force", action="store_true", help="overwrite existing files in --out")
@@ -454,12 +569,17 @@ def _add_simulate(sub) -> None:
     m.add_argument("scenario", help=f"bundled scenario name ({', '.join(_bundled_scenarios())}) or a YAML path")
     m.add_argument("--out", help="output folder (default out/<scenario>)")
     m.add_argument("--no-record", action="store_true", help="skip the Meshcat recording")
-    m.add_argument("--path-file", help="a saved path (cfvol plan/bounds --out) instead of planning; checked against "
-                   "the scenario's cell")
-    m.add_argument("--bounds-file", help="a saved bounds table (cfvol bounds --out) instead of bounding; checked "
-                   "against the cell")
-    m.add_argument("--scenario-text", help="YAML overriding the scenario's fields, e.g. "
-                   "'{bounds: {resolution: 2000}, random_seed: 3}'")
+    m.add_argument(
+        "--path-file",
+        help="a saved path (cfvol plan/bounds --out) instead of planning; checked against the scenario's cell",
+    )
+    m.add_argument(
+        "--bounds-file", help="a saved bounds table (cfvol bounds --out) instead of bounding; checked against the cell"
+    )
+    m.add_argument(
+        "--scenario-text",
+        help="YAML overriding the scenario's fields, e.g. '{bounds: {resolution: 2000}, random_seed: 3}'",
+    )
     m.add_argument("--json", action="store_true", help="print one JSON object")
     m.set_defaults(func=cmd_simulate)
 
@@ -468,14 +588,20 @@ def _add_bench(sub) -> None:
     """The ``bench`` command (the harness of a development checkout)."""
     n = sub.add_parser("bench", help="reproduce the paper's Tables I and II side by side")
     n.add_argument("--quick", action="store_true", help="a small run (a few minutes)")
-    n.add_argument("--kernel", action="store_true",
-                   help="the kernel benchmark instead: configurations per second against Drake, bounding against "
-                        "the paper, certification as batch jobs, CF, the first compile (default --out "
-                        "out/bench-kernel; uses --quick, --trials, --json)")
-    n.add_argument("--realtime", action="store_true",
-                   help="the control-rate benchmark instead: the control stack's wall time per update on a "
-                        "kinematic station at 10 ms and 1 ms periods (default --out out/bench-realtime; uses "
-                        "--quick, --cells, --trials as repeats, --json)")
+    n.add_argument(
+        "--kernel",
+        action="store_true",
+        help="the kernel benchmark instead: configurations per second against Drake, bounding against "
+        "the paper, certification as batch jobs, CF, the first compile (default --out "
+        "out/bench-kernel; uses --quick, --trials, --json)",
+    )
+    n.add_argument(
+        "--realtime",
+        action="store_true",
+        help="the control-rate benchmark instead: the control stack's wall time per update on a "
+        "kinematic station at 10 ms and 1 ms periods (default --out out/bench-realtime; uses "
+        "--quick, --cells, --trials as repeats, --json)",
+    )
     n.add_argument("--cells", nargs="+", help="cells (default both)")
     n.add_argument("--paths", nargs="+", help="paths, e.g. 1 2 3 (default all)")
     n.add_argument("--resolutions", nargs="+", type=int, help="R values (default the paper's)")
@@ -483,20 +609,37 @@ def _add_bench(sub) -> None:
     n.add_argument("--cf-samples", type=int, help="CF samples per window N_m (default 10000)")
     n.add_argument("--no-iris", action="store_true", help="skip Drake's IrisZo comparison")
     n.add_argument("--no-reference", action="store_true", help="skip the reference (Drake) backend rows")
-    n.add_argument("--certify-resolutions", nargs="*", type=int,
-                   help="R values that also get certified bounds (default: every R; none: no certification)")
-    n.add_argument("--adversarial-runs", type=int,
-                   help="adversarial push runs per cell, pattern, kind of bounds and filter on/off "
-                        "(default 16; --quick: 0)")
-    n.add_argument("--adversarial-patterns", nargs="+", choices=PUSH_PATTERNS,
-                   help=f"push patterns of the adversarial section (default all: {', '.join(PUSH_PATTERNS)})")
-    n.add_argument("--adversarial-only", action="store_true",
-                   help="run only the adversarial section (no paper tables, IrisZo or engine costs)")
-    n.add_argument("--no-engine", action="store_true",
-                   help="skip the kernel's fresh-cache compile and command wall-time measurements")
+    n.add_argument(
+        "--certify-resolutions",
+        nargs="*",
+        type=int,
+        help="R values that also get certified bounds (default: every R; none: no certification)",
+    )
+    n.add_argument(
+        "--adversarial-runs",
+        type=int,
+        help="adversarial push runs per cell, pattern, kind of bounds and filter on/off (default 16; --quick: 0)",
+    )
+    n.add_argument(
+        "--adversarial-patterns",
+        nargs="+",
+        choices=PUSH_PATTERNS,
+        help=f"push patterns of the adversarial section (default all: {', '.join(PUSH_PATTERNS)})",
+    )
+    n.add_argument(
+        "--adversarial-only",
+        action="store_true",
+        help="run only the adversarial section (no paper tables, IrisZo or engine costs)",
+    )
+    n.add_argument(
+        "--no-engine",
+        action="store_true",
+        help="skip the kernel's fresh-cache compile and command wall-time measurements",
+    )
     n.add_argument("--out", default="out/bench", help="output folder (default out/bench)")
-    n.add_argument("--report-only", action="store_true",
-                   help="rewrite tables and plots from --out/results.json without running")
+    n.add_argument(
+        "--report-only", action="store_true", help="rewrite tables and plots from --out/results.json without running"
+    )
     n.add_argument("--json", action="store_true", help="print one JSON object")
     n.set_defaults(func=cmd_bench)
 
@@ -513,16 +656,27 @@ def cmd_batch(args) -> int:
     todo = expand_jobs(jobs, file.parent)
     out = _out_path(args.out) or (file.parent / f"{file.stem}_results")
     output_files(todo, out, overwrite=args.force)  # checked before anything runs
-    results = run_batch(todo, scheduler="serial" if args.serial else args.scheduler, workers=args.workers,
-                        progress=not args.json)
+    results = run_batch(
+        todo, scheduler="serial" if args.serial else args.scheduler, workers=args.workers, progress=not args.json
+    )
     files = write_batch(results, out, overwrite=args.force)
     if args.json:
         print(json.dumps({"jobs": [r.summary for r in results], "files": files}, default=float))
         return 0
     head = ("job", "cell", "path", "setting", "time ms", "CF %", "freedom", "certify ms")
-    rows = [(str(r.summary["job"]), r.summary["cell"], r.summary["path"], r.summary["setting"],
-             f"{r.summary['time_ms']:.1f}", f"{r.summary['cf_percent']:.4f}", f"{r.summary['freedom']:.3f}",
-             f"{r.summary['certify_ms']:.0f}" if "certify_ms" in r.summary else "-") for r in results]
+    rows = [
+        (
+            str(r.summary["job"]),
+            r.summary["cell"],
+            r.summary["path"],
+            r.summary["setting"],
+            f"{r.summary['time_ms']:.1f}",
+            f"{r.summary['cf_percent']:.4f}",
+            f"{r.summary['freedom']:.3f}",
+            f"{r.summary['certify_ms']:.0f}" if "certify_ms" in r.summary else "-",
+        )
+        for r in results
+    ]
     widths = [max(len(x) for x in col) for col in zip(head, *rows)]
     for row in (head, *rows):
         print("  ".join(x.ljust(w) for x, w in zip(row, widths)).rstrip())
@@ -532,8 +686,11 @@ def cmd_batch(args) -> int:
 
 def _add_batch(sub) -> None:
     """The ``batch`` command."""
-    b = sub.add_parser("batch", help="bounds, certificates and CF for many cells x paths x settings, in parallel "
-                       "on Dask's distributed scheduler")
+    b = sub.add_parser(
+        "batch",
+        help="bounds, certificates and CF for many cells x paths x settings, in parallel "
+        "on Dask's distributed scheduler",
+    )
     b.add_argument("jobs", help="a jobs YAML file (cells, paths, settings; see drake_cfvol.apps.batch)")
     b.add_argument("--scheduler", help="a Dask scheduler's address (tcp://host:8786; default: a local cluster)")
     b.add_argument("--workers", type=int, help="the local cluster's worker processes (default: one per core)")

@@ -29,17 +29,61 @@ adversarial section). Imports ``systems``, ``algorithm``, ``scene``,
 ``kernel`` and ``io``.
 """
 
-from drake_cfvol.comanip.scenario import (BoundsConfig, CellConfig, ControlConfig, HumanConfig, PathConfig,
-                                          PerceptionSection, RandomPushes, Reactive, Scenario, SimulationConfig,
-                                          diagrams_dir, load_scenario, validate_scenario)
-from drake_cfvol.comanip.diagram import Comanipulation, MAX_PROXIMITY_BOXES, UPDATE_RATE_LOGS, build_comanipulation_diagram, frame_camera, meshcat_params, show_category_legend
-from drake_cfvol.comanip.run import MARGIN_TOLERANCE, run_problems, run_scenario, update_rate_figures
+from drake_cfvol.comanip.diagram import (
+    MAX_PROXIMITY_BOXES,
+    UPDATE_RATE_LOGS,
+    Comanipulation,
+    build_comanipulation_diagram,
+    frame_camera,
+    meshcat_params,
+    show_category_legend,
+)
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
+from drake_cfvol.comanip.run import MARGIN_TOLERANCE, run_problems, run_scenario, update_rate_figures
+from drake_cfvol.comanip.scenario import (
+    BoundsConfig,
+    CellConfig,
+    ControlConfig,
+    HumanConfig,
+    PathConfig,
+    PerceptionSection,
+    RandomPushes,
+    Reactive,
+    Scenario,
+    SimulationConfig,
+    diagrams_dir,
+    load_scenario,
+    validate_scenario,
+)
 from drake_cfvol.io.style import CATEGORY_COLOURS
 
-__all__ = ["CellConfig", "PathConfig", "BoundsConfig", "HumanConfig", "ControlConfig", "PerceptionSection",
-           "SimulationConfig", "RandomPushes", "Reactive", "Scenario", "load_scenario",
-           "validate_scenario", "diagrams_dir", "Comanipulation", "build_comanipulation_diagram", "frame_camera",
-           "show_category_legend", "meshcat_params", "UPDATE_RATE_LOGS", "MAX_PROXIMITY_BOXES", "run_scenario",
-           "run_problems", "update_rate_figures", "MARGIN_TOLERANCE", "plot_run", "missing_dot_notice",
-           "write_diagram_svg", "CATEGORY_COLOURS"]
+__all__ = [
+    "CellConfig",
+    "PathConfig",
+    "BoundsConfig",
+    "HumanConfig",
+    "ControlConfig",
+    "PerceptionSection",
+    "SimulationConfig",
+    "RandomPushes",
+    "Reactive",
+    "Scenario",
+    "load_scenario",
+    "validate_scenario",
+    "diagrams_dir",
+    "Comanipulation",
+    "build_comanipulation_diagram",
+    "frame_camera",
+    "show_category_legend",
+    "meshcat_params",
+    "UPDATE_RATE_LOGS",
+    "MAX_PROXIMITY_BOXES",
+    "run_scenario",
+    "run_problems",
+    "update_rate_figures",
+    "MARGIN_TOLERANCE",
+    "plot_run",
+    "missing_dot_notice",
+    "write_diagram_svg",
+    "CATEGORY_COLOURS",
+]

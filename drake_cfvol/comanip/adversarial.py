@@ -22,16 +22,22 @@ from pathlib import Path
 import numpy as np
 
 from drake_cfvol.algorithm.certify import Certify
-from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.algorithm.pipeline import estimate_bounds
+from drake_cfvol.algorithm.planning import plan_nominal_path
 from drake_cfvol.comanip.run import MARGIN_TOLERANCE, run_scenario
 from drake_cfvol.comanip.scenario import load_scenario
-from drake_cfvol.algorithm.pipeline import estimate_bounds
+from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.scene.params import VolumeParams
-from drake_cfvol.algorithm.planning import plan_nominal_path
 from drake_cfvol.scene.workcell import load_workcell
 
-__all__ = ["steady_push_runs", "summarize_runs", "nearest_obstacle_signs", "adversarial_suite", "PATTERNS",
-           "MARGIN_TOLERANCE"]
+__all__ = [
+    "steady_push_runs",
+    "summarize_runs",
+    "nearest_obstacle_signs",
+    "adversarial_suite",
+    "PATTERNS",
+    "MARGIN_TOLERANCE",
+]
 
 #: Push patterns: "random" (a steady push with seeded signs: corner-seeking),
 #: "nearest" (a steady push toward the nearest obstacle at a path position
@@ -40,9 +46,19 @@ __all__ = ["steady_push_runs", "summarize_runs", "nearest_obstacle_signs", "adve
 PATTERNS = ("random", "nearest", "random_pushes")
 
 #: A run's summary figures each row carries as they are.
-_SUMMARY_KEYS = ("collisions", "min_clearance_m", "max_velocity_ratio", "filter_steps", "filter_damper_misses",
-                 "filter_fallbacks", "faults", "filter_box_exits", "max_bound_violation", "max_deviation",
-                 "sim_wall_s")
+_SUMMARY_KEYS = (
+    "collisions",
+    "min_clearance_m",
+    "max_velocity_ratio",
+    "filter_steps",
+    "filter_damper_misses",
+    "filter_fallbacks",
+    "faults",
+    "filter_box_exits",
+    "max_bound_violation",
+    "max_deviation",
+    "sim_wall_s",
+)
 
 
 def _signs(seed: int, k: int) -> np.ndarray:
@@ -68,9 +84,20 @@ def nearest_obstacle_signs(workcell, q) -> np.ndarray:
     return np.where(grad > 0, -1.0, 1.0)
 
 
-def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safety_filter: bool = True,
-                     certify: bool = False, clearance: float | None = None, seeds=None, path=None, bounds=None,
-                     on_run=None, pattern: str = "random") -> list[dict]:
+def steady_push_runs(
+    cell: str,
+    runs: int = 16,
+    *,
+    torque: float = 1500.0,
+    safety_filter: bool = True,
+    certify: bool = False,
+    clearance: float | None = None,
+    seeds=None,
+    path=None,
+    bounds=None,
+    on_run=None,
+    pattern: str = "random",
+) -> list[dict]:
     """Steady corner-seeking pushes on a cell's ``<cell>_push`` scenario
     (its defaults, its scripted pushes replaced): joint torque ``torque``
     x random signs (seed n: ``numpy.random.default_rng(n)``) on every
@@ -120,8 +147,13 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
     wc = load_workcell(scenario.cell.name)
     overrides = scenario.bounds.overrides()
     if path is None:
-        path = plan_nominal_path(wc, *wc.configuration(scenario.path.name), seed=scenario.random_seed,
-                                 label=scenario.path.name, clearance=VolumeParams.for_workcell(wc, **overrides).clearance)
+        path = plan_nominal_path(
+            wc,
+            *wc.configuration(scenario.path.name),
+            seed=scenario.random_seed,
+            label=scenario.path.name,
+            clearance=VolumeParams.for_workcell(wc, **overrides).clearance,
+        )
     if bounds is None:
         bounds = estimate_bounds(wc, path, **overrides, certify=Certify(seed=scenario.random_seed) if certify else None)
     seeds = list(range(runs)) if seeds is None else list(seeds)
@@ -131,14 +163,23 @@ def steady_push_runs(cell: str, runs: int = 16, *, torque: float = 1500.0, safet
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
             signs, text = _push_text(wc, path, pattern, seed, len(seeds), torque, certify, safety_filter, clearance)
-            s = run_scenario(name, tmp, record=False, plot=False, svg=False, path=path, bounds=bounds,
-                             scenario_text=text)
+            s = run_scenario(
+                name, tmp, record=False, plot=False, svg=False, path=path, bounds=bounds, scenario_text=text
+            )
             logs = np.load(Path(tmp) / "logs.npz")
             margin = s["filter_clearance_m"] if s["filter_clearance_m"] is not None else margin_default
-            row = {"cell": cell, "seed": seed, "pattern": pattern, "signs": signs.tolist(), "torque": float(torque),
-                   "safety_filter": bool(safety_filter), "certify": bool(certify), "margin_m": margin,
-                   **{key: s.get(key, 0) for key in _SUMMARY_KEYS},
-                   **_recount(wc, path, bounds, scenario, s, logs, margin, nominal_clearance)}
+            row = {
+                "cell": cell,
+                "seed": seed,
+                "pattern": pattern,
+                "signs": signs.tolist(),
+                "torque": float(torque),
+                "safety_filter": bool(safety_filter),
+                "certify": bool(certify),
+                "margin_m": margin,
+                **{key: s.get(key, 0) for key in _SUMMARY_KEYS},
+                **_recount(wc, path, bounds, scenario, s, logs, margin, nominal_clearance),
+            }
             rows.append(row)
             if on_run is not None:
                 on_run(row)
@@ -179,15 +220,20 @@ def _recount(wc, path, bounds, scenario, summary, logs, margin, nominal_clearanc
     nom = np.empty(len(t))
     for i, si in enumerate(s_at):
         if si not in nominal_clearance:
-            nominal_clearance[si] = min(wc.obstacle_distances(q_nom[i], 2.0, changeable_only=True).values(),
-                                        default=2.0)
+            nominal_clearance[si] = min(
+                wc.obstacle_distances(q_nom[i], 2.0, changeable_only=True).values(), default=2.0
+            )
         nom[i] = nominal_clearance[si]
     shortfall = float(np.max(np.minimum(margin, nom) - dist)) if len(t) else 0.0
     free = np.array(wc.checker.CheckConfigsCollisionFree(q), bool)
-    return {"drake_colliding_updates": int((~free).sum()), "nominal_min_clearance_m": float(nom.min()),
-            "worst_shortfall_m": shortfall, "margin_kept": shortfall <= MARGIN_TOLERANCE,
-            "mean_deviation": float(np.mean(np.max(np.abs(q - q_nom), axis=1))) if len(t) else 0.0,
-            "updates": int(len(t))}
+    return {
+        "drake_colliding_updates": int((~free).sum()),
+        "nominal_min_clearance_m": float(nom.min()),
+        "worst_shortfall_m": shortfall,
+        "margin_kept": shortfall <= MARGIN_TOLERANCE,
+        "mean_deviation": float(np.mean(np.max(np.abs(q - q_nom), axis=1))) if len(t) else 0.0,
+        "updates": int(len(t)),
+    }
 
 
 def summarize_runs(rows: list[dict]) -> list[dict]:
@@ -199,30 +245,37 @@ def summarize_runs(rows: list[dict]) -> list[dict]:
     the median mean deviation (what the co-worker achieved)."""
     groups: dict[tuple, list[dict]] = {}
     for r in rows:
-        groups.setdefault((r["cell"], r.get("pattern", "random"), r["certify"], r["safety_filter"], r["margin_m"]),
-                          []).append(r)
+        groups.setdefault(
+            (r["cell"], r.get("pattern", "random"), r["certify"], r["safety_filter"], r["margin_m"]), []
+        ).append(r)
     out = []
     for (cell, pattern, certified, on, margin), g in groups.items():
-        out.append({
-            "cell": cell, "pattern": pattern, "certify": certified, "safety_filter": on, "margin_m": margin,
-            "runs": len(g),
-            "runs_with_collisions": sum(r["collisions"] > 0 or r["drake_colliding_updates"] > 0 for r in g),
-            "runs_margin_kept": sum(r["margin_kept"] for r in g),
-            "min_clearance_m": min(r["min_clearance_m"] for r in g),
-            "nominal_min_clearance_m": min(r["nominal_min_clearance_m"] for r in g),
-            "worst_shortfall_m": max(r["worst_shortfall_m"] for r in g),
-            "max_velocity_ratio": max(r["max_velocity_ratio"] for r in g),
-            "filter_steps_median": float(np.median([r["filter_steps"] for r in g])),
-            "filter_steps_max": max(r["filter_steps"] for r in g),
-            "damper_misses_max": max(r["filter_damper_misses"] for r in g),
-            "box_exits_max": max(r["filter_box_exits"] for r in g),
-            "max_bound_violation": max(r["max_bound_violation"] for r in g),
-            "fallbacks_max": max(r["filter_fallbacks"] for r in g),
-            "max_deviation": max(r["max_deviation"] for r in g),
-            "median_max_deviation": float(np.median([r["max_deviation"] for r in g])),
-            "median_mean_deviation": float(np.median([r.get("mean_deviation", np.nan) for r in g])),
-            "sim_wall_s_median": float(np.median([r["sim_wall_s"] for r in g])),
-        })
+        out.append(
+            {
+                "cell": cell,
+                "pattern": pattern,
+                "certify": certified,
+                "safety_filter": on,
+                "margin_m": margin,
+                "runs": len(g),
+                "runs_with_collisions": sum(r["collisions"] > 0 or r["drake_colliding_updates"] > 0 for r in g),
+                "runs_margin_kept": sum(r["margin_kept"] for r in g),
+                "min_clearance_m": min(r["min_clearance_m"] for r in g),
+                "nominal_min_clearance_m": min(r["nominal_min_clearance_m"] for r in g),
+                "worst_shortfall_m": max(r["worst_shortfall_m"] for r in g),
+                "max_velocity_ratio": max(r["max_velocity_ratio"] for r in g),
+                "filter_steps_median": float(np.median([r["filter_steps"] for r in g])),
+                "filter_steps_max": max(r["filter_steps"] for r in g),
+                "damper_misses_max": max(r["filter_damper_misses"] for r in g),
+                "box_exits_max": max(r["filter_box_exits"] for r in g),
+                "max_bound_violation": max(r["max_bound_violation"] for r in g),
+                "fallbacks_max": max(r["filter_fallbacks"] for r in g),
+                "max_deviation": max(r["max_deviation"] for r in g),
+                "median_max_deviation": float(np.median([r["max_deviation"] for r in g])),
+                "median_mean_deviation": float(np.median([r.get("mean_deviation", np.nan) for r in g])),
+                "sim_wall_s_median": float(np.median([r["sim_wall_s"] for r in g])),
+            }
+        )
     return out
 
 
@@ -260,23 +313,42 @@ def adversarial_suite(cell: str, runs: int = 16, patterns=PATTERNS, *, torque: f
     scenario, _ = load_scenario(f"{cell}_push")
     wc = load_workcell(scenario.cell.name)
     params = scenario.bounds.overrides()
-    path = plan_nominal_path(wc, *wc.configuration(scenario.path.name), seed=scenario.random_seed,
-                             label=scenario.path.name, clearance=VolumeParams.for_workcell(wc, **params).clearance)
+    path = plan_nominal_path(
+        wc,
+        *wc.configuration(scenario.path.name),
+        seed=scenario.random_seed,
+        label=scenario.path.name,
+        clearance=VolumeParams.for_workcell(wc, **params).clearance,
+    )
     tables = {"uncertified": estimate_bounds(wc, path, **params)}
     t0 = time.perf_counter()
     tables["certified"] = estimate_bounds(wc, path, **params, certify=Certify(seed=scenario.random_seed))
     certify_s = time.perf_counter() - t0
-    out = {"cell": cell, "clearance_m": float(tables["certified"].params.get("clearance", 0.0)),
-           "certify_s": certify_s, "certificate_cached": bool(tables["certified"].info["certificate"].get("cached")),
-           "freedom": {kind: freedom(t).mean for kind, t in tables.items()}, "boundary": {}, "rows": []}
+    out = {
+        "cell": cell,
+        "clearance_m": float(tables["certified"].params.get("clearance", 0.0)),
+        "certify_s": certify_s,
+        "certificate_cached": bool(tables["certified"].info["certificate"].get("cached")),
+        "freedom": {kind: freedom(t).mean for kind, t in tables.items()},
+        "boundary": {},
+        "rows": [],
+    }
     for kind, table in tables.items():
         margin = float(table.info.get("min_margin_m", table.params.get("clearance", 0.0)))
         out["boundary"][kind] = dataclasses.asdict(boundary_check(wc, table, clearance=max(0.0, margin - 1e-3)))
     for pattern in patterns:
         for kind, table in tables.items():
             for on in (True, False):
-                out["rows"] += steady_push_runs(cell, runs, torque=torque, safety_filter=on,
-                                                certify=kind == "certified", path=path, bounds=table,
-                                                pattern=pattern, on_run=on_run)
+                out["rows"] += steady_push_runs(
+                    cell,
+                    runs,
+                    torque=torque,
+                    safety_filter=on,
+                    certify=kind == "certified",
+                    path=path,
+                    bounds=table,
+                    pattern=pattern,
+                    on_run=on_run,
+                )
     out["summary"] = summarize_runs(out["rows"])
     return out

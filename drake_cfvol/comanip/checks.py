@@ -24,15 +24,23 @@ def _check_pushes(human, where) -> None:
         if not p.duration >= 0:
             raise ScenarioError(where, f"{name}: duration", f"must be >= 0 s, got {p.duration!r}")
         if len(p.wrench) not in (0, 6):
-            raise ScenarioError(where, f"{name}: wrench", f"has {len(p.wrench)} values; give 6, [torque N m; force "
-                                "N] at the tool in the world frame (or leave it out)")
+            raise ScenarioError(
+                where,
+                f"{name}: wrench",
+                f"has {len(p.wrench)} values; give 6, [torque N m; force "
+                "N] at the tool in the world frame (or leave it out)",
+            )
         if len(p.joint_torque):
             lengths[i] = len(p.joint_torque)
     if len(set(lengths.values())) > 1:
         first, *rest = lengths.items()
         other = next((i, n) for i, n in rest if n != first[1])
-        raise ScenarioError(where, f"human.pushes item {other[0]}: joint_torque", f"has {other[1]} values but "
-                            f"pushes item {first[0]} has {first[1]}; give one torque per robot joint in every push")
+        raise ScenarioError(
+            where,
+            f"human.pushes item {other[0]}: joint_torque",
+            f"has {other[1]} values but "
+            f"pushes item {first[0]} has {first[1]}; give one torque per robot joint in every push",
+        )
     if human.random_pushes.count < 0:
         raise ScenarioError(where, "human.random_pushes.count", f"must be >= 0, got {human.random_pushes.count}")
 
@@ -49,10 +57,15 @@ def check_scenario_against_cell(scenario, workcell, file: Path | None = None) ->
     k, names = workcell.num_joints, ", ".join(workcell.joint_names)
     for i, p in enumerate(scenario.human.pushes, 1):
         if len(p.joint_torque) and len(p.joint_torque) != k:
-            raise ScenarioError(where, f"human.pushes item {i}: joint_torque", f"has {len(p.joint_torque)} values; "
-                                f"the robot of cell '{workcell.name}' has {k} joints ({names})")
-    for name, values in (("human.reactive.offset", scenario.human.reactive.offset),
-                         ("control.velocity_limits", scenario.control.velocity_limits)):
+            raise ScenarioError(
+                where,
+                f"human.pushes item {i}: joint_torque",
+                f"has {len(p.joint_torque)} values; the robot of cell '{workcell.name}' has {k} joints ({names})",
+            )
+    for name, values in (
+        ("human.reactive.offset", scenario.human.reactive.offset),
+        ("control.velocity_limits", scenario.control.velocity_limits),
+    ):
         if len(values) and len(values) != k:
             raise ScenarioError(where, name, f"has {len(values)} values; the robot has {k} joints ({names})")
 
@@ -67,8 +80,9 @@ def scenario_file_path(name: str | None, base_dir: Path | None) -> Path | None:
 
 def looks_like_path(cell: str) -> bool:
     """Whether a cell name is a workcell file's path rather than a built-in cell."""
-    return cell not in builtin_cells() and (Path(cell).suffix.lower() in (".yaml", ".yml") or "/" in cell
-                                            or "\\" in cell)
+    return cell not in builtin_cells() and (
+        Path(cell).suffix.lower() in (".yaml", ".yml") or "/" in cell or "\\" in cell
+    )
 
 
 def cell_file(cell: str, base_dir: Path | None) -> Path:
@@ -84,28 +98,42 @@ def _check_sources(scenario, where, base_dir) -> None:
     for name, value in (("path.file", scenario.path.file), ("bounds.file", scenario.bounds.file)):
         p = scenario_file_path(value, base_dir)
         if p is not None and not p.is_file():
-            raise ScenarioError(where, name, f"names '{p}', which does not exist (a relative path starts from the "
-                                "scenario file's folder)")
+            raise ScenarioError(
+                where,
+                name,
+                f"names '{p}', which does not exist (a relative path starts from the scenario file's folder)",
+            )
     if bool(scenario.directives) != (scenario.cfvol is not None):
-        raise ScenarioError(where, "directives" if scenario.cfvol is not None else "cfvol",
-                            "is missing: a scenario that holds its cell gives both 'directives' and 'cfvol' (the "
-                            "keys of a workcell file)")
+        raise ScenarioError(
+            where,
+            "directives" if scenario.cfvol is not None else "cfvol",
+            "is missing: a scenario that holds its cell gives both 'directives' and 'cfvol' (the "
+            "keys of a workcell file)",
+        )
     sim = scenario.simulation
     pc = sim.plant_config
     if pc is not None and not pc.time_step > 0:
-        raise ScenarioError(where, "simulation.plant_config.time_step", f"must be > 0 s for a dynamic run, got "
-                            f"{pc.time_step!r} (leave plant_config out for a kinematic run)")
+        raise ScenarioError(
+            where,
+            "simulation.plant_config.time_step",
+            f"must be > 0 s for a dynamic run, got {pc.time_step!r} (leave plant_config out for a kinematic run)",
+        )
     if sim.model_drivers and pc is None:
         raise ScenarioError(where, "simulation.model_drivers", "needs plant_config: drivers act in a dynamic run only")
     if any(isinstance(d, IiwaDriver) for d in sim.model_drivers.values()):
         human = scenario.human
         felt = [f"human.pushes item {i}: joint_torque" for i, p in enumerate(human.pushes, 1) if len(p.joint_torque)]
         felt += ["human.random_pushes.count"] * (human.random_pushes.count > 0) + ["human.reactive.gain"] * (
-            human.reactive.gain > 0)
+            human.reactive.gain > 0
+        )
         if felt:
-            raise ScenarioError(where, felt[0], "is a joint torque, which a torque-sensing arm (IiwaDriver) would "
-                                "not feel through contact: give the co-worker's pushes as tool wrenches (the "
-                                "hand's force) in this cell")
+            raise ScenarioError(
+                where,
+                felt[0],
+                "is a joint torque, which a torque-sensing arm (IiwaDriver) would "
+                "not feel through contact: give the co-worker's pushes as tool wrenches (the "
+                "hand's force) in this cell",
+            )
 
 
 def _positive(where, section, obj, names, *, strict: bool = True, unit: str = "") -> None:
@@ -123,23 +151,31 @@ def _check_control(control, where) -> None:
     f = control.safety_filter
     if f is not None:
         if f.clearance is not None and not f.clearance >= 0:
-            raise ScenarioError(where, "control.safety_filter.clearance", f"must be >= 0 m (or null: the bounds' "
-                                f"own), got {f.clearance!r}")
+            raise ScenarioError(
+                where,
+                "control.safety_filter.clearance",
+                f"must be >= 0 m (or null: the bounds' own), got {f.clearance!r}",
+            )
         _positive(where, "control.safety_filter", f, ("allowance",), strict=False, unit=" m")
         if not f.influence_distance > (f.clearance or 0.0) + f.allowance:
-            raise ScenarioError(where, "control.safety_filter.influence_distance", f"must exceed the clearance plus "
-                                f"the allowance, got {f.influence_distance!r}")
+            raise ScenarioError(
+                where,
+                "control.safety_filter.influence_distance",
+                f"must exceed the clearance plus the allowance, got {f.influence_distance!r}",
+            )
         _positive(where, "control.safety_filter", f, ("damper_gain",), unit=" m/s")
     pp = control.path_progress
     if not 0.0 < pp.velocity_share < 1.0:
-        raise ScenarioError(where, "control.path_progress.velocity_share", f"must lie in (0, 1), got "
-                            f"{pp.velocity_share!r}")
+        raise ScenarioError(
+            where, "control.path_progress.velocity_share", f"must lie in (0, 1), got {pp.velocity_share!r}"
+        )
     _positive(where, "control.path_progress", pp, ("start_time",), strict=False, unit=" s")
     if pp.max_rate is not None:
         _positive(where, "control.path_progress", pp, ("max_rate",), unit=" waypoints/s")
     if any(not v > 0 for v in control.velocity_limits):
-        raise ScenarioError(where, "control.velocity_limits", f"must be > 0 (or left out: the robot's), got "
-                            f"{control.velocity_limits}")
+        raise ScenarioError(
+            where, "control.velocity_limits", f"must be > 0 (or left out: the robot's), got {control.velocity_limits}"
+        )
 
 
 def _check_online(scenario, where) -> None:
@@ -158,16 +194,23 @@ def _check_online(scenario, where) -> None:
     if p.mode not in (None, "camera", "truth"):
         raise ScenarioError(where, "perception.mode", f"must be camera or truth (or left out), got {p.mode!r}")
     if scenario.perception_mode is not None and scenario.simulation.plant_config is not None:
-        raise ScenarioError(where, "cell.moving_obstacles" if p.mode is None else "perception.mode",
-                            "work in kinematic runs only: leave simulation.plant_config out")
+        raise ScenarioError(
+            where,
+            "cell.moving_obstacles" if p.mode is None else "perception.mode",
+            "work in kinematic runs only: leave simulation.plant_config out",
+        )
     if p.mode == "truth" and not obstacles:
-        raise ScenarioError(where, "perception.mode", "is truth, which gives the moving obstacles' poses: add "
-                            "cell.moving_obstacles (or use camera)")
+        raise ScenarioError(
+            where,
+            "perception.mode",
+            "is truth, which gives the moving obstacles' poses: add cell.moving_obstacles (or use camera)",
+        )
     _positive(where, "perception", p, ("camera_period", "cell"))
     _positive(where, "perception", p, ("obstacle_speed",), strict=False, unit=" m/s")
     if not (p.width >= 16 and p.height >= 16):
-        raise ScenarioError(where, "perception.width", f"the camera needs at least 16 x 16 px, got {p.width} x "
-                            f"{p.height}")
+        raise ScenarioError(
+            where, "perception.width", f"the camera needs at least 16 x 16 px, got {p.width} x {p.height}"
+        )
     o = scenario.bounds.online
     _positive(where, "bounds.online", o, ("period",), unit=" s")
     if not o.horizon >= 1:
@@ -209,8 +252,12 @@ def validate_scenario(scenario, file: Path | None = None, *, base_dir: Path | No
     vis = scenario.simulation.visualization
     for name in ("publish_contacts", "publish_inertia"):
         if getattr(vis, name) and scenario.simulation.plant_config is None:
-            raise ScenarioError(where, f"simulation.visualization.{name}", "must be false: the run moves the robot "
-                                "kinematically, so there are no contact forces or inertias to show")
+            raise ScenarioError(
+                where,
+                f"simulation.visualization.{name}",
+                "must be false: the run moves the robot "
+                "kinematically, so there are no contact forces or inertias to show",
+            )
     _positive(where, "simulation.visualization", vis, ("publish_period",), unit=" s")
     _check_online(scenario, where)
     _check_bounds(scenario.bounds, where)
@@ -218,8 +265,15 @@ def validate_scenario(scenario, file: Path | None = None, *, base_dir: Path | No
         return  # the scenario holds its cell
     cell = scenario.cell.name
     if not looks_like_path(cell) and cell not in builtin_cells():
-        raise ScenarioError(where, "cell.name", f"is '{cell}', neither a built-in cell "
-                            f"({', '.join(sorted(builtin_cells()))}) nor a workcell YAML path")
+        raise ScenarioError(
+            where,
+            "cell.name",
+            f"is '{cell}', neither a built-in cell ({', '.join(sorted(builtin_cells()))}) nor a workcell YAML path",
+        )
     if looks_like_path(cell) and not cell_file(cell, base_dir).is_file():
-        raise ScenarioError(where, "cell.name", f"names the workcell file '{cell_file(cell, base_dir)}', which does "
-                            "not exist (a relative path starts from the scenario file's folder)")
+        raise ScenarioError(
+            where,
+            "cell.name",
+            f"names the workcell file '{cell_file(cell, base_dir)}', which does "
+            "not exist (a relative path starts from the scenario file's folder)",
+        )

@@ -3,31 +3,54 @@ the robot, the obstacles and the volume's proximity boxes; the control chain
 (``AddCoManipulation``), the co-worker, monitors and loggers; Meshcat.
 """
 
-
 import dataclasses
 import logging
 import time
 import typing
 from pathlib import Path
+
 import numpy as np
-from pydrake.geometry import (IllustrationProperties, MeshcatVisualizer, MeshcatVisualizerParams, Rgba, Role, RoleAssign, SceneGraph)
+from pydrake.common import RandomDistribution
+from pydrake.geometry import (
+    IllustrationProperties,
+    MeshcatVisualizer,
+    MeshcatVisualizerParams,
+    Rgba,
+    Role,
+    RoleAssign,
+    SceneGraph,
+)
+from pydrake.manipulation import IiwaDriver
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import ModelInstanceIndex
-from pydrake.common import RandomDistribution
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.manipulation import IiwaDriver
-from pydrake.systems.primitives import (Adder, LogVectorOutput, RandomSource,
-                                        StateInterpolatorWithDiscreteDerivative)
-from pydrake.visualization import VisualizationConfig
+from pydrake.systems.primitives import Adder, LogVectorOutput, RandomSource, StateInterpolatorWithDiscreteDerivative
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+from pydrake.visualization import VisualizationConfig
 
-from drake_cfvol.exceptions import ScenarioError
-from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
 from drake_cfvol.algorithm.reference import register_volume_boxes
+from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
+from drake_cfvol.algorithm.volume import build_volume, height_map_of
+from drake_cfvol.comanip.checks import cell_file, looks_like_path
+from drake_cfvol.comanip.dynamics import add_driver, add_simulated_plant, driver_of
+from drake_cfvol.comanip.iiwa import (
+    add_hand,
+    add_iiwa_controller_interface,
+    add_iiwa_station,
+    add_measured,
+    grip_point,
+    tool_radius,
+)
+from drake_cfvol.comanip.online import OnlineParts, add_online
+from drake_cfvol.comanip.recording import show_tool_path
+from drake_cfvol.comanip.scenario import Scenario, check_scenario_against_cell, scenario_file_path, validate_scenario
+from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.io.style import CATEGORY_COLOURS, COLOUR_NAMES, FLOOR_COLOUR, ROBOT_COLOUR, VOLUME_COLOUR
+from drake_cfvol.scene.params import VolumeParams
+from drake_cfvol.scene.workcell import Workcell, geometry_key, load_workcell, robot_geometry_ids
 from drake_cfvol.systems import (
     AddCoManipulation,
     ClearanceMonitor,
@@ -39,20 +62,9 @@ from drake_cfvol.systems import (
     ReactiveCoworker,
     ScriptedHuman,
 )
-from drake_cfvol.comanip.dynamics import add_driver, add_simulated_plant, driver_of
-from drake_cfvol.comanip.iiwa import (add_hand, add_iiwa_controller_interface, add_iiwa_station, add_measured,
-                                     grip_point, tool_radius)
 from drake_cfvol.systems.hand import first_push_direction, waiting_point
-from drake_cfvol.comanip.online import OnlineParts, add_online
-from drake_cfvol.comanip.recording import show_tool_path
-from drake_cfvol.algorithm.volume import build_volume, height_map_of
-from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
-from drake_cfvol.scene.workcell import Workcell, geometry_key, load_workcell, robot_geometry_ids
-from drake_cfvol.comanip.checks import cell_file, looks_like_path
-from drake_cfvol.comanip.scenario import (Scenario, check_scenario_against_cell, scenario_file_path,
-                                          validate_scenario)
 
-__all__ = ['Comanipulation', 'build_comanipulation_diagram']
+__all__ = ["Comanipulation", "build_comanipulation_diagram"]
 
 
 #: Signals also logged at the control update rate (``update_<name>``).
@@ -163,15 +175,28 @@ def meshcat_params(config: VisualizationConfig) -> list[MeshcatVisualizerParams]
     not; the scenario check refuses them."""
     out = []
     for on, role, colour, prefix, alpha in (
-            (config.publish_illustration, Role.kIllustration, config.default_illustration_color, "illustration", 1.0),
-            (config.publish_proximity, Role.kProximity, config.default_proximity_color, "proximity",
-             config.initial_proximity_alpha)):
+        (config.publish_illustration, Role.kIllustration, config.default_illustration_color, "illustration", 1.0),
+        (
+            config.publish_proximity,
+            Role.kProximity,
+            config.default_proximity_color,
+            "proximity",
+            config.initial_proximity_alpha,
+        ),
+    ):
         if on:
-            out.append(MeshcatVisualizerParams(
-                role=role, publish_period=config.publish_period, default_color=colour, prefix=prefix,
-                delete_on_initialization_event=config.delete_on_initialization_event,
-                enable_alpha_slider=config.enable_alpha_sliders, initial_alpha_slider_value=alpha,
-                visible_by_default=role == Role.kIllustration))
+            out.append(
+                MeshcatVisualizerParams(
+                    role=role,
+                    publish_period=config.publish_period,
+                    default_color=colour,
+                    prefix=prefix,
+                    delete_on_initialization_event=config.delete_on_initialization_event,
+                    enable_alpha_slider=config.enable_alpha_sliders,
+                    initial_alpha_slider_value=alpha,
+                    visible_by_default=role == Role.kIllustration,
+                )
+            )
     return out
 
 
@@ -187,8 +212,11 @@ def _resolve_pushes(scenario: Scenario, workcell, path, progress) -> list[Push]:
         q = path.at(progress.index_at(p.start))
         near = workcell.nearest_obstacle(q)
         if near is None:
-            raise ScenarioError(Path("scenario"), f"human.pushes item {i + 1}: toward_nearest_obstacle",
-                                "has no obstacle within 5 m of the robot at that time")
+            raise ScenarioError(
+                Path("scenario"),
+                f"human.pushes item {i + 1}: toward_nearest_obstacle",
+                "has no obstacle within 5 m of the robot at that time",
+            )
         _, _, p_WR, p_WO = near
         u = np.asarray(p_WO - p_WR, float)
         u = u / max(np.linalg.norm(u), 1e-12)
@@ -241,8 +269,11 @@ def _scenario_workcell(scenario: Scenario, base_dir, file):
     workcell file (relative to the scenario's folder)."""
     if scenario.directives:
         if file is None:
-            raise ScenarioError(Path("scenario"), "directives", "a scenario that holds its cell must be a file "
-                                "(the cell is read from it): pass scenario_file=")
+            raise ScenarioError(
+                Path("scenario"),
+                "directives",
+                "a scenario that holds its cell must be a file (the cell is read from it): pass scenario_file=",
+            )
         return Workcell(file, embedded=True)
     cell = scenario.cell.name
     if looks_like_path(cell):
@@ -273,12 +304,12 @@ def _workcell_path_bounds(scenario: Scenario, base_dir, file, path, bounds, prog
         path = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, name, scenario.random_seed)
     if path is None:
         wc.configuration(name)  # an unknown path name fails here, before planning
-        path = plan_nominal_path(wc, *wc.configuration(name), seed=scenario.random_seed, label=name,
-                                 clearance=params.clearance)
+        path = plan_nominal_path(
+            wc, *wc.configuration(name), seed=scenario.random_seed, label=name, clearance=params.clearance
+        )
     t1 = time.perf_counter()
     if bounds is None:
-        bounds = estimate_bounds(wc, path, progress=progress, certify=scenario.certify(),
-                                 **scenario.bounds.overrides())
+        bounds = estimate_bounds(wc, path, progress=progress, certify=scenario.certify(), **scenario.bounds.overrides())
     if bounds.volume is None:  # a table loaded from disk: grow its volume again
         known = {f.name for f in dataclasses.fields(VolumeParams)}
         params = VolumeParams(**{k: v for k, v in bounds.params.items() if k in known})
@@ -317,17 +348,20 @@ def _add_scene(builder, wc, vb, scenario, q0) -> Scene:
         robot = wc.add_to_plant(plant)
     else:
         plant, scene_graph, robot, models, hand = add_simulated_plant(
-            builder, wc, plant_config, hand=isinstance(driver_of(scenario, wc), IiwaDriver))
+            builder, wc, plant_config, hand=isinstance(driver_of(scenario, wc), IiwaDriver)
+        )
     centres, sizes, merge_info = vb.volume.merged_boxes(MAX_PROXIMITY_BOXES)
-    volume_ids = register_volume_boxes(plant, vb.volume, colour=VOLUME_COLOUR, boxes=(centres, sizes),
-                                       proximity=plant_config is None)
+    volume_ids = register_volume_boxes(
+        plant, vb.volume, colour=VOLUME_COLOUR, boxes=(centres, sizes), proximity=plant_config is None
+    )
     plant.Finalize()
     if plant_config is not None:
         plant.SetDefaultPositions(robot, q0)
     if hand is not None:  # waiting beside the tool, on the first push's side
         p_WG = wc.tool_frame.body().EvalPoseInWorld(wc.plant_context(q0)).multiply(grip_point(wc))
-        plant.SetDefaultFloatingBaseBodyPose(hand, RigidTransform(waiting_point(
-            p_WG, first_push_direction(scenario.human.pushes), tool_radius(wc))))
+        plant.SetDefaultFloatingBaseBodyPose(
+            hand, RigidTransform(waiting_point(p_WG, first_push_direction(scenario.human.pushes), tool_radius(wc)))
+        )
     _colour_obstacles(plant, scene_graph, wc, vb.categories)
     return Scene(plant, scene_graph, robot, volume_ids, merge_info, models, hand)
 
@@ -340,16 +374,27 @@ def _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids, hand=None)
     ids, ignored pairs)."""
     robot_ids, moving_ids = robot_geometry_ids(plant, robot)
     inspector = scene_graph.model_inspector()
-    obstacle_ids = [g for i in map(ModelInstanceIndex, range(plant.num_model_instances())) if i != robot
-                    for b in plant.GetBodyIndices(i) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))]
+    obstacle_ids = [
+        g
+        for i in map(ModelInstanceIndex, range(plant.num_model_instances()))
+        if i != robot
+        for b in plant.GetBodyIndices(i)
+        for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))
+    ]
     not_obstacles = set(volume_ids) | set(robot_ids)
     if hand is not None:  # the co-worker's hand touches the tool on purpose
         not_obstacles |= set(plant.GetCollisionGeometriesForBody(hand))
-    obstacle_ids = sorted({g for g in obstacle_ids if g not in not_obstacles
-                           and inspector.GetProximityProperties(g) is not None}, key=lambda g: g.get_value())
+    obstacle_ids = sorted(
+        {g for g in obstacle_ids if g not in not_obstacles and inspector.GetProximityProperties(g) is not None},
+        key=lambda g: g.get_value(),
+    )
     invariant = wc.invariant_pair_names()
-    ignored = [(a, b) for a in moving_ids for b in obstacle_ids
-               if (geometry_key(inspector, a), geometry_key(inspector, b)) in invariant]
+    ignored = [
+        (a, b)
+        for a in moving_ids
+        for b in obstacle_ids
+        if (geometry_key(inspector, a), geometry_key(inspector, b)) in invariant
+    ]
     return robot_ids, moving_ids, obstacle_ids, ignored
 
 
@@ -361,18 +406,32 @@ def _add_pushes(builder, scenario, k, human, progress, commanded, source):
     torques = [human.human_torque_output]
     rp = scenario.human.random_pushes
     if rp.count > 0:
-        noise = builder.AddNamedSystem("random_numbers", RandomSource(
-            RandomDistribution.kUniform, k + 1, sampling_interval_sec=rp.mean_duration))
-        shaper = builder.AddNamedSystem("random_pushes", RandomPushShaper(
-            k, probability=min(1.0, rp.count * rp.mean_duration / (progress.duration + scenario.path.end_hold)),
-            max_torque=rp.max_torque))
+        noise = builder.AddNamedSystem(
+            "random_numbers", RandomSource(RandomDistribution.kUniform, k + 1, sampling_interval_sec=rp.mean_duration)
+        )
+        shaper = builder.AddNamedSystem(
+            "random_pushes",
+            RandomPushShaper(
+                k,
+                probability=min(1.0, rp.count * rp.mean_duration / (progress.duration + scenario.path.end_hold)),
+                max_torque=rp.max_torque,
+            ),
+        )
         builder.Connect(noise.get_output_port(), shaper.uniform_input)
         torques.append(shaper.human_torque_output)
     re = scenario.human.reactive
     if re.gain > 0:
-        coworker = builder.AddNamedSystem("reactive_coworker", ReactiveCoworker(
-            k, gain=re.gain, offset=re.offset or np.zeros(k), start=re.start, duration=re.duration,
-            max_torque=re.max_torque))
+        coworker = builder.AddNamedSystem(
+            "reactive_coworker",
+            ReactiveCoworker(
+                k,
+                gain=re.gain,
+                offset=re.offset or np.zeros(k),
+                start=re.start,
+                duration=re.duration,
+                max_torque=re.max_torque,
+            ),
+        )
         builder.Connect(commanded, coworker.commanded_position_input)
         builder.Connect(source.nominal_output, coworker.nominal_input)
         torques.append(coworker.human_torque_output)
@@ -412,8 +471,18 @@ def _drive(builder, scenario, wc, scene, torque, human, control: CoManipulationS
     if isinstance(driver, IiwaDriver):
         measured, sensed = _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human)
     else:
-        measured = add_driver(builder, scenario, wc, plant, robot, commanded=commanded, torque=torque,
-                              wrench=human.human_wrench_output, period=period, desired_state=desired)
+        measured = add_driver(
+            builder,
+            scenario,
+            wc,
+            plant,
+            robot,
+            commanded=commanded,
+            torque=torque,
+            wrench=human.human_wrench_output,
+            period=period,
+            desired_state=desired,
+        )
     builder.Connect(measured, control.admittance.measured_position_input)
     if safety is not None:
         builder.Connect(measured, safety.measured_position_input)
@@ -425,15 +494,27 @@ def _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human)
     co-worker's hand pushing the tool. Returns (measured position, external
     torque) from the iiwa's status."""
     if desired is None:
-        interp = builder.AddNamedSystem("desired_state", StateInterpolatorWithDiscreteDerivative(
-            wc.num_joints, scenario.control.period, suppress_initial_transient=True))
+        interp = builder.AddNamedSystem(
+            "desired_state",
+            StateInterpolatorWithDiscreteDerivative(
+                wc.num_joints, scenario.control.period, suppress_initial_transient=True
+            ),
+        )
         builder.Connect(commanded, interp.get_input_port())
         desired = interp.get_output_port()
     lcm = add_iiwa_station(builder, driver, wc.robot_name, scene.plant, scene.models)
     status = add_iiwa_controller_interface(builder, lcm, desired, wc.num_joints)
     tool = scene.plant.GetFrameByName(wc.tool_frame.name(), scene.robot)
-    add_hand(builder, scene.plant, scene.hand, tool, human.human_wrench_output, tool_radius=tool_radius(wc),
-             initial_direction=first_push_direction(scenario.human.pushes), p_BG=grip_point(wc))
+    add_hand(
+        builder,
+        scene.plant,
+        scene.hand,
+        tool,
+        human.human_wrench_output,
+        tool_radius=tool_radius(wc),
+        initial_direction=first_push_direction(scenario.human.pushes),
+        p_BG=grip_point(wc),
+    )
     return add_measured(builder, status, commanded, wc.num_joints), status.get_torque_external_output_port()
 
 
@@ -443,10 +524,15 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
     be coarser: a step between two updates must not hide) at the control
     period. Returns the loggers by name."""
     if safety is not None:
-        exported.update({"filter_active": safety.filter_active_output, "filter_count": safety.filter_count_output,
-                         "filter_fallbacks": safety.fallback_count_output,
-                         "filter_damper_misses": safety.damper_misses_output,
-                         "filter_box_exits": safety.box_exits_output})
+        exported.update(
+            {
+                "filter_active": safety.filter_active_output,
+                "filter_count": safety.filter_count_output,
+                "filter_fallbacks": safety.fallback_count_output,
+                "filter_damper_misses": safety.damper_misses_output,
+                "filter_box_exits": safety.box_exits_output,
+            }
+        )
     loggers = {}
     for name, port in exported.items():
         builder.ExportOutput(port, name)
@@ -456,17 +542,24 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
         # What the admittance asked the filter for, beside what it commanded.
         exported["desired_position"] = adm.commanded_position_output
     extra = (("filter_count", "desired_position") if safety is not None else ()) + (
-        ("measured_position",) if "measured_position" in exported else ())
+        ("measured_position",) if "measured_position" in exported else ()
+    )
     for name in UPDATE_RATE_LOGS + extra:
-        loggers[f"update_{name}"] = LogVectorOutput(exported[name], builder,
-                                                    publish_period=scenario.control.period)
+        loggers[f"update_{name}"] = LogVectorOutput(exported[name], builder, publish_period=scenario.control.period)
         loggers[f"update_{name}"].set_name(f"log_update_{name}")
     return loggers
 
 
-def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: Path | None = None,
-                                 path=None, bounds=None, progress: bool = False,
-                                 scenario_file: Path | None = None) -> Comanipulation:
+def build_comanipulation_diagram(
+    scenario: Scenario,
+    *,
+    meshcat=None,
+    base_dir: Path | None = None,
+    path=None,
+    bounds=None,
+    progress: bool = False,
+    scenario_file: Path | None = None,
+) -> Comanipulation:
     """Builds a co-manipulation diagram from a scenario, composing its parts
     as Drake's ``hardware_sim`` composes its ``Apply*Config`` calls: the
     scene (plant, SceneGraph, the volume's boxes), the perception (moving
@@ -495,16 +588,26 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     builder = DiagramBuilder()
     scene = _add_scene(builder, wc, vb, scenario, path.waypoints[0])
     plant, scene_graph, robot, volume_ids = scene.plant, scene.scene_graph, scene.robot, scene.volume_ids
-    robot_ids, moving_ids, obstacle_ids, ignored = _obstacles_and_ignored(wc, plant, scene_graph, robot, volume_ids,
-                                                                          scene.hand)
+    robot_ids, moving_ids, obstacle_ids, ignored = _obstacles_and_ignored(
+        wc, plant, scene_graph, robot, volume_ids, scene.hand
+    )
     online = None
     if scenario.perception_mode is not None:
         online = add_online(builder, scenario, wc, plant, scene_graph, robot, bounds)
     control = AddCoManipulation(
-        builder, plant=plant, scene_graph=scene_graph, robot=robot, table=bounds,
-        tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot), period=scenario.control.period,
-        measured_state=False, config=_control_config(scenario, wc, path), obstacle_ids=obstacle_ids,
-        dynamic_ids=online.filter_ids if online is not None else (), name="")
+        builder,
+        plant=plant,
+        scene_graph=scene_graph,
+        robot=robot,
+        table=bounds,
+        tool_frame=plant.GetFrameByName(wc.tool_frame.name(), robot),
+        period=scenario.control.period,
+        measured_state=False,
+        config=_control_config(scenario, wc, path),
+        obstacle_ids=obstacle_ids,
+        dynamic_ids=online.filter_ids if online is not None else (),
+        name="",
+    )
     progress, adm, safety = control.progress, control.admittance, control.safety
     commanded = control.commanded_position_output
     # The bounds at the path index now, for the logs and the reactive co-worker.
@@ -517,9 +620,16 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
         if online.model_position_input is not None:
             builder.Connect(commanded, online.model_position_input)  # the camera's model of the cell
     human = builder.AddNamedSystem("human", ScriptedHuman(k, _resolve_pushes(scenario, wc, path, progress)))
-    monitor = builder.AddNamedSystem("clearance_monitor", ClearanceMonitor(
-        robot_ids=robot_ids, moving_ids=moving_ids, volume_ids=volume_ids,
-        obstacle_ids=obstacle_ids + (online.monitor_ids if online else []), ignored_pairs=ignored))
+    monitor = builder.AddNamedSystem(
+        "clearance_monitor",
+        ClearanceMonitor(
+            robot_ids=robot_ids,
+            moving_ids=moving_ids,
+            volume_ids=volume_ids,
+            obstacle_ids=obstacle_ids + (online.monitor_ids if online else []),
+            ignored_pairs=ignored,
+        ),
+    )
     builder.Connect(scene_graph.get_query_output_port(), monitor.query_object_input)
     torque_port = _add_pushes(builder, scenario, k, human, progress, commanded, source)
     measured, sensed = _drive(builder, scenario, wc, scene, torque_port, human, control)
@@ -527,22 +637,52 @@ def build_comanipulation_diagram(scenario: Scenario, *, meshcat=None, base_dir: 
     if sensed is None:
         builder.Connect(human.human_wrench_output, control.human_wrench_input)
     check = control.check
-    loggers = _export_and_log(builder, {**({"measured_position": measured} if measured is not None else {}),
-        "path_index": progress.path_index_output, "lower": source.lower_output, "upper": source.upper_output,
-        "nominal": source.nominal_output, "commanded_position": commanded,
-        "deviation": adm.deviation_output, "fault": check.fault_output, "fault_count": check.fault_count_output,
-        "human_torque": sensed or torque_port, "human_wrench": human.human_wrench_output,
-        "min_distance": monitor.min_distance_output, "in_collision": monitor.in_collision_output,
-        "in_volume": monitor.in_volume_output, **_online_exports(online)}, scenario, safety, adm)
+    loggers = _export_and_log(
+        builder,
+        {
+            **({"measured_position": measured} if measured is not None else {}),
+            "path_index": progress.path_index_output,
+            "lower": source.lower_output,
+            "upper": source.upper_output,
+            "nominal": source.nominal_output,
+            "commanded_position": commanded,
+            "deviation": adm.deviation_output,
+            "fault": check.fault_output,
+            "fault_count": check.fault_count_output,
+            "human_torque": sensed or torque_port,
+            "human_wrench": human.human_wrench_output,
+            "min_distance": monitor.min_distance_output,
+            "in_collision": monitor.in_collision_output,
+            "in_volume": monitor.in_volume_output,
+            **_online_exports(online),
+        },
+        scenario,
+        safety,
+        adm,
+    )
     builder.ExportOutput(scene_graph.get_query_output_port(), "query_object")
     if meshcat is not None:
         _add_meshcat(builder, scene_graph, meshcat, scenario, wc, path, vb.categories)
     diagram = builder.Build()
     diagram.set_name("comanipulation")
     times["diagram"] = (time.perf_counter() - t2) * 1e3
-    return Comanipulation(diagram, scenario, wc, path, bounds, plant, scene_graph, loggers, progress, meshcat,
-                          {"count": len(volume_ids), **scene.merge_info}, times,
-                          safety.clearance if safety is not None else None, online, control)
+    return Comanipulation(
+        diagram,
+        scenario,
+        wc,
+        path,
+        bounds,
+        plant,
+        scene_graph,
+        loggers,
+        progress,
+        meshcat,
+        {"count": len(volume_ids), **scene.merge_info},
+        times,
+        safety.clearance if safety is not None else None,
+        online,
+        control,
+    )
 
 
 def _control_config(scenario: Scenario, wc, path):
@@ -553,8 +693,10 @@ def _control_config(scenario: Scenario, wc, path):
     pp = c.path_progress
     rate = (path.g - 1) / scenario.path.duration
     return dataclasses.replace(
-        c, velocity_limits=list(c.velocity_limits) or list(wc.velocity_limits),
-        path_progress=dataclasses.replace(pp, max_rate=rate if pp.max_rate is None else min(pp.max_rate, rate)))
+        c,
+        velocity_limits=list(c.velocity_limits) or list(wc.velocity_limits),
+        path_progress=dataclasses.replace(pp, max_rate=rate if pp.max_rate is None else min(pp.max_rate, rate)),
+    )
 
 
 def _online_exports(online) -> dict:

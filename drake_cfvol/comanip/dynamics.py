@@ -10,8 +10,13 @@ from __future__ import annotations
 import numpy as np
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant
 from pydrake.systems.controllers import InverseDynamicsController
-from pydrake.systems.primitives import (Adder, ConstantVectorSource, Demultiplexer, MatrixGain,
-                                        StateInterpolatorWithDiscreteDerivative)
+from pydrake.systems.primitives import (
+    Adder,
+    ConstantVectorSource,
+    Demultiplexer,
+    MatrixGain,
+    StateInterpolatorWithDiscreteDerivative,
+)
 
 from drake_cfvol.comanip.scenario import InverseDynamicsDriver
 from drake_cfvol.exceptions import ScenarioError
@@ -31,8 +36,11 @@ def driver_of(scenario, wc):
     drivers = scenario.simulation.model_drivers
     unknown = sorted(set(drivers) - {wc.robot_name})
     if unknown:
-        raise ScenarioError("scenario", f"simulation.model_drivers.{unknown[0]}", f"names no robot of cell "
-                            f"'{wc.name}' (its robot is '{wc.robot_name}')")
+        raise ScenarioError(
+            "scenario",
+            f"simulation.model_drivers.{unknown[0]}",
+            f"names no robot of cell '{wc.name}' (its robot is '{wc.robot_name}')",
+        )
     return drivers.get(wc.robot_name, InverseDynamicsDriver())
 
 
@@ -59,8 +67,7 @@ def _control_plant(wc, time_step: float):
     return control
 
 
-def add_driver(builder, scenario, wc, plant, robot, *, commanded, torque, wrench, period: float,
-               desired_state=None):
+def add_driver(builder, scenario, wc, plant, robot, *, commanded, torque, wrench, period: float, desired_state=None):
     """The robot's driver in a finalized time-stepping plant, and the push as
     real forces.
 
@@ -80,11 +87,16 @@ def add_driver(builder, scenario, wc, plant, robot, *, commanded, torque, wrench
     rs = RobotSlice(plant, robot)
     k = rs.k
     control = _control_plant(wc, plant.time_step())
-    idc = builder.AddNamedSystem("inverse_dynamics_controller", InverseDynamicsController(
-        control, kp=[driver.kp] * k, ki=[driver.ki] * k, kd=[driver.kd] * k, has_reference_acceleration=False))
+    idc = builder.AddNamedSystem(
+        "inverse_dynamics_controller",
+        InverseDynamicsController(
+            control, kp=[driver.kp] * k, ki=[driver.ki] * k, kd=[driver.kd] * k, has_reference_acceleration=False
+        ),
+    )
     if desired_state is None:
-        desired = builder.AddNamedSystem("desired_state", StateInterpolatorWithDiscreteDerivative(
-            k, period, suppress_initial_transient=True))
+        desired = builder.AddNamedSystem(
+            "desired_state", StateInterpolatorWithDiscreteDerivative(k, period, suppress_initial_transient=True)
+        )
         builder.Connect(commanded, desired.get_input_port())
         desired_state = desired.get_output_port()
     builder.Connect(desired_state, idc.get_input_port_desired_state())

@@ -16,22 +16,30 @@ from __future__ import annotations
 
 import numpy as np
 from drake import lcmt_iiwa_command, lcmt_iiwa_status
+from pydrake.geometry import SceneGraph
 from pydrake.lcm import DrakeLcm
 from pydrake.manipulation import ApplyDriverConfigs, IiwaCommandSender, IiwaControlMode, IiwaStatusReceiver
-from pydrake.systems.lcm import LcmBuses, LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
-from pydrake.geometry import SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import LeafSystem
-from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+from pydrake.systems.lcm import LcmBuses, LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
 from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
+from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from drake_cfvol.systems.hand import CoworkerHand
 from drake_cfvol.exceptions import StationError
+from drake_cfvol.systems.hand import CoworkerHand
 from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig
 
-__all__ = ["IIWA_STATUS_PERIOD", "UntilFirstStatus", "add_iiwa_controller", "add_iiwa_station", "add_iiwa_controller_interface", "add_hand",
-           "add_measured", "grip_point",
-           "tool_radius"]
+__all__ = [
+    "IIWA_STATUS_PERIOD",
+    "UntilFirstStatus",
+    "add_iiwa_controller",
+    "add_iiwa_station",
+    "add_iiwa_controller_interface",
+    "add_hand",
+    "add_measured",
+    "grip_point",
+    "tool_radius",
+]
 
 #: The iiwa's LCM status and command period, s (Drake's kIiwaLcmStatusPeriod).
 IIWA_STATUS_PERIOD = 0.005
@@ -45,8 +53,13 @@ def add_iiwa_station(builder, driver, robot_name: str, plant, models, lcm=None):
     builder.AddNamedSystem("lcm_interface", LcmInterfaceSystem(lcm))
     buses = LcmBuses()
     buses.Add(driver.lcm_bus, lcm)
-    ApplyDriverConfigs(driver_configs={robot_name: driver}, sim_plant=plant, models_from_directives=models,
-                       lcm_buses=buses, builder=builder)
+    ApplyDriverConfigs(
+        driver_configs={robot_name: driver},
+        sim_plant=plant,
+        models_from_directives=models,
+        lcm_buses=buses,
+        builder=builder,
+    )
     return lcm
 
 
@@ -58,17 +71,27 @@ def add_iiwa_controller_interface(builder, lcm, desired_state, k: int = 7, prefi
     ``velocity_estimated``, ``torque_external``, ...)."""
     split = builder.AddNamedSystem(f"{prefix}desired_position", Demultiplexer([k, k]))
     builder.Connect(desired_state, split.get_input_port(0))
-    sender = builder.AddNamedSystem(f"{prefix}iiwa_command_sender",
-                                    IiwaCommandSender(k, IiwaControlMode.kPositionAndTorque))
+    sender = builder.AddNamedSystem(
+        f"{prefix}iiwa_command_sender", IiwaCommandSender(k, IiwaControlMode.kPositionAndTorque)
+    )
     zero = builder.AddNamedSystem(f"{prefix}iiwa_feedforward_torque", ConstantVectorSource(np.zeros(k)))
     builder.Connect(split.get_output_port(0), sender.get_position_input_port())
     builder.Connect(zero.get_output_port(), sender.get_torque_input_port())
-    publish = builder.AddNamedSystem(f"{prefix}iiwa_command_publisher", LcmPublisherSystem.Make(
-        channel="IIWA_COMMAND", lcm_type=lcmt_iiwa_command, lcm=lcm, publish_period=IIWA_STATUS_PERIOD,
-        use_cpp_serializer=True))
+    publish = builder.AddNamedSystem(
+        f"{prefix}iiwa_command_publisher",
+        LcmPublisherSystem.Make(
+            channel="IIWA_COMMAND",
+            lcm_type=lcmt_iiwa_command,
+            lcm=lcm,
+            publish_period=IIWA_STATUS_PERIOD,
+            use_cpp_serializer=True,
+        ),
+    )
     builder.Connect(sender.get_output_port(), publish.get_input_port())
-    subscribe = builder.AddNamedSystem(f"{prefix}iiwa_status_subscriber", LcmSubscriberSystem.Make(
-        channel="IIWA_STATUS", lcm_type=lcmt_iiwa_status, lcm=lcm, use_cpp_serializer=True))
+    subscribe = builder.AddNamedSystem(
+        f"{prefix}iiwa_status_subscriber",
+        LcmSubscriberSystem.Make(channel="IIWA_STATUS", lcm_type=lcmt_iiwa_status, lcm=lcm, use_cpp_serializer=True),
+    )
     receiver = builder.AddNamedSystem(f"{prefix}iiwa_status_receiver", IiwaStatusReceiver(k))
     builder.Connect(subscribe.get_output_port(), receiver.get_input_port())
     return receiver
@@ -83,8 +106,11 @@ def grip_point(wc) -> np.ndarray:
     ctx = wc.plant_context(wc.slice.q_default[wc.slice.qidx])
     X_TW = body.EvalPoseInWorld(ctx).inverse()
     p_T = wc.tool_frame.GetFixedPoseInBodyFrame().translation()
-    centres = [X_TW @ other.EvalPoseInWorld(ctx) @ inspector.GetPoseInFrame(g).translation()
-               for other in plant.GetBodiesWeldedTo(body) for g in plant.GetCollisionGeometriesForBody(other)]
+    centres = [
+        X_TW @ other.EvalPoseInWorld(ctx) @ inspector.GetPoseInFrame(g).translation()
+        for other in plant.GetBodiesWeldedTo(body)
+        for g in plant.GetCollisionGeometriesForBody(other)
+    ]
     return min(centres, key=lambda c: np.linalg.norm(c - p_T)) if centres else p_T.copy()
 
 
@@ -97,7 +123,9 @@ def tool_radius(wc) -> float:
     p_WT = wc.tool_frame.body().EvalPoseInWorld(ctx).multiply(p_BG)
     sg = wc.scene_graph
     query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(wc.context))
-    mine = {g for b in wc.plant.GetBodiesWeldedTo(wc.tool_frame.body()) for g in wc.plant.GetCollisionGeometriesForBody(b)}
+    mine = {
+        g for b in wc.plant.GetBodiesWeldedTo(wc.tool_frame.body()) for g in wc.plant.GetCollisionGeometriesForBody(b)
+    }
     depths = [-r.distance for r in query.ComputeSignedDistanceToPoint(p_WT, threshold=1.0) if r.id_G in mine]
     return max([0.01] + depths)
 
@@ -142,8 +170,12 @@ def add_measured(builder, status, commanded, k: int, prefix: str = ""):
 def add_hand(builder, plant, hand_body, tool_frame, wrench, *, tool_radius: float, initial_direction, p_BG=None):
     """The co-worker's hand pushing the tool with ``wrench``'s force, through
     contact. Returns the :class:`CoworkerHand`."""
-    hand = builder.AddNamedSystem("coworker_hand", CoworkerHand(plant, hand_body, tool_frame, tool_radius=tool_radius,
-                                                                initial_direction=initial_direction, p_BG=p_BG))
+    hand = builder.AddNamedSystem(
+        "coworker_hand",
+        CoworkerHand(
+            plant, hand_body, tool_frame, tool_radius=tool_radius, initial_direction=initial_direction, p_BG=p_BG
+        ),
+    )
     builder.Connect(wrench, hand.wrench_input)
     builder.Connect(plant.get_body_poses_output_port(), hand.body_poses_input)
     builder.Connect(plant.get_body_spatial_velocities_output_port(), hand.body_spatial_velocities_input)
@@ -151,8 +183,16 @@ def add_hand(builder, plant, hand_body, tool_frame, wrench, *, tool_radius: floa
     return hand
 
 
-def add_iiwa_controller(builder, *, workcell, table, lcm, period: float = 0.01,
-                        config: CoManipulationConfig = CoManipulationConfig(), name: str = "controller"):
+def add_iiwa_controller(
+    builder,
+    *,
+    workcell,
+    table,
+    lcm,
+    period: float = 0.01,
+    config: CoManipulationConfig = CoManipulationConfig(),
+    name: str = "controller",
+):
     """The co-manipulation controller of a torque-sensing iiwa, talking to
     it over LCM only: what runs beside the real robot. Its SceneGraph holds
     the workcell (a plant posed from the status's measured positions, never
@@ -177,17 +217,28 @@ def add_iiwa_controller(builder, *, workcell, table, lcm, period: float = 0.01,
         ``IiwaStatusReceiver``)
     """
     if config.safety_filter is None:
-        raise StationError("add_iiwa_controller: the iiwa is commanded the safety filter's desired state; give "
-                           "config.safety_filter (not None).")
+        raise StationError(
+            "add_iiwa_controller: the iiwa is commanded the safety filter's desired state; give "
+            "config.safety_filter (not None)."
+        )
     scene_graph = builder.AddNamedSystem(f"{name}_scene_graph", SceneGraph())
     plant = MultibodyPlant(0.0)
     plant.RegisterAsSourceForSceneGraph(scene_graph)
     robot = workcell.add_to_plant(plant)
     plant.Finalize()
     k = workcell.num_joints
-    cm = AddCoManipulation(builder, plant=plant, scene_graph=scene_graph, robot=robot, table=table,
-                           tool_frame=workcell.tool_frame.name(), period=period, measured_state=False, config=config,
-                           name=name)
+    cm = AddCoManipulation(
+        builder,
+        plant=plant,
+        scene_graph=scene_graph,
+        robot=robot,
+        table=table,
+        tool_frame=workcell.tool_frame.name(),
+        period=period,
+        measured_state=False,
+        config=config,
+        name=name,
+    )
     status = add_iiwa_controller_interface(builder, lcm, cm.desired_state_output, k, prefix=f"{name}_")
     measured = add_measured(builder, status, cm.commanded_position_output, k, prefix=f"{name}_")
     to_pose = builder.AddNamedSystem(f"{name}_to_pose", MultibodyPositionToGeometryPose(plant))

@@ -45,8 +45,9 @@ def perception_params(scenario) -> PerceptionParams:
     image)."""
     o = scenario.perception
     lag = 2 * o.camera_period + 0.5 * o.camera_period + scenario.bounds.online.period
-    return PerceptionParams(cell=o.cell, dilation=1 + int(math.ceil(o.obstacle_speed * lag / o.cell - 1e-9)),
-                            speed=o.obstacle_speed)
+    return PerceptionParams(
+        cell=o.cell, dilation=1 + int(math.ceil(o.obstacle_speed * lag / o.cell - 1e-9)), speed=o.obstacle_speed
+    )
 
 
 def map_grid(workcell, cell: float) -> MapGrid:
@@ -64,7 +65,7 @@ def map_grid(workcell, cell: float) -> MapGrid:
         ends = []
         q0 = np.zeros(workcell.num_joints)
         rail = workcell.joint_names.index(workcell.rail_joint) if workcell.rail_joint is not None else None
-        for v in ((workcell.position_lower[rail], workcell.position_upper[rail]) if rail is not None else (0.0,)):
+        for v in (workcell.position_lower[rail], workcell.position_upper[rail]) if rail is not None else (0.0,):
             q = q0.copy()
             if rail is not None:
                 q[rail] = v
@@ -84,8 +85,10 @@ def _filter_from_all_but_the_robot(scene_graph, plant, robot, ids: list) -> None
     robot_ids = {g for b in plant.GetBodyIndices(robot) for g in plant.GetCollisionGeometriesForBody(plant.get_body(b))}
     others = [g for g in inspector.GetAllGeometryIds(Role.kProximity) if g not in robot_ids]
     scene_graph.collision_filter_manager().Apply(
-        CollisionFilterDeclaration().ExcludeBetween(GeometrySet(list(ids)), GeometrySet(others))
-        .ExcludeWithin(GeometrySet(list(ids))))
+        CollisionFilterDeclaration()
+        .ExcludeBetween(GeometrySet(list(ids)), GeometrySet(others))
+        .ExcludeWithin(GeometrySet(list(ids)))
+    )
 
 
 def _hide_volume_from_cameras(plant, scene_graph) -> None:
@@ -108,41 +111,66 @@ def add_online(builder, scenario, workcell, plant, scene_graph, robot, bounds) -
     params = perception_params(scenario)
     boxes = None
     if obstacles:
-        boxes = builder.AddNamedSystem("moving_obstacles", MovingBoxes(
-            scene_graph, obstacles, grid=grid, params=params))
+        boxes = builder.AddNamedSystem(
+            "moving_obstacles", MovingBoxes(scene_graph, obstacles, grid=grid, params=params)
+        )
         builder.Connect(boxes.geometry_pose_output, scene_graph.get_source_pose_port(boxes.source_id))
     camera = model_input = None
     if mode == "camera":
         _hide_volume_from_cameras(plant, scene_graph)
         make_renderable(scene_graph, plant)
         model = AddCellModel(builder, workcell=workcell)
-        camera = AddCellCamera(builder, scene_graph=scene_graph, model=model, grid=grid, params=params,
-                               width=o.width, height=o.height, period=o.camera_period)
+        camera = AddCellCamera(
+            builder,
+            scene_graph=scene_graph,
+            model=model,
+            grid=grid,
+            params=params,
+            width=o.width,
+            height=o.height,
+            period=o.camera_period,
+        )
         model_input = model.position_input
         map_port = camera.mapper.obstacle_map_output
     else:
         if boxes is None:
             raise ValueError("perception truth needs moving_obstacles")
         # A perfect camera: the boxes' own map, sampled at the camera's rate.
-        hold = builder.AddNamedSystem("true_obstacle_map", ZeroOrderHold(
-            period_sec=o.camera_period, abstract_model_value=AbstractValue.Make(ObstacleMap.empty(grid))))
+        hold = builder.AddNamedSystem(
+            "true_obstacle_map",
+            ZeroOrderHold(period_sec=o.camera_period, abstract_model_value=AbstractValue.Make(ObstacleMap.empty(grid))),
+        )
         builder.Connect(boxes.obstacle_map_output, hold.get_input_port())
         map_port = hold.get_output_port()
     # The filter measures the map's columns in both modes: its dilation covers
     # the obstacles' motion between maps (the damper knows no obstacle speed).
-    columns = builder.AddNamedSystem("perceived_columns", PerceivedColumns(
-        scene_graph, grid, log_period=o.camera_period))
+    columns = builder.AddNamedSystem(
+        "perceived_columns", PerceivedColumns(scene_graph, grid, log_period=o.camera_period)
+    )
     builder.Connect(map_port, columns.obstacle_map_input)
     builder.Connect(columns.geometry_pose_output, scene_graph.get_source_pose_port(columns.source_id))
     filter_ids = list(columns.geometry_ids)
     ob = scenario.bounds.online
-    estimator = builder.AddNamedSystem("online_bounds", OnlineBoundsEstimator(
-        OnlineBounds(workcell, bounds, horizon=ob.horizon), grid, period=ob.period,
-        offset=0.5 * o.camera_period))
+    estimator = builder.AddNamedSystem(
+        "online_bounds",
+        OnlineBoundsEstimator(
+            OnlineBounds(workcell, bounds, horizon=ob.horizon), grid, period=ob.period, offset=0.5 * o.camera_period
+        ),
+    )
     _filter_from_all_but_the_robot(scene_graph, plant, robot, filter_ids + (list(boxes.geometry_ids) if boxes else []))
     builder.Connect(map_port, estimator.obstacle_map_input)
-    return OnlineParts(mode, grid, boxes, camera, columns, estimator, filter_ids,
-                       list(boxes.geometry_ids) if boxes is not None else [], map_port, model_input)
+    return OnlineParts(
+        mode,
+        grid,
+        boxes,
+        camera,
+        columns,
+        estimator,
+        filter_ids,
+        list(boxes.geometry_ids) if boxes is not None else [],
+        map_port,
+        model_input,
+    )
 
 
 def online_figures(parts: OnlineParts | None, context, scenario) -> dict:
@@ -161,10 +189,14 @@ def online_figures(parts: OnlineParts | None, context, scenario) -> dict:
     log = est.log(est.GetMyContextFromRoot(context))
     t, ms, stamp, _, version, changed = log.T if len(log) else (np.zeros(0),) * 6
     re = changed > 0
-    out = {"perception": parts.mode, "bounds_updates": int(re.sum()),
-           "bounds_update_ms": float(np.median(ms[re])) if re.any() else 0.0,
-           "bounds_update_ms_max": float(ms[re].max()) if re.any() else 0.0,
-           "bounds_versions": int(version.max()) if len(version) else 0, "bounds_latency_s": None}
+    out = {
+        "perception": parts.mode,
+        "bounds_updates": int(re.sum()),
+        "bounds_update_ms": float(np.median(ms[re])) if re.any() else 0.0,
+        "bounds_update_ms_max": float(ms[re].max()) if re.any() else 0.0,
+        "bounds_versions": int(version.max()) if len(version) else 0,
+        "bounds_latency_s": None,
+    }
     late = []
     for ob in scenario.cell.moving_obstacles:
         t0 = ob.first_motion()

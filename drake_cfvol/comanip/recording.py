@@ -8,8 +8,8 @@ from pydrake.geometry import Rgba, SurfaceTriangle, TriangleSurfaceMesh
 
 from drake_cfvol.algorithm.heightmap import Volume
 from drake_cfvol.algorithm.planning import NominalPath
-from drake_cfvol.io.style import CATEGORY_COLOURS, PATH_COLOUR, VOLUME_COLOUR
 from drake_cfvol.algorithm.volume import VolumeBuild, ground_obstacles
+from drake_cfvol.io.style import CATEGORY_COLOURS, PATH_COLOUR, VOLUME_COLOUR
 
 __all__ = ["volume_mesh", "show_volume", "show_tool_path", "animate_freedom", "animate_columns"]
 
@@ -21,8 +21,22 @@ def volume_mesh(volume: Volume) -> TriangleSurfaceMesh | None:
     if not len(centres):
         return None
     signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-    faces = np.array([(0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4),
-                      (2, 6, 7), (2, 7, 3), (0, 4, 6), (0, 6, 2), (1, 3, 7), (1, 7, 5)])
+    faces = np.array(
+        [
+            (0, 2, 3),
+            (0, 3, 1),
+            (4, 5, 7),
+            (4, 7, 6),
+            (0, 1, 5),
+            (0, 5, 4),
+            (2, 6, 7),
+            (2, 7, 3),
+            (0, 4, 6),
+            (0, 6, 2),
+            (1, 3, 7),
+            (1, 7, 5),
+        ]
+    )
     verts = (centres[:, None, :] + signs[None] * sizes[:, None, :] / 2).reshape(-1, 3)
     tris = (faces[None] + 8 * np.arange(len(centres))[:, None, None]).reshape(-1, 3)
     return TriangleSurfaceMesh([SurfaceTriangle(*t) for t in tris.tolist()], verts)
@@ -34,8 +48,9 @@ def show_tool_path(meshcat, workcell, path: NominalPath, *, name: str = "/cfvol/
     meshcat.SetLine(name, p_WT, 4.0, Rgba(*PATH_COLOUR))
 
 
-def show_volume(meshcat, workcell, build: VolumeBuild, path: NominalPath | None = None, *,
-                prefix: str = "/cfvol") -> None:
+def show_volume(
+    meshcat, workcell, build: VolumeBuild, path: NominalPath | None = None, *, prefix: str = "/cfvol"
+) -> None:
     """Draws the volume (semi-transparent), the obstacles coloured by category
     and, if given, the nominal tool path in a Meshcat.
 
@@ -52,7 +67,8 @@ def show_volume(meshcat, workcell, build: VolumeBuild, path: NominalPath | None 
     ground = ground_obstacles(workcell)
     inspector = workcell.scene_graph.model_inspector()
     query = workcell.scene_graph.get_query_output_port().Eval(
-        workcell.scene_graph.GetMyContextFromRoot(workcell.context))
+        workcell.scene_graph.GetMyContextFromRoot(workcell.context)
+    )
     for name, obstacle in workcell.obstacles.items():
         if name in ground:
             continue
@@ -69,8 +85,9 @@ def show_volume(meshcat, workcell, build: VolumeBuild, path: NominalPath | None 
 FREEDOM_BAR = (1.0, 0.05, 0.05)
 
 
-def animate_freedom(meshcat, times: np.ndarray, ratios: np.ndarray, p_W: np.ndarray, *,
-                    prefix: str = "/cfvol/freedom") -> None:
+def animate_freedom(
+    meshcat, times: np.ndarray, ratios: np.ndarray, p_W: np.ndarray, *, prefix: str = "/cfvol/freedom"
+) -> None:
     """Adds to Meshcat's recording one bar per joint, stacked at ``p_W``:
     a grey outline 1 m long (the box the known cell allows) and a bar whose
     length follows ``ratios`` (n, k), the live box's width over it at
@@ -96,8 +113,9 @@ def animate_freedom(meshcat, times: np.ndarray, ratios: np.ndarray, p_W: np.ndar
             anim.SetTransform(frame, path, RigidTransform(base + [FREEDOM_BAR[0] * r / 2, 0, 0]))
 
 
-def animate_columns(meshcat, log: tuple, columns, *, prefix: str = "/cfvol/perceived",
-                    rgba=(1.0, 0.55, 0.0, 0.35)) -> None:
+def animate_columns(
+    meshcat, log: tuple, columns, *, prefix: str = "/cfvol/perceived", rgba=(1.0, 0.55, 0.0, 0.35)
+) -> None:
     """Adds the perceived columns to Meshcat's recording from
     :meth:`PerceivedColumns.tiles_log`: one object per tile slot used, a
     transform only where a slot changed (shown at its column, or hidden).

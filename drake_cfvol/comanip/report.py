@@ -1,13 +1,12 @@
-"""A run's plots and its diagram as SVG (Graphviz).
-"""
-
+"""A run's plots and its diagram as SVG (Graphviz)."""
 
 import subprocess
 from pathlib import Path
+
 import numpy as np
 
-from drake_cfvol.io.plotting import _pyplot
 from drake_cfvol.comanip.diagram import Comanipulation
+from drake_cfvol.io.plotting import _pyplot
 
 
 def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
@@ -46,8 +45,9 @@ def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
         tg, g = logs["filter_active"]
         acted = tg[g[:, 0] > 0]
         if len(acted):
-            axes[-1].plot(acted, np.full(len(acted), float(dist[:, 0].min())), "|", color="k", ms=8,
-                          label="filter acted")
+            axes[-1].plot(
+                acted, np.full(len(acted), float(dist[:, 0].min())), "|", color="k", ms=8, label="filter acted"
+            )
             axes[-1].legend(loc="upper right", fontsize=7)
     axes[-1].set_ylabel("clearance\n[m]", fontsize=8)
     axes[-1].set_xlabel("time [s]")
@@ -62,8 +62,10 @@ def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
 def missing_dot_notice(stem: Path) -> str:
     """The one-line notice when Graphviz is missing: what was skipped, where
     the source is, how to get the SVG."""
-    return (f"Graphviz 'dot' was not found, so {stem.with_suffix('.svg')} was not drawn (its source is in "
-            f"{stem.with_suffix('.dot')}). Install Graphviz to get it (Debian/Ubuntu: sudo apt install graphviz).")
+    return (
+        f"Graphviz 'dot' was not found, so {stem.with_suffix('.svg')} was not drawn (its source is in "
+        f"{stem.with_suffix('.dot')}). Install Graphviz to get it (Debian/Ubuntu: sudo apt install graphviz)."
+    )
 
 
 def write_diagram_svg(diagram, stem: Path) -> dict:

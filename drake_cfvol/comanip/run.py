@@ -2,22 +2,22 @@
 run's problems (collision, margin, velocity).
 """
 
-
 import json
 import time
 from pathlib import Path
+
 import numpy as np
-from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.common import RandomGenerator
+from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
 
-from drake_cfvol.io.progress import Progress
-from drake_cfvol.comanip.scenario import load_scenario
 from drake_cfvol.comanip.diagram import Comanipulation, build_comanipulation_diagram
 from drake_cfvol.comanip.online import online_figures, show_online_freedom
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
+from drake_cfvol.comanip.scenario import load_scenario
+from drake_cfvol.io.progress import Progress
 
-__all__ = ["bound_figures", 'run_scenario']
+__all__ = ["bound_figures", "run_scenario"]
 
 
 def _log(sim_context, logger):
@@ -34,8 +34,10 @@ def _simulate(cm, scenario, meshcat, progress: bool):
     ctx = sim.get_mutable_context()
     cm.diagram.SetRandomContext(ctx, RandomGenerator(scenario.random_seed))
     if meshcat is not None:
-        meshcat.StartRecording(frames_per_second=1.0 / scenario.simulation.visualization.publish_period,
-                               set_visualizations_while_recording=False)
+        meshcat.StartRecording(
+            frames_per_second=1.0 / scenario.simulation.visualization.publish_period,
+            set_visualizations_while_recording=False,
+        )
     t0 = time.perf_counter()
     duration = cm.duration
     with Progress(duration, "Simulating", enabled=progress, unit="simulated s") as bar:
@@ -74,27 +76,46 @@ def _tracking(logs, scenario) -> dict:
         return {"dynamic": False}
     m, c = logs["update_measured_position"][1], logs["update_commanded_position"][1]
     n = min(len(m), len(c))
-    err = np.abs(m[1:n] - c[:n - 1]).max(axis=1) if n > 1 else np.zeros(1)
-    return {"dynamic": True, "time_step_s": pc.time_step,
-            "tracking_error_max": float(err.max()), "tracking_error_median": float(np.median(err)),
-            "volume_penetrations": None}
+    err = np.abs(m[1:n] - c[: n - 1]).max(axis=1) if n > 1 else np.zeros(1)
+    return {
+        "dynamic": True,
+        "time_step_s": pc.time_step,
+        "tracking_error_max": float(err.max()),
+        "tracking_error_median": float(np.median(err)),
+        "volume_penetrations": None,
+    }
 
 
 def _margins(cm, scenario) -> tuple[float, float]:
     """The margin in force, and the nominal's own clearance (moving links
     against the obstacles, Drake, at every waypoint): a run keeps the margin
     if it never comes nearer than min(margin, the nominal's own)."""
-    margin = (cm.filter_clearance if cm.filter_clearance is not None
-              else float(cm.bounds.params.get("clearance", 0.0) or 0.0))
-    nominal_own = min((min(d.values(), default=1.0) for d in
-                       (cm.workcell.obstacle_distances(qn, 1.0, changeable_only=True) for qn in cm.path.waypoints)),
-                      default=1.0)
+    margin = (
+        cm.filter_clearance if cm.filter_clearance is not None else float(cm.bounds.params.get("clearance", 0.0) or 0.0)
+    )
+    nominal_own = min(
+        (
+            min(d.values(), default=1.0)
+            for d in (cm.workcell.obstacle_distances(qn, 1.0, changeable_only=True) for qn in cm.path.waypoints)
+        ),
+        default=1.0,
+    )
     return margin, float(nominal_own)
 
 
-def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = True, plot: bool = True,
-                 svg: bool = True, path=None, bounds=None, progress: bool = False,
-                 scenario_text: str | None = None, overrides: dict | None = None) -> dict:
+def run_scenario(
+    scenario_name_or_path,
+    out_dir: str | Path,
+    *,
+    record: bool = True,
+    plot: bool = True,
+    svg: bool = True,
+    path=None,
+    bounds=None,
+    progress: bool = False,
+    scenario_text: str | None = None,
+    overrides: dict | None = None,
+) -> dict:
     """Loads a scenario, builds its diagram, simulates it and writes the
     recording (self-contained HTML), plots and a summary.
 
@@ -110,8 +131,9 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     meshcat = None
     if record:
         meshcat = Meshcat(MeshcatParams(host="localhost"))
-    cm = build_comanipulation_diagram(scenario, meshcat=meshcat, scenario_file=file, path=path, bounds=bounds,
-                                      progress=progress)
+    cm = build_comanipulation_diagram(
+        scenario, meshcat=meshcat, scenario_file=file, path=path, bounds=bounds, progress=progress
+    )
     ctx, sim_s = _simulate(cm, scenario, meshcat, progress)
     logs = {name: _log(ctx, lg) for name, lg in cm.loggers.items()}
     t, q = logs["commanded_position"]
@@ -124,24 +146,36 @@ def run_scenario(scenario_name_or_path, out_dir: str | Path, *, record: bool = T
     files = _write_files(cm, logs, out, meshcat, plot, svg, ctx)
     np.savez(out / "logs.npz", **{f"{k}_t": v[0] for k, v in logs.items()}, **{k: v[1] for k, v in logs.items()})
     summary = {
-        "scenario": str(file) if file else str(scenario_name_or_path), "cell": cm.workcell.name,
-        "path": scenario.path.name, "resolution": scenario.bounds.resolution, "g": cm.path.g, "steps": int(len(t)),
-        "duration_s": cm.duration, "path_duration_s": cm.progress.duration - cm.progress.start_time,
+        "scenario": str(file) if file else str(scenario_name_or_path),
+        "cell": cm.workcell.name,
+        "path": scenario.path.name,
+        "resolution": scenario.bounds.resolution,
+        "g": cm.path.g,
+        "steps": int(len(t)),
+        "duration_s": cm.duration,
+        "path_duration_s": cm.progress.duration - cm.progress.start_time,
         "sim_wall_s": sim_s,
         "min_clearance_m": rates["min_clearance_m"],
-        "max_velocity_ratio": rates["max_velocity_ratio"], "volume_penetrations": penetrations,
+        "max_velocity_ratio": rates["max_velocity_ratio"],
+        "volume_penetrations": penetrations,
         "collisions": rates["collisions"],
         **bound_figures(t, q, *cm.bounds.boxes_at(np.clip(s_log[:, 0], 0.0, cm.bounds.g - 1))[:2], lo, hi),
         "filter_steps": _count(cm, ctx, "filter_count"),
         "filter_fallbacks": _count(cm, ctx, "filter_fallbacks"),
         "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
-        "filter_box_exits": _count(cm, ctx, "filter_box_exits"), "faults": _count(cm, ctx, "fault_count"),
-        "safety_filter": cm.control.safety is not None, "filter_clearance_m": cm.filter_clearance,
+        "filter_box_exits": _count(cm, ctx, "filter_box_exits"),
+        "faults": _count(cm, ctx, "fault_count"),
+        "safety_filter": cm.control.safety is not None,
+        "filter_clearance_m": cm.filter_clearance,
         "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
-        "n_boxes": cm.bounds.info["n_boxes"], "volume_boxes_in_scene": cm.volume_boxes["count"],
-        "bounds_time_ms": cm.bounds.timing_ms["total"], "build_ms": cm.build_ms,
-        "recording_html": files.get("recording_html"), "plot_png": files.get("plot_png"),
-        "diagram_svg": files.get("diagram_svg"), "diagram_dot": files.get("diagram_dot"),
+        "n_boxes": cm.bounds.info["n_boxes"],
+        "volume_boxes_in_scene": cm.volume_boxes["count"],
+        "bounds_time_ms": cm.bounds.timing_ms["total"],
+        "build_ms": cm.build_ms,
+        "recording_html": files.get("recording_html"),
+        "plot_png": files.get("plot_png"),
+        "diagram_svg": files.get("diagram_svg"),
+        "diagram_dot": files.get("diagram_dot"),
         "notices": list(cm.workcell.notes),
     }
     summary["clearance_m"], summary["nominal_min_clearance_m"] = _margins(cm, scenario)
@@ -189,8 +223,11 @@ def bound_figures(t, q, base_lower, base_upper, lower, upper) -> dict:
             longest, start = max(longest, t[i] - t[start]), None
     if start is not None:
         longest = max(longest, t[-1] - t[start])
-    return {"max_bound_violation": float(base_excess.max()), "live_box_excess_max": float(live_excess.max()),
-            "live_box_catchup_s": float(longest)}
+    return {
+        "max_bound_violation": float(base_excess.max()),
+        "live_box_excess_max": float(live_excess.max()),
+        "live_box_catchup_s": float(longest),
+    }
 
 
 def run_problems(summary: dict) -> list[str]:
@@ -209,8 +246,10 @@ def run_problems(summary: dict) -> list[str]:
     if summary.get("max_velocity_ratio", 0.0) > 1.0 + 1e-9:
         out.append(f"a joint moved at {summary['max_velocity_ratio']:.2f} x its velocity limit")
     if summary.get("max_bound_violation", 0.0) > 1e-6 and not summary.get("filter_box_exits", 0):
-        out.append(f"the command left the bounds table by {summary['max_bound_violation']:.2e} rad (m) "
-                   "without the filter giving the box way to a damper row")
+        out.append(
+            f"the command left the bounds table by {summary['max_bound_violation']:.2e} rad (m) "
+            "without the filter giving the box way to a damper row"
+        )
     return out
 
 
@@ -238,5 +277,8 @@ def update_rate_figures(logs: dict, cm: Comanipulation) -> dict:
     if len(q) > 1:
         speed = np.abs(np.diff(q, axis=0)) / h
         ratio = float(np.max(np.where(np.isfinite(vmax), speed / vmax, 0.0)))
-    return {"max_velocity_ratio": ratio, "min_clearance_m": float(dist.min()) if len(dist) else None,
-            "collisions": int(coll.sum())}
+    return {
+        "max_velocity_ratio": ratio,
+        "min_clearance_m": float(dist.min()) if len(dist) else None,
+        "collisions": int(coll.sum()),
+    }

@@ -9,6 +9,7 @@ import types
 import typing
 from importlib import resources
 from pathlib import Path
+
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.manipulation import IiwaDriver
@@ -18,18 +19,47 @@ from pydrake.systems.analysis import SimulatorConfig
 from pydrake.visualization import VisualizationConfig
 
 from drake_cfvol.algorithm.certify import Certify
-from drake_cfvol.comanip.checks import (check_scenario_against_cell, looks_like_path, scenario_file_path,
-                                        validate_scenario)
+from drake_cfvol.comanip.checks import (
+    check_scenario_against_cell,
+    looks_like_path,
+    scenario_file_path,
+    validate_scenario,
+)
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.schema import CfvolSection, read_yaml
-from drake_cfvol.systems import (CoManipulationConfig, MovingObstacle, OnlineBoundsConfig, PathProgressConfig,
-                                 PerceptionConfig, Push, RandomPushes, Reactive)
+from drake_cfvol.systems import (
+    CoManipulationConfig,
+    MovingObstacle,
+    OnlineBoundsConfig,
+    PathProgressConfig,
+    PerceptionConfig,
+    Push,
+    RandomPushes,
+    Reactive,
+)
 
-__all__ = ['check_scenario_against_cell', 'scenario_file_path', 'InverseDynamicsDriver', 'RandomPushes', 'Reactive',
-           'CellConfig', 'PathConfig', 'BoundsConfig', 'VolumeParamsConfig', 'CertifyConfig', 'HumanConfig',
-           'ControlConfig', 'PerceptionSection', 'SimulationConfig', 'Scenario', 'load_scenario', 'validate_scenario',
-           'diagrams_dir', 'OLD_FIELDS']
+__all__ = [
+    "check_scenario_against_cell",
+    "scenario_file_path",
+    "InverseDynamicsDriver",
+    "RandomPushes",
+    "Reactive",
+    "CellConfig",
+    "PathConfig",
+    "BoundsConfig",
+    "VolumeParamsConfig",
+    "CertifyConfig",
+    "HumanConfig",
+    "ControlConfig",
+    "PerceptionSection",
+    "SimulationConfig",
+    "Scenario",
+    "load_scenario",
+    "validate_scenario",
+    "diagrams_dir",
+    "OLD_FIELDS",
+]
 
 
 def diagrams_dir() -> Path:
@@ -82,13 +112,18 @@ def _loadable(cls, name: str, doc: str, *, optional: bool = False, exclude=()):
 #: :class:`~drake_cfvol.VolumeParams` but ``resolution`` (``bounds.resolution``),
 #: each null (not given: the cell's ``cfvol.params``, else the default).
 VolumeParamsConfig = _loadable(
-    VolumeParams, "VolumeParamsConfig", "The fields of VolumeParams a scenario overrides (null: not given).",
-    optional=True, exclude=("resolution",))
+    VolumeParams,
+    "VolumeParamsConfig",
+    "The fields of VolumeParams a scenario overrides (null: not given).",
+    optional=True,
+    exclude=("resolution",),
+)
 
 #: The certificate's settings (``bounds.certify``): the fields of
 #: :class:`~drake_cfvol.Certify` but ``seed`` (the scenario's ``random_seed``).
-CertifyConfig = _loadable(Certify, "CertifyConfig", "The fields of Certify but seed (the scenario's random_seed).",
-                          exclude=("seed",))
+CertifyConfig = _loadable(
+    Certify, "CertifyConfig", "The fields of Certify but seed (the scenario's random_seed).", exclude=("seed",)
+)
 
 
 @dataclasses.dataclass
@@ -225,8 +260,11 @@ class SimulationConfig:
     simulator_config: SimulatorConfig = dataclasses.field(default_factory=SimulatorConfig)
     plant_config: typing.Optional[MultibodyPlantConfig] = None
     model_drivers: dict[str, DriverConfig] = dataclasses.field(default_factory=dict)
-    visualization: VisualizationConfig = dataclasses.field(default_factory=lambda: VisualizationConfig(
-        publish_period=0.02, publish_proximity=False, publish_contacts=False, publish_inertia=False))
+    visualization: VisualizationConfig = dataclasses.field(
+        default_factory=lambda: VisualizationConfig(
+            publish_period=0.02, publish_proximity=False, publish_contacts=False, publish_inertia=False
+        )
+    )
 
 
 @dataclasses.dataclass
@@ -292,18 +330,29 @@ RENAMED = {"seed": "random_seed", "human.random_pushes.seed": "random_seed", "bo
 #: The top-level fields of the scenario form before 0.3 (flat), and where
 #: each went in the sections.
 OLD_FIELDS = {
-    "path_file": "path.file", "bounds_file": "bounds.file", "resolution": "bounds.resolution",
-    "params": "bounds.params", "certify": "bounds.certify (null: the paper's bounds; {}: certified)",
+    "path_file": "path.file",
+    "bounds_file": "bounds.file",
+    "resolution": "bounds.resolution",
+    "params": "bounds.params",
+    "certify": "bounds.certify (null: the paper's bounds; {}: certified)",
     "online": "perception (camera_period, width, height, cell, obstacle_speed) and bounds.online (period: was "
-              "bounds_period; horizon)",
-    "path_duration": "path.duration", "end_hold": "path.end_hold", "start_time": "control.path_progress.start_time",
+    "bounds_period; horizon)",
+    "path_duration": "path.duration",
+    "end_hold": "path.end_hold",
+    "start_time": "control.path_progress.start_time",
     "path_velocity_share": "control.path_progress.velocity_share",
     "admittance": "control.admittance (mass, damping, stiffness) and control.period (was admittance.period)",
-    "collision_guard": "control.safety_filter (null: no filter)", "safety_filter": "control.safety_filter",
-    "pushes": "human.pushes", "random_pushes": "human.random_pushes", "reactive": "human.reactive",
-    "moving_obstacles": "cell.moving_obstacles", "log_period": "simulation.log_period",
-    "simulator_config": "simulation.simulator_config", "plant_config": "simulation.plant_config",
-    "model_drivers": "simulation.model_drivers", "visualization": "simulation.visualization",
+    "collision_guard": "control.safety_filter (null: no filter)",
+    "safety_filter": "control.safety_filter",
+    "pushes": "human.pushes",
+    "random_pushes": "human.random_pushes",
+    "reactive": "human.reactive",
+    "moving_obstacles": "cell.moving_obstacles",
+    "log_period": "simulation.log_period",
+    "simulator_config": "simulation.simulator_config",
+    "plant_config": "simulation.plant_config",
+    "model_drivers": "simulation.model_drivers",
+    "visualization": "simulation.visualization",
 }
 
 #: Sections that were a name before 0.3, and the field the name went to.
@@ -321,12 +370,20 @@ def _check_form(raw, file) -> None:
             new = OLD_FIELDS[key]
         elif key in _OLD_NAMES and not isinstance(value, dict) and value is not None:
             new, value = _OLD_NAMES[key], f"{{{_OLD_NAMES[key].split('.')[1]}: {value}}}"
-            raise ScenarioError(file, key, f"is a section since drake_cfvol 0.3: write '{key}: {value}' "
-                                f"({new}). CHANGELOG.md lists where every field of the old form went")
+            raise ScenarioError(
+                file,
+                key,
+                f"is a section since drake_cfvol 0.3: write '{key}: {value}' "
+                f"({new}). CHANGELOG.md lists where every field of the old form went",
+            )
         else:
             continue
-        raise ScenarioError(file, key, f"is a field of the scenario form before drake_cfvol 0.3; it is now "
-                            f"'{new}'. CHANGELOG.md lists where every field of the old form went")
+        raise ScenarioError(
+            file,
+            key,
+            f"is a field of the scenario form before drake_cfvol 0.3; it is now "
+            f"'{new}'. CHANGELOG.md lists where every field of the old form went",
+        )
 
 
 def _is_number(value) -> bool:
@@ -344,10 +401,15 @@ def _is_number(value) -> bool:
 
 
 def _check_scalar(value, t, name, file) -> None:
-    ok = (isinstance(value, bool) if t is bool else
-          isinstance(value, int) and not isinstance(value, bool) if t is int else
-          _is_number(value) if t is float else
-          isinstance(value, str))
+    ok = (
+        isinstance(value, bool)
+        if t is bool
+        else isinstance(value, int) and not isinstance(value, bool)
+        if t is int
+        else _is_number(value)
+        if t is float
+        else isinstance(value, str)
+    )
     if not ok:
         raise ScenarioError(file, name, f"must be {_type_name(t)}, got {value!r}")
 
@@ -381,8 +443,9 @@ def _check_value(value, t, name: str, file: Path) -> None:
             raise ScenarioError(file, name, f"must be a mapping of {t.__name__} fields, got {value!r}")
         for sub in value:
             if sub not in known:
-                raise ScenarioError(file, f"{name}.{sub}", f"is not a field of {t.__name__}; known fields: "
-                                    f"{', '.join(known)}")
+                raise ScenarioError(
+                    file, f"{name}.{sub}", f"is not a field of {t.__name__}; known fields: {', '.join(known)}"
+                )
     elif t in (int, float, bool, str):
         _check_scalar(value, t, name, file)
 
@@ -398,18 +461,22 @@ def _check_fields(raw, schema, where: str, file: Path) -> None:
     fields = {f.name: f for f in dataclasses.fields(schema)}
     hints = typing.get_type_hints(schema)
     for key, value in raw.items():
-        name = (f"{where}{': ' if re.search(r'item [0-9]+$', where) else '.'}{key}" if where else str(key))
+        name = f"{where}{': ' if re.search(r'item [0-9]+$', where) else '.'}{key}" if where else str(key)
         if key not in fields:
             if name in RENAMED:
-                raise ScenarioError(file, name, f"is now '{RENAMED[name]}' (one seed for the planner, the "
-                                    "certificate and the random pushes, as in Drake's hardware_sim); rename it")
-            raise ScenarioError(file, name, f"is not a field of {schema.__name__}; known fields: "
-                                f"{', '.join(fields)}")
+                raise ScenarioError(
+                    file,
+                    name,
+                    f"is now '{RENAMED[name]}' (one seed for the planner, the "
+                    "certificate and the random pushes, as in Drake's hardware_sim); rename it",
+                )
+            raise ScenarioError(file, name, f"is not a field of {schema.__name__}; known fields: {', '.join(fields)}")
         _check_value(value, hints[key], name, file)
 
 
-def load_scenario(name_or_path: str | Path, *, scenario_text: str | None = None,
-                  overrides: dict | None = None) -> tuple[Scenario, Path | None]:
+def load_scenario(
+    name_or_path: str | Path, *, scenario_text: str | None = None, overrides: dict | None = None
+) -> tuple[Scenario, Path | None]:
     """Loads a scenario by bundled name (``automotive_push``) or file path,
     and checks it (:func:`validate_scenario`) before anything is planned.
 
@@ -438,8 +505,9 @@ def load_scenario(name_or_path: str | Path, *, scenario_text: str | None = None,
         else:
             known = sorted(x.stem for x in diagrams_dir().glob("*.yaml"))
             what = "does not exist" if looks_like_path(str(name_or_path)) else "is not a bundled scenario"
-            raise ScenarioError(name_or_path, None, f"{what}. Bundled: {', '.join(known)}; or pass the path of a "
-                                "scenario YAML file")
+            raise ScenarioError(
+                name_or_path, None, f"{what}. Bundled: {', '.join(known)}; or pass the path of a scenario YAML file"
+            )
     try:
         raw = read_yaml(p.read_text())
     except (OSError, yaml.YAMLError) as e:

@@ -31,8 +31,9 @@ def plot_bounds(bounds, path: str | Path, *, revolute=None, title: str = "") -> 
     for j in range(k):
         ax = axes[j // cols][j % cols]
         f = np.degrees if revolute[j] else (lambda x: x)
-        ax.fill_between(s, f(bounds.lower[:, j]), f(bounds.upper[:, j]), color="tab:green", alpha=0.3,
-                        label="[lower, upper]")
+        ax.fill_between(
+            s, f(bounds.lower[:, j]), f(bounds.upper[:, j]), color="tab:green", alpha=0.3, label="[lower, upper]"
+        )
         ax.plot(s, f(bounds.nominal[:, j]), color="k", lw=1.2, label="nominal")
         for lim in (bounds.limit_lower[j], bounds.limit_upper[j]):
             ax.axhline(f(lim), color="tab:red", ls="--", lw=0.8)

@@ -54,8 +54,18 @@ class Progress:
             only.
     """
 
-    def __init__(self, total: float, desc: str, *, enabled: bool = True, unit: str = "it", file=None,
-                 delay: float = DEFAULT_DELAY_S, mininterval: float = 0.25, eta: bool = True):
+    def __init__(
+        self,
+        total: float,
+        desc: str,
+        *,
+        enabled: bool = True,
+        unit: str = "it",
+        file=None,
+        delay: float = DEFAULT_DELAY_S,
+        mininterval: float = 0.25,
+        eta: bool = True,
+    ):
         self.total = float(total) if total and total > 0 else 1.0
         self.n = 0.0
         self.t0 = time.perf_counter()
@@ -69,10 +79,19 @@ class Progress:
             from tqdm import tqdm
 
             left = ", {remaining} left" if eta else ""
-            self._bar = tqdm(total=_shown(self.total), desc=desc, unit=unit, file=stream, delay=delay, smoothing=0.0,
-                             mininterval=mininterval, dynamic_ncols=True, leave=False,
-                             bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} "
-                                        "[{elapsed}" + left + "{postfix}]")
+            self._bar = tqdm(
+                total=_shown(self.total),
+                desc=desc,
+                unit=unit,
+                file=stream,
+                delay=delay,
+                smoothing=0.0,
+                mininterval=mininterval,
+                dynamic_ncols=True,
+                leave=False,
+                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} {unit} "
+                "[{elapsed}" + left + "{postfix}]",
+            )
 
     @property
     def shown(self) -> bool:
@@ -159,8 +178,9 @@ class _StepClock:
 
 
 @contextlib.contextmanager
-def timed_steps(shares: dict, desc: str, *, enabled: bool = True, file=None, tick_s: float = 0.25,
-                delay: float = DEFAULT_DELAY_S):
+def timed_steps(
+    shares: dict, desc: str, *, enabled: bool = True, file=None, tick_s: float = 0.25, delay: float = DEFAULT_DELAY_S
+):
     """A bar for a sequence of calls that cannot report progress
     themselves, each with a known share of the work (seconds measured on a
     reference machine; only their ratios matter). Yields a function to call

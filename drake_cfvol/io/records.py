@@ -23,7 +23,9 @@ def output_stem(cell: str, label: str, resolution: int | None = None, *, certifi
     """The one naming scheme of output files: ``<cell>_<path>[_R<R>][_certified]``,
     followed by ``_<kind>.<ext>`` (``automotive_path1_R1000_bounds.npz``,
     ``automotive_path1_R1000_certified_bounds.npz``)."""
-    return f"{cell}_{label}" + (f"_R{resolution}" if resolution is not None else "") + ("_certified" if certified else "")
+    return (
+        f"{cell}_{label}" + (f"_R{resolution}" if resolution is not None else "") + ("_certified" if certified else "")
+    )
 
 
 def prepare_output(path, *, overwrite: bool, folder: bool = False) -> Path:
@@ -62,8 +64,9 @@ def save_record(path, record: dict, array_keys: tuple, what: str, *, overwrite: 
     prepare_output(path, overwrite=overwrite)
     try:
         if path.suffix == ".json":
-            path.write_text(json.dumps({k: (np.asarray(v).tolist() if k in array_keys else v)
-                                        for k, v in record.items()}, indent=1))
+            path.write_text(
+                json.dumps({k: (np.asarray(v).tolist() if k in array_keys else v) for k, v in record.items()}, indent=1)
+            )
         else:
             meta = {k: v for k, v in record.items() if k not in array_keys}
             with open(path, "wb") as f:
@@ -73,8 +76,7 @@ def save_record(path, record: dict, array_keys: tuple, what: str, *, overwrite: 
     return path
 
 
-def load_record(path, array_keys: tuple, what: str, optional: tuple = (), required: tuple = ()
-                ) -> tuple[dict, dict]:
+def load_record(path, array_keys: tuple, what: str, optional: tuple = (), required: tuple = ()) -> tuple[dict, dict]:
     """Reads a record saved by :func:`save_record`: (metadata, float arrays);
     the ``optional`` arrays are left out where the file lacks them.
 

@@ -18,4 +18,3 @@ PATH_COLOUR = (0.9, 0.1, 0.1, 1.0)
 ROBOT_COLOUR = (0.55, 0.30, 0.85, 1.0)
 #: Names of the category colours, for legends.
 COLOUR_NAMES = {"trail": "orange", "goal": "blue", "no_goal": "grey"}
-

@@ -75,26 +75,100 @@ def _cache_folders(folder: _Path) -> list:
 
 _clear_stale_cache(_Path(__file__).resolve().parent, _cache_folders(_Path(__file__).resolve().parent))
 
-from drake_cfvol.kernel.types import (  # noqa: E402
-    _C, _K, _R, _S, _V0, _V1, BOX, CAPSULE, CYLINDER, ELLIPSOID, FOOTPRINT_DIRECTIONS, HULL, MAX_T_SAMPLES,
-    MAX_V_SAMPLES, SHAPE_W, SPHERE, Blocks, Chain, HeightField, Model, RegionScratch, Scratch)
-from drake_cfvol.kernel.kinematics import fk, fk_into  # noqa: E402
-from drake_cfvol.kernel.shapes import object_aabb, pose_shape, row_aabb, set_motion, support  # noqa: E402
+from drake_cfvol.kernel.batch import configs_may_collide, configs_may_collide_serial  # noqa: E402
+from drake_cfvol.kernel.blocks import EXACT_KINDS, NB, block_chain, fk_blocks, shape_bounds  # noqa: E402
+from drake_cfvol.kernel.checks import lower_columns_under, obstacle_distances  # noqa: E402
+from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint  # noqa: E402
 from drake_cfvol.kernel.gjk import gjk_intersect  # noqa: E402
 from drake_cfvol.kernel.heightfield import (  # noqa: E402
-    new_scratch, new_workspace, no_height_field, object_hits_columns, range_max, range_max_table)
-from drake_cfvol.kernel.checks import lower_columns_under, obstacle_distances  # noqa: E402
-from drake_cfvol.kernel.blocks import EXACT_KINDS, NB, block_chain, fk_blocks, shape_bounds  # noqa: E402
-from drake_cfvol.kernel.batch import configs_may_collide, configs_may_collide_serial  # noqa: E402
+    new_scratch,
+    new_workspace,
+    no_height_field,
+    object_hits_columns,
+    range_max,
+    range_max_table,
+)
+from drake_cfvol.kernel.kinematics import fk, fk_into  # noqa: E402
 from drake_cfvol.kernel.regions import regions_hit, sweep_chains  # noqa: E402
-from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint  # noqa: E402
+from drake_cfvol.kernel.shapes import object_aabb, pose_shape, row_aabb, set_motion, support  # noqa: E402
+from drake_cfvol.kernel.types import (  # noqa: E402
+    _C,
+    _K,
+    _R,
+    _S,
+    _V0,
+    _V1,
+    BOX,
+    CAPSULE,
+    CYLINDER,
+    ELLIPSOID,
+    FOOTPRINT_DIRECTIONS,
+    HULL,
+    MAX_T_SAMPLES,
+    MAX_V_SAMPLES,
+    SHAPE_W,
+    SPHERE,
+    Blocks,
+    Chain,
+    HeightField,
+    Model,
+    RegionScratch,
+    Scratch,
+)
 from drake_cfvol.kernel.warmup import STEP_SHARES, warm_up  # noqa: E402
 
-__all__ = ["Chain", "Model", "Blocks", "HeightField", "Scratch", "RegionScratch", "BOX", "SPHERE", "CAPSULE", "CYLINDER",
-           "ELLIPSOID", "HULL", "SHAPE_W", "MAX_T_SAMPLES", "MAX_V_SAMPLES", "FOOTPRINT_DIRECTIONS", "fk", "fk_into",
-           "support", "pose_shape", "set_motion", "row_aabb", "object_aabb", "gjk_intersect", "range_max_table",
-           "range_max", "new_workspace", "new_scratch", "no_height_field", "object_hits_columns",
-           "configs_may_collide", "configs_may_collide_serial", "lower_columns_under", "obstacle_distances",
-           "NB", "EXACT_KINDS", "block_chain", "shape_bounds", "fk_blocks",
-           "sweep_chains", "regions_hit", "shape_footprint", "fill_convex_polygon", "robot_footprint",
-           "distance_map", "warm_up", "STEP_SHARES", "_K", "_C", "_R", "_S", "_V0", "_V1"]
+__all__ = [
+    "Chain",
+    "Model",
+    "Blocks",
+    "HeightField",
+    "Scratch",
+    "RegionScratch",
+    "BOX",
+    "SPHERE",
+    "CAPSULE",
+    "CYLINDER",
+    "ELLIPSOID",
+    "HULL",
+    "SHAPE_W",
+    "MAX_T_SAMPLES",
+    "MAX_V_SAMPLES",
+    "FOOTPRINT_DIRECTIONS",
+    "fk",
+    "fk_into",
+    "support",
+    "pose_shape",
+    "set_motion",
+    "row_aabb",
+    "object_aabb",
+    "gjk_intersect",
+    "range_max_table",
+    "range_max",
+    "new_workspace",
+    "new_scratch",
+    "no_height_field",
+    "object_hits_columns",
+    "configs_may_collide",
+    "configs_may_collide_serial",
+    "lower_columns_under",
+    "obstacle_distances",
+    "NB",
+    "EXACT_KINDS",
+    "block_chain",
+    "shape_bounds",
+    "fk_blocks",
+    "sweep_chains",
+    "regions_hit",
+    "shape_footprint",
+    "fill_convex_polygon",
+    "robot_footprint",
+    "distance_map",
+    "warm_up",
+    "STEP_SHARES",
+    "_K",
+    "_C",
+    "_R",
+    "_S",
+    "_V0",
+    "_V1",
+]

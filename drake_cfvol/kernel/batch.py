@@ -19,12 +19,28 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from drake_cfvol.kernel.types import (BOX, CAPSULE, CYLINDER, SEP_EPS, SHAPE_W, SPHERE, Blocks, Chain, Model, _C,
-                                      _ED, _EI, _ES, _K, _R, _S)
 from drake_cfvol.kernel.blocks import NB, _fk_scratch, fk_block
 from drake_cfvol.kernel.checks import _pose_padded
-from drake_cfvol.kernel.shapes import _aabb_apart, _obb_apart_inline
 from drake_cfvol.kernel.gjk import _gjk_from
+from drake_cfvol.kernel.shapes import _aabb_apart, _obb_apart_inline
+from drake_cfvol.kernel.types import (
+    _C,
+    _ED,
+    _EI,
+    _ES,
+    _K,
+    _R,
+    _S,
+    BOX,
+    CAPSULE,
+    CYLINDER,
+    SEP_EPS,
+    SHAPE_W,
+    SPHERE,
+    Blocks,
+    Chain,
+    Model,
+)
 
 __all__ = ["configs_may_collide", "configs_may_collide_serial"]
 
@@ -130,9 +146,19 @@ class _Lanes(NamedTuple):
 
 @njit(cache=True)
 def _lanes(S, balls, C):
-    return _Lanes(np.empty((balls, 3 * NB)), np.empty((S, 3 * NB)), np.empty((S, 12 * NB)), np.zeros(S, np.bool_),
-                  np.empty(NB), np.empty(NB), np.empty(NB), np.zeros((C, NB)), np.empty((C, 2), np.int64),
-                  np.empty(NB), np.empty((S, 6)))
+    return _Lanes(
+        np.empty((balls, 3 * NB)),
+        np.empty((S, 3 * NB)),
+        np.empty((S, 12 * NB)),
+        np.zeros(S, np.bool_),
+        np.empty(NB),
+        np.empty(NB),
+        np.empty(NB),
+        np.zeros((C, NB)),
+        np.empty((C, 2), np.int64),
+        np.empty(NB),
+        np.empty((S, 6)),
+    )
 
 
 @njit(cache=True)
@@ -157,8 +183,14 @@ def _block_boxes(L, bounds, n):
 @njit(cache=True, inline="always")
 def _boxes_apart(A, i, Bx, j, grow):
     """Boxes A[i] and Bx[j] (min xyz, max xyz) farther apart than ``grow`` (m)."""
-    return (A[i, 0] > Bx[j, 3] + grow or Bx[j, 0] > A[i, 3] + grow or A[i, 1] > Bx[j, 4] + grow
-            or Bx[j, 1] > A[i, 4] + grow or A[i, 2] > Bx[j, 5] + grow or Bx[j, 2] > A[i, 5] + grow)
+    return (
+        A[i, 0] > Bx[j, 3] + grow
+        or Bx[j, 0] > A[i, 3] + grow
+        or A[i, 1] > Bx[j, 4] + grow
+        or Bx[j, 1] > A[i, 4] + grow
+        or A[i, 2] > Bx[j, 5] + grow
+        or Bx[j, 2] > A[i, 5] + grow
+    )
 
 
 @njit(cache=True)
@@ -178,9 +210,9 @@ def _obstacle_lanes(m):
         exact = kd == BOX or kd == SPHERE or kd == CAPSULE or kd == CYLINDER
         kind[o] = kd if exact else BOX
         for e in range(9):
-            OP[o, e * NB:(e + 1) * NB] = row[_R + e] if exact else (1.0 if e % 4 == 0 else 0.0)
+            OP[o, e * NB : (e + 1) * NB] = row[_R + e] if exact else (1.0 if e % 4 == 0 else 0.0)
         for e in range(3):
-            OP[o, (9 + e) * NB:(10 + e) * NB] = row[_C + e] if exact else 0.5 * (aabb[o, e] + aabb[o, 3 + e])
+            OP[o, (9 + e) * NB : (10 + e) * NB] = row[_C + e] if exact else 0.5 * (aabb[o, e] + aabb[o, 3 + e])
             size[o, e] = row[_S + e] if exact else 0.5 * (aabb[o, 3 + e] - aabb[o, e])
         if exact:
             extra[o] = row[_EI] + row[_ED] + row[_ES]
@@ -234,8 +266,12 @@ def _broad_obstacles(m, blk, obs, pad, L, n):
                 L.near[i] = 1.0
             if _near_exact(L.SC[s], bounds[s, 3] + pad + oextra[o], okind[o], OP[o], osize[o], L.near, n) == 0:
                 continue
-            if _balls_near(L, balls, ranges[s, 0], ranges[s, 1], pad + oextra[o], okind[o], OP[o], osize[o],
-                           L.und[nc], n) > 0:
+            if (
+                _balls_near(
+                    L, balls, ranges[s, 0], ranges[s, 1], pad + oextra[o], okind[o], OP[o], osize[o], L.und[nc], n
+                )
+                > 0
+            ):
                 nc = _keep(L, nc, s, o, n)
     return nc
 
@@ -265,8 +301,18 @@ def _broad_pairs(m, blk, X, pad, L, nc, n):
             if not L.posed[sx]:
                 _shape_pose(X[m.shape_body[sx]], shapes[sx], L.SP[sx], n)
                 L.posed[sx] = True
-            _balls_near(L, balls, ranges[sy, 0], ranges[sy, 1], hp + shapes[sx, _EI] + hp, blk.kind[sx], L.SP[sx],
-                        shapes[sx, _S:_S + 3], L.u2, n)
+            _balls_near(
+                L,
+                balls,
+                ranges[sy, 0],
+                ranges[sy, 1],
+                hp + shapes[sx, _EI] + hp,
+                blk.kind[sx],
+                L.SP[sx],
+                shapes[sx, _S : _S + 3],
+                L.u2,
+                n,
+            )
             tot = 0
             for i in range(n):
                 u[i] = min(u[i], L.u2[i])
@@ -304,8 +350,16 @@ class _Exact(NamedTuple):
 
 @njit(cache=True)
 def _exact(B, S, O, P):
-    return _Exact(np.empty((18, 3)), np.empty((B, 3, 3)), np.empty((B, 3)), np.empty((S, 1, SHAPE_W)),
-                  np.empty((S, 6)), np.zeros(S, np.bool_), np.zeros((S, O, 3)), np.zeros((P, 3)))
+    return _Exact(
+        np.empty((18, 3)),
+        np.empty((B, 3, 3)),
+        np.empty((B, 3)),
+        np.empty((S, 1, SHAPE_W)),
+        np.empty((S, 6)),
+        np.zeros(S, np.bool_),
+        np.zeros((S, O, 3)),
+        np.zeros((P, 3)),
+    )
 
 
 @njit(cache=True)
@@ -331,10 +385,11 @@ def _lane_hits(m, X, i, pad, L, nc, E):
             E.objs[t, 0, _EI] = shapes[t, _EI] + (pad if s >= 0 else 0.5 * pad)
         if s >= 0:
             o = L.cand[c, 1]
-            if _aabb_apart(E.aabbs[s], m.obstacle_aabb[o]) or _obb_apart_inline(E.objs[s, 0], m.obstacles[o],
-                                                                                E.ws[8:17]):
+            if _aabb_apart(E.aabbs[s], m.obstacle_aabb[o]) or _obb_apart_inline(
+                E.objs[s, 0], m.obstacles[o], E.ws[8:17]
+            ):
                 continue
-            if _gjk_from(E.objs[s], verts, m.obstacles[o:o + 1], verts, 64, E.ws, E.dirs[s, o]):
+            if _gjk_from(E.objs[s], verts, m.obstacles[o : o + 1], verts, 64, E.ws, E.dirs[s, o]):
                 return True
         else:
             p = L.cand[c, 1]
@@ -393,15 +448,46 @@ def configs_may_collide(Q, m, blk, pad):
     # numba passes no tuples of arrays into a parallel loop: the arrays go
     # in one by one, the tuples are rebuilt inside.
     parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
-    (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
-     curvature_, revolute_, joint_body_, spheres_, shape_spheres_) = m[1:]
+    (
+        shapes_,
+        shape_body_,
+        verts_,
+        obstacles_,
+        obstacle_aabb_,
+        body_pairs_,
+        shape_pairs_,
+        movable_,
+        moved_,
+        reach_,
+        curvature_,
+        revolute_,
+        joint_body_,
+        spheres_,
+        shape_spheres_,
+    ) = m[1:]
     KR, Kp, balls, ranges, bounds, kind = blk
     for t in prange((n_blocks + per - 1) // per):
-        mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
-                   obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
-                   joint_body_, spheres_, shape_spheres_)
-        _check_blocks(Q, t * per, min(n_blocks, (t + 1) * per), mm, Blocks(KR, Kp, balls, ranges, bounds, kind), pad,
-                      out)
+        mm = Model(
+            Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB),
+            shapes_,
+            shape_body_,
+            verts_,
+            obstacles_,
+            obstacle_aabb_,
+            body_pairs_,
+            shape_pairs_,
+            movable_,
+            moved_,
+            reach_,
+            curvature_,
+            revolute_,
+            joint_body_,
+            spheres_,
+            shape_spheres_,
+        )
+        _check_blocks(
+            Q, t * per, min(n_blocks, (t + 1) * per), mm, Blocks(KR, Kp, balls, ranges, bounds, kind), pad, out
+        )
     return out
 
 

@@ -155,8 +155,9 @@ def shape_bounds(spheres, ranges, out):
         for a in range(3):
             out[s, a] = 0.5 * (lo[a] + hi[a])
         for q in range(ranges[s, 0], ranges[s, 1]):
-            d = np.sqrt((spheres[q, 0] - out[s, 0]) ** 2 + (spheres[q, 1] - out[s, 1]) ** 2
-                        + (spheres[q, 2] - out[s, 2]) ** 2)
+            d = np.sqrt(
+                (spheres[q, 0] - out[s, 0]) ** 2 + (spheres[q, 1] - out[s, 1]) ** 2 + (spheres[q, 2] - out[s, 2]) ** 2
+            )
             r = max(r, d + spheres[q, 3])
         out[s, 3] = r
 

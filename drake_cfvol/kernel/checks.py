@@ -8,14 +8,21 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from drake_cfvol.kernel.types import Chain, SHAPE_W, _C, _EI
-from drake_cfvol.kernel.kinematics import fk_into
-from drake_cfvol.kernel.shapes import (_aabb_apart, _obb_apart, pose_shape, pose_shape_inline, row_aabb,
-                                      row_aabb_inline, set_motion)
 from drake_cfvol.kernel.gjk import _gjk, _gjk_from
 from drake_cfvol.kernel.heightfield import _clip_block, object_hits_columns
+from drake_cfvol.kernel.kinematics import fk_into
+from drake_cfvol.kernel.shapes import (
+    _aabb_apart,
+    _obb_apart,
+    pose_shape,
+    pose_shape_inline,
+    row_aabb,
+    row_aabb_inline,
+    set_motion,
+)
+from drake_cfvol.kernel.types import _C, _EI, SHAPE_W, Chain
 
-__all__ = ['lower_columns_under', 'obstacle_distances']
+__all__ = ["lower_columns_under", "obstacle_distances"]
 
 
 @njit(cache=True)
@@ -36,7 +43,7 @@ def _object_vs_obstacles(obj, aabb, verts, obstacles, obs_aabb, ws, dirs):
     for o in range(obstacles.shape[0]):
         if _aabb_apart(aabb, obs_aabb[o]) or (single and _obb_apart(obj[0], obstacles[o], ws[8:17])):
             continue
-        if _gjk_from(obj, verts, obstacles[o:o + 1], verts, 64, ws, dirs[o]):
+        if _gjk_from(obj, verts, obstacles[o : o + 1], verts, 64, ws, dirs[o]):
             return True
     return False
 
@@ -95,9 +102,14 @@ def lower_columns_under(Q, e_body, m, heights, grid, clearance):
             cap = box[2] - clearance
             if cap < 0:
                 cap = 0.0
-            i0, i1, j0, j1 = _clip_block(int(np.floor((box[0] - ox) / side)), int(np.floor((box[3] - ox) / side)),
-                                         int(np.floor((box[1] - oy) / side)), int(np.floor((box[4] - oy) / side)),
-                                         nx, ny)
+            i0, i1, j0, j1 = _clip_block(
+                int(np.floor((box[0] - ox) / side)),
+                int(np.floor((box[3] - ox) / side)),
+                int(np.floor((box[1] - oy) / side)),
+                int(np.floor((box[4] - oy) / side)),
+                nx,
+                ny,
+            )
             for a in range(i0, i1 + 1):
                 for c in range(j0, j1 + 1):
                     if heights[a, c] > cap:
@@ -152,7 +164,7 @@ def obstacle_distances(Q, hi, tol, m):
                     break
             if not near:
                 continue
-            ob = obstacles[o:o + 1]
+            ob = obstacles[o : o + 1]
             if not _touches(objs, S, hi, verts, ob, ws):
                 continue
             if _touches(objs, S, 0.0, verts, ob, ws):

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.kernel.types import FOOTPRINT_DIRECTIONS, SHAPE_W
 from drake_cfvol.kernel.kinematics import fk_into
 from drake_cfvol.kernel.shapes import pose_shape, support
+from drake_cfvol.kernel.types import FOOTPRINT_DIRECTIONS, SHAPE_W
 
 
 @njit(cache=True)

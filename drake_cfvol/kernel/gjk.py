@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.kernel.types import SEP_EPS, _C
 from drake_cfvol.kernel.shapes import _cross, _dot, support_multi
+from drake_cfvol.kernel.types import _C, SEP_EPS
 
-__all__ = ['gjk_intersect']
+__all__ = ["gjk_intersect"]
 
 
 @njit(cache=True)

@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.kernel.types import BOX, HeightField, SHAPE_W, Scratch, _C, _K, _R, _S
 from drake_cfvol.kernel.gjk import _gjk
+from drake_cfvol.kernel.types import _C, _K, _R, _S, BOX, SHAPE_W, HeightField, Scratch
 
-__all__ = ['range_max_table', 'range_max', 'object_hits_columns']
+__all__ = ["range_max_table", "range_max", "object_hits_columns"]
 
 
 @njit(cache=True)
@@ -104,9 +104,14 @@ def object_hits_columns(obj, verts, aabb, table, ox, oy, side, ws, stack, box):
     the block's bounding box) or a single cell, tested exactly against its
     column."""
     zmin = aabb[2]
-    i0, i1, j0, j1 = _clip_block(int(np.floor((aabb[0] - ox) / side)), int(np.floor((aabb[3] - ox) / side)),
-                                 int(np.floor((aabb[1] - oy) / side)), int(np.floor((aabb[4] - oy) / side)),
-                                 table.shape[2], table.shape[3])
+    i0, i1, j0, j1 = _clip_block(
+        int(np.floor((aabb[0] - ox) / side)),
+        int(np.floor((aabb[3] - ox) / side)),
+        int(np.floor((aabb[1] - oy) / side)),
+        int(np.floor((aabb[4] - oy) / side)),
+        table.shape[2],
+        table.shape[3],
+    )
     if i1 < i0 or j1 < j0:
         return False
     stack[0, 0] = i0

@@ -9,7 +9,7 @@ from numba import njit, prange
 
 from drake_cfvol.kernel.types import Chain
 
-__all__ = ['fk']
+__all__ = ["fk"]
 
 
 @njit(cache=True)

@@ -8,15 +8,22 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from drake_cfvol.kernel.types import Chain, HeightField, MAX_T_SAMPLES, MAX_V_SAMPLES, Model, RegionScratch, SHAPE_W
+from drake_cfvol.kernel.cells import (
+    _ball_box_in_frame,
+    _balls_clear_over_region,
+    _cells_hit_row,
+    _cells_vs_scene,
+    _row_boxes,
+    _scene_clear_of_box,
+    shape_bounds,
+)
+from drake_cfvol.kernel.heightfield import new_scratch, no_height_field
 from drake_cfvol.kernel.kinematics import _axis_rotation, fk_into
 from drake_cfvol.kernel.shapes import _aabb_apart, pose_shape_inline, row_aabb_inline, set_motion
-from drake_cfvol.kernel.cells import (_ball_box_in_frame, _balls_clear_over_region, _cells_hit_row, _cells_vs_scene,
-                                      _row_boxes, _scene_clear_of_box, shape_bounds)
-from drake_cfvol.kernel.heightfield import new_scratch, no_height_field
 from drake_cfvol.kernel.swept import region_quick_free
+from drake_cfvol.kernel.types import MAX_T_SAMPLES, MAX_V_SAMPLES, SHAPE_W, Chain, HeightField, Model, RegionScratch
 
-__all__ = ['sweep_chains', 'regions_hit']
+__all__ = ["sweep_chains", "regions_hit"]
 
 
 @njit(cache=True)
@@ -216,8 +223,9 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
                 # Body f's shape in its own frame: the local row as it is.
                 if _aabb_apart(rel_aabb, rs.local_box[sf]):
                     continue
-                if _cells_hit_row(relP, nt, nv, rs, shapes[sf:sf + 1], rs.local_box[sf], verts, ws,
-                                  rs.dirs[sm, O + sf]):
+                if _cells_hit_row(
+                    relP, nt, nv, rs, shapes[sf : sf + 1], rs.local_box[sf], verts, ws, rs.dirs[sm, O + sf]
+                ):
                     return True
     return False
 
@@ -342,10 +350,25 @@ def _region_workspace(B, k, O, shapes, verts, spheres, ranges):
     bounding ball and its box in its body's frame)."""
     P = MAX_T_SAMPLES * MAX_V_SAMPLES
     S = shapes.shape[0]
-    rs = RegionScratch(np.empty((P, B, 3, 3)), np.empty((P, B, 3)), np.empty((S, P, SHAPE_W)), np.empty((S, 6)),
-                       np.empty((P, SHAPE_W)), np.empty(6), np.empty(k), np.zeros((S, O + S, 3)), np.empty(6),
-                       np.empty((P, 6)), np.empty((4, SHAPE_W)), np.empty((P, 3)), np.empty(k),
-                       np.empty((spheres.shape[0], 4)), np.empty(6), np.empty((S, 4)), np.empty((S, 6)))
+    rs = RegionScratch(
+        np.empty((P, B, 3, 3)),
+        np.empty((P, B, 3)),
+        np.empty((S, P, SHAPE_W)),
+        np.empty((S, 6)),
+        np.empty((P, SHAPE_W)),
+        np.empty(6),
+        np.empty(k),
+        np.zeros((S, O + S, 3)),
+        np.empty(6),
+        np.empty((P, 6)),
+        np.empty((4, SHAPE_W)),
+        np.empty((P, 3)),
+        np.empty(k),
+        np.empty((spheres.shape[0], 4)),
+        np.empty(6),
+        np.empty((S, 4)),
+        np.empty((S, 6)),
+    )
     shape_bounds(spheres, ranges, rs.bound)
     _local_boxes(shapes, verts, rs.local_box)
     return rs
@@ -376,14 +399,44 @@ def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses):
     # numba passes no tuples of arrays into a parallel loop: the model's
     # arrays go in one by one, the model is rebuilt inside.
     parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
-    (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
-     curvature_, revolute_, joint_body_, spheres_, shape_spheres_) = m[1:]
+    (
+        shapes_,
+        shape_body_,
+        verts_,
+        obstacles_,
+        obstacle_aabb_,
+        body_pairs_,
+        shape_pairs_,
+        movable_,
+        moved_,
+        reach_,
+        curvature_,
+        revolute_,
+        joint_body_,
+        spheres_,
+        shape_spheres_,
+    ) = m[1:]
     lim_lo, lim_hi, delta = lims
     table, ox, oy, side = field
     for n in prange(n_chains):
-        mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
-                   obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
-                   joint_body_, spheres_, shape_spheres_)
+        mm = Model(
+            Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB),
+            shapes_,
+            shape_body_,
+            verts_,
+            obstacles_,
+            obstacle_aabb_,
+            body_pairs_,
+            shape_pairs_,
+            movable_,
+            moved_,
+            reach_,
+            curvature_,
+            revolute_,
+            joint_body_,
+            spheres_,
+            shape_spheres_,
+        )
         fld = HeightField(table, ox, oy, side)
         lm = (lim_lo, lim_hi, delta)
         j = chains[n, 0]
@@ -428,12 +481,42 @@ def regions_hit(A, B, js, va, vb, nts, nvs, pads, m):
     # numba passes no tuples of arrays into a parallel loop: the model's
     # arrays go in one by one, the model is rebuilt inside.
     parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
-    (shapes_, shape_body_, verts_, obstacles_, obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_,
-     curvature_, revolute_, joint_body_, spheres_, shape_spheres_) = m[1:]
+    (
+        shapes_,
+        shape_body_,
+        verts_,
+        obstacles_,
+        obstacle_aabb_,
+        body_pairs_,
+        shape_pairs_,
+        movable_,
+        moved_,
+        reach_,
+        curvature_,
+        revolute_,
+        joint_body_,
+        spheres_,
+        shape_spheres_,
+    ) = m[1:]
     for c in prange(n_chunks):
-        mm = Model(Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB), shapes_, shape_body_, verts_, obstacles_,
-                   obstacle_aabb_, body_pairs_, shape_pairs_, movable_, moved_, reach_, curvature_, revolute_,
-                   joint_body_, spheres_, shape_spheres_)
+        mm = Model(
+            Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB),
+            shapes_,
+            shape_body_,
+            verts_,
+            obstacles_,
+            obstacle_aabb_,
+            body_pairs_,
+            shape_pairs_,
+            movable_,
+            moved_,
+            reach_,
+            curvature_,
+            revolute_,
+            joint_body_,
+            spheres_,
+            shape_spheres_,
+        )
         no_field = no_height_field()
         sc = new_scratch()
         rs = _region_workspace(B_n, k, obstacles_.shape[0], shapes_, verts_, spheres_, shape_spheres_)
@@ -441,6 +524,16 @@ def regions_hit(A, B, js, va, vb, nts, nvs, pads, m):
         for n in range(c * 64, min(n_tasks, (c + 1) * 64)):
             W[0] = A[n]
             W[1] = B[n]
-            out[n] = _region_hits(W, 0, js[n], (0.0, 1.0, min(nts[n], MAX_T_SAMPLES)),
-                                  (va[n], vb[n], min(nvs[n], MAX_V_SAMPLES)), mm, no_field, sc, rs, pads[n])
+            out[n] = _region_hits(
+                W,
+                0,
+                js[n],
+                (0.0, 1.0, min(nts[n], MAX_T_SAMPLES)),
+                (va[n], vb[n], min(nvs[n], MAX_V_SAMPLES)),
+                mm,
+                no_field,
+                sc,
+                rs,
+                pads[n],
+            )
     return out

@@ -8,15 +8,33 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.kernel.types import (BOX, CAPSULE, CYLINDER, ELLIPSOID, HULL, SEP_EPS, SHAPE_W, SPHERE, _C, _ED,
-                                      _EI, _ES, _K, _R, _S, _U, _V0, _V1)
+from drake_cfvol.kernel.types import (
+    _C,
+    _ED,
+    _EI,
+    _ES,
+    _K,
+    _R,
+    _S,
+    _U,
+    _V0,
+    _V1,
+    BOX,
+    CAPSULE,
+    CYLINDER,
+    ELLIPSOID,
+    HULL,
+    SEP_EPS,
+    SHAPE_W,
+    SPHERE,
+)
 
 #: The support of a shape of a kind this kernel does not know, m: far
 #: beyond any cell along every direction, so nothing is ever separated from
 #: it ("may collide"), never a silent "free".
 _UNKNOWN_REACH = 1e12
 
-__all__ = ['row_aabb']
+__all__ = ["row_aabb"]
 
 
 def _pose_shape(local, R_WB, p_WB, out):
@@ -346,4 +364,4 @@ _obb_apart_inline = njit(inline="always")(_obb_apart_py)
 
 @njit(cache=True, inline="always")
 def _aabb_apart(a, b):
-    return (a[0] > b[3] or b[0] > a[3] or a[1] > b[4] or b[1] > a[4] or a[2] > b[5] or b[2] > a[5])
+    return a[0] > b[3] or b[0] > a[3] or a[1] > b[4] or b[1] > a[4] or a[2] > b[5] or b[2] > a[5]

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.kernel.types import BOX, SEP_EPS, _C, _ED, _EI, _ES, _K, _R, _S
 from drake_cfvol.kernel.heightfield import range_max
+from drake_cfvol.kernel.types import _C, _ED, _EI, _ES, _K, _R, _S, BOX, SEP_EPS
 
 __all__ = ["ball_apart_row", "box_above_columns", "place_balls"]
 
@@ -54,8 +54,13 @@ def box_above_columns(box, field):
     table, ox, oy, side = field
     if table.shape[2] == 0:
         return True
-    top = range_max(table, int(np.floor((box[0] - ox) / side)), int(np.floor((box[3] - ox) / side)),
-                    int(np.floor((box[1] - oy) / side)), int(np.floor((box[4] - oy) / side)))
+    top = range_max(
+        table,
+        int(np.floor((box[0] - ox) / side)),
+        int(np.floor((box[3] - ox) / side)),
+        int(np.floor((box[1] - oy) / side)),
+        int(np.floor((box[4] - oy) / side)),
+    )
     return not (top > 0.0) or box[2] > top + SEP_EPS
 
 

@@ -50,8 +50,14 @@ def _ball_clear(x0, x1, x2, r, obs_aabb, obstacles, field, box, fp):
         fp[a] = min(fp[a], box[a])
         fp[a + 3] = max(fp[a + 3], box[a + 3])
     for o in range(obstacles.shape[0]):
-        if (box[0] > obs_aabb[o, 3] or obs_aabb[o, 0] > box[3] or box[1] > obs_aabb[o, 4]
-                or obs_aabb[o, 1] > box[4] or box[2] > obs_aabb[o, 5] or obs_aabb[o, 2] > box[5]):
+        if (
+            box[0] > obs_aabb[o, 3]
+            or obs_aabb[o, 0] > box[3]
+            or box[1] > obs_aabb[o, 4]
+            or obs_aabb[o, 1] > box[4]
+            or box[2] > obs_aabb[o, 5]
+            or obs_aabb[o, 2] > box[5]
+        ):
             continue
         if not ball_apart_row(x0, x1, x2, r, obstacles[o], obs_aabb[o]):
             return False
@@ -92,8 +98,17 @@ def region_quick_free(W, i, j, ts, vs, m, field, rs, pad):
             g += half[kk] * _lever(m, kk, b)
         _world_balls(s, R[b], p[b], spheres, ranges, balls)
         for q in range(ranges[s, 0], ranges[s, 1]):
-            if not _ball_clear(balls[q, 0], balls[q, 1], balls[q, 2], spheres[q, 3] + g, m.obstacle_aabb,
-                               m.obstacles, field, box, rs.fp):
+            if not _ball_clear(
+                balls[q, 0],
+                balls[q, 1],
+                balls[q, 2],
+                spheres[q, 3] + g,
+                m.obstacle_aabb,
+                m.obstacles,
+                field,
+                box,
+                rs.fp,
+            ):
                 return False
     pairs = m.body_pairs
     for pp in range(pairs.shape[0]):

@@ -5,9 +5,24 @@ arguments: named tuples of arrays, which numba takes as they are.
 from __future__ import annotations
 
 from typing import NamedTuple
+
 import numpy as np
 
-__all__ = ['Chain', 'Model', 'Blocks', 'HeightField', 'Scratch', 'RegionScratch', 'BOX', 'SPHERE', 'CAPSULE', 'CYLINDER', 'ELLIPSOID', 'HULL', 'SHAPE_W']
+__all__ = [
+    "Chain",
+    "Model",
+    "Blocks",
+    "HeightField",
+    "Scratch",
+    "RegionScratch",
+    "BOX",
+    "SPHERE",
+    "CAPSULE",
+    "CYLINDER",
+    "ELLIPSOID",
+    "HULL",
+    "SHAPE_W",
+]
 
 
 BOX, SPHERE, CAPSULE, CYLINDER, ELLIPSOID, HULL = 0, 1, 2, 3, 4, 5

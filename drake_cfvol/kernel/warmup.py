@@ -1,29 +1,47 @@
-"""Compiling every kernel once (or loading it from numba's cache).
-"""
+"""Compiling every kernel once (or loading it from numba's cache)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from drake_cfvol.kernel.types import BOX, Blocks, Chain, FOOTPRINT_DIRECTIONS, HeightField, Model, SHAPE_W, _C, _K, _R, _S
-from drake_cfvol.kernel.kinematics import fk
-from drake_cfvol.kernel.shapes import row_aabb
+from drake_cfvol.kernel.batch import configs_may_collide, configs_may_collide_serial
+from drake_cfvol.kernel.blocks import block_chain, fk_blocks, shape_bounds
+from drake_cfvol.kernel.checks import lower_columns_under, obstacle_distances
+from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint
 from drake_cfvol.kernel.gjk import gjk_intersect
 from drake_cfvol.kernel.heightfield import range_max_table
-from drake_cfvol.kernel.checks import lower_columns_under, obstacle_distances
-from drake_cfvol.kernel.blocks import block_chain, fk_blocks, shape_bounds
-from drake_cfvol.kernel.batch import configs_may_collide, configs_may_collide_serial
+from drake_cfvol.kernel.kinematics import fk
 from drake_cfvol.kernel.regions import regions_hit, sweep_chains
-from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint
-
+from drake_cfvol.kernel.shapes import row_aabb
+from drake_cfvol.kernel.types import (
+    _C,
+    _K,
+    _R,
+    _S,
+    BOX,
+    FOOTPRINT_DIRECTIONS,
+    SHAPE_W,
+    Blocks,
+    Chain,
+    HeightField,
+    Model,
+)
 
 #: Each step's share of a fresh compile, s (measured on this 2-core machine
 #: with an empty numba cache, one fresh compile after the kernel moved to
 #: blocks, scaled to the earlier total; the shares, not the seconds, carry
 #: over to other machines). A step compiles what the steps before it have not.
-STEP_SHARES = {"fk": 3.7, "configs_may_collide": 25.1, "configs_may_collide_serial": 3.8, "sweep_chains": 49.5,
-               "regions_hit": 27.0, "lower_columns_under": 1.5, "obstacle_distances": 4.6, "footprints": 2.7,
-               "gjk_intersect": 0.3}
+STEP_SHARES = {
+    "fk": 3.7,
+    "configs_may_collide": 25.1,
+    "configs_may_collide_serial": 3.8,
+    "sweep_chains": 49.5,
+    "regions_hit": 27.0,
+    "lower_columns_under": 1.5,
+    "obstacle_distances": 4.6,
+    "footprints": 2.7,
+    "gjk_intersect": 0.3,
+}
 
 
 def _scene():
@@ -41,18 +59,33 @@ def _scene():
     chain = Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB)
     shapes = np.zeros((1, SHAPE_W))
     shapes[0, _K] = BOX
-    shapes[0, _C:_C + 3] = (0.5, 0.0, 0.0)
-    shapes[0, _R:_R + 9] = eye.ravel()
-    shapes[0, _S:_S + 3] = (0.5, 0.05, 0.05)
+    shapes[0, _C : _C + 3] = (0.5, 0.0, 0.0)
+    shapes[0, _R : _R + 9] = eye.ravel()
+    shapes[0, _S : _S + 3] = (0.5, 0.05, 0.05)
     verts = np.zeros((0, 3))
     obstacles = shapes.copy()
-    obstacles[0, _C:_C + 3] = (0.0, 1.5, 0.5)
+    obstacles[0, _C : _C + 3] = (0.0, 1.5, 0.5)
     obs_aabb = np.empty((1, 6))
     row_aabb(obstacles[0], verts, obs_aabb[0])
     no_pairs = np.zeros((0, 2), np.int64)
-    m = Model(chain, shapes, np.array([0], np.int64), verts, obstacles, obs_aabb, no_pairs, no_pairs,
-              np.array([True]), np.array([[True]]), np.array([[1.01]]), np.array([[[1.01]]]), np.array([True]),
-              np.array([0], np.int64), np.array([[0.5, 0.0, 0.0, 0.52]]), np.array([[0, 1]], np.int64))
+    m = Model(
+        chain,
+        shapes,
+        np.array([0], np.int64),
+        verts,
+        obstacles,
+        obs_aabb,
+        no_pairs,
+        no_pairs,
+        np.array([True]),
+        np.array([[True]]),
+        np.array([[1.01]]),
+        np.array([[[1.01]]]),
+        np.array([True]),
+        np.array([0], np.int64),
+        np.array([[0.5, 0.0, 0.0, 0.52]]),
+        np.array([[0, 1]], np.int64),
+    )
     return m, verts
 
 
@@ -61,17 +94,26 @@ def _steps():
     m, verts = _scene()
     chain, shapes, obstacles = m.chain, m.shapes, m.obstacles
     KR, Kp = block_chain(chain)
-    blk = Blocks(KR, Kp, m.spheres, m.shape_spheres, shape_bounds(m.spheres, m.shape_spheres),
-                 np.array([BOX], np.int64))
+    blk = Blocks(
+        KR, Kp, m.spheres, m.shape_spheres, shape_bounds(m.spheres, m.shape_spheres), np.array([BOX], np.int64)
+    )
     W = np.array([[0.0], [0.1]])
     Q = np.ascontiguousarray(W)
     heights = np.array([[0.0, 0.3], [0.2, 0.0]])
 
     def sweep():
         field = HeightField(range_max_table(heights), -1.0, -1.0, 1.0)
-        sweep_chains(np.array([[0, 1], [0, -1]], np.int64),
-                     (np.array([[-3.0]]), np.array([[3.0]]), np.array([0.01])),
-                     np.array([[2]], np.int64), np.array([0.2]), W, m, field, np.zeros(1), np.full(2, np.nan))
+        sweep_chains(
+            np.array([[0, 1], [0, -1]], np.int64),
+            (np.array([[-3.0]]), np.array([[3.0]]), np.array([0.01])),
+            np.array([[2]], np.int64),
+            np.array([0.2]),
+            W,
+            m,
+            field,
+            np.zeros(1),
+            np.full(2, np.nan),
+        )
 
     def footprints():
         mask = np.zeros((8, 8), np.bool_)
@@ -86,15 +128,30 @@ def _steps():
         ("configs_may_collide", lambda: configs_may_collide(Q, m, blk, 0.0)),
         ("configs_may_collide_serial", lambda: configs_may_collide_serial(Q, m, blk, 0.0)),
         ("sweep_chains", sweep),
-        ("regions_hit", lambda: regions_hit(W[:1].copy(), W[1:].copy(), np.array([0], np.int64), np.array([-0.1]),
-                                            np.array([0.1]), np.array([2], np.int64), np.array([2], np.int64),
-                                            np.array([0.01]), m)),
-        ("lower_columns_under", lambda: lower_columns_under(Q, np.zeros((2, 1)), m, heights.copy(),
-                                                            (-1.0, -1.0, 1.0), 0.0)),
+        (
+            "regions_hit",
+            lambda: regions_hit(
+                W[:1].copy(),
+                W[1:].copy(),
+                np.array([0], np.int64),
+                np.array([-0.1]),
+                np.array([0.1]),
+                np.array([2], np.int64),
+                np.array([2], np.int64),
+                np.array([0.01]),
+                m,
+            ),
+        ),
+        (
+            "lower_columns_under",
+            lambda: lower_columns_under(Q, np.zeros((2, 1)), m, heights.copy(), (-1.0, -1.0, 1.0), 0.0),
+        ),
         ("obstacle_distances", lambda: obstacle_distances(Q, 0.5, 1e-3, m)),
         ("footprints", footprints),
-        ("gjk_intersect", lambda: (gjk_intersect(shapes, verts, obstacles, verts),
-                                   row_aabb(obstacles[0], verts, np.empty(6)))),
+        (
+            "gjk_intersect",
+            lambda: (gjk_intersect(shapes, verts, obstacles, verts), row_aabb(obstacles[0], verts, np.empty(6))),
+        ),
     ]
 
 

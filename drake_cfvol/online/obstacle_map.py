@@ -68,11 +68,13 @@ class PerceptionParams:
         if not self.floor >= 0:
             raise ParameterError(f"PerceptionParams.floor must be >= 0 m, got {self.floor!r}.")
         if int(self.dilation) != self.dilation or self.dilation < 0:
-            raise ParameterError(f"PerceptionParams.dilation must be a whole number of cells >= 0, got "
-                                 f"{self.dilation!r}.")
+            raise ParameterError(
+                f"PerceptionParams.dilation must be a whole number of cells >= 0, got {self.dilation!r}."
+            )
         if not (self.speed >= 0 and self.spread_time >= 0):
-            raise ParameterError(f"PerceptionParams.speed and spread_time must be >= 0, got {self.speed!r} m/s, "
-                                 f"{self.spread_time!r} s.")
+            raise ParameterError(
+                f"PerceptionParams.speed and spread_time must be >= 0, got {self.speed!r} m/s, {self.spread_time!r} s."
+            )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,7 +126,7 @@ def merged_rectangles(H: np.ndarray) -> np.ndarray:
     if not len(i):
         return np.zeros((0, 5))
     i0, j0 = i.min(), j.min()
-    rects = np.array(_merge_equal(H[i0:i.max() + 1, j0:j.max() + 1]), float).reshape(-1, 5)
+    rects = np.array(_merge_equal(H[i0 : i.max() + 1, j0 : j.max() + 1]), float).reshape(-1, 5)
     rects[:, :2] += i0
     rects[:, 2:4] += j0
     return rects
@@ -161,7 +163,6 @@ class ObstacleMap:
         # unrestricted update) share it.
         return self
 
-
     @property
     def occupied(self) -> int:
         """Number of cells with something on them."""
@@ -171,8 +172,14 @@ class ObstacleMap:
         """Whether two maps have the same grid and heights."""
         return other is not None and other.grid == self.grid and np.array_equal(other.heights, self.heights)
 
-    def integrate(self, new_points: np.ndarray, seen_points: np.ndarray, stamp: float,
-                  params: PerceptionParams, hidden_points: np.ndarray | None = None) -> "ObstacleMap":
+    def integrate(
+        self,
+        new_points: np.ndarray,
+        seen_points: np.ndarray,
+        stamp: float,
+        params: PerceptionParams,
+        hidden_points: np.ndarray | None = None,
+    ) -> "ObstacleMap":
         """The map after one image (see the module's rules).
 
         Args:
@@ -232,8 +239,10 @@ class ObstacleMap:
         (N, 3), m."""
         rects = self.rectangles
         s, (x0, y0) = self.grid.side, self.grid.origin
-        centres = np.stack([x0 + (rects[:, 0] + rects[:, 1]) / 2 * s, y0 + (rects[:, 2] + rects[:, 3]) / 2 * s,
-                            rects[:, 4] / 2], axis=1)
+        centres = np.stack(
+            [x0 + (rects[:, 0] + rects[:, 1]) / 2 * s, y0 + (rects[:, 2] + rects[:, 3]) / 2 * s, rects[:, 4] / 2],
+            axis=1,
+        )
         sizes = np.stack([(rects[:, 1] - rects[:, 0]) * s, (rects[:, 3] - rects[:, 2]) * s, rects[:, 4]], axis=1)
         return centres, sizes
 

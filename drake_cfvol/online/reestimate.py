@@ -67,8 +67,14 @@ class LiveBounds:
         version: how many times the published bounds changed.
     """
 
-    def __init__(self, base: BoundsTable, stretch_lower: np.ndarray, stretch_upper: np.ndarray, rate: np.ndarray,
-                 version: int = 0):
+    def __init__(
+        self,
+        base: BoundsTable,
+        stretch_lower: np.ndarray,
+        stretch_upper: np.ndarray,
+        rate: np.ndarray,
+        version: int = 0,
+    ):
         self.base = base
         self.stretch_lower = np.asarray(stretch_lower, float)
         self.stretch_upper = np.asarray(stretch_upper, float)
@@ -87,8 +93,16 @@ class LiveBounds:
 
     def at(self, s: float):
         """(lower, upper, nominal) at path parameter s in [0, g-1]."""
-        lo, hi, nom = box_at(self._wl, self._wu, self.base.nominal, s, stretch_lower=self.stretch_lower,
-                             stretch_upper=self.stretch_upper, rate=self.rate, trajectory=self.base.trajectory)
+        lo, hi, nom = box_at(
+            self._wl,
+            self._wu,
+            self.base.nominal,
+            s,
+            stretch_lower=self.stretch_lower,
+            stretch_upper=self.stretch_upper,
+            rate=self.rate,
+            trajectory=self.base.trajectory,
+        )
         lo_b, hi_b, _ = self.base.at(s)
         return np.minimum(np.maximum(lo, lo_b), nom), np.maximum(np.minimum(hi, hi_b), nom), nom
 
@@ -134,7 +148,7 @@ def shape_radii(arrays) -> np.ndarray:
     holding all its shapes, m."""
     out = np.zeros(arrays.num_bodies)
     for row, b in zip(arrays.shapes, arrays.shape_body):
-        kind, size = int(row[K._K]), row[K._S:K._S + 3]
+        kind, size = int(row[K._K]), row[K._S : K._S + 3]
         if kind == K.BOX:
             r = float(np.linalg.norm(size))
         elif kind == K.SPHERE:
@@ -146,9 +160,9 @@ def shape_radii(arrays) -> np.ndarray:
         elif kind == K.ELLIPSOID:
             r = float(size.max())
         else:
-            v = arrays.verts[int(row[K._V0]):int(row[K._V1])]
+            v = arrays.verts[int(row[K._V0]) : int(row[K._V1])]
             r = float(np.linalg.norm(v, axis=1).max())
-        out[b] = max(out[b], float(np.linalg.norm(row[K._C:K._C + 3])) + r)
+        out[b] = max(out[b], float(np.linalg.norm(row[K._C : K._C + 3])) + r)
     return out
 
 
@@ -157,8 +171,14 @@ def _overlap(fp: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     if not len(boxes):
         return np.zeros(fp.shape[:-1], bool)
     f = fp[..., None, :]
-    return ((f[..., 0] <= boxes[:, 3]) & (boxes[:, 0] <= f[..., 3]) & (f[..., 1] <= boxes[:, 4])
-            & (boxes[:, 1] <= f[..., 4]) & (f[..., 2] <= boxes[:, 5]) & (boxes[:, 2] <= f[..., 5])).any(axis=-1)
+    return (
+        (f[..., 0] <= boxes[:, 3])
+        & (boxes[:, 0] <= f[..., 3])
+        & (f[..., 1] <= boxes[:, 4])
+        & (boxes[:, 1] <= f[..., 4])
+        & (f[..., 2] <= boxes[:, 5])
+        & (boxes[:, 2] <= f[..., 5])
+    ).any(axis=-1)
 
 
 class OnlineBounds:
@@ -179,8 +199,10 @@ class OnlineBounds:
 
     def __init__(self, workcell, base: BoundsTable, *, horizon: int | None = None, max_proofs: int = 1):
         if base.volume is None:
-            raise ParameterError("OnlineBounds needs the table's volume: a table loaded from disk has none; grow "
-                                 "it with dataclasses.replace(table, volume=build_volume(workcell, path, params)).")
+            raise ParameterError(
+                "OnlineBounds needs the table's volume: a table loaded from disk has none; grow "
+                "it with dataclasses.replace(table, volume=build_volume(workcell, path, params))."
+            )
         if horizon is not None and not int(horizon) >= 1:
             raise ParameterError(f"horizon must be >= 1 stretch (or None: the whole path), got {horizon!r}.")
         if not int(max_proofs) >= 0:
@@ -197,8 +219,9 @@ class OnlineBounds:
         self._fp = footprint_masks(workcell, path, self.params, self._vb.categories)
         self._arrays0 = self._arrays = workcell.scene_arrays()
         lo_w, hi_w = absolute_bounds(workcell.position_lower, workcell.position_upper, W)
-        self._setup = sweep_setup(self._arrays0, W, self.params, np.maximum(lo_w[:-1], lo_w[1:]),
-                                  np.minimum(hi_w[:-1], hi_w[1:]))
+        self._setup = sweep_setup(
+            self._arrays0, W, self.params, np.maximum(lo_w[:-1], lo_w[1:]), np.minimum(hi_w[:-1], hi_w[1:])
+        )
         self._sign = self._setup.chains[:, 1].astype(float)
         self._heights = np.array(self._vb.volume.heights, float)
         self._table = None  # V's range-max table, built when first needed after a change
@@ -206,18 +229,23 @@ class OnlineBounds:
         self._map: ObstacleMap | None = None
         self._perceived_only = None
         n_st = len(W) - 1
-        bounds, tests, fps = sweep_range(self._setup, self._arrays0, W, self._field(), 0, n_st - 1,
-                                         np.full(len(self._sign), np.nan))
+        bounds, tests, fps = sweep_range(
+            self._setup, self._arrays0, W, self._field(), 0, n_st - 1, np.full(len(self._sign), np.nan)
+        )
         self._cand, self._fps = bounds, fps
         self._pub = bounds.copy()
         self._dirty = np.zeros((len(self._sign), n_st), bool)  # per chain and stretch
-        rate = base.rate if base.rate is not None and np.isfinite(base.rate).any() else default_rate(
-            W, workcell.velocity_limits, self.params.waypoint_time)
+        rate = (
+            base.rate
+            if base.rate is not None and np.isfinite(base.rate).any()
+            else default_rate(W, workcell.velocity_limits, self.params.waypoint_time)
+        )
         self._rate = np.asarray(rate, float)
         self._radii = shape_radii(self._arrays0)
         # Per joint and body: how far a unit of the joint moves the body's points (m/rad, or 1 m/m).
-        self._body_reach = np.where(self._arrays0.revolute[:, None], self._arrays0.reach,
-                                    self._arrays0.moved_by.astype(float))
+        self._body_reach = np.where(
+            self._arrays0.revolute[:, None], self._arrays0.reach, self._arrays0.moved_by.astype(float)
+        )
         self.live = self._live(0)
 
     # -- views ---------------------------------------------------------------
@@ -265,7 +293,7 @@ class OnlineBounds:
         for c, s in zip(centres, sizes):
             i0, j0 = np.floor((c[:2] - s[:2] / 2 - (fp.x0, fp.y0)) / fp.pixel).astype(int)
             i1, j1 = np.ceil((c[:2] + s[:2] / 2 - (fp.x0, fp.y0)) / fp.pixel).astype(int)
-            no_goal[max(i0, 0):min(i1, shape[0]), max(j0, 0):min(j1, shape[1])] = True
+            no_goal[max(i0, 0) : min(i1, shape[0]), max(j0, 0) : min(j1, shape[1])] = True
         hm = vb.volume.heightmap
         X, Y = hm.centres()
         ix, iy = fp.indices(X, Y)
@@ -285,8 +313,17 @@ class OnlineBounds:
         hit = _overlap(self._fps, moved)  # (n, g-1)
         if len(ci):
             top = np.maximum(heights[ci, cj], self._heights[ci, cj])
-            cols = np.stack([hm.origin[0] + ci * hm.side, hm.origin[1] + cj * hm.side, np.zeros(len(ci)),
-                             hm.origin[0] + (ci + 1) * hm.side, hm.origin[1] + (cj + 1) * hm.side, top], axis=1)
+            cols = np.stack(
+                [
+                    hm.origin[0] + ci * hm.side,
+                    hm.origin[1] + cj * hm.side,
+                    np.zeros(len(ci)),
+                    hm.origin[0] + (ci + 1) * hm.side,
+                    hm.origin[1] + (cj + 1) * hm.side,
+                    top,
+                ],
+                axis=1,
+            )
             hit |= _overlap(self._fps, cols)
         return hit, len(ci), len(moved)
 
@@ -305,13 +342,14 @@ class OnlineBounds:
             b = i
             while b + 1 <= hi and any_dirty[b + 1]:
                 b += 1
-            sel = np.nonzero(self._dirty[:, i:b + 1].any(axis=1))[0]
+            sel = np.nonzero(self._dirty[:, i : b + 1].any(axis=1))[0]
             guesses = self._cand[sel, i - 1] if i > 0 else np.full(len(sel), np.nan)
-            bounds, t, fps = sweep_range(self._setup, self._arrays, self._W, field, i, b, guesses,
-                                         self._setup.chains[sel])
+            bounds, t, fps = sweep_range(
+                self._setup, self._arrays, self._W, field, i, b, guesses, self._setup.chains[sel]
+            )
             moved = sel[bounds[:, -1] != self._cand[sel, b]]
-            self._cand[sel, i:b + 1], self._fps[sel, i:b + 1] = bounds, fps
-            self._dirty[sel, i:b + 1] = False
+            self._cand[sel, i : b + 1], self._fps[sel, i : b + 1] = bounds, fps
+            self._dirty[sel, i : b + 1] = False
             done, tests = done + (b - i + 1), tests + int(t.sum())
             searches += len(sel) * (b - i + 1)
             if b + 1 < n_st and len(moved):
@@ -336,7 +374,11 @@ class OnlineBounds:
         same = obstacle_map.same_as(self._map)
         heights = self._heights if same else self._volume(centres, sizes)
         if full:
-            dirty, n_cells, n_boxes = np.ones(self._dirty.shape, bool), int((heights != self._heights).sum()), len(boxes)
+            dirty, n_cells, n_boxes = (
+                np.ones(self._dirty.shape, bool),
+                int((heights != self._heights).sum()),
+                len(boxes),
+            )
         elif same:
             dirty, n_cells, n_boxes = np.zeros(self._dirty.shape, bool), 0, 0
         else:
@@ -346,8 +388,12 @@ class OnlineBounds:
             self._heights, self._boxes, self._table = heights, boxes, None
             self._arrays = self._arrays0.with_boxes(centres, sizes) if len(centres) else self._arrays0
             self._perceived_only = dataclasses.replace(
-                self._arrays0, obstacles=np.zeros((0, K.SHAPE_W)), obstacle_names=[], obstacle_aabb=np.zeros((0, 6)),
-                self_pairs=np.zeros((0, 2), np.int64)).with_boxes(centres, sizes)
+                self._arrays0,
+                obstacles=np.zeros((0, K.SHAPE_W)),
+                obstacle_names=[],
+                obstacle_aabb=np.zeros((0, 6)),
+                self_pairs=np.zeros((0, 2), np.int64),
+            ).with_boxes(centres, sizes)
         self._map = obstacle_map
         n_st = self._dirty.shape[1]
         lo = int(np.clip(np.floor(s_now), 0, n_st - 1))
@@ -356,9 +402,19 @@ class OnlineBounds:
         tightened, widened, pending = self._publish(lo, hi)
         if tightened or widened:
             self.live = self._live(self.live.version + 1)
-        return BoundsUpdate((time.perf_counter() - t0) * 1e3, n_cells, n_boxes, done, searches,
-                            int(self._dirty.any(axis=0).sum()), tests,
-                            tightened, widened, pending, self.live.version)
+        return BoundsUpdate(
+            (time.perf_counter() - t0) * 1e3,
+            n_cells,
+            n_boxes,
+            done,
+            searches,
+            int(self._dirty.any(axis=0).sum()),
+            tests,
+            tightened,
+            widened,
+            pending,
+            self.live.version,
+        )
 
     # -- publishing ----------------------------------------------------------
 
@@ -387,7 +443,7 @@ class OnlineBounds:
         """(lower, upper) (2, k) at waypoints i, i+1: a linear box holding
         stretch i's box at every s (its bounds and the nominal)."""
         lower, upper = chains[1::2], chains[0::2]
-        W = self._W[i:i + 2]
+        W = self._W[i : i + 2]
         return np.minimum(lower[None, :], W), np.maximum(upper[None, :], W)
 
     def _certified(self, i: int, chains: np.ndarray, proofs: list) -> bool:
@@ -406,7 +462,7 @@ class OnlineBounds:
             return True
         lo, up = self._outer_box(i, chains)
         dev = np.maximum(np.abs(up - self._W[i]), np.abs(self._W[i] - lo)).max(axis=0)  # (k,)
-        _, p_WB = self._arrays0.fk(self._W[i:i + 1])
+        _, p_WB = self._arrays0.fk(self._W[i : i + 1])
         grow = self._radii + dev @ self._body_reach + float(self._setup.margins[i])  # (B,)
         balls = np.concatenate([p_WB[0] - grow[:, None], p_WB[0] + grow[:, None]], axis=1)
         if not _overlap(balls, self._boxes).any():
@@ -416,8 +472,9 @@ class OnlineBounds:
         proofs.pop()
         self._proven_map[i] = self._map
         lo, up = self._tighter_linear(i, lo, up)
-        failed, _ = _failures(self._perceived_only, lo, up, self._W[i:i + 2], [0],
-                              np.array([float(self._setup.margins[i])]))
+        failed, _ = _failures(
+            self._perceived_only, lo, up, self._W[i : i + 2], [0], np.array([float(self._setup.margins[i])])
+        )
         return not failed
 
     def _tighter_linear(self, i: int, lo: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -427,10 +484,10 @@ class OnlineBounds:
         for a stretch-rule table)."""
         b = self.base
         if b.interpolation == "linear":
-            bl, bu = b.lower[i:i + 2], b.upper[i:i + 2]
+            bl, bu = b.lower[i : i + 2], b.upper[i : i + 2]
         else:
-            bl = np.minimum(b.stretch_lower[i][None, :], self._W[i:i + 2])
-            bu = np.maximum(b.stretch_upper[i][None, :], self._W[i:i + 2])
+            bl = np.minimum(b.stretch_lower[i][None, :], self._W[i : i + 2])
+            bu = np.maximum(b.stretch_upper[i][None, :], self._W[i : i + 2])
         use_b_lo = bl.min(axis=0) >= lo.min(axis=0)
         use_b_up = bu.max(axis=0) <= up.max(axis=0)
         return np.where(use_b_lo, bl, lo), np.where(use_b_up, bu, up)

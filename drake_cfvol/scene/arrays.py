@@ -33,8 +33,8 @@ from pydrake.geometry import (
 from pydrake.multibody.tree import JointIndex
 
 from drake_cfvol import kernel as K
-from drake_cfvol.scene.covers import robot_covers
 from drake_cfvol.exceptions import WorkcellError
+from drake_cfvol.scene.covers import robot_covers
 from drake_cfvol.scene.robot import robot_bodies
 
 __all__ = ["SceneArrays", "scene_arrays", "shape_row"]
@@ -100,11 +100,12 @@ def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[n
     else:
         raise WorkcellError(
             f"shape {type(shape).__name__} is not supported by the fast backend; use boxes, spheres, "
-            "cylinders, capsules, ellipsoids, meshes or convex shapes (or backend='drake').")
+            "cylinders, capsules, ellipsoids, meshes or convex shapes (or backend='drake')."
+        )
     row[K._K] = kind
-    row[K._C:K._C + 3] = c
-    row[K._R:K._R + 9] = R.ravel()
-    row[K._S:K._S + 3] = size
+    row[K._C : K._C + 3] = c
+    row[K._R : K._R + 9] = R.ravel()
+    row[K._S : K._S + 3] = size
     return row, radius, c
 
 
@@ -211,13 +212,16 @@ class SceneArrays:
         sizes = np.asarray(sizes, float).reshape(-1, 3)
         rows = np.zeros((len(centres), K.SHAPE_W))
         rows[:, K._K] = K.BOX
-        rows[:, K._C:K._C + 3] = centres
-        rows[:, K._R:K._R + 9] = np.eye(3).ravel()
-        rows[:, K._S:K._S + 3] = sizes / 2
+        rows[:, K._C : K._C + 3] = centres
+        rows[:, K._R : K._R + 9] = np.eye(3).ravel()
+        rows[:, K._S : K._S + 3] = sizes / 2
         aabb = np.concatenate([centres - sizes / 2, centres + sizes / 2], axis=1)
-        out = dataclasses.replace(self, obstacles=np.ascontiguousarray(np.concatenate([self.obstacles, rows])),
-                                  obstacle_names=list(self.obstacle_names) + [name] * len(rows),
-                                  obstacle_aabb=np.ascontiguousarray(np.concatenate([self.obstacle_aabb, aabb])))
+        out = dataclasses.replace(
+            self,
+            obstacles=np.ascontiguousarray(np.concatenate([self.obstacles, rows])),
+            obstacle_names=list(self.obstacle_names) + [name] * len(rows),
+            obstacle_aabb=np.ascontiguousarray(np.concatenate([self.obstacle_aabb, aabb])),
+        )
         out._covers = self._covers  # the robot is the same
         out._blocks = self._blocks
         return out
@@ -228,9 +232,23 @@ class SceneArrays:
         if self._model is None:
             spheres, shape_spheres = self.covers
             self._model = K.Model(
-                self.chain, self.shapes, self.shape_body, self.verts, self.obstacles, self.obstacle_aabb,
-                self.self_pairs, self.shape_pairs, self.moved_by.any(axis=0), self.moved_by, self.reach,
-                self.curvature, self.revolute, self.joint_body, spheres, shape_spheres)
+                self.chain,
+                self.shapes,
+                self.shape_body,
+                self.verts,
+                self.obstacles,
+                self.obstacle_aabb,
+                self.self_pairs,
+                self.shape_pairs,
+                self.moved_by.any(axis=0),
+                self.moved_by,
+                self.reach,
+                self.curvature,
+                self.revolute,
+                self.joint_body,
+                spheres,
+                shape_spheres,
+            )
         return self._model
 
     @property
@@ -252,9 +270,13 @@ class SceneArrays:
         """(P, 2) robot shape pairs of the body pairs Drake does not filter."""
         body_pairs = {(int(a), int(b)) for a, b in self.self_pairs}
         S = len(self.shapes)
-        pairs = [(a, b) for a in range(S) for b in range(a + 1, S)
-                 if (int(self.shape_body[a]), int(self.shape_body[b])) in body_pairs
-                 or (int(self.shape_body[b]), int(self.shape_body[a])) in body_pairs]
+        pairs = [
+            (a, b)
+            for a in range(S)
+            for b in range(a + 1, S)
+            if (int(self.shape_body[a]), int(self.shape_body[b])) in body_pairs
+            or (int(self.shape_body[b]), int(self.shape_body[a])) in body_pairs
+        ]
         return np.array(pairs, np.int64).reshape(-1, 2)
 
     @property
@@ -287,7 +309,8 @@ def _chain_order(workcell):
             if joint is None:
                 raise WorkcellError(
                     f"robot body '{body.name()}' has no inboard joint (a floating base?); weld the robot's "
-                    "base to the world with add_weld.")
+                    "base to the world with add_weld."
+                )
             par = joint.parent_body()
             if int(par.index()) not in robot_set or int(par.index()) in placed:
                 order.append(body)
@@ -400,26 +423,56 @@ def scene_arrays(workcell) -> SceneArrays:
     obstacles, obs_names = _obstacle_shapes(workcell, verts)
     checker = workcell.checker
     has_geometry = [bool((shape_body == b).any()) for b in range(B)]
-    pairs = [(a, b) for a in range(B) for b in range(a + 1, B)
-             if has_geometry[a] and has_geometry[b]
-             and not checker.IsCollisionFilteredBetween(order[a], order[b])]
+    pairs = [
+        (a, b)
+        for a in range(B)
+        for b in range(a + 1, B)
+        if has_geometry[a] and has_geometry[b] and not checker.IsCollisionFilteredBetween(order[a], order[b])
+    ]
     moved = _moved_by(parent, joint_body, B)
     all_verts = np.concatenate(verts) if verts else np.zeros((0, 3))
     obs_aabb = np.zeros((len(obstacles), 6))
     for o in range(len(obstacles)):
         K.row_aabb(obstacles[o], all_verts, obs_aabb[o])
-    reach = _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved,
-                   workcell.position_lower, workcell.position_upper, qidx)
+    reach = _reach(
+        parent,
+        jtype,
+        axis,
+        p_PF,
+        R_MB,
+        p_MB,
+        shape_body,
+        shape_bc,
+        shape_br,
+        joint_body,
+        moved,
+        workcell.position_lower,
+        workcell.position_upper,
+        qidx,
+    )
     revolute = np.asarray(workcell.revolute, bool)
     return SceneArrays(
-        [b.name() for b in order], [b.index() for b in order], *chain,
-        shapes, shape_body, obstacles, obs_names, obs_aabb,
-        all_verts, np.array(pairs, np.int64).reshape(-1, 2), moved,
-        reach, _curvature(reach, moved, revolute), revolute, joint_body)
+        [b.name() for b in order],
+        [b.index() for b in order],
+        *chain,
+        shapes,
+        shape_body,
+        obstacles,
+        obs_names,
+        obs_aabb,
+        all_verts,
+        np.array(pairs, np.int64).reshape(-1, 2),
+        moved,
+        reach,
+        _curvature(reach, moved, revolute),
+        revolute,
+        joint_body,
+    )
 
 
-def _reach(parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved,
-           lower, upper, qidx) -> np.ndarray:
+def _reach(
+    parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved, lower, upper, qidx
+) -> np.ndarray:
     """reach[j, b]: a configuration-independent bound on |p - c_j| for any
     point p of body b, c_j the origin of joint j's child frame M (on its
     axis). Triangle inequality along the chain: the distance between

@@ -24,11 +24,10 @@ from __future__ import annotations
 import numpy as np
 
 from drake_cfvol import kernel as K
-from drake_cfvol.kernel.types import _ED, _EI, _ES
 from drake_cfvol.exceptions import WorkcellError
+from drake_cfvol.kernel.types import _ED, _EI, _ES
 
-__all__ = ["shape_cover", "robot_covers", "check_cover", "MAX_SLABS", "SEGMENT_SLACK",
-           "MAX_SEGMENT_BALLS"]
+__all__ = ["shape_cover", "robot_covers", "check_cover", "MAX_SLABS", "SEGMENT_SLACK", "MAX_SEGMENT_BALLS"]
 
 #: Most balls per shape.
 MAX_SLABS = 8
@@ -55,7 +54,7 @@ def _crossings(T: np.ndarray, plane: float):
     above = T[T[:, 0] >= plane]
     step = max(1, _PAIRS_PER_BLOCK // max(len(above), 1))
     for s in range(0, len(below), step):
-        a = below[s:s + step, None, :]
+        a = below[s : s + step, None, :]
         da = a[..., 0] - plane
         den = da - (above[None, :, 0] - plane)
         w = np.divide(da, den, out=np.zeros_like(den), where=den != 0.0)
@@ -156,7 +155,7 @@ def shape_cover(row: np.ndarray, verts: np.ndarray, tight: bool = False) -> np.n
         (m), the row's inflation and motion terms included.
     """
     kind = int(row[K._K])
-    s = row[K._S:K._S + 3]
+    s = row[K._S : K._S + 3]
     if kind == K.SPHERE:
         local = np.array([[0.0, 0.0, 0.0, s[0]]])
     elif kind == K.CAPSULE:
@@ -166,10 +165,10 @@ def shape_cover(row: np.ndarray, verts: np.ndarray, tight: bool = False) -> np.n
     elif kind in (K.BOX, K.ELLIPSOID):
         local = _box_cover(s)
     else:
-        local = _polytope_cover(verts[int(row[K._V0]):int(row[K._V1])])
-    R = row[K._R:K._R + 9].reshape(3, 3)
+        local = _polytope_cover(verts[int(row[K._V0]) : int(row[K._V1])])
+    R = row[K._R : K._R + 9].reshape(3, 3)
     out = np.empty_like(local)
-    out[:, :3] = row[K._C:K._C + 3] + local[:, :3] @ R.T
+    out[:, :3] = row[K._C : K._C + 3] + local[:, :3] @ R.T
     out[:, 3] = local[:, 3] + row[_EI] + row[_ED] + row[_ES] + _ROUNDING
     return out
 
@@ -180,9 +179,9 @@ def shape_points(row: np.ndarray, verts: np.ndarray, rings: int = 16) -> np.ndar
     box's), or rings of ``rings`` points around a round shape's axis at
     ``rings`` heights (and its caps)."""
     kind = int(row[K._K])
-    s = row[K._S:K._S + 3]
+    s = row[K._S : K._S + 3]
     if kind == K.HULL:
-        local = verts[int(row[K._V0]):int(row[K._V1])]
+        local = verts[int(row[K._V0]) : int(row[K._V1])]
     elif kind in (K.SPHERE, K.CAPSULE, K.CYLINDER):
         phi = np.linspace(0, 2 * np.pi, rings, endpoint=False)
         if kind == K.SPHERE:
@@ -194,8 +193,16 @@ def shape_points(row: np.ndarray, verts: np.ndarray, rings: int = 16) -> np.ndar
             pts.append(np.stack([r * np.cos(phi), r * np.sin(phi), np.full(rings, z)], axis=1))
         for a in np.linspace(0, np.pi / 2, rings // 2 + 1)[1:]:  # the caps (a sphere's poles)
             for sgn in (-1, 1):
-                pts.append(np.stack([r * np.cos(a) * np.cos(phi), r * np.cos(a) * np.sin(phi),
-                                     np.full(rings, sgn * (h + cap * np.sin(a)))], axis=1))
+                pts.append(
+                    np.stack(
+                        [
+                            r * np.cos(a) * np.cos(phi),
+                            r * np.cos(a) * np.sin(phi),
+                            np.full(rings, sgn * (h + cap * np.sin(a))),
+                        ],
+                        axis=1,
+                    )
+                )
         if kind == K.CYLINDER:  # the end discs
             for rr in np.linspace(0, r, rings // 2 + 1)[:-1]:
                 for sgn in (-1, 1):
@@ -203,8 +210,8 @@ def shape_points(row: np.ndarray, verts: np.ndarray, rings: int = 16) -> np.ndar
         local = np.concatenate(pts)
     else:
         local = _box_vertices(s)
-    R = row[K._R:K._R + 9].reshape(3, 3)
-    return row[K._C:K._C + 3] + local @ R.T
+    R = row[K._R : K._R + 9].reshape(3, 3)
+    return row[K._C : K._C + 3] + local @ R.T
 
 
 def check_cover(row: np.ndarray, verts: np.ndarray, cover: np.ndarray) -> None:
@@ -220,8 +227,10 @@ def check_cover(row: np.ndarray, verts: np.ndarray, cover: np.ndarray) -> None:
     d = np.linalg.norm(P[:, None, :] - cover[None, :, :3], axis=2) + grow - cover[None, :, 3]
     worst = float(d.min(axis=1).max())
     if worst > 0.0:
-        raise WorkcellError(f"a sphere cover misses a point of its shape (kind {int(row[K._K])}) by {worst:.3g} m; "
-                            "please report this with the robot's model.")
+        raise WorkcellError(
+            f"a sphere cover misses a point of its shape (kind {int(row[K._K])}) by {worst:.3g} m; "
+            "please report this with the robot's model."
+        )
 
 
 def robot_covers(shapes: np.ndarray, verts: np.ndarray, tight: bool = False) -> tuple[np.ndarray, np.ndarray]:

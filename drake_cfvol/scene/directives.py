@@ -26,8 +26,11 @@ def add_packages(package_map, path: Path, package_paths: dict, lines: dict) -> N
     for pname, ppath in package_paths.items():
         folder = (path.parent / str(ppath)).resolve()
         if not folder.is_dir():
-            raise WorkcellFormatError(str(path), f"cfvol.package_paths.{pname}: folder '{folder}' does not exist.",
-                                      lines.get(pname, lines.get("package_paths")))
+            raise WorkcellFormatError(
+                str(path),
+                f"cfvol.package_paths.{pname}: folder '{folder}' does not exist.",
+                lines.get(pname, lines.get("package_paths")),
+            )
         if package_map.Contains(str(pname)):
             package_map.Remove(str(pname))
         package_map.Add(str(pname), str(folder))
@@ -46,15 +49,17 @@ def prepare_directives(directives: list, package_map, path: Path, lines: dict, n
                 try:
                     resolved = Path(package_map.ResolveUrl(url))
                 except Exception as e:
-                    raise WorkcellFormatError(str(path), _meshes.package_url_error(url, e, package_map) + ".",
-                                              lines.get("directives")) from None
+                    raise WorkcellFormatError(
+                        str(path), _meshes.package_url_error(url, e, package_map) + ".", lines.get("directives")
+                    ) from None
             elif url.startswith("file://"):
-                resolved = Path(url[len("file://"):])
+                resolved = Path(url[len("file://") :])
             else:
                 resolved = (path.parent / url).resolve()
             if not resolved.is_file():
-                raise WorkcellFormatError(str(path), f"model file '{url}' not found (looked at {resolved}).",
-                                          lines.get("directives"))
+                raise WorkcellFormatError(
+                    str(path), f"model file '{url}' not found (looked at {resolved}).", lines.get("directives")
+                )
             converted, more = _meshes.convert_stl_references(resolved, package_map)
             notes.extend(more)
             quirks = fix_urdf_quirks(converted, package_map, original=resolved)
@@ -73,10 +78,13 @@ def _check_world_welds(quirks, model: str, directives: list, path: Path, lines: 
     for d in directives:
         if d.add_weld is not None and d.add_weld.child.split("::")[0] == model:
             raise WorkcellFormatError(
-                str(path), f"model '{model}' ({quirks.name}) already fixes link "
+                str(path),
+                f"model '{model}' ({quirks.name}) already fixes link "
                 f"'{quirks.fixed_to_world[0]}' to the world through its own 'world' link, so the directive "
                 f"add_weld {{parent: {d.add_weld.parent}, child: {d.add_weld.child}}} welds it twice: remove that "
-                "add_weld (or the URDF's world joint).", lines.get("add_weld", lines.get("directives")))
+                "add_weld (or the URDF's world joint).",
+                lines.get("add_weld", lines.get("directives")),
+            )
 
 
 def diagram_from_directives(path: Path, spec, lines: dict, notes: list):
@@ -94,7 +102,8 @@ def diagram_from_directives(path: Path, spec, lines: dict, notes: list):
         with condensed_drake_warnings():
             ProcessModelDirectives(ModelDirectives(directives=directives), builder.plant(), parser)
     except Exception as e:  # Drake raises RuntimeError / ValueError here.
-        raise WorkcellFormatError(str(path), f"Drake cannot load the model directives: {e}",
-                                  lines.get("directives")) from e
+        raise WorkcellFormatError(
+            str(path), f"Drake cannot load the model directives: {e}", lines.get("directives")
+        ) from e
     builder.plant().Finalize()
     return builder.Build(), directives

@@ -37,8 +37,9 @@ def read_stl(path: Path) -> tuple[np.ndarray, np.ndarray]:
     if len(data) >= 84:
         (n,) = struct.unpack_from("<I", data, 80)
         if 84 + 50 * n == len(data):
-            rec = np.frombuffer(data, dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]),
-                                count=n, offset=84)
+            rec = np.frombuffer(
+                data, dtype=np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]), count=n, offset=84
+            )
             tris = rec["v"].astype(float)
     if tris is None:
         text = data.decode("ascii", errors="replace")
@@ -71,16 +72,20 @@ def package_url_error(url: str, error: Exception, package_map) -> str:
     """A one-line explanation of a ``package://`` URL that does not resolve,
     with the right fix: name the package's folder, or the file is missing
     from a folder that is known."""
-    rest = url[len("package://"):]
+    rest = url[len("package://") :]
     name, _, rel = rest.partition("/")
     if package_map.Contains(name):
         folder = package_map.GetPath(name)
-        return (f"cannot resolve '{url}': the package '{name}' is the folder {folder}, but it has no file "
-                f"'{rel}'. Check the file name and where it lies in the package")
+        return (
+            f"cannot resolve '{url}': the package '{name}' is the folder {folder}, but it has no file "
+            f"'{rel}'. Check the file name and where it lies in the package"
+        )
     reason = str(error).strip().rstrip(".")
-    return (f"cannot resolve '{url}': the package '{name}' is not known ({reason}). Name its folder in the "
-            f"workcell's cfvol.package_paths (for example '{name}: path/to/{name}') or put a package.xml in it "
-            "next to the workcell file")
+    return (
+        f"cannot resolve '{url}': the package '{name}' is not known ({reason}). Name its folder in the "
+        f"workcell's cfvol.package_paths (for example '{name}: path/to/{name}') or put a package.xml in it "
+        "next to the workcell file"
+    )
 
 
 #: Converted copies in the cache -> the user's own file (for messages).
@@ -119,7 +124,7 @@ def _resolve(uri: str, model_file: Path, package_map) -> Path | None:
         except Exception as e:
             raise WorkcellFormatError(str(model_file), package_url_error(uri, e, package_map) + ".") from None
     if uri.startswith("file://"):
-        return Path(uri[len("file://"):])
+        return Path(uri[len("file://") :])
     if "://" in uri:
         return None
     return (model_file.parent / uri).resolve()
@@ -166,6 +171,8 @@ def convert_stl_references(model_file: Path, package_map) -> tuple[Path, list[st
     if not out.is_file():
         out.write_text(new_text)
     _remember(out, model_file.resolve())
-    note = (f"{model_file.name}: converted {len(converted)} STL mesh(es) to OBJ because Drake 1.51 "
-            f"refuses STL collision meshes; cached in {cache_dir()} (your files are unchanged).")
+    note = (
+        f"{model_file.name}: converted {len(converted)} STL mesh(es) to OBJ because Drake 1.51 "
+        f"refuses STL collision meshes; cached in {cache_dir()} (your files are unchanged)."
+    )
     return out, [note]

@@ -117,8 +117,7 @@ class VolumeParams:
         merged.update({k: v for k, v in overrides.items() if v is not None})
         unknown = sorted(set(merged) - names)
         if unknown:
-            raise ParameterError(
-                f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}.")
+            raise ParameterError(f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}.")
         if merged.get("reach") is None and workcell.reach > 0:
             merged["reach"] = workcell.reach
         return cls(**merged)

@@ -9,13 +9,19 @@ Results computed once are kept in the workcell's ``_cache`` dict (one
 idiom: :meth:`WorkcellQueries._memo`).
 """
 
-
 import numpy as np
 from pydrake.planning import SceneGraphCollisionChecker
 
+from drake_cfvol.exceptions import (
+    CollisionError,
+    ConfigurationError,
+    DimensionError,
+    JointLimitError,
+    MissingJointLimitsError,
+    ParameterError,
+    WorkcellError,
+)
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies, robot_instances
-from drake_cfvol.exceptions import (CollisionError, ConfigurationError, DimensionError, JointLimitError,
-                                   MissingJointLimitsError, ParameterError, WorkcellError)
 
 __all__ = ["RobotChecker", "WorkcellQueries", "geometry_key", "robot_geometry_ids"]
 
@@ -76,8 +82,9 @@ class RobotChecker:
     def __init__(self, model, robot, q_default=None, **kwargs):
         plant = model.plant()
         self.slice = RobotSlice(plant, robot, q_default)
-        self.drake = SceneGraphCollisionChecker(model=model, robot_model_instances=robot_instances(plant, robot),
-                                                **kwargs)
+        self.drake = SceneGraphCollisionChecker(
+            model=model, robot_model_instances=robot_instances(plant, robot), **kwargs
+        )
 
     def CheckConfigCollisionFree(self, q) -> bool:
         """True if the robot at ``q`` (k,) is free (Drake)."""
@@ -114,8 +121,9 @@ class WorkcellQueries:
             self._cache[key] = make()
         return self._cache[key]
 
-    def obstacle_distances(self, q, max_distance: float, *, moving_only: bool = False,
-                           changeable_only: bool = False) -> dict[str, float]:
+    def obstacle_distances(
+        self, q, max_distance: float, *, moving_only: bool = False, changeable_only: bool = False
+    ) -> dict[str, float]:
         """Smallest signed distance per obstacle to the robot at ``q`` (real
         geometry, Drake), for the obstacles within ``max_distance``, m. With
         ``moving_only``, only the robot's links that its joints move count
@@ -161,13 +169,15 @@ class WorkcellQueries:
             a, b = owner.get(pair.id_A), owner.get(pair.id_B)
             if (a is None) == (b is None):
                 continue
-            robot_id, p_R, name, obs_id, p_O = ((pair.id_B, pair.p_BCb, a, pair.id_A, pair.p_ACa) if a is not None
-                                                else (pair.id_A, pair.p_ACa, b, pair.id_B, pair.p_BCb))
+            robot_id, p_R, name, obs_id, p_O = (
+                (pair.id_B, pair.p_BCb, a, pair.id_A, pair.p_ACa)
+                if a is not None
+                else (pair.id_A, pair.p_ACa, b, pair.id_B, pair.p_BCb)
+            )
             if robot_id in fixed or (robot_id, obs_id) in invariant:
                 continue
             if best is None or pair.distance < best[1]:
-                best = (name, pair.distance, query.GetPoseInWorld(robot_id) @ p_R,
-                        query.GetPoseInWorld(obs_id) @ p_O)
+                best = (name, pair.distance, query.GetPoseInWorld(robot_id) @ p_R, query.GetPoseInWorld(obs_id) @ p_O)
         return best
 
     def invariant_pairs(self, *, samples: int = 12, seed: int = 0, tol: float = 1e-6) -> frozenset:
@@ -186,8 +196,11 @@ class WorkcellQueries:
         hi = np.where(np.isfinite(self.position_upper), self.position_upper, q0 + np.pi)
         Q = np.vstack([q0, np.random.default_rng(seed).uniform(lo, hi, (samples, k))])
         _, moving = robot_geometry_ids(self.plant, self.robot)
-        pairs = [(r, o) for r in sorted(moving, key=lambda g: g.get_value())
-                 for o in sorted(self._geometry_owner, key=lambda g: g.get_value())]
+        pairs = [
+            (r, o)
+            for r in sorted(moving, key=lambda g: g.get_value())
+            for o in sorted(self._geometry_owner, key=lambda g: g.get_value())
+        ]
         sg = self.scene_graph
         D = np.full((len(Q), len(pairs)), np.nan)
         for n, q in enumerate(Q):
@@ -212,6 +225,7 @@ class WorkcellQueries:
     def fixed_robot_geometries(self) -> frozenset:
         """Proximity geometry ids of the robot's bodies that no joint moves
         (e.g. a base welded to its pedestal)."""
+
         def make():
             every, moving = robot_geometry_ids(self.plant, self.robot)
             return frozenset(every - moving)
@@ -246,9 +260,17 @@ class WorkcellQueries:
         than ``clearance`` (m) to an obstacle or to the robot itself
         colliding (Drake's collision padding); one per distinct value."""
         clearance = float(clearance)
-        return self._memo(("checker", clearance), lambda: RobotChecker(
-            self.diagram, self.robot, self.slice.q_default, edge_step_size=self._edge_step,
-            env_collision_padding=clearance, self_collision_padding=clearance))
+        return self._memo(
+            ("checker", clearance),
+            lambda: RobotChecker(
+                self.diagram,
+                self.robot,
+                self.slice.q_default,
+                edge_step_size=self._edge_step,
+                env_collision_padding=clearance,
+                self_collision_padding=clearance,
+            ),
+        )
 
     def clearance(self, q, influence: float = 1.0) -> float:
         """The robot's signed distance to the obstacles and to itself at
@@ -259,14 +281,18 @@ class WorkcellQueries:
 
     def finite_limits(self, needed_for: str) -> tuple[np.ndarray, np.ndarray]:
         """Returns the position limits, raising if any is infinite."""
-        bad = [n for n, lo, hi in zip(self.joint_names, self.position_lower, self.position_upper)
-               if not (np.isfinite(lo) and np.isfinite(hi))]
+        bad = [
+            n
+            for n, lo, hi in zip(self.joint_names, self.position_lower, self.position_upper)
+            if not (np.isfinite(lo) and np.isfinite(hi))
+        ]
         if bad:
             raise MissingJointLimitsError(bad, needed_for)
         return self.position_lower.copy(), self.position_upper.copy()
 
-    def validate_configuration(self, q, what: str = "configuration", *, check_limits: bool = True,
-                               tolerance: float = 1e-9) -> np.ndarray:
+    def validate_configuration(
+        self, q, what: str = "configuration", *, check_limits: bool = True, tolerance: float = 1e-9
+    ) -> np.ndarray:
         """Checks a configuration's size and limits; returns it as an array.
 
         Raises:
@@ -276,12 +302,17 @@ class WorkcellQueries:
         q = np.asarray(q, dtype=float)
         if q.shape != (self.num_joints,):
             raise DimensionError(
-                what, self.num_joints, q.shape[0] if q.ndim == 1 else q.shape,
-                f"The robot's joints are {', '.join(self.joint_names)}.")
+                what,
+                self.num_joints,
+                q.shape[0] if q.ndim == 1 else q.shape,
+                f"The robot's joints are {', '.join(self.joint_names)}.",
+            )
         if not np.all(np.isfinite(q)):
             bad = [f"{n} = {v}" for n, v in zip(self.joint_names, q) if not np.isfinite(v)]
-            raise ConfigurationError(f"{what} has a value that is not a finite number: {', '.join(bad)}. Give every "
-                                     "joint a finite position (rad or m).")
+            raise ConfigurationError(
+                f"{what} has a value that is not a finite number: {', '.join(bad)}. Give every "
+                "joint a finite position (rad or m)."
+            )
         if check_limits:
             for n, v, lo, hi in zip(self.joint_names, q, self.position_lower, self.position_upper):
                 if v < lo - tolerance or v > hi + tolerance:
@@ -328,8 +359,9 @@ class WorkcellQueries:
         """
         Q = np.asarray(Q, dtype=float)
         if Q.ndim not in (1, 2) or Q.shape[-1] != self.num_joints:
-            raise DimensionError("Q", f"(N, {self.num_joints})", Q.shape,
-                                 f"The robot's joints are {', '.join(self.joint_names)}.")
+            raise DimensionError(
+                "Q", f"(N, {self.num_joints})", Q.shape, f"The robot's joints are {', '.join(self.joint_names)}."
+            )
         if not np.all(np.isfinite(Q)):
             raise ConfigurationError("Q holds a value that is not a finite number; give every joint a finite position.")
         if not clearance >= 0:
@@ -350,7 +382,8 @@ class WorkcellQueries:
         if name not in self.configurations:
             raise WorkcellError(
                 f"Cell '{self.name}' has no configuration '{name}'. It has: "
-                f"{', '.join(self.configurations) or '(none)'}; add it under cfvol.configurations.")
+                f"{', '.join(self.configurations) or '(none)'}; add it under cfvol.configurations."
+            )
         s, g = self.configurations[name]
         return s.copy(), g.copy()
 

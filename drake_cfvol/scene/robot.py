@@ -33,7 +33,8 @@ def robot_joints(plant, robot) -> list:
                 f"joint '{j.name()}' of model instance '{plant.GetModelInstanceName(robot)}' has "
                 f"{j.num_positions()} positions ({j.type_name()}); only revolute and prismatic joints are "
                 "supported. Weld a floating base to the world, or give the robot as the model instance of its "
-                "arm alone.")
+                "arm alone."
+            )
     return joints
 
 
@@ -104,8 +105,7 @@ class RobotSlice:
         ((k,) or (N, k)) and everything else held."""
         q = np.asarray(q, float)
         if q.shape[-1] != self.k:
-            raise DimensionError("q", self.k, q.shape[-1],
-                                 f"The robot's joints are {', '.join(self.joint_names)}.")
+            raise DimensionError("q", self.k, q.shape[-1], f"The robot's joints are {', '.join(self.joint_names)}.")
         if not self.extra:
             return q
         out = np.broadcast_to(self.q_default, q.shape[:-1] + (len(self.q_default),)).copy()

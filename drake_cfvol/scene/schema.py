@@ -37,8 +37,17 @@ from pydrake.multibody.parsing import ModelDirective
 
 from drake_cfvol.exceptions import WorkcellError, WorkcellFormatError
 
-__all__ = ["WorkcellFile", "CfvolSection", "HeightMapExtent", "NamedConfiguration", "builtin_cells", "models_dir",
-           "read_workcell_file", "read_yaml", "DEFAULT_EDGE_STEP"]
+__all__ = [
+    "WorkcellFile",
+    "CfvolSection",
+    "HeightMapExtent",
+    "NamedConfiguration",
+    "builtin_cells",
+    "models_dir",
+    "read_workcell_file",
+    "read_yaml",
+    "DEFAULT_EDGE_STEP",
+]
 
 #: Distance between configurations at which Drake's edge checks sample (rad or
 #: m, Euclidean in joint space).
@@ -59,7 +68,8 @@ def models_dir() -> Path:
         raise WorkcellError(
             f"drake_cfvol's models folder is missing ({folder}/package.xml not found). Reinstall the "
             "package (`pip install drake-cfvol` or `pip install .` from a checkout), or point "
-            "$DRAKE_CFVOL_MODELS at a folder holding the models' package.xml.")
+            "$DRAKE_CFVOL_MODELS at a folder holding the models' package.xml."
+        )
     return folder
 
 
@@ -141,9 +151,16 @@ class _TagLoader(yaml.SafeLoader):
     its plain value (Drake's reader checks the variant)."""
 
 
-_TagLoader.add_multi_constructor("!", lambda loader, suffix, node: (
-    loader.construct_mapping(node) if isinstance(node, yaml.MappingNode) else
-    loader.construct_sequence(node) if isinstance(node, yaml.SequenceNode) else loader.construct_scalar(node)))
+_TagLoader.add_multi_constructor(
+    "!",
+    lambda loader, suffix, node: (
+        loader.construct_mapping(node)
+        if isinstance(node, yaml.MappingNode)
+        else loader.construct_sequence(node)
+        if isinstance(node, yaml.SequenceNode)
+        else loader.construct_scalar(node)
+    ),
+)
 
 
 def read_yaml(text: str):
@@ -217,7 +234,10 @@ def read_workcell_file(path: Path, *, embedded: bool = False) -> tuple[WorkcellF
             names = [n.strip(" '\"") for n in unknown.group(1).split(",")]
             line = lines.get(names[0])
             raise WorkcellFormatError(
-                str(path), f"unknown key {', '.join(repr(n) for n in names)}: not part of a workcell file. "
-                "Check its spelling (see the drake_cfvol.scene.workcell docstring for the keys).", line) from e
+                str(path),
+                f"unknown key {', '.join(repr(n) for n in names)}: not part of a workcell file. "
+                "Check its spelling (see the drake_cfvol.scene.workcell docstring for the keys).",
+                line,
+            ) from e
         raise WorkcellFormatError(str(path), f"a value has the wrong type: {msg}. Fix it there.") from e
     return typed, lines

@@ -25,8 +25,10 @@ class WorkcellSetup:
         held = [plant.get_joint(JointIndex(i)) for i in range(plant.num_joints())]
         held = [j for j in held if j.num_positions() > 0 and j.model_instance() != self.robot]
         if held:
-            names = ", ".join(str(j.name()) if j.type_name() != "quaternion_floating" else
-                              f"{j.child_body().name()} (free body)" for j in held)
+            names = ", ".join(
+                str(j.name()) if j.type_name() != "quaternion_floating" else f"{j.child_body().name()} (free body)"
+                for j in held
+            )
             self.notes.append(f"held at the plant's default configuration: {names}")
 
     def _read_joints(self, joint_limits) -> None:
@@ -41,8 +43,11 @@ class WorkcellSetup:
         upper = np.array([j.position_upper_limits()[0] for j in joints], float)
         for jname, lim in joint_limits.items():
             if jname not in self.joint_names:
-                raise self._fail(f"joint_limits names joint '{jname}', which the robot lacks "
-                                 f"(joints: {', '.join(self.joint_names)}).", jname)
+                raise self._fail(
+                    f"joint_limits names joint '{jname}', which the robot lacks "
+                    f"(joints: {', '.join(self.joint_names)}).",
+                    jname,
+                )
             if not (len(lim) == 2 and float(lim[0]) < float(lim[1])):
                 raise self._fail(f"joint_limits.{jname} must be [lower, upper] with lower < upper.", jname)
             i = self.joint_names.index(jname)
@@ -55,12 +60,15 @@ class WorkcellSetup:
         """The tool and base frames and the rail joint."""
         plant = self.plant
         self.tool_frame = self._frame(tool_frame, "tool_frame")
-        self.base_frame = (self._robot_root(plant).body_frame() if base_frame is None
-                           else self._frame(base_frame, "base_frame"))
+        self.base_frame = (
+            self._robot_root(plant).body_frame() if base_frame is None else self._frame(base_frame, "base_frame")
+        )
         self.rail_joint = rail_joint
         if self.rail_joint is not None and self.rail_joint not in self.joint_names:
-            raise self._fail(f"rail_joint '{self.rail_joint}' is not a joint of the robot "
-                             f"(joints: {', '.join(self.joint_names)}).", "rail_joint")
+            raise self._fail(
+                f"rail_joint '{self.rail_joint}' is not a joint of the robot (joints: {', '.join(self.joint_names)}).",
+                "rail_joint",
+            )
 
     def _frame(self, name: str, key: str):
         """A frame of the robot (or of a body it moves, e.g. a gripper's) by name."""
@@ -71,8 +79,9 @@ class WorkcellSetup:
             if plant.HasFrameNamed(name, inst):
                 return plant.GetFrameByName(name, inst)
         frames = sorted({plant.get_frame(i).name() for i in plant.GetFrameIndices(self.robot)})
-        raise self._fail(f"{key} '{name}' is not a frame of '{self.robot_name}' (its frames: "
-                         f"{', '.join(frames)}).", key)
+        raise self._fail(
+            f"{key} '{name}' is not a frame of '{self.robot_name}' (its frames: {', '.join(frames)}).", key
+        )
 
     def _read_settings(self, reach, origin, size, params, configurations) -> None:
         """Reach, height map extent, parameter overrides, named configurations."""
@@ -90,8 +99,10 @@ class WorkcellSetup:
                     raise self._fail(
                         f"configurations.{cname}.{label} has {q.size} values; the robot has {self.num_joints} "
                         f"joints ({', '.join(self.joint_names)}).",
-                        f"cfvol.configurations.{cname}.{label}" if f"cfvol.configurations.{cname}.{label}"
-                        in self._lines else cname)
+                        f"cfvol.configurations.{cname}.{label}"
+                        if f"cfvol.configurations.{cname}.{label}" in self._lines
+                        else cname,
+                    )
             self.configurations[str(cname)] = (start, goal)
 
     @property
@@ -146,8 +157,11 @@ class WorkcellSetup:
     def _robot_root(self, plant):
         bodies = [plant.get_body(b) for b in plant.GetBodyIndices(self.robot)]
         for b in bodies:
-            parent = [j for j in (plant.get_joint(i) for i in plant.GetJointIndices(self.robot))
-                      if j.child_body().index() == b.index()]
+            parent = [
+                j
+                for j in (plant.get_joint(i) for i in plant.GetJointIndices(self.robot))
+                if j.child_body().index() == b.index()
+            ]
             if not parent:
                 return b
         return bodies[0]

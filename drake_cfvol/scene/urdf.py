@@ -60,20 +60,31 @@ def _rename_clashing_actuators(root, name: str) -> list[str]:
             joint = next(iter(t.iter("joint")), None)
             a.set("name", f"{joint.get('name') if joint is not None else t.get('name')}_{a.get('name')}")
     listed = ", ".join(f"'{n}' ({counts[n]} transmissions)" for n in sorted(clashing))
-    return [f"{name}: actuator names {listed} clash (Drake needs them unique); loaded a copy with each renamed "
-            "<joint>_<actuator> (your file is unchanged)."]
+    return [
+        f"{name}: actuator names {listed} clash (Drake needs them unique); loaded a copy with each renamed "
+        "<joint>_<actuator> (your file is unchanged)."
+    ]
 
 
 def _massless_links(root, name: str) -> list[str]:
-    moved = {j.find("child").get("link") for j in root.iter("joint")
-             if j.get("type") not in ("fixed", None) and j.find("child") is not None}
-    bare = sorted(link.get("name") for link in root.iter("link")
-                  if link.find("inertial") is None and link.get("name") in moved
-                  and (link.find("collision") is not None or link.find("visual") is not None))
+    moved = {
+        j.find("child").get("link")
+        for j in root.iter("joint")
+        if j.get("type") not in ("fixed", None) and j.find("child") is not None
+    }
+    bare = sorted(
+        link.get("name")
+        for link in root.iter("link")
+        if link.find("inertial") is None
+        and link.get("name") in moved
+        and (link.find("collision") is not None or link.find("visual") is not None)
+    )
     if not bare:
         return []
-    return [f"{name}: link(s) {', '.join(bare)} have geometry but no <inertial>; Drake gives them no mass (fine for "
-            "the bounds and kinematic runs; add <inertial> for a dynamic run)."]
+    return [
+        f"{name}: link(s) {', '.join(bare)} have geometry but no <inertial>; Drake gives them no mass (fine for "
+        "the bounds and kinematic runs; add <inertial> for a dynamic run)."
+    ]
 
 
 def fix_urdf_quirks(model_file: Path, package_map, original: Path | None = None) -> UrdfQuirks:
@@ -94,9 +105,11 @@ def fix_urdf_quirks(model_file: Path, package_map, original: Path | None = None)
         root = ET.parse(model_file).getroot()
     except ET.ParseError:
         return UrdfQuirks(model_file, [], [])  # Drake's parser names the syntax error
-    world = [j.find("child").get("link") for j in root.iter("joint")
-             if j.find("parent") is not None and j.find("parent").get("link") == "world"
-             and j.find("child") is not None]
+    world = [
+        j.find("child").get("link")
+        for j in root.iter("joint")
+        if j.find("parent") is not None and j.find("parent").get("link") == "world" and j.find("child") is not None
+    ]
     notes = _massless_links(root, name)
     renamed = _rename_clashing_actuators(root, name)
     if not renamed:
@@ -160,8 +173,9 @@ def condensed_drake_warnings(notes: list[str] | None = None, *, log: bool = True
                 _LOG.warning("%s", line)
 
 
-def AddModels(parser, *, file: str | Path | None = None, url: str | None = None,
-              notes: list[str] | None = None) -> list:
+def AddModels(
+    parser, *, file: str | Path | None = None, url: str | None = None, notes: list[str] | None = None
+) -> list:
     """Drake's ``Parser.AddModels`` for a user's own robot file, as a
     workcell file's directives load it: STL meshes converted (Drake 1.51
     refuses STL collision meshes), the URDF quirks above fixed or refused,

@@ -7,11 +7,10 @@ Every obstacle is a body outside the robot's model instance, welded to the
 world, with proximity geometry; the floor is one of them.
 """
 
+import copy
 import dataclasses
 from pathlib import Path
 from typing import Any
-
-import copy
 
 from pydrake.common.schema import Transform
 from pydrake.geometry import Role
@@ -19,20 +18,43 @@ from pydrake.multibody.parsing import ModelDirectives, Parser, ProcessModelDirec
 from pydrake.multibody.tree import BodyIndex, ModelInstanceIndex
 from pydrake.planning import RobotDiagramBuilder
 
-from drake_cfvol.exceptions import (StationError, UnknownCellError, WorkcellError, WorkcellFileNotFoundError,
-                                   WorkcellFormatError)
+from drake_cfvol.exceptions import (
+    StationError,
+    UnknownCellError,
+    WorkcellError,
+    WorkcellFileNotFoundError,
+    WorkcellFormatError,
+)
 from drake_cfvol.scene.arrays import SceneArrays, scene_arrays
-
 from drake_cfvol.scene.directives import add_packages, diagram_from_directives
-from drake_cfvol.scene.urdf import condensed_drake_warnings
-from drake_cfvol.scene.setup import WorkcellSetup
 from drake_cfvol.scene.queries import WorkcellQueries, geometry_key, robot_geometry_ids
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies, robot_instances
-from drake_cfvol.scene.schema import (DEFAULT_EDGE_STEP, CfvolSection, HeightMapExtent, NamedConfiguration,
-                                      WorkcellFile, builtin_cells, models_dir, read_workcell_file)
+from drake_cfvol.scene.schema import (
+    DEFAULT_EDGE_STEP,
+    CfvolSection,
+    HeightMapExtent,
+    NamedConfiguration,
+    WorkcellFile,
+    builtin_cells,
+    models_dir,
+    read_workcell_file,
+)
+from drake_cfvol.scene.setup import WorkcellSetup
+from drake_cfvol.scene.urdf import condensed_drake_warnings
 
-__all__ = ["Obstacle", "Workcell", "WorkcellFile", "CfvolSection", "HeightMapExtent", "NamedConfiguration",
-           "builtin_cells", "load_workcell", "models_dir", "geometry_key", "robot_geometry_ids"]
+__all__ = [
+    "Obstacle",
+    "Workcell",
+    "WorkcellFile",
+    "CfvolSection",
+    "HeightMapExtent",
+    "NamedConfiguration",
+    "builtin_cells",
+    "load_workcell",
+    "models_dir",
+    "geometry_key",
+    "robot_geometry_ids",
+]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -51,6 +73,7 @@ class Obstacle:
 
 
 # -- the typed schema of a workcell file (yaml_load_typed) ------------------
+
 
 class Workcell(WorkcellSetup, WorkcellQueries):
     """A loaded workcell: the robot, its obstacles and the cfvol settings.
@@ -96,23 +119,45 @@ class Workcell(WorkcellSetup, WorkcellQueries):
             if not getattr(cf, key):
                 raise WorkcellFormatError(str(path), f"'cfvol' lacks the required key '{key}'.", lines.get("cfvol"))
         if not spec.directives:
-            raise WorkcellFormatError(str(path), "'directives' is empty: add the robot and the obstacles.",
-                                      lines.get("directives"))
+            raise WorkcellFormatError(
+                str(path), "'directives' is empty: add the robot and the obstacles.", lines.get("directives")
+            )
         hm = cf.height_map
         diagram, self._directives = diagram_from_directives(path, spec, lines, self.notes)
-        self._setup(diagram, name=path.stem, robot=cf.robot, tool_frame=cf.tool_frame,
-                    base_frame=cf.base_frame, rail_joint=cf.rail_joint, reach=cf.reach or None,
-                    height_map_origin=hm.origin if hm and hm.origin else None,
-                    height_map_size=hm.size if hm and hm.size else None, joint_limits=cf.joint_limits,
-                    params=cf.params, configurations={n: (c.start, c.goal) for n, c in cf.configurations.items()},
-                    edge_step=edge_step)
+        self._setup(
+            diagram,
+            name=path.stem,
+            robot=cf.robot,
+            tool_frame=cf.tool_frame,
+            base_frame=cf.base_frame,
+            rail_joint=cf.rail_joint,
+            reach=cf.reach or None,
+            height_map_origin=hm.origin if hm and hm.origin else None,
+            height_map_size=hm.size if hm and hm.size else None,
+            joint_limits=cf.joint_limits,
+            params=cf.params,
+            configurations={n: (c.start, c.goal) for n, c in cf.configurations.items()},
+            edge_step=edge_step,
+        )
 
     @classmethod
-    def FromRobotDiagram(cls, robot_diagram, *, robot, tool_frame: str, base_frame: str | None = None,
-                         rail_joint: str | None = None, reach: float | None = None, height_map_origin=None,
-                         height_map_size=None, joint_limits: dict | None = None, params: dict | None = None,
-                         configurations: dict | None = None, name: str = "station",
-                         edge_step: float = DEFAULT_EDGE_STEP) -> "Workcell":
+    def FromRobotDiagram(
+        cls,
+        robot_diagram,
+        *,
+        robot,
+        tool_frame: str,
+        base_frame: str | None = None,
+        rail_joint: str | None = None,
+        reach: float | None = None,
+        height_map_origin=None,
+        height_map_size=None,
+        joint_limits: dict | None = None,
+        params: dict | None = None,
+        configurations: dict | None = None,
+        name: str = "station",
+        edge_step: float = DEFAULT_EDGE_STEP,
+    ) -> "Workcell":
         """A workcell from a user's own ``RobotDiagram`` (Drake's
         ``RobotDiagramBuilder``, finalized and built).
 
@@ -149,11 +194,15 @@ class Workcell(WorkcellSetup, WorkcellQueries):
                 and how to fix it).
         """
         if not (hasattr(robot_diagram, "plant") and hasattr(robot_diagram, "scene_graph")):
-            raise StationError(f"Workcell.FromRobotDiagram needs a pydrake.planning.RobotDiagram (from "
-                               f"RobotDiagramBuilder.Build()), got {type(robot_diagram).__name__}.")
+            raise StationError(
+                f"Workcell.FromRobotDiagram needs a pydrake.planning.RobotDiagram (from "
+                f"RobotDiagramBuilder.Build()), got {type(robot_diagram).__name__}."
+            )
         if not robot_diagram.plant().is_finalized():
-            raise StationError("Workcell.FromRobotDiagram: the RobotDiagram's plant is not finalized; build the "
-                               "diagram first (RobotDiagramBuilder.Build()).")
+            raise StationError(
+                "Workcell.FromRobotDiagram: the RobotDiagram's plant is not finalized; build the "
+                "diagram first (RobotDiagramBuilder.Build())."
+            )
         self = cls.__new__(cls)
         self.path, self.spec, self._lines, self._directives = None, None, {}, None
         self.notes = []
@@ -162,10 +211,21 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         # user's default positions over.
         user_plant = robot_diagram.plant()
         clone.plant().SetDefaultPositions(user_plant.GetPositions(user_plant.CreateDefaultContext()))
-        self._setup(clone, name=str(name), robot=robot, tool_frame=tool_frame,
-                    base_frame=base_frame, rail_joint=rail_joint, reach=reach, height_map_origin=height_map_origin,
-                    height_map_size=height_map_size, joint_limits=joint_limits or {}, params=params or {},
-                    configurations=configurations or {}, edge_step=edge_step)
+        self._setup(
+            clone,
+            name=str(name),
+            robot=robot,
+            tool_frame=tool_frame,
+            base_frame=base_frame,
+            rail_joint=rail_joint,
+            reach=reach,
+            height_map_origin=height_map_origin,
+            height_map_size=height_map_size,
+            joint_limits=joint_limits or {},
+            params=params or {},
+            configurations=configurations or {},
+            edge_step=edge_step,
+        )
         return self
 
     def _fail(self, message: str, key: str | None = None):
@@ -175,8 +235,23 @@ class Workcell(WorkcellSetup, WorkcellQueries):
             return WorkcellFormatError(str(self.path), message, self._lines.get(key) if key else None)
         return StationError(f"Workcell.FromRobotDiagram: {message}")
 
-    def _setup(self, diagram, *, name, robot, tool_frame, base_frame, rail_joint, reach, height_map_origin,
-               height_map_size, joint_limits, params, configurations, edge_step) -> None:
+    def _setup(
+        self,
+        diagram,
+        *,
+        name,
+        robot,
+        tool_frame,
+        base_frame,
+        rail_joint,
+        reach,
+        height_map_origin,
+        height_map_size,
+        joint_limits,
+        params,
+        configurations,
+        edge_step,
+    ) -> None:
         """Everything after the diagram: the robot, joints, frames, settings, obstacles."""
         self.name = name
         self.diagram = diagram
@@ -188,8 +263,9 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         self._cache: dict = {}  # results computed once (WorkcellQueries._memo)
         self._context = diagram.CreateDefaultContext()
         try:
-            self.slice = RobotSlice(self.plant, self.robot,
-                                    self.plant.GetPositions(self.plant.GetMyContextFromRoot(self._context)))
+            self.slice = RobotSlice(
+                self.plant, self.robot, self.plant.GetPositions(self.plant.GetMyContextFromRoot(self._context))
+            )
         except WorkcellError as e:
             raise self._fail(str(e)) from None
         self._note_held()
@@ -208,8 +284,9 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         if not plant.HasModelInstanceNamed(str(robot)):
             names = [plant.GetModelInstanceName(ModelInstanceIndex(i)) for i in range(plant.num_model_instances())]
             where = "cfvol.robot" if self.path is not None else "robot"
-            raise self._fail(f"{where} '{robot}' is not a model instance of the plant (there are: "
-                             f"{', '.join(names)}).", "robot")
+            raise self._fail(
+                f"{where} '{robot}' is not a model instance of the plant (there are: {', '.join(names)}).", "robot"
+            )
         return plant.GetModelInstanceByName(str(robot))
 
     def _find_obstacles(self) -> dict[str, Obstacle]:
@@ -236,8 +313,10 @@ class Workcell(WorkcellSetup, WorkcellQueries):
             key = name if counts[name] == 1 else scoped
             obstacles[key] = Obstacle(key, index, geoms)
         if not obstacles:
-            raise self._fail("the workcell has no obstacles with proximity geometry; add at least the floor as a "
-                             "body with a collision shape.")
+            raise self._fail(
+                "the workcell has no obstacles with proximity geometry; add at least the floor as a "
+                "body with a collision shape."
+            )
         return obstacles
 
     def add_to_plant(self, plant, parser=None):
@@ -261,7 +340,8 @@ class Workcell(WorkcellSetup, WorkcellQueries):
             raise StationError(
                 f"workcell '{self.name}' came from a RobotDiagram, so it cannot add its models to another plant; "
                 "use Workcell.build_scene() (a clone of that diagram), or wire the systems into your own station "
-                "with drake_cfvol.systems.AddCoManipulation.")
+                "with drake_cfvol.systems.AddCoManipulation."
+            )
         parser = parser or Parser(plant)
         add_packages(parser.package_map(), self.path, self.spec.cfvol.package_paths, self._lines)
         with condensed_drake_warnings(log=False):  # said once, when the workcell was loaded
@@ -280,8 +360,9 @@ class Workcell(WorkcellSetup, WorkcellQueries):
             StationError: the workcell came from a RobotDiagram.
         """
         if self._directives is None:
-            raise StationError(f"workcell '{self.name}' came from a RobotDiagram: build your controller's plant from "
-                               "your own models.")
+            raise StationError(
+                f"workcell '{self.name}' came from a RobotDiagram: build your controller's plant from your own models."
+            )
         mine = {self.plant.GetModelInstanceName(i) for i in robot_instances(self.plant, self.robot)}
         ctx = self.plant.GetMyContextFromRoot(self._context)
         kept = []
@@ -345,8 +426,10 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         return self._memo("scene_arrays", lambda: scene_arrays(self))
 
     def __repr__(self) -> str:
-        return (f"Workcell(name={self.name!r}, robot={self.robot_name!r}, k={self.num_joints}, "
-                f"obstacles={list(self.obstacles)})")
+        return (
+            f"Workcell(name={self.name!r}, robot={self.robot_name!r}, k={self.num_joints}, "
+            f"obstacles={list(self.obstacles)})"
+        )
 
 
 def load_workcell(name_or_path: str | Path, **kwargs) -> Workcell:

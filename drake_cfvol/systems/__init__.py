@@ -37,25 +37,62 @@ One system per module. Imports ``online``, ``algorithm`` (the bounds table), ``s
 ``kernel`` and ``io`` only.
 """
 
-
 from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformation, AdmittanceDeformation_
 from drake_cfvol.systems.bounds_source import JointBoundsSource, JointBoundsSource_
+from drake_cfvol.systems.columns import PerceivedColumns
+from drake_cfvol.systems.constraints import FilterConstraint, ToolSpeedLimit
 from drake_cfvol.systems.human_input import HumanInputCheck, HumanInputCheck_
 from drake_cfvol.systems.humans import Push, RandomPushes, RandomPushShaper, Reactive, ReactiveCoworker, ScriptedHuman
-from drake_cfvol.systems.columns import PerceivedColumns
 from drake_cfvol.systems.monitor import ClearanceMonitor
 from drake_cfvol.systems.moving_boxes import MovingBoxes, MovingObstacle
 from drake_cfvol.systems.online_bounds import OnlineBoundsConfig, OnlineBoundsEstimator
-from drake_cfvol.systems.perception import (AddCellCamera, AddCellModel, CellCamera, CellModel, ObstacleMapper,
-                                           PerceptionConfig)
 from drake_cfvol.systems.path import PathProgress, PathProgressConfig, safe_path_rate
-from drake_cfvol.systems.constraints import FilterConstraint, ToolSpeedLimit
+from drake_cfvol.systems.perception import (
+    AddCellCamera,
+    AddCellModel,
+    CellCamera,
+    CellModel,
+    ObstacleMapper,
+    PerceptionConfig,
+)
 from drake_cfvol.systems.safety import SafetyFilter, SafetyFilterConfig
 from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig, CoManipulationSystems, ToolPushForce
 
-__all__ = ["JointBoundsSource", "JointBoundsSource_", "AdmittanceDeformation", "AdmittanceDeformation_", "PathProgress", "Push", "ScriptedHuman",
-           "ClearanceMonitor", "HumanInputCheck", "HumanInputCheck_", "RandomPushShaper", "ReactiveCoworker", "SafetyFilter", "safe_path_rate",
-           "AddCoManipulation", "CoManipulationSystems", "ToolPushForce", "MovingBoxes", "MovingObstacle",
-           "PerceivedColumns", "OnlineBoundsEstimator", "AddCellCamera", "AddCellModel", "CellCamera", "CellModel", "ObstacleMapper",
-           "RandomPushes", "Reactive", "AdmittanceConfig", "SafetyFilterConfig", "PathProgressConfig", "PerceptionConfig", "OnlineBoundsConfig",
-           "CoManipulationConfig", "FilterConstraint", "ToolSpeedLimit"]
+__all__ = [
+    "JointBoundsSource",
+    "JointBoundsSource_",
+    "AdmittanceDeformation",
+    "AdmittanceDeformation_",
+    "PathProgress",
+    "Push",
+    "ScriptedHuman",
+    "ClearanceMonitor",
+    "HumanInputCheck",
+    "HumanInputCheck_",
+    "RandomPushShaper",
+    "ReactiveCoworker",
+    "SafetyFilter",
+    "safe_path_rate",
+    "AddCoManipulation",
+    "CoManipulationSystems",
+    "ToolPushForce",
+    "MovingBoxes",
+    "MovingObstacle",
+    "PerceivedColumns",
+    "OnlineBoundsEstimator",
+    "AddCellCamera",
+    "AddCellModel",
+    "CellCamera",
+    "CellModel",
+    "ObstacleMapper",
+    "RandomPushes",
+    "Reactive",
+    "AdmittanceConfig",
+    "SafetyFilterConfig",
+    "PathProgressConfig",
+    "PerceptionConfig",
+    "OnlineBoundsConfig",
+    "CoManipulationConfig",
+    "FilterConstraint",
+    "ToolSpeedLimit",
+]

@@ -1,8 +1,6 @@
 """Shared helpers of the systems: vector arguments, and values and clips
 that work for float and AutoDiffXd alike."""
 
-
-
 import numpy as np
 
 from drake_cfvol.exceptions import DimensionError, ParameterError

@@ -1,21 +1,21 @@
 """The admittance: the human's push -> a deviation from the nominal, clamped
 inside the bounds without wind-up (SPEC 9); its gains (:class:`AdmittanceConfig`)."""
 
-import sys
 import dataclasses
+import sys
 
 import numpy as np
-from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
+from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.systems.framework import BasicVector_, LeafSystem_, ValueProducer
 from pydrake.systems.scalar_conversion import TemplateSystem
 
-from drake_cfvol.scene.robot import RobotSlice
 from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.scene.robot import RobotSlice
 from drake_cfvol.systems._util import _clip, _values, _vector
 
-__all__ = ['AdmittanceConfig', 'AdmittanceDeformation', 'AdmittanceDeformation_']
+__all__ = ["AdmittanceConfig", "AdmittanceDeformation", "AdmittanceDeformation_"]
 
 
 @dataclasses.dataclass
@@ -121,10 +121,21 @@ def AdmittanceDeformation_(T):
             path_share: see above; in (0, 1).
         """
 
-        def _construct(self, k: int, *, mass=AdmittanceConfig.mass, damping=AdmittanceConfig.damping,
-                       stiffness=AdmittanceConfig.stiffness, period: float = 0.01,
-                       plant=None, tool_frame=None, velocity_limits=None, path_share: float = 0.5,
-                       robot=None, converter=None):
+        def _construct(
+            self,
+            k: int,
+            *,
+            mass=AdmittanceConfig.mass,
+            damping=AdmittanceConfig.damping,
+            stiffness=AdmittanceConfig.stiffness,
+            period: float = 0.01,
+            plant=None,
+            tool_frame=None,
+            velocity_limits=None,
+            path_share: float = 0.5,
+            robot=None,
+            converter=None,
+        ):
             LeafSystem_[T].__init__(self, converter)
             if not period > 0:
                 raise ParameterError(f"period must be > 0 s, got {period}.")
@@ -148,8 +159,12 @@ def AdmittanceDeformation_(T):
             self._slice = None
             if plant is not None:
                 if robot is None and plant.num_positions() != k:
-                    raise DimensionError("the plant's positions", k, plant.num_positions(),
-                                         "Pass robot= (the robot's model instance) for a plant that holds more.")
+                    raise DimensionError(
+                        "the plant's positions",
+                        k,
+                        plant.num_positions(),
+                        "Pass robot= (the robot's model instance) for a plant that holds more.",
+                    )
                 self._slice = RobotSlice(plant, robot) if robot is not None else None
                 if self._slice is not None and self._slice.k != k:
                     raise DimensionError("the robot's joints", k, self._slice.k)
@@ -163,9 +178,12 @@ def AdmittanceDeformation_(T):
             if plant is not None:
                 self._scratch = self.DeclareCacheEntry(
                     description="plant context (scratch for the wrench's Jacobian)",
-                    value_producer=ValueProducer(allocate=lambda: AbstractValue.Make(plant.CreateDefaultContext()),
-                                                 calc=lambda context, value: None),
-                    prerequisites_of_calc={self.nothing_ticket()})
+                    value_producer=ValueProducer(
+                        allocate=lambda: AbstractValue.Make(plant.CreateDefaultContext()),
+                        calc=lambda context, value: None,
+                    ),
+                    prerequisites_of_calc={self.nothing_ticket()},
+                )
             self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=k)
             self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
             self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
@@ -176,23 +194,45 @@ def AdmittanceDeformation_(T):
             self._state = self.DeclareDiscreteState(2 * k)  # [deviation, rate]
             self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
             self.commanded_position_output = self.DeclareVectorOutputPort(
-                name="commanded_position", size=k, calc=self._calc_commanded,
-                prerequisites_of_calc={self.xd_ticket(), self.nominal_input.ticket(), self.lower_input.ticket(),
-                                       self.upper_input.ticket()})
+                name="commanded_position",
+                size=k,
+                calc=self._calc_commanded,
+                prerequisites_of_calc={
+                    self.xd_ticket(),
+                    self.nominal_input.ticket(),
+                    self.lower_input.ticket(),
+                    self.upper_input.ticket(),
+                },
+            )
             self.deviation_output = self.DeclareVectorOutputPort(
-                name="deviation", size=k,
-                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._state).CopyToVector()[:self.k]),
-                prerequisites_of_calc={self.xd_ticket()})
+                name="deviation",
+                size=k,
+                calc=lambda ctx, out: out.SetFromVector(ctx.get_discrete_state(self._state).CopyToVector()[: self.k]),
+                prerequisites_of_calc={self.xd_ticket()},
+            )
 
         def _construct_copy(self, other, converter=None):
-            Impl._construct(self, other.k, mass=other.M, damping=other.D, stiffness=other.K, period=other.period,
-                            plant=other._plant, tool_frame=other._tool, velocity_limits=other._velocity_limits,
-                            path_share=other.path_share, robot=other._robot, converter=converter)
+            Impl._construct(
+                self,
+                other.k,
+                mass=other.M,
+                damping=other.D,
+                stiffness=other.K,
+                period=other.period,
+                plant=other._plant,
+                tool_frame=other._tool,
+                velocity_limits=other._velocity_limits,
+                path_share=other.path_share,
+                robot=other._robot,
+                converter=converter,
+            )
 
         def gains(self, context) -> tuple:
             """(M, D, K) of this context (the numeric parameters)."""
-            return tuple(context.get_numeric_parameter(i).CopyToVector() for i in
-                         (self.mass_parameter, self.damping_parameter, self.stiffness_parameter))
+            return tuple(
+                context.get_numeric_parameter(i).CopyToVector()
+                for i in (self.mass_parameter, self.damping_parameter, self.stiffness_parameter)
+            )
 
         def _inputs(self, context):
             nominal = self.nominal_input.Eval(context)
@@ -200,11 +240,15 @@ def AdmittanceDeformation_(T):
             upper = self.upper_input.Eval(context)
             for name, v in (("nominal", nominal), ("lower", lower), ("upper", upper)):
                 if not np.all(np.isfinite(_values(v))):
-                    raise ParameterError(f"AdmittanceDeformation: input '{name}' holds a non-finite value "
-                                         f"{_values(v).tolist()}; connect a valid source.")
+                    raise ParameterError(
+                        f"AdmittanceDeformation: input '{name}' holds a non-finite value "
+                        f"{_values(v).tolist()}; connect a valid source."
+                    )
             if np.any(_values(lower) > _values(upper)):
-                raise ParameterError(f"AdmittanceDeformation: lower > upper at joint(s) "
-                                     f"{np.flatnonzero(_values(lower) > _values(upper)).tolist()}.")
+                raise ParameterError(
+                    f"AdmittanceDeformation: lower > upper at joint(s) "
+                    f"{np.flatnonzero(_values(lower) > _values(upper)).tolist()}."
+                )
             return nominal, lower, upper
 
         def _sensors(self, context):
@@ -229,8 +273,10 @@ def AdmittanceDeformation_(T):
             tau = 0 * q + tau
             if np.any(w != 0):
                 if self._plant is None:
-                    raise ParameterError("AdmittanceDeformation: 'human_wrench' is connected but no plant and "
-                                         "tool_frame were given to map it through the Jacobian.")
+                    raise ParameterError(
+                        "AdmittanceDeformation: 'human_wrench' is connected but no plant and "
+                        "tool_frame were given to map it through the Jacobian."
+                    )
                 pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
                 if self.measured_position_input.HasValue(context):
                     q = self.measured_position_input.Eval(context)
@@ -239,8 +285,13 @@ def AdmittanceDeformation_(T):
                 else:
                     self._plant.SetPositions(pctx, _values(q))
                 J = self._plant.CalcJacobianSpatialVelocity(
-                    pctx, JacobianWrtVariable.kQDot, self._tool, np.zeros(3),
-                    self._plant.world_frame(), self._plant.world_frame())
+                    pctx,
+                    JacobianWrtVariable.kQDot,
+                    self._tool,
+                    np.zeros(3),
+                    self._plant.world_frame(),
+                    self._plant.world_frame(),
+                )
                 if self._slice is not None:
                     J = self._slice.columns(J, "qdot")
                 tau = tau + J.T @ w
@@ -252,7 +303,7 @@ def AdmittanceDeformation_(T):
             tau, w, integrate = self._sensors(context)
             if not integrate:
                 return  # hold the last safe command: deviation and rate as they are
-            d, v = x[:self.k].copy(), x[self.k:].copy()
+            d, v = x[: self.k].copy(), x[self.k :].copy()
             M, D, K = self.gains(context)
             tau = self._push(context, tau, w, _clip(nominal + d, lower, upper))
             h = self.period
@@ -270,7 +321,7 @@ def AdmittanceDeformation_(T):
 
         def _calc_commanded(self, context, output):
             nominal, lower, upper = self._inputs(context)
-            d = context.get_discrete_state(self._state).CopyToVector()[:self.k]
+            d = context.get_discrete_state(self._state).CopyToVector()[: self.k]
             output.SetFromVector(_clip(nominal + d, lower, upper))
 
     return Impl

@@ -1,8 +1,7 @@
 """The bounds table as a Drake system of the path index (SPEC 9)."""
 
-
-
 import sys
+
 import numpy as np
 from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
@@ -11,7 +10,7 @@ from pydrake.systems.scalar_conversion import TemplateSystem
 
 from drake_cfvol.algorithm.table import BoundsTable
 
-__all__ = ['JointBoundsSource', 'JointBoundsSource_']
+__all__ = ["JointBoundsSource", "JointBoundsSource_"]
 
 
 @TemplateSystem.define("JointBoundsSource_", T_list=(float, AutoDiffXd), scope=sys.modules[__name__])
@@ -65,18 +64,30 @@ def JointBoundsSource_(T):
             # The three outputs share one lookup per path index (a cache entry).
             self._box = self.DeclareCacheEntry(
                 description="(lower, upper, nominal) at the path index",
-                value_producer=ValueProducer(allocate=lambda: AbstractValue.Make(object()),
-                                             calc=lambda ctx, value: value.set_value(self._at(ctx))),
-                prerequisites_of_calc=tickets)
+                value_producer=ValueProducer(
+                    allocate=lambda: AbstractValue.Make(object()),
+                    calc=lambda ctx, value: value.set_value(self._at(ctx)),
+                ),
+                prerequisites_of_calc=tickets,
+            )
             self.lower_output = self.DeclareVectorOutputPort(
-                name="lower", size=k, calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[0]),
-                prerequisites_of_calc=tickets)
+                name="lower",
+                size=k,
+                calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[0]),
+                prerequisites_of_calc=tickets,
+            )
             self.upper_output = self.DeclareVectorOutputPort(
-                name="upper", size=k, calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[1]),
-                prerequisites_of_calc=tickets)
+                name="upper",
+                size=k,
+                calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[1]),
+                prerequisites_of_calc=tickets,
+            )
             self.nominal_output = self.DeclareVectorOutputPort(
-                name="nominal", size=k, calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[2]),
-                prerequisites_of_calc=tickets)
+                name="nominal",
+                size=k,
+                calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[2]),
+                prerequisites_of_calc=tickets,
+            )
 
         def _construct_copy(self, other, converter=None):
             Impl._construct(self, other._bounds, clamp=other._clamp, converter=converter)
@@ -110,8 +121,10 @@ def JointBoundsSource_(T):
                 slopes.append(self._bounds.nominal[i + 1] - self._bounds.nominal[i] if g > 1 else 0 * nom)
             else:
                 slopes = [0 * lo, 0 * hi, 0 * nom]
-            return tuple(np.array([AutoDiffXd(float(v), float(dv) * ds) for v, dv in zip(val, slope)], dtype=object)
-                         for val, slope in zip((lo, hi, nom), slopes))
+            return tuple(
+                np.array([AutoDiffXd(float(v), float(dv) * ds) for v, dv in zip(val, slope)], dtype=object)
+                for val, slope in zip((lo, hi, nom), slopes)
+            )
 
     return Impl
 

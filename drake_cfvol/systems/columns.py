@@ -54,7 +54,7 @@ def tile_rectangles(heights: np.ndarray, levels: int, per_level: int) -> tuple[l
                     continue
                 used[level] += 1
                 t_l = 1 << level
-                tiles.append((level, x, y, float(heights[x:min(x + t_l, m), y:min(y + t_l, n)].max())))
+                tiles.append((level, x, y, float(heights[x : min(x + t_l, m), y : min(y + t_l, n)].max())))
     return tiles, overflow
 
 
@@ -92,8 +92,16 @@ class PerceivedColumns(LeafSystem):
         log_period: s between looks at the tiles for :meth:`tiles_log`.
     """
 
-    def __init__(self, scene_graph, grid: MapGrid, *, levels: int = 5, per_level: int = 64, depth: float = 6.0,
-                 log_period: float = 0.0):
+    def __init__(
+        self,
+        scene_graph,
+        grid: MapGrid,
+        *,
+        levels: int = 5,
+        per_level: int = 64,
+        depth: float = 6.0,
+        log_period: float = 0.0,
+    ):
         super().__init__()
         if levels < 1 or per_level < 1:
             raise ParameterError(f"PerceivedColumns: levels and per_level must be >= 1, got {levels}, {per_level}.")
@@ -104,24 +112,35 @@ class PerceivedColumns(LeafSystem):
             side = grid.side * (1 << lv)
             for n in range(self.per_level):
                 frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"column_{lv}_{n}"))
-                gid = scene_graph.RegisterGeometry(self.source_id, frame, GeometryInstance(
-                    RigidTransform(), Box(side, side, self.depth), f"column_{lv}_{n}"))
+                gid = scene_graph.RegisterGeometry(
+                    self.source_id,
+                    frame,
+                    GeometryInstance(RigidTransform(), Box(side, side, self.depth), f"column_{lv}_{n}"),
+                )
                 scene_graph.AssignRole(self.source_id, gid, ProximityProperties())
                 self.frame_ids.append(frame)
                 self.geometry_ids.append(gid)
         self._last = None  # (map, its tiles): a memo of the last map seen (it says nothing about the context)
         self.obstacle_map_input = self.DeclareAbstractInputPort(
-            "obstacle_map", AbstractValue.Make(ObstacleMap.empty(grid)))
+            "obstacle_map", AbstractValue.Make(ObstacleMap.empty(grid))
+        )
         self.geometry_pose_output = self.DeclareAbstractOutputPort(
-            "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc_poses,
-            prerequisites_of_calc={self.obstacle_map_input.ticket()})
+            "geometry_pose",
+            lambda: AbstractValue.Make(FramePoseVector()),
+            self._calc_poses,
+            prerequisites_of_calc={self.obstacle_map_input.ticket()},
+        )
         self.overflow_output = self.DeclareVectorOutputPort(
-            "overflow", 1, lambda c, o: o.SetAtIndex(0, float(self._tiles(c)[1])),
-            prerequisites_of_calc={self.obstacle_map_input.ticket()})
+            "overflow",
+            1,
+            lambda c, o: o.SetAtIndex(0, float(self._tiles(c)[1])),
+            prerequisites_of_calc={self.obstacle_map_input.ticket()},
+        )
         self._log = self.DeclareAbstractState(AbstractValue.Make(FrozenLog()))
         if log_period > 0:
-            self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=float(log_period), offset_sec=0.0,
-                                                        update=self._log_tiles)
+            self.DeclarePeriodicUnrestrictedUpdateEvent(
+                period_sec=float(log_period), offset_sec=0.0, update=self._log_tiles
+            )
 
     def _log_tiles(self, context, state) -> None:
         log = context.get_abstract_state(self._log).get_value()
@@ -137,8 +156,10 @@ class PerceivedColumns(LeafSystem):
     def _tiles(self, context):
         m = self.obstacle_map_input.Eval(context)
         if m.grid != self.grid:
-            raise ParameterError(f"PerceivedColumns: the obstacle map's grid {m.grid} is not this system's "
-                                 f"{self.grid}; build both from one MapGrid.")
+            raise ParameterError(
+                f"PerceivedColumns: the obstacle map's grid {m.grid} is not this system's "
+                f"{self.grid}; build both from one MapGrid."
+            )
         if self._last is None or self._last[0] is not m:  # both outputs of one map share the tiling
             self._last = (m, tile_rectangles(m.heights, self.levels, self.per_level))
         return self._last[1]
@@ -153,9 +174,11 @@ class PerceivedColumns(LeafSystem):
             n = level * self.per_level + next_free[level]
             next_free[level] += 1
             half = 0.5 * s * (1 << level)
-            poses.set_value(self.frame_ids[n], RigidTransform([x0 + i * s + half, y0 + j * s + half,
-                                                               h - 0.5 * self.depth]))
+            poses.set_value(
+                self.frame_ids[n], RigidTransform([x0 + i * s + half, y0 + j * s + half, h - 0.5 * self.depth])
+            )
         for level in range(self.levels):
             for n in range(next_free[level], self.per_level):
-                poses.set_value(self.frame_ids[level * self.per_level + n],
-                                RigidTransform([x0, y0, PARKED_Z - self.depth]))
+                poses.set_value(
+                    self.frame_ids[level * self.per_level + n], RigidTransform([x0, y0, PARKED_Z - self.depth])
+                )

@@ -23,8 +23,20 @@ from pydrake.multibody.tree import JacobianWrtVariable
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.systems.qp import QP_OPTIMAL, solve_qp
 
-__all__ = ["HARD", "ROW", "BOX", "ConstraintRows", "FilterStep", "FilterConstraint", "VelocityLimits", "JointBox",
-           "DamperConstraint", "ToolSpeedLimit", "PriorityQP", "solve_rounds"]
+__all__ = [
+    "HARD",
+    "ROW",
+    "BOX",
+    "ConstraintRows",
+    "FilterStep",
+    "FilterConstraint",
+    "VelocityLimits",
+    "JointBox",
+    "DamperConstraint",
+    "ToolSpeedLimit",
+    "PriorityQP",
+    "solve_rounds",
+]
 
 #: Priorities (see the module's documentation).
 HARD, ROW, BOX = 0, 1, 2
@@ -59,8 +71,9 @@ class FilterStep:
         damper: the damper's rows at q (:class:`~drake_cfvol.systems.damper.DamperRows`).
     """
 
-    def __init__(self, *, q, q_c, period, lo, hi, vmax, nominal, damper, plant, robot_slice, plant_context,
-                 second_order):
+    def __init__(
+        self, *, q, q_c, period, lo, hi, vmax, nominal, damper, plant, robot_slice, plant_context, second_order
+    ):
         self.q, self.q_c, self.period, self.lo, self.hi, self.vmax = q, q_c, period, lo, hi, vmax
         self.nominal, self.damper = nominal, damper
         self.plant, self.robot_slice = plant, robot_slice
@@ -214,8 +227,14 @@ class ToolSpeedLimit(FilterConstraint):
     def jacobian(self, step) -> np.ndarray:
         """(3, k): the point's translational velocity per unit joint velocity."""
         plant = step.plant
-        J = plant.CalcJacobianTranslationalVelocity(step.plant_context(), JacobianWrtVariable.kV, self.frame,
-                                                    self.point, plant.world_frame(), plant.world_frame())
+        J = plant.CalcJacobianTranslationalVelocity(
+            step.plant_context(),
+            JacobianWrtVariable.kV,
+            self.frame,
+            self.point,
+            plant.world_frame(),
+            plant.world_frame(),
+        )
         return step.robot_slice.columns(J)
 
     def rows(self, step):
@@ -259,8 +278,9 @@ class PriorityQP:
         soft = [soft_from is not None and blk.priority != HARD and blk.priority >= soft_from for blk in blocks]
         n_s = sum(len(blk.b) for blk, s in zip(blocks, soft) if s)
         n = k + n_s
-        h = np.concatenate([np.full(k, 2.0)] + [np.full(len(blk.b), 2.0 * blk.weight)
-                                                 for blk, s in zip(blocks, soft) if s])
+        h = np.concatenate(
+            [np.full(k, 2.0)] + [np.full(len(blk.b), 2.0 * blk.weight) for blk, s in zip(blocks, soft) if s]
+        )
         g = np.concatenate([-2.0 * np.asarray(v_t, float), np.zeros(n_s)])
         Cs, cs = [], []
         col = k
@@ -271,9 +291,9 @@ class PriorityQP:
             Cs.append(C)
             cs.append(blk.b)
             if s:  # A v + s >= b and s >= 0
-                C[:, col:col + m] = np.eye(m)
+                C[:, col : col + m] = np.eye(m)
                 slack = np.zeros((m, n))
-                slack[:, col:col + m] = np.eye(m)
+                slack[:, col : col + m] = np.eye(m)
                 Cs.append(slack)
                 cs.append(np.zeros(m))
                 col += m
@@ -295,7 +315,7 @@ class PriorityQP:
         at = 0
         for blk, s in zip(blocks, soft):
             m = len(blk.b)
-            self._warm[blk.name] = active[at:at + m].copy()
+            self._warm[blk.name] = active[at : at + m].copy()
             at += 2 * m if s else m
         return x[:k]
 

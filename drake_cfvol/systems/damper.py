@@ -19,6 +19,7 @@ from drake_cfvol.systems.damper_parts import BroadPhase, RowList, drake_pair_row
 
 __all__ = ["DamperRows", "VelocityDamper"]
 
+
 class DamperRows(NamedTuple):
     """The damper's rows at one configuration (:meth:`SafetyFilter.damper_rows`).
     Row i reads dirs_i . (v_P1 - v_P2) for its two points P1, P2 (on the two
@@ -51,8 +52,9 @@ def dynamic_pairs(damper, dynamic_ids) -> list[tuple]:
     """(pair index, its moving geometry) of a damper's pairs with geometry
     that moves on its own."""
     dynamic = set(dynamic_ids)
-    return [(n, b if b in dynamic else a) for n, (a, b, _, _) in enumerate(damper._pairs)
-            if a in dynamic or b in dynamic]
+    return [
+        (n, b if b in dynamic else a) for n, (a, b, _, _) in enumerate(damper._pairs) if a in dynamic or b in dynamic
+    ]
 
 
 def measure_dynamic(dynamic: list, query, measure: np.ndarray) -> None:
@@ -87,8 +89,9 @@ class VelocityDamper:
         rate: the damper's rate, 1/s.
     """
 
-    def __init__(self, plant, scene_graph, robot, *, obstacle_ids, target_distance: float,
-                 influence_distance: float, rate: float):
+    def __init__(
+        self, plant, scene_graph, robot, *, obstacle_ids, target_distance: float, influence_distance: float, rate: float
+    ):
         self._slice = RobotSlice(plant, robot)
         self._robot = robot
         self.k = self._slice.k
@@ -99,14 +102,20 @@ class VelocityDamper:
         self._pairs = self._make_pairs(plant, scene_graph, robot, obstacle_ids)
         inspector = scene_graph.model_inspector()
         #: Geometries Drake's point query measures (ComputeSignedDistanceToPoint).
-        self._point_query = {g: isinstance(inspector.GetShape(g), (Box, Capsule, Cylinder, Sphere, Ellipsoid))
-                             for a, b, _, _ in self._pairs for g in (a, b)}
+        self._point_query = {
+            g: isinstance(inspector.GetShape(g), (Box, Capsule, Cylinder, Sphere, Ellipsoid))
+            for a, b, _, _ in self._pairs
+            for g in (a, b)
+        }
         #: Per geometry, the radius of its round part (see second_order).
         self._round = {g: round_radius(inspector.GetShape(g)) for a, b, _, _ in self._pairs for g in (a, b)}
         # The moving bodies, the radius of a ball about each one's origin
         # holding its geometry, and each pair's bodies (-1: welded).
-        bodies = sorted({side[0].index(): side[0] for _, _, sa, sb in self._pairs for side in (sa, sb)
-                         if side[0] is not None}.items())
+        bodies = sorted(
+            {
+                side[0].index(): side[0] for _, _, sa, sb in self._pairs for side in (sa, sb) if side[0] is not None
+            }.items()
+        )
         self._bodies = [b for _, b in bodies]
         self._slot = {i: n for n, (i, _) in enumerate(bodies)}
         self._body_radius = np.zeros(len(self._bodies))
@@ -117,9 +126,16 @@ class VelocityDamper:
                     r = float(np.linalg.norm(side[1].translation())) + ball_radius(inspector.GetShape(gid))
                     self._body_radius[n] = max(self._body_radius[n], r)
         self._broad = BroadPhase(self, inspector)
-        self._pair_bodies = np.array([[self._slot[sa[0].index()] if sa[0] is not None else -1,
-                                       self._slot[sb[0].index()] if sb[0] is not None else -1]
-                                      for _, _, sa, sb in self._pairs], dtype=int).reshape(-1, 2)
+        self._pair_bodies = np.array(
+            [
+                [
+                    self._slot[sa[0].index()] if sa[0] is not None else -1,
+                    self._slot[sb[0].index()] if sb[0] is not None else -1,
+                ]
+                for _, _, sa, sb in self._pairs
+            ],
+            dtype=int,
+        ).reshape(-1, 2)
         self._chain_masks(plant, robot)
         self._memo = {}  # q's bytes -> the bodies' poses there (poses(); at most a few entries)
         self._sides, self._drake_rows = side_arrays(self, inspector)
@@ -150,9 +166,17 @@ class VelocityDamper:
 
     def empty(self) -> DamperRows:
         """No rows, no distances measured."""
-        return DamperRows(np.zeros((0, self.k)), np.zeros(0), np.full(len(self._pairs), np.nan), np.zeros((0, 3)),
-                          np.zeros((0, 2, 3)), np.full((0, 2), -1, dtype=int), np.zeros((0, 2)), np.zeros(0, int),
-                          np.zeros(len(self._pairs), bool))
+        return DamperRows(
+            np.zeros((0, self.k)),
+            np.zeros(0),
+            np.full(len(self._pairs), np.nan),
+            np.zeros((0, 3)),
+            np.zeros((0, 2, 3)),
+            np.full((0, 2), -1, dtype=int),
+            np.zeros((0, 2)),
+            np.zeros(0, int),
+            np.zeros(len(self._pairs), bool),
+        )
 
     @staticmethod
     def _make_pairs(plant, scene_graph, robot, obstacle_ids) -> list[tuple]:
@@ -171,13 +195,20 @@ class VelocityDamper:
                 moving.update(ids)
         robot_set = set(robot_ids)
         if obstacle_ids is None:
-            obstacle_ids = [g for g in inspector.GetAllGeometryIds() if g not in robot_set
-                            and inspector.GetProximityProperties(g) is not None]
+            obstacle_ids = [
+                g
+                for g in inspector.GetAllGeometryIds()
+                if g not in robot_set and inspector.GetProximityProperties(g) is not None
+            ]
         obstacles = sorted(set(obstacle_ids) - robot_set, key=lambda g: g.get_value())
         ordered = sorted(robot_set, key=lambda g: g.get_value())
         pairs = [(a, b) for a in ordered if a in moving for b in obstacles]
-        pairs += [(a, b) for i, a in enumerate(ordered) for b in ordered[i + 1:]
-                  if (a in moving or b in moving) and not inspector.CollisionFiltered(a, b)]
+        pairs += [
+            (a, b)
+            for i, a in enumerate(ordered)
+            for b in ordered[i + 1 :]
+            if (a in moving or b in moving) and not inspector.CollisionFiltered(a, b)
+        ]
 
         sides = {}
 
@@ -219,8 +250,11 @@ class VelocityDamper:
         S = len(self._bodies)
         J_w, J_v = np.zeros((S, 3, self.k)), np.zeros((S, 3, self.k))
         for n in slots:
-            J = self._slice.columns(plant.CalcJacobianSpatialVelocity(
-                pctx, JacobianWrtVariable.kV, self._bodies[n].body_frame(), np.zeros(3), world, world))
+            J = self._slice.columns(
+                plant.CalcJacobianSpatialVelocity(
+                    pctx, JacobianWrtVariable.kV, self._bodies[n].body_frame(), np.zeros(3), world, world
+                )
+            )
             J_w[n], J_v[n] = J[:3], J[3:]
         return J_w, J_v
 
@@ -291,8 +325,10 @@ class VelocityDamper:
                     pose_R[i, j], pose_t[i, j] = X.rotation().matrix(), X.translation()
         A, b, dirs, points, slots, rounds, owner = pair_rows(
             (pairs, dist, normal, witness, pose_R, pose_t),
-            self._sides, (R, o, J_w, J_v),
-            (self.influence_distance, self.rate, self.target_distance))
+            self._sides,
+            (R, o, J_w, J_v),
+            (self.influence_distance, self.rate, self.target_distance),
+        )
         return A, b, None, dirs, points, slots, rounds, owner
 
     def second_order(self, pctx, q, rows: DamperRows, dq: np.ndarray) -> np.ndarray:
@@ -319,7 +355,7 @@ class VelocityDamper:
         delta = after - rows.points
         actual = np.einsum("mi,mi->m", rows.dirs, delta[:, 0] - delta[:, 1])
         theta = np.append(self._rev @ np.abs(dq), 0.0)[rows.slots]
-        return np.maximum(0.0, rows.A @ dq - actual) + 0.5 * np.sum(rows.rounds * theta ** 2, axis=1)
+        return np.maximum(0.0, rows.A @ dq - actual) + 0.5 * np.sum(rows.rounds * theta**2, axis=1)
 
     def budget_after(self, pctx, q, q_next, budget, dists):
         """Each pair's distance beyond the influence distance that is still

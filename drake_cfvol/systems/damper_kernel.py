@@ -13,8 +13,21 @@ import numpy as np
 from numba import njit
 from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Sphere
 
-__all__ = ["bounding_gaps", "NO_POINT_QUERY", "SPHERE", "CAPSULE", "BOX", "CYLINDER", "point_distance", "pair_rows", "probes",
-           "ball_radius", "local_box", "round_radius", "point_query_shape"]
+__all__ = [
+    "bounding_gaps",
+    "NO_POINT_QUERY",
+    "SPHERE",
+    "CAPSULE",
+    "BOX",
+    "CYLINDER",
+    "point_distance",
+    "pair_rows",
+    "probes",
+    "ball_radius",
+    "local_box",
+    "round_radius",
+    "point_query_shape",
+]
 
 #: Shape kinds of :func:`point_distance` (NO_POINT_QUERY: none).
 NO_POINT_QUERY, SPHERE, CAPSULE, BOX, CYLINDER = 0, 1, 2, 3, 4
@@ -123,8 +136,6 @@ def round_radius(shape) -> float:
     return 0.0
 
 
-
-
 @njit(cache=True)
 def _normalised(x, y, z, fx, fy, fz):
     norm = np.sqrt(x * x + y * y + z * z)
@@ -203,8 +214,14 @@ def _jacobian_row(d, p, slot, o, J_w, J_v, out, sign):
     rx, ry, rz = p[0] - o[slot, 0], p[1] - o[slot, 1], p[2] - o[slot, 2]
     cx, cy, cz = ry * d[2] - rz * d[1], rz * d[0] - rx * d[2], rx * d[1] - ry * d[0]
     for j in range(out.shape[0]):
-        out[j] += sign * (d[0] * J_v[slot, 0, j] + d[1] * J_v[slot, 1, j] + d[2] * J_v[slot, 2, j]
-                          + cx * J_w[slot, 0, j] + cy * J_w[slot, 1, j] + cz * J_w[slot, 2, j])
+        out[j] += sign * (
+            d[0] * J_v[slot, 0, j]
+            + d[1] * J_v[slot, 1, j]
+            + d[2] * J_v[slot, 2, j]
+            + cx * J_w[slot, 0, j]
+            + cy * J_w[slot, 1, j]
+            + cz * J_w[slot, 2, j]
+        )
 
 
 @njit(cache=True)
@@ -244,8 +261,10 @@ def _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains):
         for i3 in range(3):
             neg[i3] = sign * n[i3]
         for c in range(n_probes[p, s]):
-            gap = sign * ((P[s, c, 0] - w[t, 0]) * n[0] + (P[s, c, 1] - w[t, 1]) * n[1]
-                          + (P[s, c, 2] - w[t, 2]) * n[2]) - radii[p, s, c]
+            gap = (
+                sign * ((P[s, c, 0] - w[t, 0]) * n[0] + (P[s, c, 1] - w[t, 1]) * n[1] + (P[s, c, 2] - w[t, 2]) * n[2])
+                - radii[p, s, c]
+            )
             if gap >= influence:
                 continue
             if s_other < 0:  # a static obstacle: the plane through its witness
@@ -254,15 +273,19 @@ def _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains):
             if kind[p, t] == NO_POINT_QUERY:
                 break  # a moving shape without a point query: the witness row only
             for i3 in range(3):
-                q_local[i3] = (XR[t, 0, i3] * (P[s, c, 0] - Xt[t, 0]) + XR[t, 1, i3] * (P[s, c, 1] - Xt[t, 1])
-                               + XR[t, 2, i3] * (P[s, c, 2] - Xt[t, 2]))
+                q_local[i3] = (
+                    XR[t, 0, i3] * (P[s, c, 0] - Xt[t, 0])
+                    + XR[t, 1, i3] * (P[s, c, 1] - Xt[t, 1])
+                    + XR[t, 2, i3] * (P[s, c, 2] - Xt[t, 2])
+                )
             dist_p = point_distance(kind[p, t], prm[p, t], q_local, g, near)
             if dist_p - radii[p, s, c] >= influence:
                 continue
             gw[:] = XR[t] @ g
             nw[:] = XR[t] @ near + Xt[t]
-            m = _emit(out, m, gw, P[s, c], nw, slot, s_other, -rate * (dist_p - radii[p, s, c] - target),
-                      0.0, 0.0, p, kin)
+            m = _emit(
+                out, m, gw, P[s, c], nw, slot, s_other, -rate * (dist_p - radii[p, s, c] - target), 0.0, 0.0, p, kin
+            )
     return m
 
 
@@ -318,8 +341,20 @@ def pair_rows(near, sides, kin, gains):
                 for c in range(n_probes[p, s]):
                     P[s, c] = R[slot] @ probes[p, s, c] + o[slot]
         sa, sb = side_slot[p, 0], side_slot[p, 1]
-        m = _emit(out, m, n, w[0], w[1], sa, sb, -rate * (dist[i] - target),
-                  round_r[p, 0] if sa >= 0 else 0.0, round_r[p, 1] if sb >= 0 else 0.0, p, kin)
+        m = _emit(
+            out,
+            m,
+            n,
+            w[0],
+            w[1],
+            sa,
+            sb,
+            -rate * (dist[i] - target),
+            round_r[p, 0] if sa >= 0 else 0.0,
+            round_r[p, 1] if sb >= 0 else 0.0,
+            p,
+            kin,
+        )
         m = _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains)
     return A[:m], b[:m], dirs[:m], points[:m], slots[:m], rounds[:m], owner[:m]
 
@@ -342,8 +377,11 @@ def bounding_gaps(pairs, slot, centre, half, box_R, box_p, R, o):
                 c[j] = R[s] @ centre[n, j] + o[s]
         b0, b1 = slot[n, 0] >= 0, slot[n, 1] >= 0
         if b0 and b1:
-            out[i] = (np.sqrt(np.sum((c[0] - c[1]) ** 2)) - np.sqrt(np.sum(half[n, 0] ** 2))
-                      - np.sqrt(np.sum(half[n, 1] ** 2)))
+            out[i] = (
+                np.sqrt(np.sum((c[0] - c[1]) ** 2))
+                - np.sqrt(np.sum(half[n, 0] ** 2))
+                - np.sqrt(np.sum(half[n, 1] ** 2))
+            )
         elif b0 or b1:
             j = 0 if b0 else 1
             k = 1 - j

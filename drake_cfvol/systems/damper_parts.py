@@ -25,9 +25,19 @@ class RowList:
 
     def add(self, dirs, p1, p2, s1, s2, rhs, pair, r1, r2) -> None:
         m = len(dirs)
-        self.parts.append((np.asarray(dirs, float), np.asarray(p1, float), np.asarray(p2, float),
-                           np.full(m, s1), np.full(m, s2), np.broadcast_to(np.asarray(rhs, float), (m,)),
-                           np.full(m, pair), np.full(m, float(r1)), np.full(m, float(r2))))
+        self.parts.append(
+            (
+                np.asarray(dirs, float),
+                np.asarray(p1, float),
+                np.asarray(p2, float),
+                np.full(m, s1),
+                np.full(m, s2),
+                np.broadcast_to(np.asarray(rhs, float), (m,)),
+                np.full(m, pair),
+                np.full(m, float(r1)),
+                np.full(m, float(r2)),
+            )
+        )
 
     def build(self, o, J_w, J_v, k) -> tuple:
         """(A, b, None, dirs, points, slots, rounds, pair) of the rows."""
@@ -42,10 +52,19 @@ class RowList:
             slot = s[moving]
             r = p[moving] - o[slot]
             dn = dirs[moving]
-            A[moving] += sign * (np.einsum("mi,mik->mk", dn, J_v[slot])
-                                 + np.einsum("mi,mik->mk", np.cross(r, dn), J_w[slot]))
-        return (A, rhs.copy(), None, dirs, np.stack([p1, p2], axis=1), np.stack([s1, s2], axis=1).astype(int),
-                np.stack([np.where(s1 >= 0, r1, 0.0), np.where(s2 >= 0, r2, 0.0)], axis=1), pair.astype(int))
+            A[moving] += sign * (
+                np.einsum("mi,mik->mk", dn, J_v[slot]) + np.einsum("mi,mik->mk", np.cross(r, dn), J_w[slot])
+            )
+        return (
+            A,
+            rhs.copy(),
+            None,
+            dirs,
+            np.stack([p1, p2], axis=1),
+            np.stack([s1, s2], axis=1).astype(int),
+            np.stack([np.where(s1 >= 0, r1, 0.0), np.where(s2 >= 0, r2, 0.0)], axis=1),
+            pair.astype(int),
+        )
 
 
 class BroadPhase:
@@ -66,7 +85,8 @@ class BroadPhase:
         others = [j for j in plant.GetJointIndices() if j not in set(plant.GetJointIndices(damper._robot))]
         carried = set(plant.GetBodiesKinematicallyAffectedBy(others)) if others else set()
         jointed = set(plant.GetBodiesKinematicallyAffectedBy(list(plant.GetJointIndices()))) | {
-            b for b in plant.GetFloatingBaseBodies()}
+            b for b in plant.GetFloatingBaseBodies()
+        }
         defaults = plant.CreateDefaultContext()
         P = len(self._pairs)
         self._ball_slot = np.full((P, 2), -1, np.int64)
@@ -108,8 +128,16 @@ class BroadPhase:
                         X = query.GetPoseInWorld(gid)
                         posed[gid] = (X.rotation().matrix(), X.translation())
                     self._box_R[n, j], self._box_p[n, j] = posed[gid]
-        return bounding_gaps(np.asarray(pairs, np.int64), self._ball_slot, self._ball_centre, self._ball_half,
-                             self._box_R, self._box_p, R, o)
+        return bounding_gaps(
+            np.asarray(pairs, np.int64),
+            self._ball_slot,
+            self._ball_centre,
+            self._ball_half,
+            self._box_R,
+            self._box_p,
+            R,
+            o,
+        )
 
 
 def side_arrays(damper, inspector) -> tuple[tuple, np.ndarray]:
@@ -137,8 +165,12 @@ def side_arrays(damper, inspector) -> tuple[tuple, np.ndarray]:
             m = len(side[3])
             out_probes[n, j, :m], out_radii[n, j, :m], out_count[n, j] = side[2], side[3], m
         for j in range(2):  # a probe of side j against side 1 - j, moving, that only Drake measures
-            if (out_count[n, j] and out_slot[n, 1 - j] >= 0 and out_kind[n, 1 - j] == NO_POINT_QUERY
-                    and damper._point_query[(a, b)[1 - j]]):
+            if (
+                out_count[n, j]
+                and out_slot[n, 1 - j] >= 0
+                and out_kind[n, 1 - j] == NO_POINT_QUERY
+                and damper._point_query[(a, b)[1 - j]]
+            ):
                 drake_rows[n] = True
     return (out_slot, out_R, out_t, out_probes, out_count, out_radii, out_kind, out_prm, out_round), drake_rows
 
@@ -169,10 +201,21 @@ def drake_pair_rows(damper, query, index, pair, R, o, out) -> None:
             w = R[slot] @ (side[1].multiply(p_GC)) + o[slot]
             ends.append((slot, w, side[2] @ R[slot].T + o[slot]))
     (sa, wa, probes_a), (sb, wb, probes_b) = ends
-    out.add(n[None], wa[None], wb[None], sa, sb, -damper.rate * (d - damper.target_distance), index,
-            damper._round[id_a], damper._round[id_b])
-    for side, sign, id_other, slot, P, s_other, other in ((side_a, 1.0, id_b, sa, probes_a, sb, wb),
-                                                           (side_b, -1.0, id_a, sb, probes_b, sa, wa)):
+    out.add(
+        n[None],
+        wa[None],
+        wb[None],
+        sa,
+        sb,
+        -damper.rate * (d - damper.target_distance),
+        index,
+        damper._round[id_a],
+        damper._round[id_b],
+    )
+    for side, sign, id_other, slot, P, s_other, other in (
+        (side_a, 1.0, id_b, sa, probes_a, sb, wb),
+        (side_b, -1.0, id_a, sb, probes_b, sa, wa),
+    ):
         if not len(P):
             continue
         radii = side[3]
@@ -181,8 +224,17 @@ def drake_pair_rows(damper, query, index, pair, R, o, out) -> None:
         if not len(close):
             continue
         if s_other < 0:  # a static obstacle: the plane's rows
-            out.add(np.broadcast_to(sign * n, (len(close), 3)), P[close], np.broadcast_to(other, (len(close), 3)),
-                    slot, -1, -damper.rate * (gaps[close] - damper.target_distance), index, 0.0, 0.0)
+            out.add(
+                np.broadcast_to(sign * n, (len(close), 3)),
+                P[close],
+                np.broadcast_to(other, (len(close), 3)),
+                slot,
+                -1,
+                -damper.rate * (gaps[close] - damper.target_distance),
+                index,
+                0.0,
+                0.0,
+            )
             continue
         if not damper._point_query[id_other]:
             continue  # a moving shape without a point query: the witness row only
@@ -190,8 +242,18 @@ def drake_pair_rows(damper, query, index, pair, R, o, out) -> None:
         dist, grad, p_near = _drake_distances(damper, query, id_other, X_WO, P[close], radii[close])
         keep = dist - radii[close] < damper.influence_distance
         if keep.any():
-            out.add(grad[keep], P[close][keep], p_near[keep], slot, s_other,
-                    -damper.rate * (dist[keep] - radii[close][keep] - damper.target_distance), index, 0.0, 0.0)
+            out.add(
+                grad[keep],
+                P[close][keep],
+                p_near[keep],
+                slot,
+                s_other,
+                -damper.rate * (dist[keep] - radii[close][keep] - damper.target_distance),
+                index,
+                0.0,
+                0.0,
+            )
+
 
 def _drake_distances(damper, query, gid, X_WO, P, radii):
     """Drake's signed distances (m,), unit gradients (m, 3) and nearest
@@ -200,8 +262,9 @@ def _drake_distances(damper, query, gid, X_WO, P, radii):
     distance)."""
     d, g, near = np.full(len(P), np.inf), np.zeros((len(P), 3)), np.zeros((len(P), 3))
     for i, point in enumerate(P):
-        found = [r for r in query.ComputeSignedDistanceToPoint(point, damper.influence_distance + radii[i])
-                 if r.id_G == gid]
+        found = [
+            r for r in query.ComputeSignedDistanceToPoint(point, damper.influence_distance + radii[i]) if r.id_G == gid
+        ]
         if found:
             d[i], g[i] = found[0].distance, np.asarray(found[0].grad_W, float).reshape(3)
             near[i] = X_WO.multiply(np.asarray(found[0].p_GN, float).reshape(3))

@@ -89,29 +89,46 @@ class CoworkerHand(LeafSystem):
         standoff: m, the gap kept between pushes.
     """
 
-    def __init__(self, plant, hand, tool_frame, *, tool_radius: float, stiffness: float = 150.0,
-                 damping: float = 60.0, standoff: float = 0.05, lateral_stiffness: float = 3000.0,
-                 initial_direction=(0.0, 0.0, -1.0), p_BG=None):
+    def __init__(
+        self,
+        plant,
+        hand,
+        tool_frame,
+        *,
+        tool_radius: float,
+        stiffness: float = 150.0,
+        damping: float = 60.0,
+        standoff: float = 0.05,
+        lateral_stiffness: float = 3000.0,
+        initial_direction=(0.0, 0.0, -1.0),
+        p_BG=None,
+    ):
         super().__init__()
         self._hand = hand.index()
         self._tool = tool_frame.body().index()
-        self._p_BT = (tool_frame.GetFixedPoseInBodyFrame().translation().copy() if p_BG is None
-                      else np.asarray(p_BG, float).copy())
+        self._p_BT = (
+            tool_frame.GetFixedPoseInBodyFrame().translation().copy()
+            if p_BG is None
+            else np.asarray(p_BG, float).copy()
+        )
         self._reach = float(tool_radius) + HAND_RADIUS
         self._k, self._d, self._gap = float(stiffness), float(damping), float(standoff)
         self._k_lat = float(lateral_stiffness)
         self._weight = HAND_MASS * np.linalg.norm(plant.gravity_field().gravity_vector())
-        self._up = -plant.gravity_field().gravity_vector() / max(np.linalg.norm(plant.gravity_field().gravity_vector()),
-                                                                1e-12)
+        self._up = -plant.gravity_field().gravity_vector() / max(
+            np.linalg.norm(plant.gravity_field().gravity_vector()), 1e-12
+        )
         u0 = np.asarray(initial_direction, float)
         self._side = self.DeclareDiscreteState(u0 / np.linalg.norm(u0))  # the last push's direction
         self.DeclarePerStepDiscreteUpdateEvent(self._remember)
         self.wrench_input = self.DeclareVectorInputPort(name="wrench", size=6)
         self.body_poses_input = self.DeclareAbstractInputPort("body_poses", AbstractValue.Make([RigidTransform()]))
         self.body_spatial_velocities_input = self.DeclareAbstractInputPort(
-            "body_spatial_velocities", AbstractValue.Make([SpatialVelocity()]))
+            "body_spatial_velocities", AbstractValue.Make([SpatialVelocity()])
+        )
         self.spatial_forces_output = self.DeclareAbstractOutputPort(
-            "spatial_forces", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]), self._calc)
+            "spatial_forces", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]), self._calc
+        )
 
     def push_direction(self, context) -> np.ndarray:
         """The current push's unit direction (the last one between pushes)."""

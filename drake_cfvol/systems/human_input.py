@@ -3,6 +3,7 @@ admittance, anything else raises a fault that holds its last safe command
 (SPEC 9)."""
 
 import sys
+
 import numpy as np
 from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
@@ -62,8 +63,9 @@ def HumanInputCheck_(T):
                 (6,); > 0.
         """
 
-        def _construct(self, k: int, *, period: float = 0.01, max_torque=MAX_TORQUE, max_wrench=MAX_WRENCH,
-                       converter=None):
+        def _construct(
+            self, k: int, *, period: float = 0.01, max_torque=MAX_TORQUE, max_wrench=MAX_WRENCH, converter=None
+        ):
             LeafSystem_[T].__init__(self, converter)
             if not period > 0:
                 raise ParameterError(f"period must be > 0 s, got {period}.")
@@ -76,22 +78,39 @@ def HumanInputCheck_(T):
             self._count = self.DeclareAbstractState(AbstractValue.Make(0))
             self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
             self.human_torque_output = self.DeclareVectorOutputPort(
-                name="human_torque", size=k, calc=lambda ctx, out: out.SetFromVector(self._torque(ctx)),
-                prerequisites_of_calc={self.human_torque_input.ticket()})
+                name="human_torque",
+                size=k,
+                calc=lambda ctx, out: out.SetFromVector(self._torque(ctx)),
+                prerequisites_of_calc={self.human_torque_input.ticket()},
+            )
             self.human_wrench_output = self.DeclareVectorOutputPort(
-                name="human_wrench", size=6, calc=lambda ctx, out: out.SetFromVector(self._wrench(ctx)),
-                prerequisites_of_calc={self.human_wrench_input.ticket()})
+                name="human_wrench",
+                size=6,
+                calc=lambda ctx, out: out.SetFromVector(self._wrench(ctx)),
+                prerequisites_of_calc={self.human_wrench_input.ticket()},
+            )
             self.fault_output = self.DeclareVectorOutputPort(
-                name="fault", size=1, calc=lambda ctx, out: out.SetAtIndex(0, 0.0 if self.plausible(ctx) else 1.0),
-                prerequisites_of_calc={self.human_torque_input.ticket(), self.human_wrench_input.ticket()})
+                name="fault",
+                size=1,
+                calc=lambda ctx, out: out.SetAtIndex(0, 0.0 if self.plausible(ctx) else 1.0),
+                prerequisites_of_calc={self.human_torque_input.ticket(), self.human_wrench_input.ticket()},
+            )
             self.fault_count_output = self.DeclareVectorOutputPort(
-                name="fault_count", size=1,
+                name="fault_count",
+                size=1,
                 calc=lambda ctx, out: out.SetAtIndex(0, float(ctx.get_abstract_state(self._count).get_value())),
-                prerequisites_of_calc={self.all_state_ticket()})
+                prerequisites_of_calc={self.all_state_ticket()},
+            )
 
         def _construct_copy(self, other, converter=None):
-            Impl._construct(self, other.k, period=other.period, max_torque=other.max_torque,
-                            max_wrench=other.max_wrench, converter=converter)
+            Impl._construct(
+                self,
+                other.k,
+                period=other.period,
+                max_torque=other.max_torque,
+                max_wrench=other.max_wrench,
+                converter=converter,
+            )
 
         def _torque(self, context):
             if self.human_torque_input.HasValue(context):
@@ -106,8 +125,12 @@ def HumanInputCheck_(T):
         def plausible(self, context) -> bool:
             """True if both inputs are finite and within their limits."""
             tau, w = _values(self._torque(context)), _values(self._wrench(context))
-            return bool(np.all(np.isfinite(tau)) and np.all(np.abs(tau) <= self.max_torque)
-                        and np.all(np.isfinite(w)) and np.all(np.abs(w) <= self.max_wrench))
+            return bool(
+                np.all(np.isfinite(tau))
+                and np.all(np.abs(tau) <= self.max_torque)
+                and np.all(np.isfinite(w))
+                and np.all(np.abs(w) <= self.max_wrench)
+            )
 
         def _update(self, context, state):
             if not self.plausible(context):

@@ -2,7 +2,6 @@
 ``RandomSource``, seeded through the context), and a person reacting to the
 robot's position."""
 
-
 import dataclasses
 
 import numpy as np
@@ -11,7 +10,7 @@ from pydrake.systems.framework import LeafSystem
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.systems._util import _vector
 
-__all__ = ['Push', 'RandomPushes', 'Reactive', 'ScriptedHuman', 'ReactiveCoworker', 'RandomPushShaper']
+__all__ = ["Push", "RandomPushes", "Reactive", "ScriptedHuman", "ReactiveCoworker", "RandomPushShaper"]
 
 
 @dataclasses.dataclass
@@ -99,8 +98,10 @@ class ScriptedHuman(LeafSystem):
                 raise ParameterError(f"push {i}: duration must be >= 0 s, got {p.duration}.")
             tau = np.asarray(p.joint_torque, float) if len(p.joint_torque) else np.zeros(self.k)
             if p.toward_nearest_obstacle:
-                raise ParameterError(f"push {i}: toward_nearest_obstacle needs the workcell and the path; build "
-                                     "the diagram with drake_cfvol.comanip, which turns it into a wrench.")
+                raise ParameterError(
+                    f"push {i}: toward_nearest_obstacle needs the workcell and the path; build "
+                    "the diagram with drake_cfvol.comanip, which turns it into a wrench."
+                )
             w = np.asarray(p.wrench, float) if len(p.wrench) else np.zeros(6)
             if tau.shape != (self.k,):
                 raise DimensionError(f"push {i} joint_torque", self.k, tau.shape)
@@ -108,11 +109,17 @@ class ScriptedHuman(LeafSystem):
                 raise DimensionError(f"push {i} wrench", 6, w.shape)
             self.pushes.append((float(p.start), float(p.start + p.duration), tau, w))
         self.human_torque_output = self.DeclareVectorOutputPort(
-            name="human_torque", size=self.k, calc=lambda c, o: o.SetFromVector(self.at(c.get_time())[0]),
-            prerequisites_of_calc={self.time_ticket()})
+            name="human_torque",
+            size=self.k,
+            calc=lambda c, o: o.SetFromVector(self.at(c.get_time())[0]),
+            prerequisites_of_calc={self.time_ticket()},
+        )
         self.human_wrench_output = self.DeclareVectorOutputPort(
-            name="human_wrench", size=6, calc=lambda c, o: o.SetFromVector(self.at(c.get_time())[1]),
-            prerequisites_of_calc={self.time_ticket()})
+            name="human_wrench",
+            size=6,
+            calc=lambda c, o: o.SetFromVector(self.at(c.get_time())[1]),
+            prerequisites_of_calc={self.time_ticket()},
+        )
 
     def at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         tau, w = np.zeros(self.k), np.zeros(6)
@@ -161,8 +168,7 @@ class ReactiveCoworker(LeafSystem):
         self.start, self.end = float(start), float(start + duration)
         self.commanded_position_input = self.DeclareVectorInputPort(name="commanded_position", size=self.k)
         self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=self.k)
-        self.human_torque_output = self.DeclareVectorOutputPort(
-            name="human_torque", size=self.k, calc=self._calc)
+        self.human_torque_output = self.DeclareVectorOutputPort(name="human_torque", size=self.k, calc=self._calc)
 
     def _calc(self, context, output):
         t = context.get_time()
@@ -207,8 +213,8 @@ class RandomPushShaper(LeafSystem):
         self.max_torque = _vector(max_torque, k, "max_torque", nonnegative=True)
         self.uniform_input = self.DeclareVectorInputPort(name="uniform", size=self.k + 1)
         self.human_torque_output = self.DeclareVectorOutputPort(
-            name="human_torque", size=self.k, calc=lambda c, o: o.SetFromVector(self.torque(
-                self.uniform_input.Eval(c))))
+            name="human_torque", size=self.k, calc=lambda c, o: o.SetFromVector(self.torque(self.uniform_input.Eval(c)))
+        )
 
     def torque(self, u) -> np.ndarray:
         """The push for random numbers u (k + 1,)."""

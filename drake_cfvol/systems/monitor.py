@@ -1,15 +1,13 @@
 """Clearance, collision and volume contact through a SceneGraph's query
 port."""
 
-
-
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from drake_cfvol.exceptions import ParameterError
 
-__all__ = ['ClearanceMonitor']
+__all__ = ["ClearanceMonitor"]
 
 
 class ClearanceMonitor(LeafSystem):
@@ -51,36 +49,54 @@ class ClearanceMonitor(LeafSystem):
             which a push cannot bring closer. ``in_collision`` still counts them.
     """
 
-    def __init__(self, *, robot_ids, moving_ids, volume_ids, max_distance: float = 2.0, obstacle_ids=None,
-                 ignored_pairs=()):
+    def __init__(
+        self, *, robot_ids, moving_ids, volume_ids, max_distance: float = 2.0, obstacle_ids=None, ignored_pairs=()
+    ):
         super().__init__()
         self._robot = frozenset(robot_ids)
         self._moving = frozenset(moving_ids)
         self._volume = frozenset(volume_ids)
         self._obstacles = None if obstacle_ids is None else frozenset(obstacle_ids)
         self._ignored = frozenset((a, b) for a, b in ignored_pairs) | frozenset((b, a) for a, b in ignored_pairs)
-        self._pairs = None if obstacle_ids is None else [(a, b) for a in sorted(self._moving, key=lambda g: g.get_value())
-                                                          for b in sorted(self._obstacles, key=lambda g: g.get_value())
-                                                          if (a, b) not in self._ignored]
+        self._pairs = (
+            None
+            if obstacle_ids is None
+            else [
+                (a, b)
+                for a in sorted(self._moving, key=lambda g: g.get_value())
+                for b in sorted(self._obstacles, key=lambda g: g.get_value())
+                if (a, b) not in self._ignored
+            ]
+        )
         if not self._moving <= self._robot:
             raise ParameterError("ClearanceMonitor: moving_ids must be a subset of robot_ids.")
         self._max = float(max_distance)
         self.query_object_input = self.DeclareAbstractInputPort(
-            name="query_object", model_value=AbstractValue.Make(QueryObject()))
+            name="query_object", model_value=AbstractValue.Make(QueryObject())
+        )
         self.min_distance_output = self.DeclareVectorOutputPort(
-            name="min_distance", size=1, calc=lambda c, o: o.SetAtIndex(0, self.min_distance(c)))
+            name="min_distance", size=1, calc=lambda c, o: o.SetAtIndex(0, self.min_distance(c))
+        )
         # One penetration query serves both contact outputs (a cache entry).
         self._contact_cache = self.DeclareCacheEntry(
             description="(robot collides, robot touches V)",
-            value_producer=ValueProducer(allocate=lambda: AbstractValue.Make(object()),
-                                         calc=lambda c, value: value.set_value(self._contacts(c))),
-            prerequisites_of_calc={self.query_object_input.ticket()})
+            value_producer=ValueProducer(
+                allocate=lambda: AbstractValue.Make(object()), calc=lambda c, value: value.set_value(self._contacts(c))
+            ),
+            prerequisites_of_calc={self.query_object_input.ticket()},
+        )
         self.in_collision_output = self.DeclareVectorOutputPort(
-            name="in_collision", size=1, calc=lambda c, o: o.SetAtIndex(0, float(self._contact_cache.Eval(c)[0])),
-            prerequisites_of_calc={self.query_object_input.ticket()})
+            name="in_collision",
+            size=1,
+            calc=lambda c, o: o.SetAtIndex(0, float(self._contact_cache.Eval(c)[0])),
+            prerequisites_of_calc={self.query_object_input.ticket()},
+        )
         self.in_volume_output = self.DeclareVectorOutputPort(
-            name="in_volume", size=1, calc=lambda c, o: o.SetAtIndex(0, float(self._contact_cache.Eval(c)[1])),
-            prerequisites_of_calc={self.query_object_input.ticket()})
+            name="in_volume",
+            size=1,
+            calc=lambda c, o: o.SetAtIndex(0, float(self._contact_cache.Eval(c)[1])),
+            prerequisites_of_calc={self.query_object_input.ticket()},
+        )
 
     def min_distance(self, context) -> float:
         """Smallest signed distance, moving links to obstacles, m."""
@@ -104,7 +120,7 @@ class ClearanceMonitor(LeafSystem):
         for pp in query.ComputePointPairPenetration():
             a, b = pp.id_A, pp.id_B
             if a in self._volume or b in self._volume:
-                touches_volume |= (a in self._robot or b in self._robot)
+                touches_volume |= a in self._robot or b in self._robot
             elif a in self._robot or b in self._robot:
                 other = b if a in self._robot else a
                 if self._obstacles is None or other in self._robot or other in self._obstacles:

@@ -1,13 +1,21 @@
 """Boxes that move through the cell on their own: a cart, a fixture, a
 passer-by (SPEC 12)."""
 
-
 import dataclasses
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import (Box, FramePoseVector, GeometryFrame, GeometryInstance, IllustrationProperties,
-                              PerceptionProperties, ProximityProperties, RenderLabel, Rgba)
+from pydrake.geometry import (
+    Box,
+    FramePoseVector,
+    GeometryFrame,
+    GeometryInstance,
+    IllustrationProperties,
+    PerceptionProperties,
+    ProximityProperties,
+    RenderLabel,
+    Rgba,
+)
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
@@ -44,11 +52,13 @@ class MovingObstacle:
             raise ParameterError(f"moving obstacle '{self.name}': give at least one waypoint [t, x, y, z].")
         W = np.asarray(self.waypoints, float)
         if W.ndim != 2 or W.shape[1] != 4 or not np.all(np.isfinite(W)):
-            raise ParameterError(f"moving obstacle '{self.name}': each waypoint is [t, x, y, z] (s, m), got "
-                                 f"{self.waypoints!r}.")
+            raise ParameterError(
+                f"moving obstacle '{self.name}': each waypoint is [t, x, y, z] (s, m), got {self.waypoints!r}."
+            )
         if np.any(np.diff(W[:, 0]) <= 0):
-            raise ParameterError(f"moving obstacle '{self.name}': waypoint times must increase, got "
-                                 f"{W[:, 0].tolist()}.")
+            raise ParameterError(
+                f"moving obstacle '{self.name}': waypoint times must increase, got {W[:, 0].tolist()}."
+            )
 
     def position(self, t: float) -> np.ndarray:
         """The centre at time t, m."""
@@ -88,8 +98,15 @@ class MovingBoxes(LeafSystem):
             such port).
     """
 
-    def __init__(self, scene_graph, obstacles: list[MovingObstacle], *, rgba=(0.85, 0.45, 0.1, 1.0),
-                 grid: MapGrid | None = None, params: PerceptionParams = PerceptionParams()):
+    def __init__(
+        self,
+        scene_graph,
+        obstacles: list[MovingObstacle],
+        *,
+        rgba=(0.85, 0.45, 0.1, 1.0),
+        grid: MapGrid | None = None,
+        params: PerceptionParams = PerceptionParams(),
+    ):
         super().__init__()
         names = [o.name for o in obstacles]
         if len(set(names)) != len(names):
@@ -101,8 +118,9 @@ class MovingBoxes(LeafSystem):
         self.frame_ids, self.geometry_ids = [], []
         for n, o in enumerate(self.obstacles):
             frame = scene_graph.RegisterFrame(self.source_id, GeometryFrame(f"moving_{o.name}"))
-            gid = scene_graph.RegisterGeometry(self.source_id, frame,
-                                               GeometryInstance(RigidTransform(), Box(*o.box), o.name))
+            gid = scene_graph.RegisterGeometry(
+                self.source_id, frame, GeometryInstance(RigidTransform(), Box(*o.box), o.name)
+            )
             scene_graph.AssignRole(self.source_id, gid, ProximityProperties())
             ill = IllustrationProperties()
             ill.AddProperty("phong", "diffuse", Rgba(*rgba))
@@ -114,13 +132,19 @@ class MovingBoxes(LeafSystem):
             self.frame_ids.append(frame)
             self.geometry_ids.append(gid)
         self.geometry_pose_output = self.DeclareAbstractOutputPort(
-            "geometry_pose", lambda: AbstractValue.Make(FramePoseVector()), self._calc_poses,
-            prerequisites_of_calc={self.time_ticket()})
+            "geometry_pose",
+            lambda: AbstractValue.Make(FramePoseVector()),
+            self._calc_poses,
+            prerequisites_of_calc={self.time_ticket()},
+        )
         self.grid, self.params = grid, params
         if grid is not None:
             self.obstacle_map_output = self.DeclareAbstractOutputPort(
-                "obstacle_map", lambda: AbstractValue.Make(ObstacleMap.empty(grid)),
-                lambda c, o: o.set_value(self.obstacle_map(c.get_time())), prerequisites_of_calc={self.time_ticket()})
+                "obstacle_map",
+                lambda: AbstractValue.Make(ObstacleMap.empty(grid)),
+                lambda c, o: o.set_value(self.obstacle_map(c.get_time())),
+                prerequisites_of_calc={self.time_ticket()},
+            )
 
     def obstacle_map(self, t: float) -> ObstacleMap:
         """The boxes at time t on the grid: every cell a box's footprint
@@ -135,7 +159,7 @@ class MovingBoxes(LeafSystem):
             j0, j1 = max(int(j[0]), 0), min(int(j[1]), g.shape[1] - 1)
             top = np.ceil((c[2] + half[2]) / p.height_step - 1e-9) * p.height_step
             if i0 <= i1 and j0 <= j1 and top > p.floor:
-                H[i0:i1 + 1, j0:j1 + 1] = np.maximum(H[i0:i1 + 1, j0:j1 + 1], top)
+                H[i0 : i1 + 1, j0 : j1 + 1] = np.maximum(H[i0 : i1 + 1, j0 : j1 + 1], top)
         return ObstacleMap(g, _dilate(H, int(p.dilation)), float(t))
 
     def _calc_poses(self, context, output) -> None:

@@ -67,8 +67,9 @@ class OnlineBoundsEstimator(LeafSystem):
     #: version in force after publishing, map changed (1/0).
     LOG_FIELDS = ("time", "compute_ms", "map_stamp", "recomputed", "version", "map_changed")
 
-    def __init__(self, online: OnlineBounds, grid: MapGrid, *, period: float = OnlineBoundsConfig.period,
-                 offset: float = 0.0):
+    def __init__(
+        self, online: OnlineBounds, grid: MapGrid, *, period: float = OnlineBoundsConfig.period, offset: float = 0.0
+    ):
         super().__init__()
         if not period > 0:
             raise ParameterError(f"OnlineBoundsEstimator: period must be > 0 s, got {period!r}.")
@@ -76,19 +77,23 @@ class OnlineBoundsEstimator(LeafSystem):
         #: The bounds in force before any update (the known cell's).
         self.initial_bounds = online.live
         self.obstacle_map_input = self.DeclareAbstractInputPort(
-            "obstacle_map", AbstractValue.Make(ObstacleMap.empty(grid)))
+            "obstacle_map", AbstractValue.Make(ObstacleMap.empty(grid))
+        )
         self.path_index_input = self.DeclareVectorInputPort(name="path_index", size=1)
         self._published = self.DeclareAbstractState(AbstractValue.Make(online.live))
         self._computed = self.DeclareAbstractState(AbstractValue.Make(online.live))
         self._log = self.DeclareAbstractState(AbstractValue.Make(FrozenLog()))
         self._last_map = self.DeclareAbstractState(AbstractValue.Make(ObstacleMap.empty(grid)))
-        self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=self.period, offset_sec=float(offset),
-                                                    update=self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(
+            period_sec=self.period, offset_sec=float(offset), update=self._update
+        )
         self.bounds_output = self.DeclareStateOutputPort("bounds", self._published)
         self.bounds_version_output = self.DeclareVectorOutputPort(
-            "bounds_version", 1, lambda c, o: o.SetAtIndex(0, float(c.get_abstract_state(self._published)
-                                                                   .get_value().version)),
-            prerequisites_of_calc={self.abstract_state_ticket(self._published)})
+            "bounds_version",
+            1,
+            lambda c, o: o.SetAtIndex(0, float(c.get_abstract_state(self._published).get_value().version)),
+            prerequisites_of_calc={self.abstract_state_ticket(self._published)},
+        )
 
     def reset(self) -> None:
         """A fresh re-estimator for another run (same base table and settings)."""
@@ -111,5 +116,6 @@ class OnlineBoundsEstimator(LeafSystem):
         state.get_mutable_abstract_state(self._computed).set_value(self.online.live)
         state.get_mutable_abstract_state(self._last_map).set_value(m)
         row = (context.get_time(), u.time_ms, m.stamp, u.recomputed, computed.version, float(changed))
-        state.get_mutable_abstract_state(self._log).set_value(context.get_abstract_state(self._log).get_value()
-                                                              + (row,))
+        state.get_mutable_abstract_state(self._log).set_value(
+            context.get_abstract_state(self._log).get_value() + (row,)
+        )

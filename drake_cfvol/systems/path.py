@@ -9,10 +9,10 @@ from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
-from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.algorithm.table import BoundsTable
+from drake_cfvol.exceptions import ParameterError
 
-__all__ = ['PathProgress', 'PathProgressConfig', 'safe_path_rate']
+__all__ = ["PathProgress", "PathProgressConfig", "safe_path_rate"]
 
 
 @dataclasses.dataclass
@@ -34,8 +34,7 @@ class PathProgressConfig:
     max_rate: typing.Optional[float] = None
 
 
-def safe_path_rate(bounds: BoundsTable, velocity_limits, *,
-                   share: float = PathProgressConfig.velocity_share) -> float:
+def safe_path_rate(bounds: BoundsTable, velocity_limits, *, share: float = PathProgressConfig.velocity_share) -> float:
     """The fastest path progress, in waypoints per second, at which the
     nominal and the bounds move no joint faster than ``share`` of its
     velocity limit.
@@ -51,8 +50,9 @@ def safe_path_rate(bounds: BoundsTable, velocity_limits, *,
     """
     vmax = np.asarray(velocity_limits, float)
     if bounds.g > 1:
-        steps = np.max([np.abs(np.diff(a, axis=0)).max(axis=0) for a in (bounds.nominal, bounds.lower, bounds.upper)],
-                       axis=0)
+        steps = np.max(
+            [np.abs(np.diff(a, axis=0)).max(axis=0) for a in (bounds.nominal, bounds.lower, bounds.upper)], axis=0
+        )
     else:
         steps = np.zeros(bounds.k)
     rate = np.asarray(bounds.rate, float)
@@ -95,14 +95,16 @@ class PathProgress(Diagram):
         # trajectories hold their end values outside their time span).
         t0 = self.start_time
         self.trajectory = PiecewisePolynomial.FirstOrderHold(
-            [t0, max(self.duration, t0 + 1e-9)], np.array([[0.0, self.g - 1.0]]))
+            [t0, max(self.duration, t0 + 1e-9)], np.array([[0.0, self.g - 1.0]])
+        )
         builder = DiagramBuilder()
         if not lead >= 0:
             raise ParameterError(f"lead must be >= 0 s, got {lead}.")
         self.lead = float(lead)
         source = builder.AddNamedSystem("trajectory", TrajectorySource(self.trajectory))
         ahead = PiecewisePolynomial.FirstOrderHold(
-            [t0 - self.lead, max(self.duration, t0 + 1e-9) - self.lead], np.array([[0.0, self.g - 1.0]]))
+            [t0 - self.lead, max(self.duration, t0 + 1e-9) - self.lead], np.array([[0.0, self.g - 1.0]])
+        )
         source_ahead = builder.AddNamedSystem("trajectory_ahead", TrajectorySource(ahead))
         builder.ExportOutput(source.get_output_port(), "path_index")
         builder.ExportOutput(source_ahead.get_output_port(), "path_index_ahead")

@@ -8,9 +8,20 @@ import typing
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import (ClippingRange, ColorRenderCamera, Convex, DepthRange, DepthRenderCamera, GeometryInstance,
-                              MakeRenderEngineVtk, Mesh, PerceptionProperties, RenderCameraCore, RenderEngineVtkParams,
-                              Role)
+from pydrake.geometry import (
+    ClippingRange,
+    ColorRenderCamera,
+    Convex,
+    DepthRange,
+    DepthRenderCamera,
+    GeometryInstance,
+    MakeRenderEngineVtk,
+    Mesh,
+    PerceptionProperties,
+    RenderCameraCore,
+    RenderEngineVtkParams,
+    Role,
+)
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.perception import BaseField, DepthImageToPointCloud, PointCloud
 from pydrake.systems.framework import LeafSystem
@@ -21,7 +32,19 @@ from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap, PerceptionParams
 from drake_cfvol.scene.robot import robot_bodies
 
-__all__ = ["make_renderable", "floor_points", "ObstacleMapper", "AddCellCamera", "CellCamera", "AddCellModel", "CellModel", "CAMERA_RENDERER", "MODEL_RENDERER", "overhead_pose", "PerceptionConfig"]
+__all__ = [
+    "make_renderable",
+    "floor_points",
+    "ObstacleMapper",
+    "AddCellCamera",
+    "CellCamera",
+    "AddCellModel",
+    "CellModel",
+    "CAMERA_RENDERER",
+    "MODEL_RENDERER",
+    "overhead_pose",
+    "PerceptionConfig",
+]
 
 
 @dataclasses.dataclass
@@ -42,6 +65,7 @@ class PerceptionConfig:
     height: int = 240
     cell: float = 0.05
     obstacle_speed: float = 0.5
+
 
 #: The renderer that draws the real cell (everything with a perception role).
 CAMERA_RENDERER = "cell_camera"
@@ -86,8 +110,17 @@ class ObstacleMapper(LeafSystem):
             without a return say nothing).
     """
 
-    def __init__(self, grid: MapGrid, robot_labels, *, params: PerceptionParams = PerceptionParams(),
-                 period: float = 0.05, offset: float = 0.0, camera_info=None, X_WC=None):
+    def __init__(
+        self,
+        grid: MapGrid,
+        robot_labels,
+        *,
+        params: PerceptionParams = PerceptionParams(),
+        period: float = 0.05,
+        offset: float = 0.0,
+        camera_info=None,
+        X_WC=None,
+    ):
         super().__init__()
         if not period > 0:
             raise ParameterError(f"ObstacleMapper: period must be > 0 s, got {period!r}.")
@@ -97,20 +130,26 @@ class ObstacleMapper(LeafSystem):
         self.point_cloud_input = self.DeclareAbstractInputPort("point_cloud", AbstractValue.Make(PointCloud()))
         self.depth_image_input = self.DeclareAbstractInputPort("depth_image", AbstractValue.Make(ImageDepth32F()))
         self.model_depth_image_input = self.DeclareAbstractInputPort(
-            "model_depth_image", AbstractValue.Make(ImageDepth32F()))
+            "model_depth_image", AbstractValue.Make(ImageDepth32F())
+        )
         self.model_label_image_input = self.DeclareAbstractInputPort(
-            "model_label_image", AbstractValue.Make(ImageLabel16I()))
+            "model_label_image", AbstractValue.Make(ImageLabel16I())
+        )
         self._map = self.DeclareAbstractState(AbstractValue.Make(ObstacleMap.empty(grid)))
-        self.DeclarePeriodicUnrestrictedUpdateEvent(period_sec=self.period, offset_sec=float(offset),
-                                                    update=self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(
+            period_sec=self.period, offset_sec=float(offset), update=self._update
+        )
         self.obstacle_map_output = self.DeclareStateOutputPort("obstacle_map", self._map)
         self.occupied_cells_output = self.DeclareVectorOutputPort(
-            "occupied_cells", 1, lambda c, o: o.SetAtIndex(0, float(c.get_abstract_state(self._map).get_value()
-                                                                    .occupied)),
-            prerequisites_of_calc={self.abstract_state_ticket(self._map)})
+            "occupied_cells",
+            1,
+            lambda c, o: o.SetAtIndex(0, float(c.get_abstract_state(self._map).get_value().occupied)),
+            prerequisites_of_calc={self.abstract_state_ticket(self._map)},
+        )
 
-    def classify(self, depth: np.ndarray, model_depth: np.ndarray, model_label: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def classify(
+        self, depth: np.ndarray, model_depth: np.ndarray, model_label: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(new, seen, robot): per pixel, something the model lacks; the
         known cell (not the robot) seen as the model has it; the robot seen
         where the model has it."""
@@ -133,20 +172,27 @@ class ObstacleMapper(LeafSystem):
         seen_points, hidden = X[:, seen], X[:, robot]
         if self._floor is not None:
             hidden = np.concatenate([hidden, self._floor[:, robot]], axis=1)
-            none = ~np.isfinite(np.asarray(depth, float).reshape(-1)) & ~np.isfinite(np.asarray(model, float)
-                                                                                     .reshape(-1))
+            none = ~np.isfinite(np.asarray(depth, float).reshape(-1)) & ~np.isfinite(
+                np.asarray(model, float).reshape(-1)
+            )
             seen_points = np.concatenate([seen_points, self._floor[:, none]], axis=1)
         old = context.get_abstract_state(self._map).get_value()
         state.get_mutable_abstract_state(self._map).set_value(
-            old.integrate(X[:, new], seen_points, context.get_time(), self.params, hidden))
+            old.integrate(X[:, new], seen_points, context.get_time(), self.params, hidden)
+        )
 
 
 def floor_points(camera_info, X_WC: RigidTransform) -> np.ndarray:
     """(3, w h) where each pixel's ray (row by row, as Drake's point clouds)
     meets the floor plane z = 0, m (inf where it does not, going up)."""
     u, v = np.meshgrid(np.arange(camera_info.width()), np.arange(camera_info.height()))
-    d_C = np.stack([(u.ravel() + 0.5 - camera_info.center_x()) / camera_info.focal_x(),
-                    (v.ravel() + 0.5 - camera_info.center_y()) / camera_info.focal_y(), np.ones(u.size)])
+    d_C = np.stack(
+        [
+            (u.ravel() + 0.5 - camera_info.center_x()) / camera_info.focal_x(),
+            (v.ravel() + 0.5 - camera_info.center_y()) / camera_info.focal_y(),
+            np.ones(u.size),
+        ]
+    )
     d_W = X_WC.rotation().matrix() @ d_C
     p = X_WC.translation()
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -185,14 +231,21 @@ def make_renderable(scene_graph, plant) -> int:
     source = plant.get_source_id()
     n = 0
     for gid in inspector.GetAllGeometryIds(Role.kPerception):
-        if inspector.GetOwningSourceName(gid) != inspector.GetName(source) or \
-                not _obj_without_normals(inspector.GetShape(gid)):
+        if inspector.GetOwningSourceName(gid) != inspector.GetName(source) or not _obj_without_normals(
+            inspector.GetShape(gid)
+        ):
             continue
         shape = inspector.GetShape(gid)
         props = PerceptionProperties(inspector.GetPerceptionProperties(gid))
-        proxy = scene_graph.RegisterGeometry(source, inspector.GetFrameId(gid), GeometryInstance(
-            inspector.GetPoseInFrame(gid), Convex(shape.source().path(), shape.scale3()),
-            f"{inspector.GetName(gid)}_hull"))
+        proxy = scene_graph.RegisterGeometry(
+            source,
+            inspector.GetFrameId(gid),
+            GeometryInstance(
+                inspector.GetPoseInFrame(gid),
+                Convex(shape.source().path(), shape.scale3()),
+                f"{inspector.GetName(gid)}_hull",
+            ),
+        )
         scene_graph.AssignRole(source, proxy, props)
         scene_graph.RemoveRole(source, gid, Role.kPerception)
         n += 1
@@ -261,11 +314,20 @@ def robot_render_labels(plant, scene_graph, robot) -> set[int]:
     return labels
 
 
-def AddCellCamera(builder, *, scene_graph, model: CellModel, grid: MapGrid,
-                  params: PerceptionParams = PerceptionParams(), width: int = PerceptionConfig.width,
-                  height: int = PerceptionConfig.height, fov_y: float = math.radians(70.0),
-                  period: float = PerceptionConfig.camera_period, offset: float = 0.0,
-                  X_WC: RigidTransform | None = None) -> CellCamera:
+def AddCellCamera(
+    builder,
+    *,
+    scene_graph,
+    model: CellModel,
+    grid: MapGrid,
+    params: PerceptionParams = PerceptionParams(),
+    width: int = PerceptionConfig.width,
+    height: int = PerceptionConfig.height,
+    fov_y: float = math.radians(70.0),
+    period: float = PerceptionConfig.camera_period,
+    offset: float = 0.0,
+    X_WC: RigidTransform | None = None,
+) -> CellCamera:
     """Adds an overhead depth camera over the map's grid and its obstacle
     mapper to someone's builder: a camera on the station's SceneGraph (the
     real cell: everything with a perception role) and a model camera on the
@@ -299,8 +361,15 @@ def AddCellCamera(builder, *, scene_graph, model: CellModel, grid: MapGrid,
 
     def sensor(sg, renderer: str, name: str) -> RgbdSensor:
         core = RenderCameraCore(renderer, info, ClippingRange(0.05, far), RigidTransform())
-        s = builder.AddNamedSystem(name, RgbdSensor(sg.world_frame_id(), X_WC, ColorRenderCamera(core, False),
-                                                    DepthRenderCamera(core, DepthRange(0.06, far - 0.01))))
+        s = builder.AddNamedSystem(
+            name,
+            RgbdSensor(
+                sg.world_frame_id(),
+                X_WC,
+                ColorRenderCamera(core, False),
+                DepthRenderCamera(core, DepthRange(0.06, far - 0.01)),
+            ),
+        )
         builder.Connect(sg.get_query_output_port(), s.query_object_input_port())
         return s
 
@@ -310,9 +379,18 @@ def AddCellCamera(builder, *, scene_graph, model: CellModel, grid: MapGrid,
     pose = builder.AddNamedSystem("cell_camera_pose", ConstantValueSource(AbstractValue.Make(X_WC)))
     builder.Connect(camera.depth_image_32F_output_port(), to_cloud.depth_image_input_port())
     builder.Connect(pose.get_output_port(), to_cloud.camera_pose_input_port())
-    mapper = builder.AddNamedSystem("obstacle_mapper", ObstacleMapper(
-        grid, robot_render_labels(model.plant, model.scene_graph, model.robot), params=params, period=period,
-        offset=offset, camera_info=info, X_WC=X_WC))
+    mapper = builder.AddNamedSystem(
+        "obstacle_mapper",
+        ObstacleMapper(
+            grid,
+            robot_render_labels(model.plant, model.scene_graph, model.robot),
+            params=params,
+            period=period,
+            offset=offset,
+            camera_info=info,
+            X_WC=X_WC,
+        ),
+    )
     builder.Connect(to_cloud.point_cloud_output_port(), mapper.point_cloud_input)
     builder.Connect(camera.depth_image_32F_output_port(), mapper.depth_image_input)
     builder.Connect(model_camera.depth_image_32F_output_port(), mapper.model_depth_image_input)

@@ -239,8 +239,10 @@ def _check_parameters(period, clearance, allowance, influence_distance, damper_g
     if not allowance >= 0:
         raise ParameterError(f"SafetyFilter: allowance must be >= 0 m, got {allowance}.")
     if not influence_distance > clearance + allowance:
-        raise ParameterError(f"SafetyFilter: influence_distance ({influence_distance} m) must exceed the "
-                             f"clearance plus the allowance ({clearance} + {allowance} m).")
+        raise ParameterError(
+            f"SafetyFilter: influence_distance ({influence_distance} m) must exceed the "
+            f"clearance plus the allowance ({clearance} + {allowance} m)."
+        )
     if not damper_gain > 0:
         raise ParameterError(f"SafetyFilter: damper_gain must be > 0 m/s, got {damper_gain}.")
 
@@ -248,12 +250,21 @@ def _check_parameters(period, clearance, allowance, influence_distance, damper_g
 def _declare_status_outputs(system, status) -> None:
     """The filter's status outputs (``filter_active_output``, ...), each one
     entry of the ``status`` discrete state."""
-    for name, i in [("filter_active", _ACTIVE), ("filter_count", _COUNT), ("min_distance", _MIN_DISTANCE),
-                    ("velocity_ratio", _RATIO), ("fallback_count", _FALLBACKS), ("damper_misses", _MISSES),
-                    ("box_exits", _EXITS)]:
+    for name, i in [
+        ("filter_active", _ACTIVE),
+        ("filter_count", _COUNT),
+        ("min_distance", _MIN_DISTANCE),
+        ("velocity_ratio", _RATIO),
+        ("fallback_count", _FALLBACKS),
+        ("damper_misses", _MISSES),
+        ("box_exits", _EXITS),
+    ]:
         port = system.DeclareVectorOutputPort(
-            name=name, size=1, calc=lambda ctx, out, i=i: out.SetAtIndex(0, ctx.get_discrete_state(status).GetAtIndex(i)),
-            prerequisites_of_calc={system.xd_ticket()})
+            name=name,
+            size=1,
+            calc=lambda ctx, out, i=i: out.SetAtIndex(0, ctx.get_discrete_state(status).GetAtIndex(i)),
+            prerequisites_of_calc={system.xd_ticket()},
+        )
         setattr(system, f"{name}_output", port)
 
 
@@ -333,11 +344,25 @@ class SafetyFilter(LeafSystem):
     #: Most QP solves per update for the rows' second-order term.
     SECOND_ORDER_ROUNDS = 4
 
-    def __init__(self, plant, scene_graph, robot, *, velocity_limits=None, obstacle_ids=None, clearance: float = 0.0,
-                 influence_distance: float = SafetyFilterConfig.influence_distance, period: float = 0.01,
-                 damper_gain: float = SafetyFilterConfig.damper_gain, allowance: float = SafetyFilterConfig.allowance,
-                 acceleration_limits=None, initial_position=None, skip_far_pairs: bool = True, dynamic_ids=(),
-                 constraints=()):
+    def __init__(
+        self,
+        plant,
+        scene_graph,
+        robot,
+        *,
+        velocity_limits=None,
+        obstacle_ids=None,
+        clearance: float = 0.0,
+        influence_distance: float = SafetyFilterConfig.influence_distance,
+        period: float = 0.01,
+        damper_gain: float = SafetyFilterConfig.damper_gain,
+        allowance: float = SafetyFilterConfig.allowance,
+        acceleration_limits=None,
+        initial_position=None,
+        skip_far_pairs: bool = True,
+        dynamic_ids=(),
+        constraints=(),
+    ):
         super().__init__()
         robot_slice = RobotSlice(plant, robot)
         k = robot_slice.k
@@ -352,20 +377,30 @@ class SafetyFilter(LeafSystem):
         self.target_distance = self.clearance + self.allowance
         #: The damper's rate, 1/s: min(xi / (d_inf - d_s), 1 / dt).
         self.rate = min(self.damper_gain / (self.influence_distance - self.target_distance), 1.0 / self.period)
-        self.velocity_limits = _limits(plant.GetVelocityUpperLimits()[robot_slice.vidx]
-                                       if velocity_limits is None else velocity_limits, k, "velocity_limits")
+        self.velocity_limits = _limits(
+            plant.GetVelocityUpperLimits()[robot_slice.vidx] if velocity_limits is None else velocity_limits,
+            k,
+            "velocity_limits",
+        )
         # Commanded at most this: a hair (1e-9) under the limits, so that
         # rounding in q + v dt never shows a step above them.
         self._vmax = self.velocity_limits * (1.0 - _HAIR)
-        self.acceleration_limits = (None if acceleration_limits is None
-                                    else _limits(acceleration_limits, k, "acceleration_limits"))
+        self.acceleration_limits = (
+            None if acceleration_limits is None else _limits(acceleration_limits, k, "acceleration_limits")
+        )
         q0 = np.zeros(k) if initial_position is None else np.asarray(initial_position, float)
         if q0.shape != (k,):
             raise DimensionError("initial_position", k, q0.shape)
         self._plant = plant
-        self._damper = VelocityDamper(plant, scene_graph, robot, obstacle_ids=obstacle_ids,
-                                      target_distance=self.target_distance,
-                                      influence_distance=self.influence_distance, rate=self.rate)
+        self._damper = VelocityDamper(
+            plant,
+            scene_graph,
+            robot,
+            obstacle_ids=obstacle_ids,
+            target_distance=self.target_distance,
+            influence_distance=self.influence_distance,
+            rate=self.rate,
+        )
         self._qp = PriorityQP()
         self.skip_far_pairs = bool(skip_far_pairs)
         n_pairs = self._damper.num_pairs
@@ -379,11 +414,19 @@ class SafetyFilter(LeafSystem):
         #: the velocity limits, the box, the damper's rows (the static
         #: scene's, relaxed near the nominal; the moving geometry's, never),
         #: then ``constraints``.
-        self.constraints = [VelocityLimits(), JointBox(self.BOX_WEIGHT),
-                            DamperConstraint(weight=self.SLACK_WEIGHT, relax=relax, name="damper",
-                                             select=lambda rows: ~np.isin(rows.pair, dynamic)),
-                            DamperConstraint(weight=self.SLACK_WEIGHT, relax=None, name="perceived_obstacles",
-                                             select=lambda rows: np.isin(rows.pair, dynamic))]
+        self.constraints = [
+            VelocityLimits(),
+            JointBox(self.BOX_WEIGHT),
+            DamperConstraint(
+                weight=self.SLACK_WEIGHT, relax=relax, name="damper", select=lambda rows: ~np.isin(rows.pair, dynamic)
+            ),
+            DamperConstraint(
+                weight=self.SLACK_WEIGHT,
+                relax=None,
+                name="perceived_obstacles",
+                select=lambda rows: np.isin(rows.pair, dynamic),
+            ),
+        ]
         self.constraints += list(constraints)
         self._robot_slice = robot_slice
 
@@ -393,7 +436,8 @@ class SafetyFilter(LeafSystem):
         self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=k)
         self.measured_position_input = self.DeclareVectorInputPort(name="measured_position", size=k)
         self.query_object_input = self.DeclareAbstractInputPort(
-            name="query_object", model_value=AbstractValue.Make(QueryObject()))
+            name="query_object", model_value=AbstractValue.Make(QueryObject())
+        )
         self._position = self.DeclareDiscreteState(q0)
         self._velocity = self.DeclareDiscreteState(k)  # the last commanded velocity
         self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0]))
@@ -404,15 +448,20 @@ class SafetyFilter(LeafSystem):
         # outside this system's own).
         self._scratch = self.DeclareCacheEntry(
             description="plant context (scratch for the witness points' Jacobians)",
-            value_producer=ValueProducer(allocate=lambda: AbstractValue.Make(plant.CreateDefaultContext()),
-                                         calc=lambda context, value: None),
-            prerequisites_of_calc={self.nothing_ticket()})
+            value_producer=ValueProducer(
+                allocate=lambda: AbstractValue.Make(plant.CreateDefaultContext()), calc=lambda context, value: None
+            ),
+            prerequisites_of_calc={self.nothing_ticket()},
+        )
         self.DeclarePeriodicDiscreteUpdateEvent(period_sec=self.period, offset_sec=0.0, update=self._update)
         self.commanded_position_output = self.DeclareStateOutputPort("commanded_position", self._position)
         self.commanded_velocity_output = self.DeclareStateOutputPort("commanded_velocity", self._velocity)
         self.desired_state_output = self.DeclareVectorOutputPort(
-            name="desired_state", size=2 * k, calc=self._calc_desired_state,
-            prerequisites_of_calc={self.xd_ticket(), self.time_ticket()})
+            name="desired_state",
+            size=2 * k,
+            calc=self._calc_desired_state,
+            prerequisites_of_calc={self.xd_ticket(), self.time_ticket()},
+        )
         _declare_status_outputs(self, self._status)
 
     @property
@@ -422,8 +471,11 @@ class SafetyFilter(LeafSystem):
 
     def _calc_desired_state(self, context, output) -> None:
         xd = context.get_discrete_state
-        output.SetFromVector(_desired_state(xd(self._position).CopyToVector(), xd(self._velocity).CopyToVector(),
-                                            self.period, context.get_time()))
+        output.SetFromVector(
+            _desired_state(
+                xd(self._position).CopyToVector(), xd(self._velocity).CopyToVector(), self.period, context.get_time()
+            )
+        )
 
     def _pctx(self, context):
         return self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
@@ -470,8 +522,7 @@ class SafetyFilter(LeafSystem):
         if q.shape != (self.k,):
             raise DimensionError("q", self.k, q.shape)
         context.get_mutable_discrete_state(self._position).SetFromVector(q)
-        context.get_mutable_discrete_state(self._budget).SetFromVector(
-            np.full(max(self._damper.num_pairs, 1), -1.0))
+        context.get_mutable_discrete_state(self._budget).SetFromVector(np.full(max(self._damper.num_pairs, 1), -1.0))
 
     # -- the update ----------------------------------------------------------
 
@@ -483,8 +534,7 @@ class SafetyFilter(LeafSystem):
         desired = np.asarray(self.desired_position_input.Eval(context), float)
         lower = np.asarray(self.lower_input.Eval(context), float)
         upper = np.asarray(self.upper_input.Eval(context), float)
-        nominal = (np.asarray(self.nominal_input.Eval(context), float) if self.nominal_input.HasValue(context)
-                   else None)
+        nominal = np.asarray(self.nominal_input.Eval(context), float) if self.nominal_input.HasValue(context) else None
         fallback = False
         sane = all(np.all(np.isfinite(x)) for x in (desired, lower, upper)) and np.all(lower <= upper)
         if not sane:
@@ -500,7 +550,7 @@ class SafetyFilter(LeafSystem):
                 step = self.acceleration_limits * h
                 target = np.clip(target, v_last - step, v_last + step)
             v_t = np.clip(target, lo, hi)
-            budget = context.get_discrete_state(self._budget).CopyToVector()[:self._damper.num_pairs]
+            budget = context.get_discrete_state(self._budget).CopyToVector()[: self._damper.num_pairs]
             measured = self.measured_position_input.HasValue(context)
             skip = self.skip_far_pairs and not measured  # a measured robot moves on its own: measure all
             measure = budget < 0 if skip else np.ones(self._damper.num_pairs, bool)
@@ -527,12 +577,21 @@ class SafetyFilter(LeafSystem):
         discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
         if sane and self._damper.num_pairs and not self.measured_position_input.HasValue(context):
             discrete_state.get_mutable_vector(self._budget).SetFromVector(
-                self._next_budget(context, q, q_next, budget, dists))
+                self._next_budget(context, q, q_next, budget, dists)
+            )
         else:  # measure every pair at the next update
             discrete_state.get_mutable_vector(self._budget).SetFromVector(np.full(max(self._damper.num_pairs, 1), -1.0))
         discrete_state.get_mutable_vector(self._status).SetFromVector(
-            [float(acted), status[_COUNT] + acted, dmin, ratio, status[_FALLBACKS] + fallback,
-             status[_MISSES] + missed, status[_EXITS] + exited])
+            [
+                float(acted),
+                status[_COUNT] + acted,
+                dmin,
+                ratio,
+                status[_FALLBACKS] + fallback,
+                status[_MISSES] + missed,
+                status[_EXITS] + exited,
+            ]
+        )
 
     def _filter(self, context, q, v_t, lo, hi, rows: DamperRows, nominal):
         """The velocity commanded for the request v_t: (v, missed: a
@@ -548,8 +607,18 @@ class SafetyFilter(LeafSystem):
         # controller's to close (demanding that the command undo it at once
         # would chase the robot).
         base = self.base_position(context)
-        step = FilterStep(q=base, q_c=q, period=self.period, lo=lo, hi=hi, vmax=self._vmax, nominal=nominal,
-                          damper=rows, plant=self._plant, robot_slice=self._robot_slice,
-                          plant_context=self._pctx(context),
-                          second_order=lambda dq: self._damper.second_order(self._pctx(context), base, rows, dq))
+        step = FilterStep(
+            q=base,
+            q_c=q,
+            period=self.period,
+            lo=lo,
+            hi=hi,
+            vmax=self._vmax,
+            nominal=nominal,
+            damper=rows,
+            plant=self._plant,
+            robot_slice=self._robot_slice,
+            plant_context=self._pctx(context),
+            second_order=lambda dq: self._damper.second_order(self._pctx(context), base, rows, dq),
+        )
         return solve_rounds(self._qp, self.constraints, step, v_t, rounds=self.SECOND_ORDER_ROUNDS, nudge=_NUDGE)

@@ -21,9 +21,9 @@ from drake_cfvol.exceptions import StationError
 from drake_cfvol.scene.robot import RobotSlice, robot_instances
 from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformation
 from drake_cfvol.systems.bounds_source import JointBoundsSource
+from drake_cfvol.systems.constraints import ToolSpeedLimit
 from drake_cfvol.systems.human_input import HumanInputCheck
 from drake_cfvol.systems.path import PathProgress, PathProgressConfig, safe_path_rate
-from drake_cfvol.systems.constraints import ToolSpeedLimit
 from drake_cfvol.systems.safety import SafetyFilter, SafetyFilterConfig
 
 __all__ = ["AddCoManipulation", "CoManipulationConfig", "CoManipulationSystems", "ToolPushForce"]
@@ -70,8 +70,9 @@ def _robot_instance(plant, robot):
         return robot
     if not plant.HasModelInstanceNamed(str(robot)):
         names = [plant.GetModelInstanceName(ModelInstanceIndex(i)) for i in range(plant.num_model_instances())]
-        raise StationError(f"AddCoManipulation: robot '{robot}' is not a model instance of the plant "
-                           f"(there are: {', '.join(names)}).")
+        raise StationError(
+            f"AddCoManipulation: robot '{robot}' is not a model instance of the plant (there are: {', '.join(names)})."
+        )
     return plant.GetModelInstanceByName(str(robot))
 
 
@@ -81,7 +82,8 @@ def _check_table(table, robot_slice, plant, robot) -> None:
         raise StationError(
             f"AddCoManipulation: the bounds table is for joints {names}, but model instance "
             f"'{plant.GetModelInstanceName(robot)}' of the plant has {robot_slice.joint_names}. Compute the bounds "
-            "on a workcell of the same robot (Workcell.FromRobotDiagram of the same models).")
+            "on a workcell of the same robot (Workcell.FromRobotDiagram of the same models)."
+        )
 
 
 @dataclasses.dataclass
@@ -117,11 +119,16 @@ def _resolve(plant, robot, table, tool_frame, config):
     if isinstance(tool_frame, str):
         owner = next((i for i in robot_instances(plant, robot) if plant.HasFrameNamed(tool_frame, i)), None)
         if owner is None:
-            raise StationError(f"AddCoManipulation: tool_frame '{tool_frame}' is not a frame of "
-                               f"'{plant.GetModelInstanceName(robot)}' (or of a body it carries).")
+            raise StationError(
+                f"AddCoManipulation: tool_frame '{tool_frame}' is not a frame of "
+                f"'{plant.GetModelInstanceName(robot)}' (or of a body it carries)."
+            )
         tool_frame = plant.GetFrameByName(tool_frame, owner)
-    limits = (np.asarray(config.velocity_limits, float) if len(config.velocity_limits)
-              else plant.GetVelocityUpperLimits()[rs.vidx])
+    limits = (
+        np.asarray(config.velocity_limits, float)
+        if len(config.velocity_limits)
+        else plant.GetVelocityUpperLimits()[rs.vidx]
+    )
     pp = config.path_progress
     rate = safe_path_rate(table, limits, share=pp.velocity_share)
     if pp.max_rate is not None:
@@ -129,21 +136,44 @@ def _resolve(plant, robot, table, tool_frame, config):
     return robot, rs.k, tool_frame, limits, rate
 
 
-def _safety_filter(f: SafetyFilterConfig, plant, scene_graph, robot, table, limits, period, obstacle_ids,
-                   dynamic_ids, tool_frame=None) -> SafetyFilter:
+def _safety_filter(
+    f: SafetyFilterConfig, plant, scene_graph, robot, table, limits, period, obstacle_ids, dynamic_ids, tool_frame=None
+) -> SafetyFilter:
     """The filter of a config: its margin the table's where the config leaves it None."""
     margin = float(table.params.get("clearance", 0.0)) if f.clearance is None else float(f.clearance)
     dynamic = list(dynamic_ids)
-    return SafetyFilter(plant, scene_graph, robot, velocity_limits=limits,
-                        obstacle_ids=None if obstacle_ids is None else list(obstacle_ids) + dynamic,
-                        clearance=margin, influence_distance=f.influence_distance, damper_gain=f.damper_gain,
-                        allowance=f.allowance, period=period, initial_position=table.nominal[0], dynamic_ids=dynamic,
-                        constraints=[] if f.tool_speed is None else [ToolSpeedLimit(tool_frame, f.tool_speed)])
+    return SafetyFilter(
+        plant,
+        scene_graph,
+        robot,
+        velocity_limits=limits,
+        obstacle_ids=None if obstacle_ids is None else list(obstacle_ids) + dynamic,
+        clearance=margin,
+        influence_distance=f.influence_distance,
+        damper_gain=f.damper_gain,
+        allowance=f.allowance,
+        period=period,
+        initial_position=table.nominal[0],
+        dynamic_ids=dynamic,
+        constraints=[] if f.tool_speed is None else [ToolSpeedLimit(tool_frame, f.tool_speed)],
+    )
 
 
-def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, period: float = 0.01,
-                      measured_state: bool = True, config: CoManipulationConfig = CoManipulationConfig(),
-                      obstacle_ids=None, dynamic_ids=(), name: str = "cfvol") -> CoManipulationSystems:
+def AddCoManipulation(
+    builder,
+    *,
+    plant,
+    scene_graph,
+    robot,
+    table,
+    tool_frame,
+    period: float = 0.01,
+    measured_state: bool = True,
+    config: CoManipulationConfig = CoManipulationConfig(),
+    obstacle_ids=None,
+    dynamic_ids=(),
+    name: str = "cfvol",
+) -> CoManipulationSystems:
     """Adds co-manipulation to a user's builder: path progress, the bounds
     of ``table`` one control period ahead, the push's check, the admittance
     and the runtime safety filter (velocity limits, the box, the clearance
@@ -187,13 +217,27 @@ def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, 
         raise StationError("AddCoManipulation: finalize the plant first (plant.Finalize()).")
     robot, k, tool_frame, limits, rate = _resolve(plant, robot, table, tool_frame, config)
     a, f = config.admittance, config.safety_filter
-    progress = builder.AddNamedSystem(_named(name, "path_progress"), PathProgress(
-        table.g, rate=rate, start_time=config.path_progress.start_time, lead=period))
+    progress = builder.AddNamedSystem(
+        _named(name, "path_progress"),
+        PathProgress(table.g, rate=rate, start_time=config.path_progress.start_time, lead=period),
+    )
     bounds = builder.AddNamedSystem(_named(name, "joint_bounds"), JointBoundsSource(table, clamp=True))
     check = builder.AddNamedSystem(_named(name, "human_input_check"), HumanInputCheck(k, period=period))
-    adm = builder.AddNamedSystem(_named(name, "admittance"), AdmittanceDeformation(
-        k, mass=a.mass, damping=a.damping, stiffness=a.stiffness, period=period, plant=plant,
-        tool_frame=tool_frame, velocity_limits=limits, path_share=config.path_progress.velocity_share, robot=robot))
+    adm = builder.AddNamedSystem(
+        _named(name, "admittance"),
+        AdmittanceDeformation(
+            k,
+            mass=a.mass,
+            damping=a.damping,
+            stiffness=a.stiffness,
+            period=period,
+            plant=plant,
+            tool_frame=tool_frame,
+            velocity_limits=limits,
+            path_share=config.path_progress.velocity_share,
+            robot=robot,
+        ),
+    )
     builder.Connect(progress.path_index_ahead_output, bounds.path_index_input)
     for port in ("nominal", "lower", "upper"):
         builder.Connect(bounds.GetOutputPort(port), adm.GetInputPort(port))
@@ -202,8 +246,10 @@ def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, 
     builder.Connect(check.fault_output, adm.hold_input)
     safety, commanded = None, adm.commanded_position_output
     if f is not None:
-        safety = builder.AddNamedSystem(_named(name, "safety_filter"), _safety_filter(
-            f, plant, scene_graph, robot, table, limits, period, obstacle_ids, dynamic_ids, tool_frame))
+        safety = builder.AddNamedSystem(
+            _named(name, "safety_filter"),
+            _safety_filter(f, plant, scene_graph, robot, table, limits, period, obstacle_ids, dynamic_ids, tool_frame),
+        )
         for port in ("nominal", "lower", "upper"):
             builder.Connect(bounds.GetOutputPort(port), safety.GetInputPort(port))
         builder.Connect(adm.commanded_position_output, safety.desired_position_input)
@@ -216,10 +262,18 @@ def AddCoManipulation(builder, *, plant, scene_graph, robot, table, tool_frame, 
         if safety is not None:
             builder.Connect(split.get_output_port(0), safety.measured_position_input)
     return CoManipulationSystems(
-        human_wrench_input=check.human_wrench_input, human_torque_input=check.human_torque_input,
+        human_wrench_input=check.human_wrench_input,
+        human_torque_input=check.human_torque_input,
         desired_state_output=safety.desired_state_output if safety is not None else None,
-        commanded_position_output=commanded, path_index_output=progress.path_index_output,
-        duration=progress.duration, progress=progress, bounds=bounds, check=check, admittance=adm, safety=safety)
+        commanded_position_output=commanded,
+        path_index_output=progress.path_index_output,
+        duration=progress.duration,
+        progress=progress,
+        bounds=bounds,
+        check=check,
+        admittance=adm,
+        safety=safety,
+    )
 
 
 class ToolPushForce(LeafSystem):
@@ -246,7 +300,8 @@ class ToolPushForce(LeafSystem):
         self._p_BoFo_B = frame.GetFixedPoseInBodyFrame().translation().copy()
         self.wrench_input = self.DeclareVectorInputPort(name="wrench", size=6)
         self.spatial_forces_output = self.DeclareAbstractOutputPort(
-            "spatial_forces", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]), self._calc)
+            "spatial_forces", lambda: AbstractValue.Make([ExternallyAppliedSpatialForce()]), self._calc
+        )
 
     def _calc(self, context, output) -> None:
         w = np.asarray(self.wrench_input.Eval(context), float)
