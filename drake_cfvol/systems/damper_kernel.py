@@ -136,6 +136,34 @@ def round_radius(shape) -> float:
     return 0.0
 
 
+@njit(cache=True, inline="always")
+def _mv(A, x):
+    """A x for a 3 x 3 A (numba's ``@`` calls BLAS, which needs scipy at run time)."""
+    out = np.empty(3)
+    for r in range(3):
+        out[r] = A[r, 0] * x[0] + A[r, 1] * x[1] + A[r, 2] * x[2]
+    return out
+
+
+@njit(cache=True, inline="always")
+def _mtv(A, x):
+    """A^T x for a 3 x 3 A."""
+    out = np.empty(3)
+    for r in range(3):
+        out[r] = A[0, r] * x[0] + A[1, r] * x[1] + A[2, r] * x[2]
+    return out
+
+
+@njit(cache=True, inline="always")
+def _mm(A, B):
+    """A B for 3 x 3 matrices."""
+    out = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            out[r, c] = A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c]
+    return out
+
+
 @njit(cache=True)
 def _normalised(x, y, z, fx, fy, fz):
     norm = np.sqrt(x * x + y * y + z * z)
@@ -281,8 +309,8 @@ def _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains):
             dist_p = point_distance(kind[p, t], prm[p, t], q_local, g, near)
             if dist_p - radii[p, s, c] >= influence:
                 continue
-            gw[:] = XR[t] @ g
-            nw[:] = XR[t] @ near + Xt[t]
+            gw[:] = _mv(XR[t], g)
+            nw[:] = _mv(XR[t], near) + Xt[t]
             m = _emit(
                 out, m, gw, P[s, c], nw, slot, s_other, -rate * (dist_p - radii[p, s, c] - target), 0.0, 0.0, p, kin
             )
@@ -334,12 +362,12 @@ def pair_rows(near, sides, kin, gains):
             if slot < 0:
                 XR[s], Xt[s] = pose_R[i, s], pose_t[i, s]
             else:  # the geometry's pose from its body's: R_WB R_BG, R_WB t_BG + o
-                XR[s] = R[slot] @ side_R[p, s]
-                Xt[s] = R[slot] @ side_t[p, s] + o[slot]
-            w[s] = XR[s] @ witness[i, s] + Xt[s]
+                XR[s] = _mm(R[slot], side_R[p, s])
+                Xt[s] = _mv(R[slot], side_t[p, s]) + o[slot]
+            w[s] = _mv(XR[s], witness[i, s]) + Xt[s]
             if slot >= 0:
                 for c in range(n_probes[p, s]):
-                    P[s, c] = R[slot] @ probes[p, s, c] + o[slot]
+                    P[s, c] = _mv(R[slot], probes[p, s, c]) + o[slot]
         sa, sb = side_slot[p, 0], side_slot[p, 1]
         m = _emit(
             out,
@@ -374,7 +402,7 @@ def bounding_gaps(pairs, slot, centre, half, box_R, box_p, R, o):
         for j in range(2):
             s = slot[n, j]
             if s >= 0:
-                c[j] = R[s] @ centre[n, j] + o[s]
+                c[j] = _mv(R[s], centre[n, j]) + o[s]
         b0, b1 = slot[n, 0] >= 0, slot[n, 1] >= 0
         if b0 and b1:
             out[i] = (
@@ -385,7 +413,7 @@ def bounding_gaps(pairs, slot, centre, half, box_R, box_p, R, o):
         elif b0 or b1:
             j = 0 if b0 else 1
             k = 1 - j
-            local = box_R[n, k].T @ (c[j] - box_p[n, k]) - centre[n, k]
+            local = _mtv(box_R[n, k], c[j] - box_p[n, k]) - centre[n, k]
             gap = 0.0
             for a in range(3):
                 gap += max(abs(local[a]) - half[n, k, a], 0.0) ** 2
