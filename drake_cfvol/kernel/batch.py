@@ -434,17 +434,20 @@ def _check_blocks(Q, b0, b1, m, blk, pad, out):
 
 
 @njit(cache=True, parallel=True)
-def configs_may_collide(Q, m, blk, pad):
+def configs_may_collide(Q, m, blk, pad, per=4):
     """(N,) True where a configuration may collide with the obstacles or
     itself, or come closer to them than ``pad`` (m); False is certified
     free (farther than ``pad`` from everything). ``m``: a :class:`Model`
     (its ``shape_pairs`` the robot shape pairs Drake does not filter);
     ``blk``: its :class:`Blocks`. Bodies no joint moves are welded to the
-    world, like the obstacles, and not tested against them."""
+    world, like the obstacles, and not tested against them. ``per``: blocks
+    per task (a task's scratch, the obstacles on every lane, the candidate
+    table and the separating directions, is made once and serves them
+    all; :meth:`SceneArrays.may_collide` gives about two tasks per thread)."""
     N = Q.shape[0]
     out = np.zeros(N, np.bool_)
-    per = 4  # blocks per task: a thread's scratch serves them all
     n_blocks = (N + NB - 1) // NB
+    per = max(1, per)
     # numba passes no tuples of arrays into a parallel loop: the arrays go
     # in one by one, the tuples are rebuilt inside.
     parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain

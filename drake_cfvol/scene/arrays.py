@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numba
 import numpy as np
 from pydrake.geometry import (
     Box,
@@ -196,8 +197,12 @@ class SceneArrays:
         Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
         # A few configurations (a guard's checks): on this thread, since
         # waking numba's thread pool costs milliseconds.
-        fn = K.configs_may_collide_serial if len(Q) <= _SERIAL_MAX else K.configs_may_collide
-        return fn(Q, self.model, self.blocks, float(pad))
+        if len(Q) <= _SERIAL_MAX:
+            return K.configs_may_collide_serial(Q, self.model, self.blocks, float(pad))
+        # About two tasks per thread, each with its own scratch.
+        tasks = 2 * numba.get_num_threads()
+        per = max(4, -(-len(Q) // (K.NB * tasks)))
+        return K.configs_may_collide(Q, self.model, self.blocks, float(pad), per)
 
     def with_boxes(self, centres: np.ndarray, sizes: np.ndarray, name: str = "perceived") -> "SceneArrays":
         """These arrays with axis-aligned boxes added to the obstacles (the
