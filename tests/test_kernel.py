@@ -231,8 +231,9 @@ def test_mesh_robot_compact_wrist_keeps_its_freedom(mesh_cell):
 
 def test_a_changed_kernel_source_clears_numbas_cache(tmp_path):
     """numba invalidates a function's cache only when its own file changes:
-    the kernel clears its cache whenever any of its sources changed (a hash
-    kept beside the cache), and keeps it while they are unchanged."""
+    the kernel clears its cache whenever any of its sources changed (its
+    kinds' modules in a subfolder included; a hash kept beside the cache),
+    and keeps it while they are unchanged."""
     from drake_cfvol.kernel import _clear_stale_cache
 
     src, cache = tmp_path / "kernel", tmp_path / "kernel" / "__pycache__"
@@ -252,6 +253,13 @@ def test_a_changed_kernel_source_clears_numbas_cache(tmp_path):
     _clear_stale_cache(src, [cache])  # unchanged sources: kept
     assert all(f.exists() for f in entries)
     (src / "b.py").write_text("y = 3\n")  # a callee's file changed
+    _clear_stale_cache(src, [cache])
+    assert not any(f.exists() for f in entries)
+    fill()
+    _clear_stale_cache(src, [cache])  # the changed sources' hash kept: kept
+    assert all(f.exists() for f in entries)
+    (src / "kinds").mkdir()
+    (src / "kinds" / "box.py").write_text("z = 1\n")  # a kind's module (a subfolder) changed
     _clear_stale_cache(src, [cache])
     assert not any(f.exists() for f in entries)
 

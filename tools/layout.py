@@ -43,6 +43,9 @@ def layout() -> str:
             if mod.name == "__init__.py":
                 continue
             lines.append(f"     - `{mod.stem}`: {_first_sentence(mod)}.")
+        for sub in sorted(p.parent for p in folder.glob("*/__init__.py")):
+            modules = ", ".join(f"`{m.stem}`" for m in sorted(sub.glob("*.py")) if m.name != "__init__.py")
+            lines.append(f"     - `{sub.name}/` ({modules}): {_first_sentence(sub / '__init__.py')}.")
     lines += ["  - `exceptions`: " + _first_sentence(PACKAGE / "exceptions.py") + ".", "", END]
     return "\n".join(lines)
 

@@ -30,8 +30,9 @@ and ``warmup``. Imports nothing of the package.
 
 numba's cache (``cache=True``) invalidates a compiled function when its own
 file changes, not when a function it calls from another file does; so the
-kernel's cache is cleared whenever any of its files differs from the ones it
-was compiled from (:func:`_clear_stale_cache`, before anything compiles).
+package's numba cache is cleared whenever any of the kernel's files (its
+kinds' included) differs from the ones it was compiled from
+(:func:`_clear_stale_cache`, before anything compiles).
 """
 
 import hashlib as _hashlib
@@ -40,11 +41,12 @@ from pathlib import Path as _Path
 
 def _clear_stale_cache(folder: _Path, caches) -> None:
     """Removes numba's cache files (``*.nbi``, ``*.nbc``) from ``caches``
-    when the sources in ``folder`` differ from those the cache was made
-    from (a hash of them, ``kernel_sources.sha256``, kept in each)."""
+    when the sources in ``folder`` and its subfolders (the kinds) differ
+    from those the cache was made from (a hash of them,
+    ``kernel_sources.sha256``, kept in each)."""
     digest = _hashlib.sha256()
-    for f in sorted(folder.glob("*.py")):
-        digest.update(f.name.encode() + f.read_bytes())
+    for f in sorted(folder.rglob("*.py")):
+        digest.update(str(f.relative_to(folder)).encode() + f.read_bytes())
     stamp_text = digest.hexdigest()
     for cache in caches:
         stamp = cache / "kernel_sources.sha256"
@@ -60,20 +62,23 @@ def _clear_stale_cache(folder: _Path, caches) -> None:
             pass  # a read-only place holds no cache numba could use either
 
 
-def _cache_folders(folder: _Path) -> list:
-    """Where numba keeps the kernel's cache: beside its files, and numba's
-    user-wide folder (its fallback where that is read-only)."""
-    out = [folder / "__pycache__"]
+def _cache_folders(package: _Path) -> list:
+    """Where numba keeps the compiled code of the whole package (the
+    kernel's and that of modules calling it, such as the damper's): beside
+    each subpackage's files, and numba's user-wide folder (its fallback
+    where that is read-only)."""
+    folders = sorted({f.parent for f in package.rglob("*.py") if "__pycache__" not in f.parts})
+    out = [f / "__pycache__" for f in folders]
     try:
         from numba.core.caching import _UserWideCacheLocator
 
-        out.append(_Path(_UserWideCacheLocator(None, str(folder / "types.py")).get_cache_path()))
+        out += [_Path(_UserWideCacheLocator(None, str(f / "__init__.py")).get_cache_path()) for f in folders]
     except Exception:  # numba's internals moved: the tree's cache only
         pass
     return out
 
 
-_clear_stale_cache(_Path(__file__).resolve().parent, _cache_folders(_Path(__file__).resolve().parent))
+_clear_stale_cache(_Path(__file__).resolve().parent, _cache_folders(_Path(__file__).resolve().parent.parent))
 
 from drake_cfvol.kernel.batch import configs_may_collide, configs_may_collide_serial  # noqa: E402
 from drake_cfvol.kernel.blocks import EXACT_KINDS, NB, block_chain, fk_blocks, shape_bounds  # noqa: E402

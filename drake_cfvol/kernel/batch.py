@@ -22,6 +22,10 @@ from numba import njit, prange
 from drake_cfvol.kernel.blocks import NB, _fk_scratch, fk_block
 from drake_cfvol.kernel.checks import _pose_padded
 from drake_cfvol.kernel.gjk import _gjk_from
+from drake_cfvol.kernel.kinds import box as _box
+from drake_cfvol.kernel.kinds import capsule as _capsule
+from drake_cfvol.kernel.kinds import cylinder as _cylinder
+from drake_cfvol.kernel.kinds import sphere as _sphere
 from drake_cfvol.kernel.shapes import _aabb_apart, _obb_apart_inline
 from drake_cfvol.kernel.types import (
     _C,
@@ -83,7 +87,16 @@ def _near_exact(cb, r, kind, P, Sz, near, n):
     s0, s1, s2 = Sz[0], Sz[1], Sz[2]
     count = 0
     if kind == BOX or kind == CYLINDER or kind == SPHERE or kind == CAPSULE:
-        rr = r + SEP_EPS + (s0 if kind == SPHERE or kind == CAPSULE else 0.0)
+        core = 0.0
+        if kind == SPHERE:
+            core = _sphere.core_radius(s0, s1, s2)
+        elif kind == CAPSULE:
+            core = _capsule.core_radius(s0, s1, s2)
+        elif kind == BOX:
+            core = _box.core_radius(s0, s1, s2)
+        else:
+            core = _cylinder.core_radius(s0, s1, s2)
+        rr = r + SEP_EPS + core
         rr2 = rr * rr
         for i in range(n):
             dx = cb[i] - P[9 * NB + i]
@@ -92,16 +105,12 @@ def _near_exact(cb, r, kind, P, Sz, near, n):
             l0 = P[i] * dx + P[3 * NB + i] * dy + P[6 * NB + i] * dz
             l1 = P[NB + i] * dx + P[4 * NB + i] * dy + P[7 * NB + i] * dz
             l2 = P[2 * NB + i] * dx + P[5 * NB + i] * dy + P[8 * NB + i] * dz
-            if kind == BOX:
-                l0 = max(abs(l0) - s0, 0.0)
-                l1 = max(abs(l1) - s1, 0.0)
-                l2 = max(abs(l2) - s2, 0.0)
+            if kind == BOX:  # the kind modules' excess over their cores (drake_cfvol.kernel.kinds)
+                l0, l1, l2 = _box.excess(l0, l1, l2, s0, s1, s2)
             elif kind == CAPSULE:
-                l2 = max(abs(l2) - s1, 0.0)
+                l0, l1, l2 = _capsule.excess(l0, l1, l2, s0, s1, s2)
             elif kind == CYLINDER:
-                l0 = max(np.sqrt(l0 * l0 + l1 * l1) - s0, 0.0)
-                l1 = 0.0
-                l2 = max(abs(l2) - s1, 0.0)
+                l0, l1, l2 = _cylinder.excess(l0, l1, l2, s0, s1, s2)
             ok = l0 * l0 + l1 * l1 + l2 * l2 <= rr2
             near[i] = near[i] if ok else 0.0
             count += 1 if ok and near[i] > 0.0 else 0
@@ -207,7 +216,7 @@ def _obstacle_lanes(m):
     for o in range(O):
         row = obstacles[o]
         kd = int(row[_K])
-        exact = kd == BOX or kd == SPHERE or kd == CAPSULE or kd == CYLINDER
+        exact = kd == BOX or kd == SPHERE or kd == CAPSULE or kd == CYLINDER  # EXACT_KINDS
         kind[o] = kd if exact else BOX
         for e in range(9):
             OP[o, e * NB : (e + 1) * NB] = row[_R + e] if exact else (1.0 if e % 4 == 0 else 0.0)

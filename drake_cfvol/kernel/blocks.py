@@ -30,16 +30,18 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from drake_cfvol.kernel.types import BOX, CAPSULE, CYLINDER, SPHERE, Chain
+from drake_cfvol.kernel.kinds import KINDS
+from drake_cfvol.kernel.types import Chain
 
 __all__ = ["NB", "sincos", "block_chain", "shape_bounds", "EXACT_KINDS", "fk_blocks", "fk_block"]
 
 #: Configurations per block (lanes).
 NB = 64
 
-#: Shape kinds whose distance to a point has a closed form here (the rest
-#: are taken as their axis-aligned boxes against a ball, or as their balls).
-EXACT_KINDS = (BOX, SPHERE, CAPSULE, CYLINDER)
+#: Shape kinds whose distance to a point has a closed form here (the
+#: kinds' ``exact_near``; the rest are taken as their axis-aligned boxes
+#: against a ball, or as their balls).
+EXACT_KINDS = tuple(sorted(code for code, k in KINDS.items() if k.exact_near))
 
 # fdlibm's kernel coefficients (|r| <= pi/4) and pi/2 in three parts.
 _S1, _S2, _S3 = -1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04

@@ -8,6 +8,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from drake_cfvol.kernel.kinds import box as _box
+from drake_cfvol.kernel.kinds import capsule as _capsule
+from drake_cfvol.kernel.kinds import cylinder as _cylinder
+from drake_cfvol.kernel.kinds import ellipsoid as _ellipsoid
+from drake_cfvol.kernel.kinds import hull as _hull
+from drake_cfvol.kernel.kinds import sphere as _sphere
 from drake_cfvol.kernel.types import (
     _C,
     _ED,
@@ -81,47 +87,18 @@ def _local_support(row, verts, l0, l1, l2):
     x = 0.0
     y = 0.0
     z = 0.0
-    if kind == BOX:  # half extents
-        x = s0 if l0 >= 0 else -s0
-        y = s1 if l1 >= 0 else -s1
-        z = s2 if l2 >= 0 else -s2
-    elif kind == SPHERE:  # radius
-        n = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
-        if n > 0:
-            x = s0 * l0 / n
-            y = s0 * l1 / n
-            z = s0 * l2 / n
-    elif kind == CAPSULE:  # along z: radius, half length
-        n = np.sqrt(l0 * l0 + l1 * l1 + l2 * l2)
-        z = s1 if l2 >= 0 else -s1
-        if n > 0:
-            x = s0 * l0 / n
-            y = s0 * l1 / n
-            z += s0 * l2 / n
-    elif kind == CYLINDER:  # along z: radius, half length
-        n = np.sqrt(l0 * l0 + l1 * l1)
-        z = s1 if l2 >= 0 else -s1
-        if n > 0:
-            x = s0 * l0 / n
-            y = s0 * l1 / n
-    elif kind == ELLIPSOID:  # semi-axes
-        a0 = s0 * s0 * l0
-        a1 = s1 * s1 * l1
-        a2 = s2 * s2 * l2
-        n = np.sqrt(a0 * l0 + a1 * l1 + a2 * l2)
-        if n > 0:
-            x = a0 / n
-            y = a1 / n
-            z = a2 / n
-    elif kind == HULL and int(row[_V1]) > int(row[_V0]):  # its vertices
-        best = -1e300
-        for v in range(int(row[_V0]), int(row[_V1])):
-            h = verts[v, 0] * l0 + verts[v, 1] * l1 + verts[v, 2] * l2
-            if h > best:
-                best = h
-                x = verts[v, 0]
-                y = verts[v, 1]
-                z = verts[v, 2]
+    if kind == BOX:  # the kind modules' supports (drake_cfvol.kernel.kinds)
+        x, y, z = _box.support(s0, s1, s2, l0, l1, l2)
+    elif kind == SPHERE:
+        x, y, z = _sphere.support(s0, s1, s2, l0, l1, l2)
+    elif kind == CAPSULE:
+        x, y, z = _capsule.support(s0, s1, s2, l0, l1, l2)
+    elif kind == CYLINDER:
+        x, y, z = _cylinder.support(s0, s1, s2, l0, l1, l2)
+    elif kind == ELLIPSOID:
+        x, y, z = _ellipsoid.support(s0, s1, s2, l0, l1, l2)
+    elif kind == HULL and int(row[_V1]) > int(row[_V0]):
+        x, y, z = _hull.support(verts, int(row[_V0]), int(row[_V1]), l0, l1, l2)
     else:  # an unknown kind (or a hull without vertices): reaches everywhere
         x = _UNKNOWN_REACH if l0 >= 0 else -_UNKNOWN_REACH
         y = _UNKNOWN_REACH if l1 >= 0 else -_UNKNOWN_REACH
@@ -219,36 +196,25 @@ def _row_aabb(row, verts, out):
         lo = 0.0
         hi = 0.0
         if kind == BOX:
-            h = abs(r0) * s0 + abs(r1) * s1 + abs(r2) * s2
-            lo = -h
-            hi = h
+            hi = _box.extent(r0, r1, r2, s0, s1, s2)
+            lo = -hi
         elif kind == SPHERE:
-            lo = -s0
-            hi = s0
+            hi = _sphere.extent(r0, r1, r2, s0, s1, s2)
+            lo = -hi
         elif kind == CAPSULE:
-            h = abs(r2) * s1 + s0
-            lo = -h
-            hi = h
+            hi = _capsule.extent(r0, r1, r2, s0, s1, s2)
+            lo = -hi
         elif kind == CYLINDER:
-            h = abs(r2) * s1 + s0 * np.sqrt(max(1.0 - r2 * r2, 0.0))
-            lo = -h
-            hi = h
+            hi = _cylinder.extent(r0, r1, r2, s0, s1, s2)
+            lo = -hi
         elif kind == ELLIPSOID:
-            h = np.sqrt((r0 * s0) ** 2 + (r1 * s1) ** 2 + (r2 * s2) ** 2)
-            lo = -h
-            hi = h
+            hi = _ellipsoid.extent(r0, r1, r2, s0, s1, s2)
+            lo = -hi
         elif kind != HULL or int(row[_V1]) <= int(row[_V0]):  # unknown, or no vertices: everywhere
             lo = -np.inf
             hi = np.inf
         else:
-            lo = np.inf
-            hi = -np.inf
-            for v in range(int(row[_V0]), int(row[_V1])):
-                x = r0 * verts[v, 0] + r1 * verts[v, 1] + r2 * verts[v, 2]
-                if x < lo:
-                    lo = x
-                if x > hi:
-                    hi = x
+            lo, hi = _hull.extent(verts, int(row[_V0]), int(row[_V1]), r0, r1, r2)
         ua = row[_U + a]
         m = row[_EI] + row[_ED] * np.sqrt(max(1.0 - ua * ua, 0.0)) + row[_ES] * abs(ua)
         out[a] = c + lo - m

@@ -38,6 +38,7 @@ from drake_cfvol.algorithm.sweep import default_rate, sweep_range, sweep_setup
 from drake_cfvol.algorithm.table import BoundsTable, absolute_bounds, box_at, waypoint_boxes
 from drake_cfvol.algorithm.volume import footprint_masks, lower_along_path
 from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.kernel import kinds
 from drake_cfvol.online.obstacle_map import ObstacleMap
 from drake_cfvol.scene.params import VolumeParams
 
@@ -148,20 +149,8 @@ def shape_radii(arrays) -> np.ndarray:
     holding all its shapes, m."""
     out = np.zeros(arrays.num_bodies)
     for row, b in zip(arrays.shapes, arrays.shape_body):
-        kind, size = int(row[K._K]), row[K._S : K._S + 3]
-        if kind == K.BOX:
-            r = float(np.linalg.norm(size))
-        elif kind == K.SPHERE:
-            r = float(size[0])
-        elif kind == K.CAPSULE:
-            r = float(size[0] + size[1])
-        elif kind == K.CYLINDER:
-            r = float(np.hypot(size[0], size[1]))
-        elif kind == K.ELLIPSOID:
-            r = float(size.max())
-        else:
-            v = arrays.verts[int(row[K._V0]) : int(row[K._V1])]
-            r = float(np.linalg.norm(v, axis=1).max())
+        k = kinds.kind(row[K._K])
+        r = k.radius(row[K._S : K._S + 3], arrays.verts[int(row[K._V0]) : int(row[K._V1])])
         out[b] = max(out[b], float(np.linalg.norm(row[K._C : K._C + 3])) + r)
     return out
 

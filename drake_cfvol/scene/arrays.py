@@ -20,37 +20,21 @@ import dataclasses
 
 import numba
 import numpy as np
-from pydrake.geometry import (
-    Box,
-    Capsule,
-    Convex,
-    Cylinder,
-    Ellipsoid,
-    HalfSpace,
-    Mesh,
-    Role,
-    Sphere,
-)
+from pydrake.geometry import Role
 from pydrake.multibody.tree import JointIndex
 
 from drake_cfvol import kernel as K
 from drake_cfvol.exceptions import WorkcellError
+from drake_cfvol.kernel import kinds
 from drake_cfvol.scene.covers import robot_covers
 from drake_cfvol.scene.robot import robot_bodies
 
 __all__ = ["SceneArrays", "scene_arrays", "shape_row"]
 
-#: A half space (an infinite floor) is modelled as a box this deep and wide, m.
-HALF_SPACE_SIZE = 1000.0
-
-
-def _hull_vertices(shape) -> np.ndarray:
-    hull = shape.GetConvexHull()
-    return np.array([hull.vertex(i) for i in range(hull.num_vertices())], float).reshape(-1, 3)
-
 
 def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[np.ndarray, float, np.ndarray]:
-    """A Drake shape posed at X_BG as a kernel shape row.
+    """A Drake shape posed at X_BG as a kernel shape row (its kind's
+    :class:`~drake_cfvol.kernel.kinds.ShapeKind` reads it).
 
     Args:
         shape: the Drake shape.
@@ -61,53 +45,21 @@ def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[n
         (row (SHAPE_W,), bounding radius about the returned centre, centre in B)
 
     Raises:
-        WorkcellError: an unsupported shape.
+        WorkcellError: an unsupported shape, or a mesh without a proper hull.
     """
+    g = kinds.geometry(shape)
     row = np.zeros(K.SHAPE_W)
     R = np.asarray(R_BG, float)
-    c = np.asarray(p_BG, float).copy()
-    if isinstance(shape, Box):
-        kind, size = K.BOX, np.asarray(shape.size()) / 2
-        radius = float(np.linalg.norm(size))
-    elif isinstance(shape, Sphere):
-        kind, size = K.SPHERE, np.array([shape.radius(), 0, 0])
-        radius = shape.radius()
-    elif isinstance(shape, Capsule):
-        kind, size = K.CAPSULE, np.array([shape.radius(), shape.length() / 2, 0])
-        radius = shape.radius() + shape.length() / 2
-    elif isinstance(shape, Cylinder):
-        kind, size = K.CYLINDER, np.array([shape.radius(), shape.length() / 2, 0])
-        radius = float(np.hypot(shape.radius(), shape.length() / 2))
-    elif isinstance(shape, Ellipsoid):
-        kind, size = K.ELLIPSOID, np.array([shape.a(), shape.b(), shape.c()])
-        radius = float(size.max())
-    elif isinstance(shape, HalfSpace):
-        # The half space z <= 0 of its frame: a big box below the plane.
-        kind, size = K.BOX, np.full(3, HALF_SPACE_SIZE / 2)
-        c = c + R @ np.array([0.0, 0.0, -HALF_SPACE_SIZE / 2])
-        radius = float(np.linalg.norm(size))
-    elif isinstance(shape, (Mesh, Convex)):
-        v = _hull_vertices(shape)
-        if len(v) < 4:
-            raise WorkcellError(f"a {type(shape).__name__} shape has a degenerate convex hull ({len(v)} vertices).")
-        centre = (v.min(0) + v.max(0)) / 2
-        v = v - centre
-        c = c + R @ centre
+    c = np.asarray(p_BG, float) + R @ g.centre
+    if len(g.verts):
         start = sum(len(x) for x in verts)
-        verts.append(v)
-        kind, size = K.HULL, np.zeros(3)
-        row[K._V0], row[K._V1] = start, start + len(v)
-        radius = float(np.linalg.norm(v, axis=1).max())
-    else:
-        raise WorkcellError(
-            f"shape {type(shape).__name__} is not supported by the fast backend; use boxes, spheres, "
-            "cylinders, capsules, ellipsoids, meshes or convex shapes (or backend='drake')."
-        )
-    row[K._K] = kind
+        verts.append(g.verts)
+        row[K._V0], row[K._V1] = start, start + len(g.verts)
+    row[K._K] = g.kind.code
     row[K._C : K._C + 3] = c
     row[K._R : K._R + 9] = R.ravel()
-    row[K._S : K._S + 3] = size
-    return row, radius, c
+    row[K._S : K._S + 3] = g.sizes
+    return row, g.kind.radius(g.sizes, g.verts), c
 
 
 #: Batches up to this size are checked on the calling thread (waking numba's
@@ -168,6 +120,8 @@ class SceneArrays:
     joint_body: np.ndarray
 
     def __post_init__(self):
+        kinds.check_rows(self.shapes, self.verts, "robot shape")
+        kinds.check_rows(self.obstacles, self.verts, "obstacle shape")
         self._model = None  # the kernel's Model, built once
         self._covers = None
         self._blocks = None

@@ -11,7 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
-from pydrake.geometry import Box, Capsule, Convex, Cylinder, Ellipsoid, Mesh, Sphere
+
+from drake_cfvol.kernel import kinds
+from drake_cfvol.kernel.kinds import box as _box
+from drake_cfvol.kernel.kinds import capsule as _capsule
+from drake_cfvol.kernel.kinds import cylinder as _cylinder
+from drake_cfvol.kernel.kinds import sphere as _sphere
+from drake_cfvol.kernel.types import BOX, CAPSULE, CYLINDER, SPHERE
 
 __all__ = [
     "bounding_gaps",
@@ -29,111 +35,62 @@ __all__ = [
     "point_query_shape",
 ]
 
-#: Shape kinds of :func:`point_distance` (NO_POINT_QUERY: none).
-NO_POINT_QUERY, SPHERE, CAPSULE, BOX, CYLINDER = 0, 1, 2, 3, 4
+#: The point-query kind of a shape :func:`point_distance` cannot measure
+#: (the others are their kernel codes).
+NO_POINT_QUERY = -1
 
 
-#: Points sampled on each rim of a cylinder (probe points).
-_RIM_POINTS = 12
+def _geometry(shape):
+    """The shape's kind geometry, None for one no kind reads (or a mesh
+    without a hull) or an unbounded one: the filter measures those with
+    Drake alone."""
+    g = kinds.geometry(shape, strict=False)
+    return None if g is None or g.kind.unbounded else g
 
 
 def point_query_shape(shape) -> tuple[int, np.ndarray]:
     """(kind, parameters) of a shape for :func:`point_distance`
-    (NO_POINT_QUERY for any other)."""
-    if isinstance(shape, Box):
-        return BOX, np.array([shape.width(), shape.depth(), shape.height()]) / 2
-    if isinstance(shape, Sphere):
-        return SPHERE, np.array([shape.radius(), 0.0, 0.0])
-    if isinstance(shape, Capsule):
-        return CAPSULE, np.array([shape.radius(), shape.length() / 2, 0.0])
-    if isinstance(shape, Cylinder):
-        return CYLINDER, np.array([shape.radius(), shape.length() / 2, 0.0])
-    return NO_POINT_QUERY, np.zeros(3)
+    (NO_POINT_QUERY for a kind without one): the kind's row sizes."""
+    g = _geometry(shape)
+    if g is None or not g.kind.point_query:
+        return NO_POINT_QUERY, np.zeros(3)
+    return g.kind.code, np.asarray(g.sizes, float)
 
 
 def probes(shape) -> tuple[np.ndarray, np.ndarray]:
-    """Probe spheres of a shape, in its frame: centres (3 x m) and radii
-    (m,). Their lowest points along a direction reach the shape's support
-    there wherever the support set may be flat (a face, an edge, a rim, a
-    capsule's side), so rows at them see a face tilt towards an obstacle;
-    smooth, strictly convex shapes (sphere, ellipsoid) need none."""
-    if isinstance(shape, Box):
-        half = np.array([shape.width(), shape.depth(), shape.height()]) / 2
-        corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
-        return corners.T, np.zeros(8)
-    if isinstance(shape, Cylinder):
-        a = np.linspace(0.0, 2 * np.pi, _RIM_POINTS, endpoint=False)
-        ring = np.stack([shape.radius() * np.cos(a), shape.radius() * np.sin(a)], axis=1)
-        rims = [np.column_stack([ring, np.full(len(a), z)]) for z in (-shape.length() / 2, shape.length() / 2)]
-        return np.concatenate(rims).T, np.zeros(2 * _RIM_POINTS)
-    if isinstance(shape, Capsule):
-        ends = np.array([[0.0, 0.0, -shape.length() / 2], [0.0, 0.0, shape.length() / 2]])
-        return ends.T, np.full(2, shape.radius())
-    if isinstance(shape, (Convex, Mesh)):
-        try:
-            hull = shape.GetConvexHull()
-            pts = np.array([hull.vertex(i) for i in range(hull.num_vertices())], float).reshape(-1, 3)
-            return pts.T, np.zeros(len(pts))
-        except Exception:  # no hull: the witness row alone
-            return np.zeros((3, 0)), np.zeros(0)
-    return np.zeros((3, 0)), np.zeros(0)  # smooth (sphere, ellipsoid): the witness row suffices
+    """The kind's probe spheres of a shape (:meth:`ShapeKind.probes`), in
+    its frame: centres (3 x m) and radii (m,)."""
+    g = _geometry(shape)
+    if g is None:
+        return np.zeros((3, 0)), np.zeros(0)
+    centres, radii = g.kind.probes(g.sizes, g.verts)
+    return (centres + g.centre).T, radii
 
 
 def ball_radius(shape) -> float:
     """The radius of a ball about the shape's frame origin that holds the
     shape, m (inf if unknown)."""
-    if isinstance(shape, Box):
-        return 0.5 * float(np.linalg.norm([shape.width(), shape.depth(), shape.height()]))
-    if isinstance(shape, Sphere):
-        return shape.radius()
-    if isinstance(shape, Capsule):
-        return shape.radius() + shape.length() / 2
-    if isinstance(shape, Cylinder):
-        return float(np.hypot(shape.radius(), shape.length() / 2))
-    if isinstance(shape, Ellipsoid):
-        return max(shape.a(), shape.b(), shape.c())
-    if isinstance(shape, (Convex, Mesh)):
-        try:
-            hull = shape.GetConvexHull()
-            return max(float(np.linalg.norm(hull.vertex(i))) for i in range(hull.num_vertices()))
-        except Exception:
-            return np.inf
-    return np.inf
+    g = _geometry(shape)
+    if g is None:
+        return np.inf
+    return float(np.linalg.norm(g.centre)) + g.kind.radius(g.sizes, g.verts)
 
 
 def local_box(shape) -> tuple[np.ndarray, np.ndarray]:
     """A box holding the shape, in its frame: (centre, half extents), m
     (a huge box for a shape of unknown extent)."""
-    if isinstance(shape, Box):
-        return np.zeros(3), np.array([shape.width(), shape.depth(), shape.height()]) / 2
-    if isinstance(shape, Sphere):
-        return np.zeros(3), np.full(3, shape.radius())
-    if isinstance(shape, Cylinder):
-        return np.zeros(3), np.array([shape.radius(), shape.radius(), shape.length() / 2])
-    if isinstance(shape, Capsule):
-        return np.zeros(3), np.array([shape.radius(), shape.radius(), shape.length() / 2 + shape.radius()])
-    if isinstance(shape, Ellipsoid):
-        return np.zeros(3), np.array([shape.a(), shape.b(), shape.c()])
-    if isinstance(shape, (Convex, Mesh)):
-        try:
-            hull = shape.GetConvexHull()
-            pts = np.array([hull.vertex(i) for i in range(hull.num_vertices())], float).reshape(-1, 3)
-            lo, hi = pts.min(axis=0), pts.max(axis=0)
-            return (lo + hi) / 2, (hi - lo) / 2
-        except Exception:
-            pass
-    return np.zeros(3), np.full(3, 1e6)
+    g = _geometry(shape)
+    if g is None:
+        return np.zeros(3), np.full(3, 1e6)
+    return np.asarray(g.centre, float).copy(), g.kind.half_extents(g.sizes, g.verts)
 
 
 def round_radius(shape) -> float:
     """The radius of the round part of a shape, m: its witness point's
     lever arm grows by it (0 for a polytope, whose probes are its
     vertices)."""
-    if isinstance(shape, (Sphere, Capsule, Cylinder)):
-        return float(shape.radius())
-    if isinstance(shape, Ellipsoid):
-        return float(max(shape.a(), shape.b(), shape.c()))
-    return 0.0
+    g = _geometry(shape)
+    return 0.0 if g is None else g.kind.round_radius(g.sizes)
 
 
 @njit(cache=True, inline="always")
@@ -165,71 +122,19 @@ def _mm(A, B):
 
 
 @njit(cache=True)
-def _normalised(x, y, z, fx, fy, fz):
-    norm = np.sqrt(x * x + y * y + z * z)
-    if norm > 1e-12:
-        return x / norm, y / norm, z / norm
-    return fx, fy, fz
-
-
-@njit(cache=True)
 def point_distance(kind, prm, q, out_g, out_near):
     """Signed distance of point q (shape frame) from a shape of ``kind``
-    with parameters ``prm`` (sphere: radius; capsule, cylinder: radius,
-    half length about z; box: half extents), m; the unit gradient and the
-    nearest surface point written into ``out_g`` and ``out_near`` (shape
-    frame). Inside a box: the nearest face; inside a cylinder: the nearer
-    of its side and its caps."""
-    x, y, z = q[0], q[1], q[2]
+    (a kernel code of a kind with ``point_query``) with parameters ``prm``
+    (its row sizes), m; the unit gradient and the nearest surface point
+    written into ``out_g`` and ``out_near`` (shape frame): the kind
+    modules' ``point_distance``."""
     if kind == SPHERE:
-        gx, gy, gz = _normalised(x, y, z, 0.0, 0.0, 1.0)
-        out_g[0], out_g[1], out_g[2] = gx, gy, gz
-        out_near[0], out_near[1], out_near[2] = prm[0] * gx, prm[0] * gy, prm[0] * gz
-        return np.sqrt(x * x + y * y + z * z) - prm[0]
+        return _sphere.point_distance(prm, q, out_g, out_near)
     if kind == CAPSULE:
-        cz = min(max(z, -prm[1]), prm[1])
-        gx, gy, gz = _normalised(x, y, z - cz, 1.0, 0.0, 0.0)
-        out_g[0], out_g[1], out_g[2] = gx, gy, gz
-        out_near[0], out_near[1], out_near[2] = prm[0] * gx, prm[0] * gy, cz + prm[0] * gz
-        return np.sqrt(x * x + y * y + (z - cz) ** 2) - prm[0]
+        return _capsule.point_distance(prm, q, out_g, out_near)
     if kind == BOX:
-        outside = abs(x) > prm[0] or abs(y) > prm[1] or abs(z) > prm[2]
-        if outside:
-            cx, cy, cz = min(max(x, -prm[0]), prm[0]), min(max(y, -prm[1]), prm[1]), min(max(z, -prm[2]), prm[2])
-            gx, gy, gz = _normalised(x - cx, y - cy, z - cz, 0.0, 0.0, 1.0)
-            out_g[0], out_g[1], out_g[2] = gx, gy, gz
-            out_near[0], out_near[1], out_near[2] = cx, cy, cz
-            return np.sqrt((x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2)
-        face, best = 0, abs(x) - prm[0]
-        for i in range(1, 3):
-            if abs(q[i]) - prm[i] > best:
-                face, best = i, abs(q[i]) - prm[i]
-        sign = 1.0 if q[face] >= 0 else -1.0
-        for i in range(3):
-            out_g[i] = 0.0
-            out_near[i] = q[i]
-        out_g[face] = sign
-        out_near[face] = sign * prm[face]
-        return best
-    # CYLINDER
-    rho = np.sqrt(x * x + y * y)
-    rx, ry, _ = _normalised(x, y, 0.0, 1.0, 0.0, 0.0)
-    zs = 1.0 if z >= 0 else -1.0
-    dr, dz = rho - prm[0], abs(z) - prm[1]
-    if dr > 0 or dz > 0:
-        nr = min(rho, prm[0])
-        nx, ny, nz = rx * nr, ry * nr, min(max(z, -prm[1]), prm[1])
-        gx, gy, gz = _normalised(x - nx, y - ny, z - nz, 1.0, 0.0, 0.0)
-        out_g[0], out_g[1], out_g[2] = gx, gy, gz
-        out_near[0], out_near[1], out_near[2] = nx, ny, nz
-        return np.sqrt((x - nx) ** 2 + (y - ny) ** 2 + (z - nz) ** 2)
-    if dr >= dz:
-        out_g[0], out_g[1], out_g[2] = rx, ry, 0.0
-        out_near[0], out_near[1], out_near[2] = rx * prm[0], ry * prm[0], z
-        return dr
-    out_g[0], out_g[1], out_g[2] = 0.0, 0.0, zs
-    out_near[0], out_near[1], out_near[2] = x, y, zs * prm[1]
-    return dz
+        return _box.point_distance(prm, q, out_g, out_near)
+    return _cylinder.point_distance(prm, q, out_g, out_near)
 
 
 @njit(cache=True)

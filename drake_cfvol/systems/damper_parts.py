@@ -151,7 +151,7 @@ def side_arrays(damper, inspector) -> tuple[tuple, np.ndarray]:
     out_R, out_t = np.tile(np.eye(3), (P, 2, 1, 1)), np.zeros((P, 2, 3))
     out_probes, out_radii = np.zeros((P, 2, most, 3)), np.zeros((P, 2, most))
     out_count = np.zeros((P, 2), np.int64)
-    out_kind, out_prm = np.zeros((P, 2), np.int64), np.zeros((P, 2, 3))
+    out_kind, out_prm = np.full((P, 2), NO_POINT_QUERY, np.int64), np.zeros((P, 2, 3))
     out_round = np.zeros((P, 2))
     drake_rows = np.zeros(P, bool)
     for n, (a, b, sa, sb) in enumerate(damper._pairs):
