@@ -147,3 +147,71 @@ def test_hardware_controller_drives_the_simulated_station_over_lcm_only():
     assert np.abs(tau[(t > 1.1) & (t < 2.5)]).max() > 5.0 and np.abs(tau[t < 0.9]).max() == 0.0
     assert np.abs(commanded.FindLog(ctx).data() - nominal.FindLog(ctx).data()).max() > 0.02
     np.testing.assert_allclose(q[-1], table.nominal[-1], atol=0.01)
+
+
+@pytest.mark.slow
+def test_a_stale_status_holds_the_last_command_and_raises_the_fault():
+    """The controller of the hardware test, its status relayed through a
+    channel that drops every message for 60 ms (12 status periods) while the
+    path moves: the watchdog raises its fault three periods after the last
+    message, the safety filter holds its last command until a message
+    comes again, and then the run goes on; the true robot never collides."""
+    from pydrake.manipulation import IiwaDriver
+    from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import LogVectorOutput
+
+    from drake_cfvol.comanip.iiwa import IIWA_STATUS_PERIOD, add_iiwa_controller, add_iiwa_station
+    from drake_cfvol.systems import CoManipulationConfig, PathProgressConfig
+
+    wc = cf.load_workcell("cobot")
+    table = cf.estimate_bounds(wc, cf.plan_nominal_path(wc, *wc.configuration("path1"), seed=0), resolution=300)
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=0.001), builder)
+    models = wc.add_models(plant)
+    plant.Finalize()
+    iiwa = plant.GetModelInstanceByName(wc.robot_name)
+    plant.SetDefaultPositions(iiwa, table.nominal[0])
+    lcm = add_iiwa_station(builder, IiwaDriver(), wc.robot_name, plant, models)
+    config = CoManipulationConfig(path_progress=PathProgressConfig(start_time=0.2))
+    cm, _ = add_iiwa_controller(builder, workcell=wc, table=table, lcm=lcm, config=config, status_channel="RELAY")
+    watchdog = builder.GetSubsystemByName("controller_status_watchdog")
+    logs = {
+        name: LogVectorOutput(port, builder, publish_period=0.001)
+        for name, port in (
+            ("commanded", cm.commanded_position_output),
+            ("fault", watchdog.fault_output),
+            ("truth", plant.get_state_output_port(iiwa)),
+        )
+    }
+    diagram = builder.Build()
+    sim = Simulator(diagram)
+    drop = (0.5, 0.56)
+
+    def relay(data):
+        if not drop[0] <= sim.get_context().get_time() < drop[1]:
+            lcm.Publish("RELAY", data)
+
+    lcm.Subscribe("IIWA_STATUS", relay)
+    sim.AdvanceTo(0.8)
+    ctx = sim.get_context()
+    t = logs["fault"].FindLog(ctx).sample_times()
+    fault = logs["fault"].FindLog(ctx).data()[0]
+    q_c = logs["commanded"].FindLog(ctx).data().T
+    raised = t[fault > 0.5]
+    # Raised more than three periods after the last message before the drop, cleared within a period of its end.
+    assert len(raised) and raised.min() > drop[0] + 3 * IIWA_STATUS_PERIOD - 1e-9
+    assert raised.max() < drop[1] + 2 * IIWA_STATUS_PERIOD + 1e-9
+    assert fault[t > drop[1] + 3 * IIWA_STATUS_PERIOD].max() == 0.0
+    # The command is held from the first update that saw the fault until a status came again ...
+    update = cm.safety.period
+    held = (t >= raised.min() + update) & (t <= raised.max())
+    assert held.sum() >= 20 and np.abs(q_c[held] - q_c[held][0]).max() == 0.0
+    # ... and moved along the path before and after.
+    before, after = (t > drop[0] - 0.05) & (t < drop[0]), t > drop[1] + 0.05
+    assert np.abs(np.diff(q_c[before], axis=0)).max() > 0 and np.abs(np.diff(q_c[after], axis=0)).max() > 0
+    sctx = cm.safety.GetMyContextFromRoot(ctx)
+    assert cm.safety.hold_count_output.Eval(sctx)[0] >= 2
+    assert watchdog.fault_count_output.Eval(watchdog.GetMyContextFromRoot(ctx))[0] >= 4
+    q = logs["truth"].FindLog(ctx).data().T[::10, :7]
+    assert np.array(wc.checker.CheckConfigsCollisionFree(q), bool).all()

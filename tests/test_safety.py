@@ -16,6 +16,7 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 import drake_cfvol as cf
 from drake_cfvol.systems import SafetyFilter, ToolSpeedLimit
+from drake_cfvol.systems.safety import _EXITS, _MIN_DISTANCE  # the status state's layout
 
 L1, L2, R = 0.5, 0.4, 0.05  # link lengths and the tip sphere's radius, m
 VMAX = np.array([1.0, 1.5])  # rad/s
@@ -321,6 +322,27 @@ def test_bad_inputs_hold_without_raising(wall):
     assert sf.fallback_count_output.Eval(sctx)[0] == 2.0
 
 
+def test_hold_keeps_the_last_command(wall):
+    """While ``hold`` is above 0.5 (or NaN: fail safe) an update keeps the
+    command and counts in hold_count; at 0 the command moves again."""
+    diagram, sf, tip, wall_id = wall
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    sf.set_initial_position(sctx, [2.0, 0.3])
+    _fix(diagram, ctx, [2.1, 0.4])
+    sim = Simulator(diagram, ctx)
+    for n, hold in enumerate((1.0, np.nan)):
+        sf.hold_input.FixValue(sctx, [hold])
+        sim.AdvanceTo((n + 0.5) * sf.period)
+        np.testing.assert_array_equal(sf.commanded_position_output.Eval(sctx), [2.0, 0.3])
+        np.testing.assert_array_equal(sf.commanded_velocity_output.Eval(sctx), [0.0, 0.0])
+    assert sf.hold_count_output.Eval(sctx)[0] == 2.0
+    sf.hold_input.FixValue(sctx, [0.0])
+    sim.AdvanceTo(2.5 * sf.period)
+    assert np.abs(sf.commanded_position_output.Eval(sctx) - [2.0, 0.3]).max() > 0
+    assert sf.hold_count_output.Eval(sctx)[0] == 2.0
+
+
 def test_constructor_checks(wall):
     """Margins and rates out of range are refused, naming the argument."""
     diagram, sf, tip, wall_id = wall
@@ -376,10 +398,10 @@ def test_never_faster_than_the_limits(
     reachable = (lower - q <= VMAX * H) & (q - upper <= VMAX * H)
     inside = np.all(~reachable | ((x >= lower - 1e-12) & (x <= upper + 1e-12)))
     status = update.get_vector(2).CopyToVector()
-    exited = status[-1] > 0
+    exited = status[_EXITS] > 0
     assert inside or exited
     if exited:
-        assert status[2] < sf.influence_distance
+        assert status[_MIN_DISTANCE] < sf.influence_distance
 
 
 @pytest.mark.parametrize("speed", [None, 0.3])

@@ -41,6 +41,7 @@ from drake_cfvol.comanip.iiwa import (
     add_iiwa_controller_interface,
     add_iiwa_station,
     add_measured,
+    add_status_watchdog,
     grip_point,
     tool_radius,
 )
@@ -469,7 +470,7 @@ def _drive(builder, scenario, wc, scene, torque, human, control: CoManipulationS
     desired = control.desired_state_output
     driver, sensed = driver_of(scenario, wc), None
     if isinstance(driver, IiwaDriver):
-        measured, sensed = _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human)
+        measured, sensed = _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human, safety)
     else:
         measured = add_driver(
             builder,
@@ -489,10 +490,11 @@ def _drive(builder, scenario, wc, scene, torque, human, control: CoManipulationS
     return measured, sensed
 
 
-def _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human):
+def _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human, safety):
     """The iiwa under Drake's IiwaDriver over an in-memory LCM, the
-    co-worker's hand pushing the tool. Returns (measured position, external
-    torque) from the iiwa's status."""
+    co-worker's hand pushing the tool, the safety filter (if any) held by a
+    status watchdog. Returns (measured position, external torque) from the
+    iiwa's status."""
     if desired is None:
         interp = builder.AddNamedSystem(
             "desired_state",
@@ -504,6 +506,8 @@ def _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human)
         desired = interp.get_output_port()
     lcm = add_iiwa_station(builder, driver, wc.robot_name, scene.plant, scene.models)
     status = add_iiwa_controller_interface(builder, lcm, desired, wc.num_joints)
+    if safety is not None:
+        add_status_watchdog(builder, lcm, safety)
     tool = scene.plant.GetFrameByName(wc.tool_frame.name(), scene.robot)
     add_hand(
         builder,

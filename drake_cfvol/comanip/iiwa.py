@@ -28,6 +28,7 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 from drake_cfvol.exceptions import StationError
 from drake_cfvol.systems.hand import CoworkerHand
 from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig
+from drake_cfvol.systems.watchdog import StatusWatchdog
 
 __all__ = [
     "IIWA_STATUS_PERIOD",
@@ -35,6 +36,7 @@ __all__ = [
     "add_iiwa_controller",
     "add_iiwa_station",
     "add_iiwa_controller_interface",
+    "add_status_watchdog",
     "add_hand",
     "add_measured",
     "grip_point",
@@ -63,12 +65,14 @@ def add_iiwa_station(builder, driver, robot_name: str, plant, models, lcm=None):
     return lcm
 
 
-def add_iiwa_controller_interface(builder, lcm, desired_state, k: int = 7, prefix: str = ""):
+def add_iiwa_controller_interface(
+    builder, lcm, desired_state, k: int = 7, prefix: str = "", status_channel: str = "IIWA_STATUS"
+):
     """The controller's side of the iiwa's LCM interface: the desired
     position (the first k of ``desired_state``) sent as ``IIWA_COMMAND`` at
-    the driver's period with zero feed-forward torque; ``IIWA_STATUS``
-    received. Returns the ``IiwaStatusReceiver`` (ports ``position_measured``,
-    ``velocity_estimated``, ``torque_external``, ...)."""
+    the driver's period with zero feed-forward torque; the status received
+    on ``status_channel``. Returns the ``IiwaStatusReceiver`` (ports
+    ``position_measured``, ``velocity_estimated``, ``torque_external``, ...)."""
     split = builder.AddNamedSystem(f"{prefix}desired_position", Demultiplexer([k, k]))
     builder.Connect(desired_state, split.get_input_port(0))
     sender = builder.AddNamedSystem(
@@ -90,11 +94,29 @@ def add_iiwa_controller_interface(builder, lcm, desired_state, k: int = 7, prefi
     builder.Connect(sender.get_output_port(), publish.get_input_port())
     subscribe = builder.AddNamedSystem(
         f"{prefix}iiwa_status_subscriber",
-        LcmSubscriberSystem.Make(channel="IIWA_STATUS", lcm_type=lcmt_iiwa_status, lcm=lcm, use_cpp_serializer=True),
+        LcmSubscriberSystem.Make(channel=status_channel, lcm_type=lcmt_iiwa_status, lcm=lcm, use_cpp_serializer=True),
     )
     receiver = builder.AddNamedSystem(f"{prefix}iiwa_status_receiver", IiwaStatusReceiver(k))
     builder.Connect(subscribe.get_output_port(), receiver.get_input_port())
     return receiver
+
+
+def add_status_watchdog(
+    builder, lcm, safety, *, status_channel: str = "IIWA_STATUS", timeout: float = 3 * IIWA_STATUS_PERIOD, prefix=""
+):
+    """A :class:`~drake_cfvol.systems.StatusWatchdog` (``{prefix}status_watchdog``)
+    on the iiwa's status channel, its fault holding the safety filter's last
+    command. Returns the watchdog."""
+    watchdog = builder.AddNamedSystem(
+        f"{prefix}status_watchdog", StatusWatchdog(lcmt_iiwa_status(), period=IIWA_STATUS_PERIOD, timeout=timeout)
+    )
+    stamps = builder.AddNamedSystem(  # the status as a Python message (the receiver's subscriber is C++'s)
+        f"{prefix}status_stamp_subscriber",
+        LcmSubscriberSystem.Make(channel=status_channel, lcm_type=lcmt_iiwa_status, lcm=lcm),
+    )
+    builder.Connect(stamps.get_output_port(), watchdog.status_input)
+    builder.Connect(watchdog.fault_output, safety.hold_input)
+    return watchdog
 
 
 def grip_point(wc) -> np.ndarray:
@@ -192,13 +214,18 @@ def add_iiwa_controller(
     period: float = 0.01,
     config: CoManipulationConfig = CoManipulationConfig(),
     name: str = "controller",
+    status_channel: str = "IIWA_STATUS",
+    status_timeout: float = 3 * IIWA_STATUS_PERIOD,
 ):
     """The co-manipulation controller of a torque-sensing iiwa, talking to
     it over LCM only: what runs beside the real robot. Its SceneGraph holds
     the workcell (a plant posed from the status's measured positions, never
     simulated); :func:`~drake_cfvol.systems.AddCoManipulation` on it, fed the
     measured position and the driver's external-torque estimate; its
-    desired state sent as the iiwa's command. On the robot, ``lcm`` is the
+    desired state sent as the iiwa's command. A
+    :class:`~drake_cfvol.systems.StatusWatchdog` (``{name}_status_watchdog``)
+    holds the last command while no new status has come for
+    ``status_timeout``. On the robot, ``lcm`` is the
     robot's network; in a test, ``DrakeLcm("memq://")`` shared with a
     simulated station (:func:`add_iiwa_station`).
 
@@ -211,6 +238,9 @@ def add_iiwa_controller(
         config: the gains and limits (``AddCoManipulation``'s); the safety
             filter is needed (its desired state is the iiwa's command).
         name: prefix of the added systems' names.
+        status_channel: the LCM channel of the robot's status.
+        status_timeout: how long without a new status holds the command, s
+            (three status periods).
 
     Returns:
         (the :class:`~drake_cfvol.systems.CoManipulationSystems`, the
@@ -239,7 +269,12 @@ def add_iiwa_controller(
         config=config,
         name=name,
     )
-    status = add_iiwa_controller_interface(builder, lcm, cm.desired_state_output, k, prefix=f"{name}_")
+    status = add_iiwa_controller_interface(
+        builder, lcm, cm.desired_state_output, k, prefix=f"{name}_", status_channel=status_channel
+    )
+    add_status_watchdog(
+        builder, lcm, cm.safety, status_channel=status_channel, timeout=status_timeout, prefix=f"{name}_"
+    )
     measured = add_measured(builder, status, cm.commanded_position_output, k, prefix=f"{name}_")
     to_pose = builder.AddNamedSystem(f"{name}_to_pose", MultibodyPositionToGeometryPose(plant))
     builder.Connect(measured, to_pose.get_input_port())

@@ -32,6 +32,8 @@
   :class:`PathProgressConfig`; the camera's :class:`PerceptionConfig`, the
   online bounds' :class:`OnlineBoundsConfig`);
   :class:`ToolPushForce`: a push at the tool as a real force on a plant.
+- :class:`StatusWatchdog`: a fault when the robot's status goes stale
+  (wired to the safety filter's ``hold``).
 
 One system per module. Imports ``online``, ``algorithm`` (the bounds table), ``scene``,
 ``kernel`` and ``io`` only.
@@ -57,6 +59,7 @@ from drake_cfvol.systems.perception import (
 )
 from drake_cfvol.systems.safety import SafetyFilter, SafetyFilterConfig
 from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig, CoManipulationSystems, ToolPushForce
+from drake_cfvol.systems.watchdog import StatusWatchdog
 
 __all__ = [
     "JointBoundsSource",
@@ -95,4 +98,5 @@ __all__ = [
     "CoManipulationConfig",
     "FilterConstraint",
     "ToolSpeedLimit",
+    "StatusWatchdog",
 ]

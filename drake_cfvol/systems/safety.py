@@ -25,6 +25,12 @@ follows it; the tracking error is the controller's to close (a command
 that tried to undo it within one update would chase the robot). Every
 pair is measured at every update.
 
+**Hold**: while the optional ``hold`` input is above 0.5 (or NaN), an
+update keeps the last command (v = 0) and counts itself in ``hold_count``:
+a robot whose status went stale (:class:`~drake_cfvol.systems.StatusWatchdog`)
+is not commanded anywhere new. Every pair is measured again at the first
+update after the hold.
+
 The discrete state is the commanded position q_c (rad, or m for a
 prismatic joint); ``commanded_position`` outputs it, so it depends on no
 input: the plant may be posed from it (``MultibodyPositionToGeometryPose``
@@ -180,7 +186,7 @@ class SafetyFilterConfig:
 #: |v_j| / limit_j of the last update, updates that used the fallback,
 #: updates that had to miss a damper row, updates whose command left the
 #: box].
-_ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS = range(7)
+_ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS, _HOLDS = range(8)
 
 #: The share of the velocity limits the filter keeps below them.
 _HAIR = 1e-9
@@ -258,6 +264,7 @@ def _declare_status_outputs(system, status) -> None:
         ("fallback_count", _FALLBACKS),
         ("damper_misses", _MISSES),
         ("box_exits", _EXITS),
+        ("hold_count", _HOLDS),
     ]:
         port = system.DeclareVectorOutputPort(
             name=name,
@@ -289,6 +296,7 @@ class SafetyFilter(LeafSystem):
         - upper
         - nominal (optional)
         - measured_position (optional)
+        - hold (optional)
         - query_object
         output_ports:
         - commanded_position
@@ -301,6 +309,7 @@ class SafetyFilter(LeafSystem):
         - fallback_count
         - damper_misses
         - box_exits
+        - hold_count
 
     The update, its constraints and guarantees, the outputs and the measured
     position: see :mod:`drake_cfvol.systems.safety`. Scalar type: float only.
@@ -435,12 +444,13 @@ class SafetyFilter(LeafSystem):
         self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
         self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=k)
         self.measured_position_input = self.DeclareVectorInputPort(name="measured_position", size=k)
+        self.hold_input = self.DeclareVectorInputPort(name="hold", size=1)
         self.query_object_input = self.DeclareAbstractInputPort(
             name="query_object", model_value=AbstractValue.Make(QueryObject())
         )
         self._position = self.DeclareDiscreteState(q0)
         self._velocity = self.DeclareDiscreteState(k)  # the last commanded velocity
-        self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0]))
+        self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0, 0.0]))
         # Per pair, how far it is known to lie beyond the influence distance
         # (m; negative: measure it at the next update).
         self._budget = self.DeclareDiscreteState(np.full(max(n_pairs, 1), -1.0))
@@ -531,6 +541,16 @@ class SafetyFilter(LeafSystem):
         q = context.get_discrete_state(self._position).CopyToVector()
         v_last = context.get_discrete_state(self._velocity).CopyToVector()
         status = context.get_discrete_state(self._status).CopyToVector()
+        if self.hold_input.HasValue(context) and not self.hold_input.Eval(context)[0] <= 0.5:
+            # Held (a stale robot status, a fault upstream): the last command
+            # stays; every pair is measured again when the hold ends.
+            discrete_state.get_mutable_vector(self._velocity).SetFromVector(np.zeros(k))
+            discrete_state.get_mutable_vector(self._budget).SetFromVector(np.full(max(self._damper.num_pairs, 1), -1.0))
+            held = status.copy()
+            held[_ACTIVE], held[_RATIO], held[_HOLDS] = 1.0, 0.0, status[_HOLDS] + 1
+            held[_COUNT] += 1
+            discrete_state.get_mutable_vector(self._status).SetFromVector(held)
+            return
         desired = np.asarray(self.desired_position_input.Eval(context), float)
         lower = np.asarray(self.lower_input.Eval(context), float)
         upper = np.asarray(self.upper_input.Eval(context), float)
@@ -590,6 +610,7 @@ class SafetyFilter(LeafSystem):
                 status[_FALLBACKS] + fallback,
                 status[_MISSES] + missed,
                 status[_EXITS] + exited,
+                status[_HOLDS],
             ]
         )
 
