@@ -164,6 +164,7 @@ def run_scenario(
         "filter_fallbacks": _count(cm, ctx, "filter_fallbacks"),
         "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
         "filter_box_exits": _count(cm, ctx, "filter_box_exits"),
+        "filter_holds": _count(cm, ctx, "filter_holds"),
         "faults": _count(cm, ctx, "fault_count"),
         "safety_filter": cm.control.safety is not None,
         "filter_clearance_m": cm.filter_clearance,
