@@ -103,6 +103,7 @@ def test_simulate_json(tmp_path, capsys):
     assert (tmp_path / "recording.html").stat().st_size > 100_000
 
 
+@pytest.mark.slow  # 3.4 s: CI's slow group runs it
 def test_bounds_certify_json(capsys):
     """cfvol bounds --certify reports the certificate it holds."""
     assert (

@@ -515,6 +515,7 @@ def test_certified_scenarios_run_safely_with_the_filter(name, tmp_path):
     assert np.array(wc.checker.CheckConfigsCollisionFree(logs["update_commanded_position"]), bool).all()
 
 
+@pytest.mark.slow  # 4.5 s: CI's slow group runs it
 def test_sensor_faults_are_held_and_reported(tmp_path):
     """A NaN torque (0.5 s), a 1e6 N m torque (0.3 s) and an infinite tool
     force (0.2 s) in a run: no exception, every command finite, and the

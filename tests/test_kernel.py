@@ -165,6 +165,7 @@ def test_hull_of_two_poses_covers_the_segment_between():
     assert not K.gjk_intersect(two, V, _sphere_row([0, 0.3, 0], 0.05), V)
 
 
+@pytest.mark.slow  # 7 s: CI's slow group runs it
 def test_height_field_test_matches_brute_force():
     """Shapes against the columns of V: the kernel's halving search equals
     testing every column as its own box."""
@@ -271,6 +272,7 @@ def _capsule_row(c, r, half, R):
     return row[None]
 
 
+@pytest.mark.slow  # 4 s: CI's slow group runs it
 def test_box_separation_before_gjk_is_exact_for_boxes_and_never_wrong():
     """The separating-axis broad phase ahead of GJK: for two boxes it says
     apart exactly when the 15-axis test (by hand) finds them apart, and for

@@ -73,7 +73,7 @@ def test_ball_against_a_box_by_hand():
     assert not ball_apart_row(*x, 0.49, row, aabb)
 
 
-@pytest.mark.parametrize("cell", ["automotive", "mesh"])
+@pytest.mark.parametrize("cell", [pytest.param("automotive", marks=pytest.mark.slow), "mesh"])  # automotive: 5 s
 def test_quick_pass_never_frees_a_colliding_region(cell, request):
     """Random regions (a stretch of two random free configurations with one
     joint swept): wherever the broad phase calls a region free, Drake's
