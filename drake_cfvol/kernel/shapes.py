@@ -193,28 +193,23 @@ def _row_aabb(row, verts, out):
         r1 = row[_R + 3 * a + 1]
         r2 = row[_R + 3 * a + 2]
         c = row[_C + a]
-        lo = 0.0
-        hi = 0.0
-        if kind == BOX:
-            hi = _box.extent(r0, r1, r2, s0, s1, s2)
-            lo = -hi
-        elif kind == SPHERE:
-            hi = _sphere.extent(r0, r1, r2, s0, s1, s2)
-            lo = -hi
-        elif kind == CAPSULE:
-            hi = _capsule.extent(r0, r1, r2, s0, s1, s2)
-            lo = -hi
-        elif kind == CYLINDER:
-            hi = _cylinder.extent(r0, r1, r2, s0, s1, s2)
-            lo = -hi
-        elif kind == ELLIPSOID:
-            hi = _ellipsoid.extent(r0, r1, r2, s0, s1, s2)
-            lo = -hi
-        elif kind != HULL or int(row[_V1]) <= int(row[_V0]):  # unknown, or no vertices: everywhere
-            lo = -np.inf
-            hi = np.inf
-        else:
+        if kind == HULL and int(row[_V1]) > int(row[_V0]):
             lo, hi = _hull.extent(verts, int(row[_V0]), int(row[_V1]), r0, r1, r2)
+        else:  # a symmetric kind: half its width along the axis
+            if kind == BOX:
+                h = _box.extent(r0, r1, r2, s0, s1, s2)
+            elif kind == SPHERE:
+                h = _sphere.extent(r0, r1, r2, s0, s1, s2)
+            elif kind == CAPSULE:
+                h = _capsule.extent(r0, r1, r2, s0, s1, s2)
+            elif kind == CYLINDER:
+                h = _cylinder.extent(r0, r1, r2, s0, s1, s2)
+            elif kind == ELLIPSOID:
+                h = _ellipsoid.extent(r0, r1, r2, s0, s1, s2)
+            else:  # unknown, or a hull without vertices: everywhere
+                h = np.inf
+            lo = -h
+            hi = h
         ua = row[_U + a]
         m = row[_EI] + row[_ED] * np.sqrt(max(1.0 - ua * ua, 0.0)) + row[_ES] * abs(ua)
         out[a] = c + lo - m
