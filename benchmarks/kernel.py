@@ -386,7 +386,7 @@ def kernel_targets(result: dict) -> list[tuple[str, bool, str]]:
                     if ok
                     else f", {s / T['certify_s']:.1f}x over: {r['certify_region_tests']:,} edge region tests and "
                     f"{r['certify_samples']:,} samples for a certificate of N = {r['certify_n_samples']:,} "
-                    f"consecutive free samples; {r['certify_shrinks']} cuts, each restarting the run"
+                    f"free samples; {r['certify_shrinks']} cuts"
                 ),
             )
         )

@@ -209,6 +209,34 @@ def test_certificate_run_is_n_consecutive(corner):
     np.testing.assert_array_equal(a.stretch_lower, b.stretch_lower)
 
 
+def test_certificate_run_keeps_exact_draws_across_cuts(corner):
+    """Without a search, the certificate run meets the corner's collisions
+    itself and cuts during the run. Its samples at the end are N uniform and
+    Nc clamp draws, each exactly its own random draws mapped into the final
+    (cut) box, inside it, and free by the kernel and by Drake's checker."""
+    from drake_cfvol.algorithm.certify import _Certification, _clamp_q
+    from drake_cfvol.io.progress import Progress
+
+    wc, path = corner
+    table = cf.estimate_bounds(wc, path, h_max=0.0)
+    c = Certify(epsilon=1e-3, confidence=0.99, search_rounds=0, boundary=False, cache=False)
+    job = _Certification(wc, wc.scene_arrays(), table, c)
+    run = job.certificate_run(Progress(1, "test", enabled=False))
+    assert job.shrinks >= 1  # cuts happened during the run
+    assert job.samples > c.n_samples + c.n_clamp_samples  # focus searches and re-checks
+    assert run.counts() == (c.n_samples, c.n_clamp_samples)
+    lo, hi, nom = job.current.boxes_at(run.s)
+    u = ~run.clamp
+    np.testing.assert_array_equal(run.Q[u], lo[u] + run.U[u] * (hi[u] - lo[u]))
+    cl = run.clamp
+    np.testing.assert_array_equal(run.Q[cl], _clamp_q((run.pushed[cl], run.up[cl], run.U[cl]), lo[cl], hi[cl], nom[cl]))
+    assert np.all((run.Q >= lo) & (run.Q <= hi))
+    assert not wc.scene_arrays().may_collide(run.Q).any()
+    assert np.asarray(wc.padded_checker(0.0).CheckConfigsCollisionFree(run.Q, parallelize=False)).all()
+    # The box the run certified is smaller than where it started.
+    assert np.any(job.current.upper < table.upper) or np.any(job.current.lower > table.lower)
+
+
 def test_cache_reuses_exact_inputs_only(corner, tmp_path, monkeypatch):
     """A second identical certification loads the first one's boxes (same
     arrays, report marked cached); another seed computes anew; cache=False
@@ -260,7 +288,7 @@ def test_certificate_report_in_words(corner):
     rep = cf.estimate_bounds(wc, path, h_max=0.0, certify=c).info["certificate"]
     assert rep["n_samples"] == c.n_samples == 2996
     assert "single-joint motion" in rep["proven"] and "every s" in rep["proven"]
-    assert f"{c.n_samples} consecutive samples" in rep["sampled"]
+    assert f"{c.n_samples} samples uniform" in rep["sampled"]
     assert "probability 0.95" in rep["sampled"] and "share 0.001" in rep["sampled"]
     assert rep["samples"] >= rep["n_samples"] and rep["time_ms"] > 0
 
@@ -412,9 +440,9 @@ def test_clamp_draws_land_where_a_clamp_does():
 
 def test_certificate_report_names_both_distributions(corner):
     """The sampled certificate speaks of uniform samples and of where a clamp
-    lands, each N consecutive free."""
+    lands, each N free."""
     wc, path = corner
     cert = cf.estimate_bounds(wc, path, h_max=0.0, certify=Certify(epsilon=1e-3, confidence=0.99, cache=False))
     text = cert.info["certificate"]["sampled"]
     assert "uniform in the box" in text and "where a clamp lands" in text
-    assert "4606 consecutive" in text and "461 consecutive" in text  # epsilon 1e-3 and the clamp's 1e-2
+    assert "4606 samples uniform" in text and "461 samples where" in text  # epsilon 1e-3 and the clamp's 1e-2

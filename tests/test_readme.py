@@ -131,7 +131,7 @@ def test_library_example_runs(tmp_path, monkeypatch, capsys):
     for _ in range(2):
         exec(compile(code, str(README), "exec"), {})
         assert (tmp_path / "bounds.npz").is_file()
-        assert "consecutive samples" in capsys.readouterr().out
+        assert "samples uniform in the box" in capsys.readouterr().out
 
 
 def test_diagram_example_runs(capsys):

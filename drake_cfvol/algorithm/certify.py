@@ -31,10 +31,12 @@ again, :func:`drake_cfvol.algorithm.table.rate_limited`):
    log-width per colliding sample it removes.
 2. Proof of the boundary (edges and corners), cutting where a region may
    collide (:func:`drake_cfvol.algorithm.boundary.prove_boundary`).
-3. Certificate: N consecutive uniform samples of the whole path. A
-   colliding sample is cut the same way, its stretch is searched again
-   (``focus_samples`` per round until a round finds nothing), the changed
-   stretches are proven again, and the run restarts.
+3. Certificate: N free samples of the whole path uniform in the box at s
+   (and Nc where a clamp lands). A colliding sample is cut the same way,
+   its stretch is searched again (``focus_samples`` per round until a
+   round finds nothing) and the changed stretches are proven again; the
+   run keeps its other samples, re-mapped into the cut box
+   (:meth:`_Certification.certificate_run`).
 
 Every test keeps the table's ``clearance`` margin (per stretch: less only
 where the nominal itself is nearer, :func:`drake_cfvol.algorithm.sweep.stretch_margins`).
@@ -299,10 +301,18 @@ def clamp_draws(rng, lo, hi, nom) -> np.ndarray:
     that side's bound) and clamped into [lo, hi]; so about half of the
     pushed joints sit on a bound, the others inside, the unpushed at the
     nominal."""
-    n, k = nom.shape
-    pushed = rng.random((n, k)) < 0.5
-    up = rng.random((n, k)) < 0.5
-    amount = 2.0 * rng.random((n, k))
+    return _clamp_q(_clamp_uniforms(rng, np.shape(nom)), lo, hi, nom)
+
+
+def _clamp_uniforms(rng, shape):
+    """The random part of :func:`clamp_draws`: (pushed, up, amount)."""
+    return rng.random(shape) < 0.5, rng.random(shape) < 0.5, 2.0 * rng.random(shape)
+
+
+def _clamp_q(draws, lo, hi, nom) -> np.ndarray:
+    """:func:`clamp_draws` from its random part, in the box [lo, hi] at the
+    nominal nom: the same draws give the same landing in any box."""
+    pushed, up, amount = draws
     q = np.where(up, nom + amount * (hi - nom), nom - amount * (nom - lo))
     return np.where(pushed, np.clip(q, lo, hi), nom)
 
@@ -332,8 +342,8 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
         table); the input table is not changed.
 
     With ``progress``, a bar on a terminal shows the search rounds, then
-    the run of consecutive free samples against N; the run restarts after
-    a cut, so the bar shows no time-left estimate.
+    the run's free samples against N, and the cuts; a cut's proof takes
+    an unforeseeable time, so the bar shows no time-left estimate.
     """
     t0 = time.perf_counter()
     arrays = workcell.scene_arrays()
@@ -359,6 +369,43 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
     if file is not None:
         cache_store(file, job.current.lower, job.current.upper, report)
     return job.current.lower, job.current.upper, report
+
+
+@dataclasses.dataclass
+class _Draws:
+    """The certificate run's samples with their random draws: path
+    parameter s (n,), whether each is a clamp's landing (n,), the unit
+    draws U (n, k) (a uniform sample's coordinates in the box; a clamp's
+    push amounts), a clamp's pushed joints and sides (n, k) bool, and the
+    configuration Q (n, k) they map to in the current box."""
+
+    s: np.ndarray
+    clamp: np.ndarray
+    U: np.ndarray
+    pushed: np.ndarray
+    up: np.ndarray
+    Q: np.ndarray
+
+    @classmethod
+    def empty(cls, k: int) -> "_Draws":
+        z = np.zeros((0, k))
+        return cls(np.zeros(0), np.zeros(0, bool), z, z.astype(bool), z.astype(bool), z.copy())
+
+    def _arrays(self):
+        return [getattr(self, f.name) for f in dataclasses.fields(self)]
+
+    def joined(self, other: "_Draws") -> "_Draws":
+        return _Draws(*(np.concatenate([a, b]) for a, b in zip(self._arrays(), other._arrays())))
+
+    def without(self, rows) -> "_Draws":
+        keep = np.ones(len(self.s), bool)
+        keep[rows] = False
+        return _Draws(*(a[keep] for a in self._arrays()))
+
+    def counts(self) -> tuple[int, int]:
+        """(uniform samples, clamp samples)."""
+        nc = int(self.clamp.sum())
+        return len(self.s) - nc, nc
 
 
 class _Certification:
@@ -565,42 +612,89 @@ class _Certification:
             bar.update(1)
 
     def certificate_run(self, bar):
-        """N consecutive free samples of the whole path from each of two
-        distributions, uniform in the box and where a clamp lands (drawn
-        side by side; a cut restarts both runs)."""
-        rng, N, certify = self.rng, self.N, self.certify
-        run = 0
-        batch = max(1, N // 64)  # small after a cut (a restart costs the batch), doubling up to N / 4
-        share = self.Nc / N  # clamp draws per uniform draw: both runs end together
-        while run < N:
-            n = min(batch, N - run)
+        """N free samples of the whole path uniform in the box at s and,
+        drawn alongside, Nc where a clamp lands (see :class:`_Draws`).
+
+        A colliding sample is cut (its stretch searched again and the
+        boxes proven again, as in the search), and it leaves the run. The
+        other samples stay: each keeps its random draws, which map to its
+        configuration in the cut box (a uniform draw lo + u (hi - lo), a
+        clamp's push by the same amount), so it is still an exact draw of
+        the cut box's distribution; the cut was chosen from other draws,
+        so it is independent of them. Those whose configuration moved are
+        checked again. So a cut costs the samples of the stretches it
+        changed, not the run (the earlier rule restarted it)."""
+        rng, N, Nc, certify = self.rng, self.N, self.Nc, self.certify
+        k = self.nominal.shape[1]
+        run = _Draws.empty(k)
+        batch = max(1, N // 64)
+        share = Nc / N  # clamp draws per uniform draw
+        while True:
+            n_u, n_c = run.counts()
+            if n_u >= N and n_c >= Nc:
+                break
+            n = min(batch, N - n_u)
+            nc = min(Nc - n_c, int(math.ceil(batch * share)))
             batch = min(2 * batch, max(1, N // 4))
-            nc = int(math.ceil((run + n) * share)) - int(math.ceil(run * share))
             s = rng.uniform(0.0, self.g - 1, n + nc)
             lo, hi, nom = self.current.boxes_at(s)
-            Q = np.concatenate(
-                [lo[:n] + rng.random(lo[:n].shape) * (hi[:n] - lo[:n]), clamp_draws(rng, lo[n:], hi[n:], nom[n:])]
+            U = rng.random((n, k))
+            clamp = _clamp_uniforms(rng, (nc, k))
+            new = _Draws(
+                s,
+                np.r_[np.zeros(n, bool), np.ones(nc, bool)],
+                np.concatenate([U, clamp[2]]),
+                np.concatenate([np.zeros((n, k), bool), clamp[0]]),
+                np.concatenate([np.zeros((n, k), bool), clamp[1]]),
+                np.concatenate([lo[:n] + U * (hi[:n] - lo[:n]), _clamp_q(clamp, lo[n:], hi[n:], nom[n:])]),
             )
-            flagged = self.flagged(s, Q)
-            self.samples += n + nc
-            if len(flagged):
-                self.cut(s, Q, flagged)
+            run = run.joined(new)
+            check = np.arange(len(run.s) - len(s), len(run.s))
+            while len(check):
+                flagged = check[self.flagged(run.s[check], run.Q[check])]
+                self.samples += len(check)
+                if not len(flagged):
+                    break
+                before = self.lower.copy(), self.upper.copy()
+                self.cut(run.s, run.Q, flagged)
                 self.refresh()
-                run, batch = 0, max(1, N // 64)
                 # The stretches that still collide get a search of their own
                 # (cheaper than another run over the whole path), from the
                 # distribution that collided: a clamp's landing has
                 # neighbours on the same bound.
-                hit = np.unique(self._stretch_of(s[flagged]))
+                hit = np.unique(self._stretch_of(run.s[flagged]))
                 focus = max(1, min(certify.focus_samples, N))
-                clamp = 0.5 if (flagged >= n).any() else None
+                clamp_share = 0.5 if run.clamp[flagged].any() else None
                 for _ in range(certify.focus_rounds):
-                    if not self.search(hit, focus, clamp):
+                    if not self.search(hit, focus, clamp_share):
                         break
                 self.prove()
-            else:
-                run += n
-            bar.set(certify.search_rounds + run, cuts=self.shrinks + self.boundary["edge_cuts"])
+                run = run.without(flagged)
+                check = self._moved(run, *before)
+            bar.set(certify.search_rounds + min(run.counts()[0], N), cuts=self.shrinks + self.boundary["edge_cuts"])
+        return run
+
+    def _moved(self, run: "_Draws", lower, upper) -> np.ndarray:
+        """The run's samples whose configuration the cuts since the boxes
+        (lower, upper) moved, re-mapped into the current boxes (in place);
+        their indices."""
+        changed = np.flatnonzero(
+            np.any((self.lower != lower) | (self.upper != upper), axis=1)
+        )  # waypoints; a stretch changes with either end
+        st = self._stretch_of(run.s)
+        rows = np.flatnonzero(np.isin(st, changed) | np.isin(st + 1, changed))
+        if not len(rows):
+            return rows
+        lo, hi, nom = self.current.boxes_at(run.s[rows])
+        c = run.clamp[rows]
+        Q = np.where(
+            c[:, None],
+            _clamp_q((run.pushed[rows], run.up[rows], run.U[rows]), lo, hi, nom),
+            lo + run.U[rows] * (hi - lo),
+        )
+        moved = np.any(Q != run.Q[rows], axis=1)
+        run.Q[rows[moved]] = Q[moved]
+        return rows[moved]
 
     def report(self, time_ms: float) -> "CertificateReport":
         """The report, in words."""
@@ -635,9 +729,12 @@ class _Certification:
             )
         sampled = (
             f"The faces and the interior, all joints at once, sampled from two distributions (s uniform over "
-            f"the path): {self.N} consecutive samples uniform in the box at s, and alongside them {self.Nc} "
-            "consecutive samples where a clamp lands (the nominal pushed on a random half of its joints, "
-            "clamped into the box, so about half of the pushed joints on a bound), all kept the margin. So "
+            f"the path): {self.N} samples uniform in the box at s, and alongside them {self.Nc} "
+            "samples where a clamp lands (the nominal pushed on a random half of its joints, "
+            "clamped into the box, so about half of the pushed joints on a bound), all kept the margin; "
+            "each an exact draw of the certified box's distribution, independent of the cuts (a cut keeps "
+            "the run's other samples, their draws mapped into the cut box, and checks again those that "
+            "moved). So "
             f"with probability {certify.confidence:g} at most a share {certify.epsilon:g} of the uniform "
             f"configurations comes nearer (about {certify.epsilon * 3e5:g} of 300,000), and at most a share "
             f"{certify.clamp_share:g} of the clamp's. Beyond the box, the runtime safety filter keeps the "

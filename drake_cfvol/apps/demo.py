@@ -78,7 +78,7 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
         how = "loaded from the cache" if rep["cached"] else f"{table.timing_ms['certify'] / 1e3:.1f} s"
         print(
             f"   certified whole boxes ({how}): freedom {rep['freedom_before']:.3f} -> {rep['freedom_after']:.3f}; "
-            f"{rep['n_samples']} consecutive samples free (epsilon {rep['epsilon']:g}, confidence "
+            f"{rep['n_samples']} samples free (epsilon {rep['epsilon']:g}, confidence "
             f"{rep['confidence']:g})"
         )
     print(

@@ -104,7 +104,7 @@ class Progress:
 
     def set(self, n: float, **postfix) -> None:
         """Sets the done units to ``n``; it may go back (e.g. a run of
-        consecutive samples that restarts)."""
+        samples that loses some to a cut)."""
         self.n = float(n)
         now = time.perf_counter()
         self.history.append((now - self.t0, self.n, self.total))
