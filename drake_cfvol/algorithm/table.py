@@ -139,7 +139,6 @@ def box_at(
     stretch_lower: np.ndarray | None = None,
     stretch_upper: np.ndarray | None = None,
     rate: np.ndarray | None = None,
-    trajectory: PiecewisePolynomial | None = None,
     interpolation: str = "stretch",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The box at path parameters s (docs/spec.md, section 7), vectorised.
@@ -162,7 +161,6 @@ def box_at(
         s: a scalar or (n,) path parameters in [0, g-1].
         stretch_lower, stretch_upper: (g-1, k) certified stretch boxes.
         rate: (k,) largest change of a bound per unit s (inf: none).
-        trajectory: :func:`nominal_trajectory` of ``nominal`` (saves building it).
 
     Returns:
         (lower, upper, nominal), each (k,) for a scalar s, else (n, k).
@@ -180,12 +178,12 @@ def box_at(
     bad = ~np.isfinite(s) | (s < 0) | (s > g - 1)
     if bad.any():
         raise ParameterError(f"path index s = {s[bad][0]} is outside [0, {g - 1}] (g = {g} waypoints).")
-    traj = trajectory if trajectory is not None else nominal_trajectory(nominal)
-    nom = traj.vector_values(s).T if g > 1 else np.repeat(nominal[:1], len(s), axis=0)
+    i = np.clip(np.floor(s).astype(int), 0, max(g - 2, 0))
+    # The nominal, linear between waypoints (nominal_trajectory's values, bit for bit).
+    nom = nominal[i] + (s - i)[:, None] * (nominal[i + 1] - nominal[i]) if g > 1 else nominal[i]
     if g == 1:
-        lo, hi = np.repeat(lower[:1], len(s), axis=0), np.repeat(upper[:1], len(s), axis=0)
+        lo, hi = lower[i], upper[i]
     elif interpolation == "linear":
-        i = np.clip(np.floor(s).astype(int), 0, g - 2)
         t = (s - i)[:, None]
         lo = (1.0 - t) * lower[i] + t * lower[i + 1]
         hi = (1.0 - t) * upper[i] + t * upper[i + 1]
@@ -197,7 +195,7 @@ def box_at(
         if stretch_lower is None or stretch_upper is None:
             stretch_lower, stretch_upper = intersection_stretches(lower, upper)
         rate = np.full(k, np.inf) if rate is None else np.asarray(rate, float)
-        lo, hi = _stretch_rule(stretch_lower, stretch_upper, rate, s, np.clip(np.floor(s).astype(int), 0, g - 2))
+        lo, hi = _stretch_rule(stretch_lower, stretch_upper, rate, s, i)
         lo, hi = np.minimum(lo, nom), np.maximum(hi, nom)
         at = s == np.floor(s)
         w = s[at].astype(int)
@@ -393,7 +391,6 @@ class BoundsTable:
             stretch_lower=self.stretch_lower,
             stretch_upper=self.stretch_upper,
             rate=self.rate,
-            trajectory=self._trajectory,
             interpolation=self.interpolation,
         )
 
@@ -407,7 +404,6 @@ class BoundsTable:
             stretch_lower=self.stretch_lower,
             stretch_upper=self.stretch_upper,
             rate=self.rate,
-            trajectory=self._trajectory,
             interpolation=self.interpolation,
         )
 

@@ -102,7 +102,6 @@ class LiveBounds:
             stretch_lower=self.stretch_lower,
             stretch_upper=self.stretch_upper,
             rate=self.rate,
-            trajectory=self.base.trajectory,
         )
         lo_b, hi_b, _ = self.base.at(s)
         return np.minimum(np.maximum(lo, lo_b), nom), np.maximum(np.minimum(hi, hi_b), nom), nom
