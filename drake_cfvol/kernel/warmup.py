@@ -28,18 +28,18 @@ from drake_cfvol.kernel.types import (
 )
 
 #: Each step's share of a fresh compile, s (measured on this 2-core machine
-#: with an empty numba cache, one fresh compile after the kernel moved to
-#: blocks, scaled to the earlier total; the shares, not the seconds, carry
-#: over to other machines). A step compiles what the steps before it have not.
+#: with an empty numba cache by ``cfvol bench --kernel`` at 960a21e, the
+#: machine otherwise idle; the shares, not the seconds, carry over to other
+#: machines). A step compiles what the steps before it have not.
 STEP_SHARES = {
-    "fk": 3.7,
-    "configs_may_collide": 25.1,
-    "configs_may_collide_serial": 3.8,
-    "sweep_chains": 49.5,
-    "regions_hit": 27.0,
-    "lower_columns_under": 1.5,
-    "obstacle_distances": 4.6,
-    "footprints": 2.7,
+    "fk": 7.7,
+    "configs_may_collide": 59.6,
+    "configs_may_collide_serial": 8.7,
+    "sweep_chains": 76.0,
+    "regions_hit": 39.2,
+    "lower_columns_under": 2.0,
+    "obstacle_distances": 6.2,
+    "footprints": 2.8,
     "gjk_intersect": 0.3,
 }
 
