@@ -119,6 +119,34 @@ def test_proven_edges_are_not_tested_again(corner):
     assert B._failures(arrays, lower, upper, nominal, [0], np.full(1, 0.01), memo)[1] == 4
 
 
+def test_an_edge_tested_again_starts_from_the_pieces_it_needed(corner):
+    """A box near the post at a 2 cm margin: the two edges nearest the post
+    pass only halved along their joint (the whole edge's hull of poses
+    bulges towards the post), and the memo remembers that. After joint 1's upper bound
+    shrinks a little, joint 0's edge on that bound is a new region; it is
+    tested from its two halves at once (2 tests), and it is free by Drake's
+    checker at points all along it."""
+    wc, arrays = corner
+    upper = np.array([[0.3, 0.6], [0.3, 0.6]])
+    lower = -upper
+    nominal = np.zeros((2, 2))
+    margins = np.full(1, 0.02)
+    memo: dict = {}
+    failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
+    sig = B.edge_tasks(lower[0], upper[0], lower[1], upper[1])[5].dtype
+    depths = {(k[2], tuple(np.frombuffer(k[3], sig))): v for k, v in memo.items() if k[0] == "depth"}
+    # Joint 0 with joint 1 on its upper bound, and joint 1 with joint 0 on
+    # its upper bound, both nearest the post: each passed in two halves.
+    assert not failed and depths == {(0, (0, 1)): 1, (1, (1, 0)): 1}
+    upper[:, 1] = 0.59
+    failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
+    assert not failed and tests == 2  # joint 0's edge at joint 1's moved bound, from its halves
+    s = np.linspace(0.0, 1.0, 11)
+    v = np.linspace(lower[0, 0], upper[0, 0], 41)
+    Q = np.array([[a, upper[0, 1]] for a in v for _ in s])
+    assert np.asarray(wc.padded_checker(0.02).CheckConfigsCollisionFree(Q, parallelize=False)).all()
+
+
 def test_failed_edges_are_remembered_and_cut_once_per_round(corner):
     """A box whose corner (0.4, 0.8) rad reaches into the post: some edges
     fail. Asked again with nothing changed, the same regions fail without

@@ -114,11 +114,12 @@ class _Item:
     """A region of an edge: s in [sa, sb] of stretch i, joint j in
     [va, vb], the other joints on the bounds of sign row S."""
 
-    __slots__ = ("i", "sa", "sb", "j", "va", "vb", "S", "A", "B", "root")
+    __slots__ = ("i", "sa", "sb", "j", "va", "vb", "S", "A", "B", "root", "depth")
 
-    def __init__(self, i, sa, sb, j, va, vb, S, A, B, root=-1):
+    def __init__(self, i, sa, sb, j, va, vb, S, A, B, root=-1, depth=0):
         self.i, self.sa, self.sb, self.j, self.va, self.vb, self.S, self.A, self.B = i, sa, sb, j, va, vb, S, A, B
         self.root = root  # the edge it was halved from (an index of _failures' edges), or ("again", n): a remembered failed edge
+        self.depth = depth  # halvings from its whole edge
 
 
 def _test(arrays, items, margins):
