@@ -171,6 +171,34 @@ def test_box_at_sees_stretch_bounds_changed_in_place():
     assert after[1][0] == pytest.approx(0.55) and after[1][0] == fresh[1][0]
 
 
+@pytest.mark.parametrize("interpolation", ["stretch", "linear"])
+def test_box_at_one_s_equals_many_bit_for_bit(interpolation):
+    """The box at one s (the bounds source's lookup, its own code) is the
+    box the vectorised rule gives at that s, bit for bit: random bounds with
+    a rate limit, random s and every waypoint; and the waypoint box it
+    returns is a copy, not a view of the table."""
+    rng = np.random.default_rng(4)
+    g, k = 7, 3
+    nominal = rng.normal(size=(g, k))
+    lower = nominal - rng.uniform(0.1, 1.0, (g, k))
+    upper = nominal + rng.uniform(0.1, 1.0, (g, k))
+    kw = dict(
+        stretch_lower=np.maximum(lower[:-1], lower[1:]) - 0.05,
+        stretch_upper=np.minimum(upper[:-1], upper[1:]) + 0.05,
+        rate=np.array([0.2, np.inf, 0.5]),
+        interpolation=interpolation,
+    )
+    S = np.concatenate([rng.uniform(0, g - 1, 500), np.arange(g, dtype=float)])
+    many = box_at(lower, upper, nominal, S, **kw)
+    for n, x in enumerate(S):
+        for a, b in zip(box_at(lower, upper, nominal, float(x), **kw), many):
+            assert np.array_equal(a, b[n])
+    box_at(lower, upper, nominal, 2.0, **kw)[0][:] = 99.0
+    assert not np.any(lower == 99.0)
+    with pytest.raises(cf.ParameterError, match="outside"):
+        box_at(lower, upper, nominal, float("nan"), **kw)
+
+
 def test_linear_rule_by_hand():
     """The "linear" rule: each bound linear between its waypoints (a quarter
     of the way from [-1, 1] to [-2, 3] is [-1.25, 1.5]); waypoints exact."""

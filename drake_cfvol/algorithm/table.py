@@ -9,6 +9,7 @@ the Confidence Factor and certification all call it.
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
@@ -130,6 +131,32 @@ def _stretch_rule(
     return lo, hi
 
 
+def _box_at_one(lower, upper, nominal, s: float, stretch_lower, stretch_upper, rate, interpolation):
+    """:func:`box_at` at one s (g > 1), the same arithmetic on (k,) rows
+    (the bounds source asks once per control update)."""
+    g = len(nominal)
+    if not (math.isfinite(s) and 0.0 <= s <= g - 1):
+        raise ParameterError(f"path index s = {s} is outside [0, {g - 1}] (g = {g} waypoints).")
+    if s == math.floor(s):
+        w = int(s)
+        return lower[w].copy(), upper[w].copy(), nominal[w].copy()
+    i = min(int(math.floor(s)), g - 2)
+    t = s - i
+    nom = nominal[i] + t * (nominal[i + 1] - nominal[i])
+    if interpolation == "linear":
+        lo = (1.0 - t) * lower[i] + t * lower[i + 1]
+        hi = (1.0 - t) * upper[i] + t * upper[i + 1]
+    else:
+        if stretch_lower is None or stretch_upper is None:
+            stretch_lower, stretch_upper = intersection_stretches(lower, upper)
+        rate = np.full(nominal.shape[1], np.inf) if rate is None else np.asarray(rate, float)
+        Au, Bu, Al, Bl = _stretch_envelopes(stretch_lower, stretch_upper, rate)
+        r = np.where(np.isfinite(rate), rate, 0.0)
+        hi = np.minimum(np.minimum(stretch_upper[i], Au[i] + r * s), Bu[i] - r * s)
+        lo = -np.minimum(np.minimum(-stretch_lower[i], Al[i] + r * s), Bl[i] - r * s)
+    return np.minimum(lo, nom), np.maximum(hi, nom), nom
+
+
 def box_at(
     lower: np.ndarray,
     upper: np.ndarray,
@@ -174,6 +201,8 @@ def box_at(
         )
     g, k = nominal.shape
     scalar = np.ndim(s) == 0
+    if scalar and g > 1:
+        return _box_at_one(lower, upper, nominal, float(s), stretch_lower, stretch_upper, rate, interpolation)
     s = np.atleast_1d(np.asarray(s, float))
     bad = ~np.isfinite(s) | (s < 0) | (s > g - 1)
     if bad.any():
