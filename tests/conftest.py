@@ -10,8 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from hypothesis import settings
 
 import drake_cfvol as cf
+
+# Property tests draw their examples from a fixed seed (each test's own,
+# hypothesis's derandomize), so a run is reproducible.
+settings.register_profile("deterministic", derandomize=True)
+settings.load_profile("deterministic")
 
 
 @pytest.fixture(scope="session", autouse=True)
