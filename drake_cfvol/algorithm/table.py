@@ -125,15 +125,16 @@ def _stretch_rule(
     i (before the nominal is added; see :func:`box_at`)."""
     Au, Bu, Al, Bl = _stretch_envelopes(stretch_lower, stretch_upper, rate)
     r = np.where(np.isfinite(rate), rate, 0.0)
-    sc = s[:, None]
+    sc = np.asarray(s, float)[..., None]  # (n, 1) for n values of s; (1,) for one
     hi = np.minimum(np.minimum(stretch_upper[i], Au[i] + r * sc), Bu[i] - r * sc)
     lo = -np.minimum(np.minimum(-stretch_lower[i], Al[i] + r * sc), Bl[i] - r * sc)
     return lo, hi
 
 
 def _box_at_one(lower, upper, nominal, s: float, stretch_lower, stretch_upper, rate, interpolation):
-    """:func:`box_at` at one s (g > 1), the same arithmetic on (k,) rows
-    (the bounds source asks once per control update)."""
+    """:func:`box_at` at one s (g > 1; the stretch rule's defaults filled
+    in), the same arithmetic on (k,) rows (the bounds source asks once per
+    control update)."""
     g = len(nominal)
     if not (math.isfinite(s) and 0.0 <= s <= g - 1):
         raise ParameterError(f"path index s = {s} is outside [0, {g - 1}] (g = {g} waypoints).")
@@ -147,13 +148,7 @@ def _box_at_one(lower, upper, nominal, s: float, stretch_lower, stretch_upper, r
         lo = (1.0 - t) * lower[i] + t * lower[i + 1]
         hi = (1.0 - t) * upper[i] + t * upper[i + 1]
     else:
-        if stretch_lower is None or stretch_upper is None:
-            stretch_lower, stretch_upper = intersection_stretches(lower, upper)
-        rate = np.full(nominal.shape[1], np.inf) if rate is None else np.asarray(rate, float)
-        Au, Bu, Al, Bl = _stretch_envelopes(stretch_lower, stretch_upper, rate)
-        r = np.where(np.isfinite(rate), rate, 0.0)
-        hi = np.minimum(np.minimum(stretch_upper[i], Au[i] + r * s), Bu[i] - r * s)
-        lo = -np.minimum(np.minimum(-stretch_lower[i], Al[i] + r * s), Bl[i] - r * s)
+        lo, hi = _stretch_rule(stretch_lower, stretch_upper, rate, s, i)
     return np.minimum(lo, nom), np.maximum(hi, nom), nom
 
 
@@ -200,6 +195,10 @@ def box_at(
             f"interpolation must be one of {', '.join(map(repr, INTERPOLATIONS))}, got {interpolation!r}."
         )
     g, k = nominal.shape
+    if interpolation == "stretch" and g > 1:
+        if stretch_lower is None or stretch_upper is None:
+            stretch_lower, stretch_upper = intersection_stretches(lower, upper)
+        rate = np.full(k, np.inf) if rate is None else np.asarray(rate, float)
     scalar = np.ndim(s) == 0
     if scalar and g > 1:
         return _box_at_one(lower, upper, nominal, float(s), stretch_lower, stretch_upper, rate, interpolation)
@@ -221,9 +220,6 @@ def box_at(
         w = s[at].astype(int)
         lo[at], hi[at], nom[at] = lower[w], upper[w], nominal[w]
     else:
-        if stretch_lower is None or stretch_upper is None:
-            stretch_lower, stretch_upper = intersection_stretches(lower, upper)
-        rate = np.full(k, np.inf) if rate is None else np.asarray(rate, float)
         lo, hi = _stretch_rule(stretch_lower, stretch_upper, rate, s, i)
         lo, hi = np.minimum(lo, nom), np.maximum(hi, nom)
         at = s == np.floor(s)
