@@ -402,6 +402,16 @@ class _Draws:
         keep[rows] = False
         return _Draws(*(a[keep] for a in self._arrays()))
 
+    def mapped(self, rows, lo, hi, nom) -> np.ndarray:
+        """The configurations the draws of ``rows`` give in the boxes
+        [lo, hi] at nominals nom (each (len(rows), k)): a uniform draw
+        lo + U (hi - lo), a clamp's landing by :func:`_clamp_q`."""
+        return np.where(
+            self.clamp[rows, None],
+            _clamp_q((self.pushed[rows], self.up[rows], self.U[rows]), lo, hi, nom),
+            lo + self.U[rows] * (hi - lo),
+        )
+
     def counts(self) -> tuple[int, int]:
         """(uniform samples, clamp samples)."""
         nc = int(self.clamp.sum())
@@ -646,8 +656,9 @@ class _Certification:
                 np.concatenate([U, clamp[2]]),
                 np.concatenate([np.zeros((n, k), bool), clamp[0]]),
                 np.concatenate([np.zeros((n, k), bool), clamp[1]]),
-                np.concatenate([lo[:n] + U * (hi[:n] - lo[:n]), _clamp_q(clamp, lo[n:], hi[n:], nom[n:])]),
+                np.empty((n + nc, k)),
             )
+            new.Q[:] = new.mapped(slice(None), lo, hi, nom)
             run = run.joined(new)
             check = np.arange(len(run.s) - len(s), len(run.s))
             while len(check):
@@ -685,13 +696,7 @@ class _Certification:
         rows = np.flatnonzero(np.isin(st, changed) | np.isin(st + 1, changed))
         if not len(rows):
             return rows
-        lo, hi, nom = self.current.boxes_at(run.s[rows])
-        c = run.clamp[rows]
-        Q = np.where(
-            c[:, None],
-            _clamp_q((run.pushed[rows], run.up[rows], run.U[rows]), lo, hi, nom),
-            lo + run.U[rows] * (hi - lo),
-        )
+        Q = run.mapped(rows, *self.current.boxes_at(run.s[rows]))
         moved = np.any(Q != run.Q[rows], axis=1)
         run.Q[rows[moved]] = Q[moved]
         return rows[moved]
