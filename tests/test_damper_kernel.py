@@ -68,7 +68,6 @@ def test_compiled_rows_are_the_drake_assembled_rows():
     damper = VelocityDamper(
         plant, sg, robot, obstacle_ids=None, target_distance=0.021, influence_distance=0.15, rate=10.0
     )
-    scratch = plant.CreateDefaultContext()
     lo, hi = wc.position_lower, wc.position_upper
     rng = np.random.default_rng(0)
     rows_seen = point_rows = 0
@@ -76,10 +75,10 @@ def test_compiled_rows_are_the_drake_assembled_rows():
         q = lo + rng.random(len(lo)) * (hi - lo)
         plant.SetPositions(pctx, robot, q)
         query = sg.get_query_output_port().Eval(sgctx)
-        fast = damper.rows(scratch, query, q)
+        fast = damper.rows(query, q)
         damper._drake_rows[:] = True
         try:
-            slow = damper.rows(scratch, query, q)
+            slow = damper.rows(query, q)
         finally:
             damper._sides, damper._drake_rows = side_arrays(damper, sg.model_inspector())
         for field in ("A", "b", "dirs", "points", "rounds"):
@@ -95,3 +94,78 @@ def test_compiled_rows_are_the_drake_assembled_rows():
         rows_seen += len(fast.b)
         point_rows += int(np.sum((fast.slots >= 0).all(axis=1)))
     assert rows_seen > 500 and point_rows > 50
+
+
+def _gripper_station():
+    """The mesh test robot with a gripper welded to its tool (a palm and a
+    finger on a prismatic joint held at 2 cm) and a free part: degrees of
+    freedom beyond the robot's, and a robot body in another model
+    instance."""
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.tree import PrismaticJoint, SpatialInertia
+
+    from drake_cfvol.scene.schema import models_dir
+
+    plant = MultibodyPlant(0.0)
+    parser = Parser(plant)
+    parser.package_map().AddPackageXml(str(models_dir() / "package.xml"))
+    arm = parser.AddModels(url="package://drake_cfvol_models/mesh_arm/mesh_arm.urdf")[0]
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("base", arm))
+    grip = plant.AddModelInstance("gripper")
+    palm = plant.AddRigidBody("palm", grip, SpatialInertia.SolidBoxWithMass(0.3, 0.08, 0.08, 0.04))
+    plant.WeldFrames(plant.GetFrameByName("tool", arm), palm.body_frame(), RigidTransform([0.01, 0.0, 0.03]))
+    tip = plant.AddRigidBody("finger", grip, SpatialInertia.SolidBoxWithMass(0.05, 0.02, 0.02, 0.05))
+    plant.AddJoint(
+        PrismaticJoint("finger_slide", palm.body_frame(), tip.body_frame(), [1, 0, 0], -0.03, 0.03)
+    ).set_default_translation(0.02)
+    part = plant.AddRigidBody(
+        "part", plant.AddModelInstance("part"), SpatialInertia.SolidBoxWithMass(0.5, 0.1, 0.1, 0.1)
+    )
+    plant.SetDefaultFloatingBaseBodyPose(part, RigidTransform([0.6, 0.0, 0.45]))
+    plant.Finalize()
+    return plant, arm, [palm, tip]
+
+
+@pytest.mark.parametrize("cell", ["automotive", "aerospace", "gripper"])
+def test_slot_kinematics_are_drakes(cell, request):
+    """The damper's compiled forward kinematics (SlotKinematics) against
+    Drake's at 200 random configurations: every robot body's pose
+    (EvalBodyPoseInWorld) and its Jacobian at its origin in the robot's
+    velocities (CalcJacobianSpatialVelocity), to 1e-12 / 1e-11; the held
+    finger of the gripper station where the plant's default puts it.
+    Cells: a 6-DoF arm, the 7-DoF arm on a linear axis (prismatic), the
+    mesh robot with a gripper (a prismatic finger held) and a free part."""
+    from pydrake.multibody.tree import JacobianWrtVariable
+
+    from drake_cfvol.scene.robot import RobotSlice, robot_bodies
+    from drake_cfvol.systems.damper_kinematics import SlotKinematics
+
+    if cell == "gripper":
+        plant, robot, extra = _gripper_station()
+    else:
+        wc = request.getfixturevalue(cell)
+        plant, robot, extra = wc.plant, wc.robot, []
+    robot_slice = RobotSlice(plant, robot)
+    bodies = [plant.get_body(b) for b in robot_bodies(plant, robot)]
+    assert all(b in bodies for b in extra)
+    kin = SlotKinematics(plant, robot, robot_slice, bodies)
+    ctx = plant.CreateDefaultContext()
+    lo = np.maximum(plant.GetPositionLowerLimits()[robot_slice.qidx], -np.pi)
+    hi = np.minimum(plant.GetPositionUpperLimits()[robot_slice.qidx], np.pi)
+    rng = np.random.default_rng(3)
+    world = plant.world_frame()
+    for _ in range(200):
+        q = lo + rng.random(len(lo)) * (hi - lo)
+        robot_slice.set_positions(ctx, q)
+        R, o, J_w, J_v = kin.poses_and_jacobians(q)
+        for s, body in enumerate(bodies):
+            X = plant.EvalBodyPoseInWorld(ctx, body)
+            np.testing.assert_allclose(R[s], X.rotation().matrix(), atol=1e-12)
+            np.testing.assert_allclose(o[s], X.translation(), atol=1e-12)
+            J = robot_slice.columns(
+                plant.CalcJacobianSpatialVelocity(
+                    ctx, JacobianWrtVariable.kV, body.body_frame(), np.zeros(3), world, world
+                )
+            )
+            np.testing.assert_allclose(J_w[s], J[:3], atol=1e-11)
+            np.testing.assert_allclose(J_v[s], J[3:], atol=1e-11)

@@ -29,7 +29,7 @@ from drake_cfvol.kernel import kinds
 from drake_cfvol.scene.covers import robot_covers
 from drake_cfvol.scene.robot import robot_bodies
 
-__all__ = ["SceneArrays", "scene_arrays", "shape_row"]
+__all__ = ["SceneArrays", "robot_chain", "scene_arrays", "shape_row"]
 
 
 def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[np.ndarray, float, np.ndarray]:
@@ -248,11 +248,30 @@ def _pose(X) -> tuple[np.ndarray, np.ndarray]:
     return X.rotation().matrix().copy(), X.translation().copy()
 
 
-def _chain_order(workcell):
+def robot_chain(plant, robot, robot_slice) -> tuple[list, K.Chain, np.ndarray]:
+    """The robot's kinematic chain for the kernel's forward kinematics
+    (:func:`~drake_cfvol.kernel.kinematics.fk_into`), every degree of
+    freedom but the robot's held where ``robot_slice`` holds it.
+
+    Args:
+        plant: a finalized MultibodyPlant.
+        robot: the robot's model instance.
+        robot_slice: its :class:`~drake_cfvol.scene.robot.RobotSlice`.
+
+    Returns:
+        (order, chain, joint_body): the robot's bodies in the chain's order
+        (parents first), the :class:`~drake_cfvol.kernel.Chain`, and each of
+        the k joints' index in that order.
+    """
+    order, inboard = _chain_order(plant, robot)
+    chain, joint_body = _chain_arrays(plant, robot, robot_slice, order, inboard)
+    return order, K.Chain(*chain), joint_body
+
+
+def _chain_order(plant, robot):
     """The robot's bodies in topological order (parents before children)
     and each body's inboard joint (by body index)."""
-    plant = workcell.plant
-    mine = robot_bodies(plant, workcell.robot)
+    mine = robot_bodies(plant, robot)
     robot_set = {int(b) for b in mine}
     robot_bodies_ = [plant.get_body(b) for b in mine]
     inboard = {}
@@ -281,14 +300,13 @@ def _chain_order(workcell):
     return order, inboard
 
 
-def _chain_arrays(workcell, order, inboard):
+def _chain_arrays(plant, robot, robot_slice, order, inboard):
     """The chain in ``kernel.fk`` order (parent, jtype, qidx, axis, R_PF,
     p_PF, R_MB, p_MB; a parent outside the robot folded into X_PF, a weld's
     X_FM folded too) and each joint's body (joint_body)."""
-    plant = workcell.plant
     ctx = plant.CreateDefaultContext()
-    plant.SetPositions(ctx, workcell.slice.q_default)  # held degrees of freedom where the workcell holds them
-    workcell.slice.set_positions(ctx, np.zeros(workcell.num_joints))
+    plant.SetPositions(ctx, robot_slice.q_default)  # held degrees of freedom where the slice holds them
+    robot_slice.set_positions(ctx, np.zeros(robot_slice.k))
     index_of = {int(b.index()): n for n, b in enumerate(order)}
     B = len(order)
     parent = np.full(B, -1, np.int64)
@@ -297,7 +315,7 @@ def _chain_arrays(workcell, order, inboard):
     axis = np.zeros((B, 3))
     R_PF, p_PF = np.zeros((B, 3, 3)), np.zeros((B, 3))
     R_MB, p_MB = np.zeros((B, 3, 3)), np.zeros((B, 3))
-    joint_names = list(workcell.joint_names)
+    joint_names = list(robot_slice.joint_names)
     joint_body = np.full(len(joint_names), -1, np.int64)
     for n, body in enumerate(order):
         joint = inboard[int(body.index())]
@@ -308,7 +326,7 @@ def _chain_arrays(workcell, order, inboard):
             parent[n] = index_of[int(par.index())]
         else:
             X_PF = par.EvalPoseInWorld(ctx) @ X_PF  # fixed: only the robot moves
-        if joint.num_positions() == 0 or joint.name() not in joint_names or joint.model_instance() != workcell.robot:
+        if joint.num_positions() == 0 or joint.name() not in joint_names or joint.model_instance() != robot:
             # Fold the weld's (or a held joint's, e.g. a gripper finger's) fixed X_FM into X_PF.
             X_FM = joint.frame_on_child().CalcPose(ctx, joint.frame_on_parent())
             X_PF = X_PF @ X_FM
@@ -373,8 +391,7 @@ def _moved_by(parent, joint_body, B):
 def scene_arrays(workcell) -> SceneArrays:
     """Reads the workcell's robot chain, robot shapes and obstacle shapes
     from Drake (``Workcell.scene_arrays`` caches the result)."""
-    order, inboard = _chain_order(workcell)
-    chain, joint_body = _chain_arrays(workcell, order, inboard)
+    order, chain, joint_body = robot_chain(workcell.plant, workcell.robot, workcell.slice)
     parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = chain
     B = len(order)
     verts: list[np.ndarray] = []

@@ -11,10 +11,10 @@ from typing import NamedTuple
 
 import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
-from pydrake.multibody.tree import JacobianWrtVariable
 
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies
 from drake_cfvol.systems.damper_kernel import ball_radius, pair_rows, probes, round_radius
+from drake_cfvol.systems.damper_kinematics import SlotKinematics
 from drake_cfvol.systems.damper_parts import BroadPhase, RowList, drake_pair_rows, side_arrays
 
 __all__ = ["DamperRows", "VelocityDamper"]
@@ -137,27 +137,13 @@ class VelocityDamper:
             dtype=int,
         ).reshape(-1, 2)
         self._chain_masks(plant, robot)
-        self._memo = {}  # q's bytes -> the bodies' poses there (poses(); at most a few entries)
+        self._kin = SlotKinematics(plant, robot, self._slice, self._bodies)
         self._sides, self._drake_rows = side_arrays(self, inspector)
 
-    def poses(self, pctx, q):
+    def poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """The moving bodies' rotations (S, 3, 3) and origins (S, 3) at q
-        (``pctx`` is posed at q on a miss; remembered for a few q)."""
-        key = np.asarray(q, float).tobytes()
-        hit = self._memo.get(key)
-        if hit is not None:
-            return hit
-        plant = self._plant
-        self._slice.set_positions(pctx, q)
-        S = len(self._bodies)
-        R, o = np.zeros((S, 3, 3)), np.zeros((S, 3))
-        for n, body in enumerate(self._bodies):
-            X = plant.EvalBodyPoseInWorld(pctx, body)
-            R[n], o[n] = X.rotation().matrix(), X.translation()
-        if len(self._memo) >= 4:
-            self._memo.pop(next(iter(self._memo)))
-        self._memo[key] = (R, o)
-        return R, o
+        (the kernel's forward kinematics)."""
+        return self._kin.poses(q)
 
     @property
     def num_pairs(self) -> int:
@@ -242,25 +228,9 @@ class VelocityDamper:
                 if body.index() in moved:
                     self._rev[n, self._slice.velocity_index(joint)] = 1.0
 
-    def jacobians(self, pctx, q, slots):
-        """The moving bodies' Jacobians at q: (J_w, J_v) (S, 3, k), J_v at
-        the body's origin, for ``slots`` (the others zero)."""
-        plant, world = self._plant, self._plant.world_frame()
-        self._slice.set_positions(pctx, q)
-        S = len(self._bodies)
-        J_w, J_v = np.zeros((S, 3, self.k)), np.zeros((S, 3, self.k))
-        for n in slots:
-            J = self._slice.columns(
-                plant.CalcJacobianSpatialVelocity(
-                    pctx, JacobianWrtVariable.kV, self._bodies[n].body_frame(), np.zeros(3), world, world
-                )
-            )
-            J_w[n], J_v[n] = J[:3], J[3:]
-        return J_w, J_v
-
-    def rows(self, pctx, query, q, measure=None) -> DamperRows:
-        """The damper's rows at q (``pctx``: a plant context to pose; ``query``:
-        the SceneGraph's query object, posed at q): for
+    def rows(self, query, q, measure=None) -> DamperRows:
+        """The damper's rows at q (``query``: the SceneGraph's query object,
+        posed at q): for
         the pairs closer than the influence distance, A (m x k) and b (m,)
         with the constraint A v >= b (first order; before the second-order
         term and the relaxation towards the nominal), every watched pair's
@@ -275,7 +245,7 @@ class VelocityDamper:
         """
         dists = np.full(len(self._pairs), np.nan)
         measured = np.zeros(len(self._pairs), bool)
-        R, o = self.poses(pctx, q)
+        R, o, J_w, J_v = self._kin.poses_and_jacobians(q)
         # Broad phase: a pair whose bounding balls lie apart by the influence
         # distance or more is not measured (its distance is at least that).
         look = np.arange(len(self._pairs)) if measure is None else np.flatnonzero(measure)
@@ -295,7 +265,6 @@ class VelocityDamper:
                 near.append((index, pair))
         if not near:
             return self.empty()._replace(distances=dists, measured=measured)
-        J_w, J_v = self.jacobians(pctx, q, sorted({s for index, _ in near for s in self._pair_bodies[index] if s >= 0}))
         fast = [(index, pair) for index, pair in near if not self._drake_rows[index]]
         parts = [self._kernel_rows(query, fast, R, o, J_w, J_v)] if fast else []
         slow = [(index, pair) for index, pair in near if self._drake_rows[index]]
@@ -331,7 +300,7 @@ class VelocityDamper:
         )
         return A, b, None, dirs, points, slots, rounds, owner
 
-    def second_order(self, pctx, q, rows: DamperRows, dq: np.ndarray) -> np.ndarray:
+    def second_order(self, q, rows: DamperRows, dq: np.ndarray) -> np.ndarray:
         """Per row, how far a joint step ``dq`` (k,) from q falls short of the row's first-order change
         A dq, m (>= 0): the rows' points are carried to q + dq by the bodies'
         poses there (forward kinematics), so the change of dirs . (P1 - P2)
@@ -343,21 +312,11 @@ class VelocityDamper:
         q + dq; between two moving links it is an estimate (the other link's
         turn tilts its surface too)."""
         dq = np.asarray(dq, float)
-        m = len(rows.b)
-        if not m:
+        if not len(rows.b):
             return np.zeros(0)
-        R0, o0 = self.poses(pctx, q)
-        R1, o1 = self.poses(pctx, q + dq)
-        # Per slot, X_WB(q + dq) X_WB(q)^-1 = [R1 R0^T | o1 - R1 R0^T o0]; slot -1 (welded): the identity.
-        Rm = np.concatenate([R1 @ R0.transpose(0, 2, 1), np.eye(3)[None]])
-        tm = np.concatenate([o1 - np.einsum("sij,sj->si", Rm[:-1], o0), np.zeros((1, 3))])
-        after = np.einsum("msij,msj->msi", Rm[rows.slots], rows.points) + tm[rows.slots]
-        delta = after - rows.points
-        actual = np.einsum("mi,mi->m", rows.dirs, delta[:, 0] - delta[:, 1])
-        theta = np.append(self._rev @ np.abs(dq), 0.0)[rows.slots]
-        return np.maximum(0.0, rows.A @ dq - actual) + 0.5 * np.sum(rows.rounds * theta**2, axis=1)
+        return self._kin.second_order(self.poses(q), self.poses(q + dq), rows, self._rev, dq)
 
-    def budget_after(self, pctx, q, q_next, budget, dists):
+    def budget_after(self, q, q_next, budget, dists):
         """Each pair's distance beyond the influence distance that is still
         certain after this step: the measured one (or the last budget) less
         how far the step can have moved the pair's bodies, every point of a
@@ -366,12 +325,6 @@ class VelocityDamper:
         at updates, so the poses at both ends bound it. Negative: measure
         at the next update. (Valid while the SceneGraph is posed from the
         configurations the steps go through.)"""
-        R0, o0 = self.poses(pctx, q)
-        R1, o1 = self.poses(pctx, q_next)
-        Rr = R0.transpose(0, 2, 1) @ R1
-        # The turn's angle: atan2(sin, cos) from the rotation's skew part and trace.
-        skew = np.stack([Rr[:, 2, 1] - Rr[:, 1, 2], Rr[:, 0, 2] - Rr[:, 2, 0], Rr[:, 1, 0] - Rr[:, 0, 1]], axis=1)
-        turn = np.arctan2(0.5 * np.linalg.norm(skew, axis=1), 0.5 * (np.trace(Rr, axis1=1, axis2=2) - 1.0))
-        moved = np.append(np.linalg.norm(o1 - o0, axis=1) + turn * self._body_radius, 0.0)  # the last: welded
+        moved = self._kin.moved(self.poses(q), self.poses(q_next), self._body_radius)  # the last: welded
         left = np.where(np.isnan(dists), budget, dists - self.influence_distance)
         return left - moved[self._pair_bodies[:, 0]] - moved[self._pair_bodies[:, 1]]

@@ -509,13 +509,13 @@ class SafetyFilter(LeafSystem):
                 the others' distances are NaN.
         """
         q = self.base_position(context)
-        return self._damper.rows(self._pctx(context), self.query_object_input.Eval(context), q, measure)
+        return self._damper.rows(self.query_object_input.Eval(context), q, measure)
 
     def second_order(self, context, rows: DamperRows, dq) -> np.ndarray:
         """Per row, how far a joint step ``dq`` from :meth:`base_position`
         falls short of the row's first-order change, m
         (:meth:`VelocityDamper.second_order`)."""
-        return self._damper.second_order(self._pctx(context), self.base_position(context), rows, dq)
+        return self._damper.second_order(self.base_position(context), rows, dq)
 
     def _next_budget(self, context, q, q_next, budget, dists):
         """Each pair's certain distance beyond the influence distance after
@@ -523,7 +523,7 @@ class SafetyFilter(LeafSystem):
         the next update) without ``skip_far_pairs``."""
         if not self.skip_far_pairs:
             return np.full(max(self._damper.num_pairs, 1), -1.0)
-        return self._damper.budget_after(self._pctx(context), q, q_next, budget, dists)
+        return self._damper.budget_after(q, q_next, budget, dists)
 
     def set_initial_position(self, context, q) -> None:
         """Sets the commanded position q_c of ``context`` (e.g. the path's
@@ -640,6 +640,6 @@ class SafetyFilter(LeafSystem):
             plant=self._plant,
             robot_slice=self._robot_slice,
             plant_context=self._pctx(context),
-            second_order=lambda dq: self._damper.second_order(self._pctx(context), base, rows, dq),
+            second_order=lambda dq: self._damper.second_order(base, rows, dq),
         )
         return solve_rounds(self._qp, self.constraints, step, v_t, rounds=self.SECOND_ORDER_ROUNDS, nudge=_NUDGE)
