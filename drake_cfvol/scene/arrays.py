@@ -332,6 +332,11 @@ def _chain_arrays(plant, robot, robot_slice, order, inboard):
             X_PF = X_PF @ X_FM
         else:
             kind = joint.type_name()
+            if kind not in ("revolute", "prismatic"):
+                raise WorkcellError(
+                    f"joint '{joint.name()}' is a {kind} joint; the robot's joints must be revolute or "
+                    "prismatic (weld or hold the others)."
+                )
             jtype[n] = {"revolute": 1, "prismatic": 2}[kind]
             qidx[n] = joint_names.index(joint.name())  # the robot's own position order
             ax = joint.revolute_axis() if kind == "revolute" else joint.translation_axis()

@@ -24,7 +24,7 @@ def _values(x) -> np.ndarray:
     x = np.asarray(x)
     if x.dtype == object:
         return np.array([float(e.value()) for e in x.ravel()]).reshape(x.shape)
-    return x.astype(float)
+    return x if x.dtype == np.float64 else x.astype(float)
 
 
 def _clip(x, lo, hi):

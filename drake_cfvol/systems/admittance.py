@@ -239,12 +239,12 @@ def AdmittanceDeformation_(T):
             lower = self.lower_input.Eval(context)
             upper = self.upper_input.Eval(context)
             for name, v in (("nominal", nominal), ("lower", lower), ("upper", upper)):
-                if not np.all(np.isfinite(_values(v))):
+                if not np.isfinite(_values(v)).all():
                     raise ParameterError(
                         f"AdmittanceDeformation: input '{name}' holds a non-finite value "
                         f"{_values(v).tolist()}; connect a valid source."
                     )
-            if np.any(_values(lower) > _values(upper)):
+            if (_values(lower) > _values(upper)).any():
                 raise ParameterError(
                     f"AdmittanceDeformation: lower > upper at joint(s) "
                     f"{np.flatnonzero(_values(lower) > _values(upper)).tolist()}."
@@ -260,10 +260,10 @@ def AdmittanceDeformation_(T):
             ok = True
             if self.human_torque_input.HasValue(context):
                 tau = self.human_torque_input.Eval(context)
-                ok &= bool(np.all(np.isfinite(_values(tau))))
+                ok &= bool(np.isfinite(_values(tau)).all())
             if self.human_wrench_input.HasValue(context):
                 w = _values(self.human_wrench_input.Eval(context))
-                ok &= bool(np.all(np.isfinite(w)))
+                ok &= bool(np.isfinite(w).all())
             if self.hold_input.HasValue(context):
                 ok &= not _values(self.hold_input.Eval(context))[0] > 0.5
             return tau, w, ok
@@ -271,7 +271,7 @@ def AdmittanceDeformation_(T):
         def _push(self, context, tau, w, q):
             """The joint torque of the push: tau + J(q)^T w."""
             tau = 0 * q + tau
-            if np.any(w != 0):
+            if (w != 0).any():
                 if self._plant is None:
                     raise ParameterError(
                         "AdmittanceDeformation: 'human_wrench' is connected but no plant and "

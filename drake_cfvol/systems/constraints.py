@@ -14,6 +14,7 @@ Priorities, by the QP's stages (:class:`PriorityQP`):
 
 from __future__ import annotations
 
+import functools
 import itertools
 from typing import NamedTuple
 
@@ -21,7 +22,8 @@ import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
 
 from drake_cfvol.exceptions import ParameterError
-from drake_cfvol.systems.qp import QP_OPTIMAL, solve_qp
+from drake_cfvol.systems.filter_kernel import filter_rounds
+from drake_cfvol.systems.qp import stage_problem, staged_solve
 
 __all__ = [
     "HARD",
@@ -69,50 +71,75 @@ class FilterStep:
         vmax: the velocity limits the filter commands at most, (k,).
         nominal: the nominal at the next path position (k,), or None.
         damper: the damper's rows at q (:class:`~drake_cfvol.systems.damper.DamperRows`).
+        kinematics: the damper's moving bodies' kinematics
+            (:class:`~drake_cfvol.systems.damper_kinematics.SlotKinematics`),
+            for the rows' second-order term.
     """
 
-    def __init__(
-        self, *, q, q_c, period, lo, hi, vmax, nominal, damper, plant, robot_slice, plant_context, second_order
-    ):
+    def __init__(self, *, q, q_c, period, lo, hi, vmax, nominal, damper, plant, robot_slice, plant_context, kinematics):
         self.q, self.q_c, self.period, self.lo, self.hi, self.vmax = q, q_c, period, lo, hi, vmax
-        self.nominal, self.damper = nominal, damper
+        self.nominal, self.damper, self.kinematics = nominal, damper, kinematics
         self.plant, self.robot_slice = plant, robot_slice
-        self._pctx, self._second_order, self._memo = plant_context, second_order, (None, None)
+        self._pctx = plant_context
 
     def plant_context(self):
         """The filter's scratch plant context, posed at :attr:`q`."""
         self.robot_slice.set_positions(self._pctx, self.q)
         return self._pctx
 
-    def second_order(self, v) -> np.ndarray:
-        """Per damper row, what the step v dt loses beyond its first-order
-        change, m (:meth:`~drake_cfvol.systems.damper.VelocityDamper.second_order`;
-        computed once per v)."""
-        key = np.asarray(v, float).tobytes()
-        if self._memo[0] != key:
-            self._memo = (key, self._second_order(np.asarray(v, float) * self.period))
-        return self._memo[1]
+    def relaxation(self) -> tuple[float, np.ndarray]:
+        """(w, v_ref): the damper's rows are relaxed so that following the
+        nominal stays admissible near it, b_i' = b_i + w min(0, a_i v_ref -
+        b_i), v_ref the step to the nominal (clipped to the limits and the
+        box), w = 1 within one step at the velocity limits of the nominal,
+        fading to 0 at two steps (a deviated robot gets no relaxation: the
+        rows' linearisation says nothing reliable about the nominal's
+        distances there); w = 0 without a (finite) nominal."""
+        k = len(self.q_c)
+        if self.nominal is None or not np.isfinite(self.nominal).all():
+            return 0.0, np.zeros(k)
+        h, vmax = self.period, self.vmax
+        step = np.where(np.isfinite(vmax), np.abs(self.nominal - self.q_c) / (vmax * h), 0.0)
+        w = float(np.clip(2.0 - step.max(initial=0.0), 0.0, 1.0))
+        return w, np.clip((self.nominal - self.q_c) / h, self.lo, self.hi)
 
 
 class FilterConstraint:
     """A constraint of the safety filter: rows A v >= b at each update.
 
     Subclasses set :attr:`name`, :attr:`priority` and :attr:`weight` and
-    implement :meth:`rows`; a row whose right-hand side depends on the step
-    taken (a second-order term) also implements :meth:`at`.
+    implement :meth:`rows`. Rows that are damper rows (their right-hand
+    side grows by the row's second-order term at the step taken) say which
+    in :meth:`second_order_rows`; :attr:`relaxed` rows are relaxed towards
+    the nominal (:meth:`FilterStep.relaxation`).
     """
 
     name = "constraint"
     priority = ROW
     weight = 1e6
+    relaxed = False
 
     def rows(self, step: FilterStep) -> tuple[np.ndarray, np.ndarray]:
         """(A (m, k), b (m,)) at this update, to first order."""
         raise NotImplementedError
 
-    def at(self, step: FilterStep, A, b, v) -> np.ndarray:
-        """The right-hand sides the rows need for the step v (default b)."""
-        return b
+    def second_order_rows(self, step: FilterStep):
+        """(m,) per row, the damper row (of ``step.damper``) whose
+        second-order term it adds at the step taken; None: none."""
+        return None
+
+
+@functools.lru_cache(maxsize=64)
+def _signed_eye_of(joints: tuple, k: int) -> np.ndarray:
+    eye = np.eye(k)[list(joints)]
+    out = np.vstack([eye, -eye])
+    out.flags.writeable = False
+    return out
+
+
+def _signed_eye(mask) -> np.ndarray:
+    """[I; -I] over the joints of ``mask`` (rows of the identity; read-only, built once per mask)."""
+    return _signed_eye_of(tuple(np.flatnonzero(mask).tolist()), len(mask))
 
 
 class VelocityLimits(FilterConstraint):
@@ -121,10 +148,9 @@ class VelocityLimits(FilterConstraint):
     name, priority = "velocity_limits", HARD
 
     def rows(self, step):
-        k = len(step.vmax)
         finite = np.isfinite(step.vmax)
-        eye = np.eye(k)[finite]
-        return np.vstack([eye, -eye]), np.concatenate([-step.vmax[finite], -step.vmax[finite]])
+        vmax = step.vmax[finite]
+        return _signed_eye(finite), np.concatenate([-vmax, -vmax])
 
 
 class JointBox(FilterConstraint):
@@ -137,9 +163,7 @@ class JointBox(FilterConstraint):
         self.weight = float(weight)
 
     def rows(self, step):
-        k = len(step.lo)
-        eye = np.eye(k)
-        return np.vstack([eye, -eye]), np.concatenate([step.lo, -step.hi])
+        return _signed_eye(np.ones(len(step.lo), bool)), np.concatenate([step.lo, -step.hi])
 
 
 class DamperConstraint(FilterConstraint):
@@ -148,9 +172,9 @@ class DamperConstraint(FilterConstraint):
 
     Args:
         weight: the weight of a miss.
-        relax: the rows' relaxation towards the nominal (``relax(q, nominal,
-            lo, hi, A, b)``), or None for rows never relaxed (perceived,
-            moving obstacles: the nominal is not known to be free of them).
+        relax: whether the rows are relaxed towards the nominal (False for
+            perceived, moving obstacles: the nominal is not known to be
+            free of them).
         select: (rows) -> bools, which of the damper's rows are this
             constraint's.
         name: the constraint's name.
@@ -158,21 +182,16 @@ class DamperConstraint(FilterConstraint):
 
     priority = ROW
 
-    def __init__(self, *, weight: float, relax, select, name: str):
-        self.weight, self._relax, self._select, self.name = float(weight), relax, select, name
+    def __init__(self, *, weight: float, relax: bool, select, name: str):
+        self.weight, self.relaxed, self._select, self.name = float(weight), bool(relax), select, name
 
     def rows(self, step):
         rows = step.damper
         mask = self._select(rows)
         return rows.A[mask], rows.b[mask]
 
-    def at(self, step, A, b, v):
-        rows = step.damper
-        mask = self._select(rows)
-        need = b + step.second_order(v)[mask] / step.period
-        if self._relax is None or step.nominal is None or not np.all(np.isfinite(step.nominal)):
-            return need
-        return self._relax(step.q_c, step.nominal, step.lo, step.hi, A, need)
+    def second_order_rows(self, step):
+        return np.flatnonzero(self._select(step.damper))
 
 
 def _polytope_radius(dirs) -> float:
@@ -248,11 +267,16 @@ class PriorityQP:
     stages by priority: first every row hard; if no v meets them all, the
     :data:`BOX` rows soft (a miss s >= 0 per row, cost weight s^2); then the
     :data:`ROW` rows soft too. :data:`HARD` rows are hard in every stage.
-    Solved by :func:`~drake_cfvol.systems.qp.solve_qp`, warm-started from
-    the last solve's active rows (by constraint and row)."""
+    Solved by :func:`~drake_cfvol.systems.qp.staged_solve`, warm-started
+    from the last solve's active rows (by constraint and row).
+
+    Attributes:
+        solves: QP solves so far.
+    """
 
     def __init__(self):
         self._warm: dict = {}
+        self.solves = 0
 
     def solve(self, v_t, blocks: list[ConstraintRows]):
         """The solution of the first stage that has one, or None."""
@@ -261,98 +285,106 @@ class PriorityQP:
     def solve_staged(self, v_t, blocks: list[ConstraintRows]):
         """(v, the stage that gave it: 0 all rows hard, 1 the lowest
         priority soft, ...), or (None, None)."""
-        levels = sorted({blk.priority for blk in blocks if blk.priority != HARD}, reverse=True)
-        for stage in range(len(levels) + 1):
-            soft_from = levels[stage - 1] if stage else None
-            v = self._stage(np.asarray(v_t, float), blocks, soft_from)
-            if v is not None:
-                return v, stage
-        return None, None
+        A, b, prio, weight = _stack(blocks, len(v_t))
+        v, active = np.zeros(len(v_t)), np.zeros(len(b), bool)
+        stage, solves = staged_solve(
+            np.asarray(v_t, float), A, b, prio, weight, _levels(prio), HARD, self.hints(blocks), v, active
+        )
+        self.solves += solves
+        if stage < 0:
+            return None, None
+        self.remember(blocks, active)
+        return v, stage
 
     @staticmethod
     def stage_problem(v_t, blocks, soft_from):
-        """The stage's QP for :func:`~drake_cfvol.systems.qp.solve_qp`:
-        (h, g, C, c, soft) over x = [v; one slack per soft row], ``soft``
-        per block; blocks of priority >= ``soft_from`` (None: none) soft."""
-        k = len(v_t)
-        soft = [soft_from is not None and blk.priority != HARD and blk.priority >= soft_from for blk in blocks]
-        n_s = sum(len(blk.b) for blk, s in zip(blocks, soft) if s)
-        n = k + n_s
-        h = np.concatenate(
-            [np.full(k, 2.0)] + [np.full(len(blk.b), 2.0 * blk.weight) for blk, s in zip(blocks, soft) if s]
-        )
-        g = np.concatenate([-2.0 * np.asarray(v_t, float), np.zeros(n_s)])
-        Cs, cs = [], []
-        col = k
-        for blk, s in zip(blocks, soft):
-            m = len(blk.b)
-            C = np.zeros((m, n))
-            C[:, :k] = blk.A
-            Cs.append(C)
-            cs.append(blk.b)
-            if s:  # A v + s >= b and s >= 0
-                C[:, col : col + m] = np.eye(m)
-                slack = np.zeros((m, n))
-                slack[:, col : col + m] = np.eye(m)
-                Cs.append(slack)
-                cs.append(np.zeros(m))
-                col += m
-        C = np.vstack(Cs) if Cs else np.zeros((0, n))
-        c = np.concatenate(cs) if cs else np.zeros(0)
+        """The stage's QP (:func:`~drake_cfvol.systems.qp.stage_problem`):
+        (h, g, C, c, soft) over x = [v; one slack per soft row, in the
+        blocks' order], ``soft`` per block; blocks of priority >=
+        ``soft_from`` (None: none) soft."""
+        A, b, prio, weight = _stack(blocks, len(v_t))
+        top = np.iinfo(np.int64).max if soft_from is None else int(soft_from)
+        h, g, C, c, _ = stage_problem(np.asarray(v_t, float), A, b, prio, weight, top, HARD)
+        soft = [blk.priority != HARD and soft_from is not None and blk.priority >= soft_from for blk in blocks]
         return h, g, C, c, soft
 
-    def _stage(self, v_t, blocks, soft_from):
-        k = len(v_t)
-        h, g, C, c, soft = self.stage_problem(v_t, blocks, soft_from)
-        warm = []
-        for blk, s in zip(blocks, soft):
-            warm.append(self._hint(blk.name, len(blk.b)))
-            if s:
-                warm.append(np.zeros(len(blk.b), bool))
-        status, x, active = solve_qp(h, g, C, c, warm=np.concatenate(warm) if warm else None)
-        if status != QP_OPTIMAL:
-            return None
+    def hints(self, blocks) -> np.ndarray:
+        """The rows active at the last solve, by constraint name (none for a
+        constraint whose row count changed)."""
+        out = [self._warm.get(blk.name) for blk in blocks]
+        return np.concatenate(
+            [np.zeros(0, bool)]
+            + [
+                w if w is not None and len(w) == len(blk.b) else np.zeros(len(blk.b), bool)
+                for w, blk in zip(out, blocks)
+            ]
+        )
+
+    def remember(self, blocks, active) -> None:
+        """Keeps the rows active at a solve (stacked as the blocks), by constraint name."""
         at = 0
-        for blk, s in zip(blocks, soft):
+        for blk in blocks:
             m = len(blk.b)
             self._warm[blk.name] = active[at : at + m].copy()
-            at += 2 * m if s else m
-        return x[:k]
+            at += m
 
-    def _hint(self, name, m):
-        last = self._warm.get(name)
-        return last if last is not None and len(last) == m else np.zeros(m, bool)
+
+def _stack(blocks, k: int):
+    """The blocks' rows stacked: A (m, k), b, priorities and weights per row."""
+    sizes = [len(blk.b) for blk in blocks]
+    A = np.vstack([np.zeros((0, k))] + [np.asarray(blk.A, float).reshape(-1, k) for blk in blocks])
+    b = np.concatenate([np.zeros(0)] + [np.asarray(blk.b, float) for blk in blocks])
+    prio = np.repeat(np.array([blk.priority for blk in blocks], np.int64), sizes)
+    weight = np.repeat(np.array([blk.weight for blk in blocks], float), sizes)
+    return A, b, prio, weight
+
+
+def _levels(prio) -> np.ndarray:
+    """The priorities made soft stage by stage: the non-hard ones, lowest priority (largest number) first."""
+    levels = np.unique(prio)
+    return np.ascontiguousarray(levels[levels != HARD][::-1], np.int64)
 
 
 def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: int, nudge: float):
     """The velocity commanded for the request v_t (within the box and the
     limits): (v, missed: a :data:`ROW` row missed at v, solved: False where
     the QP failed and v holds as far as the box allows). The request as is
-    where it meets every row at its own step; else the QP, its right-hand
-    sides at the last solution (:meth:`FilterConstraint.at`) until that
-    solution meets its own (at most ``rounds`` solves; the right-hand sides
-    only grow, a row still short by ``nudge`` more)."""
-    first = [(c, *c.rows(step)) for c in constraints]
-    first = [(c, A, b) for c, A, b in first if len(b)]
-
-    def need(v):
-        return [c.at(step, A, b, v) for c, A, b in first]
-
-    def missed(v, bs):
-        return any(c.priority == ROW and np.any(A @ v < b_v - 1e-6) for (c, A, _), b_v in zip(first, bs))
-
-    bs = need(v_t)
-    if all(np.all(A @ v_t >= b - 1e-12) for (_, A, _), b in zip(first, bs)):
-        return v_t, False, True
-    v = v_t
-    for _ in range(rounds):
-        v = qp.solve(v_t, [ConstraintRows(A, b, c.priority, c.weight, c.name) for (c, A, _), b in zip(first, bs)])
-        if v is None:
-            v = np.clip(np.zeros(len(v_t)), step.lo, step.hi)
-            return v, missed(v, need(v)), False
-        b_v = need(v)
-        short = [A @ v < bv - 1e-9 for (_, A, _), bv in zip(first, b_v)]
-        if not any(s.any() for s in short):
-            return v, missed(v, b_v), True
-        bs = [np.maximum(b, bv) + nudge * s for b, bv, s in zip(bs, b_v, short)]
-    return v, missed(v, need(v)), True
+    where it meets every row at its own step; else the QP, the damper rows'
+    right-hand sides at the last solution (their second-order term there,
+    then the relaxation towards the nominal) until that solution meets its
+    own (at most ``rounds`` solves; the right-hand sides only grow, a row
+    still short by ``nudge`` more). One compiled call
+    (:func:`~drake_cfvol.systems.filter_kernel.filter_rounds`)."""
+    k = len(v_t)
+    blocks, so_rows, relaxed = [], [], []
+    for c in constraints:
+        A, b = c.rows(step)
+        if not len(b):
+            continue
+        blocks.append(ConstraintRows(A, b, c.priority, c.weight, c.name))
+        so = c.second_order_rows(step)
+        so_rows.append(np.full(len(b), -1, np.int64) if so is None else np.asarray(so, np.int64))
+        relaxed.append(np.full(len(b), bool(c.relaxed)))
+    A, b, prio, weight = _stack(blocks, k)
+    so_row = np.concatenate([np.zeros(0, np.int64)] + so_rows)
+    relax_rows = np.concatenate([np.zeros(0, bool)] + relaxed)
+    damper = step.damper
+    kin = step.kinematics
+    R0, o0 = kin.poses(step.q)
+    w, v_ref = step.relaxation()
+    v, missed, solved, active, solves = filter_rounds(
+        np.asarray(v_t, float),
+        np.asarray(step.lo, float),
+        np.asarray(step.hi, float),
+        (A, b, prio, weight, so_row, relax_rows),
+        (damper.A, damper.dirs, damper.points, damper.slots, damper.rounds, kin.rev),
+        (np.asarray(step.q, float), R0, o0),
+        kin.compiled(),
+        (w, v_ref),
+        (_levels(prio), HARD, ROW, int(rounds), float(nudge), float(step.period)),
+        qp.hints(blocks),
+    )
+    qp.solves += solves
+    if solves:
+        qp.remember(blocks, active)
+    return v, bool(missed), bool(solved)

@@ -136,7 +136,6 @@ class VelocityDamper:
             ],
             dtype=int,
         ).reshape(-1, 2)
-        self._chain_masks(plant, robot)
         self._kin = SlotKinematics(plant, robot, self._slice, self._bodies)
         self._sides, self._drake_rows = side_arrays(self, inspector)
 
@@ -144,6 +143,11 @@ class VelocityDamper:
         """The moving bodies' rotations (S, 3, 3) and origins (S, 3) at q
         (the kernel's forward kinematics)."""
         return self._kin.poses(q)
+
+    @property
+    def kinematics(self) -> SlotKinematics:
+        """The moving bodies' kinematics (one slot per body)."""
+        return self._kin
 
     @property
     def num_pairs(self) -> int:
@@ -213,20 +217,6 @@ class VelocityDamper:
             return sides[gid]
 
         return [(a, b, side(a), side(b)) for a, b in pairs]
-
-    def _chain_masks(self, plant, robot) -> None:
-        """Per moving body slot, the revolute joints that turn it (``_rev``,
-        (S, k) 0/1, by velocity index): a body turns by at most the sum of
-        their |dq_j| in a step dq."""
-        self._rev = np.zeros((len(self._bodies), self.k))
-        for j in plant.GetJointIndices(robot):
-            joint = plant.get_joint(j)
-            if joint.num_velocities() != 1 or joint.type_name() != "revolute":
-                continue
-            moved = set(plant.GetBodiesKinematicallyAffectedBy([j]))
-            for n, body in enumerate(self._bodies):
-                if body.index() in moved:
-                    self._rev[n, self._slice.velocity_index(joint)] = 1.0
 
     def rows(self, query, q, measure=None) -> DamperRows:
         """The damper's rows at q (``query``: the SceneGraph's query object,
@@ -314,7 +304,7 @@ class VelocityDamper:
         dq = np.asarray(dq, float)
         if not len(rows.b):
             return np.zeros(0)
-        return self._kin.second_order(self.poses(q), self.poses(q + dq), rows, self._rev, dq)
+        return self._kin.second_order(self.poses(q), self.poses(q + dq), rows, self._kin.rev, dq)
 
     def budget_after(self, q, q_next, budget, dists):
         """Each pair's distance beyond the influence distance that is still

@@ -167,6 +167,15 @@ class SlotKinematics:
                 n = parent[n]
         self._R_WB, self._p_WB = np.zeros((B, 3, 3)), np.zeros((B, 3))
         self.k = k
+        revolute = np.array([n >= 0 and self._chain.jtype[n] == 1 for n in self._joint_body])
+        #: (S, k): 1 where a revolute joint turns the slot's body (a body
+        #: turns by at most the sum of their |dq_j| in a step dq).
+        self.rev = (self._moves & revolute).astype(float)
+
+    def compiled(self) -> tuple:
+        """(chain, the slots' bodies in it, scratch poses): the arguments of
+        the compiled code that poses the slots."""
+        return self._chain, self._body, self._R_WB, self._p_WB
 
     def poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """The slots' rotations (S, 3, 3) and origins (S, 3) at q (k,)."""

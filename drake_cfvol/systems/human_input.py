@@ -126,10 +126,10 @@ def HumanInputCheck_(T):
             """True if both inputs are finite and within their limits."""
             tau, w = _values(self._torque(context)), _values(self._wrench(context))
             return bool(
-                np.all(np.isfinite(tau))
-                and np.all(np.abs(tau) <= self.max_torque)
-                and np.all(np.isfinite(w))
-                and np.all(np.abs(w) <= self.max_wrench)
+                np.isfinite(tau).all()
+                and (np.abs(tau) <= self.max_torque).all()
+                and np.isfinite(w).all()
+                and (np.abs(w) <= self.max_wrench).all()
             )
 
         def _update(self, context, state):

@@ -232,3 +232,62 @@ def solve_qp(h, g, C, c, *, warm=None):
     active = np.zeros(len(c), np.bool_)
     status = _solve(h, g, C, c, hint, x, active)
     return status, x, active
+
+
+@njit(cache=True)
+def stage_problem(v_t, A, b, prio, weight, soft_from, hard):
+    """The staged QP's stage (see :class:`~drake_cfvol.systems.constraints.PriorityQP`)
+    over x = [v; one slack per soft row], as (h, g, C, c, soft): rows of
+    priority >= ``soft_from`` (and not ``hard``) soft (``soft_from`` past
+    every priority: none), each soft row i as A_i v + s_i >= b_i with
+    s_i >= 0 (the slack rows after the others) and cost weight_i s_i^2."""
+    k, m = len(v_t), len(b)
+    soft = np.zeros(m, np.bool_)
+    n_s = 0
+    for i in range(m):
+        if prio[i] != hard and prio[i] >= soft_from:
+            soft[i] = True
+            n_s += 1
+    n = k + n_s
+    h = np.full(n, 2.0)
+    g = np.zeros(n)
+    C = np.zeros((m + n_s, n))
+    c = np.zeros(m + n_s)
+    for j in range(k):
+        g[j] = -2.0 * v_t[j]
+    col = k
+    for i in range(m):
+        for j in range(k):
+            C[i, j] = A[i, j]
+        c[i] = b[i]
+        if soft[i]:
+            h[col] = 2.0 * weight[i]
+            C[i, col] = 1.0
+            C[m + col - k, col] = 1.0
+            col += 1
+    return h, g, C, c, soft
+
+
+@njit(cache=True)
+def staged_solve(v_t, A, b, prio, weight, levels, hard, warm, v_out, active_out):
+    """The first stage with a solution (0: every row hard; stage s: rows of
+    priority >= ``levels[s - 1]`` soft; ``hard`` rows never), v into
+    ``v_out`` and the rows active there into ``active_out``; returns
+    (stage, QP solves), stage -1 where none has one. ``warm``: the rows
+    active at the last solve, tried first."""
+    k, m = len(v_t), len(b)
+    solves = 0
+    for stage in range(len(levels) + 1):
+        soft_from = levels[stage - 1] if stage else np.iinfo(np.int64).max
+        h, g, C, c, soft = stage_problem(v_t, A, b, prio, weight, soft_from, hard)
+        hint = np.zeros(len(c), np.bool_)
+        hint[:m] = warm
+        x = np.zeros(len(g))
+        active = np.zeros(len(c), np.bool_)
+        status = _solve(h, g, C, c, hint, x, active)
+        solves += 1
+        if status == QP_OPTIMAL:
+            v_out[:] = x[:k]
+            active_out[:] = active[:m]
+            return stage, solves
+    return -1, solves

@@ -220,22 +220,6 @@ def _interval(q, lower, upper, vmax, h):
     return lo, np.maximum(lo, hi)
 
 
-def _relax(q, nominal, lo, hi, A, b, vmax, h):
-    """The damper's rows relaxed so that following the nominal stays
-    admissible near it: b_i' = b_i + w min(0, a_i v_ref - b_i), v_ref
-    the step to the nominal (clipped to the limits and the box), w = 1
-    within one step at the velocity limits of the nominal, fading to 0
-    at two steps (a deviated robot gets no relaxation: the rows'
-    linearisation says nothing reliable about the nominal's distances
-    there)."""
-    step = np.where(np.isfinite(vmax), np.abs(nominal - q) / (vmax * h), 0.0)
-    w = float(np.clip(2.0 - step.max(initial=0.0), 0.0, 1.0))
-    if w == 0.0:
-        return b
-    v_ref = np.clip((nominal - q) / h, lo, hi)
-    return b + w * np.minimum(0.0, A @ v_ref - b)
-
-
 def _check_parameters(period, clearance, allowance, influence_distance, damper_gain) -> None:
     """Raises ParameterError naming the first of SafetyFilter's scalar parameters that is out of range."""
     if not period > 0:
@@ -414,10 +398,8 @@ class SafetyFilter(LeafSystem):
         self.skip_far_pairs = bool(skip_far_pairs)
         n_pairs = self._damper.num_pairs
         self._dynamic = dynamic_pairs(self._damper, dynamic_ids)
-        dynamic = np.array([n for n, _ in self._dynamic], int)
-
-        def relax(q, nominal, lo, hi, A, b):
-            return _relax(q, nominal, lo, hi, A, b, self.velocity_limits, self.period)
+        dynamic = np.zeros(n_pairs, bool)  # per pair: with geometry that moves on its own
+        dynamic[[n for n, _ in self._dynamic]] = True
 
         #: The QP's constraints (:mod:`~drake_cfvol.systems.constraints`):
         #: the velocity limits, the box, the damper's rows (the static
@@ -427,13 +409,13 @@ class SafetyFilter(LeafSystem):
             VelocityLimits(),
             JointBox(self.BOX_WEIGHT),
             DamperConstraint(
-                weight=self.SLACK_WEIGHT, relax=relax, name="damper", select=lambda rows: ~np.isin(rows.pair, dynamic)
+                weight=self.SLACK_WEIGHT, relax=True, name="damper", select=lambda rows: ~dynamic[rows.pair]
             ),
             DamperConstraint(
                 weight=self.SLACK_WEIGHT,
-                relax=None,
+                relax=False,
                 name="perceived_obstacles",
-                select=lambda rows: np.isin(rows.pair, dynamic),
+                select=lambda rows: dynamic[rows.pair],
             ),
         ]
         self.constraints += list(constraints)
@@ -478,6 +460,11 @@ class SafetyFilter(LeafSystem):
     def num_pairs(self) -> int:
         """How many geometry pairs the damper watches."""
         return self._damper.num_pairs
+
+    @property
+    def qp_solves(self) -> int:
+        """QP solves of this filter (of all its contexts) so far."""
+        return self._qp.solves
 
     def _calc_desired_state(self, context, output) -> None:
         xd = context.get_discrete_state
@@ -556,7 +543,12 @@ class SafetyFilter(LeafSystem):
         upper = np.asarray(self.upper_input.Eval(context), float)
         nominal = np.asarray(self.nominal_input.Eval(context), float) if self.nominal_input.HasValue(context) else None
         fallback = False
-        sane = all(np.all(np.isfinite(x)) for x in (desired, lower, upper)) and np.all(lower <= upper)
+        sane = bool(
+            np.isfinite(desired).all()
+            and np.isfinite(lower).all()
+            and np.isfinite(upper).all()
+            and (lower <= upper).all()
+        )
         if not sane:
             # Hold, as far as the box (if it is usable) allows.
             ok = np.isfinite(lower) & np.isfinite(upper) & (lower <= upper)
@@ -588,11 +580,11 @@ class SafetyFilter(LeafSystem):
             fallback = fallback or not solved
         vmax = self._vmax
         v = np.clip(v, -vmax, vmax)
-        exited = bool(np.any((v < lo - 1e-9) | (v > hi + 1e-9)))
+        exited = bool(((v < lo - 1e-9) | (v > hi + 1e-9)).any())
         q_next = q + v * h
         limits = self.velocity_limits
         ratio = float(np.max(np.where(np.isfinite(limits), np.abs(v) / limits, 0.0))) if k else 0.0
-        acted = (not sane) or bool(np.any(np.abs(q_next - desired) > _CHANGED))
+        acted = (not sane) or bool((np.abs(q_next - desired) > _CHANGED).any())
         discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
         discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
         if sane and self._damper.num_pairs and not self.measured_position_input.HasValue(context):
@@ -640,6 +632,6 @@ class SafetyFilter(LeafSystem):
             plant=self._plant,
             robot_slice=self._robot_slice,
             plant_context=self._pctx(context),
-            second_order=lambda dq: self._damper.second_order(base, rows, dq),
+            kinematics=self._damper.kinematics,
         )
         return solve_rounds(self._qp, self.constraints, step, v_t, rounds=self.SECOND_ORDER_ROUNDS, nudge=_NUDGE)
