@@ -14,7 +14,6 @@ Priorities, by the QP's stages (:class:`PriorityQP`):
 
 from __future__ import annotations
 
-import functools
 import itertools
 from typing import NamedTuple
 
@@ -87,21 +86,9 @@ class FilterStep:
         self.robot_slice.set_positions(self._pctx, self.q)
         return self._pctx
 
-    def relaxation(self) -> tuple[float, np.ndarray]:
-        """(w, v_ref): the damper's rows are relaxed so that following the
-        nominal stays admissible near it, b_i' = b_i + w min(0, a_i v_ref -
-        b_i), v_ref the step to the nominal (clipped to the limits and the
-        box), w = 1 within one step at the velocity limits of the nominal,
-        fading to 0 at two steps (a deviated robot gets no relaxation: the
-        rows' linearisation says nothing reliable about the nominal's
-        distances there); w = 0 without a (finite) nominal."""
-        k = len(self.q_c)
-        if self.nominal is None or not np.isfinite(self.nominal).all():
-            return 0.0, np.zeros(k)
-        h, vmax = self.period, self.vmax
-        step = np.where(np.isfinite(vmax), np.abs(self.nominal - self.q_c) / (vmax * h), 0.0)
-        w = float(np.clip(2.0 - step.max(initial=0.0), 0.0, 1.0))
-        return w, np.clip((self.nominal - self.q_c) / h, self.lo, self.hi)
+    def nominal_or_nan(self) -> np.ndarray:
+        """(k,): the nominal, NaN where there is none (no relaxation)."""
+        return np.full(len(self.q_c), np.nan) if self.nominal is None else np.asarray(self.nominal, float)
 
 
 class FilterConstraint:
@@ -111,7 +98,7 @@ class FilterConstraint:
     implement :meth:`rows`. Rows that are damper rows (their right-hand
     side grows by the row's second-order term at the step taken) say which
     in :meth:`second_order_rows`; :attr:`relaxed` rows are relaxed towards
-    the nominal (:meth:`FilterStep.relaxation`).
+    the nominal (:func:`~drake_cfvol.systems.filter_kernel.relaxation`).
     """
 
     name = "constraint"
@@ -129,17 +116,10 @@ class FilterConstraint:
         return None
 
 
-@functools.lru_cache(maxsize=64)
-def _signed_eye_of(joints: tuple, k: int) -> np.ndarray:
-    eye = np.eye(k)[list(joints)]
-    out = np.vstack([eye, -eye])
-    out.flags.writeable = False
-    return out
-
-
 def _signed_eye(mask) -> np.ndarray:
-    """[I; -I] over the joints of ``mask`` (rows of the identity; read-only, built once per mask)."""
-    return _signed_eye_of(tuple(np.flatnonzero(mask).tolist()), len(mask))
+    """[I; -I] over the joints of ``mask`` (rows of the identity)."""
+    eye = np.eye(len(mask))[mask]
+    return np.vstack([eye, -eye])
 
 
 class VelocityLimits(FilterConstraint):
@@ -147,10 +127,16 @@ class VelocityLimits(FilterConstraint):
 
     name, priority = "velocity_limits", HARD
 
+    def __init__(self):
+        self._memo = (None, None)
+
     def rows(self, step):
-        finite = np.isfinite(step.vmax)
-        vmax = step.vmax[finite]
-        return _signed_eye(finite), np.concatenate([-vmax, -vmax])
+        key = step.vmax.tobytes()
+        if self._memo[0] != key:  # the limits rarely change: rows built once per limits
+            finite = np.isfinite(step.vmax)
+            vmax = step.vmax[finite]
+            self._memo = (key, (_signed_eye(finite), np.concatenate([-vmax, -vmax])))
+        return self._memo[1]
 
 
 class JointBox(FilterConstraint):
@@ -161,9 +147,13 @@ class JointBox(FilterConstraint):
 
     def __init__(self, weight: float):
         self.weight = float(weight)
+        self._A = None
 
     def rows(self, step):
-        return _signed_eye(np.ones(len(step.lo), bool)), np.concatenate([step.lo, -step.hi])
+        k = len(step.lo)
+        if self._A is None or len(self._A) != 2 * k:
+            self._A = _signed_eye(np.ones(k, bool))
+        return self._A, np.concatenate([step.lo, -step.hi])
 
 
 class DamperConstraint(FilterConstraint):
@@ -288,7 +278,7 @@ class PriorityQP:
         A, b, prio, weight = _stack(blocks, len(v_t))
         v, active = np.zeros(len(v_t)), np.zeros(len(b), bool)
         stage, solves = staged_solve(
-            np.asarray(v_t, float), A, b, prio, weight, _levels(prio), HARD, self.hints(blocks), v, active
+            np.asarray(v_t, float), A, b, prio, weight, _levels(blocks), HARD, self.hints(blocks), v, active
         )
         self.solves += solves
         if stage < 0:
@@ -331,18 +321,23 @@ class PriorityQP:
 
 def _stack(blocks, k: int):
     """The blocks' rows stacked: A (m, k), b, priorities and weights per row."""
-    sizes = [len(blk.b) for blk in blocks]
-    A = np.vstack([np.zeros((0, k))] + [np.asarray(blk.A, float).reshape(-1, k) for blk in blocks])
-    b = np.concatenate([np.zeros(0)] + [np.asarray(blk.b, float) for blk in blocks])
-    prio = np.repeat(np.array([blk.priority for blk in blocks], np.int64), sizes)
-    weight = np.repeat(np.array([blk.weight for blk in blocks], float), sizes)
+    m = sum(len(blk.b) for blk in blocks)
+    A, b = np.empty((m, k)), np.empty(m)
+    prio, weight = np.empty(m, np.int64), np.empty(m)
+    at = 0
+    for blk in blocks:
+        n = len(blk.b)
+        A[at : at + n] = blk.A
+        b[at : at + n] = blk.b
+        prio[at : at + n] = blk.priority
+        weight[at : at + n] = blk.weight
+        at += n
     return A, b, prio, weight
 
 
-def _levels(prio) -> np.ndarray:
+def _levels(blocks) -> np.ndarray:
     """The priorities made soft stage by stage: the non-hard ones, lowest priority (largest number) first."""
-    levels = np.unique(prio)
-    return np.ascontiguousarray(levels[levels != HARD][::-1], np.int64)
+    return np.array(sorted({blk.priority for blk in blocks if blk.priority != HARD}, reverse=True), np.int64)
 
 
 def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: int, nudge: float):
@@ -363,25 +358,24 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
             continue
         blocks.append(ConstraintRows(A, b, c.priority, c.weight, c.name))
         so = c.second_order_rows(step)
-        so_rows.append(np.full(len(b), -1, np.int64) if so is None else np.asarray(so, np.int64))
+        so_rows.append(np.full(len(b), -1, np.int64) if so is None else so)
         relaxed.append(np.full(len(b), bool(c.relaxed)))
     A, b, prio, weight = _stack(blocks, k)
-    so_row = np.concatenate([np.zeros(0, np.int64)] + so_rows)
-    relax_rows = np.concatenate([np.zeros(0, bool)] + relaxed)
-    damper = step.damper
-    kin = step.kinematics
-    R0, o0 = kin.poses(step.q)
-    w, v_ref = step.relaxation()
+    damper, kin = step.damper, step.kinematics
     v, missed, solved, active, solves = filter_rounds(
         np.asarray(v_t, float),
-        np.asarray(step.lo, float),
-        np.asarray(step.hi, float),
-        (A, b, prio, weight, so_row, relax_rows),
+        (
+            A,
+            b,
+            prio,
+            weight,
+            np.concatenate(so_rows or [np.zeros(0, np.int64)]),
+            np.concatenate(relaxed or [np.zeros(0, bool)]),
+        ),
         (damper.A, damper.dirs, damper.points, damper.slots, damper.rounds, kin.rev),
-        (np.asarray(step.q, float), R0, o0),
         kin.compiled(),
-        (w, v_ref),
-        (_levels(prio), HARD, ROW, int(rounds), float(nudge), float(step.period)),
+        (step.q, step.q_c, step.nominal_or_nan(), step.lo, step.hi, step.vmax),
+        (_levels(blocks), HARD, ROW, int(rounds), float(nudge), float(step.period)),
         qp.hints(blocks),
     )
     qp.solves += solves

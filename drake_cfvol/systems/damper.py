@@ -263,8 +263,10 @@ class VelocityDamper:
             for index, pair in slow:
                 drake_pair_rows(self, query, index, pair, R, o, out)
             parts.append(out.build(o, J_w, J_v, self.k))
-        fields = [np.concatenate(x) for x in zip(*(p[:2] + p[3:8] for p in parts))]
-        A, b, dirs, points, slots, rounds, pair = fields
+        if len(parts) == 1:
+            A, b, _, dirs, points, slots, rounds, pair = parts[0]
+        else:
+            A, b, dirs, points, slots, rounds, pair = [np.concatenate(x) for x in zip(*(p[:2] + p[3:8] for p in parts))]
         return DamperRows(A, b, dists, dirs, points, slots, rounds, pair, measured)
 
     def _kernel_rows(self, query, near, R, o, J_w, J_v) -> tuple:
@@ -280,8 +282,8 @@ class VelocityDamper:
         for i, (index, _) in enumerate(near):
             for j in range(2):
                 if self._sides[0][index, j] < 0:
-                    X = query.GetPoseInWorld(self._pairs[index][j])
-                    pose_R[i, j], pose_t[i, j] = X.rotation().matrix(), X.translation()
+                    X = query.GetPoseInWorld(self._pairs[index][j]).GetAsMatrix34()
+                    pose_R[i, j], pose_t[i, j] = X[:, :3], X[:, 3]
         A, b, dirs, points, slots, rounds, owner = pair_rows(
             (pairs, dist, normal, witness, pose_R, pose_t),
             self._sides,
@@ -315,6 +317,6 @@ class VelocityDamper:
         at updates, so the poses at both ends bound it. Negative: measure
         at the next update. (Valid while the SceneGraph is posed from the
         configurations the steps go through.)"""
-        moved = self._kin.moved(self.poses(q), self.poses(q_next), self._body_radius)  # the last: welded
+        moved = self._kin.moved(q, q_next, self._body_radius)  # the last: welded
         left = np.where(np.isnan(dists), budget, dists - self.influence_distance)
         return left - moved[self._pair_bodies[:, 0]] - moved[self._pair_bodies[:, 1]]

@@ -140,6 +140,16 @@ def _moved(R0, o0, R1, o1, radius):
     return out
 
 
+@njit(cache=True)
+def _moved_between(q0, q1, chain, body, R_WB, p_WB, radius):
+    """:func:`_moved` between the slots' poses at q0 and at q1."""
+    S = body.shape[0]
+    R0, o0, R1, o1 = np.zeros((S, 3, 3)), np.zeros((S, 3)), np.zeros((S, 3, 3)), np.zeros((S, 3))
+    _slot_poses(q0, chain, body, R_WB, p_WB, R0, o0)
+    _slot_poses(q1, chain, body, R_WB, p_WB, R1, o1)
+    return _moved(R0, o0, R1, o1, radius)
+
+
 class SlotKinematics:
     """Forward kinematics of the damper's moving bodies ("slots") by the
     kernel's chain: poses and Jacobians at their origins, in the robot's k
@@ -203,9 +213,8 @@ class SlotKinematics:
             before[0], before[1], after[0], after[1], rows.A, rows.dirs, rows.points, rows.slots, rows.rounds, rev, dq
         )
 
-    @staticmethod
-    def moved(before, after, radius) -> np.ndarray:
+    def moved(self, q0, q1, radius) -> np.ndarray:
         """(S + 1,): per slot, how far any point within ``radius`` (S,) of
-        its origin moved between the poses ``before`` and ``after``, m (the
-        last entry, for welded sides, 0)."""
-        return _moved(before[0], before[1], after[0], after[1], radius)
+        its origin moved between the configurations q0 and q1, m (the last
+        entry, for welded sides, 0)."""
+        return _moved_between(np.asarray(q0, float), np.asarray(q1, float), *self.compiled()[:4], radius)

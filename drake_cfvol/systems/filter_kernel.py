@@ -32,10 +32,31 @@ def _poses(q, kin):
 
 
 @njit(cache=True)
+def relaxation(q_c, nominal, lo, hi, vmax, period):
+    """(w, v_ref): the damper's rows are relaxed so that following the
+    nominal stays admissible near it, b_i' = b_i + w min(0, a_i v_ref -
+    b_i), v_ref the step to the nominal (clipped to the limits and the
+    box), w = 1 within one step at the velocity limits of the nominal,
+    fading to 0 at two steps (a deviated robot gets no relaxation: the
+    rows' linearisation says nothing reliable about the nominal's
+    distances there); w = 0 without a (finite) nominal (NaN)."""
+    k = len(q_c)
+    v_ref = np.zeros(k)
+    far = 0.0
+    for j in range(k):
+        if not np.isfinite(nominal[j]):
+            return 0.0, v_ref
+        if np.isfinite(vmax[j]):
+            far = max(far, abs(nominal[j] - q_c[j]) / (vmax[j] * period))
+        v_ref[j] = min(max((nominal[j] - q_c[j]) / period, lo[j]), hi[j])
+    return min(max(2.0 - far, 0.0), 1.0), v_ref
+
+
+@njit(cache=True)
 def _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period):
     """The rows' right-hand sides for the step v: b plus each damper row's
     second-order term at dq = v dt (over dt), then the relaxation
-    b' = b + w min(0, A v_ref - b) of the relaxed rows."""
+    b' = b + w min(0, A v_ref - b) of the relaxed rows (:func:`relaxation`)."""
     q, R0, o0 = base
     Ad, dirs, points, slots, rounds, rev = damper
     w, v_ref = relax
@@ -72,7 +93,7 @@ def _short(A, v, need, tol, prio, only):
 
 
 @njit(cache=True)
-def filter_rounds(v_t, lo, hi, rows, damper, base, kin, relax, qp, warm):
+def filter_rounds(v_t, rows, damper, kin, at, qp, warm):
     """The velocity commanded for the request v_t (within the box and the
     limits; see :func:`~drake_cfvol.systems.constraints.solve_rounds`).
 
@@ -82,9 +103,10 @@ def filter_rounds(v_t, lo, hi, rows, damper, base, kin, relax, qp, warm):
             relaxed (m,) bools).
         damper: the damper's rows (A, dirs, points, slots, rounds) and the
             slots' revolute masks (S, k).
-        base: (q, R0, o0), where the rows were taken and the slots' poses there.
         kin: (chain, slot bodies, scratch R_WB, scratch p_WB).
-        relax: (w, v_ref), the relaxation's weight and reference step.
+        at: (q, q_c, nominal, lo, hi, vmax): where the rows were taken, the
+            command before the update, the nominal (NaN: none), the
+            velocity interval of the limits and the box, the limits.
         qp: (levels, hard, row, rounds, nudge, period): the priorities
             made soft stage by stage, the hard priority, the priority whose
             miss counts (``missed``), the most QP rounds, what a row still
@@ -98,6 +120,9 @@ def filter_rounds(v_t, lo, hi, rows, damper, base, kin, relax, qp, warm):
     """
     A, b, prio, weight, so_row, relaxed = rows
     levels, hard, row_priority, rounds, nudge, period = qp
+    q, q_c, nominal, lo, hi, vmax = at
+    base = (q,) + _poses(q, kin)
+    relax = relaxation(q_c, nominal, lo, hi, vmax, period)
     m, k = A.shape
     active = warm.copy()
     bs = _need(v_t, b, A, so_row, relaxed, relax, damper, base, kin, period)
@@ -120,3 +145,60 @@ def filter_rounds(v_t, lo, hi, rows, damper, base, kin, relax, qp, warm):
             bs[i] = max(bs[i], b_v[i]) + (nudge if short[i] else 0.0)
     b_v = _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period)
     return v, _short(A, v, b_v, 1e-6, prio, row_priority).any(), True, active, solves
+
+
+@njit(cache=True)
+def request(q, desired, lower, upper, vmax, period, v_last, acceleration):
+    """The update's request: (sane, lo, hi, v_t). Per joint the velocity
+    interval [lo, hi] within the limits that lands in the box (where the
+    box lies farther than one step, the step towards it at the limit), and
+    the requested v_t = (desired - q) / dt, held within ``acceleration`` dt
+    of the last velocity, clipped to it. Not sane (a non-finite or crossed
+    input): the hold, as far as the box allows where it is usable (v_t 0
+    clipped to the interval of the usable joints' box)."""
+    k = len(q)
+    sane = True
+    for j in range(k):
+        if not (np.isfinite(desired[j]) and np.isfinite(lower[j]) and np.isfinite(upper[j]) and lower[j] <= upper[j]):
+            sane = False
+    lo, hi, v_t = np.zeros(k), np.zeros(k), np.zeros(k)
+    for j in range(k):
+        ok = np.isfinite(lower[j]) and np.isfinite(upper[j]) and lower[j] <= upper[j]
+        low, up = (lower[j], upper[j]) if ok else (q[j], q[j])
+        to_lo, to_hi = (low - q[j]) / period, (up - q[j]) / period
+        a, b = max(-vmax[j], to_lo), min(vmax[j], to_hi)
+        if to_lo > vmax[j]:
+            a = vmax[j]
+        if to_hi < -vmax[j]:
+            b = -vmax[j]
+        lo[j], hi[j] = a, max(a, b)
+        if sane:
+            target = (desired[j] - q[j]) / period
+            target = min(max(target, v_last[j] - acceleration[j] * period), v_last[j] + acceleration[j] * period)
+        else:
+            target = 0.0
+        v_t[j] = min(max(target, lo[j]), hi[j])
+    return sane, lo, hi, v_t
+
+
+@njit(cache=True)
+def finish(q, v, lo, hi, vmax, limits, desired, period, sane, changed):
+    """The update's command from the velocity v: (v clipped to the limits,
+    q_next = q + v dt, whether v left the interval [lo, hi] (by > 1e-9),
+    max_j |v_j| / limit_j over the finite limits, whether the command
+    differs from the request by more than ``changed`` (or the input was
+    not sane))."""
+    k = len(q)
+    out, q_next = np.zeros(k), np.zeros(k)
+    exited, acted, ratio = False, not sane, 0.0
+    for j in range(k):
+        x = min(max(v[j], -vmax[j]), vmax[j])
+        out[j] = x
+        q_next[j] = q[j] + x * period
+        if x < lo[j] - 1e-9 or x > hi[j] + 1e-9:
+            exited = True
+        if np.isfinite(limits[j]):
+            ratio = max(ratio, abs(x) / limits[j])
+        if abs(q_next[j] - desired[j]) > changed:
+            acted = True
+    return out, q_next, exited, ratio, acted

@@ -157,6 +157,7 @@ from drake_cfvol.systems.constraints import (
     solve_rounds,
 )
 from drake_cfvol.systems.damper import DamperRows, VelocityDamper, dynamic_pairs, measure_dynamic
+from drake_cfvol.systems.filter_kernel import finish, request
 
 __all__ = ["SafetyFilter", "SafetyFilterConfig"]
 
@@ -207,17 +208,6 @@ def _limits(value, k: int, name: str) -> np.ndarray:
     if np.any(np.isnan(v)) or np.any(v <= 0):
         raise ParameterError(f"{name} must be > 0 (inf: no limit), got {v.tolist()}.")
     return v
-
-
-def _interval(q, lower, upper, vmax, h):
-    """Per joint, the velocities within the limits that land in the box;
-    where the box lies farther than one step, the step towards it at the
-    limit."""
-    to_lo, to_hi = (lower - q) / h, (upper - q) / h
-    lo, hi = np.maximum(-vmax, to_lo), np.minimum(vmax, to_hi)
-    lo = np.where(to_lo > vmax, vmax, lo)
-    hi = np.where(to_hi < -vmax, -vmax, hi)
-    return lo, np.maximum(lo, hi)
 
 
 def _check_parameters(period, clearance, allowance, influence_distance, damper_gain) -> None:
@@ -381,6 +371,7 @@ class SafetyFilter(LeafSystem):
         self.acceleration_limits = (
             None if acceleration_limits is None else _limits(acceleration_limits, k, "acceleration_limits")
         )
+        self._acceleration = np.full(k, np.inf) if self.acceleration_limits is None else self.acceleration_limits
         q0 = np.zeros(k) if initial_position is None else np.asarray(initial_position, float)
         if q0.shape != (k,):
             raise DimensionError("initial_position", k, q0.shape)
@@ -543,25 +534,10 @@ class SafetyFilter(LeafSystem):
         upper = np.asarray(self.upper_input.Eval(context), float)
         nominal = np.asarray(self.nominal_input.Eval(context), float) if self.nominal_input.HasValue(context) else None
         fallback = False
-        sane = bool(
-            np.isfinite(desired).all()
-            and np.isfinite(lower).all()
-            and np.isfinite(upper).all()
-            and (lower <= upper).all()
-        )
-        if not sane:
-            # Hold, as far as the box (if it is usable) allows.
-            ok = np.isfinite(lower) & np.isfinite(upper) & (lower <= upper)
-            lo, hi = _interval(q, np.where(ok, lower, q), np.where(ok, upper, q), self._vmax, self.period)
-            v, fallback, dmin, missed = np.clip(np.zeros(k), lo, hi), True, status[_MIN_DISTANCE], False
-            v = np.clip(v, lo, hi)
+        sane, lo, hi, v_t = request(q, desired, lower, upper, self._vmax, h, v_last, self._acceleration)
+        if not sane:  # hold, as far as the box (if it is usable) allows
+            v, fallback, dmin, missed = v_t, True, status[_MIN_DISTANCE], False
         else:
-            lo, hi = _interval(q, lower, upper, self._vmax, self.period)
-            target = (desired - q) / h
-            if self.acceleration_limits is not None:
-                step = self.acceleration_limits * h
-                target = np.clip(target, v_last - step, v_last + step)
-            v_t = np.clip(target, lo, hi)
             budget = context.get_discrete_state(self._budget).CopyToVector()[: self._damper.num_pairs]
             measured = self.measured_position_input.HasValue(context)
             skip = self.skip_far_pairs and not measured  # a measured robot moves on its own: measure all
@@ -578,13 +554,9 @@ class SafetyFilter(LeafSystem):
             dmin = float(known.min()) if len(known) else np.inf
             v, missed, solved = self._filter(context, q, v_t, lo, hi, rows, nominal)
             fallback = fallback or not solved
-        vmax = self._vmax
-        v = np.clip(v, -vmax, vmax)
-        exited = bool(((v < lo - 1e-9) | (v > hi + 1e-9)).any())
-        q_next = q + v * h
-        limits = self.velocity_limits
-        ratio = float(np.max(np.where(np.isfinite(limits), np.abs(v) / limits, 0.0))) if k else 0.0
-        acted = (not sane) or bool((np.abs(q_next - desired) > _CHANGED).any())
+        v, q_next, exited, ratio, acted = finish(
+            q, np.asarray(v, float), lo, hi, self._vmax, self.velocity_limits, desired, h, sane, _CHANGED
+        )
         discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
         discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
         if sane and self._damper.num_pairs and not self.measured_position_input.HasValue(context):
