@@ -243,7 +243,7 @@ class VelocityDamper:
         far = lower >= self.influence_distance
         dists[look[far]] = lower[far]
         near = []  # (pair index, Drake's result)
-        for index in look[~far]:
+        for index in look[~far].tolist():
             id_a, id_b = self._pairs[index][:2]
             measured[index] = True
             try:
@@ -256,7 +256,7 @@ class VelocityDamper:
         if not near:
             return self.empty()._replace(distances=dists, measured=measured)
         fast = [(index, pair) for index, pair in near if not self._drake_rows[index]]
-        parts = [self._kernel_rows(query, fast, R, o, J_w, J_v)] if fast else []
+        parts = [self._kernel_rows(fast, R, o, J_w, J_v)] if fast else []
         slow = [(index, pair) for index, pair in near if self._drake_rows[index]]
         if slow:
             out = RowList()
@@ -269,23 +269,19 @@ class VelocityDamper:
             A, b, dirs, points, slots, rounds, pair = [np.concatenate(x) for x in zip(*(p[:2] + p[3:8] for p in parts))]
         return DamperRows(A, b, dists, dirs, points, slots, rounds, pair, measured)
 
-    def _kernel_rows(self, query, near, R, o, J_w, J_v) -> tuple:
+    def _kernel_rows(self, near, R, o, J_w, J_v) -> tuple:
         """The rows of ``near`` pairs ((index, Drake's result)) by
         :func:`~.damper_kernel.pair_rows`: (A, b, None, dirs, points, slots,
-        rounds, pair)."""
+        rounds, pair). A side on no moving body of the robot is posed as the
+        broad phase posed it at this update (fixed, or by the query)."""
         N = len(near)
-        pairs = np.array([index for index, _ in near], np.int64)
-        dist = np.array([pair.distance for _, pair in near])
-        normal = np.array([pair.nhat_BA_W for _, pair in near], float).reshape(N, 3)
-        witness = np.array([[pair.p_ACa, pair.p_BCb] for _, pair in near], float).reshape(N, 2, 3)
-        pose_R, pose_t = np.zeros((N, 2, 3, 3)), np.zeros((N, 2, 3))
-        for i, (index, _) in enumerate(near):
-            for j in range(2):
-                if self._sides[0][index, j] < 0:
-                    X = query.GetPoseInWorld(self._pairs[index][j]).GetAsMatrix34()
-                    pose_R[i, j], pose_t[i, j] = X[:, :3], X[:, 3]
+        pairs = np.empty(N, np.int64)
+        dist, normal, witness = np.empty(N), np.empty((N, 3)), np.empty((N, 2, 3))
+        for i, (index, pair) in enumerate(near):
+            pairs[i], dist[i] = index, pair.distance
+            normal[i], witness[i, 0], witness[i, 1] = pair.nhat_BA_W, pair.p_ACa, pair.p_BCb
         A, b, dirs, points, slots, rounds, owner = pair_rows(
-            (pairs, dist, normal, witness, pose_R, pose_t),
+            (pairs, dist, normal, witness, self._broad.box_R[pairs], self._broad.box_p[pairs]),
             self._sides,
             (R, o, J_w, J_v),
             (self.influence_distance, self.rate, self.target_distance),

@@ -89,11 +89,15 @@ class BroadPhase:
         }
         defaults = plant.CreateDefaultContext()
         P = len(self._pairs)
+        #: (P, 2, 3, 3) / (P, 2, 3): each pair side's box pose in the world
+        #: (a side on no moving body of the robot: its geometry's pose, fixed
+        #: or posed by the query at the last :meth:`lower_bounds` that looked
+        #: at the pair).
         self._ball_slot = np.full((P, 2), -1, np.int64)
         self._ball_centre = np.zeros((P, 2, 3))  # moving: in the body frame; else the box's centre, geometry frame
         self._ball_half = np.zeros((P, 2, 3))  # the box's half extents (a ball's radius: their norm)
-        self._box_R = np.tile(np.eye(3), (P, 2, 1, 1))  # a fixed box's pose in the world
-        self._box_p = np.zeros((P, 2, 3))
+        self.box_R = np.tile(np.eye(3), (P, 2, 1, 1))
+        self.box_p = np.zeros((P, 2, 3))
         self._ball_query = []  # (pair, side, geometry id) of boxes posed by the query
         for n, (a, b, sa, sb) in enumerate(self._pairs):
             for j, (gid, side) in enumerate(((a, sa), (b, sb))):
@@ -110,7 +114,7 @@ class BroadPhase:
                     X = inspector.GetPoseInFrame(gid)
                     if inspector.GetFrameId(gid) != world:
                         X = plant.EvalBodyPoseInWorld(defaults, body).multiply(X)
-                    self._box_R[n, j], self._box_p[n, j] = X.rotation().matrix(), X.translation()
+                    self.box_R[n, j], self.box_p[n, j] = X.rotation().matrix(), X.translation()
                 else:
                     self._ball_query.append((n, j, gid))
 
@@ -127,14 +131,14 @@ class BroadPhase:
                     if gid not in posed:
                         X = query.GetPoseInWorld(gid)
                         posed[gid] = (X.rotation().matrix(), X.translation())
-                    self._box_R[n, j], self._box_p[n, j] = posed[gid]
+                    self.box_R[n, j], self.box_p[n, j] = posed[gid]
         return bounding_gaps(
             np.asarray(pairs, np.int64),
             self._ball_slot,
             self._ball_centre,
             self._ball_half,
-            self._box_R,
-            self._box_p,
+            self.box_R,
+            self.box_p,
             R,
             o,
         )
