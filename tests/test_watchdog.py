@@ -52,3 +52,32 @@ def test_the_watchdog_refuses_bad_settings():
         StatusWatchdog(lcmt_iiwa_status(), period=0.0)
     with pytest.raises(ParameterError, match="has no utime field"):
         StatusWatchdog(object(), period=0.005)
+
+
+def test_a_cheaply_copied_message_copies_to_an_equal_independent_one():
+    """cheaply_copied(lcmt_iiwa_status): decode returns the subclass; a
+    deep copy encodes to the same bytes as the original (every field
+    equal), a list field of the copy is a new list (changing it leaves the
+    original as it was), and a Python-valued port's AbstractValue holding
+    one copies it the same way."""
+    import copy
+
+    from drake_cfvol.systems.watchdog import cheaply_copied
+
+    Copied = cheaply_copied(lcmt_iiwa_status)
+    msg = lcmt_iiwa_status()
+    msg.utime, msg.num_joints = 123456, 7
+    rng = np.random.default_rng(0)
+    for name in lcmt_iiwa_status.__slots__[2:]:
+        setattr(msg, name, list(rng.normal(size=7)))
+    decoded = Copied.decode(msg.encode())
+    assert type(decoded) is Copied and isinstance(decoded, lcmt_iiwa_status)
+    for original in (decoded, copy.deepcopy(decoded)):
+        for message in (original, copy.deepcopy(original), AbstractValue.Make(original).Clone().get_value()):
+            assert message.encode() == msg.encode()
+    edited = Copied.decode(msg.encode())
+    edited.joint_torque_external = list(edited.joint_torque_external)
+    twin = copy.deepcopy(edited)
+    twin.joint_torque_external[0] += 1.0
+    assert edited.joint_torque_external[0] == msg.joint_torque_external[0]
+    assert twin.joint_torque_external is not edited.joint_torque_external

@@ -28,7 +28,7 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 from drake_cfvol.exceptions import StationError
 from drake_cfvol.systems.hand import CoworkerHand
 from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig
-from drake_cfvol.systems.watchdog import StatusWatchdog
+from drake_cfvol.systems.watchdog import StatusWatchdog, cheaply_copied
 
 __all__ = [
     "IIWA_STATUS_PERIOD",
@@ -112,7 +112,7 @@ def add_status_watchdog(
     )
     stamps = builder.AddNamedSystem(  # the status as a Python message (the receiver's subscriber is C++'s)
         f"{prefix}status_stamp_subscriber",
-        LcmSubscriberSystem.Make(channel=status_channel, lcm_type=lcmt_iiwa_status, lcm=lcm),
+        LcmSubscriberSystem.Make(channel=status_channel, lcm_type=cheaply_copied(lcmt_iiwa_status), lcm=lcm),
     )
     builder.Connect(stamps.get_output_port(), watchdog.status_input)
     builder.Connect(watchdog.fault_output, safety.hold_input)

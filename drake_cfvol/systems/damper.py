@@ -304,15 +304,22 @@ class VelocityDamper:
             return np.zeros(0)
         return self._kin.second_order(self.poses(q), self.poses(q + dq), rows, self._kin.rev, dq)
 
-    def budget_after(self, q, q_next, budget, dists):
+    def budget_moved(self, q0, q1, budget):
         """Each pair's distance beyond the influence distance that is still
-        certain after this step: the measured one (or the last budget) less
-        how far the step can have moved the pair's bodies, every point of a
-        body's geometry within its radius r of the body's origin o:
-        |o' - o| + theta r for a turn by theta. Distances are asked for only
-        at updates, so the poses at both ends bound it. Negative: measure
-        at the next update. (Valid while the SceneGraph is posed from the
-        configurations the steps go through.)"""
-        moved = self._kin.moved(q, q_next, self._body_radius)  # the last: welded
-        left = np.where(np.isnan(dists), budget, dists - self.influence_distance)
-        return left - moved[self._pair_bodies[:, 0]] - moved[self._pair_bodies[:, 1]]
+        certain at q1, known to be ``budget`` (P,) at q0: less how far the
+        robot's motion from q0 to q1 can have moved the pair's bodies, every
+        point of a body's geometry within its radius r of the body's origin
+        o: |o' - o| + theta r for a turn by theta (the distance at q1 is
+        bounded by the poses at both ends, whatever the path between).
+        Negative: measure it. (Geometry that moves on its own, see
+        :attr:`self_moving`, is not covered.)"""
+        moved = self._kin.moved(q0, q1, self._body_radius)  # the last: welded
+        return budget - moved[self._pair_bodies[:, 0]] - moved[self._pair_bodies[:, 1]]
+
+    @property
+    def self_moving(self) -> np.ndarray:
+        """(P,) bools: the pairs with geometry that moves other than with the
+        robot's joints (a free body, a gripper's finger, perceived geometry)."""
+        out = np.zeros(len(self._pairs), bool)
+        out[[n for n, _, _ in self._broad.query_posed]] = True
+        return out

@@ -98,7 +98,9 @@ class BroadPhase:
         self._ball_half = np.zeros((P, 2, 3))  # the box's half extents (a ball's radius: their norm)
         self.box_R = np.tile(np.eye(3), (P, 2, 1, 1))
         self.box_p = np.zeros((P, 2, 3))
-        self._ball_query = []  # (pair, side, geometry id) of boxes posed by the query
+        #: (pair, side, geometry id) of the boxes posed by the query: geometry
+        #: that moves on its own or with other joints than the robot's.
+        self.query_posed = []
         for n, (a, b, sa, sb) in enumerate(self._pairs):
             for j, (gid, side) in enumerate(((a, sa), (b, sb))):
                 centre, half = local_box(inspector.GetShape(gid))
@@ -116,17 +118,17 @@ class BroadPhase:
                         X = plant.EvalBodyPoseInWorld(defaults, body).multiply(X)
                     self.box_R[n, j], self.box_p[n, j] = X.rotation().matrix(), X.translation()
                 else:
-                    self._ball_query.append((n, j, gid))
+                    self.query_posed.append((n, j, gid))
 
     def lower_bounds(self, query, R, o, pairs) -> np.ndarray:
         """Lower bounds of the distances of ``pairs`` (indices), m: between
         two balls, their gap; between a ball and a box, the ball centre's
         distance from the box less its radius; between two boxes, -inf
         (measure). The bodies posed at R, o."""
-        if self._ball_query:  # boxes that move on their own: one pose look-up per geometry
+        if self.query_posed:  # boxes that move on their own: one pose look-up per geometry
             look = set(pairs.tolist())
             posed = {}
-            for n, j, gid in self._ball_query:
+            for n, j, gid in self.query_posed:
                 if n in look:
                     if gid not in posed:
                         X = query.GetPoseInWorld(gid)

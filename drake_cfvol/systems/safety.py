@@ -425,8 +425,13 @@ class SafetyFilter(LeafSystem):
         self._velocity = self.DeclareDiscreteState(k)  # the last commanded velocity
         self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0, 0.0]))
         # Per pair, how far it is known to lie beyond the influence distance
-        # (m; negative: measure it at the next update).
-        self._budget = self.DeclareDiscreteState(np.full(max(n_pairs, 1), -1.0))
+        # (m; negative: measure it at the next update), with the robot at the
+        # last update's base position (the budget's last entry on).
+        self._budget = self.DeclareDiscreteState(np.concatenate([np.full(max(n_pairs, 1), -1.0), q0]))
+        # Pairs measured at every update whatever their budget: geometry that
+        # moves on its own (not the perceived kind, whose pairs are measured
+        # while it is in use: measure_dynamic).
+        self._always = self._damper.self_moving & ~dynamic
         # A plant context used as scratch for the Jacobians (never a context
         # outside this system's own).
         self._scratch = self.DeclareCacheEntry(
@@ -495,14 +500,6 @@ class SafetyFilter(LeafSystem):
         (:meth:`VelocityDamper.second_order`)."""
         return self._damper.second_order(self.base_position(context), rows, dq)
 
-    def _next_budget(self, context, q, q_next, budget, dists):
-        """Each pair's certain distance beyond the influence distance after
-        the step (:meth:`VelocityDamper.budget_after`); all -1 (measure at
-        the next update) without ``skip_far_pairs``."""
-        if not self.skip_far_pairs:
-            return np.full(max(self._damper.num_pairs, 1), -1.0)
-        return self._damper.budget_after(q, q_next, budget, dists)
-
     def set_initial_position(self, context, q) -> None:
         """Sets the commanded position q_c of ``context`` (e.g. the path's
         start before a run)."""
@@ -510,7 +507,13 @@ class SafetyFilter(LeafSystem):
         if q.shape != (self.k,):
             raise DimensionError("q", self.k, q.shape)
         context.get_mutable_discrete_state(self._position).SetFromVector(q)
-        context.get_mutable_discrete_state(self._budget).SetFromVector(np.full(max(self._damper.num_pairs, 1), -1.0))
+        self._reset_budget(context.get_mutable_discrete_state(self._budget))
+
+    def _reset_budget(self, vector) -> None:
+        """Every pair measured at the next update."""
+        x = vector.CopyToVector()
+        x[: max(self._damper.num_pairs, 1)] = -1.0
+        vector.SetFromVector(x)
 
     # -- the update ----------------------------------------------------------
 
@@ -523,7 +526,7 @@ class SafetyFilter(LeafSystem):
             # Held (a stale robot status, a fault upstream): the last command
             # stays; every pair is measured again when the hold ends.
             discrete_state.get_mutable_vector(self._velocity).SetFromVector(np.zeros(k))
-            discrete_state.get_mutable_vector(self._budget).SetFromVector(np.full(max(self._damper.num_pairs, 1), -1.0))
+            self._reset_budget(discrete_state.get_mutable_vector(self._budget))
             held = status.copy()
             held[_ACTIVE], held[_RATIO], held[_HOLDS] = 1.0, 0.0, status[_HOLDS] + 1
             held[_COUNT] += 1
@@ -538,10 +541,15 @@ class SafetyFilter(LeafSystem):
         if not sane:  # hold, as far as the box (if it is usable) allows
             v, fallback, dmin, missed = v_t, True, status[_MIN_DISTANCE], False
         else:
-            budget = context.get_discrete_state(self._budget).CopyToVector()[: self._damper.num_pairs]
-            measured = self.measured_position_input.HasValue(context)
-            skip = self.skip_far_pairs and not measured  # a measured robot moves on its own: measure all
-            measure = budget < 0 if skip else np.ones(self._damper.num_pairs, bool)
+            n = self._damper.num_pairs
+            kept = context.get_discrete_state(self._budget).CopyToVector()
+            base = self.base_position(context)
+            if self.skip_far_pairs and n:
+                # What the budget kept at the last update's base still certainly holds here.
+                budget = self._damper.budget_moved(kept[-k:], base, kept[:n])
+                measure = (budget < 0) | self._always
+            else:
+                budget, measure = np.full(n, -1.0), np.ones(n, bool)
             measure_dynamic(self._dynamic, self.query_object_input.Eval(context), measure)
             try:
                 rows = self.damper_rows(context, measure)
@@ -559,12 +567,13 @@ class SafetyFilter(LeafSystem):
         )
         discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
         discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
-        if sane and self._damper.num_pairs and not self.measured_position_input.HasValue(context):
-            discrete_state.get_mutable_vector(self._budget).SetFromVector(
-                self._next_budget(context, q, q_next, budget, dists)
-            )
+        if sane and self._damper.num_pairs and self.skip_far_pairs:
+            # Measured pairs: their distance beyond the influence distance;
+            # the others keep their budget; both with the robot at this base.
+            left = np.where(np.isnan(dists), budget, dists - self.influence_distance)
+            discrete_state.get_mutable_vector(self._budget).SetFromVector(np.concatenate([left, base]))
         else:  # measure every pair at the next update
-            discrete_state.get_mutable_vector(self._budget).SetFromVector(np.full(max(self._damper.num_pairs, 1), -1.0))
+            self._reset_budget(discrete_state.get_mutable_vector(self._budget))
         discrete_state.get_mutable_vector(self._status).SetFromVector(
             [
                 float(acted),
