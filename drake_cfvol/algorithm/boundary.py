@@ -54,7 +54,6 @@ from drake_cfvol.algorithm.regions import (
     MAX_SPLITS,
     S_SPLITS,
     _box,
-    _edge_key,
     _Item,
     _test,
     corner_points,
@@ -97,38 +96,52 @@ def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | No
     items, keys, again = [], [], []
     for i in stretches:
         A, B, js, va, vb, sig = edge_tasks(lower[i], upper[i], lower[i + 1], upper[i + 1])
-        for n in range(len(js)):
-            j = int(js[n])
-            key = _edge_key(i, j, sig[n], A[n], B[n])
+        if not len(js):
+            continue
+        # What fixes an edge besides its own joint's range: the stretch, the
+        # joint, the other joints' bound pattern and their values at both
+        # ends (every edge of the stretch at once).
+        rows = np.arange(len(js))
+        ends = np.concatenate([A, B], axis=1)
+        ends[rows, js] = ends[rows, js + A.shape[1]] = 0.0
+        lo0, lo1, hi0, hi1 = lower[i].tolist(), lower[i + 1].tolist(), upper[i].tolist(), upper[i + 1].tolist()
+        margin = float(margins[i])
+        for n, j in enumerate(js.tolist()):
+            key = (i, j, sig[n].tobytes(), ends[n].tobytes())
             # The joint's own range at both ends: the edge is a subset of a
             # proven one if both ranges lie inside (the rule is linear in s).
-            lo_j, hi_j = lower[i : i + 2, j], upper[i : i + 2, j]
+            lo_j, hi_j = (lo0[j], lo1[j]), (hi0[j], hi1[j])
             known = memo.get(key)
-            if known is not None and np.all(known[0] <= lo_j) and np.all(hi_j <= known[1]) and margins[i] <= known[2]:
+            if (
+                known is not None
+                and known[0][0] <= lo_j[0]
+                and known[0][1] <= lo_j[1]
+                and hi_j[0] <= known[1][0]
+                and hi_j[1] <= known[1][1]
+                and margin <= known[2]
+            ):
                 continue
             # The same edge failed before exactly as it is now (its result
             # is a function of the key, its own range and the margin): the
             # same regions fail again.
             seen = memo.get(("failed",) + key)
-            if (
-                seen is not None
-                and np.array_equal(seen[0], lo_j)
-                and np.array_equal(seen[1], hi_j)
-                and seen[2] == margins[i]
-            ):
+            if seen is not None and seen[0] == lo_j and seen[1] == hi_j and seen[2] == margin:
                 again += [
                     _Item(it.i, it.sa, it.sb, it.j, it.va, it.vb, it.S, it.A, it.B, ("again", len(again)))
                     for it in seen[3]
                 ]  # a root of its own (_one_per_edge)
                 continue
-            keys.append((key, lo_j.copy(), hi_j.copy(), float(margins[i])))
+            keys.append((key, lo_j, hi_j, margin))
             # Split along the joint at once as far as this edge needed last
             # time (the pieces cover the same region; after a small cut the
             # whole edge mostly fails again, so its test is saved).
             d = memo.get(("depth",) + key[:3], 0)
+            root = len(keys) - 1
+            if d == 0:
+                items.append(_Item(i, float(i), float(i + 1), j, va[n], vb[n], sig[n], A[n], B[n], root=root))
+                continue
             v = va[n] + (vb[n] - va[n]) * np.arange(2**d + 1) / 2**d
             v[-1] = vb[n]
-            root = len(keys) - 1
             items += [
                 _Item(i, float(i), float(i + 1), j, v[m], v[m + 1], sig[n], A[n], B[n], root=root, depth=d)
                 for m in range(2**d)

@@ -130,11 +130,3 @@ def _test(arrays, items, margins):
     vb = np.array([it.vb for it in items])
     pads = np.array([margins[it.i] for it in items], float)
     return regions_may_collide(arrays, A, B, js, va, vb, pads)
-
-
-def _edge_key(i, j, S, A, B) -> tuple:
-    """What fixes an edge region besides its joint's range: the stretch, the
-    joint, the other joints' bound pattern and their values at both ends."""
-    a, b = A.copy(), B.copy()
-    a[j] = b[j] = 0.0
-    return (i, j, S.tobytes(), a.tobytes(), b.tobytes())
