@@ -22,8 +22,7 @@ then taken at q_m, from the SceneGraph posed by the plant (the distances
 where the robot is), and constrain the command's step, A v >= b: near an
 obstacle the command moves away at the damper's rate, and the robot
 follows it; the tracking error is the controller's to close (a command
-that tried to undo it within one update would chase the robot). Every
-pair is measured at every update.
+that tried to undo it within one update would chase the robot).
 
 **Hold**: while the optional ``hold`` input is above 0.5 (or NaN), an
 update keeps the last command (v = 0) and counts itself in ``hold_count``:
@@ -132,10 +131,15 @@ the box allows) and ``fallback_count`` counts it. Nothing raises inside
 a simulation: a non-finite or crossed input holds q_c the same way.
 
 Cost: a pair known to lie beyond the influence distance is measured
-again only once the commanded motion could have brought it within
-(``skip_far_pairs``); a pair whose bounding shapes lie that far apart is
-not measured at all (the damper's broad phase), and the near pairs' rows
-come from one compiled call (:mod:`~drake_cfvol.systems.damper_kernel`).
+again only once the robot's motion since (from the base position where it
+was measured to this update's: commanded or measured) could have brought
+it within (``skip_far_pairs``); a pair with geometry that moves on its own
+is measured at every update; a pair whose bounding shapes lie that far
+apart is not measured at all (the damper's broad phase). The near pairs'
+rows come from one compiled call
+(:mod:`~drake_cfvol.systems.damper_kernel`), their kinematics from the
+kernel's forward kinematics (:mod:`~drake_cfvol.systems.damper_kinematics`),
+and the QP rounds from another (:mod:`~drake_cfvol.systems.filter_kernel`).
 """
 
 import dataclasses
@@ -303,12 +307,14 @@ class SafetyFilter(LeafSystem):
         acceleration_limits: (k,) rad/s^2 (m/s^2), or None.
         initial_position: the default q_c (k,); default zeros (see
             :meth:`set_initial_position`).
-        skip_far_pairs: measure a pair again only once the commanded motion
-            (body displacements bounded from the poses at both ends of each
-            step) could have brought it within the influence distance. Valid
-            when the SceneGraph is posed from this filter's output (as in
-            the co-manipulation diagram); set False when it is posed from
-            anything else (a measured state).
+        skip_far_pairs: measure a pair again only once the robot's motion
+            since it was measured (body displacements bounded from the poses
+            at the two updates' base positions) could have brought it within
+            the influence distance. Valid when the SceneGraph is posed at
+            the base position (this filter's output, or the measured
+            position when ``measured_position`` is connected, as in the
+            co-manipulation diagrams); set False when it is posed from
+            anything else.
         dynamic_ids: geometry that moves on its own: measured at every
             update (:func:`~.damper.measure_dynamic`), rows never relaxed.
         constraints: further :class:`~drake_cfvol.systems.constraints.FilterConstraint`
