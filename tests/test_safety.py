@@ -12,6 +12,7 @@ from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 from pydrake.multibody.tree import FixedOffsetFrame, RevoluteJoint, SpatialInertia
 from pydrake.systems.analysis import Simulator
 from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import PassThrough
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 import drake_cfvol as cf
@@ -56,9 +57,16 @@ def _arm(obstacle: str, **kw):
     if speed is not None:
         kw["constraints"] = [ToolSpeedLimit(link2.body_frame(), speed, point=[L2, 0, 0])]
     kw.setdefault("period", H)
+    measured = kw.pop("measured", False)  # the SceneGraph posed from an exported measured position
     sf = builder.AddSystem(SafetyFilter(plant, sg, arm, velocity_limits=VMAX, **kw))
     to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
-    builder.Connect(sf.commanded_position_output, to_pose.get_input_port())
+    if measured:
+        robot = builder.AddSystem(PassThrough(2))
+        builder.ExportInput(robot.get_input_port(), "measured_position")
+        builder.Connect(robot.get_output_port(), to_pose.get_input_port())
+        builder.Connect(robot.get_output_port(), sf.measured_position_input)
+    else:
+        builder.Connect(sf.commanded_position_output, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), sg.get_source_pose_port(plant.get_source_id()))
     builder.Connect(sg.get_query_output_port(), sf.query_object_input)
     for port in (sf.desired_position_input, sf.lower_input, sf.upper_input, sf.nominal_input):
@@ -495,3 +503,37 @@ def test_a_tightened_box_is_reentered_at_the_limits():
     assert figures["max_bound_violation"] == 0.0
     assert figures["live_box_excess_max"] == pytest.approx(0.2, abs=1e-12)
     assert figures["live_box_catchup_s"] == pytest.approx(14 * H, abs=1e-12)
+
+
+def test_a_measured_robot_skips_far_pairs_and_measures_every_near_one():
+    """A robot that tracks with an error (the SceneGraph posed from the
+    measured position, which moves up to 0.08 rad per update, five times
+    the command's step at the limits) swept from far off the wall to within
+    a few cm of it and back: at every update the filter's smallest distance
+    is a lower bound of Drake's at the measured configuration, equal to it
+    whenever the tip lies within the influence distance (the pair was
+    measured), and below it at updates where the pair lay far and was
+    skipped (its budget spent by the measured motion since it was
+    measured)."""
+    diagram, sf, tip, wall_id = _arm("wall", clearance=0.02, influence_distance=0.15, measured=True)
+    sim = Simulator(diagram)
+    ctx = sim.get_mutable_context()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    rng = np.random.default_rng(11)
+    # q1 from 1.2 rad (the tip 0.9 m off the wall's face) to 0 (3 cm off) and back, with jitter.
+    sweep = np.concatenate([np.linspace(1.2, 0.0, 60), np.linspace(0.0, 1.2, 60)])
+    near = skipped = 0
+    for n, a in enumerate(sweep):
+        q_m = np.array([a + rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03)])
+        _fix(diagram, ctx, desired=q_m)
+        diagram.GetInputPort("measured_position").FixValue(ctx, q_m)
+        sim.AdvanceTo((n + 1) * H)  # the update at n H, with the robot at q_m
+        seen = sctx.get_discrete_state(sf._status).GetAtIndex(_MIN_DISTANCE)
+        true = _drake_distance(diagram, ctx, tip, wall_id)
+        assert seen <= true + 1e-9
+        if true < sf.influence_distance:
+            assert seen == pytest.approx(true, abs=1e-9)
+            near += 1
+        elif seen < true - 1e-6:
+            skipped += 1
+    assert near > 10 and skipped > 20
