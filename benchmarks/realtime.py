@@ -80,7 +80,6 @@ class RealtimeBenchConfig:
         path: the cell's path.
         iiwa: also time the iiwa's controller beside a loopback robot at the
             driver's 5 ms status period (:func:`iiwa_case`).
-        iiwa_torque: the loopback robot's steady external torque, N m per joint.
     """
 
     cells: list = dataclasses.field(default_factory=lambda: list(CELLS))
@@ -92,7 +91,6 @@ class RealtimeBenchConfig:
     resolution: int = 1000
     path: str = "path1"
     iiwa: bool = True
-    iiwa_torque: float = 30.0
 
     @classmethod
     def quick(cls) -> "RealtimeBenchConfig":
@@ -380,7 +378,7 @@ def run_realtime_bench(cfg: RealtimeBenchConfig, *, progress: bool = True) -> di
     if cfg.iiwa:
         wc, table = _cell("cobot", cfg)
         for seed in range(cfg.repeats):
-            iiwa.append(iiwa_case(wc, table, updates=cfg.updates, torque=cfg.iiwa_torque, seed=seed))
+            iiwa.append(iiwa_case(wc, table, updates=cfg.updates, torque=cfg.torque, seed=seed))
             if progress:
                 row = iiwa[-1]
                 print(
@@ -495,7 +493,8 @@ def realtime_markdown(result: dict, machine: dict | None = None) -> str:
             "",
             "`add_iiwa_controller` (period 5 ms) against a loopback robot over in-memory LCM that reports a new "
             "status every period (the last command as its position, a steady external torque of "
-            f"{cfg.get('iiwa_torque', 30.0):g} N m per joint with seeded signs): wall time per period, the status "
+            f"{cfg['torque']:g} N m per joint with seeded signs, as the steady pushes above): wall time per "
+            "period, the status "
             f"received, the update and the command sent ({len(iiwa)} runs of {iiwa[0]['steps']} periods, medians).",
             "",
             "| median ms | p99 ms | max ms | headroom (median) | headroom (p99) | filter active | holds |",
