@@ -93,11 +93,12 @@ def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | No
     that many pieces (automotive path 1's certification: 454k region tests
     instead of 515k)."""
     memo = {} if memo is None else memo
-    items, keys, again = [], [], []
+    stretch_tasks, keys, again = [], [], []
     for i in stretches:
         A, B, js, va, vb, sig = edge_tasks(lower[i], upper[i], lower[i + 1], upper[i + 1])
         if not len(js):
             continue
+        first = []  # (edge, joint range, root, depth) of the regions tested first
         # What fixes an edge besides its own joint's range: the stretch, the
         # joint, the other joints' bound pattern and their values at both
         # ends (every edge of the stretch at once).
@@ -138,15 +139,28 @@ def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | No
             d = memo.get(("depth",) + key[:3], 0)
             root = len(keys) - 1
             if d == 0:
-                items.append(_Item(i, float(i), float(i + 1), j, va[n], vb[n], sig[n], A[n], B[n], root=root))
+                first.append((n, va[n], vb[n], root, 0))
                 continue
             v = va[n] + (vb[n] - va[n]) * np.arange(2**d + 1) / 2**d
             v[-1] = vb[n]
-            items += [
-                _Item(i, float(i), float(i + 1), j, v[m], v[m + 1], sig[n], A[n], B[n], root=root, depth=d)
-                for m in range(2**d)
-            ]
-    failed, tests, passed_at = _halvings(arrays, lower, upper, nominal, items, margins)
+            first += [(n, v[m], v[m + 1], root, d) for m in range(2**d)]
+        stretch_tasks.append((i, A, B, js, sig, first))
+    # The first test of every region as arrays (most pass whole): an item
+    # object only for those that fail, halved further by _halvings.
+    hit, tests = _first_test(arrays, stretch_tasks, margins)
+    passed_at: dict = {}
+    bad, at = [], 0
+    for i, A, B, js, sig, first in stretch_tasks:
+        for n, u0, u1, root, d in first:
+            if hit[at]:
+                bad.append(_Item(i, float(i), float(i + 1), int(js[n]), u0, u1, sig[n], A[n], B[n], root=root, depth=d))
+            elif passed_at.get(root, MAX_SPLITS + 1) > d:
+                passed_at[root] = d
+            at += 1
+    failed, more, deeper = _halvings(arrays, lower, upper, nominal, bad, margins, tested=True)
+    tests += more
+    for r, d in deeper.items():
+        passed_at[r] = min(passed_at.get(r, MAX_SPLITS + 1), d)
     by_root: dict = {}
     for it in failed:
         by_root.setdefault(it.root, []).append(it)
@@ -172,21 +186,45 @@ START_SPLITS = 3
 REAL_GRID = 5
 
 
-def _halvings(arrays, lower, upper, nominal, items, margins):
+def _first_test(arrays, stretch_tasks, margins):
+    """The region test of every first region of ``stretch_tasks`` ((i, A,
+    B, js, sig, first) per stretch, ``first`` its regions as (edge, va, vb,
+    root, depth)), in their order: (hit (n,), tests)."""
+    parts = [
+        (A[[f[0] for f in first]], B[[f[0] for f in first]], js[[f[0] for f in first]], first, i)
+        for i, A, B, js, sig, first in stretch_tasks
+        if first
+    ]
+    if not parts:
+        return np.zeros(0, bool), 0
+    A = np.concatenate([p[0] for p in parts])
+    B = np.concatenate([p[1] for p in parts])
+    js = np.concatenate([p[2] for p in parts])
+    va = np.array([f[1] for p in parts for f in p[3]], float)
+    vb = np.array([f[2] for p in parts for f in p[3]], float)
+    pads = np.concatenate([np.full(len(p[3]), float(margins[p[4]])) for p in parts])
+    return regions_may_collide(arrays, A, B, js, va, vb, pads), len(js)
+
+
+def _halvings(arrays, lower, upper, nominal, items, margins, tested: bool = False):
     """Tests the regions, halving the failing ones (see :func:`_failures`),
     until each whole edge (an item's ``root``) is proven or has a failing
     region: the shallowest halving's first, in order (the others of that
     edge are not halved further). An item's ``depth`` counts the halvings
     from its whole edge: along the joint first, in s and the joint past
-    MAX_SPLITS - S_SPLITS, none past MAX_SPLITS. Returns (failed items,
-    region tests run, root -> the smallest depth at which one of its pieces
+    MAX_SPLITS - S_SPLITS, none past MAX_SPLITS. ``tested``: the items
+    failed their test already (the caller's). Returns (failed items, region
+    tests run, root -> the smallest depth at which one of its pieces
     passed)."""
     tests = 0
     failed: list = []
     passed_at: dict = {}
     while items:
-        hit = _test(arrays, items, margins)
-        tests += len(items)
+        if tested:  # the caller tested these already: every one failed
+            hit, tested = [True] * len(items), False
+        else:
+            hit = _test(arrays, items, margins)
+            tests += len(items)
         bad = []
         for it, h in zip(items, hit):
             if h:
