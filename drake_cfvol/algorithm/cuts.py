@@ -69,26 +69,35 @@ def _scaled(lower, upper, nominal, i, moves):
 
 def _width_loss(lower, upper, nominal, rate, i, lo, hi):
     """Log-width the whole table loses if stretch i's two waypoint boxes
-    became lo, hi: their own loss and what the rate limit then takes from
-    the waypoints around them (:func:`drake_cfvol.algorithm.table.rate_limited`,
-    applied from the two changed rows; the rest is rate-limited already)."""
+    became lo, hi (:func:`_width_losses` of one)."""
+    return float(_width_losses(lower, upper, nominal, rate, i, lo[None], hi[None])[0])
+
+
+def _width_losses(lower, upper, nominal, rate, i, LO, HI) -> np.ndarray:
+    """(n,): per candidate, the log-width the whole table loses if stretch
+    i's two waypoint boxes became LO[c], HI[c] ((n, 2, k) each): their own
+    loss and what the rate limit then takes from the waypoints around them
+    (:func:`drake_cfvol.algorithm.table.rate_limited`, applied from the two
+    changed rows; the rest is rate-limited already). Every candidate in one
+    array pass."""
     g = len(nominal)
-    lo_f = lower.copy()
-    hi_f = upper.copy()
-    lo_f[i : i + 2] = np.maximum(lo_f[i : i + 2], lo)
-    hi_f[i : i + 2] = np.minimum(hi_f[i : i + 2], hi)
+    n = len(LO)
+    lo_f = np.repeat(lower[None], n, axis=0)
+    hi_f = np.repeat(upper[None], n, axis=0)
+    lo_f[:, i : i + 2] = np.maximum(lo_f[:, i : i + 2], LO)
+    hi_f[:, i : i + 2] = np.minimum(hi_f[:, i : i + 2], HI)
     lim = np.isfinite(rate)
     if lim.any():
         m = np.arange(g)[:, None]
         for e in (i, i + 1):
             d = np.abs(m - e) * np.where(lim, rate, 0.0)
-            hi_f = np.where(lim, np.minimum(hi_f, hi_f[e] + d), hi_f)
-            lo_f = np.where(lim, np.maximum(lo_f, lo_f[e] - d), lo_f)
+            hi_f = np.where(lim, np.minimum(hi_f, hi_f[:, e : e + 1] + d), hi_f)
+            lo_f = np.where(lim, np.maximum(lo_f, lo_f[:, e : e + 1] - d), lo_f)
     lo_f = np.minimum(lo_f, nominal)
     hi_f = np.maximum(hi_f, nominal)
     w0 = np.maximum(upper - lower, 1e-12)
     w1 = np.maximum(hi_f - lo_f, 1e-12)
-    return float(np.sum(np.log(w0 / w1)))
+    return np.log(w0 / w1).reshape(n, -1).sum(axis=1)
 
 
 def _scaled_many(lower, upper, nominal, i, members, sides, lams):
@@ -180,11 +189,13 @@ def _joint_scale_options(arrays, lower, upper, nominal, rate, fail: _Item, reach
                 best_l[key] = (mids[key], lo[0], hi[0])
             else:
                 bracket[key] = (mids[key], p_)
-    options = []
-    for (l, side), (_, lo, hi) in best_l.items():
-        key = (i, int(l), side) if l >= 0 else (i, -2, 0)
-        options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, key))
-    return options
+    if not best_l:
+        return []
+    found = [(lo, hi, (i, int(l), side) if l >= 0 else (i, -2, 0)) for (l, side), (_, lo, hi) in best_l.items()]
+    losses = _width_losses(
+        lower, upper, nominal, rate, i, np.array([f[0] for f in found]), np.array([f[1] for f in found])
+    )
+    return [(float(loss), lo, hi, key) for loss, (lo, hi, key) in zip(losses, found)]
 
 
 def cut_for(
@@ -344,10 +355,13 @@ def cut_point(workcell, arrays, lower, upper, nominal, rate, i, s, q, margin, sl
                     mv.append((l, side, min(1.0, lam * abs(q[l] - nom[l]) / dev)))
             if mv:
                 moves.append((key, mv))
+    variants = [(lo, hi, (i,) + key) for key, mv in moves for lo, hi in _variants(lower, upper, nominal, i, t, mv)]
     options = []
-    for key, mv in moves:
-        for lo, hi in _variants(lower, upper, nominal, i, t, mv):
-            options.append((_width_loss(lower, upper, nominal, rate, i, lo, hi), lo, hi, (i,) + key))
+    if variants:
+        losses = _width_losses(
+            lower, upper, nominal, rate, i, np.array([v[0] for v in variants]), np.array([v[1] for v in variants])
+        )
+        options = [(float(loss), lo, hi, key) for loss, (lo, hi, key) in zip(losses, variants)]
     if not options:
         nom2 = nominal[i : i + 2]
         options.append((0.0, nom2 - 0.5 * (nom2 - lower[i : i + 2]), nom2 + 0.5 * (upper[i : i + 2] - nom2), (i, -1)))
