@@ -50,6 +50,7 @@ import math
 import time
 
 import numpy as np
+from numba import njit
 
 from drake_cfvol.algorithm.boundary import _failures, cut_point, cut_slacks, prove_boundary, reaching_joints
 from drake_cfvol.algorithm.cert_cache import cache_dir, cache_key, cache_load, cache_store
@@ -231,54 +232,102 @@ def _greedy_cut(X, t, lower, upper, nominal, i, allowed=None):
     that may cut each sample (those whose motion reaches its colliding
     pair); a sample that no allowed joint can cut may be cut by any.
     Returns the number of cuts, or -1 if a sample cannot be cut (it lies
-    at its own nominal in every joint)."""
+    at its own nominal in every joint). Compiled (:func:`_greedy_cut_rows`)."""
+    X = np.ascontiguousarray(X, float)
+    allowed = np.ones(X.shape, np.bool_) if allowed is None else np.ascontiguousarray(allowed, np.bool_)
+    L, U = lower[i : i + 2].copy(), upper[i : i + 2].copy()
+    cuts = _greedy_cut_rows(X, np.ascontiguousarray(t, float), L, U, np.ascontiguousarray(nominal[i : i + 2]), allowed)
+    lower[i : i + 2], upper[i : i + 2] = L, U
+    return int(cuts)
+
+
+@njit(cache=True)
+def _greedy_cut_rows(X, t, L, U, N, allowed):
+    """:func:`_greedy_cut` on the stretch's waypoint rows L, U (2, k), in
+    place, nominal rows N; the same arithmetic, sample by sample."""
+    n, k = X.shape
+    keep = np.ones(n, np.bool_)
     cuts = 0
-    n2 = nominal[i : i + 2]
-    allowed = np.ones(X.shape, bool) if allowed is None else np.asarray(allowed, bool)
-    while len(X):
-        T = t[:, None]
-        lo = (1 - T) * lower[i] + T * lower[i + 1]
-        hi = (1 - T) * upper[i] + T * upper[i + 1]
-        nom = (1 - T) * n2[0] + T * n2[1]
-        inside = np.all((X >= np.minimum(lo, nom)) & (X <= np.maximum(hi, nom)), axis=1)
-        X, t, allowed = X[inside], t[inside], allowed[inside]
-        if not len(X):
+    while True:
+        # The samples still inside the box (each at its own s).
+        count = 0
+        for s in range(n):
+            if not keep[s]:
+                continue
+            a, b = 1.0 - t[s], t[s]
+            for j in range(k):
+                lo = a * L[0, j] + b * L[1, j]
+                hi = a * U[0, j] + b * U[1, j]
+                nom = a * N[0, j] + b * N[1, j]
+                if not (X[s, j] >= min(lo, nom) and X[s, j] <= max(hi, nom)):
+                    keep[s] = False
+                    break
+            if keep[s]:
+                count += 1
+        if count == 0:
             break
-        lo, hi, nom = lo[inside], hi[inside], nom[inside]
-        off = X != nom
-        allowed = np.where((allowed & off).any(axis=1)[:, None], allowed, True)
-        w0 = upper[i : i + 2] - lower[i : i + 2]
-        best = (np.inf, -1, 0, 1.0)
-        for j in range(X.shape[1]):
+        idx = np.flatnonzero(keep)
+        lo_s, hi_s, nom_s = np.empty((count, k)), np.empty((count, k)), np.empty((count, k))
+        ok = np.empty((count, k), np.bool_)
+        for r in range(count):
+            s = idx[r]
+            a, b = 1.0 - t[s], t[s]
+            any_ok = False
+            for j in range(k):
+                lo_s[r, j] = a * L[0, j] + b * L[1, j]
+                hi_s[r, j] = a * U[0, j] + b * U[1, j]
+                nom_s[r, j] = a * N[0, j] + b * N[1, j]
+                if allowed[s, j] and X[s, j] != nom_s[r, j]:
+                    any_ok = True
+            for j in range(k):
+                ok[r, j] = allowed[s, j] if any_ok else True
+        best_score, best_j, best_side, best_lam = np.inf, -1, 0, 1.0
+        lam = np.empty(count)
+        for j in range(k):
+            w0a, w0b = U[0, j] - L[0, j], U[1, j] - L[1, j]
             for side in (1, -1):
-                D = (hi[:, j] - nom[:, j]) if side > 0 else (nom[:, j] - lo[:, j])
-                e = (X[:, j] - nom[:, j]) if side > 0 else (nom[:, j] - X[:, j])
-                sel = (e > 0) & (D > 0) & allowed[:, j]
-                if not sel.any():
+                m = 0
+                for r in range(count):
+                    s = idx[r]
+                    if side > 0:
+                        D, e = hi_s[r, j] - nom_s[r, j], X[s, j] - nom_s[r, j]
+                    else:
+                        D, e = nom_s[r, j] - lo_s[r, j], nom_s[r, j] - X[s, j]
+                    if e > 0 and D > 0 and ok[r, j]:
+                        lam[m] = min(e / D, 1.0)
+                        m += 1
+                if m == 0:
                     continue
-                lam = np.sort(np.minimum(e[sel] / D[sel], 1.0))[::-1]
-                dev = (upper[i : i + 2, j] - n2[:, j]) if side > 0 else (n2[:, j] - lower[i : i + 2, j])
-                w1 = np.maximum(w0[:, j][None] - (1 - lam[:, None]) * dev[None], 1e-12)
-                loss = np.log(np.maximum(w0[:, j], 1e-12)[None] / w1).sum(axis=1)
-                score = loss / np.arange(1, len(lam) + 1)
-                m = int(np.argmin(score))
-                if score[m] < best[0]:
-                    best = (score[m], j, side, lam[m])
-        _, j, side, lam = best
-        if j < 0:
+                lams = np.sort(lam[:m])[::-1]
+                if side > 0:
+                    dev_a, dev_b = U[0, j] - N[0, j], U[1, j] - N[1, j]
+                else:
+                    dev_a, dev_b = N[0, j] - L[0, j], N[1, j] - L[1, j]
+                for c in range(m):
+                    w1a = max(w0a - (1 - lams[c]) * dev_a, 1e-12)
+                    w1b = max(w0b - (1 - lams[c]) * dev_b, 1e-12)
+                    loss = np.log(max(w0a, 1e-12) / w1a) + np.log(max(w0b, 1e-12) / w1b)
+                    score = loss / (c + 1)
+                    if score < best_score:
+                        best_score, best_j, best_side, best_lam = score, j, side, lams[c]
+        if best_j < 0:
             return -1
+        j, side = best_j, best_side
         # Just below the sample's threshold, by a relative 1e-6: a cut of a
         # deviation a few ulps wide must still move the bound.
-        lam = max(0.0, lam * (1 - 1e-6))
-        before = (upper if side > 0 else lower)[i : i + 2, j].copy()
+        lam_c = max(0.0, best_lam * (1 - 1e-6))
+        B = U if side > 0 else L
+        before0, before1 = B[0, j], B[1, j]
         while True:
             if side > 0:
-                upper[i : i + 2, j] = n2[:, j] + lam * (before - n2[:, j])
+                U[0, j] = N[0, j] + lam_c * (before0 - N[0, j])
+                U[1, j] = N[1, j] + lam_c * (before1 - N[1, j])
             else:
-                lower[i : i + 2, j] = n2[:, j] - lam * (n2[:, j] - before)
-            if lam == 0.0 or not np.array_equal((upper if side > 0 else lower)[i : i + 2, j], before):
+                L[0, j] = N[0, j] - lam_c * (N[0, j] - before0)
+                L[1, j] = N[1, j] - lam_c * (N[1, j] - before1)
+            if lam_c == 0.0 or B[0, j] != before0 or B[1, j] != before1:
                 break
-            lam = 0.5 * lam if lam > 1e-3 else 0.0
+            lam_c = 0.5 * lam_c if lam_c > 1e-3 else 0.0
         cuts += 1
     return cuts
 
