@@ -537,3 +537,26 @@ def test_a_measured_robot_skips_far_pairs_and_measures_every_near_one():
         elif seen < true - 1e-6:
             skipped += 1
     assert near > 10 and skipped > 20
+
+
+def test_a_constraint_naming_a_damper_row_that_does_not_exist_is_refused():
+    """A user's constraint whose second_order_rows name a damper row the
+    update does not have (the compiled rounds would read past the rows) is
+    refused at the update with an error naming the constraint."""
+    from drake_cfvol.exceptions import ParameterError
+    from drake_cfvol.systems.constraints import FilterConstraint
+
+    class Wrong(FilterConstraint):
+        name = "wrong"
+
+        def rows(self, step):
+            return np.array([[1.0, 0.0]]), np.array([-10.0])
+
+        def second_order_rows(self, step):
+            return [len(step.damper.b) + 3]
+
+    diagram, sf, _, _ = _arm("wall", clearance=0.02, constraints=[Wrong()])
+    sim = Simulator(diagram)
+    _fix(diagram, sim.get_mutable_context(), desired=[0.3, 0.2])
+    with pytest.raises(ParameterError, match="constraint 'wrong': second_order_rows"):
+        sim.AdvanceTo(2 * H)

@@ -358,7 +358,17 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
             continue
         blocks.append(ConstraintRows(A, b, c.priority, c.weight, c.name))
         so = c.second_order_rows(step)
-        so_rows.append(np.full(len(b), -1, np.int64) if so is None else so)
+        if so is None:
+            so = np.full(len(b), -1, np.int64)
+        else:
+            so = np.asarray(so, np.int64)
+            if so.shape != (len(b),) or (so >= len(step.damper.b)).any():
+                raise ParameterError(
+                    f"constraint '{c.name}': second_order_rows must give one damper row index (or -1) per row "
+                    f"({len(b)} rows, {len(step.damper.b)} damper rows), got shape {so.shape} with largest "
+                    f"{so.max(initial=-1)}."
+                )
+        so_rows.append(so)
         relaxed.append(np.full(len(b), bool(c.relaxed)))
     A, b, prio, weight = _stack(blocks, k)
     damper, kin = step.damper, step.kinematics
