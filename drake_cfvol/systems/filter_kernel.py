@@ -12,8 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.kernel.kinematics import fk_into
-from drake_cfvol.systems.damper_kinematics import _second_order
+from drake_cfvol.systems.damper_kinematics import _second_order, _slot_poses
 from drake_cfvol.systems.qp import staged_solve
 
 __all__ = ["filter_rounds"]
@@ -21,13 +20,11 @@ __all__ = ["filter_rounds"]
 
 @njit(cache=True)
 def _poses(q, kin):
+    """The slots' poses (R, o) at q (:func:`~.damper_kinematics._slot_poses`)."""
     chain, body, R_WB, p_WB = kin
-    fk_into(q, chain, R_WB, p_WB)
     S = body.shape[0]
     R, o = np.zeros((S, 3, 3)), np.zeros((S, 3))
-    for s in range(S):
-        R[s] = R_WB[body[s]]
-        o[s] = p_WB[body[s]]
+    _slot_poses(q, chain, body, R_WB, p_WB, R, o)
     return R, o
 
 
