@@ -226,6 +226,16 @@ def station(wc, table, *, period: float, push: str, torque: float, seed: int):
     return builder.Build(), cm
 
 
+def _spread(times) -> dict:
+    """Median, p99 and max of wall times (s)."""
+    times = np.asarray(times, float)
+    return {
+        "median_s": float(np.median(times)),
+        "p99_s": float(np.percentile(times, 99)),
+        "max_s": float(times.max()),
+    }
+
+
 def run_case(wc, table, *, period: float, push: str, updates: int, torque: float, seed: int) -> dict:
     """One timed run: the stack's figures (see the module's documentation)."""
     timers = _Timers()
@@ -265,15 +275,10 @@ def run_case(wc, table, *, period: float, push: str, updates: int, torque: float
         "push": push,
         "seed": seed,
         "steps": steps,
-        "median_s": float(np.median(wall)),
-        "p99_s": float(np.percentile(wall, 99)),
-        "max_s": float(wall.max()),
+        **_spread(wall),
         "cpu_median_s": float(np.median(cpu)),
         "cpu_p99_s": float(np.percentile(cpu, 99)),
-        "per_system": {
-            label: {"median_s": float(np.median(ts)), "p99_s": float(np.percentile(ts, 99)), "max_s": float(np.max(ts))}
-            for label, ts in per_step.items()
-        },
+        "per_system": {label: _spread(ts) for label, ts in per_step.items()},
         "qp_solves_per_update": timers.counts.get("qp_solves", 0) / updates,
         "distance_pairs_per_update": timers.counts.get("distance_pairs", 0) / updates,
         "rows_per_update": timers.counts.get("rows", 0) / updates,
@@ -334,16 +339,15 @@ def iiwa_case(wc, table, *, updates: int, torque: float, seed: int) -> dict:
         wall[i] = time.perf_counter() - t0
         lcm.HandleSubscriptions(0)
     sctx = cm.safety.GetMyContextFromRoot(sim.get_context())
+    spread = _spread(wall)
     return {
         "cell": wc.name,
         "seed": seed,
         "steps": steps,
         "period_s": IIWA_STATUS_PERIOD,
-        "median_s": float(np.median(wall)),
-        "p99_s": float(np.percentile(wall, 99)),
-        "max_s": float(wall.max()),
-        "headroom_median": IIWA_STATUS_PERIOD / float(np.median(wall)),
-        "headroom_p99": IIWA_STATUS_PERIOD / float(np.percentile(wall, 99)),
+        **spread,
+        "headroom_median": IIWA_STATUS_PERIOD / spread["median_s"],
+        "headroom_p99": IIWA_STATUS_PERIOD / spread["p99_s"],
         "holds": float(cm.safety.hold_count_output.Eval(sctx)[0]),
         "filter_active_share": float(cm.safety.filter_count_output.Eval(sctx)[0]) / steps,
     }

@@ -558,7 +558,7 @@ class SafetyFilter(LeafSystem):
                 budget, measure = np.full(n, -1.0), np.ones(n, bool)
             measure_dynamic(self._dynamic, self.query_object_input.Eval(context), measure)
             try:
-                rows = self.damper_rows(context, measure)
+                rows = self._damper.rows(self.query_object_input.Eval(context), base, measure)
             except RuntimeError:
                 rows = self._damper.empty()
                 fallback = True
@@ -566,7 +566,7 @@ class SafetyFilter(LeafSystem):
             # Skipped pairs lie at least their budget beyond the influence distance.
             known = np.where(np.isnan(dists), self.influence_distance + np.maximum(budget, 0.0), dists)
             dmin = float(known.min()) if len(known) else np.inf
-            v, missed, solved = self._filter(context, q, v_t, lo, hi, rows, nominal)
+            v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal)
             fallback = fallback or not solved
         v, q_next, exited, ratio, acted = finish(
             q, np.asarray(v, float), lo, hi, self._vmax, self.velocity_limits, desired, h, sane, _CHANGED
@@ -593,7 +593,7 @@ class SafetyFilter(LeafSystem):
             ]
         )
 
-    def _filter(self, context, q, v_t, lo, hi, rows: DamperRows, nominal):
+    def _filter(self, context, base, q, v_t, lo, hi, rows: DamperRows, nominal):
         """The velocity commanded for the request v_t: (v, missed: a
         :data:`~drake_cfvol.systems.constraints.ROW` row missed at v,
         solved (False: the fallback)). Each constraint's rows at the step
@@ -602,11 +602,10 @@ class SafetyFilter(LeafSystem):
         depend on v, so the QP is solved with them at the last solution
         until that solution meets its own (at most ``SECOND_ORDER_ROUNDS``
         solves; the right-hand sides only grow)."""
-        # The rows are taken at the base (the measured position, if given)
-        # and constrain the command's own step v h: a tracking error is the
-        # controller's to close (demanding that the command undo it at once
-        # would chase the robot).
-        base = self.base_position(context)
+        # The rows are taken at the base (:meth:`base_position`: the measured
+        # position, if given) and constrain the command's own step v h: a
+        # tracking error is the controller's to close (demanding that the
+        # command undo it at once would chase the robot).
         step = FilterStep(
             q=base,
             q_c=q,
