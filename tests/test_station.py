@@ -250,10 +250,10 @@ def test_robot_diagram_workcell_refuses_bad_input():
         wc.add_to_plant(MultibodyPlant(0.0))
 
 
-def _sim_station(table, pushes):
+def _sim_station(table, pushes, kp=1e4, kd=200.0):
     """The user's station: a 1 ms plant of the same models under Drake's
-    InverseDynamicsController, the pushes as real forces at the tool, read
-    through human_wrench_input."""
+    InverseDynamicsController (gains kp 1/s^2, kd 1/s per joint), the pushes
+    as real forces at the tool, read through human_wrench_input."""
     builder = DiagramBuilder()
     plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
     arm = add_station_models(plant, Parser(plant), finger=False)
@@ -265,7 +265,7 @@ def _sim_station(table, pushes):
     add_station_models(control, Parser(control), scene=False, part=False, finger=False)
     control.Finalize()
     idc = builder.AddSystem(
-        InverseDynamicsController(control, kp=[1e4] * 7, ki=[0.0] * 7, kd=[200.0] * 7, has_reference_acceleration=False)
+        InverseDynamicsController(control, kp=[kp] * 7, ki=[0.0] * 7, kd=[kd] * 7, has_reference_acceleration=False)
     )
     builder.Connect(plant.get_state_output_port(arm), idc.get_input_port_estimated_state())
     builder.Connect(cm.desired_state_output, idc.get_input_port_desired_state())
@@ -314,6 +314,34 @@ def test_user_station_under_inverse_dynamics_control(station_cell, station_bound
     assert 1e-4 < tracking < 0.1
     assert logs["s"][-1, 0] == table.g - 1
     np.testing.assert_allclose(q_m[-1], table.nominal[-1], atol=2e-3)
+
+
+def _robot_clearance(cell, q) -> float:
+    """The robot's smallest distance to the obstacles and to itself (Drake's checker), m, or 0.1 beyond."""
+    d = cell.checker.CalcRobotClearance(q, 0.1).distances()
+    return float(d.min()) if len(d) else 0.1
+
+
+@pytest.mark.slow
+def test_loose_tracker_keeps_the_margin(station_cell, station_bounds):
+    """A user's soft controller (kp 400 1/s^2, kd 40 1/s) lags its command
+    by tenths of a radian under a steady 60 N push at the tool, which bends
+    the wrist towards its own links: the measured robot never touches
+    anything, itself included, and comes no nearer than min(margin, the
+    nominal's own clearance at the same path position) - 2 mm, by Drake's
+    checker at every 10 ms (four seeded push directions)."""
+    path, table = station_bounds
+    rng = np.random.default_rng(0)
+    for _ in range(4):
+        d = rng.normal(size=3)
+        logs, cm = _sim_station(table, [Push(0.3, 100.0, [], [0, 0, 0, *(60.0 * d / np.linalg.norm(d))])], 400.0, 40.0)
+        q_m, q_c, nom = logs["measured"][:, :7], logs["commanded"], logs["nominal"]
+        assert np.abs(q_m[1:] - q_c[:-1]).max() > 0.15  # the controller is loose: the push bends it
+        assert np.array(station_cell.checker.CheckConfigsCollisionFree(q_m), bool).all()
+        measured = np.array([_robot_clearance(station_cell, q) for q in q_m])
+        nominal = np.array([_robot_clearance(station_cell, q) for q in nom])
+        shortfall = np.minimum(cm.safety.clearance, nominal) - measured
+        assert shortfall.max() <= 0.002, (d, shortfall.max(), np.argmax(shortfall))
 
 
 def test_add_comanipulation_ports_on_a_plant_with_more_dofs(station_bounds):

@@ -69,14 +69,34 @@ class FilterStep:
         lo, hi: the velocity interval per joint that keeps the limits and lands in the box, (k,).
         vmax: the velocity limits the filter commands at most, (k,).
         nominal: the nominal at the next path position (k,), or None.
+        drift: the measured robot's velocity beyond the command's, rad/s
+            (m/s), (k,): the tracking error's rate, which the damper's rows
+            subtract where it approaches (zeros without a measured position).
         damper: the damper's rows at q (:class:`~drake_cfvol.systems.damper.DamperRows`).
         kinematics: the damper's moving bodies' kinematics
             (:class:`~drake_cfvol.systems.damper_kinematics.SlotKinematics`),
             for the rows' second-order term.
     """
 
-    def __init__(self, *, q, q_c, period, lo, hi, vmax, nominal, damper, plant, robot_slice, plant_context, kinematics):
+    def __init__(
+        self,
+        *,
+        q,
+        q_c,
+        period,
+        lo,
+        hi,
+        vmax,
+        nominal,
+        damper,
+        plant,
+        robot_slice,
+        plant_context,
+        kinematics,
+        drift=None,
+    ):
         self.q, self.q_c, self.period, self.lo, self.hi, self.vmax = q, q_c, period, lo, hi, vmax
+        self.drift = np.zeros(len(q_c)) if drift is None else np.asarray(drift, float)
         self.nominal, self.damper, self.kinematics = nominal, damper, kinematics
         self.plant, self.robot_slice = plant, robot_slice
         self._pctx = plant_context
@@ -384,7 +404,7 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
         ),
         (damper.A, damper.dirs, damper.points, damper.slots, damper.rounds, kin.rev),
         kin.compiled(),
-        (step.q, step.q_c, step.nominal_or_nan(), step.lo, step.hi, step.vmax),
+        (step.q, step.q_c, step.nominal_or_nan(), step.lo, step.hi, step.vmax, step.drift),
         (_levels(blocks), HARD, ROW, int(rounds), float(nudge), float(step.period)),
         qp.hints(blocks),
     )

@@ -29,14 +29,18 @@ def _poses(q, kin):
 
 
 @njit(cache=True)
-def relaxation(q_c, nominal, lo, hi, vmax, period):
+def relaxation(q, q_c, nominal, lo, hi, vmax, period):
     """(w, v_ref): the damper's rows are relaxed so that following the
     nominal stays admissible near it, b_i' = b_i + w min(0, a_i v_ref -
-    b_i), v_ref the step to the nominal (clipped to the limits and the
-    box), w = 1 within one step at the velocity limits of the nominal,
-    fading to 0 at two steps (a deviated robot gets no relaxation: the
-    rows' linearisation says nothing reliable about the nominal's
-    distances there); w = 0 without a (finite) nominal (NaN)."""
+    b_i), v_ref the robot's step to the nominal (from q, where the rows are
+    taken: the measured position, else the command; clipped to the limits
+    and the box), w = 1 where both the command q_c and q lie within one
+    step at the velocity limits of the nominal, fading to 0 at two steps (a
+    deviated robot gets no relaxation: the rows' linearisation says nothing
+    reliable about the nominal's distances there); w = 0 without a (finite)
+    nominal (NaN). A robot pushed off a command on the nominal is relaxed
+    only as far as its own way back to the nominal shrinks a row, not as far
+    as the command's."""
     k = len(q_c)
     v_ref = np.zeros(k)
     far = 0.0
@@ -44,16 +48,19 @@ def relaxation(q_c, nominal, lo, hi, vmax, period):
         if not np.isfinite(nominal[j]):
             return 0.0, v_ref
         if np.isfinite(vmax[j]):
-            far = max(far, abs(nominal[j] - q_c[j]) / (vmax[j] * period))
-        v_ref[j] = min(max((nominal[j] - q_c[j]) / period, lo[j]), hi[j])
+            far = max(far, max(abs(nominal[j] - q_c[j]), abs(nominal[j] - q[j])) / (vmax[j] * period))
+        v_ref[j] = min(max((nominal[j] - q[j]) / period, lo[j]), hi[j])
     return min(max(2.0 - far, 0.0), 1.0), v_ref
 
 
 @njit(cache=True)
-def _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period):
+def _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period, drift):
     """The rows' right-hand sides for the step v: b plus each damper row's
     second-order term at dq = v dt (over dt), then the relaxation
-    b' = b + w min(0, A v_ref - b) of the relaxed rows (:func:`relaxation`)."""
+    b' = b + w min(0, A v_ref - b) of the relaxed rows (:func:`relaxation`),
+    then each damper row's share of the robot's drift (its velocity beyond
+    the command's) where that share approaches: b'' = b' - min(0, A drift),
+    so the rows hold for the robot's own velocity v + drift."""
     q, R0, o0 = base
     Ad, dirs, points, slots, rounds, rev = damper
     w, v_ref = relax
@@ -72,6 +79,12 @@ def _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period):
                 for j in range(len(v_ref)):
                     a += A[i, j] * v_ref[j]
                 out[i] += w * min(0.0, a - out[i])
+    for i in range(len(b)):
+        if so_row[i] >= 0:
+            a = 0.0
+            for j in range(len(drift)):
+                a += A[i, j] * drift[j]
+            out[i] -= min(0.0, a)
     return out
 
 
@@ -101,9 +114,10 @@ def filter_rounds(v_t, rows, damper, kin, at, qp, warm):
         damper: the damper's rows (A, dirs, points, slots, rounds) and the
             slots' revolute masks (S, k).
         kin: (chain, slot bodies, scratch R_WB, scratch p_WB).
-        at: (q, q_c, nominal, lo, hi, vmax): where the rows were taken, the
-            command before the update, the nominal (NaN: none), the
-            velocity interval of the limits and the box, the limits.
+        at: (q, q_c, nominal, lo, hi, vmax, drift): where the rows were
+            taken, the command before the update, the nominal (NaN: none),
+            the velocity interval of the limits and the box, the limits,
+            the robot's velocity beyond the command's (:func:`_need`).
         qp: (levels, hard, row, rounds, nudge, period): the priorities
             made soft stage by stage, the hard priority, the priority whose
             miss counts (``missed``), the most QP rounds, what a row still
@@ -117,12 +131,12 @@ def filter_rounds(v_t, rows, damper, kin, at, qp, warm):
     """
     A, b, prio, weight, so_row, relaxed = rows
     levels, hard, row_priority, rounds, nudge, period = qp
-    q, q_c, nominal, lo, hi, vmax = at
+    q, q_c, nominal, lo, hi, vmax, drift = at
     base = (q,) + _poses(q, kin)
-    relax = relaxation(q_c, nominal, lo, hi, vmax, period)
+    relax = relaxation(q, q_c, nominal, lo, hi, vmax, period)
     m, k = A.shape
     active = warm.copy()
-    bs = _need(v_t, b, A, so_row, relaxed, relax, damper, base, kin, period)
+    bs = _need(v_t, b, A, so_row, relaxed, relax, damper, base, kin, period, drift)
     if not _short(A, v_t, bs, 1e-12, prio, -1).any():
         return v_t.copy(), False, True, active, 0
     v = v_t.copy()
@@ -132,15 +146,15 @@ def filter_rounds(v_t, rows, damper, kin, at, qp, warm):
         solves += n
         if stage < 0:
             v = np.minimum(np.maximum(np.zeros(k), lo), hi)
-            b_v = _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period)
+            b_v = _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period, drift)
             return v, _short(A, v, b_v, 1e-6, prio, row_priority).any(), False, active, solves
-        b_v = _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period)
+        b_v = _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period, drift)
         short = _short(A, v, b_v, 1e-9, prio, -1)
         if not short.any():
             return v, _short(A, v, b_v, 1e-6, prio, row_priority).any(), True, active, solves
         for i in range(m):
             bs[i] = max(bs[i], b_v[i]) + (nudge if short[i] else 0.0)
-    b_v = _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period)
+    b_v = _need(v, b, A, so_row, relaxed, relax, damper, base, kin, period, drift)
     return v, _short(A, v, b_v, 1e-6, prio, row_priority).any(), True, active, solves
 
 

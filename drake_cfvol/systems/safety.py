@@ -21,8 +21,15 @@ controller): connect its ``measured_position`` q_m. The damper's rows are
 then taken at q_m, from the SceneGraph posed by the plant (the distances
 where the robot is), and constrain the command's step, A v >= b: near an
 obstacle the command moves away at the damper's rate, and the robot
-follows it; the tracking error is the controller's to close (a command
-that tried to undo it within one update would chase the robot).
+follows it; the tracking error itself is the controller's to close (a
+command that tried to undo it within one update would chase the robot).
+Its growth is not: a co-worker deflecting a soft arm moves the robot
+faster than its command, so each damper row also subtracts its share of
+the robot's drift where that share approaches, b_i - min(0, a_i u), u =
+(q_m - q_m,last) / dt - v_last the robot's velocity beyond the last
+command's; and the relaxation towards the nominal (below) holds only
+while the robot itself, not only its command, is near the nominal, and
+admits only the robot's own way back to it.
 
 **Hold**: while the optional ``hold`` input is above 0.5 (or NaN), an
 update keeps the last command (v = 0) and counts itself in ``hold_count``:
@@ -103,7 +110,9 @@ obstacle; against another moving link, the probe's own distance from it
 **The nominal**: within two steps (at the velocity limits) of the nominal
 at the next path position (input ``nominal``), each row is relaxed to
 b_i' = min(b_i, a_i v_ref), v_ref the step to that nominal (clipped to
-the limits and the box), fully within one step and fading out by two:
+the limits and the box; from the measured position, where one is
+connected, and both it and the command within the two steps), fully
+within one step and fading out by two:
 at zero deviation v_ref is the nominal's own motion, so the nominal is
 always admissible, also where its own clearance is below the margin
 (near a goal), and a row is relaxed only as far as following the
@@ -434,6 +443,9 @@ class SafetyFilter(LeafSystem):
         # (m; negative: measure it at the next update), with the robot at the
         # last update's base position (the budget's last entry on).
         self._budget = self.DeclareDiscreteState(np.concatenate([np.full(max(n_pairs, 1), -1.0), q0]))
+        # The measured position at the last update (NaN: none yet, or held):
+        # the robot's drift from its command between updates.
+        self._measured_last = self.DeclareDiscreteState(np.full(k, np.nan))
         # Pairs measured at every update whatever their budget: geometry that
         # moves on its own (not the perceived kind, whose pairs are measured
         # while it is in use: measure_dynamic).
@@ -514,6 +526,7 @@ class SafetyFilter(LeafSystem):
             raise DimensionError("q", self.k, q.shape)
         context.get_mutable_discrete_state(self._position).SetFromVector(q)
         self._reset_budget(context.get_mutable_discrete_state(self._budget))
+        context.get_mutable_discrete_state(self._measured_last).SetFromVector(np.full(self.k, np.nan))
 
     def _reset_budget(self, vector) -> None:
         """Every pair measured at the next update."""
@@ -533,6 +546,7 @@ class SafetyFilter(LeafSystem):
             # stays; every pair is measured again when the hold ends.
             discrete_state.get_mutable_vector(self._velocity).SetFromVector(np.zeros(k))
             self._reset_budget(discrete_state.get_mutable_vector(self._budget))
+            discrete_state.get_mutable_vector(self._measured_last).SetFromVector(np.full(k, np.nan))
             held = status.copy()
             held[_ACTIVE], held[_RATIO], held[_HOLDS] = 1.0, 0.0, status[_HOLDS] + 1
             held[_COUNT] += 1
@@ -549,7 +563,7 @@ class SafetyFilter(LeafSystem):
         else:
             n = self._damper.num_pairs
             kept = context.get_discrete_state(self._budget).CopyToVector()
-            base = self.base_position(context)
+            base, drift = self._base_and_drift(context, q, v_last)
             if self.skip_far_pairs and n:
                 # What the budget kept at the last update's base still certainly holds here.
                 budget = self._damper.budget_moved(kept[-k:], base, kept[:n])
@@ -566,7 +580,9 @@ class SafetyFilter(LeafSystem):
             # Skipped pairs lie at least their budget beyond the influence distance.
             known = np.where(np.isnan(dists), self.influence_distance + np.maximum(budget, 0.0), dists)
             dmin = float(known.min()) if len(known) else np.inf
-            v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal)
+            v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal, drift)
+            if drift is not None:
+                discrete_state.get_mutable_vector(self._measured_last).SetFromVector(base)
             fallback = fallback or not solved
         v, q_next, exited, ratio, acted = finish(
             q, np.asarray(v, float), lo, hi, self._vmax, self.velocity_limits, desired, h, sane, _CHANGED
@@ -593,7 +609,19 @@ class SafetyFilter(LeafSystem):
             ]
         )
 
-    def _filter(self, context, base, q, v_t, lo, hi, rows: DamperRows, nominal):
+    def _base_and_drift(self, context, q, v_last):
+        """(base, drift): :meth:`base_position`, and with a measured
+        position the robot's velocity beyond the command's over the last
+        period, (q_m - q_m,last) / dt - v_last (zeros at the first update
+        and after a hold; None without a measured position)."""
+        if not self.measured_position_input.HasValue(context):
+            return q, None
+        base = np.asarray(self.measured_position_input.Eval(context), float)
+        last = context.get_discrete_state(self._measured_last).CopyToVector()
+        drift = (base - last) / self.period - v_last
+        return base, np.where(np.isfinite(drift), drift, 0.0)
+
+    def _filter(self, context, base, q, v_t, lo, hi, rows: DamperRows, nominal, drift=None):
         """The velocity commanded for the request v_t: (v, missed: a
         :data:`~drake_cfvol.systems.constraints.ROW` row missed at v,
         solved (False: the fallback)). Each constraint's rows at the step
@@ -619,5 +647,6 @@ class SafetyFilter(LeafSystem):
             robot_slice=self._robot_slice,
             plant_context=self._pctx(context),
             kinematics=self._damper.kinematics,
+            drift=drift,
         )
         return solve_rounds(self._qp, self.constraints, step, v_t, rounds=self.SECOND_ORDER_ROUNDS, nudge=_NUDGE)
