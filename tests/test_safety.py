@@ -560,3 +560,80 @@ def test_a_constraint_naming_a_damper_row_that_does_not_exist_is_refused():
     _fix(diagram, sim.get_mutable_context(), desired=[0.3, 0.2])
     with pytest.raises(ParameterError, match="constraint 'wrong': second_order_rows"):
         sim.AdvanceTo(2 * H)
+
+
+def _drift_arm():
+    diagram, sf, tip, wall_id = _arm("wall", clearance=0.02, influence_distance=0.15, measured=True)
+    sim = Simulator(diagram)
+    ctx = sim.get_mutable_context()
+    return (diagram, sf, sim), ctx, sf.GetMyContextFromRoot(ctx)
+
+
+def _at_distance(d):
+    """q = (q1, 0) with the tip sphere d (m) off the wall's face, by hand."""
+    return np.array([np.arccos((0.8 - R - d) / (L1 + L2)), 0.0])
+
+
+def _update(arm, ctx, sctx, n, q_m, desired):
+    """The filter's update n (at n H) with the robot measured at q_m; its commanded step (rad)."""
+    diagram, sf, sim = arm
+    q0 = sf.commanded_position_output.Eval(sctx).copy()
+    _fix(diagram, ctx, desired)
+    diagram.GetInputPort("measured_position").FixValue(ctx, np.asarray(q_m, float))
+    sim.AdvanceTo((n + 1) * H)
+    return sf.commanded_position_output.Eval(sctx) - q0
+
+
+def test_a_measured_robot_drifting_towards_an_obstacle_is_countered():
+    """The measured robot moved 0.01 rad towards the wall in one update while
+    its command stood still (a co-worker bending a soft arm): the tip row,
+    by hand a = -d x_tip / dq = (L1 + L2) sin q1 (1, L2 / (L1 + L2)) at
+    q2 = 0, asks the command for its share of that drift on top of the
+    damper's -rate (d - d_t): the commanded step meets a v = -rate (d - d_t)
+    + a (0.01 / H, 0) (to the rows' second-order term), where the same robot
+    measured there without the drift is left where it is."""
+    q_a = _at_distance(0.06)
+    q_b = q_a - [0.01, 0.0]
+    d_b = 0.8 - R - _tip(q_b)[0]
+    a = (L1 + L2) * np.sin(q_b[0]) * np.array([1.0, L2 / (L1 + L2)])
+    steps = {}
+    for case, measured in (("still", [q_b]), ("drift", [q_a, q_b])):
+        arm, ctx, sctx = _drift_arm()
+        sf = arm[1]
+        sf.set_initial_position(sctx, q_a)
+        for n, q_m in enumerate(measured):
+            step = _update(arm, ctx, sctx, n, q_m, desired=q_a)
+        steps[case] = step / H
+    b = -sf.rate * (d_b - sf.target_distance)
+    assert b < 0 and np.allclose(steps["still"], 0.0)  # the request (stand still) keeps the row
+    need = b + a @ np.array([0.01 / H, 0.0])
+    assert need > 0  # the drift turns the allowance into a retreat
+    assert need - 1e-9 <= a @ steps["drift"] <= need + 2e-3
+
+
+def test_a_drift_beyond_the_limits_raises_a_tracking_fault_and_holds_the_request():
+    """The measured robot drifts towards the wall at 5 rad/s, faster than any
+    command within the limits (1, 1.5 rad/s) can counter: the update misses
+    the tip row, raises tracking_fault and counts it; the next update
+    (the robot now following its command, every row kept) holds the request
+    and clears the fault, and the one after follows the request again."""
+    arm, ctx, sctx = _drift_arm()
+    sf = arm[1]
+    q_a = _at_distance(0.10)
+    sf.set_initial_position(sctx, q_a)
+    _update(arm, ctx, sctx, 0, q_a, desired=q_a)
+    q_m = q_a - [0.05, 0.0]
+    step = _update(arm, ctx, sctx, 1, q_m, desired=q_a)
+    a = (L1 + L2) * np.sin(q_m[0]) * np.array([1.0, L2 / (L1 + L2)])
+    assert a @ (VMAX * [1.0, 1.0]) < -sf.rate * (0.8 - R - _tip(q_m)[0] - sf.target_distance) + a @ [5.0, 0.0]
+    assert np.all(np.abs(step) <= VMAX * H * (1 + 1e-12))
+    assert sf.tracking_fault_output.Eval(sctx)[0] == 1.0 and sf.tracking_faults_output.Eval(sctx)[0] == 1.0
+    assert sf.damper_misses_output.Eval(sctx)[0] == 1.0
+    q_m = q_m + step  # the robot follows its command from here on
+    ask = [0.0, 0.005]  # a step along the wall that keeps every row
+    for n, held in ((2, True), (3, False)):
+        q_c = sf.commanded_position_output.Eval(sctx).copy()
+        step = _update(arm, ctx, sctx, n, q_m, desired=q_c + ask)
+        np.testing.assert_allclose(step, np.zeros(2) if held else ask, atol=1e-12)
+        assert sf.tracking_fault_output.Eval(sctx)[0] == 0.0 and sf.tracking_faults_output.Eval(sctx)[0] == 1.0
+        q_m = q_m + step

@@ -536,6 +536,7 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
                 "filter_damper_misses": safety.damper_misses_output,
                 "filter_box_exits": safety.box_exits_output,
                 "filter_holds": safety.hold_count_output,
+                "tracking_faults": safety.tracking_faults_output,
             }
         )
     loggers = {}

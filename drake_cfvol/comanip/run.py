@@ -165,6 +165,7 @@ def run_scenario(
         "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
         "filter_box_exits": _count(cm, ctx, "filter_box_exits"),
         "filter_holds": _count(cm, ctx, "filter_holds"),
+        "tracking_faults": _count(cm, ctx, "tracking_faults"),
         "faults": _count(cm, ctx, "fault_count"),
         "safety_filter": cm.control.safety is not None,
         "filter_clearance_m": cm.filter_clearance,

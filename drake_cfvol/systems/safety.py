@@ -11,7 +11,8 @@ self pairs included; inf with none; a skipped pair counts with its lower
 bound, so above the influence distance this is a lower bound);
 ``velocity_ratio`` is max_j |v_j| / velocity_limit_j of the last update;
 ``fallback_count``, ``damper_misses``, ``box_exits`` count updates (see
-below). ``commanded_velocity`` is the last update's v; ``desired_state`` is
+below); ``tracking_fault`` and ``tracking_faults``: a robot that tracks
+with an error (below). ``commanded_velocity`` is the last update's v; ``desired_state`` is
 [q_d; v] on the straight line from the last update's position to q_c,
 reached at the next update: continuous in time, for a tracking controller
 (Drake's ``InverseDynamicsController``, a driver).
@@ -29,7 +30,13 @@ the robot's drift where that share approaches, b_i - min(0, a_i u), u =
 (q_m - q_m,last) / dt - v_last the robot's velocity beyond the last
 command's; and the relaxation towards the nominal (below) holds only
 while the robot itself, not only its command, is near the nominal, and
-admits only the robot's own way back to it.
+admits only the robot's own way back to it. Where even that cannot be
+kept (a damper row missed with the command at its velocity limits: the
+robot drifts faster than the command can counter, more than the margin
+can absorb), ``tracking_fault`` is 1 after the update, ``tracking_faults``
+counts such updates, and the next update holds the request (v_t = 0:
+only the box and the rows move the command) until an update keeps every
+row again.
 
 **Hold**: while the optional ``hold`` input is above 0.5 (or NaN), an
 update keeps the last command (v = 0) and counts itself in ``hold_count``:
@@ -199,8 +206,9 @@ class SafetyFilterConfig:
 #: smallest signed distance seen at the last update (m), largest
 #: |v_j| / limit_j of the last update, updates that used the fallback,
 #: updates that had to miss a damper row, updates whose command left the
-#: box].
-_ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS, _HOLDS = range(8)
+#: box, updates held, a tracking fault at the last update, updates with
+#: one].
+_ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS, _HOLDS, _TRACKING, _TRACKING_COUNT = range(10)
 
 #: The share of the velocity limits the filter keeps below them.
 _HAIR = 1e-9
@@ -252,6 +260,8 @@ def _declare_status_outputs(system, status) -> None:
         ("damper_misses", _MISSES),
         ("box_exits", _EXITS),
         ("hold_count", _HOLDS),
+        ("tracking_fault", _TRACKING),
+        ("tracking_faults", _TRACKING_COUNT),
     ]:
         port = system.DeclareVectorOutputPort(
             name=name,
@@ -297,6 +307,8 @@ class SafetyFilter(LeafSystem):
         - damper_misses
         - box_exits
         - hold_count
+        - tracking_fault
+        - tracking_faults
 
     The update, its constraints and guarantees, the outputs and the measured
     position: see :mod:`drake_cfvol.systems.safety`. Scalar type: float only.
@@ -438,7 +450,7 @@ class SafetyFilter(LeafSystem):
         )
         self._position = self.DeclareDiscreteState(q0)
         self._velocity = self.DeclareDiscreteState(k)  # the last commanded velocity
-        self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0, 0.0]))
+        self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
         # Per pair, how far it is known to lie beyond the influence distance
         # (m; negative: measure it at the next update), with the robot at the
         # last update's base position (the budget's last entry on).
@@ -548,7 +560,7 @@ class SafetyFilter(LeafSystem):
             self._reset_budget(discrete_state.get_mutable_vector(self._budget))
             discrete_state.get_mutable_vector(self._measured_last).SetFromVector(np.full(k, np.nan))
             held = status.copy()
-            held[_ACTIVE], held[_RATIO], held[_HOLDS] = 1.0, 0.0, status[_HOLDS] + 1
+            held[_ACTIVE], held[_RATIO], held[_HOLDS], held[_TRACKING] = 1.0, 0.0, status[_HOLDS] + 1, 0.0
             held[_COUNT] += 1
             discrete_state.get_mutable_vector(self._status).SetFromVector(held)
             return
@@ -558,8 +570,12 @@ class SafetyFilter(LeafSystem):
         nominal = np.asarray(self.nominal_input.Eval(context), float) if self.nominal_input.HasValue(context) else None
         fallback = False
         sane, lo, hi, v_t = request(q, desired, lower, upper, self._vmax, h, v_last, self._acceleration)
+        if status[_TRACKING]:
+            # The last update could not keep the measured robot's rows: the
+            # request is held (only the box and the rows move the command).
+            v_t = np.minimum(np.maximum(0.0, lo), hi)
         if not sane:  # hold, as far as the box (if it is usable) allows
-            v, fallback, dmin, missed = v_t, True, status[_MIN_DISTANCE], False
+            v, fallback, dmin, missed, tracking = v_t, True, status[_MIN_DISTANCE], False, False
         else:
             n = self._damper.num_pairs
             kept = context.get_discrete_state(self._budget).CopyToVector()
@@ -581,6 +597,7 @@ class SafetyFilter(LeafSystem):
             known = np.where(np.isnan(dists), self.influence_distance + np.maximum(budget, 0.0), dists)
             dmin = float(known.min()) if len(known) else np.inf
             v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal, drift)
+            tracking = missed and drift is not None
             if drift is not None:
                 discrete_state.get_mutable_vector(self._measured_last).SetFromVector(base)
             fallback = fallback or not solved
@@ -606,6 +623,8 @@ class SafetyFilter(LeafSystem):
                 status[_MISSES] + missed,
                 status[_EXITS] + exited,
                 status[_HOLDS],
+                float(tracking),
+                status[_TRACKING_COUNT] + tracking,
             ]
         )
 
