@@ -637,3 +637,21 @@ def test_a_drift_beyond_the_limits_raises_a_tracking_fault_and_holds_the_request
         np.testing.assert_allclose(step, np.zeros(2) if held else ask, atol=1e-12)
         assert sf.tracking_fault_output.Eval(sctx)[0] == 0.0 and sf.tracking_faults_output.Eval(sctx)[0] == 1.0
         q_m = q_m + step
+
+
+def test_a_non_finite_measured_position_holds_the_command():
+    """A NaN in the measured position (a dropped sensor value) holds the
+    command and counts a fallback, as a non-finite input does; the next
+    finite measurement is followed again without a drift from the stale one."""
+    arm, ctx, sctx = _drift_arm()
+    sf = arm[1]
+    q_a = _at_distance(0.10)
+    sf.set_initial_position(sctx, q_a)
+    _update(arm, ctx, sctx, 0, q_a, desired=q_a)
+    ask = [0.0, 0.005]
+    step = _update(arm, ctx, sctx, 1, [np.nan, 0.0], desired=q_a + ask)
+    np.testing.assert_array_equal(step, np.zeros(2))
+    assert sf.fallback_count_output.Eval(sctx)[0] == 1.0
+    step = _update(arm, ctx, sctx, 2, q_a, desired=q_a + ask)
+    np.testing.assert_allclose(step, ask, atol=1e-12)
+    assert sf.tracking_faults_output.Eval(sctx)[0] == 0.0

@@ -33,10 +33,13 @@ while the robot itself, not only its command, is near the nominal, and
 admits only the robot's own way back to it. Where even that cannot be
 kept (a damper row missed with the command at its velocity limits: the
 robot drifts faster than the command can counter, more than the margin
-can absorb), ``tracking_fault`` is 1 after the update, ``tracking_faults``
-counts such updates, and the next update holds the request (v_t = 0:
-only the box and the rows move the command) until an update keeps every
-row again.
+can absorb; any damper row missed with a measured robot counts),
+``tracking_fault`` is 1 after the update, ``tracking_faults`` counts such
+updates, and the next update holds the request (v_t = 0 within the
+acceleration limits: only the box and the rows move the command); the
+flag falls at the next update that misses no row, or is held. A
+non-finite measured position holds the command as a non-finite input
+does.
 
 **Hold**: while the optional ``hold`` input is above 0.5 (or NaN), an
 update keeps the last command (v = 0) and counts itself in ``hold_count``:
@@ -570,16 +573,21 @@ class SafetyFilter(LeafSystem):
         nominal = np.asarray(self.nominal_input.Eval(context), float) if self.nominal_input.HasValue(context) else None
         fallback = False
         sane, lo, hi, v_t = request(q, desired, lower, upper, self._vmax, h, v_last, self._acceleration)
-        if status[_TRACKING]:
-            # The last update could not keep the measured robot's rows: the
-            # request is held (only the box and the rows move the command).
-            v_t = np.minimum(np.maximum(0.0, lo), hi)
+        base, drift = self._base_and_drift(context, q, v_last)
+        if sane and (status[_TRACKING] or not np.isfinite(base).all()):
+            # The last update could not keep the measured robot's rows, or the
+            # measured position is not finite: the request is held (only the
+            # box and, with a finite measured position, the rows move the
+            # command), within the acceleration limits where given.
+            stop = np.minimum(np.maximum(0.0, v_last - self._acceleration * h), v_last + self._acceleration * h)
+            v_t = np.minimum(np.maximum(stop, lo), hi)
+            sane = bool(np.isfinite(base).all())
         if not sane:  # hold, as far as the box (if it is usable) allows
             v, fallback, dmin, missed, tracking = v_t, True, status[_MIN_DISTANCE], False, False
+            discrete_state.get_mutable_vector(self._measured_last).SetFromVector(np.full(k, np.nan))
         else:
             n = self._damper.num_pairs
             kept = context.get_discrete_state(self._budget).CopyToVector()
-            base, drift = self._base_and_drift(context, q, v_last)
             if self.skip_far_pairs and n:
                 # What the budget kept at the last update's base still certainly holds here.
                 budget = self._damper.budget_moved(kept[-k:], base, kept[:n])
