@@ -460,6 +460,32 @@ def test_add_comanipulation_config_reaches_the_systems(station_bounds):
     assert cm.duration == pytest.approx(1.5 + (table.g - 1) / slow)
 
 
+def test_the_filters_tracking_fault_holds_the_admittance(station_bounds):
+    """With a measured state, the admittance's hold is raised by the filter's
+    tracking fault as by the push's check, either alone (the admittance's
+    hold itself: ``tests/test_systems.py``)."""
+    from drake_cfvol.systems.safety import _TRACKING
+
+    _, table = station_bounds
+    builder = DiagramBuilder()
+    plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
+    add_station_models(plant, Parser(plant))
+    plant.Finalize()
+    cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table, tool_frame="tool")
+    builder.ExportInput(cm.human_torque_input, "torque")
+    diagram = builder.Build()
+    for tracking, check in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)):
+        ctx = diagram.CreateDefaultContext()
+        diagram.GetInputPort("torque").FixValue(ctx, np.full(7, 1e4 if check else 20.0))  # 1e4 N m: implausible
+        sctx = cm.safety.GetMyMutableContextFromRoot(ctx)
+        status = sctx.get_discrete_state(cm.safety._status).CopyToVector()
+        status[_TRACKING] = tracking
+        sctx.get_mutable_discrete_state(cm.safety._status).SetFromVector(status)
+        assert cm.check.fault_output.Eval(cm.check.GetMyContextFromRoot(ctx))[0] == check
+        hold = cm.admittance.hold_input.Eval(cm.admittance.GetMyContextFromRoot(ctx))[0]
+        assert (hold > 0.5) == bool(tracking or check)
+
+
 def test_add_comanipulation_without_the_filter(station_bounds):
     """safety_filter null: no filter is added, the admittance's command is
     the output and there is no desired state; the filter's margin, when

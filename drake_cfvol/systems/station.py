@@ -15,7 +15,7 @@ from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce
 from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import LeafSystem
-from pydrake.systems.primitives import Demultiplexer
+from pydrake.systems.primitives import Adder, Demultiplexer
 
 from drake_cfvol.exceptions import StationError
 from drake_cfvol.scene.robot import RobotSlice, robot_instances
@@ -184,8 +184,9 @@ def AddCoManipulation(
     machines). With ``measured_state`` the plant's state output for the
     robot's model instance feeds the admittance (the wrench's Jacobian at
     the measured configuration) and the safety filter (its rows taken where
-    the robot is, constraining the command's own step): for a
-    time-stepping plant under a controller. Without it the caller poses the
+    the robot is, constraining the command's own step; its tracking fault
+    holds the admittance, beside the push's check): for a time-stepping
+    plant under a controller. Without it the caller poses the
     plant from ``commanded_position_output`` (a kinematic run) or connects
     a measured position to ``admittance.measured_position_input`` and
     ``safety.measured_position_input`` itself.
@@ -243,7 +244,6 @@ def AddCoManipulation(
         builder.Connect(bounds.GetOutputPort(port), adm.GetInputPort(port))
     builder.Connect(check.human_torque_output, adm.human_torque_input)
     builder.Connect(check.human_wrench_output, adm.human_wrench_input)
-    builder.Connect(check.fault_output, adm.hold_input)
     safety, commanded = None, adm.commanded_position_output
     if f is not None:
         safety = builder.AddNamedSystem(
@@ -255,6 +255,16 @@ def AddCoManipulation(
         builder.Connect(adm.commanded_position_output, safety.desired_position_input)
         builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
         commanded = safety.commanded_position_output
+    if safety is not None and measured_state:
+        # The admittance holds while the push is implausible or while the
+        # measured robot drifts faster than the command can counter (the
+        # filter's tracking fault): either one above 0.5 holds it.
+        holds = builder.AddNamedSystem(_named(name, "admittance_hold"), Adder(2, 1))
+        builder.Connect(check.fault_output, holds.get_input_port(0))
+        builder.Connect(safety.tracking_fault_output, holds.get_input_port(1))
+        builder.Connect(holds.get_output_port(), adm.hold_input)
+    else:
+        builder.Connect(check.fault_output, adm.hold_input)
     if measured_state:
         split = builder.AddNamedSystem(_named(name, "measured_state"), Demultiplexer([k, k]))
         builder.Connect(plant.get_state_output_port(robot), split.get_input_port(0))
