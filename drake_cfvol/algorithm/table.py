@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numba import njit
 from pydrake.trajectories import PiecewisePolynomial
 
 from drake_cfvol.exceptions import DimensionError, ParameterError, RecordFormatError
@@ -99,6 +100,16 @@ def _envelopes(U: np.ndarray, rate: np.ndarray, sign: float) -> tuple[np.ndarray
 _LAST_ENVELOPES: list = []
 
 
+@njit(cache=True)
+def _equal(a, b):
+    """Two arrays of one shape equal element by element (np.array_equal: NaN unequal)."""
+    x, y = a.ravel(), b.ravel()
+    for n in range(x.size):
+        if not x[n] == y[n]:
+            return False
+    return True
+
+
 def _stretch_envelopes(stretch_lower, stretch_upper, rate):
     """(Au, Bu, Al, Bl) of :func:`_envelopes`, reused while the inputs are
     equal to the last call's (compared by value, so an array changed in
@@ -107,9 +118,11 @@ def _stretch_envelopes(stretch_lower, stretch_upper, rate):
         (lo, hi, r), out = _LAST_ENVELOPES[0]
         if (
             lo.shape == stretch_lower.shape
-            and np.array_equal(lo, stretch_lower)
-            and np.array_equal(hi, stretch_upper)
-            and np.array_equal(r, rate)
+            and hi.shape == stretch_upper.shape
+            and r.shape == np.shape(rate)
+            and _equal(lo, stretch_lower)
+            and _equal(hi, stretch_upper)
+            and _equal(r, np.asarray(rate, float))
         ):
             return out
     Au, Bu = _envelopes(stretch_upper, rate, 1.0)
@@ -133,23 +146,41 @@ def _stretch_rule(
 
 def _box_at_one(lower, upper, nominal, s: float, stretch_lower, stretch_upper, rate, interpolation):
     """:func:`box_at` at one s (g > 1; the stretch rule's defaults filled
-    in), the same arithmetic on (k,) rows (the bounds source asks once per
-    control update)."""
+    in), the same arithmetic on (k,) rows in one compiled call (the bounds
+    source asks once per control update)."""
     g = len(nominal)
     if not (math.isfinite(s) and 0.0 <= s <= g - 1):
         raise ParameterError(f"path index s = {s} is outside [0, {g - 1}] (g = {g} waypoints).")
     if s == math.floor(s):
         w = int(s)
         return lower[w].copy(), upper[w].copy(), nominal[w].copy()
+    if interpolation == "linear":
+        return _box_one(lower, upper, nominal, s, True, lower, upper, lower, upper, lower, upper, np.zeros(0))
+    Au, Bu, Al, Bl = _stretch_envelopes(stretch_lower, stretch_upper, rate)
+    return _box_one(lower, upper, nominal, s, False, stretch_lower, stretch_upper, Au, Bu, Al, Bl, rate)
+
+
+@njit(cache=True)
+def _box_one(lower, upper, nominal, s, linear, stretch_lower, stretch_upper, Au, Bu, Al, Bl, rate):
+    """(lo, hi, nom) at one s strictly inside a stretch: the "linear" rule
+    (every bound between its waypoints' values), else the "stretch" rule
+    (:func:`_stretch_rule`; the stretch arrays are unused for "linear");
+    the vectorised rule's arithmetic, operation by operation."""
+    g, k = nominal.shape
     i = min(int(math.floor(s)), g - 2)
     t = s - i
-    nom = nominal[i] + t * (nominal[i + 1] - nominal[i])
-    if interpolation == "linear":
-        lo = (1.0 - t) * lower[i] + t * lower[i + 1]
-        hi = (1.0 - t) * upper[i] + t * upper[i + 1]
-    else:
-        lo, hi = _stretch_rule(stretch_lower, stretch_upper, rate, s, i)
-    return np.minimum(lo, nom), np.maximum(hi, nom), nom
+    lo, hi, nom = np.empty(k), np.empty(k), np.empty(k)
+    for j in range(k):
+        n = nominal[i, j] + t * (nominal[i + 1, j] - nominal[i, j])
+        if linear:
+            a = (1.0 - t) * lower[i, j] + t * lower[i + 1, j]
+            b = (1.0 - t) * upper[i, j] + t * upper[i + 1, j]
+        else:
+            r = rate[j] if math.isfinite(rate[j]) else 0.0
+            b = min(min(stretch_upper[i, j], Au[i, j] + r * s), Bu[i, j] - r * s)
+            a = -min(min(-stretch_lower[i, j], Al[i, j] + r * s), Bl[i, j] - r * s)
+        lo[j], hi[j], nom[j] = min(a, n), max(b, n), n
+    return lo, hi, nom
 
 
 def box_at(

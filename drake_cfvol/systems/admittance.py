@@ -5,6 +5,7 @@ import dataclasses
 import sys
 
 import numpy as np
+from numba import njit
 from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
 from pydrake.multibody.tree import JacobianWrtVariable
@@ -33,6 +34,44 @@ class AdmittanceConfig:
     mass: float = 10.0
     damping: float = 200.0
     stiffness: float = 400.0
+
+
+@njit(cache=True)
+def _bad_box(nominal, lower, upper) -> bool:
+    """Whether the bounds inputs hold a non-finite value or lower > upper."""
+    for j in range(len(nominal)):
+        if not (np.isfinite(nominal[j]) and np.isfinite(lower[j]) and np.isfinite(upper[j]) and lower[j] <= upper[j]):
+            return True
+    return False
+
+
+@njit(cache=True)
+def _commanded(nominal, d, lower, upper):
+    """clamp(nominal + d, lower, upper)."""
+    out = np.empty(len(nominal))
+    for j in range(len(nominal)):
+        out[j] = min(max(nominal[j] + d[j], lower[j]), upper[j])
+    return out
+
+
+@njit(cache=True)
+def _step(x, nominal, lower, upper, tau, M, D, K, h, max_rate):
+    """The float update's arithmetic (see ``Impl._update``, the same
+    operations in the same order): the new [d, v]."""
+    k = len(nominal)
+    out = np.empty(2 * k)
+    for j in range(k):
+        d, v = x[j], x[k + j]
+        v = v + h * (tau[j] - D[j] * v - K[j] * d) / M[j]
+        v = min(max(v, -max_rate[j]), max_rate[j])
+        d = d + h * v
+        lo, hi = lower[j] - nominal[j], upper[j] - nominal[j]
+        at_hi, at_lo = d >= hi, d <= lo
+        d = min(max(d, lo), hi)
+        if (at_hi and v > 0) or (at_lo and v < 0):
+            v = 0.0
+        out[j], out[k + j] = d, v
+    return out
 
 
 @TemplateSystem.define("AdmittanceDeformation_", T_list=(float, AutoDiffXd), scope=sys.modules[__name__])
@@ -156,6 +195,7 @@ def AdmittanceDeformation_(T):
                 if np.any(np.isnan(vl)) or np.any(vl <= 0):
                     raise ParameterError(f"velocity_limits must be > 0 (inf: no limit), got {vl.tolist()}.")
                 self.max_rate = (1.0 - self.path_share) * vl
+            self._rate_or_inf = np.full(self.k, np.inf) if self.max_rate is None else self.max_rate
             self._slice = None
             if plant is not None:
                 if robot is None and plant.num_positions() != k:
@@ -298,6 +338,8 @@ def AdmittanceDeformation_(T):
             return tau
 
         def _update(self, context, discrete_state):
+            if T is float:
+                return self._update_float(context, discrete_state)
             nominal, lower, upper = self._inputs(context)
             x = context.get_discrete_state(self._state).CopyToVector()
             tau, w, integrate = self._sensors(context)
@@ -319,7 +361,36 @@ def AdmittanceDeformation_(T):
             v = np.where((at_hi & (vv > 0)) | (at_lo & (vv < 0)), 0 * v, v)
             discrete_state.get_mutable_vector(self._state).SetFromVector(np.concatenate([d, v]))
 
+        def _float_inputs(self, context):
+            """(nominal, lower, upper) as float arrays, checked in one compiled call."""
+            nominal = self.nominal_input.Eval(context)
+            lower = self.lower_input.Eval(context)
+            upper = self.upper_input.Eval(context)
+            if _bad_box(nominal, lower, upper):
+                self._inputs(context)  # raises, naming the port
+            return nominal, lower, upper
+
+        def _update_float(self, context, discrete_state):
+            """:meth:`_update` for float, its arithmetic in one compiled call."""
+            nominal, lower, upper = self._float_inputs(context)
+            tau, w, integrate = self._sensors(context)
+            if not integrate:
+                return
+            x = context.get_discrete_state(self._state).get_value()
+            if (w != 0).any():
+                tau = self._push(context, tau, w, _commanded(nominal, x[: self.k], lower, upper))
+            M, D, K = self.gains(context)
+            rate = self._rate_or_inf
+            discrete_state.get_mutable_vector(self._state).SetFromVector(
+                _step(x, nominal, lower, upper, np.asarray(tau, float), M, D, K, self.period, rate)
+            )
+
         def _calc_commanded(self, context, output):
+            if T is float:
+                nominal, lower, upper = self._float_inputs(context)
+                d = context.get_discrete_state(self._state).get_value()[: self.k]
+                output.SetFromVector(_commanded(nominal, d, lower, upper))
+                return
             nominal, lower, upper = self._inputs(context)
             d = context.get_discrete_state(self._state).CopyToVector()[: self.k]
             output.SetFromVector(_clip(nominal + d, lower, upper))

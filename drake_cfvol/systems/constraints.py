@@ -194,14 +194,21 @@ class DamperConstraint(FilterConstraint):
 
     def __init__(self, *, weight: float, relax: bool, select, name: str):
         self.weight, self.relaxed, self._select, self.name = float(weight), bool(relax), select, name
+        self._memo = (None, None)
 
     def rows(self, step):
         rows = step.damper
-        mask = self._select(rows)
+        mask = self._mask(rows)
         return rows.A[mask], rows.b[mask]
 
     def second_order_rows(self, step):
-        return np.flatnonzero(self._select(step.damper))
+        return np.flatnonzero(self._mask(step.damper))
+
+    def _mask(self, rows):
+        """``select(rows)``, once per update's rows."""
+        if self._memo[0] is not rows:
+            self._memo = (rows, self._select(rows))
+        return self._memo[1]
 
 
 def _polytope_radius(dirs) -> float:
@@ -286,6 +293,7 @@ class PriorityQP:
 
     def __init__(self):
         self._warm: dict = {}
+        self._last = None  # (((name, rows) per block), active) of the last solve
         self.solves = 0
 
     def solve(self, v_t, blocks: list[ConstraintRows]):
@@ -321,6 +329,15 @@ class PriorityQP:
     def hints(self, blocks) -> np.ndarray:
         """The rows active at the last solve, by constraint name (none for a
         constraint whose row count changed)."""
+        key = tuple((blk.name, len(blk.b)) for blk in blocks)
+        if self._last is not None:
+            if key == self._last[0]:  # the same constraints and row counts as the last solve
+                return self._last[1].copy()
+            at = 0
+            for name, m in self._last[0]:
+                self._warm[name] = self._last[1][at : at + m]
+                at += m
+            self._last = None
         out = [self._warm.get(blk.name) for blk in blocks]
         return np.concatenate(
             [np.zeros(0, bool)]
@@ -332,32 +349,48 @@ class PriorityQP:
 
     def remember(self, blocks, active) -> None:
         """Keeps the rows active at a solve (stacked as the blocks), by constraint name."""
-        at = 0
-        for blk in blocks:
-            m = len(blk.b)
-            self._warm[blk.name] = active[at : at + m].copy()
-            at += m
+        self._last = (tuple((blk.name, len(blk.b)) for blk in blocks), np.array(active, bool))
 
 
 def _stack(blocks, k: int):
     """The blocks' rows stacked: A (m, k), b, priorities and weights per row."""
-    m = sum(len(blk.b) for blk in blocks)
-    A, b = np.empty((m, k)), np.empty(m)
-    prio, weight = np.empty(m, np.int64), np.empty(m)
-    at = 0
-    for blk in blocks:
-        n = len(blk.b)
-        A[at : at + n] = blk.A
-        b[at : at + n] = blk.b
-        prio[at : at + n] = blk.priority
-        weight[at : at + n] = blk.weight
-        at += n
+    if not blocks:
+        return np.empty((0, k)), np.empty(0), np.empty(0, np.int64), np.empty(0)
+    counts = [len(blk.b) for blk in blocks]
+    A = np.concatenate([np.reshape(blk.A, (n, k)) for blk, n in zip(blocks, counts)]).astype(float, copy=False)
+    b = np.concatenate([blk.b for blk in blocks]).astype(float, copy=False)
+    prio = np.repeat(np.array([blk.priority for blk in blocks], np.int64), counts)
+    weight = np.repeat(np.array([blk.weight for blk in blocks], float), counts)
     return A, b, prio, weight
 
 
 def _levels(blocks) -> np.ndarray:
     """The priorities made soft stage by stage: the non-hard ones, lowest priority (largest number) first."""
-    return np.array(sorted({blk.priority for blk in blocks if blk.priority != HARD}, reverse=True), np.int64)
+    key = tuple(blk.priority for blk in blocks)
+    out = _LEVELS.get(key)
+    if out is None:
+        out = _LEVELS[key] = np.array(sorted({p for p in key if p != HARD}, reverse=True), np.int64)
+        out.flags.writeable = False
+    return out
+
+
+#: :func:`_levels` by the blocks' priorities (a handful of combinations per filter).
+_LEVELS: dict = {}
+
+
+def _filled(n: int, value, dtype) -> np.ndarray:
+    """A read-only (n,) array of ``value`` (shared: the stacked rows' per-row
+    constants are concatenated into new arrays, never written)."""
+    key = (value, dtype)
+    out = _FILLED.get(key)
+    if out is None or len(out) < n:
+        out = np.full(max(n, 2 * (0 if out is None else len(out)), 64), value, dtype)
+        out.flags.writeable = False
+        _FILLED[key] = out
+    return out[:n]
+
+
+_FILLED: dict = {}
 
 
 def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: int, nudge: float):
@@ -379,17 +412,17 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
         blocks.append(ConstraintRows(A, b, c.priority, c.weight, c.name))
         so = c.second_order_rows(step)
         if so is None:
-            so = np.full(len(b), -1, np.int64)
+            so = _filled(len(b), -1, np.int64)
         else:
             so = np.asarray(so, np.int64)
-            if so.shape != (len(b),) or (so >= len(step.damper.b)).any():
+            if so.shape != (len(b),) or (len(so) and so.max() >= len(step.damper.b)):
                 raise ParameterError(
                     f"constraint '{c.name}': second_order_rows must give one damper row index (or -1) per row "
                     f"({len(b)} rows, {len(step.damper.b)} damper rows), got shape {so.shape} with largest "
                     f"{so.max(initial=-1)}."
                 )
         so_rows.append(so)
-        relaxed.append(np.full(len(b), bool(c.relaxed)))
+        relaxed.append(_filled(len(b), bool(c.relaxed), bool))
     A, b, prio, weight = _stack(blocks, k)
     damper, kin = step.damper, step.kinematics
     v, missed, solved, active, solves = filter_rounds(
