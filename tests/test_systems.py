@@ -561,3 +561,45 @@ def test_reactive_coworker_spring_by_hand():
     np.testing.assert_allclose(c.human_torque_output.Eval(ctx), [20.0, -3.0])  # 40 clipped to 20; 10 x -0.3
     ctx.SetTime(3.0)
     np.testing.assert_array_equal(c.human_torque_output.Eval(ctx), [0.0, 0.0])
+
+
+def _tiny_template(name):
+    """A templated system of this module (float and AutoDiffXd)."""
+    import sys
+
+    from pydrake.autodiffutils import AutoDiffXd
+    from pydrake.systems.framework import LeafSystem_
+    from pydrake.systems.scalar_conversion import TemplateSystem
+
+    @TemplateSystem.define(name, T_list=(float, AutoDiffXd), scope=sys.modules[__name__])
+    def template(T):
+        class Impl(LeafSystem_[T]):
+            def _construct(self, converter=None):
+                LeafSystem_[T].__init__(self, converter)
+
+            def _construct_copy(self, other, converter=None):
+                Impl._construct(self, converter=converter)
+
+        return Impl
+
+    return template
+
+
+def test_default_instantiation_gives_pydrakes_own_scopes():
+    """A templated system's float class made by default_instantiation (no
+    stack inspection) has the scopes pydrake's own ``template[None]`` gives
+    its scalar-conversion methods, and pydrake's lookup is back in place
+    afterwards."""
+    from pydrake.autodiffutils import AutoDiffXd
+    from pydrake.common import cpp_template
+
+    from drake_cfvol.systems._util import default_instantiation
+
+    original = cpp_template._get_module_from_stack
+    plain = _tiny_template("Plain_")[None]
+    template = _tiny_template("Fast_")
+    fast = default_instantiation(template)
+    assert cpp_template._get_module_from_stack is original
+    for method in ("ToScalarType", "ToScalarTypeMaybe"):
+        assert getattr(fast, method)._scope is getattr(plain, method)._scope is not None
+    assert isinstance(fast().ToAutoDiffXd(), template[AutoDiffXd])

@@ -1,6 +1,9 @@
 """Shared helpers of the systems: vector arguments, and values and clips
 that work for float and AutoDiffXd alike."""
 
+import contextlib
+import sys
+
 import numpy as np
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
@@ -36,3 +39,36 @@ def _clip(x, lo, hi):
     xv, lov, hiv = _values(x), _values(lo), _values(hi)
     lo, hi = np.asarray(lo, dtype=object), np.asarray(hi, dtype=object)
     return np.where(xv < lov, lo, np.where(xv > hiv, hi, x))
+
+
+@contextlib.contextmanager
+def _module_by_globals():
+    """While open, pydrake's templates find the module that creates them
+    from the creating frame's globals instead of ``inspect.stack()``, which
+    reads the source of every frame on the stack (about 0.1 s per template
+    method; a templated system's instantiation makes two). The same module;
+    pydrake's own lookup where the globals name none."""
+    try:
+        from pydrake.common import cpp_template
+
+        original = cpp_template._get_module_from_stack
+    except (ImportError, AttributeError):  # a pydrake without it: nothing to speed up
+        yield
+        return
+
+    def by_globals(frame=2):
+        module = sys.modules.get(sys._getframe(frame).f_globals.get("__name__"))
+        return module if module is not None else original(frame + 1)
+
+    cpp_template._get_module_from_stack = by_globals
+    try:
+        yield
+    finally:
+        cpp_template._get_module_from_stack = original
+
+
+def default_instantiation(template):
+    """``template[None]`` (a ``TemplateSystem``'s float class), made without
+    pydrake's stack inspection (:func:`_module_by_globals`)."""
+    with _module_by_globals():
+        return template[None]

@@ -14,7 +14,7 @@ from pydrake.systems.scalar_conversion import TemplateSystem
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.scene.robot import RobotSlice
-from drake_cfvol.systems._util import _clip, _values, _vector
+from drake_cfvol.systems._util import _clip, _values, _vector, default_instantiation
 
 __all__ = ["AdmittanceConfig", "AdmittanceDeformation", "AdmittanceDeformation_"]
 
@@ -399,4 +399,4 @@ def AdmittanceDeformation_(T):
 
 
 #: The float instantiation (``AdmittanceDeformation_[AutoDiffXd]`` by conversion).
-AdmittanceDeformation = AdmittanceDeformation_[None]
+AdmittanceDeformation = default_instantiation(AdmittanceDeformation_)

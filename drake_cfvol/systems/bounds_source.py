@@ -9,6 +9,7 @@ from pydrake.systems.framework import LeafSystem_, ValueProducer
 from pydrake.systems.scalar_conversion import TemplateSystem
 
 from drake_cfvol.algorithm.table import BoundsTable
+from drake_cfvol.systems._util import default_instantiation
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_"]
 
@@ -130,4 +131,4 @@ def JointBoundsSource_(T):
 
 
 #: The float instantiation (``JointBoundsSource_[AutoDiffXd]`` by conversion).
-JointBoundsSource = JointBoundsSource_[None]
+JointBoundsSource = default_instantiation(JointBoundsSource_)

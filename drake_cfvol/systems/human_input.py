@@ -12,7 +12,7 @@ from pydrake.systems.framework import LeafSystem_
 from pydrake.systems.scalar_conversion import TemplateSystem
 
 from drake_cfvol.exceptions import ParameterError
-from drake_cfvol.systems._util import _values, _vector
+from drake_cfvol.systems._util import _values, _vector, default_instantiation
 
 __all__ = ["HumanInputCheck", "HumanInputCheck_"]
 
@@ -153,4 +153,4 @@ def HumanInputCheck_(T):
 
 
 #: The float instantiation (``HumanInputCheck_[AutoDiffXd]`` by conversion).
-HumanInputCheck = HumanInputCheck_[None]
+HumanInputCheck = default_instantiation(HumanInputCheck_)
