@@ -460,10 +460,13 @@ def test_add_comanipulation_config_reaches_the_systems(station_bounds):
     assert cm.duration == pytest.approx(1.5 + (table.g - 1) / slow)
 
 
-def test_the_filters_tracking_fault_holds_the_admittance(station_bounds):
-    """With a measured state, the admittance's hold is raised by the filter's
-    tracking fault as by the push's check, either alone (the admittance's
-    hold itself: ``tests/test_systems.py``)."""
+@pytest.mark.parametrize("measured_state", [True, False])
+def test_the_filters_tracking_fault_holds_the_admittance(station_bounds, measured_state):
+    """The admittance's hold is raised by the filter's tracking fault as by
+    the push's check, either alone (the admittance's hold itself:
+    ``tests/test_systems.py``), also where the caller connects the measured
+    position itself (``measured_state=False``, as the scenario runner and
+    the iiwa controller do)."""
     from drake_cfvol.systems.safety import _TRACKING
 
     _, table = station_bounds
@@ -471,7 +474,15 @@ def test_the_filters_tracking_fault_holds_the_admittance(station_bounds):
     plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
     add_station_models(plant, Parser(plant))
     plant.Finalize()
-    cm = AddCoManipulation(builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table, tool_frame="tool")
+    cm = AddCoManipulation(
+        builder,
+        plant=plant,
+        scene_graph=sg,
+        robot="mesh_arm",
+        table=table,
+        tool_frame="tool",
+        measured_state=measured_state,
+    )
     builder.ExportInput(cm.human_torque_input, "torque")
     diagram = builder.Build()
     for tracking, check in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)):

@@ -532,6 +532,38 @@ def test_admittance_autodiff_derivative_by_hand():
     assert q[0].value() == pytest.approx(0.1)
 
 
+@pytest.mark.parametrize("limits", [None, [0.5, 2.0, 0.3]])
+def test_admittance_float_update_equals_the_generic_one(limits):
+    """The float update (compiled) and the AutoDiffXd one (the generic
+    numpy arithmetic) give the same values bit for bit over 200 updates of
+    random pushes that drive joints into their bounds and back, with and
+    without velocity limits (the rate clip); the command the same too."""
+    from pydrake.autodiffutils import AutoDiffXd
+
+    rng = np.random.default_rng(3)
+    adm = AdmittanceDeformation(3, mass=2.0, damping=20.0, stiffness=30.0, period=0.01, velocity_limits=limits)
+    ad = adm.ToAutoDiffXd()
+    fctx, actx = adm.CreateDefaultContext(), ad.CreateDefaultContext()
+    lower, upper = np.array([-0.2, -0.05, -1.0]), np.array([0.3, 0.05, 1.0])
+    for port, value in (("nominal", np.zeros(3)), ("lower", lower), ("upper", upper)):
+        adm.GetInputPort(port).FixValue(fctx, value)
+        ad.GetInputPort(port).FixValue(actx, [AutoDiffXd(x) for x in value])
+    at_bound = 0
+    for _ in range(200):
+        tau = rng.uniform(-300.0, 300.0, 3)
+        adm.human_torque_input.FixValue(fctx, tau)
+        ad.human_torque_input.FixValue(actx, [AutoDiffXd(x) for x in tau])
+        x_f = adm.EvalUniquePeriodicDiscreteUpdate(fctx).get_vector(0).CopyToVector()
+        x_a = np.array([e.value() for e in ad.EvalUniquePeriodicDiscreteUpdate(actx).get_vector(0).CopyToVector()])
+        np.testing.assert_array_equal(x_f, x_a)
+        fctx.SetDiscreteState(0, x_f)
+        actx.SetDiscreteState(0, [AutoDiffXd(x) for x in x_a])
+        q_f = adm.commanded_position_output.Eval(fctx)
+        np.testing.assert_array_equal(q_f, [e.value() for e in ad.commanded_position_output.Eval(actx)])
+        at_bound += bool(np.any(q_f == lower) or np.any(q_f == upper))
+    assert at_bound > 20  # the clamp and its rate reset were exercised
+
+
 def test_bounds_source_autodiff_slope():
     """ToAutoDiffXd: at s = 0.25 (seeded ds = 1) the nominal's derivative
     is the first segment's slope, and values equal the float system's."""

@@ -229,7 +229,7 @@ def box_at(
     if interpolation == "stretch" and g > 1:
         if stretch_lower is None or stretch_upper is None:
             stretch_lower, stretch_upper = intersection_stretches(lower, upper)
-        rate = np.full(k, np.inf) if rate is None else np.asarray(rate, float)
+        rate = np.full(k, np.inf) if rate is None else np.broadcast_to(np.asarray(rate, float), (k,))
     scalar = np.ndim(s) == 0
     if scalar and g > 1:
         return _box_at_one(lower, upper, nominal, float(s), stretch_lower, stretch_upper, rate, interpolation)

@@ -26,7 +26,8 @@ def _values(x) -> np.ndarray:
     """Float values of a float or AutoDiffXd array (derivatives dropped)."""
     x = np.asarray(x)
     if x.dtype == object:
-        return np.array([float(e.value()) for e in x.ravel()]).reshape(x.shape)
+        # An AutoDiffXd, or a plain number where a clip put a constant bound.
+        return np.array([float(e.value()) if hasattr(e, "value") else float(e) for e in x.ravel()]).reshape(x.shape)
     return x if x.dtype == np.float64 else x.astype(float)
 
 

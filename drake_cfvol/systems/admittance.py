@@ -54,7 +54,7 @@ def _commanded(nominal, d, lower, upper):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _step(x, nominal, lower, upper, tau, M, D, K, h, max_rate):
     """The float update's arithmetic (see ``Impl._update``, the same
     operations in the same order): the new [d, v]."""
@@ -69,7 +69,7 @@ def _step(x, nominal, lower, upper, tau, M, D, K, h, max_rate):
         at_hi, at_lo = d >= hi, d <= lo
         d = min(max(d, lo), hi)
         if (at_hi and v > 0) or (at_lo and v < 0):
-            v = 0.0
+            v = 0.0 * v  # as the generic update's 0 * v (its sign too)
         out[j], out[k + j] = d, v
     return out
 

@@ -206,9 +206,12 @@ class DamperConstraint(FilterConstraint):
 
     def _mask(self, rows):
         """``select(rows)``, once per update's rows."""
-        if self._memo[0] is not rows:
-            self._memo = (rows, self._select(rows))
-        return self._memo[1]
+        memo = self._memo
+        if memo[0] is rows:
+            return memo[1]
+        mask = self._select(rows)
+        self._memo = (rows, mask)
+        return mask
 
 
 def _polytope_radius(dirs) -> float:
@@ -357,7 +360,13 @@ def _stack(blocks, k: int):
     if not blocks:
         return np.empty((0, k)), np.empty(0), np.empty(0, np.int64), np.empty(0)
     counts = [len(blk.b) for blk in blocks]
-    A = np.concatenate([np.reshape(blk.A, (n, k)) for blk, n in zip(blocks, counts)]).astype(float, copy=False)
+    for blk, n in zip(blocks, counts):
+        if np.shape(blk.A) != (n, k) or blk.weight is None:
+            raise ParameterError(
+                f"constraint '{blk.name}': rows must be A ({n}, {k}) with b ({n},) and a weight, "
+                f"got A of shape {np.shape(blk.A)} and weight {blk.weight!r}."
+            )
+    A = np.concatenate([blk.A for blk in blocks]).astype(float, copy=False)
     b = np.concatenate([blk.b for blk in blocks]).astype(float, copy=False)
     prio = np.repeat(np.array([blk.priority for blk in blocks], np.int64), counts)
     weight = np.repeat(np.array([blk.weight for blk in blocks], float), counts)

@@ -255,10 +255,11 @@ def AddCoManipulation(
         builder.Connect(adm.commanded_position_output, safety.desired_position_input)
         builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
         commanded = safety.commanded_position_output
-    if safety is not None and measured_state:
+    if safety is not None:
         # The admittance holds while the push is implausible or while the
         # measured robot drifts faster than the command can counter (the
-        # filter's tracking fault): either one above 0.5 holds it.
+        # filter's tracking fault, 0 unless a measured position reaches the
+        # filter: here or by the caller): either one above 0.5 holds it.
         holds = builder.AddNamedSystem(_named(name, "admittance_hold"), Adder(2, 1))
         builder.Connect(check.fault_output, holds.get_input_port(0))
         builder.Connect(safety.tracking_fault_output, holds.get_input_port(1))
