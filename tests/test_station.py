@@ -316,6 +316,19 @@ def test_user_station_under_inverse_dynamics_control(station_cell, station_bound
     np.testing.assert_allclose(q_m[-1], table.nominal[-1], atol=2e-3)
 
 
+def _station_comanipulation(table, *, part: bool = True, **kwargs):
+    """A builder with the station's 1 ms plant (finalized) and
+    AddCoManipulation on it for the mesh arm at its tool: (builder, plant, cm)."""
+    builder = DiagramBuilder()
+    plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
+    add_station_models(plant, Parser(plant), part=part)
+    plant.Finalize()
+    cm = AddCoManipulation(
+        builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table, tool_frame="tool", **kwargs
+    )
+    return builder, plant, cm
+
+
 def _robot_clearance(cell, q) -> float:
     """The robot's smallest distance to the obstacles and to itself (Drake's checker), m, or 0.1 beyond."""
     d = cell.checker.CalcRobotClearance(q, 0.1).distances()
@@ -351,14 +364,8 @@ def test_add_comanipulation_ports_on_a_plant_with_more_dofs(station_bounds):
     state starts at the path's start at rest, and the duration is the path's
     at its safe rate."""
     _, table = station_bounds
-    builder = DiagramBuilder()
-    plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
-    add_station_models(plant, Parser(plant))
-    plant.Finalize()
+    builder, plant, cm = _station_comanipulation(table, period=0.01)
     assert plant.num_positions() == 15
-    cm = AddCoManipulation(
-        builder, plant=plant, scene_graph=sg, robot="mesh_arm", table=table, tool_frame="tool", period=0.01
-    )
     assert cm.human_wrench_input.size() == 6 and cm.human_torque_input.size() == 7
     assert cm.desired_state_output.size() == 14 and cm.commanded_position_output.size() == 7
     assert cm.path_index_output.size() == 1
@@ -377,18 +384,8 @@ def test_add_comanipulation_tool_speed_limit_from_the_config(station_bounds):
 
     _, table = station_bounds
     for speed in (None, 0.25):
-        builder = DiagramBuilder()
-        plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
-        add_station_models(plant, Parser(plant), part=False)
-        plant.Finalize()
-        cm = AddCoManipulation(
-            builder,
-            plant=plant,
-            scene_graph=sg,
-            robot="mesh_arm",
-            table=table,
-            tool_frame="tool",
-            config=CoManipulationConfig(safety_filter=SafetyFilterConfig(tool_speed=speed)),
+        _, _, cm = _station_comanipulation(
+            table, part=False, config=CoManipulationConfig(safety_filter=SafetyFilterConfig(tool_speed=speed))
         )
         limits = [c for c in cm.safety.constraints if isinstance(c, ToolSpeedLimit)]
         if speed is None:
@@ -470,19 +467,7 @@ def test_the_filters_tracking_fault_holds_the_admittance(station_bounds, measure
     from drake_cfvol.systems.safety import _TRACKING
 
     _, table = station_bounds
-    builder = DiagramBuilder()
-    plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
-    add_station_models(plant, Parser(plant))
-    plant.Finalize()
-    cm = AddCoManipulation(
-        builder,
-        plant=plant,
-        scene_graph=sg,
-        robot="mesh_arm",
-        table=table,
-        tool_frame="tool",
-        measured_state=measured_state,
-    )
+    builder, _, cm = _station_comanipulation(table, measured_state=measured_state)
     builder.ExportInput(cm.human_torque_input, "torque")
     diagram = builder.Build()
     for tracking, check in ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)):
@@ -507,21 +492,8 @@ def test_add_comanipulation_without_the_filter(station_bounds):
 
     _, table = station_bounds
     for filter_config in (None, SafetyFilterConfig(clearance=0.05)):
-        builder = DiagramBuilder()
-        plant, sg = AddMultibodyPlantSceneGraph(builder, time_step=0.001)
-        add_station_models(plant, Parser(plant))
-        plant.Finalize()
         config = dataclasses.replace(CoManipulationConfig(), safety_filter=filter_config)
-        cm = AddCoManipulation(
-            builder,
-            plant=plant,
-            scene_graph=sg,
-            robot="mesh_arm",
-            table=table,
-            tool_frame="tool",
-            config=config,
-            name="arm",
-        )
+        builder, _, cm = _station_comanipulation(table, config=config, name="arm")
         names = {s.get_name() for s in builder.GetSystems()}
         if filter_config is None:
             assert cm.safety is None and cm.desired_state_output is None and "arm_safety_filter" not in names
