@@ -540,8 +540,13 @@ class SafetyFilter(LeafSystem):
         if q.shape != (self.k,):
             raise DimensionError("q", self.k, q.shape)
         context.get_mutable_discrete_state(self._position).SetFromVector(q)
-        self._reset_budget(context.get_mutable_discrete_state(self._budget))
-        context.get_mutable_discrete_state(self._measured_last).SetFromVector(np.full(self.k, np.nan))
+        self._restart(context.get_mutable_discrete_state)
+
+    def _restart(self, state) -> None:
+        """Every pair measured and no drift taken at the next update
+        (``state``: discrete state index -> its mutable vector)."""
+        self._reset_budget(state(self._budget))
+        state(self._measured_last).SetFromVector(np.full(self.k, np.nan))
 
     def _reset_budget(self, vector) -> None:
         """Every pair measured at the next update."""
@@ -560,8 +565,7 @@ class SafetyFilter(LeafSystem):
             # Held (a stale robot status, a fault upstream): the last command
             # stays; every pair is measured again when the hold ends.
             discrete_state.get_mutable_vector(self._velocity).SetFromVector(np.zeros(k))
-            self._reset_budget(discrete_state.get_mutable_vector(self._budget))
-            discrete_state.get_mutable_vector(self._measured_last).SetFromVector(np.full(k, np.nan))
+            self._restart(discrete_state.get_mutable_vector)
             held = status.copy()
             held[_ACTIVE], held[_RATIO], held[_HOLDS], held[_TRACKING] = 1.0, 0.0, status[_HOLDS] + 1, 0.0
             held[_COUNT] += 1
@@ -574,14 +578,15 @@ class SafetyFilter(LeafSystem):
         fallback = False
         sane, lo, hi, v_t = request(q, desired, lower, upper, self._vmax, h, v_last, self._acceleration)
         base, drift = self._base_and_drift(context, q, v_last)
-        if sane and (status[_TRACKING] or not np.isfinite(base).all()):
+        finite = bool(np.isfinite(base).all())
+        if sane and (status[_TRACKING] or not finite):
             # The last update could not keep the measured robot's rows, or the
             # measured position is not finite: the request is held (only the
             # box and, with a finite measured position, the rows move the
             # command), within the acceleration limits where given.
             stop = np.minimum(np.maximum(0.0, v_last - self._acceleration * h), v_last + self._acceleration * h)
             v_t = np.minimum(np.maximum(stop, lo), hi)
-            sane = bool(np.isfinite(base).all())
+            sane = finite
         if not sane:  # hold, as far as the box (if it is usable) allows
             v, fallback, dmin, missed, tracking = v_t, True, status[_MIN_DISTANCE], False, False
             discrete_state.get_mutable_vector(self._measured_last).SetFromVector(np.full(k, np.nan))
