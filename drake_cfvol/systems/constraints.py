@@ -355,51 +355,55 @@ class PriorityQP:
         self._last = (tuple((blk.name, len(blk.b)) for blk in blocks), np.array(active, bool))
 
 
-def _stack(blocks, k: int):
-    """The blocks' rows stacked: A (m, k), b, priorities and weights per row."""
+def _stack(blocks, k: int, relaxed=None):
+    """The blocks' rows stacked: A (m, k), b, priorities and weights per row
+    (and, given each block's ``relaxed`` flag, the per-row flags and the
+    soft stages' priorities, :func:`_layout`)."""
     if not blocks:
-        return np.empty((0, k)), np.empty(0), np.empty(0, np.int64), np.empty(0)
-    counts = [len(blk.b) for blk in blocks]
-    for blk, n in zip(blocks, counts):
-        if np.shape(blk.A) != (n, k) or blk.weight is None:
+        empty = np.empty((0, k)), np.empty(0), np.empty(0, np.int64), np.empty(0)
+        return empty if relaxed is None else empty + (np.zeros(0, bool), np.zeros(0, np.int64))
+    for blk in blocks:
+        if np.shape(blk.A) != (len(blk.b), k) or blk.weight is None:
             raise ParameterError(
-                f"constraint '{blk.name}': rows must be A ({n}, {k}) with b ({n},) and a weight, "
+                f"constraint '{blk.name}': rows must be A ({len(blk.b)}, {k}) with b ({len(blk.b)},) and a weight, "
                 f"got A of shape {np.shape(blk.A)} and weight {blk.weight!r}."
             )
     A = np.concatenate([blk.A for blk in blocks]).astype(float, copy=False)
     b = np.concatenate([blk.b for blk in blocks]).astype(float, copy=False)
-    prio = np.repeat(np.array([blk.priority for blk in blocks], np.int64), counts)
-    weight = np.repeat(np.array([blk.weight for blk in blocks], float), counts)
-    return A, b, prio, weight
+    layout = _layout(blocks, relaxed or (False,) * len(blocks))
+    return (A, b) + (layout[:2] if relaxed is None else layout)
+
+
+def _layout(blocks, relaxed) -> tuple:
+    """(priority, weight, relaxed) per row and the soft stages' priorities
+    (the non-hard ones, lowest priority, i.e. largest number, first) of
+    blocks of these priorities, weights, row counts and ``relaxed`` flags:
+    made once per layout (a filter meets a handful) and shared, so never
+    written."""
+    key = tuple((blk.priority, blk.weight, len(blk.b), flag) for blk, flag in zip(blocks, relaxed))
+    out = _LAYOUTS.get(key)
+    if out is None:
+        counts = [len(blk.b) for blk in blocks]
+        out = (
+            np.repeat(np.array([blk.priority for blk in blocks], np.int64), counts),
+            np.repeat(np.array([blk.weight for blk in blocks], float), counts),
+            np.repeat(np.array(relaxed, bool), counts),
+            np.array(sorted({blk.priority for blk in blocks if blk.priority != HARD}, reverse=True), np.int64),
+        )
+        out[3].flags.writeable = False  # the others are passed as the compiled code's writeable arrays: never written
+        if len(_LAYOUTS) > 1024:  # row counts vary with the scene: kept bounded
+            _LAYOUTS.clear()
+        _LAYOUTS[key] = out
+    return out
 
 
 def _levels(blocks) -> np.ndarray:
     """The priorities made soft stage by stage: the non-hard ones, lowest priority (largest number) first."""
-    key = tuple(blk.priority for blk in blocks)
-    out = _LEVELS.get(key)
-    if out is None:
-        out = _LEVELS[key] = np.array(sorted({p for p in key if p != HARD}, reverse=True), np.int64)
-        out.flags.writeable = False
-    return out
+    return _layout(blocks, (False,) * len(blocks))[3]
 
 
-#: :func:`_levels` by the blocks' priorities (a handful of combinations per filter).
-_LEVELS: dict = {}
-
-
-def _filled(n: int, value, dtype) -> np.ndarray:
-    """A read-only (n,) array of ``value`` (shared: the stacked rows' per-row
-    constants are concatenated into new arrays, never written)."""
-    key = (value, dtype)
-    out = _FILLED.get(key)
-    if out is None or len(out) < n:
-        out = np.full(max(n, 2 * (0 if out is None else len(out)), 64), value, dtype)
-        out.flags.writeable = False
-        _FILLED[key] = out
-    return out[:n]
-
-
-_FILLED: dict = {}
+#: :func:`_layout` by the blocks' priorities, weights, row counts and flags.
+_LAYOUTS: dict = {}
 
 
 def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: int, nudge: float):
@@ -420,9 +424,7 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
             continue
         blocks.append(ConstraintRows(A, b, c.priority, c.weight, c.name))
         so = c.second_order_rows(step)
-        if so is None:
-            so = _filled(len(b), -1, np.int64)
-        else:
+        if so is not None:
             so = np.asarray(so, np.int64)
             if so.shape != (len(b),) or (len(so) and so.max() >= len(step.damper.b)):
                 raise ParameterError(
@@ -431,23 +433,22 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
                     f"{so.max(initial=-1)}."
                 )
         so_rows.append(so)
-        relaxed.append(_filled(len(b), bool(c.relaxed), bool))
-    A, b, prio, weight = _stack(blocks, k)
+        relaxed.append(bool(c.relaxed))
+    A, b, prio, weight, relaxed_rows, levels = _stack(blocks, k, tuple(relaxed))
+    so_row = np.full(len(b), -1, np.int64)
+    at = 0
+    for blk, so in zip(blocks, so_rows):
+        if so is not None:
+            so_row[at : at + len(so)] = so
+        at += len(blk.b)
     damper, kin = step.damper, step.kinematics
     v, missed, solved, active, solves = filter_rounds(
         np.asarray(v_t, float),
-        (
-            A,
-            b,
-            prio,
-            weight,
-            np.concatenate(so_rows or [np.zeros(0, np.int64)]),
-            np.concatenate(relaxed or [np.zeros(0, bool)]),
-        ),
+        (A, b, prio, weight, so_row, relaxed_rows),
         (damper.A, damper.dirs, damper.points, damper.slots, damper.rounds, kin.rev),
         kin.compiled(),
         (step.q, step.q_c, step.nominal_or_nan(), step.lo, step.hi, step.vmax, step.drift),
-        (_levels(blocks), HARD, ROW, int(rounds), float(nudge), float(step.period)),
+        (levels, HARD, ROW, int(rounds), float(nudge), float(step.period)),
         qp.hints(blocks),
     )
     qp.solves += solves

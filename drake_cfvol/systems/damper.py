@@ -242,7 +242,7 @@ class VelocityDamper:
         lower = self._broad.lower_bounds(query, R, o, look)
         far = lower >= self.influence_distance
         dists[look[far]] = lower[far]
-        near = []  # (pair index, Drake's result)
+        near, slow = [], []  # pair indices (the kernel's rows / Drake's), Drake's results
         for index in look[~far].tolist():
             id_a, id_b = self._pairs[index][:2]
             measured[index] = True
@@ -252,12 +252,10 @@ class VelocityDamper:
                 continue
             dists[index] = pair.distance
             if pair.distance < self.influence_distance:
-                near.append((index, pair))
-        if not near:
+                (slow if self._drake_rows[index] else near).append((index, pair))
+        if not near and not slow:
             return self.empty()._replace(distances=dists, measured=measured)
-        fast = [(index, pair) for index, pair in near if not self._drake_rows[index]]
-        parts = [self._kernel_rows(fast, R, o, J_w, J_v)] if fast else []
-        slow = [(index, pair) for index, pair in near if self._drake_rows[index]]
+        parts = [self._kernel_rows(near, R, o, J_w, J_v)] if near else []
         if slow:
             out = RowList()
             for index, pair in slow:
@@ -281,7 +279,7 @@ class VelocityDamper:
             pairs[i], dist[i] = index, pair.distance
             normal[i], witness[i, 0], witness[i, 1] = pair.nhat_BA_W, pair.p_ACa, pair.p_BCb
         A, b, dirs, points, slots, rounds, owner = pair_rows(
-            (pairs, dist, normal, witness, self._broad.box_R[pairs], self._broad.box_p[pairs]),
+            (pairs, dist, normal, witness, self._broad.box_R, self._broad.box_p),
             self._sides,
             (R, o, J_w, J_v),
             (self.influence_distance, self.rate, self.target_distance),

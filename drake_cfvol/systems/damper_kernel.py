@@ -112,13 +112,26 @@ def _mtv(A, x):
 
 
 @njit(cache=True, inline="always")
-def _mm(A, B):
-    """A B for 3 x 3 matrices."""
-    out = np.empty((3, 3))
+def _mm_into(out, A, B):
+    """out = A B for 3 x 3 matrices (the row loops write into scratch:
+    an array made per probe cost more than the row itself)."""
     for r in range(3):
         for c in range(3):
             out[r, c] = A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c]
-    return out
+
+
+@njit(cache=True, inline="always")
+def _affine_into(out, A, x, t):
+    """out = A x + t for a 3 x 3 A."""
+    for r in range(3):
+        out[r] = A[r, 0] * x[0] + A[r, 1] * x[1] + A[r, 2] * x[2] + t[r]
+
+
+@njit(cache=True, inline="always")
+def _rotate_into(out, A, x):
+    """out = A x for a 3 x 3 A."""
+    for r in range(3):
+        out[r] = A[r, 0] * x[0] + A[r, 1] * x[1] + A[r, 2] * x[2]
 
 
 @njit(cache=True)
@@ -137,7 +150,7 @@ def point_distance(kind, prm, q, out_g, out_near):
     return _cylinder.point_distance(prm, q, out_g, out_near)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _jacobian_row(d, p, slot, o, J_w, J_v, out, sign):
     """out += sign * d . J(p), J(p) the translational Jacobian of point p on
     body ``slot`` (v_P = v_o + w x r, r = p - o: d . v_P = d . J_v v +
@@ -157,7 +170,7 @@ def _jacobian_row(d, p, slot, o, J_w, J_v, out, sign):
         )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _emit(out, m, d, p1, p2, s1, s2, rhs, r1, r2, pair, kin):
     """Writes row m of ``out`` (A, b, dirs, points, slots, rounds, owner):
     direction d, points p1 / p2 on slots s1 / s2, right-hand side, round
@@ -178,7 +191,7 @@ def _emit(out, m, d, p1, p2, s1, s2, rhs, r1, r2, pair, kin):
     return m + 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains):
     """Pair p's probe rows (its sides' witnesses w, probes P and geometry
     poses XR, Xt in the world), from row m on; returns the next row."""
@@ -214,8 +227,8 @@ def _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains):
             dist_p = point_distance(kind[p, t], prm[p, t], q_local, g, near)
             if dist_p - radii[p, s, c] >= influence:
                 continue
-            gw[:] = _mv(XR[t], g)
-            nw[:] = _mv(XR[t], near) + Xt[t]
+            _rotate_into(gw, XR[t], g)
+            _affine_into(nw, XR[t], near, Xt[t])
             m = _emit(
                 out, m, gw, P[s, c], nw, slot, s_other, -rate * (dist_p - radii[p, s, c] - target), 0.0, 0.0, p, kin
             )
@@ -231,9 +244,9 @@ def pair_rows(near, sides, kin, gains):
         near: (pairs, dist, normal, witness, pose_R, pose_t):
         pairs: (N,) the near pairs' indices; dist (N,), normal (N, 3)
             (Drake's nhat_BA_W), witness (N, 2, 3) (p_ACa, p_BCb in the
-            geometry frames), pose_R (N, 2, 3, 3) / pose_t (N, 2, 3): each
-            side's geometry pose in the world (used for a side on no moving
-            body of the robot).
+            geometry frames), pose_R (P, 2, 3, 3) / pose_t (P, 2, 3): every
+            pair side's geometry pose in the world, as the broad phase
+            posed it (used for a side on no moving body of the robot).
         sides: (side_slot, side_R, side_t, probes, n_probes, radii, kind,
             prm, round_r): side_slot (P, 2), each pair side's moving body slot (-1: none);
             side_R / side_t (P, 2, ...): X_BG; probes (P, 2, n, 3) in the
@@ -265,14 +278,14 @@ def pair_rows(near, sides, kin, gains):
         for s in range(2):
             slot = side_slot[p, s]
             if slot < 0:
-                XR[s], Xt[s] = pose_R[i, s], pose_t[i, s]
+                XR[s], Xt[s] = pose_R[p, s], pose_t[p, s]
             else:  # the geometry's pose from its body's: R_WB R_BG, R_WB t_BG + o
-                XR[s] = _mm(R[slot], side_R[p, s])
-                Xt[s] = _mv(R[slot], side_t[p, s]) + o[slot]
-            w[s] = _mv(XR[s], witness[i, s]) + Xt[s]
+                _mm_into(XR[s], R[slot], side_R[p, s])
+                _affine_into(Xt[s], R[slot], side_t[p, s], o[slot])
+            _affine_into(w[s], XR[s], witness[i, s], Xt[s])
             if slot >= 0:
                 for c in range(n_probes[p, s]):
-                    P[s, c] = _mv(R[slot], probes[p, s, c]) + o[slot]
+                    _affine_into(P[s, c], R[slot], probes[p, s, c], o[slot])
         sa, sb = side_slot[p, 0], side_slot[p, 1]
         m = _emit(
             out,
