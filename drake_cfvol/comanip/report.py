@@ -6,15 +6,30 @@ from pathlib import Path
 import numpy as np
 
 from drake_cfvol.comanip.diagram import Comanipulation
-from drake_cfvol.io.plotting import _pyplot
+from drake_cfvol.io.plotting import draw, figure
 
 
 def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
     """Per joint over time: nominal, bounds, commanded; and the clearance.
     Shaded in every panel: when the co-worker pushes (joint torque or tool
     wrench not zero); ticks on the clearance panel: when the safety filter
-    acted (at the logged samples)."""
-    plt = _pyplot()
+    acted (at the logged samples). Returns the file's path (written on
+    return, or when :func:`~drake_cfvol.io.plotting.in_background`'s block
+    ends)."""
+    names = ("commanded_position", "human_torque", "human_wrench", "lower", "upper", "nominal", "min_distance")
+    wc = cm.workcell
+    draw(
+        _draw_run,
+        {name: logs[name] for name in names + ("filter_active",) if name in logs},
+        list(wc.joint_names),
+        np.asarray(wc.revolute, bool),
+        f"{wc.name} {cm.path.label}: co-manipulation run",
+        Path(path),
+    )
+    return Path(path)
+
+
+def _draw_run(logs: dict, joint_names, rev, title: str, path: Path) -> None:
     t, q = logs["commanded_position"]
     pushing = np.zeros(len(t), bool)
     for name in ("human_torque", "human_wrench"):
@@ -26,15 +41,16 @@ def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
     _, nom = logs["nominal"]
     td, dist = logs["min_distance"]
     k = q.shape[1]
-    rev = cm.workcell.revolute
-    fig, axes = plt.subplots(k + 1, 1, figsize=(8, 1.6 * (k + 1)), sharex=True)
+    fig, axes = figure(k + 1, 1, size=(8, 1.6 * (k + 1)), margins=(0.85, 0.15, 0.5, 0.4), sharex=True)
+    fig.subplots_adjust(hspace=0.12)
+    axes = axes[:, 0]
     for j in range(k):
         f = np.degrees if rev[j] else (lambda x: x)
         ax = axes[j]
         ax.fill_between(t, f(lo[:, j]), f(hi[:, j]), color="tab:green", alpha=0.25, label="bounds")
         ax.plot(t, f(nom[:, j]), "k--", lw=1, label="nominal")
         ax.plot(t, f(q[:, j]), color="tab:blue", lw=1.4, label="commanded")
-        ax.set_ylabel(f"{cm.workcell.joint_names[j]}\n[{'deg' if rev[j] else 'm'}]", fontsize=8)
+        ax.set_ylabel(f"{joint_names[j]}\n[{'deg' if rev[j] else 'm'}]", fontsize=8)
         ax.grid(alpha=0.3)
     for ax in axes:
         for n, (a, b) in enumerate(spans):
@@ -52,11 +68,8 @@ def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
     axes[-1].set_ylabel("clearance\n[m]", fontsize=8)
     axes[-1].set_xlabel("time [s]")
     axes[-1].grid(alpha=0.3)
-    fig.suptitle(f"{cm.workcell.name} {cm.scenario.path}: co-manipulation run")
-    fig.tight_layout()
+    fig.suptitle(title)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
 
 
 def missing_dot_notice(stem: Path) -> str:

@@ -1,12 +1,15 @@
-"""Plots (matplotlib, headless)."""
+"""Plots (matplotlib, headless), drawn where they are asked for or, inside
+:func:`in_background`, by a helper process on the machine's other core."""
 
 from __future__ import annotations
 
+import contextlib
+import sys
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_bounds"]
+__all__ = ["in_background", "plot_bounds"]
 
 
 def _pyplot():
@@ -18,15 +21,85 @@ def _pyplot():
     return plt
 
 
+def figure(rows: int, cols: int, *, size: tuple[float, float], margins: tuple[float, float, float, float], **kw):
+    """A figure of ``rows`` x ``cols`` axes without pyplot (no global state,
+    nothing to close), its margins fixed in inches (left, right, bottom,
+    top; matplotlib's tight layout measured every label and took a third of
+    a plot's time). Returns (figure, axes as a 2-D array)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size)
+    axes = fig.subplots(rows, cols, squeeze=False, **kw)
+    w, h = size
+    left, right, bottom, top = margins
+    fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h)
+    return fig, axes
+
+
+#: The helper process's pool while :func:`in_background` is active, and the plots handed to it.
+_BACKGROUND: list = []
+
+
+@contextlib.contextmanager
+def in_background():
+    """Within the block, :func:`plot_bounds` and
+    :func:`~drake_cfvol.comanip.report.plot_run` hand their drawing to one
+    helper process (forked on entry, where it imports matplotlib while the
+    caller goes on) and return at once; leaving the block waits for every
+    plot and raises the first error. Where fork is not the platform's way
+    (macOS, Windows), or inside another such block, the plots are drawn at
+    once as outside it."""
+    if _BACKGROUND or not sys.platform.startswith("linux"):
+        yield
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    # Forked before the caller starts threads of its own (numba's, Drake's).
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("fork"))
+    _BACKGROUND[:] = [pool, [pool.submit(_import_matplotlib)]]
+    try:
+        yield
+        for done in _BACKGROUND[1]:
+            done.result()
+    finally:
+        _BACKGROUND.clear()
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _import_matplotlib() -> None:
+    from matplotlib.figure import Figure  # noqa: F401
+
+
+def draw(fn, *args) -> None:
+    """Calls ``fn(*args)`` (a module-level drawing function with picklable
+    arguments) here, or in the helper process within :func:`in_background`."""
+    if _BACKGROUND:
+        _BACKGROUND[1].append(_BACKGROUND[0].submit(fn, *args))
+    else:
+        fn(*args)
+
+
 def plot_bounds(bounds, path: str | Path, *, revolute=None, title: str = "") -> Path:
     """Writes a PNG: per joint, the nominal and [lower, upper] along s, with
-    the joint's limits. Degrees for revolute joints, metres for prismatic."""
-    plt = _pyplot()
+    the joint's limits. Degrees for revolute joints, metres for prismatic.
+    Returns the file's path (written on return, or when
+    :func:`in_background`'s block ends)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    revolute = np.ones(bounds.k, bool) if revolute is None else np.asarray(revolute, bool)
+    draw(_draw_bounds, bounds, path, revolute, title)
+    return path
+
+
+def _draw_bounds(bounds, path: Path, revolute, title: str) -> None:
     k = bounds.k
-    revolute = np.ones(k, bool) if revolute is None else np.asarray(revolute, bool)
     cols = 2 if k > 3 else 1
     rows = int(np.ceil(k / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 2.2 * rows), sharex=True, squeeze=False)
+    fig, axes = figure(
+        rows, cols, size=(6 * cols, 2.2 * rows), margins=(0.8, 0.15, 0.55, 0.5 if title else 0.2), sharex=True
+    )
+    fig.subplots_adjust(wspace=0.25, hspace=0.12)
     s = bounds.s
     for j in range(k):
         ax = axes[j // cols][j % cols]
@@ -46,9 +119,4 @@ def plot_bounds(bounds, path: str | Path, *, revolute=None, title: str = "") -> 
         axes[j // cols][j % cols].axis("off")
     if title:
         fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
