@@ -61,10 +61,10 @@ def measure_dynamic(dynamic: list, query, measure: np.ndarray) -> None:
     """Marks the pairs with moving geometry to be measured, except where it
     is parked below :data:`~drake_cfvol.systems.columns.PARKED_Z` (unused):
     one pose look-up per geometry."""
-    from drake_cfvol.systems.columns import PARKED_Z
-
     if not dynamic:
         return
+    from drake_cfvol.systems.columns import PARKED_Z
+
     pairs, gids = zip(*dynamic)
     ids = list(dict.fromkeys(gids))
     active = {g: query.GetPoseInWorld(g).translation()[2] > 0.5 * PARKED_Z for g in ids}
@@ -233,17 +233,15 @@ class VelocityDamper:
             measure: (pairs,) bools, the pairs to measure (default all);
                 the others' distances are NaN.
         """
-        dists = np.full(len(self._pairs), np.nan)
         measured = np.zeros(len(self._pairs), bool)
         R, o, J_w, J_v = self._kin.poses_and_jacobians(q)
         # Broad phase: a pair whose bounding balls lie apart by the influence
         # distance or more is not measured (its distance is at least that).
-        look = np.arange(len(self._pairs)) if measure is None else np.flatnonzero(measure)
-        lower = self._broad.lower_bounds(query, R, o, look)
-        far = lower >= self.influence_distance
-        dists[look[far]] = lower[far]
+        if measure is None:
+            measure = np.ones(len(self._pairs), bool)
+        dists, look = self._broad.near(query, R, o, np.asarray(measure, bool), self.influence_distance)
         near, slow = [], []  # pair indices (the kernel's rows / Drake's), Drake's results
-        for index in look[~far].tolist():
+        for index in look.tolist():
             id_a, id_b = self._pairs[index][:2]
             measured[index] = True
             try:
@@ -311,8 +309,7 @@ class VelocityDamper:
         bounded by the poses at both ends, whatever the path between).
         Negative: measure it. (Geometry that moves on its own, see
         :attr:`self_moving`, is not covered.)"""
-        moved = self._kin.moved(q0, q1, self._body_radius)  # the last: welded
-        return budget - moved[self._pair_bodies[:, 0]] - moved[self._pair_bodies[:, 1]]
+        return self._kin.budget_moved(q0, q1, self._body_radius, self._pair_bodies, np.asarray(budget, float))
 
     @property
     def self_moving(self) -> np.ndarray:

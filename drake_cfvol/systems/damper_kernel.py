@@ -21,6 +21,7 @@ from drake_cfvol.kernel.types import BOX, CAPSULE, CYLINDER, SPHERE
 
 __all__ = [
     "bounding_gaps",
+    "near_pairs",
     "NO_POINT_QUERY",
     "SPHERE",
     "CAPSULE",
@@ -305,6 +306,41 @@ def pair_rows(near, sides, kin, gains):
     return A[:m], b[:m], dirs[:m], points[:m], slots[:m], rounds[:m], owner[:m]
 
 
+@njit(cache=True, inline="always")
+def _gap(n, slot, centre, half, box_R, box_p, R, o):
+    """Pair n's lower bound (:func:`bounding_gaps`), without allocating."""
+    s0, s1 = slot[n, 0], slot[n, 1]
+    if s0 < 0 and s1 < 0:
+        return -np.inf
+    c0, c1, c2 = 0.0, 0.0, 0.0  # a ball's centre in the world
+    d0, d1, d2 = 0.0, 0.0, 0.0
+    for j in range(2):
+        s = slot[n, j]
+        if s >= 0:
+            x, y, z = centre[n, j, 0], centre[n, j, 1], centre[n, j, 2]
+            e0 = R[s, 0, 0] * x + R[s, 0, 1] * y + R[s, 0, 2] * z + o[s, 0]
+            e1 = R[s, 1, 0] * x + R[s, 1, 1] * y + R[s, 1, 2] * z + o[s, 1]
+            e2 = R[s, 2, 0] * x + R[s, 2, 1] * y + R[s, 2, 2] * z + o[s, 2]
+            if j == 0:
+                c0, c1, c2 = e0, e1, e2
+            else:
+                d0, d1, d2 = e0, e1, e2
+    r0 = np.sqrt(half[n, 0, 0] ** 2 + half[n, 0, 1] ** 2 + half[n, 0, 2] ** 2)
+    r1 = np.sqrt(half[n, 1, 0] ** 2 + half[n, 1, 1] ** 2 + half[n, 1, 2] ** 2)
+    if s0 >= 0 and s1 >= 0:
+        return np.sqrt((c0 - d0) ** 2 + (c1 - d1) ** 2 + (c2 - d2) ** 2) - r0 - r1
+    j = 0 if s0 >= 0 else 1
+    k = 1 - j
+    if j == 1:
+        c0, c1, c2 = d0, d1, d2
+    u0, u1, u2 = c0 - box_p[n, k, 0], c1 - box_p[n, k, 1], c2 - box_p[n, k, 2]
+    gap = 0.0
+    for a in range(3):
+        local = box_R[n, k, 0, a] * u0 + box_R[n, k, 1, a] * u1 + box_R[n, k, 2, a] * u2 - centre[n, k, a]
+        gap += max(abs(local) - half[n, k, a], 0.0) ** 2
+    return np.sqrt(gap) - (r0 if j == 0 else r1)
+
+
 @njit(cache=True)
 def bounding_gaps(pairs, slot, centre, half, box_R, box_p, R, o):
     """The broad phase's lower bounds of ``pairs``' distances, m: per pair
@@ -313,27 +349,29 @@ def bounding_gaps(pairs, slot, centre, half, box_R, box_p, R, o):
     extents ``half``, posed at box_R / box_p in the world); ball to ball:
     their gap; ball to box: the ball centre's distance from the box less
     the radius; box to box: -inf (measure). Bodies posed at R, o."""
-    out = np.full(len(pairs), -np.inf)
-    c = np.zeros((2, 3))
+    out = np.empty(len(pairs))
     for i in range(len(pairs)):
-        n = pairs[i]
-        for j in range(2):
-            s = slot[n, j]
-            if s >= 0:
-                c[j] = _mv(R[s], centre[n, j]) + o[s]
-        b0, b1 = slot[n, 0] >= 0, slot[n, 1] >= 0
-        if b0 and b1:
-            out[i] = (
-                np.sqrt(np.sum((c[0] - c[1]) ** 2))
-                - np.sqrt(np.sum(half[n, 0] ** 2))
-                - np.sqrt(np.sum(half[n, 1] ** 2))
-            )
-        elif b0 or b1:
-            j = 0 if b0 else 1
-            k = 1 - j
-            local = _mtv(box_R[n, k], c[j] - box_p[n, k]) - centre[n, k]
-            gap = 0.0
-            for a in range(3):
-                gap += max(abs(local[a]) - half[n, k, a], 0.0) ** 2
-            out[i] = np.sqrt(gap) - np.sqrt(np.sum(half[n, j] ** 2))
+        out[i] = _gap(pairs[i], slot, centre, half, box_R, box_p, R, o)
     return out
+
+
+@njit(cache=True)
+def near_pairs(measure, slot, centre, half, box_R, box_p, R, o, influence):
+    """The broad phase at one update: (per pair its lower bound
+    (:func:`bounding_gaps`) where that is at least ``influence`` (not
+    measured: its distance is at least that), NaN elsewhere; the pairs of
+    ``measure`` (P,) bools whose lower bound lies below it, to measure)."""
+    P = len(measure)
+    dists = np.full(P, np.nan)
+    near = np.empty(P, np.int64)
+    m = 0
+    for n in range(P):
+        if not measure[n]:
+            continue
+        lower = _gap(n, slot, centre, half, box_R, box_p, R, o)
+        if lower >= influence:
+            dists[n] = lower
+        else:
+            near[m] = n
+            m += 1
+    return dists, near[:m]

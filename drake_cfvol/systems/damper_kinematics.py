@@ -150,6 +150,20 @@ def _moved_between(q0, q1, chain, body, R_WB, p_WB, radius):
     return _moved(R0, o0, R1, o1, radius)
 
 
+@njit(cache=True)
+def _budget_moved(q0, q1, chain, body, R_WB, p_WB, radius, pair_bodies, budget):
+    """Per pair, ``budget`` less how far its two bodies (``pair_bodies``
+    (P, 2) slots; -1 or S: welded, the last entry of
+    :func:`_moved_between`, 0) moved between q0 and q1."""
+    moved = _moved_between(q0, q1, chain, body, R_WB, p_WB, radius)
+    welded = len(moved) - 1
+    out = np.empty(len(budget))
+    for n in range(len(budget)):
+        a, b = pair_bodies[n, 0], pair_bodies[n, 1]
+        out[n] = budget[n] - moved[a if a >= 0 else welded] - moved[b if b >= 0 else welded]
+    return out
+
+
 class SlotKinematics:
     """Forward kinematics of the damper's moving bodies ("slots") by the
     kernel's chain: poses and Jacobians at their origins, in the robot's k
@@ -218,3 +232,11 @@ class SlotKinematics:
         its origin moved between the configurations q0 and q1, m (the last
         entry, for welded sides, 0)."""
         return _moved_between(np.asarray(q0, float), np.asarray(q1, float), *self.compiled()[:4], radius)
+
+    def budget_moved(self, q0, q1, radius, pair_bodies, budget) -> np.ndarray:
+        """Per pair, ``budget`` (P,) less how far each of its two bodies
+        (``pair_bodies`` (P, 2) slots, S for a welded side) moved between
+        q0 and q1 (:meth:`moved`), in one compiled call."""
+        return _budget_moved(
+            np.asarray(q0, float), np.asarray(q1, float), *self.compiled()[:4], radius, pair_bodies, budget
+        )

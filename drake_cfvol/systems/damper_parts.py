@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drake_cfvol.systems.damper_kernel import NO_POINT_QUERY, bounding_gaps, local_box, point_query_shape
+from drake_cfvol.systems.damper_kernel import NO_POINT_QUERY, local_box, near_pairs, point_query_shape
 
 __all__ = ["BroadPhase", "RowList", "side_arrays", "drake_pair_rows"]
 
@@ -120,22 +120,23 @@ class BroadPhase:
                 else:
                     self.query_posed.append((n, j, gid))
 
-    def lower_bounds(self, query, R, o, pairs) -> np.ndarray:
-        """Lower bounds of the distances of ``pairs`` (indices), m: between
-        two balls, their gap; between a ball and a box, the ball centre's
-        distance from the box less its radius; between two boxes, -inf
-        (measure). The bodies posed at R, o."""
+    def near(self, query, R, o, measure, influence: float) -> tuple[np.ndarray, np.ndarray]:
+        """The pairs of ``measure`` ((P,) bools) to measure, by lower bounds
+        of their distances: between two balls, their gap; between a ball
+        and a box, the ball centre's distance from the box less its radius;
+        between two boxes, -inf. Returns (per pair the lower bound where it
+        is at least ``influence`` (m), NaN elsewhere; the indices of the
+        pairs whose bound lies below it). The bodies posed at R, o."""
         if self.query_posed:  # boxes that move on their own: one pose look-up per geometry
-            look = set(pairs.tolist())
             posed = {}
             for n, j, gid in self.query_posed:
-                if n in look:
+                if measure[n]:
                     if gid not in posed:
                         X = query.GetPoseInWorld(gid)
                         posed[gid] = (X.rotation().matrix(), X.translation())
                     self.box_R[n, j], self.box_p[n, j] = posed[gid]
-        return bounding_gaps(
-            np.asarray(pairs, np.int64),
+        return near_pairs(
+            measure,
             self._ball_slot,
             self._ball_centre,
             self._ball_half,
@@ -143,6 +144,7 @@ class BroadPhase:
             self.box_p,
             R,
             o,
+            float(influence),
         )
 
 

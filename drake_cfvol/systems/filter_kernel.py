@@ -15,7 +15,7 @@ from numba import njit
 from drake_cfvol.systems.damper_kinematics import _second_order, _slot_poses
 from drake_cfvol.systems.qp import staged_solve
 
-__all__ = ["filter_rounds"]
+__all__ = ["budget_after", "filter_rounds"]
 
 
 @njit(cache=True)
@@ -213,3 +213,25 @@ def finish(q, v, lo, hi, vmax, limits, desired, period, sane, changed):
         if abs(q_next[j] - desired[j]) > changed:
             acted = True
     return out, q_next, exited, ratio, acted
+
+
+@njit(cache=True)
+def budget_after(dists, budget, influence, base):
+    """After an update's measurement: (the smallest known distance, m: a
+    measured pair's distance, a skipped pair's influence distance plus its
+    budget; the budget to keep: per pair its distance beyond the influence
+    distance, measured, or its budget, skipped (``dists`` NaN), then the
+    base position it holds at)."""
+    n = len(dists)
+    out = np.empty(n + len(base))
+    dmin = np.inf
+    for i in range(n):
+        if np.isnan(dists[i]):
+            known = influence + max(budget[i], 0.0)
+            out[i] = budget[i]
+        else:
+            known = dists[i]
+            out[i] = dists[i] - influence
+        dmin = min(dmin, known)
+    out[n:] = base
+    return dmin, out

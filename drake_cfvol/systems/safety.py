@@ -180,7 +180,7 @@ from drake_cfvol.systems.constraints import (
     solve_rounds,
 )
 from drake_cfvol.systems.damper import DamperRows, VelocityDamper, dynamic_pairs, measure_dynamic
-from drake_cfvol.systems.filter_kernel import finish, request
+from drake_cfvol.systems.filter_kernel import budget_after, finish, request
 
 __all__ = ["SafetyFilter", "SafetyFilterConfig"]
 
@@ -605,10 +605,10 @@ class SafetyFilter(LeafSystem):
             except RuntimeError:
                 rows = self._damper.empty()
                 fallback = True
-            dists = rows.distances
-            # Skipped pairs lie at least their budget beyond the influence distance.
-            known = np.where(np.isnan(dists), self.influence_distance + np.maximum(budget, 0.0), dists)
-            dmin = float(known.min()) if len(known) else np.inf
+            # Skipped pairs lie at least their budget beyond the influence
+            # distance; the budget kept: measured pairs' distance beyond it,
+            # the others' budget, both with the robot at this base.
+            dmin, keep = budget_after(rows.distances, budget, self.influence_distance, base)
             v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal, drift)
             tracking = missed and drift is not None
             if drift is not None:
@@ -620,10 +620,7 @@ class SafetyFilter(LeafSystem):
         discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
         discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
         if sane and self._damper.num_pairs and self.skip_far_pairs:
-            # Measured pairs: their distance beyond the influence distance;
-            # the others keep their budget; both with the robot at this base.
-            left = np.where(np.isnan(dists), budget, dists - self.influence_distance)
-            discrete_state.get_mutable_vector(self._budget).SetFromVector(np.concatenate([left, base]))
+            discrete_state.get_mutable_vector(self._budget).SetFromVector(keep)
         else:  # measure every pair at the next update
             self._reset_budget(discrete_state.get_mutable_vector(self._budget))
         discrete_state.get_mutable_vector(self._status).SetFromVector(
