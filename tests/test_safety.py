@@ -655,3 +655,80 @@ def test_a_non_finite_measured_position_holds_the_command():
     step = _update(arm, ctx, sctx, 2, q_a, desired=q_a + ask)
     np.testing.assert_allclose(step, ask, atol=1e-12)
     assert sf.tracking_faults_output.Eval(sctx)[0] == 0.0
+
+
+def test_the_stacked_rows_are_the_constraints_written_out():
+    """The filter's own constraints stacked in one compiled call equal the
+    rows written out by hand with numpy: [I; -I] over the joints with a
+    finite limit (b = -vmax twice), the box [I; -I] (b = lo, -hi), each
+    damper block's rows of its pairs in order (with their row indices),
+    the per-row priorities, weights and relaxation, zeros' signs included."""
+    from drake_cfvol.systems.constraints import BOX, HARD, ROW
+    from drake_cfvol.systems.filter_kernel import BOX_ROWS, DAMPER_ROWS, LIMIT_ROWS, stack_rows
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        k, P, m = rng.integers(1, 8), rng.integers(0, 6), rng.integers(0, 15)
+        vmax = rng.uniform(0.5, 2.0, k)
+        vmax[rng.random(k) < 0.3] = np.inf
+        lo, hi = -rng.uniform(0, 1, k), rng.uniform(0, 1, k)
+        dA, db = rng.normal(size=(m, k)), rng.normal(size=m)
+        dpair = rng.integers(0, max(P, 1), m) if P else np.zeros(0, np.int64)
+        if not P:
+            dA, db = dA[:0], db[:0]
+        dynamic = rng.random(P) < 0.4
+        kinds = np.array([LIMIT_ROWS, BOX_ROWS, DAMPER_ROWS, DAMPER_ROWS])
+        weights, prios = np.array([1e6, 1e3, 1e6, 1e6]), np.array([HARD, BOX, ROW, ROW])
+        relaxed = np.array([False, False, True, False])
+        pairs = np.array([np.zeros(P, bool), np.zeros(P, bool), ~dynamic, dynamic])
+        A, b, prio, weight, so, rel, counts = stack_rows(
+            kinds, weights, prios, relaxed, pairs, vmax, lo, hi, dA, db, dpair
+        )
+        finite = np.isfinite(vmax)
+        eye = np.eye(k)
+        static, moving = ~dynamic[dpair], dynamic[dpair]
+        want_A = np.vstack([eye[finite], -eye[finite], eye, -eye, dA[static], dA[moving]])
+        want_b = np.concatenate([-vmax[finite], -vmax[finite], lo, -hi, db[static], db[moving]])
+        want_counts = [2 * finite.sum(), 2 * k, static.sum(), moving.sum()]
+        assert counts.tolist() == want_counts
+        assert np.array_equal(A, want_A) and np.array_equal(np.signbit(A), np.signbit(want_A))
+        assert np.array_equal(b, want_b)
+        assert np.array_equal(prio, np.repeat(prios, want_counts))
+        assert np.array_equal(weight, np.repeat(weights, want_counts))
+        assert np.array_equal(rel, np.repeat(relaxed, want_counts))
+        want_so = np.concatenate(
+            [np.full(2 * finite.sum() + 2 * k, -1), np.flatnonzero(static), np.flatnonzero(moving)]
+        )
+        assert np.array_equal(so, want_so)
+
+
+def test_the_filters_own_constraints_in_one_call_equal_them_one_by_one():
+    """A filter whose constraints are its own stacks them in one compiled
+    call; a user's constraint (here one with no rows) sends the update
+    through each constraint's rows instead. Both give the same commands,
+    bit for bit, over a push into the wall and along it (damper rows
+    active, the box and the limits binding)."""
+    from drake_cfvol.systems.constraints import FilterConstraint
+
+    class NoRows(FilterConstraint):
+        name = "no_rows"
+
+        def rows(self, step):
+            return np.zeros((0, 2)), np.zeros(0)
+
+    runs = []
+    for extra in ([], [NoRows()]):
+        diagram, sf, _, _ = _arm("wall", clearance=0.02, influence_distance=0.15, constraints=extra)
+        ctx = diagram.CreateDefaultContext()
+        sctx = sf.GetMyContextFromRoot(ctx)
+        sf.set_initial_position(sctx, [1.2, 0.0])
+        sim = Simulator(diagram, ctx)
+        out = []
+        for n, desired in enumerate([[-0.3, 0.0]] * 150 + [[0.2, 1.0]] * 100):
+            _fix(diagram, ctx, desired, lower=(-0.5, -2.0), upper=(1.5, 0.8), nominal=[1.2, 0.0])
+            sim.AdvanceTo((n + 1) * H)
+            out.append(sf.commanded_position_output.Eval(sctx).copy())
+        runs.append((np.array(out), sf.filter_count_output.Eval(sctx)[0], sf.qp_solves))
+    (a, count_a, solves_a), (b, count_b, solves_b) = runs
+    assert count_a > 50 and solves_a > 0  # the damper and the box at work
+    assert np.array_equal(a, b) and count_a == count_b and solves_a == solves_b

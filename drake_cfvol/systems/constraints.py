@@ -21,7 +21,7 @@ import numpy as np
 from pydrake.multibody.tree import JacobianWrtVariable
 
 from drake_cfvol.exceptions import ParameterError
-from drake_cfvol.systems.filter_kernel import filter_rounds
+from drake_cfvol.systems.filter_kernel import BOX_ROWS, DAMPER_ROWS, LIMIT_ROWS, filter_rounds, stack_rows
 from drake_cfvol.systems.qp import stage_problem, staged_solve
 
 __all__ = [
@@ -125,6 +125,11 @@ class FilterConstraint:
     priority = ROW
     weight = 1e6
     relaxed = False
+    #: The filter's own constraints: the kind of rows
+    #: :func:`~.filter_kernel.stack_rows` makes for them, so that an update
+    #: stacks them in one compiled call; None for any other (its
+    #: :meth:`rows` are called).
+    stack = None
 
     def rows(self, step: FilterStep) -> tuple[np.ndarray, np.ndarray]:
         """(A (m, k), b (m,)) at this update, to first order."""
@@ -136,82 +141,76 @@ class FilterConstraint:
         return None
 
 
-def _signed_eye(mask) -> np.ndarray:
-    """[I; -I] over the joints of ``mask`` (rows of the identity)."""
-    eye = np.eye(len(mask))[mask]
-    return np.vstack([eye, -eye])
+def _own_rows(c, step) -> tuple:
+    """(A, b, second-order rows) of one of the filter's own constraints (its
+    :attr:`~FilterConstraint.stack` kind) by :func:`~.filter_kernel.stack_rows`,
+    the code that stacks them all at an update."""
+    damper = step.damper
+    pairs = c.pairs[None, :] if c.stack == DAMPER_ROWS else np.zeros((1, 0), bool)
+    A, b, _, _, so, _, _ = stack_rows(
+        np.array([c.stack], np.int64),
+        np.array([c.weight], float),
+        np.array([c.priority], np.int64),
+        np.array([c.relaxed]),
+        pairs,
+        np.asarray(step.vmax, float),
+        np.asarray(step.lo, float),
+        np.asarray(step.hi, float),
+        damper.A,
+        damper.b,
+        damper.pair,
+    )
+    return A, b, so
 
 
 class VelocityLimits(FilterConstraint):
     """|v_j| <= vmax_j (:data:`HARD`)."""
 
-    name, priority = "velocity_limits", HARD
-
-    def __init__(self):
-        self._memo = (None, None)
+    name, priority, stack = "velocity_limits", HARD, LIMIT_ROWS
 
     def rows(self, step):
-        key = step.vmax.tobytes()
-        if self._memo[0] != key:  # the limits rarely change: rows built once per limits
-            finite = np.isfinite(step.vmax)
-            vmax = step.vmax[finite]
-            self._memo = (key, (_signed_eye(finite), np.concatenate([-vmax, -vmax])))
-        return self._memo[1]
+        return _own_rows(self, step)[:2]
 
 
 class JointBox(FilterConstraint):
     """lower <= q_c + v dt <= upper, the box at the next path position, as
     the velocity interval lo <= v <= hi (:data:`BOX`: gives way to a row)."""
 
-    name, priority = "box", BOX
+    name, priority, stack = "box", BOX, BOX_ROWS
 
     def __init__(self, weight: float):
         self.weight = float(weight)
-        self._A = None
 
     def rows(self, step):
-        k = len(step.lo)
-        if self._A is None or len(self._A) != 2 * k:
-            self._A = _signed_eye(np.ones(k, bool))
-        return self._A, np.concatenate([step.lo, -step.hi])
+        return _own_rows(self, step)[:2]
 
 
 class DamperConstraint(FilterConstraint):
-    """The velocity damper's rows (SPEC 9), with their second-order term
-    and, for the static scene, the relaxation towards the nominal.
+    """The velocity damper's rows (SPEC 9) of some of its pairs, with their
+    second-order term and, for the static scene, the relaxation towards
+    the nominal.
 
     Args:
         weight: the weight of a miss.
         relax: whether the rows are relaxed towards the nominal (False for
             perceived, moving obstacles: the nominal is not known to be
             free of them).
-        select: (rows) -> bools, which of the damper's rows are this
-            constraint's.
+        pairs: (pairs,) bools over the damper's pairs: the rows of these
+            pairs are this constraint's.
         name: the constraint's name.
     """
 
-    priority = ROW
+    priority, stack = ROW, DAMPER_ROWS
 
-    def __init__(self, *, weight: float, relax: bool, select, name: str):
-        self.weight, self.relaxed, self._select, self.name = float(weight), bool(relax), select, name
-        self._memo = (None, None)
+    def __init__(self, *, weight: float, relax: bool, pairs, name: str):
+        self.weight, self.relaxed, self.name = float(weight), bool(relax), name
+        self.pairs = np.array(pairs, bool).reshape(-1)
 
     def rows(self, step):
-        rows = step.damper
-        mask = self._mask(rows)
-        return rows.A[mask], rows.b[mask]
+        return _own_rows(self, step)[:2]
 
     def second_order_rows(self, step):
-        return np.flatnonzero(self._mask(step.damper))
-
-    def _mask(self, rows):
-        """``select(rows)``, once per update's rows."""
-        memo = self._memo
-        if memo[0] is rows:
-            return memo[1]
-        mask = self._select(rows)
-        self._memo = (rows, mask)
-        return mask
+        return _own_rows(self, step)[2]
 
 
 def _polytope_radius(dirs) -> float:
@@ -332,27 +331,31 @@ class PriorityQP:
     def hints(self, blocks) -> np.ndarray:
         """The rows active at the last solve, by constraint name (none for a
         constraint whose row count changed)."""
-        key = tuple((blk.name, len(blk.b)) for blk in blocks)
+        return self.hints_for(tuple((blk.name, len(blk.b)) for blk in blocks))
+
+    def hints_for(self, layout) -> np.ndarray:
+        """:meth:`hints` of blocks of this layout ((name, rows) per block)."""
         if self._last is not None:
-            if key == self._last[0]:  # the same constraints and row counts as the last solve
+            if layout == self._last[0]:  # the same constraints and row counts as the last solve
                 return self._last[1].copy()
             at = 0
             for name, m in self._last[0]:
                 self._warm[name] = self._last[1][at : at + m]
                 at += m
             self._last = None
-        out = [self._warm.get(blk.name) for blk in blocks]
+        out = [self._warm.get(name) for name, _ in layout]
         return np.concatenate(
             [np.zeros(0, bool)]
-            + [
-                w if w is not None and len(w) == len(blk.b) else np.zeros(len(blk.b), bool)
-                for w, blk in zip(out, blocks)
-            ]
+            + [w if w is not None and len(w) == m else np.zeros(m, bool) for w, (_, m) in zip(out, layout)]
         )
 
     def remember(self, blocks, active) -> None:
         """Keeps the rows active at a solve (stacked as the blocks), by constraint name."""
-        self._last = (tuple((blk.name, len(blk.b)) for blk in blocks), np.array(active, bool))
+        self.remember_layout(tuple((blk.name, len(blk.b)) for blk in blocks), active)
+
+    def remember_layout(self, layout, active) -> None:
+        """:meth:`remember` of blocks of this layout ((name, rows) per block)."""
+        self._last = (layout, np.array(active, bool))
 
 
 def _stack(blocks, k: int, relaxed=None):
@@ -379,7 +382,7 @@ def _layout(blocks, relaxed) -> tuple:
     (the non-hard ones, lowest priority, i.e. largest number, first) of
     blocks of these priorities, weights, row counts and ``relaxed`` flags:
     made once per layout (a filter meets a handful) and shared, so never
-    written."""
+    written (the compiled code takes them as writeable arrays)."""
     key = tuple((blk.priority, blk.weight, len(blk.b), flag) for blk, flag in zip(blocks, relaxed))
     out = _LAYOUTS.get(key)
     if out is None:
@@ -388,9 +391,8 @@ def _layout(blocks, relaxed) -> tuple:
             np.repeat(np.array([blk.priority for blk in blocks], np.int64), counts),
             np.repeat(np.array([blk.weight for blk in blocks], float), counts),
             np.repeat(np.array(relaxed, bool), counts),
-            np.array(sorted({blk.priority for blk in blocks if blk.priority != HARD}, reverse=True), np.int64),
+            _levels_of(tuple(blk.priority for blk in blocks)),
         )
-        out[3].flags.writeable = False  # the others are passed as the compiled code's writeable arrays: never written
         if len(_LAYOUTS) > 1024:  # row counts vary with the scene: kept bounded
             _LAYOUTS.clear()
         _LAYOUTS[key] = out
@@ -398,25 +400,19 @@ def _layout(blocks, relaxed) -> tuple:
 
 
 def _levels(blocks) -> np.ndarray:
-    """The priorities made soft stage by stage: the non-hard ones, lowest priority (largest number) first."""
-    return _layout(blocks, (False,) * len(blocks))[3]
+    """The priorities made soft stage by stage (:func:`_levels_of`) of the blocks."""
+    return _levels_of(tuple(blk.priority for blk in blocks))
 
 
 #: :func:`_layout` by the blocks' priorities, weights, row counts and flags.
 _LAYOUTS: dict = {}
 
 
-def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: int, nudge: float):
-    """The velocity commanded for the request v_t (within the box and the
-    limits): (v, missed: a :data:`ROW` row missed at v, solved: False where
-    the QP failed and v holds as far as the box allows). The request as is
-    where it meets every row at its own step; else the QP, the damper rows'
-    right-hand sides at the last solution (their second-order term there,
-    then the relaxation towards the nominal) until that solution meets its
-    own (at most ``rounds`` solves; the right-hand sides only grow, a row
-    still short by ``nudge`` more). One compiled call
-    (:func:`~drake_cfvol.systems.filter_kernel.filter_rounds`)."""
-    k = len(v_t)
+def _stacked(constraints, step, k: int) -> tuple:
+    """Every constraint's rows at the step, stacked: (A, b, priority, weight,
+    second-order row, relaxed per row, the soft stages' priorities, the
+    layout ((name, rows) per constraint with rows)). A constraint's
+    second-order rows are checked (the compiled rounds trust them)."""
     blocks, so_rows, relaxed = [], [], []
     for c in constraints:
         A, b = c.rows(step)
@@ -441,6 +437,94 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
         if so is not None:
             so_row[at : at + len(so)] = so
         at += len(blk.b)
+    return A, b, prio, weight, so_row, relaxed_rows, levels, tuple((blk.name, len(blk.b)) for blk in blocks)
+
+
+def _plan(constraints):
+    """For constraints that are all the filter's own (each with a
+    :attr:`~FilterConstraint.stack` kind), what :func:`~.filter_kernel.stack_rows`
+    needs besides the step: (kinds, weights, priorities, relaxed flags,
+    damper pairs per block, names); else None. Made once per list of
+    constraints."""
+    key = tuple(map(id, constraints))
+    memo = _PLANS.get(key)
+    if memo is not None and all(a is b for a, b in zip(memo[0], constraints)):
+        return memo[1]
+    plan = None
+    if constraints and all(c.stack is not None for c in constraints):
+        P = max((len(c.pairs) for c in constraints if c.stack == DAMPER_ROWS), default=0)
+        pairs = np.zeros((len(constraints), P), bool)
+        for i, c in enumerate(constraints):
+            if c.stack == DAMPER_ROWS:
+                if len(c.pairs) != P:
+                    raise ParameterError(
+                        f"DamperConstraint '{c.name}': pairs must hold one flag per damper pair ({P}), "
+                        f"got {len(c.pairs)}."
+                    )
+                pairs[i] = c.pairs
+        plan = (
+            np.array([c.stack for c in constraints], np.int64),
+            np.array([c.weight for c in constraints], float),
+            np.array([c.priority for c in constraints], np.int64),
+            np.array([c.relaxed for c in constraints], bool),
+            pairs,
+            tuple(c.name for c in constraints),
+        )
+    if len(_PLANS) > 64:
+        _PLANS.clear()
+    _PLANS[key] = (tuple(constraints), plan)
+    return plan
+
+
+#: :func:`_plan` by the constraints' identities (kept with them, so an id is never reused while cached).
+_PLANS: dict = {}
+
+
+def _levels_of(prios: tuple) -> np.ndarray:
+    """The soft stages' priorities of blocks of these priorities: the
+    non-hard ones, lowest priority (largest number) first (read-only,
+    made once per combination)."""
+    out = _LEVELS.get(prios)
+    if out is None:
+        out = _LEVELS[prios] = np.array(sorted({p for p in prios if p != HARD}, reverse=True), np.int64)
+        out.flags.writeable = False
+    return out
+
+
+#: :func:`_levels_of` by the blocks' priorities.
+_LEVELS: dict = {}
+
+
+def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: int, nudge: float):
+    """The velocity commanded for the request v_t (within the box and the
+    limits): (v, missed: a :data:`ROW` row missed at v, solved: False where
+    the QP failed and v holds as far as the box allows). The request as is
+    where it meets every row at its own step; else the QP, the damper rows'
+    right-hand sides at the last solution (their second-order term there,
+    then the relaxation towards the nominal) until that solution meets its
+    own (at most ``rounds`` solves; the right-hand sides only grow, a row
+    still short by ``nudge`` more). One compiled call
+    (:func:`~drake_cfvol.systems.filter_kernel.filter_rounds`)."""
+    k = len(v_t)
+    plan = _plan(constraints)
+    if plan is not None:  # the filter's own constraints only: stacked in one compiled call
+        kinds, weights, prios, relaxed, pairs, names = plan
+        damper = step.damper
+        if pairs.shape[1] and pairs.shape[1] != len(damper.distances):
+            raise ParameterError(
+                f"DamperConstraint: pairs must hold one flag per damper pair ({len(damper.distances)}), "
+                f"got {pairs.shape[1]}."
+            )
+        A, b, prio, weight, so_row, relaxed_rows, counts = stack_rows(
+            kinds, weights, prios, relaxed, pairs, step.vmax, step.lo, step.hi, damper.A, damper.b, damper.pair
+        )
+        counts = counts.tolist()
+        layout = tuple((name, n) for name, n in zip(names, counts) if n)
+        levels = _levels_of(tuple(p for p, n in zip(prios.tolist(), counts) if n))
+        hints = qp.hints_for(layout)
+    else:  # a constraint of the user's: each constraint's rows, stacked
+        A, b, prio, weight, so_row, relaxed_rows, levels, layout = _stacked(constraints, step, k)
+        hints = qp.hints_for(layout)
     damper, kin = step.damper, step.kinematics
     v, missed, solved, active, solves = filter_rounds(
         np.asarray(v_t, float),
@@ -449,9 +533,9 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
         kin.compiled(),
         (step.q, step.q_c, step.nominal_or_nan(), step.lo, step.hi, step.vmax, step.drift),
         (levels, HARD, ROW, int(rounds), float(nudge), float(step.period)),
-        qp.hints(blocks),
+        hints,
     )
     qp.solves += solves
     if solves:
-        qp.remember(blocks, active)
+        qp.remember_layout(layout, active)
     return v, bool(missed), bool(solved)

@@ -235,3 +235,75 @@ def budget_after(dists, budget, influence, base):
         dmin = min(dmin, known)
     out[n:] = base
     return dmin, out
+
+
+#: Kinds of the constraints whose rows :func:`stack_rows` makes.
+LIMIT_ROWS, BOX_ROWS, DAMPER_ROWS = 0, 1, 2
+
+
+@njit(cache=True)
+def stack_rows(kinds, weights, prios, relaxed, pairs, vmax, lo, hi, dA, db, dpair):
+    """The rows of the filter's own constraints, stacked block after block
+    in one call: (A (m, k), b, priority, weight, second-order row (the damper
+    row a row is; -1: none), relaxed per row, rows per block).
+
+    Args:
+        kinds: (n,) per block :data:`LIMIT_ROWS` (v_j >= -vmax_j and -v_j >=
+            -vmax_j over the joints with a finite limit), :data:`BOX_ROWS`
+            (v >= lo, -v >= -hi) or :data:`DAMPER_ROWS` (the damper's rows
+            of the pairs the block's ``pairs`` row holds).
+        weights, prios, relaxed: (n,) the blocks' weight, priority and
+            relaxation.
+        pairs: (n, P) bools, per damper block its pairs.
+        vmax, lo, hi: (k,) the velocity limits and the box's velocity
+            interval.
+        dA, db, dpair: the damper's rows (m_d, k), (m_d,) and their pairs.
+    """
+    n, k, md = len(kinds), len(lo), len(db)
+    finite = 0
+    for j in range(k):
+        if np.isfinite(vmax[j]):
+            finite += 1
+    counts = np.zeros(n, np.int64)
+    for i in range(n):
+        if kinds[i] == LIMIT_ROWS:
+            counts[i] = 2 * finite
+        elif kinds[i] == BOX_ROWS:
+            counts[i] = 2 * k
+        else:
+            for r in range(md):
+                if pairs[i, dpair[r]]:
+                    counts[i] += 1
+    m = 0
+    for i in range(n):
+        m += counts[i]
+    A, b = np.zeros((m, k)), np.empty(m)
+    prio, weight = np.empty(m, np.int64), np.empty(m)
+    so_row, rel = np.full(m, -1, np.int64), np.zeros(m, np.bool_)
+    at = 0
+    for i in range(n):
+        if kinds[i] == DAMPER_ROWS:
+            r = at
+            for d in range(md):
+                if pairs[i, dpair[d]]:
+                    for j in range(k):
+                        A[r, j] = dA[d, j]
+                    b[r], so_row[r] = db[d], d
+                    r += 1
+        else:  # [I; -I] over the block's joints (the lower half's zeros negative, as -I's)
+            half = counts[i] // 2
+            r = at
+            for j in range(k):
+                if kinds[i] == BOX_ROWS or np.isfinite(vmax[j]):
+                    for c in range(k):
+                        A[r + half, c] = -0.0
+                    A[r, j], A[r + half, j] = 1.0, -1.0
+                    if kinds[i] == BOX_ROWS:
+                        b[r], b[r + half] = lo[j], -hi[j]
+                    else:
+                        b[r], b[r + half] = -vmax[j], -vmax[j]
+                    r += 1
+        for r in range(at, at + counts[i]):
+            prio[r], weight[r], rel[r] = prios[i], weights[i], relaxed[i]
+        at += counts[i]
+    return A, b, prio, weight, so_row, rel, counts

@@ -429,15 +429,8 @@ class SafetyFilter(LeafSystem):
         self.constraints = [
             VelocityLimits(),
             JointBox(self.BOX_WEIGHT),
-            DamperConstraint(
-                weight=self.SLACK_WEIGHT, relax=True, name="damper", select=lambda rows: ~dynamic[rows.pair]
-            ),
-            DamperConstraint(
-                weight=self.SLACK_WEIGHT,
-                relax=False,
-                name="perceived_obstacles",
-                select=lambda rows: dynamic[rows.pair],
-            ),
+            DamperConstraint(weight=self.SLACK_WEIGHT, relax=True, name="damper", pairs=~dynamic),
+            DamperConstraint(weight=self.SLACK_WEIGHT, relax=False, name="perceived_obstacles", pairs=dynamic),
         ]
         self.constraints += list(constraints)
         self._robot_slice = robot_slice
