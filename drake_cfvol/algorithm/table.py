@@ -110,24 +110,33 @@ def _equal(a, b):
     return True
 
 
+@njit(cache=True)
+def _same_inputs(lo, hi, r, stretch_lower, stretch_upper, rate):
+    """The last envelopes' inputs (lo, hi, r) equal these, shapes and
+    values (one compiled call per control update)."""
+    return (
+        lo.shape == stretch_lower.shape
+        and hi.shape == stretch_upper.shape
+        and r.shape == rate.shape
+        and _equal(lo, stretch_lower)
+        and _equal(hi, stretch_upper)
+        and _equal(r, rate)
+    )
+
+
 def _stretch_envelopes(stretch_lower, stretch_upper, rate):
     """(Au, Bu, Al, Bl) of :func:`_envelopes`, reused while the inputs are
     equal to the last call's (compared by value, so an array changed in
     place is never served stale envelopes)."""
+    rate = np.asarray(rate, float)
     if _LAST_ENVELOPES:
         (lo, hi, r), out = _LAST_ENVELOPES[0]
-        if (
-            lo.shape == stretch_lower.shape
-            and hi.shape == stretch_upper.shape
-            and r.shape == np.shape(rate)
-            and _equal(lo, stretch_lower)
-            and _equal(hi, stretch_upper)
-            and _equal(r, np.asarray(rate, float))
-        ):
-            return out
+        if stretch_lower.ndim == 2 and stretch_upper.ndim == 2 and rate.ndim == 1:
+            if _same_inputs(lo, hi, r, stretch_lower, stretch_upper, rate):
+                return out
     Au, Bu = _envelopes(stretch_upper, rate, 1.0)
     Al, Bl = _envelopes(stretch_lower, rate, -1.0)
-    _LAST_ENVELOPES[:] = [((stretch_lower.copy(), stretch_upper.copy(), np.array(rate, float)), (Au, Bu, Al, Bl))]
+    _LAST_ENVELOPES[:] = [((stretch_lower.copy(), stretch_upper.copy(), rate.copy()), (Au, Bu, Al, Bl))]
     return Au, Bu, Al, Bl
 
 
@@ -229,7 +238,10 @@ def box_at(
     if interpolation == "stretch" and g > 1:
         if stretch_lower is None or stretch_upper is None:
             stretch_lower, stretch_upper = intersection_stretches(lower, upper)
-        rate = np.full(k, np.inf) if rate is None else np.broadcast_to(np.asarray(rate, float), (k,))
+        if rate is None:
+            rate = np.full(k, np.inf)
+        elif not (isinstance(rate, np.ndarray) and rate.shape == (k,) and rate.dtype == float):
+            rate = np.broadcast_to(np.asarray(rate, float), (k,))
     scalar = np.ndim(s) == 0
     if scalar and g > 1:
         return _box_at_one(lower, upper, nominal, float(s), stretch_lower, stretch_upper, rate, interpolation)

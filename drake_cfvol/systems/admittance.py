@@ -46,6 +46,18 @@ def _bad_box(nominal, lower, upper) -> bool:
 
 
 @njit(cache=True)
+def _push_state(tau, w):
+    """(every torque and wrench entry finite, the wrench not zero)."""
+    finite, wrench = True, False
+    for x in tau:
+        finite = finite and np.isfinite(x)
+    for x in w:
+        finite = finite and np.isfinite(x)
+        wrench = wrench or x != 0
+    return finite, wrench
+
+
+@njit(cache=True)
 def _commanded(nominal, d, lower, upper):
     """clamp(nominal + d, lower, upper)."""
     out = np.empty(len(nominal))
@@ -196,6 +208,8 @@ def AdmittanceDeformation_(T):
                     raise ParameterError(f"velocity_limits must be > 0 (inf: no limit), got {vl.tolist()}.")
                 self.max_rate = (1.0 - self.path_share) * vl
             self._rate_or_inf = np.full(self.k, np.inf) if self.max_rate is None else self.max_rate
+            # The unconnected sensors' values (float; shared, never written).
+            self._zeros, self._no_wrench = np.zeros(self.k), np.zeros(6)
             self._slice = None
             if plant is not None:
                 if robot is None and plant.num_positions() != k:
@@ -371,13 +385,16 @@ def AdmittanceDeformation_(T):
             return nominal, lower, upper
 
         def _update_float(self, context, discrete_state):
-            """:meth:`_update` for float, its arithmetic in one compiled call."""
+            """:meth:`_update` for float, its arithmetic in one compiled call
+            (the sensors' checks in another)."""
             nominal, lower, upper = self._float_inputs(context)
-            tau, w, integrate = self._sensors(context)
-            if not integrate:
-                return
+            tau = self.human_torque_input.Eval(context) if self.human_torque_input.HasValue(context) else self._zeros
+            w = self.human_wrench_input.Eval(context) if self.human_wrench_input.HasValue(context) else self._no_wrench
+            finite, wrench = _push_state(tau, w)
+            if not finite or (self.hold_input.HasValue(context) and self.hold_input.Eval(context)[0] > 0.5):
+                return  # as _sensors: hold the last safe command
             x = context.get_discrete_state(self._state).get_value()
-            if (w != 0).any():
+            if wrench:
                 tau = self._push(context, tau, w, _commanded(nominal, x[: self.k], lower, upper))
             M, D, K = self.gains(context)
             rate = self._rate_or_inf
