@@ -240,20 +240,30 @@ class VelocityDamper:
         if measure is None:
             measure = np.ones(len(self._pairs), bool)
         dists, look = self._broad.near(query, R, o, np.asarray(measure, bool), self.influence_distance)
-        near, slow = [], []  # pair indices (the kernel's rows / Drake's), Drake's results
+        measured[look] = True
+        # The near pairs' Drake results, for the kernel's rows (index, distance,
+        # normal, witnesses) or, for the few it cannot make, Drake's (slow).
+        near, slow = [], []
+        N = len(look)
+        dist, normal, witness = np.empty(N), np.empty((N, 3)), np.empty((N, 2, 3))
         for index in look.tolist():
             id_a, id_b = self._pairs[index][:2]
-            measured[index] = True
             try:
                 pair = query.ComputeSignedDistancePairClosestPoints(id_a, id_b)
             except RuntimeError:  # a shape pair Drake cannot measure: not watched
                 continue
-            dists[index] = pair.distance
-            if pair.distance < self.influence_distance:
-                (slow if self._drake_rows[index] else near).append((index, pair))
+            d = dists[index] = pair.distance
+            if d < self.influence_distance:
+                if self._drake_rows[index]:
+                    slow.append((index, pair))
+                    continue
+                i = len(near)
+                near.append(index)
+                dist[i], normal[i], witness[i, 0], witness[i, 1] = d, pair.nhat_BA_W, pair.p_ACa, pair.p_BCb
         if not near and not slow:
             return self.empty()._replace(distances=dists, measured=measured)
-        parts = [self._kernel_rows(near, R, o, J_w, J_v)] if near else []
+        n = len(near)
+        parts = [self._kernel_rows(near, dist[:n], normal[:n], witness[:n], R, o, J_w, J_v)] if n else []
         if slow:
             out = RowList()
             for index, pair in slow:
@@ -265,17 +275,13 @@ class VelocityDamper:
             A, b, dirs, points, slots, rounds, pair = [np.concatenate(x) for x in zip(*(p[:2] + p[3:8] for p in parts))]
         return DamperRows(A, b, dists, dirs, points, slots, rounds, pair, measured)
 
-    def _kernel_rows(self, near, R, o, J_w, J_v) -> tuple:
-        """The rows of ``near`` pairs ((index, Drake's result)) by
+    def _kernel_rows(self, near, dist, normal, witness, R, o, J_w, J_v) -> tuple:
+        """The rows of the ``near`` pairs (indices; Drake's distances,
+        normals nhat_BA_W and witnesses p_ACa, p_BCb) by
         :func:`~.damper_kernel.pair_rows`: (A, b, None, dirs, points, slots,
         rounds, pair). A side on no moving body of the robot is posed as the
         broad phase posed it at this update (fixed, or by the query)."""
-        N = len(near)
-        pairs = np.empty(N, np.int64)
-        dist, normal, witness = np.empty(N), np.empty((N, 3)), np.empty((N, 2, 3))
-        for i, (index, pair) in enumerate(near):
-            pairs[i], dist[i] = index, pair.distance
-            normal[i], witness[i, 0], witness[i, 1] = pair.nhat_BA_W, pair.p_ACa, pair.p_BCb
+        pairs = np.array(near, np.int64)
         A, b, dirs, points, slots, rounds, owner = pair_rows(
             (pairs, dist, normal, witness, self._broad.box_R, self._broad.box_p),
             self._sides,

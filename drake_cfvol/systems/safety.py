@@ -592,9 +592,10 @@ class SafetyFilter(LeafSystem):
                 measure = (budget < 0) | self._always
             else:
                 budget, measure = np.full(n, -1.0), np.ones(n, bool)
-            measure_dynamic(self._dynamic, self.query_object_input.Eval(context), measure)
+            query = self.query_object_input.Eval(context)
+            measure_dynamic(self._dynamic, query, measure)
             try:
-                rows = self._damper.rows(self.query_object_input.Eval(context), base, measure)
+                rows = self._damper.rows(query, base, measure)
             except RuntimeError:
                 rows = self._damper.empty()
                 fallback = True
