@@ -157,3 +157,37 @@ def test_bad_clearance(automotive):
         plan_nominal_path(automotive, s, g, seed=0, clearance=-0.01)
     with pytest.raises(cf.ParameterError, match="clearance"):
         cf.VolumeParams(clearance=2.0)
+
+
+@pytest.mark.parametrize("cell", ["automotive", "tests/data/mesh_cell.yaml"])
+def test_the_kernel_first_checker_gives_drakes_answers(cell, request):
+    """The planner's checker (the kernel asked first, Drake for what it
+    cannot certify) answers as Drake's padded checker does, on random
+    edges of all lengths (free and colliding) and random configurations,
+    at paddings 0 and 2 cm; on the mesh robot too (STL links, a gripper, a
+    free part). Also with an interpolation Drake does not write as
+    (1 - r) q1 + r q2: then it takes Drake's own samples."""
+    wc = request.getfixturevalue(cell) if cell == "automotive" else cf.load_workcell(cell)
+    rng = np.random.default_rng(7)
+    lo, hi = wc.position_lower, wc.position_upper
+    for clearance in (0.0, 0.02):
+        fast, drake = wc.planning_checker(clearance), wc.padded_checker(clearance)
+        assert fast._linear
+        Q = rng.uniform(lo, hi, (60, wc.num_joints))
+        for q in Q:
+            assert fast.CheckConfigCollisionFree(q) == drake.CheckConfigCollisionFree(q)
+        answers = []
+        for a, b in zip(Q[:30], Q[30:]):
+            b = a + (b - a) * rng.choice([0.01, 0.1, 0.5, 1.0])  # short and long edges
+            answers.append(drake.CheckEdgeCollisionFree(a, b))
+            assert fast.CheckEdgeCollisionFree(a, b) == answers[-1]
+        assert 0 < sum(answers) < len(answers)  # both kinds of edges were asked
+    # An interpolation that is not the linear one (the same samples, each
+    # Drake's own): still Drake's answers.
+    from drake_cfvol.scene.queries import KernelFirstChecker
+
+    drake = wc.padded_checker(0.0)
+    odd = KernelFirstChecker(wc, drake, 0.0)
+    odd._linear = False
+    for a, b in zip(Q[:10], Q[10:20]):
+        assert odd.CheckEdgeCollisionFree(a, b) == drake.CheckEdgeCollisionFree(a, b)

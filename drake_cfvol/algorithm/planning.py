@@ -222,8 +222,10 @@ def _attempt(
     singular_threshold,
 ):
     """One planning attempt: RRT-Connect, seeded shortcuts, densified and
-    verified (every edge by Drake's padded checker, every waypoint off the
-    singularities). Returns (waypoints, stats) or why it failed (str)."""
+    verified (every edge by Drake's padded checker's answer, which the
+    kernel gives where it can certify a sample free,
+    :class:`~drake_cfvol.scene.queries.KernelFirstChecker`; every waypoint
+    off the singularities). Returns (waypoints, stats) or why it failed (str)."""
     edge_free = checker.CheckEdgeCollisionFree
     t0 = time.perf_counter()
     verts, ostats = _ompl.rrt_connect(
@@ -305,7 +307,7 @@ def plan_nominal_path(
     start, goal, lower, upper, margin = _checked_request(
         workcell, q_start, q_goal, seed, time_limit, max_step, singular_threshold, clearance
     )
-    checker = workcell.padded_checker(margin)
+    checker = workcell.planning_checker(margin)  # Drake's answers, the kernel asked first
 
     t_total = time.perf_counter()
     deadline = t_total + time_limit

@@ -9,6 +9,8 @@ Results computed once are kept in the workcell's ``_cache`` dict (one
 idiom: :meth:`WorkcellQueries._memo`).
 """
 
+import math
+
 import numpy as np
 from pydrake.planning import SceneGraphCollisionChecker
 
@@ -23,7 +25,7 @@ from drake_cfvol.exceptions import (
 )
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies, robot_instances
 
-__all__ = ["RobotChecker", "WorkcellQueries", "geometry_key", "robot_geometry_ids"]
+__all__ = ["KernelFirstChecker", "RobotChecker", "WorkcellQueries", "geometry_key", "robot_geometry_ids"]
 
 
 def geometry_key(inspector, geometry_id) -> tuple[str, str]:
@@ -108,6 +110,69 @@ class RobotChecker:
     def IsCollisionFilteredBetween(self, a, b) -> bool:
         """Whether Drake's checker ignores the pair of bodies ``a``, ``b``."""
         return self.drake.IsCollisionFilteredBetween(a, b)
+
+
+class KernelFirstChecker:
+    """Drake's padded checker's answers, the compiled kernel asked first.
+
+    The kernel is conservative (a configuration it certifies free is free
+    by Drake's checker at the same padding), so Drake checks only the
+    configurations the kernel cannot certify. An edge is checked at
+    Drake's own samples (its distance, edge step and interpolation, in its
+    order: the end first, then from the start), so every answer is the one
+    :class:`RobotChecker` gives, only sooner. Used by the planner.
+
+    Args:
+        queries: the workcell (its kernel check, :meth:`WorkcellQueries.collision_free`).
+        checker: the workcell's :class:`RobotChecker` at this padding.
+        clearance: its padding, m.
+    """
+
+    #: Samples of an edge the kernel takes at once (an edge that collides
+    #: stops at the first chunk holding a sample Drake finds colliding).
+    CHUNK = 32
+
+    def __init__(self, queries, checker: RobotChecker, clearance: float):
+        self._queries, self._checker, self._clearance = queries, checker, float(clearance)
+        self.drake, self.slice = checker.drake, checker.slice
+        self._linear = self._interpolation_is_linear()
+
+    def _interpolation_is_linear(self) -> bool:
+        """Whether Drake interpolates the robot's positions as (1 - r) q1 +
+        r q2, bit for bit (its linear provider does; a user's may not:
+        then each sample is Drake's own, one call each)."""
+        rng = np.random.default_rng(0)
+        for _ in range(16):
+            a, b, r = rng.normal(size=self.slice.k), rng.normal(size=self.slice.k), rng.integers(1, 99) / 99
+            q = self.drake.InterpolateBetweenConfigurations(self.slice.full(a), self.slice.full(b), r)
+            if not np.array_equal(q[self.slice.qidx], (1 - r) * a + r * b):
+                return False
+        return True
+
+    def CheckConfigCollisionFree(self, q) -> bool:
+        """True if the robot at ``q`` (k,) is free (Drake's answer)."""
+        return bool(self._queries.collision_free(q, clearance=self._clearance)[0]) or bool(
+            self._checker.CheckConfigCollisionFree(q)
+        )
+
+    def CheckEdgeCollisionFree(self, a, b) -> bool:
+        """True if the straight joint-space edge from ``a`` to ``b`` is free
+        at Drake's edge step (Drake's answer)."""
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        fa, fb = self.slice.full(a), self.slice.full(b)
+        n = int(max(1.0, math.ceil(self.drake.ComputeConfigurationDistance(fa, fb) / self.drake.edge_step_size())))
+        r = np.arange(n) / n
+        if self._linear:
+            Q = np.vstack([b, (1 - r)[:, None] * a + r[:, None] * b])
+        else:
+            Q = np.vstack([b] + [self.drake.InterpolateBetweenConfigurations(fa, fb, x)[self.slice.qidx] for x in r])
+        for at in range(0, len(Q), self.CHUNK):
+            chunk = Q[at : at + self.CHUNK]
+            free = self._queries.collision_free(chunk, clearance=self._clearance)
+            for i in np.flatnonzero(~free):
+                if not self._checker.CheckConfigCollisionFree(chunk[i]):
+                    return False
+        return True
 
 
 class WorkcellQueries:
@@ -270,6 +335,15 @@ class WorkcellQueries:
                 env_collision_padding=clearance,
                 self_collision_padding=clearance,
             ),
+        )
+
+    def planning_checker(self, clearance: float) -> KernelFirstChecker:
+        """:meth:`padded_checker`'s answers, the kernel asked first
+        (:class:`KernelFirstChecker`); one per distinct value."""
+        clearance = float(clearance)
+        return self._memo(
+            ("planning_checker", clearance),
+            lambda: KernelFirstChecker(self, self.padded_checker(clearance), clearance),
         )
 
     def clearance(self, q, influence: float = 1.0) -> float:
