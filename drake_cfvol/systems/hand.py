@@ -6,6 +6,8 @@ its external torque), and it can only push, never pull.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import Sphere
@@ -106,6 +108,7 @@ class CoworkerHand(LeafSystem):
         super().__init__()
         self._hand = hand.index()
         self._tool = tool_frame.body().index()
+        self._hand_i, self._tool_i = int(self._hand), int(self._tool)  # list positions in the ports' values
         self._p_BT = (
             tool_frame.GetFixedPoseInBodyFrame().translation().copy()
             if p_BG is None
@@ -132,38 +135,49 @@ class CoworkerHand(LeafSystem):
 
     def push_direction(self, context) -> np.ndarray:
         """The current push's unit direction (the last one between pushes)."""
-        f = np.asarray(self.wrench_input.Eval(context), float)[3:]
-        n = np.linalg.norm(f)
+        return self._direction(context, np.asarray(self.wrench_input.Eval(context), float)[3:])
+
+    def _direction(self, context, f) -> np.ndarray:
+        n = math.sqrt(f @ f)
         return f / n if n > 0 else context.get_discrete_state(self._side).CopyToVector()
 
     def _remember(self, context, discrete_state) -> None:
-        discrete_state.get_mutable_vector(self._side).SetFromVector(self.push_direction(context))
+        f = np.asarray(self.wrench_input.Eval(context), float)[3:]
+        n = math.sqrt(f @ f)
+        if n > 0:  # between pushes the state keeps the last push's direction as it is
+            discrete_state.get_mutable_vector(self._side).SetFromVector(f / n)
 
     def _calc(self, context, output) -> None:
+        # Evaluated at every plant step: scalar arithmetic where numpy's
+        # per-call cost would dominate (the same values as the array forms).
         f = np.asarray(self.wrench_input.Eval(context), float)[3:]
-        pushing = np.linalg.norm(f) > 0
-        u = self.push_direction(context)
+        pushing = math.sqrt(f @ f) > 0
+        u = self._direction(context, f)
         poses = self.body_poses_input.Eval(context)
         vels = self.body_spatial_velocities_input.Eval(context)
-        X_WT = poses[int(self._tool)]
-        p_WT = X_WT.multiply(self._p_BT)
-        p_WH = poses[int(self._hand)].translation()
-        v_tool, v_hand = vels[int(self._tool)].translational(), vels[int(self._hand)].translational()
-        w_hand = vels[int(self._hand)].rotational()
+        X_WT = poses[self._tool_i]
+        p_WT = X_WT.rotation().matrix() @ self._p_BT + X_WT.translation()
+        p_WH = poses[self._hand_i].translation()
+        v_tool, v_hand = vels[self._tool_i].translational(), vels[self._hand_i].translational()
+        w_hand = vels[self._hand_i].rotational()
         target = p_WT - u * (self._reach + (0.0 if pushing else self._gap))
         e = target - p_WH
         along = u * (u @ e)
         k_along = self._k if pushing else self._k_lat  # between pushes it follows the tool firmly
         guide = k_along * along + self._k_lat * (e - along) + self._d * (v_tool - v_hand)
         # A hand's grip is limited: the guiding part never exceeds GRIP.
-        guide *= min(1.0, GRIP / max(np.linalg.norm(guide), 1e-12))
+        guide *= min(1.0, GRIP / max(math.sqrt(guide @ guide), 1e-12))
         # A hand that slipped past the tool stops pushing: the push fades out
         # between SLIP and 3 SLIP beyond its target along the push.
         past = float(u @ (p_WH - target))
-        f = f * float(np.clip((3 * SLIP - past) / (2 * SLIP), 0.0, 1.0))
+        f = f * min(max((3 * SLIP - past) / (2 * SLIP), 0.0), 1.0)
         force = guide + self._weight * self._up + f
         spatial = ExternallyAppliedSpatialForce()
         spatial.body_index = self._hand
-        spatial.p_BoBq_B = np.zeros(3)
+        spatial.p_BoBq_B = _ORIGIN
         spatial.F_Bq_W = SpatialForce(-1e-3 * w_hand, force)
         output.set_value([spatial])
+
+
+#: The hand's force acts at its centre.
+_ORIGIN = np.zeros(3)
