@@ -242,7 +242,7 @@ def box_at(
             rate = np.full(k, np.inf)
         elif not (isinstance(rate, np.ndarray) and rate.shape == (k,) and rate.dtype == float):
             rate = np.broadcast_to(np.asarray(rate, float), (k,))
-    scalar = np.ndim(s) == 0
+    scalar = isinstance(s, float) or np.ndim(s) == 0  # a float (the control loop): no array made
     if scalar and g > 1:
         return _box_at_one(lower, upper, nominal, float(s), stretch_lower, stretch_upper, rate, interpolation)
     s = np.atleast_1d(np.asarray(s, float))
