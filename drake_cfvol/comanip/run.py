@@ -51,6 +51,8 @@ def _simulate(cm, scenario, meshcat, progress: bool):
 def _write_files(cm, logs, out: Path, meshcat, plot: bool, svg: bool, ctx=None) -> dict:
     """The recording (self-contained HTML), the plot and the diagram's SVG."""
     files = {}
+    if plot:  # first: within plotting.in_background it is drawn while the rest is written
+        files["plot_png"] = str(plot_run(logs, cm, out / "run.png"))
     if meshcat is not None:
         meshcat.StopRecording()
         if cm.online is not None:
@@ -59,8 +61,6 @@ def _write_files(cm, logs, out: Path, meshcat, plot: bool, svg: bool, ctx=None) 
         html = out / "recording.html"
         html.write_text(meshcat.StaticHtml())
         files["recording_html"] = str(html)
-    if plot:
-        files["plot_png"] = str(plot_run(logs, cm, out / "run.png"))
     if svg:
         files.update(write_diagram_svg(cm.diagram, out / "diagram"))
     return files
