@@ -100,3 +100,60 @@ def test_bad_parameters_name_the_field():
         PerceptionParams(dilation=1.5)
     with pytest.raises(ParameterError, match="speed"):
         PerceptionParams(speed=-1.0)
+
+
+def test_dilation_is_the_neighbourhood_max_by_brute_force():
+    """The compiled dilation equals the max over each cell's (2r+1) x
+    (2r+1) neighbourhood taken cell by cell, for height maps (dilated
+    around their occupied block only), maps with negative values and an
+    empty map, at r = 0..7."""
+    from drake_cfvol.online.obstacle_map import _dilate
+
+    rng = np.random.default_rng(5)
+    for shape in ((1, 1), (7, 3), (30, 41)):
+        maps = [
+            rng.random(shape) * (rng.random(shape) < 0.1),
+            rng.normal(size=shape),
+            np.zeros(shape),
+        ]
+        for H in maps:
+            for r in range(8):
+                want = np.array(
+                    [
+                        [H[max(i - r, 0) : i + r + 1, max(j - r, 0) : j + r + 1].max() for j in range(shape[1])]
+                        for i in range(shape[0])
+                    ]
+                )
+                assert np.array_equal(_dilate(H, r), want)
+
+
+def test_an_image_taken_by_masks_equals_its_gathered_points():
+    """integrate_sources (each kind of point as the image's pixels and a
+    mask, nothing gathered) makes the same map as integrate on the gathered
+    points, spreading under the robot included."""
+    rng = np.random.default_rng(9)
+    grid = MapGrid.covering((-1.0, -1.0), (2.0, 1.5), 0.05)
+    params = PerceptionParams(cell=0.05, dilation=2, speed=0.5, spread_time=1.0)
+    m = ObstacleMap.empty(grid)
+    for t in range(1, 30):
+        X = rng.uniform(-1.2, 1.2, (3, 400))
+        X[2] = rng.uniform(-0.1, 1.0, 400)
+        X[:, rng.random(400) < 0.05] = np.nan
+        kind = rng.integers(0, 3, 400)  # 0 new, 1 seen, 2 robot
+        kind[: 40 * (t % 3)] = 1  # some images see much of the cell
+        floor = rng.uniform(-1.2, 1.2, (3, 400))
+        none = rng.random(400) < 0.3
+        gathered = m.integrate(
+            X[:, kind == 0],
+            np.concatenate([X[:, kind == 1], floor[:, none]], axis=1),
+            0.1 * t,
+            params,
+            np.concatenate([X[:, kind == 2], floor[:, kind == 2]], axis=1),
+        )
+        masked = m.integrate_sources(
+            [(X, kind == 0)], [(X, kind == 1), (floor, none)], 0.1 * t, params, [(X, kind == 2), (floor, kind == 2)]
+        )
+        for field in ("heights", "observed", "seen_at"):
+            assert np.array_equal(getattr(masked, field), getattr(gathered, field))
+        m = masked
+    assert m.occupied > 0

@@ -26,8 +26,10 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 
 import numpy as np
+from numba import njit
 
 from drake_cfvol.algorithm.heightmap import _merge_equal
 from drake_cfvol.exceptions import ParameterError
@@ -104,18 +106,121 @@ class MapGrid:
 
 def _dilate(H: np.ndarray, r: int) -> np.ndarray:
     """Max over the (2r+1) x (2r+1) neighbourhood of each cell (separably:
-    along the rows, then the columns)."""
-    out = np.asarray(H, float).copy()
-    for axis in (0, 1):
-        src = out.copy()
-        n = src.shape[axis]
-        for d in range(1, min(int(r), n - 1) + 1):
-            a = [slice(None)] * 2
-            b = [slice(None)] * 2
-            a[axis], b[axis] = slice(d, None), slice(None, n - d)
-            np.maximum(out[tuple(a)], src[tuple(b)], out=out[tuple(a)])
-            np.maximum(out[tuple(b)], src[tuple(a)], out=out[tuple(b)])
+    along the rows, then the columns). A map of heights (no negative cell)
+    is dilated only around its occupied block: elsewhere every
+    neighbourhood holds zeros only."""
+    H = np.ascontiguousarray(H, dtype=np.float64)
+    r = int(r)
+    if H.size and H.min() >= 0.0:
+        rows, cols = np.flatnonzero(H.any(axis=1)), np.flatnonzero(H.any(axis=0))
+        if not len(rows):
+            return H.copy()
+        i0, i1 = max(rows[0] - r, 0), min(rows[-1] + r + 1, H.shape[0])
+        j0, j1 = max(cols[0] - r, 0), min(cols[-1] + r + 1, H.shape[1])
+        out = np.zeros_like(H)
+        out[i0:i1, j0:j1] = _dilate_max(np.ascontiguousarray(H[i0:i1, j0:j1]), r)
+        return out
+    return _dilate_max(H, r)
+
+
+@njit(cache=True)
+def _dilate_max(H, r):
+    """:func:`_dilate` in compiled code: each axis in turn, the max over
+    the cells within r along it (exact: a max of the same values), by van
+    Herk and Gil-Werman's block prefix and suffix maxima (three
+    comparisons per cell whatever r)."""
+    out = H.copy()
+    m, n = out.shape
+    w = 2 * r + 1
+    for axis in range(2):
+        lines, length = (n, m) if axis == 0 else (m, n)
+        L = length + 2 * r
+        a, g, h = np.empty(L), np.empty(L), np.empty(L)
+        for line in range(lines):
+            for k in range(L):
+                i = k - r
+                if 0 <= i < length:
+                    a[k] = out[i, line] if axis == 0 else out[line, i]
+                else:
+                    a[k] = -np.inf
+            for k in range(L):
+                g[k] = a[k] if k % w == 0 else max(g[k - 1], a[k])
+            for k in range(L - 1, -1, -1):
+                h[k] = a[k] if (k % w == w - 1 or k == L - 1) else max(h[k + 1], a[k])
+            for i in range(length):
+                v = max(h[i], g[i + w - 1])
+                if axis == 0:
+                    out[i, line] = v
+                else:
+                    out[line, i] = v
     return out
+
+
+@njit(cache=True)
+def _cell(x, y, ox, oy, side, m, n):
+    """A point's cell (i, j), (-1, -1) off the grid (x, y finite)."""
+    i, j = math.floor((x - ox) / side), math.floor((y - oy) / side)
+    if 0 <= i < m and 0 <= j < n:
+        return int(i), int(j)
+    return -1, -1
+
+
+@njit(cache=True)
+def _occupy(P, use, ox, oy, side, floor, step, occ):
+    """occ = max(occ, each used point's z rounded up to ``step``) in its
+    cell, over the points (3, N) that are finite, above ``floor`` and on
+    the grid (``use``: (N,) bools, or empty for all)."""
+    m, n = occ.shape
+    for k in range(P.shape[1]):
+        if use.size and not use[k]:
+            continue
+        x, y, z = P[0, k], P[1, k], P[2, k]
+        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z) and z > floor):
+            continue
+        i, j = _cell(x, y, ox, oy, side, m, n)
+        if i >= 0:
+            occ[i, j] = max(occ[i, j], math.ceil(z / step - 1e-9) * step)
+
+
+@njit(cache=True)
+def _mark(P, use, ox, oy, side, out):
+    """out[cell] = True for each used finite point (3, N) on the grid."""
+    m, n = out.shape
+    for k in range(P.shape[1]):
+        if use.size and not use[k]:
+            continue
+        x, y, z = P[0, k], P[1, k], P[2, k]
+        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
+            continue
+        i, j = _cell(x, y, ox, oy, side, m, n)
+        if i >= 0:
+            out[i, j] = True
+
+
+@njit(cache=True)
+def _spread(heights, under, held, observed, radius, dilation):
+    """heights = max(heights, observed[h]) at each ``under`` cell within
+    radius[h] + dilation cells (Chebyshev) of a ``held`` cell h: each held
+    cell's height dilated by its own radius, taken where the robot hides
+    the floor (the same maxima as dilating each radius's cells apart)."""
+    m, n = heights.shape
+    for a in range(m):
+        for b in range(n):
+            if not held[a, b]:
+                continue
+            R = radius[a, b] + dilation
+            for i in range(max(0, a - R), min(m - 1, a + R) + 1):
+                for j in range(max(0, b - R), min(n - 1, b + R) + 1):
+                    if under[i, j]:
+                        heights[i, j] = max(heights[i, j], observed[a, b])
+
+
+def _sources(sources):
+    """Each (points (3, N), mask (N,) bools or None) as the compiled
+    marking's arrays."""
+    for points, mask in sources:
+        P = np.ascontiguousarray(np.asarray(points, float).reshape(3, -1))
+        yield P, np.zeros(0, bool) if mask is None else np.ascontiguousarray(mask, dtype=bool).reshape(-1)
 
 
 def merged_rectangles(H: np.ndarray) -> np.ndarray:
@@ -192,39 +297,38 @@ class ObstacleMap:
                 the camera's rays through the robot meet it and the floor),
                 m; their cells and those next to them are hidden.
         """
-        new_points = np.asarray(new_points, float).reshape(3, -1)
-        seen_points = np.asarray(seen_points, float).reshape(3, -1)
+        hidden = None if hidden_points is None else [(hidden_points, None)]
+        return self.integrate_sources([(new_points, None)], [(seen_points, None)], stamp, params, hidden)
+
+    def integrate_sources(self, new, seen, stamp: float, params: PerceptionParams, hidden=None) -> "ObstacleMap":
+        """:meth:`integrate` with each kind of point given as sources
+        ((points (3, N), mask (N,) bools or None: all), ...), so that an
+        image's pixels are taken where they lie, never gathered."""
         g = self.grid
+        ox, oy = g.origin
         occ = np.zeros(g.shape)
-        keep = np.isfinite(new_points).all(axis=0) & (new_points[2] > params.floor)
-        i, j, inside = g.cells_of(new_points[0, keep], new_points[1, keep])
-        z = np.ceil(new_points[2, keep][inside] / params.height_step - 1e-9) * params.height_step
-        np.maximum.at(occ, (i[inside], j[inside]), z)
-        seen = np.zeros(g.shape, bool)
-        ok = np.isfinite(seen_points).all(axis=0)
-        i, j, inside = g.cells_of(seen_points[0, ok], seen_points[1, ok])
-        seen[i[inside], j[inside]] = True
-        hidden = np.zeros(g.shape, bool)
-        if hidden_points is not None:
-            hp = np.asarray(hidden_points, float).reshape(3, -1)
-            ok = np.isfinite(hp).all(axis=0)
-            i, j, inside = g.cells_of(hp[0, ok], hp[1, ok])
-            hidden[i[inside], j[inside]] = True
-            hidden = _dilate(hidden.astype(float), 1) > 0
+        for P, use in _sources(new):
+            _occupy(P, use, ox, oy, g.side, float(params.floor), float(params.height_step), occ)
+        seen_cells = np.zeros(g.shape, bool)
+        for P, use in _sources(seen):
+            _mark(P, use, ox, oy, g.side, seen_cells)
+        hidden_cells = np.zeros(g.shape, bool)
+        if hidden is not None:
+            for P, use in _sources(hidden):
+                _mark(P, use, ox, oy, g.side, hidden_cells)
+            hidden_cells = _dilate(hidden_cells.astype(float), 1) > 0
         prev = self.heights if self.observed is None else self.observed
         prev_at = np.full(g.shape, self.stamp) if self.seen_at is None else self.seen_at
         now = occ > 0
-        observed = np.where(now, occ, np.where(seen, 0.0, prev))
+        observed = np.where(now, occ, np.where(seen_cells, 0.0, prev))
         seen_at = np.where(now, float(stamp), prev_at)
         heights = _dilate(observed, int(params.dilation))
-        under = hidden & ~seen & ~now
+        under = hidden_cells & ~seen_cells & ~now
         if under.any() and params.speed > 0:
             held = (observed > 0) & ~now
             age = np.minimum(np.where(held, float(stamp) - seen_at, 0.0), params.spread_time)
             radius = np.ceil(params.speed * age / g.side - 1e-9).astype(int)
-            for r in np.unique(radius[held]):
-                grown = _dilate(np.where(held & (radius == r), observed, 0.0), int(r) + int(params.dilation))
-                heights[under] = np.maximum(heights[under], grown[under])
+            _spread(heights, under, held, observed, radius, int(params.dilation))
         return ObstacleMap(g, heights, float(stamp), observed, seen_at)
 
     @functools.cached_property

@@ -168,17 +168,18 @@ class ObstacleMapper(LeafSystem):
         model = self.model_depth_image_input.Eval(context).data
         label = self.model_label_image_input.Eval(context).data
         new, seen, robot = self.classify(depth, model, label)
-        X = cloud.xyzs()
-        seen_points, hidden = X[:, seen], X[:, robot]
+        X = np.asarray(cloud.xyzs(), float)  # once (Drake's cloud holds float32)
+        # The pixels are taken where they lie (a mask per kind), never gathered.
+        seen_sources, hidden_sources = [(X, seen)], [(X, robot)]
         if self._floor is not None:
-            hidden = np.concatenate([hidden, self._floor[:, robot]], axis=1)
+            hidden_sources.append((self._floor, robot))
             none = ~np.isfinite(np.asarray(depth, float).reshape(-1)) & ~np.isfinite(
                 np.asarray(model, float).reshape(-1)
             )
-            seen_points = np.concatenate([seen_points, self._floor[:, none]], axis=1)
+            seen_sources.append((self._floor, none))
         old = context.get_abstract_state(self._map).get_value()
         state.get_mutable_abstract_state(self._map).set_value(
-            old.integrate(X[:, new], seen_points, context.get_time(), self.params, hidden)
+            old.integrate_sources([(X, new)], seen_sources, context.get_time(), self.params, hidden_sources)
         )
 
 
