@@ -198,28 +198,50 @@ def _mark(P, use, ox, oy, side, out):
 
 
 @njit(cache=True)
-def _spread(heights, under, held, observed, radius, dilation):
-    """heights = max(heights, observed[h]) at each ``under`` cell within
-    radius[h] + dilation cells (Chebyshev) of a ``held`` cell h: each held
-    cell's height dilated by its own radius, taken where the robot hides
-    the floor (the same maxima as dilating each radius's cells apart)."""
+def _observe(occ, seen, prev, prev_at, stamp):
+    """(observed, seen_at): a cell with new points takes them (seen now),
+    one where the known scene was seen is cleared, any other keeps what it
+    had."""
+    observed, seen_at = np.empty_like(occ), np.empty_like(occ)
+    for i in range(occ.shape[0]):
+        for j in range(occ.shape[1]):
+            now = occ[i, j] > 0
+            observed[i, j] = occ[i, j] if now else (0.0 if seen[i, j] else prev[i, j])
+            seen_at[i, j] = stamp if now else prev_at[i, j]
+    return observed, seen_at
+
+
+@njit(cache=True)
+def _spread(heights, hidden, seen, occ, observed, seen_at, when, dilation):
+    """Under the robot (a hidden cell neither seen nor new), heights takes
+    the height of each cell last seen occupied (held: occupied, not seen
+    now) within its radius plus ``dilation`` cells (Chebyshev), its
+    radius ceil(speed x age / side) cells, age = min(stamp - its last
+    sight, spread_time): what moves may have moved in under it unseen.
+    ``when``: (stamp, speed, spread_time, side)."""
+    stamp, speed, spread_time, side = when
     m, n = heights.shape
     for a in range(m):
         for b in range(n):
-            if not held[a, b]:
+            if not (observed[a, b] > 0 and not occ[a, b] > 0):
                 continue
-            R = radius[a, b] + dilation
+            age = min(stamp - seen_at[a, b], spread_time)
+            R = int(math.ceil(speed * age / side - 1e-9)) + dilation
             for i in range(max(0, a - R), min(m - 1, a + R) + 1):
                 for j in range(max(0, b - R), min(n - 1, b + R) + 1):
-                    if under[i, j]:
+                    if hidden[i, j] and not seen[i, j] and not occ[i, j] > 0:
                         heights[i, j] = max(heights[i, j], observed[a, b])
 
 
 def _sources(sources):
     """Each (points (3, N), mask (N,) bools or None) as the compiled
-    marking's arrays."""
+    marking's arrays: a (3, N) float array as it is (float32 or float64,
+    any layout: each coordinate is widened to float64 as it is read, so
+    no copy of an image's points is made), anything else converted."""
     for points, mask in sources:
-        P = np.ascontiguousarray(np.asarray(points, float).reshape(3, -1))
+        P = points
+        if not (isinstance(P, np.ndarray) and P.ndim == 2 and P.shape[0] == 3 and P.dtype in (np.float32, np.float64)):
+            P = np.ascontiguousarray(np.asarray(points, float).reshape(3, -1))
         yield P, np.zeros(0, bool) if mask is None else np.ascontiguousarray(mask, dtype=bool).reshape(-1)
 
 
@@ -319,16 +341,21 @@ class ObstacleMap:
             hidden_cells = _dilate(hidden_cells.astype(float), 1) > 0
         prev = self.heights if self.observed is None else self.observed
         prev_at = np.full(g.shape, self.stamp) if self.seen_at is None else self.seen_at
-        now = occ > 0
-        observed = np.where(now, occ, np.where(seen_cells, 0.0, prev))
-        seen_at = np.where(now, float(stamp), prev_at)
+        observed, seen_at = _observe(
+            occ, seen_cells, np.ascontiguousarray(prev, dtype=np.float64), prev_at, float(stamp)
+        )
         heights = _dilate(observed, int(params.dilation))
-        under = hidden_cells & ~seen_cells & ~now
-        if under.any() and params.speed > 0:
-            held = (observed > 0) & ~now
-            age = np.minimum(np.where(held, float(stamp) - seen_at, 0.0), params.spread_time)
-            radius = np.ceil(params.speed * age / g.side - 1e-9).astype(int)
-            _spread(heights, under, held, observed, radius, int(params.dilation))
+        if params.speed > 0:
+            _spread(
+                heights,
+                hidden_cells,
+                seen_cells,
+                occ,
+                observed,
+                seen_at,
+                (float(stamp), float(params.speed), float(params.spread_time), float(g.side)),
+                int(params.dilation),
+            )
         return ObstacleMap(g, heights, float(stamp), observed, seen_at)
 
     @functools.cached_property

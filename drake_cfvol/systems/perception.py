@@ -168,7 +168,7 @@ class ObstacleMapper(LeafSystem):
         model = self.model_depth_image_input.Eval(context).data
         label = self.model_label_image_input.Eval(context).data
         new, seen, robot = self.classify(depth, model, label)
-        X = np.asarray(cloud.xyzs(), float)  # once (Drake's cloud holds float32)
+        X = cloud.xyzs()  # (3, N) float32, read where it lies
         # The pixels are taken where they lie (a mask per kind), never gathered.
         seen_sources, hidden_sources = [(X, seen)], [(X, robot)]
         if self._floor is not None:
