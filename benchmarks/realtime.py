@@ -30,7 +30,7 @@ from pydrake.common import RandomDistribution, RandomGenerator
 from pydrake.geometry import SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.analysis import Simulator
-from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantVectorSource, RandomSource
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
@@ -359,8 +359,38 @@ def _cell(name: str, cfg: RealtimeBenchConfig):
     return wc, estimate_bounds(wc, path, resolution=cfg.resolution)
 
 
+def reference_step(steps: int = 2000) -> float:
+    """The machine's speed at the moment, in the framework's own terms: the
+    median wall time (s) of a 1 ms simulator step of a diagram holding one
+    Python LeafSystem whose periodic update reads and writes a 6-vector
+    (no work of ours). Taken before and after the rows, so that runs on a
+    shared machine can be told apart from changes of the code."""
+
+    class Reference(LeafSystem):
+        def __init__(self):
+            super().__init__()
+            self.DeclareDiscreteState(6)
+            self.DeclarePeriodicDiscreteUpdateEvent(period_sec=1e-3, offset_sec=0.0, update=self._update)
+
+        def _update(self, context, state):
+            state.get_mutable_vector(0).SetFromVector(context.get_discrete_state(0).CopyToVector() + 1.0)
+
+    builder = DiagramBuilder()
+    builder.AddSystem(Reference())
+    sim = Simulator(builder.Build())
+    sim.Initialize()
+    times, t = [], 0.0
+    for _ in range(steps):
+        t += 1e-3
+        t0 = time.perf_counter()
+        sim.AdvanceTo(t)
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
 def run_realtime_bench(cfg: RealtimeBenchConfig, *, progress: bool = True) -> dict:
     """Every (cell, period, push, seed) of ``cfg``; rows and their medians."""
+    reference = [reference_step()]
     runs = []
     for name in cfg.cells:
         wc, table = _cell(name, cfg)
@@ -390,7 +420,14 @@ def run_realtime_bench(cfg: RealtimeBenchConfig, *, progress: bool = True) -> di
                     f"{row['headroom_median']:.1f}x",
                     flush=True,
                 )
-    return {"config": dataclasses.asdict(cfg), "runs": runs, "summary": _summary(runs), "iiwa": iiwa}
+    reference.append(reference_step())
+    return {
+        "config": dataclasses.asdict(cfg),
+        "runs": runs,
+        "summary": _summary(runs),
+        "iiwa": iiwa,
+        "reference_step_s": reference,
+    }
 
 
 def _summary(runs) -> list[dict]:
@@ -466,6 +503,14 @@ def realtime_markdown(result: dict, machine: dict | None = None) -> str:
         lines += [
             f"Machine: {machine.get('cpu', '?')}, {machine.get('cores', '?')} cores, shared with other work "
             "while measured (timings are noisy).",
+            "",
+        ]
+    if result.get("reference_step_s"):
+        ref = ", ".join(f"{x * 1e6:.1f}" for x in result["reference_step_s"])
+        lines += [
+            f"The machine's speed in the same run (`reference_step`: a 1 ms step of a diagram of one Python "
+            f"LeafSystem that reads and writes a 6-vector, before and after the rows): {ref} us. Compare runs "
+            "by it: the same code measures slower on a machine whose reference step is slower.",
             "",
         ]
     labels = sorted({lb for s in result["summary"] for lb in s["per_system_median_s"]})
