@@ -732,3 +732,20 @@ def test_the_filters_own_constraints_in_one_call_equal_them_one_by_one():
     (a, count_a, solves_a), (b, count_b, solves_b) = runs
     assert count_a > 50 and solves_a > 0  # the damper and the box at work
     assert np.array_equal(a, b) and count_a == count_b and solves_a == solves_b
+
+
+def test_a_damper_constraint_with_the_wrong_number_of_pairs_is_refused():
+    """A DamperConstraint whose pairs flag another number of pairs than the
+    damper watches (the compiled stacking would read past them) is refused
+    at the update, naming what it must hold."""
+    from drake_cfvol.exceptions import ParameterError
+    from drake_cfvol.systems.constraints import DamperConstraint
+
+    short = DamperConstraint(weight=1.0, relax=False, pairs=[], name="short")
+    diagram, sf, _, _ = _arm("wall", clearance=0.02, constraints=[short])
+    ctx = diagram.CreateDefaultContext()
+    sf.set_initial_position(sf.GetMyContextFromRoot(ctx), [1.2, 0.0])
+    sim = Simulator(diagram, ctx)
+    _fix(diagram, ctx, desired=[1.0, 0.0])
+    with pytest.raises(ParameterError, match="pairs must hold one flag per damper pair"):
+        sim.AdvanceTo(2 * H)

@@ -48,7 +48,9 @@ def in_background():
     caller goes on) and return at once; leaving the block waits for every
     plot and raises the first error. Where fork is not the platform's way
     (macOS, Windows), or inside another such block, the plots are drawn at
-    once as outside it."""
+    once as outside it. Enter it before the program starts threads of its
+    own (a fork copies only the calling thread): the demo enters it first
+    thing."""
     if _BACKGROUND or not sys.platform.startswith("linux"):
         yield
         return

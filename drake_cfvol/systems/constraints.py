@@ -147,6 +147,7 @@ def _own_rows(c, step) -> tuple:
     the code that stacks them all at an update."""
     damper = step.damper
     pairs = c.pairs[None, :] if c.stack == DAMPER_ROWS else np.zeros((1, 0), bool)
+    _check_pairs(np.array([c.stack]), pairs, damper)
     A, b, _, _, so, _, _ = stack_rows(
         np.array([c.stack], np.int64),
         np.array([c.weight], float),
@@ -161,6 +162,16 @@ def _own_rows(c, step) -> tuple:
         damper.pair,
     )
     return A, b, so
+
+
+def _check_pairs(kinds, pairs, damper) -> None:
+    """A damper block's pairs must flag every damper pair (the compiled
+    stacking reads them by the rows' pair indices, unchecked)."""
+    if (kinds == DAMPER_ROWS).any() and pairs.shape[1] != len(damper.distances):
+        raise ParameterError(
+            f"DamperConstraint: pairs must hold one flag per damper pair ({len(damper.distances)}), "
+            f"got {pairs.shape[1]}."
+        )
 
 
 class VelocityLimits(FilterConstraint):
@@ -510,11 +521,7 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
     if plan is not None:  # the filter's own constraints only: stacked in one compiled call
         kinds, weights, prios, relaxed, pairs, names = plan
         damper = step.damper
-        if pairs.shape[1] and pairs.shape[1] != len(damper.distances):
-            raise ParameterError(
-                f"DamperConstraint: pairs must hold one flag per damper pair ({len(damper.distances)}), "
-                f"got {pairs.shape[1]}."
-            )
+        _check_pairs(kinds, pairs, damper)
         A, b, prio, weight, so_row, relaxed_rows, counts = stack_rows(
             kinds, weights, prios, relaxed, pairs, step.vmax, step.lo, step.hi, damper.A, damper.b, damper.pair
         )
