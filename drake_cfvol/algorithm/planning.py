@@ -142,6 +142,15 @@ def densify(vertices: np.ndarray, max_step: float) -> np.ndarray:
     return np.array(out)
 
 
+def kernel_loaded() -> bool:
+    """Whether the kernel's configuration check is compiled or loaded in
+    this process (after :func:`~drake_cfvol.algorithm.pipeline.warm_up`,
+    or any kernel check)."""
+    from drake_cfvol import kernel as K
+
+    return bool(K.configs_may_collide_serial.signatures)
+
+
 def min_singular_value(workcell: Workcell, q: np.ndarray) -> float:
     """Smallest singular value of the tool frame's spatial Jacobian at q."""
     plant = workcell.plant
@@ -307,7 +316,10 @@ def plan_nominal_path(
     start, goal, lower, upper, margin = _checked_request(
         workcell, q_start, q_goal, seed, time_limit, max_step, singular_threshold, clearance
     )
-    checker = workcell.planning_checker(margin)  # Drake's answers, the kernel asked first
+    # Drake's answers either way; the kernel asked first where it is loaded
+    # in this process already (a fresh environment would compile it inside
+    # the planning's time limit).
+    checker = workcell.planning_checker(margin) if kernel_loaded() else workcell.padded_checker(margin)
 
     t_total = time.perf_counter()
     deadline = t_total + time_limit

@@ -6,7 +6,7 @@ import time
 from pathlib import Path
 
 from drake_cfvol.algorithm.metrics import confidence_factor, freedom, shown_percent
-from drake_cfvol.algorithm.pipeline import estimate_bounds
+from drake_cfvol.algorithm.pipeline import estimate_bounds, warm_up
 from drake_cfvol.algorithm.planning import plan_nominal_path
 from drake_cfvol.comanip import load_scenario, run_scenario
 from drake_cfvol.io.plotting import in_background, plot_bounds
@@ -35,6 +35,7 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
             f"({(time.perf_counter() - t0) * 1e3:.0f} ms)\n"
         )
 
+        warm_up(progress=True)  # the kernel (compiled once, then loaded): the planner asks it first
         print("1. Nominal paths (RRT-Connect, seed %d)" % seed)
         print(f"   {'path':<6} {'g':>4} {'length':>8} {'plan ms':>8} {'total ms':>9}  sha256[:12]")
         paths = {}
