@@ -372,7 +372,7 @@ class PriorityQP:
 def _stack(blocks, k: int, relaxed=None):
     """The blocks' rows stacked: A (m, k), b, priorities and weights per row
     (and, given each block's ``relaxed`` flag, the per-row flags and the
-    soft stages' priorities, :func:`_layout`)."""
+    soft stages' priorities, :func:`_levels`)."""
     if not blocks:
         empty = np.empty((0, k)), np.empty(0), np.empty(0, np.int64), np.empty(0)
         return empty if relaxed is None else empty + (np.zeros(0, bool), np.zeros(0, np.int64))
@@ -382,41 +382,19 @@ def _stack(blocks, k: int, relaxed=None):
                 f"constraint '{blk.name}': rows must be A ({len(blk.b)}, {k}) with b ({len(blk.b)},) and a weight, "
                 f"got A of shape {np.shape(blk.A)} and weight {blk.weight!r}."
             )
+    counts = [len(blk.b) for blk in blocks]
     A = np.concatenate([blk.A for blk in blocks]).astype(float, copy=False)
     b = np.concatenate([blk.b for blk in blocks]).astype(float, copy=False)
-    layout = _layout(blocks, relaxed or (False,) * len(blocks))
-    return (A, b) + (layout[:2] if relaxed is None else layout)
-
-
-def _layout(blocks, relaxed) -> tuple:
-    """(priority, weight, relaxed) per row and the soft stages' priorities
-    (the non-hard ones, lowest priority, i.e. largest number, first) of
-    blocks of these priorities, weights, row counts and ``relaxed`` flags:
-    made once per layout (a filter meets a handful) and shared, so never
-    written (the compiled code takes them as writeable arrays)."""
-    key = tuple((blk.priority, blk.weight, len(blk.b), flag) for blk, flag in zip(blocks, relaxed))
-    out = _LAYOUTS.get(key)
-    if out is None:
-        counts = [len(blk.b) for blk in blocks]
-        out = (
-            np.repeat(np.array([blk.priority for blk in blocks], np.int64), counts),
-            np.repeat(np.array([blk.weight for blk in blocks], float), counts),
-            np.repeat(np.array(relaxed, bool), counts),
-            _levels_of(tuple(blk.priority for blk in blocks)),
-        )
-        if len(_LAYOUTS) > 1024:  # row counts vary with the scene: kept bounded
-            _LAYOUTS.clear()
-        _LAYOUTS[key] = out
-    return out
+    prio = np.repeat(np.array([blk.priority for blk in blocks], np.int64), counts)
+    weight = np.repeat(np.array([blk.weight for blk in blocks], float), counts)
+    if relaxed is None:
+        return A, b, prio, weight
+    return A, b, prio, weight, np.repeat(np.array(relaxed, bool), counts), _levels(blocks)
 
 
 def _levels(blocks) -> np.ndarray:
     """The priorities made soft stage by stage (:func:`_levels_of`) of the blocks."""
     return _levels_of(tuple(blk.priority for blk in blocks))
-
-
-#: :func:`_layout` by the blocks' priorities, weights, row counts and flags.
-_LAYOUTS: dict = {}
 
 
 def _stacked(constraints, step, k: int) -> tuple:
