@@ -95,27 +95,10 @@ def round_radius(shape) -> float:
 
 
 @njit(cache=True, inline="always")
-def _mv(A, x):
-    """A x for a 3 x 3 A (numba's ``@`` calls BLAS, which needs scipy at run time)."""
-    out = np.empty(3)
-    for r in range(3):
-        out[r] = A[r, 0] * x[0] + A[r, 1] * x[1] + A[r, 2] * x[2]
-    return out
-
-
-@njit(cache=True, inline="always")
-def _mtv(A, x):
-    """A^T x for a 3 x 3 A."""
-    out = np.empty(3)
-    for r in range(3):
-        out[r] = A[0, r] * x[0] + A[1, r] * x[1] + A[2, r] * x[2]
-    return out
-
-
-@njit(cache=True, inline="always")
 def _mm_into(out, A, B):
-    """out = A B for 3 x 3 matrices (the row loops write into scratch:
-    an array made per probe cost more than the row itself)."""
+    """out = A B for 3 x 3 matrices, written out (numba's ``@`` calls BLAS,
+    which needs scipy at run time) into scratch (an array made per probe
+    cost more than the row itself)."""
     for r in range(3):
         for c in range(3):
             out[r, c] = A[r, 0] * B[0, c] + A[r, 1] * B[1, c] + A[r, 2] * B[2, c]
