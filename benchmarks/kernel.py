@@ -202,7 +202,7 @@ from drake_cfvol import kernel
 from drake_cfvol.io import progress
 steps = []
 orig = kernel.warm_up
-kernel.warm_up = lambda on_step=None: orig(on_step=lambda n, s: (steps.append((n, round(s, 2))), on_step(n, s)))
+kernel.warm_up = lambda on_step=None, **kw: orig(on_step=lambda n, s: (steps.append((n, round(s, 2))), on_step(n, s)), **kw)
 warm_up(progress=True)
 print(json.dumps({"history": progress.finished()[-1][1], "steps": steps}))
 """

@@ -265,6 +265,66 @@ def test_a_changed_kernel_source_clears_numbas_cache(tmp_path):
     assert not any(f.exists() for f in entries)
 
 
+def test_the_warm_up_file_is_not_part_of_the_cache_stamp(tmp_path):
+    """warmup.py compiles nothing: editing it keeps the cache."""
+    from drake_cfvol.kernel import _clear_stale_cache
+
+    src, cache = tmp_path / "kernel", tmp_path / "kernel" / "__pycache__"
+    cache.mkdir(parents=True)
+    (src / "a.py").write_text("x = 1\n")
+    (src / "warmup.py").write_text("steps = 1\n")
+    entry = cache / "a.f-1.py311.nbi"
+    _clear_stale_cache(src, [cache])
+    entry.write_bytes(b"compiled")
+    (src / "warmup.py").write_text("steps = 2\n")
+    _clear_stale_cache(src, [cache])
+    assert entry.exists()
+    (src / "a.py").write_text("x = 2\n")
+    _clear_stale_cache(src, [cache])
+    assert not entry.exists()
+
+
+_ENTRY_POINTS = ("configs_may_collide", "configs_may_collide_serial", "regions_hit", "sweep_chains", "fk", "fk_blocks")
+
+
+def _signatures():
+    return {name: list(getattr(K, name).signatures) for name in _ENTRY_POINTS}
+
+
+def test_the_warm_up_compiles_the_signatures_the_package_calls(automotive, mesh_cell):
+    """Every entry point's signature as the package calls it (read-only
+    inputs, an optional argument given) is the one the warm-up compiled: a
+    fresh cache compiles each once, not again at first use."""
+    from drake_cfvol.algorithm.regions import regions_may_collide
+
+    K.warm_up(jobs=1)
+    before = _signatures()
+    assert all(len(v) == 1 for v in before.values()), before
+    for wc in (automotive, mesh_cell):
+        arrays = wc.scene_arrays()
+        rng = np.random.default_rng(0)
+        Q = rng.uniform(wc.position_lower, wc.position_upper, (300, wc.num_joints))
+        Q.flags.writeable = False
+        arrays.may_collide(Q)  # blocks over the thread pool
+        arrays.may_collide(Q[:2])  # on this thread
+        arrays.fk(Q)
+        A = np.broadcast_to(Q[0], (3, wc.num_joints))  # read-only views
+        js = np.zeros(3, np.int64)
+        regions_may_collide(arrays, A, Q[1:4], js, Q[:3, 0] - 0.1, Q[:3, 0], 0.02)
+    assert _signatures() == before
+
+
+@pytest.mark.slow  # 3 s (a second Python process): CI's slow group runs it
+def test_a_warm_up_with_a_helper_process_gives_the_same_kernels():
+    """jobs=2: the helper compiles (here, on a warm cache, loads) its steps
+    in another process; this one then loads them and reports one wait."""
+    names = []
+    K.warm_up(lambda name, s: names.append(name), jobs=2)
+    assert names == [n for n in K.STEP_SHARES if n not in K.HELPER_STEPS] + ["helper"]
+    assert list(K.PARALLEL_SHARES) == names
+    assert all(len(v) == 1 for v in _signatures().values())
+
+
 def _capsule_row(c, r, half, R):
     row = np.zeros(K.SHAPE_W)
     row[0] = K.CAPSULE

@@ -221,6 +221,18 @@ def certification_rng(seed: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_CERT_STREAM,)))
 
 
+#: The compiled cuts' share of a fresh compile, s (in the terms of
+#: :data:`drake_cfvol.kernel.STEP_SHARES`).
+CUTS_SHARE = 7.2
+
+
+def warm_up_cuts() -> None:
+    """Compiles (or loads from numba's cache) the certificate's cuts: one
+    cut of a made-up one-joint stretch."""
+    lower, upper, nominal = np.full((2, 1), -1.0), np.full((2, 1), 1.0), np.zeros((2, 1))
+    _greedy_cut(np.array([[0.5]]), np.array([0.5]), lower, upper, nominal, 0)
+
+
 def _greedy_cut(X, t, lower, upper, nominal, i, allowed=None):
     """Cuts stretch i of a linear table (its waypoint boxes ``lower[i:i+2]``,
     ``upper[i:i+2]``, in place) until no colliding sample X (n, k), at

@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from drake_cfvol import kernel as K
-from drake_cfvol.algorithm.certify import Certify, certified_table, certify_bounds
+from drake_cfvol.algorithm.certify import CUTS_SHARE, Certify, certified_table, certify_bounds, warm_up_cuts
 from drake_cfvol.algorithm.planning import NominalPath
 from drake_cfvol.algorithm.reference import drake_sweep_bounds
 from drake_cfvol.algorithm.sweep import default_rate, stretch_bounds
@@ -36,17 +36,28 @@ BACKENDS = ("fast", "drake")
 _warm_up_ms: float | None = None
 
 
-def warm_up(*, progress: bool = False) -> float:
-    """Compiles the kernel (or loads it from numba's cache) once per process;
-    returns the milliseconds it took (0 after the first call). Never part of
-    the paper's timing: :func:`estimate_bounds` calls it before its clock
-    starts and reports it as ``info["jit_warmup_ms"]``. With ``progress``, a
-    compile that takes longer than ~2 s (a fresh cache) shows a bar."""
+def warm_up(*, progress: bool = False, meanwhile=()) -> float:
+    """Compiles the kernel and the certificate's compiled cuts (or loads
+    them from numba's cache) once per process; returns the milliseconds it
+    took (0 after the first call). Never part of the paper's timing:
+    :func:`estimate_bounds` calls it before its clock starts and reports it
+    as ``info["jit_warmup_ms"]``. With ``progress``, a compile that takes
+    longer than ~2 s (a fresh cache) shows a bar.
+
+    Args:
+        meanwhile: (name, call, share) steps of the caller's (other compiled
+            code), run while a helper process compiles part of the kernel
+            (:func:`drake_cfvol.kernel.warm_up`); share: its seconds in
+            :data:`~drake_cfvol.kernel.STEP_SHARES`' terms.
+    """
     global _warm_up_ms
     if _warm_up_ms is not None:
         return 0.0
-    with timed_steps(K.STEP_SHARES, "Compiling the collision kernel (once; numba caches it)", enabled=progress) as step:
-        _warm_up_ms = K.warm_up(on_step=lambda name, seconds: step(name)) * 1e3
+    extra = [("certify_cuts", warm_up_cuts, CUTS_SHARE), *meanwhile]
+    shares = K.warm_up_shares()
+    shares.update({name: share for name, _, share in extra})
+    with timed_steps(shares, "Compiling the collision kernel (once; numba caches it)", enabled=progress) as step:
+        _warm_up_ms = K.warm_up(on_step=lambda name, seconds: step(name), meanwhile=[(n, c) for n, c, _ in extra]) * 1e3
     return _warm_up_ms
 
 

@@ -81,13 +81,13 @@ def regions_may_collide(arrays, A, B, js, va, vb, pads) -> np.ndarray:
     or the robot itself; False: proven free."""
     if not len(js):
         return np.zeros(0, bool)
-    A, B = np.ascontiguousarray(A, float), np.ascontiguousarray(B, float)
-    js = np.ascontiguousarray(js, np.int64)
-    va, vb = np.ascontiguousarray(va, float), np.ascontiguousarray(vb, float)
+    # C-ordered and writable: a read-only array (a broadcast view) is
+    # another signature to numba, compiled again beside the warm-up's.
+    A, B, va, vb = (np.require(x, float, ("C", "W")) for x in (A, B, va, vb))
+    js = np.require(js, np.int64, ("C", "W"))
     nts, nvs = _grid(arrays, A, B, js, va, vb)
-    return K.regions_hit(
-        A, B, js, va, vb, nts, nvs, np.ascontiguousarray(np.broadcast_to(pads, js.shape), float), arrays.model
-    )
+    pads = np.array(np.broadcast_to(pads, js.shape), float)
+    return K.regions_hit(A, B, js, va, vb, nts, nvs, pads, arrays.model)
 
 
 def _box(lower, upper, nominal, i, s):

@@ -13,6 +13,8 @@ from drake_cfvol.io.plotting import in_background, plot_bounds
 from drake_cfvol.io.records import output_stem
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.workcell import load_workcell
+from drake_cfvol.systems.warmup import WARM_UP_SHARE
+from drake_cfvol.systems.warmup import warm_up as warm_up_filter
 
 
 def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: int = 1000) -> int:
@@ -35,7 +37,9 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
             f"({(time.perf_counter() - t0) * 1e3:.0f} ms)\n"
         )
 
-        warm_up(progress=True)  # the kernel (compiled once, then loaded): the planner asks it first
+        # The kernel (compiled once, then loaded; the planner asks it first)
+        # and, while a helper process compiles part of it, the safety filter.
+        warm_up(progress=True, meanwhile=[("safety_filter", warm_up_filter, WARM_UP_SHARE)])
         print("1. Nominal paths (RRT-Connect, seed %d)" % seed)
         print(f"   {'path':<6} {'g':>4} {'length':>8} {'plan ms':>8} {'total ms':>9}  sha256[:12]")
         paths = {}

@@ -38,14 +38,21 @@ kinds' included) differs from the ones it was compiled from
 import hashlib as _hashlib
 from pathlib import Path as _Path
 
+#: Kernel files with nothing compiled in them (no numba function, no
+#: constant a compiled one reads): left out of the cache stamp.
+_NOT_COMPILED = (_Path("warmup.py"),)
+
 
 def _clear_stale_cache(folder: _Path, caches) -> None:
     """Removes numba's cache files (``*.nbi``, ``*.nbc``) from ``caches``
     when the sources in ``folder`` and its subfolders (the kinds) differ
     from those the cache was made from (a hash of them,
-    ``kernel_sources.sha256``, kept in each)."""
+    ``kernel_sources.sha256``, kept in each; :data:`_NOT_COMPILED` left
+    out)."""
     digest = _hashlib.sha256()
     for f in sorted(folder.rglob("*.py")):
+        if f.relative_to(folder) in _NOT_COMPILED:
+            continue
         digest.update(str(f.relative_to(folder)).encode() + f.read_bytes())
     stamp_text = digest.hexdigest()
     for cache in caches:
@@ -120,7 +127,7 @@ from drake_cfvol.kernel.types import (  # noqa: E402
     RegionScratch,
     Scratch,
 )
-from drake_cfvol.kernel.warmup import STEP_SHARES, warm_up  # noqa: E402
+from drake_cfvol.kernel.warmup import HELPER_STEPS, PARALLEL_SHARES, STEP_SHARES, warm_up, warm_up_shares  # noqa: E402
 
 __all__ = [
     "Chain",
@@ -169,7 +176,10 @@ __all__ = [
     "robot_footprint",
     "distance_map",
     "warm_up",
+    "warm_up_shares",
     "STEP_SHARES",
+    "PARALLEL_SHARES",
+    "HELPER_STEPS",
     "_K",
     "_C",
     "_R",

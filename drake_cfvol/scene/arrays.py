@@ -141,14 +141,14 @@ class SceneArrays:
 
     def fk(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Body poses (N, B, 3, 3), (N, B, 3) for configurations (N, k)."""
-        Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
+        Q = np.require(np.atleast_2d(Q), np.float64, ("C", "W"))  # read-only: another signature to numba
         return K.fk_blocks(Q, self.chain, self.blocks.KR, self.blocks.Kp)
 
     def may_collide(self, Q: np.ndarray, pad: float = 0.0) -> np.ndarray:
         """(N,) True where a configuration may collide with the obstacles or
         itself, or come nearer to them than ``pad`` (m); False is certified
         free (the kernel is conservative)."""
-        Q = np.ascontiguousarray(np.atleast_2d(Q), dtype=np.float64)
+        Q = np.require(np.atleast_2d(Q), np.float64, ("C", "W"))  # read-only: another signature to numba
         # A few configurations (a guard's checks): on this thread, since
         # waking numba's thread pool costs milliseconds.
         if len(Q) <= _SERIAL_MAX:

@@ -1,0 +1,81 @@
+"""Compiling the safety filter's compiled parts once (or loading them from
+numba's cache) before a run needs them.
+
+A fresh cache compiles them at a run's first filter update (about a
+minute on 2 cores); :func:`warm_up` does it ahead, on a made-up scene, so
+that a caller can overlap it with other work (``cfvol demo`` does it while
+a helper process compiles the collision kernel). The scene is built with
+the public systems, so the compiled signatures are the ones a run uses.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from pydrake.geometry import Box, SceneGraph, Sphere
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
+from pydrake.multibody.tree import FixedOffsetFrame, RevoluteJoint, SpatialInertia
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.rendering import MultibodyPositionToGeometryPose
+
+from drake_cfvol.systems.safety import SafetyFilter
+
+__all__ = ["warm_up", "WARM_UP_SHARE"]
+
+#: Its share of a fresh compile, s (measured with the kernel's shares,
+#: :data:`drake_cfvol.kernel.STEP_SHARES`).
+WARM_UP_SHARE = 55.0
+
+
+def _two_link_station():
+    """A planar two-link arm (links 0.5 and 0.4 m) whose tip, a sphere of
+    radius 0.05 m, reaches a wall whose face is at x = 0.8 m, and a safety
+    filter at 1 ms posing the arm in the SceneGraph: the diagram and the
+    filter, its inputs exported."""
+    builder = DiagramBuilder()
+    sg = builder.AddSystem(SceneGraph())
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(sg)
+    arm = plant.AddModelInstance("arm")
+    inertia = SpatialInertia.SolidSphereWithMass(1.0, 0.05)
+    link1 = plant.AddRigidBody("link1", arm, inertia)
+    link2 = plant.AddRigidBody("link2", arm, inertia)
+    plant.AddJoint(RevoluteJoint("j1", plant.world_frame(), link1.body_frame(), [0, 0, 1]))
+    elbow = plant.AddFrame(FixedOffsetFrame("elbow", link1.body_frame(), RigidTransform([0.5, 0, 0])))
+    plant.AddJoint(RevoluteJoint("j2", elbow, link2.body_frame(), [0, 0, 1]))
+    friction = CoulombFriction(0.5, 0.5)
+    plant.RegisterCollisionGeometry(link2, RigidTransform([0.4, 0, 0]), Sphere(0.05), "tip", friction)
+    plant.RegisterCollisionGeometry(link1, RigidTransform([0.25, 0, 0]), Box(0.5, 0.05, 0.05), "link", friction)
+    wall = RigidTransform([1.3, 0, 0])
+    plant.RegisterCollisionGeometry(plant.world_body(), wall, Box(1.0, 4.0, 1.0), "wall", friction)
+    plant.Finalize()
+    sf = builder.AddSystem(
+        SafetyFilter(plant, sg, arm, velocity_limits=[1.0, 1.5], period=1e-3, clearance=0.02, influence_distance=0.15)
+    )
+    to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
+    builder.Connect(sf.commanded_position_output, to_pose.get_input_port())
+    builder.Connect(to_pose.get_output_port(), sg.get_source_pose_port(plant.get_source_id()))
+    builder.Connect(sg.get_query_output_port(), sf.query_object_input)
+    for port in (sf.desired_position_input, sf.lower_input, sf.upper_input, sf.nominal_input):
+        builder.ExportInput(port, port.get_name())
+    return builder.Build(), sf
+
+
+def warm_up() -> float:
+    """Runs a safety filter for 50 updates with the arm's tip swung into a
+    wall (every compiled part of an update called). Returns the seconds it
+    took."""
+    t0 = time.perf_counter()
+    diagram, sf = _two_link_station()
+    sim = Simulator(diagram)
+    ctx = sim.get_mutable_context()
+    q0 = [np.arccos(0.7 / 0.9), 0.0]  # the tip 0.05 m off the wall
+    sf.set_initial_position(sf.GetMyMutableContextFromRoot(ctx), q0)
+    for name, value in (("desired_position", [-0.3, 0.0]), ("lower", [-3.0, -3.0]), ("upper", [3.0, 3.0])):
+        diagram.GetInputPort(name).FixValue(ctx, np.asarray(value, float))
+    diagram.GetInputPort("nominal").FixValue(ctx, np.asarray(q0, float))
+    sim.AdvanceTo(0.05)
+    return time.perf_counter() - t0
