@@ -177,8 +177,7 @@ class PerceivedColumns(LeafSystem):
             poses.set_value(
                 self.frame_ids[n], RigidTransform([x0 + i * s + half, y0 + j * s + half, h - 0.5 * self.depth])
             )
+        parked = RigidTransform([x0, y0, PARKED_Z - self.depth])  # one pose for every unused tile (copied in)
         for level in range(self.levels):
             for n in range(next_free[level], self.per_level):
-                poses.set_value(
-                    self.frame_ids[level * self.per_level + n], RigidTransform([x0, y0, PARKED_Z - self.depth])
-                )
+                poses.set_value(self.frame_ids[level * self.per_level + n], parked)

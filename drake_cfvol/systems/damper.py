@@ -48,27 +48,47 @@ class DamperRows(NamedTuple):
     measured: np.ndarray = np.zeros(0, bool)
 
 
-def dynamic_pairs(damper, dynamic_ids) -> list[tuple]:
-    """(pair index, its moving geometry) of a damper's pairs with geometry
-    that moves on its own."""
-    dynamic = set(dynamic_ids)
-    return [
-        (n, b if b in dynamic else a) for n, (a, b, _, _) in enumerate(damper._pairs) if a in dynamic or b in dynamic
-    ]
+class DynamicPairs:
+    """A damper's pairs with geometry that moves on its own, and which of
+    them to measure at an update (:meth:`mark`).
 
+    Attributes:
+        pairs: (n,) the pairs' indices among the damper's.
+        ids: the moving geometries, each once.
+    """
 
-def measure_dynamic(dynamic: list, query, measure: np.ndarray) -> None:
-    """Marks the pairs with moving geometry to be measured, except where it
-    is parked below :data:`~drake_cfvol.systems.columns.PARKED_Z` (unused):
-    one pose look-up per geometry."""
-    if not dynamic:
-        return
-    from drake_cfvol.systems.columns import PARKED_Z
+    def __init__(self, damper, dynamic_ids):
+        dynamic = set(dynamic_ids)
+        found = [
+            (n, b if b in dynamic else a)
+            for n, (a, b, _, _) in enumerate(damper._pairs)
+            if a in dynamic or b in dynamic
+        ]
+        self.pairs = np.array([n for n, _ in found], np.int64)
+        self.ids = list(dict.fromkeys(g for _, g in found))
+        index = {g: i for i, g in enumerate(self.ids)}
+        self._geometry = np.array([index[g] for _, g in found], np.int64)  # per pair: its moving geometry
+        self._z = np.zeros(len(self.ids))
 
-    pairs, gids = zip(*dynamic)
-    ids = list(dict.fromkeys(gids))
-    active = {g: query.GetPoseInWorld(g).translation()[2] > 0.5 * PARKED_Z for g in ids}
-    measure[list(pairs)] = [active[g] for g in gids]
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+    def mark(self, query, measure: np.ndarray) -> dict:
+        """Marks the pairs to be measured in ``measure`` ((pairs,) bools),
+        except where their moving geometry is parked below
+        :data:`~drake_cfvol.systems.columns.PARKED_Z` (unused): one pose
+        look-up per geometry. Returns the poses looked up, by geometry id
+        (for :meth:`VelocityDamper.rows`)."""
+        if not len(self.pairs):
+            return {}
+        from drake_cfvol.systems.columns import PARKED_Z
+
+        z, poses = self._z, {}
+        for i, g in enumerate(self.ids):
+            X = poses[g] = query.GetPoseInWorld(g)
+            z[i] = X.translation()[2]
+        measure[self.pairs] = (z > 0.5 * PARKED_Z)[self._geometry]
+        return poses
 
 
 class VelocityDamper:
@@ -218,7 +238,7 @@ class VelocityDamper:
 
         return [(a, b, side(a), side(b)) for a, b in pairs]
 
-    def rows(self, query, q, measure=None) -> DamperRows:
+    def rows(self, query, q, measure=None, poses=None) -> DamperRows:
         """The damper's rows at q (``query``: the SceneGraph's query object,
         posed at q): for
         the pairs closer than the influence distance, A (m x k) and b (m,)
@@ -232,6 +252,8 @@ class VelocityDamper:
         Args:
             measure: (pairs,) bools, the pairs to measure (default all);
                 the others' distances are NaN.
+            poses: {geometry id: its pose in the world} already looked up
+                in ``query`` at this update (:meth:`DynamicPairs.mark`'s).
         """
         measured = np.zeros(len(self._pairs), bool)
         R, o, J_w, J_v = self._kin.poses_and_jacobians(q)
@@ -239,7 +261,7 @@ class VelocityDamper:
         # distance or more is not measured (its distance is at least that).
         if measure is None:
             measure = np.ones(len(self._pairs), bool)
-        dists, look = self._broad.near(query, R, o, np.asarray(measure, bool), self.influence_distance)
+        dists, look = self._broad.near(query, R, o, np.asarray(measure, bool), self.influence_distance, poses)
         measured[look] = True
         # The near pairs' Drake results, for the kernel's rows (index, distance,
         # normal, witnesses) or, for the few it cannot make, Drake's (slow).

@@ -119,22 +119,37 @@ class BroadPhase:
                     self.box_R[n, j], self.box_p[n, j] = X.rotation().matrix(), X.translation()
                 else:
                     self.query_posed.append((n, j, gid))
+        # The same as arrays: per entry its pair, side and geometry (an index
+        # into the geometries, each once, whose last poses are kept).
+        self._posed_ids = list(dict.fromkeys(g for _, _, g in self.query_posed))
+        index = {g: i for i, g in enumerate(self._posed_ids)}
+        self._posed_pair = np.array([n for n, _, _ in self.query_posed], np.int64)
+        self._posed_side = np.array([j for _, j, _ in self.query_posed], np.int64)
+        self._posed_geometry = np.array([index[g] for _, _, g in self.query_posed], np.int64)
+        self._posed_R = np.tile(np.eye(3), (len(self._posed_ids), 1, 1))
+        self._posed_p = np.zeros((len(self._posed_ids), 3))
 
-    def near(self, query, R, o, measure, influence: float) -> tuple[np.ndarray, np.ndarray]:
+    def near(self, query, R, o, measure, influence: float, poses=None) -> tuple[np.ndarray, np.ndarray]:
         """The pairs of ``measure`` ((P,) bools) to measure, by lower bounds
         of their distances: between two balls, their gap; between a ball
         and a box, the ball centre's distance from the box less its radius;
         between two boxes, -inf. Returns (per pair the lower bound where it
         is at least ``influence`` (m), NaN elsewhere; the indices of the
-        pairs whose bound lies below it). The bodies posed at R, o."""
-        if self.query_posed:  # boxes that move on their own: one pose look-up per geometry
-            posed = {}
-            for n, j, gid in self.query_posed:
-                if measure[n]:
-                    if gid not in posed:
+        pairs whose bound lies below it). The bodies posed at R, o; a
+        geometry's pose taken from ``poses`` ({geometry id: pose}, looked
+        up in ``query`` at this update) where it is there."""
+        if self.query_posed:  # boxes that move on their own: one pose look-up per geometry measured
+            sel = np.flatnonzero(measure[self._posed_pair])
+            if len(sel):
+                poses = {} if poses is None else poses
+                for i in np.unique(self._posed_geometry[sel]):
+                    gid = self._posed_ids[i]
+                    X = poses.get(gid)
+                    if X is None:
                         X = query.GetPoseInWorld(gid)
-                        posed[gid] = (X.rotation().matrix(), X.translation())
-                    self.box_R[n, j], self.box_p[n, j] = posed[gid]
+                    self._posed_R[i], self._posed_p[i] = X.rotation().matrix(), X.translation()
+                n, j, g = self._posed_pair[sel], self._posed_side[sel], self._posed_geometry[sel]
+                self.box_R[n, j], self.box_p[n, j] = self._posed_R[g], self._posed_p[g]
         return near_pairs(
             measure,
             self._ball_slot,

@@ -179,7 +179,7 @@ from drake_cfvol.systems.constraints import (
     VelocityLimits,
     solve_rounds,
 )
-from drake_cfvol.systems.damper import DamperRows, VelocityDamper, dynamic_pairs, measure_dynamic
+from drake_cfvol.systems.damper import DamperRows, DynamicPairs, VelocityDamper
 from drake_cfvol.systems.filter_kernel import budget_after, finish, request
 
 __all__ = ["SafetyFilter", "SafetyFilterConfig"]
@@ -340,7 +340,7 @@ class SafetyFilter(LeafSystem):
             co-manipulation diagrams); set False when it is posed from
             anything else.
         dynamic_ids: geometry that moves on its own: measured at every
-            update (:func:`~.damper.measure_dynamic`), rows never relaxed.
+            update (:meth:`~.damper.DynamicPairs.mark`), rows never relaxed.
         constraints: further :class:`~drake_cfvol.systems.constraints.FilterConstraint`
             objects (e.g. a :class:`~drake_cfvol.systems.constraints.ToolSpeedLimit`).
     """
@@ -418,9 +418,9 @@ class SafetyFilter(LeafSystem):
         self._qp = PriorityQP()
         self.skip_far_pairs = bool(skip_far_pairs)
         n_pairs = self._damper.num_pairs
-        self._dynamic = dynamic_pairs(self._damper, dynamic_ids)
+        self._dynamic = DynamicPairs(self._damper, dynamic_ids)
         dynamic = np.zeros(n_pairs, bool)  # per pair: with geometry that moves on its own
-        dynamic[[n for n, _ in self._dynamic]] = True
+        dynamic[self._dynamic.pairs] = True
 
         #: The QP's constraints (:mod:`~drake_cfvol.systems.constraints`):
         #: the velocity limits, the box, the damper's rows (the static
@@ -456,7 +456,7 @@ class SafetyFilter(LeafSystem):
         self._measured_last = self.DeclareDiscreteState(np.full(k, np.nan))
         # Pairs measured at every update whatever their budget: geometry that
         # moves on its own (not the perceived kind, whose pairs are measured
-        # while it is in use: measure_dynamic).
+        # while it is in use: DynamicPairs.mark).
         self._always = self._damper.self_moving & ~dynamic
         # A plant context used as scratch for the Jacobians (never a context
         # outside this system's own).
@@ -593,9 +593,9 @@ class SafetyFilter(LeafSystem):
             else:
                 budget, measure = np.full(n, -1.0), np.ones(n, bool)
             query = self.query_object_input.Eval(context)
-            measure_dynamic(self._dynamic, query, measure)
+            poses = self._dynamic.mark(query, measure)
             try:
-                rows = self._damper.rows(query, base, measure)
+                rows = self._damper.rows(query, base, measure, poses)
             except RuntimeError:
                 rows = self._damper.empty()
                 fallback = True
