@@ -65,6 +65,31 @@ def test_incremental_equals_full(cell, bounded, planned, automotive, mesh_setup)
     assert 0 < u.searches <= uf.searches == 2 * wc.num_joints * (path.g - 1)
 
 
+def test_a_search_keeps_the_tests_no_change_reached(mesh_setup):
+    """A box moving a little: the stretches it dirties are searched again,
+    each test whose own footprint the change missed taking its verdict from
+    the last run. The bounds are those of the same update with nothing kept
+    (every test run again), and of a full re-estimation; it runs fewer
+    tests."""
+    wc, path, table = mesh_setup
+    grid = _grid(wc)
+    mid = path.g // 2
+    maps = [_box_map(grid, _near_tool(wc, path, mid, (0.25 + 0.02 * n, 0.0)), 0.1, 0.9) for n in range(3)]
+    kept, rerun = OnlineBounds(wc, table), OnlineBounds(wc, table)
+    for m in maps[:-1]:
+        kept.update(m)
+        rerun.update(m)
+    rerun._memo_n[:] = 0  # nothing kept: every test of a dirty search runs
+    u_kept, u_rerun = kept.update(maps[-1]), rerun.update(maps[-1])
+    full = OnlineBounds(wc, table)
+    full.update(maps[-1], full=True)
+    for a, b, c in zip(kept.candidate, rerun.candidate, full.candidate):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)
+    assert u_kept.searches == u_rerun.searches > 0
+    assert u_kept.tests < u_rerun.tests
+
+
 def test_a_horizon_defers_the_stretches_beyond_it(mesh_setup):
     """With a horizon of 5 stretches an update searches at most 6 stretches
     from the path index; the rest stay dirty until the index comes near,

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from drake_cfvol import kernel as K
+from drake_cfvol.algorithm.sweep import no_memo
 from drake_cfvol.kernel.heightfield import no_height_field
 from drake_cfvol.kernel.regions import _region_workspace
 from drake_cfvol.kernel.spheres import ball_apart_row
@@ -46,6 +47,7 @@ def test_bounds_at_least_as_wide_as_the_whole_grid_hull(case):
         field,
         g["pads"],
         g["guesses"],
+        *no_memo(),
     )
     sign = g["chains"][:, 1][:, None].astype(float)
     gain = sign * (bounds - g["bounds"])

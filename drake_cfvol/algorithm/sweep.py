@@ -212,6 +212,7 @@ def sweep_range(
     b: int,
     guesses: np.ndarray,
     chains: np.ndarray | None = None,
+    memo: tuple | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The sweep over stretches a..b (inclusive), each chain starting from
     ``guesses`` (n,) (NaN: cold; a full sweep starts cold at stretch 0).
@@ -220,6 +221,10 @@ def sweep_range(
         field: :func:`volume_table`'s (table, ox, oy, side).
         chains: (n, 2) the chains (joint, sign) to walk (default: all of
             ``setup.chains``).
+        memo: (tests (n, b-a+1, MEMO_T, MEMO_W), counts (n, b-a+1),
+            changed (C, 6)): each search's tests as run last time, read and
+            rewritten in place, and the boxes where the scene changed since
+            (:func:`drake_cfvol.kernel.sweep_chains`); None: none kept.
 
     Returns:
         (bounds (n, b-a+1), tests (n,), footprints (n, b-a+1, 6)): chain n
@@ -240,7 +245,14 @@ def sweep_range(
         K.HeightField(table, float(ox), float(oy), float(side)),
         setup.margins[sl],
         np.ascontiguousarray(guesses, dtype=np.float64),
+        *(memo if memo is not None else no_memo()),
     )
+
+
+def no_memo() -> tuple:
+    """A memo argument of :func:`drake_cfvol.kernel.sweep_chains` that keeps
+    nothing."""
+    return np.zeros((0, 0, 0, K.MEMO_W)), np.zeros((0, 0), np.int64), np.zeros((0, 6))
 
 
 #: Without a given time per waypoint, the nominal is taken to run at this

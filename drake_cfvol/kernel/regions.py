@@ -21,7 +21,16 @@ from drake_cfvol.kernel.heightfield import new_scratch, no_height_field
 from drake_cfvol.kernel.kinematics import _axis_rotation, fk_into
 from drake_cfvol.kernel.shapes import _aabb_apart, pose_shape_inline, row_aabb_inline, set_motion
 from drake_cfvol.kernel.swept import region_quick_free
-from drake_cfvol.kernel.types import MAX_T_SAMPLES, MAX_V_SAMPLES, SHAPE_W, Chain, HeightField, Model, RegionScratch
+from drake_cfvol.kernel.types import (
+    MAX_T_SAMPLES,
+    MAX_V_SAMPLES,
+    MEMO_W,
+    SHAPE_W,
+    Chain,
+    HeightField,
+    Model,
+    RegionScratch,
+)
 
 __all__ = ["sweep_chains", "regions_hit"]
 
@@ -265,7 +274,26 @@ def _region_hits(W, i, j, ts, vs, m, field, sc, rs, pad):
 
 
 @njit(cache=True)
-def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
+def _memo_fits(memo, n_old, k, va, vb, nv, changed):
+    """Whether test k of the search may take entry k of its memo: the same
+    region (va, vb, nv) and no changed box meeting that test's footprint."""
+    if k >= n_old or memo[k, 0] != va or memo[k, 1] != vb or memo[k, 2] != nv:
+        return False
+    for c in range(changed.shape[0]):
+        if (
+            memo[k, 4] <= changed[c, 3]
+            and changed[c, 0] <= memo[k, 7]
+            and memo[k, 5] <= changed[c, 4]
+            and changed[c, 1] <= memo[k, 8]
+            and memo[k, 6] <= changed[c, 5]
+            and changed[c, 2] <= memo[k, 9]
+        ):
+            return False
+    return True
+
+
+@njit(cache=True)
+def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad, memo, n_old, changed):
     """The bound v of joint j over stretch i (upper for sgn +1, lower for
     -1): for every t in [0, 1], moving joint j alone from nom(i + t) to v is
     free. An adaptive search from the stretch's nominal range outwards:
@@ -277,8 +305,16 @@ def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
     absolute bound to start from (the previous stretch's; NaN: cold).
     ``lims`` = (lim_lo, lim_hi, delta), ``grid`` = (nt, v_step).
 
+    ``memo`` (T, MEMO_W): the search's tests as run last time, its first
+    ``n_old`` rows valid (T = 0: none kept): per test va, vb, nv, the
+    verdict and the test's footprint (min xyz, max xyz). A test the same as
+    last time's k-th whose footprint no box of ``changed`` (C, 6) meets
+    takes its verdict (what the scene can change lies inside the
+    footprint); the rows are rewritten with this search's tests. The
+    search's footprint (their union) is left in ``rs.fp``.
+
     Returns:
-        (bound, tests)
+        (bound, tests run, tests kept in the memo)
     """
     lim_lo, lim_hi, delta = lims
     nt, v_step = grid
@@ -291,8 +327,14 @@ def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
         v0 = max(W[i, j], W[i + 1, j])
         T = v0 - bound
     if T <= 0:
-        return v0, 0
+        return v0, 0, 0
     count = 0
+    kept = 0  # tests written into the memo
+    T_memo = memo.shape[0]
+    fp = np.empty(6)  # the search's footprint
+    for r in range(3):
+        fp[r] = np.inf
+        fp[r + 3] = -np.inf
     F = 0.0
     start = T
     if not np.isnan(guess):
@@ -314,8 +356,30 @@ def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
         nv = 2 + int((X - F) / v_step)
         if nv > MAX_V_SAMPLES:
             nv = MAX_V_SAMPLES
-        count += 1
-        hit = _region_hits(W, i, j, (0.0, 1.0, nt), (va, vb, nv), m, field, sc, rs, pad)
+        k = kept
+        if _memo_fits(memo, n_old, k, va, vb, nv, changed):
+            hit = memo[k, 3] != 0.0
+            for r in range(6):
+                rs.fp[r] = memo[k, 4 + r]
+        else:
+            for r in range(3):
+                rs.fp[r] = np.inf
+                rs.fp[r + 3] = -np.inf
+            count += 1
+            hit = _region_hits(W, i, j, (0.0, 1.0, nt), (va, vb, nv), m, field, sc, rs, pad)
+        for r in range(3):
+            fp[r] = min(fp[r], rs.fp[r])
+            fp[r + 3] = max(fp[r + 3], rs.fp[r + 3])
+        if k < T_memo:
+            memo[k, 0] = va
+            memo[k, 1] = vb
+            memo[k, 2] = nv
+            memo[k, 3] = 1.0 if hit else 0.0
+            for r in range(6):
+                memo[k, 4 + r] = rs.fp[r]
+            kept += 1
+        else:
+            kept = T_memo + 1  # past the memo's room: no later test can take a row
         if not hit:
             F = X
             if F >= T:
@@ -331,7 +395,9 @@ def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad):
             if width <= dj:
                 break
             w = 0.5 * width
-    return v0 + sgn * F, count
+    for r in range(6):
+        rs.fp[r] = fp[r]
+    return v0 + sgn * F, count, min(kept, T_memo)
 
 
 @njit(cache=True)
@@ -375,7 +441,7 @@ def _region_workspace(B, k, O, shapes, verts, spheres, ranges):
 
 
 @njit(cache=True, parallel=True)
-def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses):
+def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses, memo, memo_n, changed):
     """Certified single-joint bounds of every stretch (:func:`_search`),
     keeping stretch i at least ``pads[i]`` (m) from the scene and itself.
     Chain n = (j, sign) walks the stretches in order, each search starting
@@ -383,11 +449,18 @@ def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses):
     cold); the chains run in parallel. ``lims`` = (lim_lo (g-1, k), lim_hi,
     delta (k,)); ``m`` a :class:`Model`; ``field`` a :class:`HeightField`.
 
+    ``memo`` (n, g-1, T, MEMO_W) and ``memo_n`` (n, g-1): each search's
+    tests as run last time and how many rows are valid, read and rewritten
+    (:func:`_search`; a memo of no chains, (0, 0, 0, MEMO_W), keeps none);
+    ``changed`` (C, 6): the boxes (min xyz, max xyz) where the obstacles or
+    V changed since.
+
     Returns:
         (bounds (n, g-1), tests (n,), footprints (n, g-1, 6)): a search's
         footprint is the union of the boxes (min xyz, max xyz) its tests
         held against the obstacles and V; obstacles and columns outside it
-        cannot change the search's result.
+        cannot change the search's result. ``tests``: the tests run (not
+        taken from the memo).
     """
     n_chains = chains.shape[0]
     n_st = W.shape[0] - 1
@@ -445,11 +518,22 @@ def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses):
         rs = _region_workspace(B, k, obstacles_.shape[0], shapes_, verts_, spheres_, shape_spheres_)
         guess = guesses[n]
         count = 0
+        no_memo = np.zeros((0, MEMO_W))
         for i in range(n_st):
             for r in range(3):
                 rs.fp[r] = np.inf
                 rs.fp[r + 3] = -np.inf
-            bound, c = _search(i, j, sgn, guess, W, lm, (nts[i, j], v_steps[j]), mm, fld, sc, rs, pads[i])
+            if memo.shape[0] > 0:
+                mem = memo[n, i]
+                n_old = memo_n[n, i]
+            else:
+                mem = no_memo
+                n_old = 0
+            bound, c, kept = _search(
+                i, j, sgn, guess, W, lm, (nts[i, j], v_steps[j]), mm, fld, sc, rs, pads[i], mem, n_old, changed
+            )
+            if memo.shape[0] > 0:
+                memo_n[n, i] = kept
             out[n, i] = bound
             fps[n, i] = rs.fp
             count += c

@@ -9,6 +9,8 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = [
+    "MEMO_T",
+    "MEMO_W",
     "Chain",
     "Model",
     "Blocks",
@@ -134,6 +136,12 @@ MAX_T_SAMPLES = 5
 
 
 MAX_V_SAMPLES = 9
+
+#: A search's memo (:func:`~drake_cfvol.kernel.regions.sweep_chains`): at
+#: most this many tests kept, each as va, vb, nv, its verdict and its
+#: footprint (min xyz, max xyz).
+MEMO_T = 48
+MEMO_W = 10
 
 
 #: Directions sampled around a shape for its xy footprint polygon.

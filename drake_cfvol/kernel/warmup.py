@@ -31,6 +31,8 @@ from drake_cfvol.kernel.types import (
     _S,
     BOX,
     FOOTPRINT_DIRECTIONS,
+    MEMO_T,
+    MEMO_W,
     SHAPE_W,
     Blocks,
     Chain,
@@ -147,6 +149,9 @@ def _steps():
             field,
             np.zeros(1),
             np.full(2, np.nan),
+            np.zeros((2, 1, MEMO_T, MEMO_W)),  # a memo of both searches (as the online bounds keep)
+            np.zeros((2, 1), np.int64),
+            np.zeros((1, 6)),
         )
 
     def footprints():

@@ -11,7 +11,10 @@ Each update:
    whose footprint meets a box or a column that changed are *dirty*; dirty
    stretches within the horizon are searched again, in order, each chain
    from its previous stretch's bound, and a stretch whose last bound moved
-   makes its successor dirty. So the result equals a full re-estimation.
+   makes its successor dirty. Within a search, a test the same as the
+   one its last run made at that step, whose own footprint no change
+   meets, keeps that verdict instead of running again. So the result
+   equals a full re-estimation.
 3. Publishing: a bound that tightens is published at once. A bound that
    widens waits until the widened box of its stretch is certified: the base
    table's certificate covers the known cell, and the perceived boxes are
@@ -123,7 +126,8 @@ class BoundsUpdate:
         recomputed: stretches searched again; searches: (joint, side)
             searches run (at most 2 k per stretch); dirty: stretches still
             waiting (beyond the horizon).
-        tests: region tests run.
+        tests: region tests run (a test kept from the last search of its
+            stretch, whose footprint no change met, is not run again).
         tightened, widened: stretches whose published bounds tightened /
             widened; pending: stretches whose widening waits for a
             certificate.
@@ -206,6 +210,7 @@ class OnlineBounds:
         self._vb = base.volume
         self._fp = footprint_masks(workcell, path, self.params, self._vb.categories)
         self._arrays0 = self._arrays = workcell.scene_arrays()
+        self._robot_only = self._arrays0.robot_only()  # the perceived boxes are tested against it
         lo_w, hi_w = absolute_bounds(workcell.position_lower, workcell.position_upper, W)
         self._setup = sweep_setup(
             self._arrays0, W, self.params, np.maximum(lo_w[:-1], lo_w[1:]), np.minimum(hi_w[:-1], hi_w[1:])
@@ -217,8 +222,19 @@ class OnlineBounds:
         self._map: ObstacleMap | None = None
         self._perceived_only = None
         n_st = len(W) - 1
+        # Each search's tests as last run (kept for the next update: a test
+        # whose footprint no change meets keeps its verdict).
+        self._memo = np.zeros((len(self._sign), n_st, K.MEMO_T, K.MEMO_W))
+        self._memo_n = np.zeros((len(self._sign), n_st), np.int64)
         bounds, tests, fps = sweep_range(
-            self._setup, self._arrays0, W, self._field(), 0, n_st - 1, np.full(len(self._sign), np.nan)
+            self._setup,
+            self._arrays0,
+            W,
+            self._field(),
+            0,
+            n_st - 1,
+            np.full(len(self._sign), np.nan),
+            memo=(self._memo, self._memo_n, np.zeros((0, 6))),
         )
         self._cand, self._fps = bounds, fps
         self._pub = bounds.copy()
@@ -291,14 +307,16 @@ class OnlineBounds:
         lower_along_path(vol, self._arrays0, self._W, self.params.column_clearance)
         return np.asarray(vol.heights, float)
 
-    def _changed(self, heights: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, int, int]:
-        """(n, n_st) searches whose footprint meets a changed column or box."""
+    def _changed(self, heights: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
+        """((n, n_st) searches whose footprint meets a changed column or box,
+        the changed boxes and columns (C, 6), how many columns and boxes)."""
         hm = self._vb.volume.heightmap
         ci, cj = np.nonzero(heights != self._heights)
         old = {tuple(b) for b in np.round(self._boxes, 9)}
         new = {tuple(b) for b in np.round(boxes, 9)}
         moved = np.array(sorted(old ^ new), float).reshape(-1, 6)
         hit = _overlap(self._fps, moved)  # (n, g-1)
+        changed = moved
         if len(ci):
             top = np.maximum(heights[ci, cj], self._heights[ci, cj])
             cols = np.stack(
@@ -313,13 +331,15 @@ class OnlineBounds:
                 axis=1,
             )
             hit |= _overlap(self._fps, cols)
-        return hit, len(ci), len(moved)
+            changed = np.concatenate([moved, cols])
+        return hit, np.ascontiguousarray(changed, float), len(ci), len(moved)
 
-    def _recompute(self, lo: int, hi: int) -> tuple[int, int, int]:
+    def _recompute(self, lo: int, hi: int, changed: np.ndarray) -> tuple[int, int, int]:
         """Searches the dirty stretches in [lo, hi] again, in order, each run
         of them with the chains dirty there (cascading: a chain whose last
-        bound moved makes its next stretch dirty). Returns (stretches,
-        searches, tests)."""
+        bound moved makes its next stretch dirty); a test whose footprint
+        none of ``changed`` (C, 6) meets keeps its last verdict. Returns
+        (stretches, searches, tests run)."""
         n_st, done, searches, tests, i = self._dirty.shape[1], 0, 0, 0, lo
         field = self._field()
         any_dirty = self._dirty.any(axis=0)
@@ -332,9 +352,15 @@ class OnlineBounds:
                 b += 1
             sel = np.nonzero(self._dirty[:, i : b + 1].any(axis=1))[0]
             guesses = self._cand[sel, i - 1] if i > 0 else np.full(len(sel), np.nan)
-            bounds, t, fps = sweep_range(
-                self._setup, self._arrays, self._W, field, i, b, guesses, self._setup.chains[sel]
+            memo = (
+                np.ascontiguousarray(self._memo[sel, i : b + 1]),
+                np.ascontiguousarray(self._memo_n[sel, i : b + 1]),
+                changed,
             )
+            bounds, t, fps = sweep_range(
+                self._setup, self._arrays, self._W, field, i, b, guesses, self._setup.chains[sel], memo
+            )
+            self._memo[sel, i : b + 1], self._memo_n[sel, i : b + 1] = memo[0], memo[1]
             moved = sel[bounds[:, -1] != self._cand[sel, b]]
             self._cand[sel, i : b + 1], self._fps[sel, i : b + 1] = bounds, fps
             self._dirty[sel, i : b + 1] = False
@@ -361,32 +387,31 @@ class OnlineBounds:
         boxes = np.concatenate([centres - sizes / 2, centres + sizes / 2], axis=1)
         same = obstacle_map.same_as(self._map)
         heights = self._heights if same else self._volume(centres, sizes)
+        changed = np.zeros((0, 6))
         if full:
             dirty, n_cells, n_boxes = (
                 np.ones(self._dirty.shape, bool),
                 int((heights != self._heights).sum()),
                 len(boxes),
             )
+            self._memo_n[:] = 0  # every test run again
         elif same:
             dirty, n_cells, n_boxes = np.zeros(self._dirty.shape, bool), 0, 0
         else:
-            dirty, n_cells, n_boxes = self._changed(heights, boxes)
+            dirty, changed, n_cells, n_boxes = self._changed(heights, boxes)
         self._dirty |= dirty
         if not same:  # the scene the kernel sees changes only with the map
             self._heights, self._boxes, self._table = heights, boxes, None
             self._arrays = self._arrays0.with_boxes(centres, sizes) if len(centres) else self._arrays0
-            self._perceived_only = dataclasses.replace(
-                self._arrays0,
-                obstacles=np.zeros((0, K.SHAPE_W)),
-                obstacle_names=[],
-                obstacle_aabb=np.zeros((0, 6)),
-                self_pairs=np.zeros((0, 2), np.int64),
-            ).with_boxes(centres, sizes)
+            self._perceived_only = self._robot_only.with_boxes(centres, sizes)
         self._map = obstacle_map
         n_st = self._dirty.shape[1]
         lo = int(np.clip(np.floor(s_now), 0, n_st - 1))
         hi = n_st - 1 if self.horizon is None else min(n_st - 1, lo + int(self.horizon))
-        done, searches, tests = self._recompute(0 if full else lo, hi)
+        done, searches, tests = self._recompute(0 if full else lo, hi, changed)
+        # A search left dirty (beyond the horizon) may meet this change and
+        # later ones: its memo is dropped (it runs every test when searched).
+        self._memo_n[self._dirty] = 0
         tightened, widened, pending = self._publish(lo, hi)
         if tightened or widened:
             self.live = self._live(self.live.version + 1)

@@ -181,7 +181,22 @@ class SceneArrays:
             obstacle_names=list(self.obstacle_names) + [name] * len(rows),
             obstacle_aabb=np.ascontiguousarray(np.concatenate([self.obstacle_aabb, aabb])),
         )
-        out._covers = self._covers  # the robot is the same
+        out._covers = self.covers  # the robot is the same: its covers made once, here
+        out._blocks = self._blocks
+        return out
+
+    def robot_only(self) -> "SceneArrays":
+        """These arrays without obstacles and without self pairs: the robot
+        alone, sharing its covers (for tests against other obstacles only,
+        added by :meth:`with_boxes`)."""
+        out = dataclasses.replace(
+            self,
+            obstacles=np.zeros((0, K.SHAPE_W)),
+            obstacle_names=[],
+            obstacle_aabb=np.zeros((0, 6)),
+            self_pairs=np.zeros((0, 2), np.int64),
+        )
+        out._covers = self.covers
         out._blocks = self._blocks
         return out
 
