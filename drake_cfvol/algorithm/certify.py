@@ -223,7 +223,7 @@ def certification_rng(seed: int) -> np.random.Generator:
 
 #: The compiled cuts' share of a fresh compile, s (in the terms of
 #: :data:`drake_cfvol.kernel.STEP_SHARES`).
-CUTS_SHARE = 7.2
+CUTS_SHARE = 6.8
 
 
 def warm_up_cuts() -> None:

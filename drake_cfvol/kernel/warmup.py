@@ -63,18 +63,19 @@ STEP_SHARES = {
 HELPER_STEPS = ("sweep_chains", "regions_hit")
 
 #: Shares of a fresh compile with the helper: this process's steps, then
-#: ``helper``, the wait for the helper's steps after them, s (measured as
-#: :data:`STEP_SHARES` was, at the same commit).
+#: ``helper``, the wait for the helper's steps after them (less any
+#: ``meanwhile`` steps run before it), s (measured by ``tools/eta_check.py
+#: --compile-only`` at 0.6.1 on this 2-core machine).
 PARALLEL_SHARES = {
-    "fk": 10.5,
-    "configs_may_collide": 60.3,
-    "configs_may_collide_serial": 9.3,
-    "range_max_table": 8.6,
-    "lower_columns_under": 2.7,
-    "obstacle_distances": 7.7,
-    "footprints": 4.3,
-    "gjk_intersect": 0.4,
-    "helper": 40.0,
+    "fk": 10.9,
+    "configs_may_collide": 61.1,
+    "configs_may_collide_serial": 9.0,
+    "range_max_table": 7.8,
+    "lower_columns_under": 2.0,
+    "obstacle_distances": 7.2,
+    "footprints": 4.2,
+    "gjk_intersect": 0.5,
+    "helper": 44.2,
 }
 
 
