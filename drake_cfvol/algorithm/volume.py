@@ -240,19 +240,23 @@ def volume_from_masks(
 LOWERING_MOTION = 0.02
 
 
-def lower_along_path(vol: Volume, arrays, waypoints: np.ndarray, clearance: float) -> None:
-    """Lowers the columns under the robot all along the nominal, waypoints
-    and the motion between them (each body grown by how far it can move
-    between the samples), so that the nominal is free of V at every s, not
-    only at waypoints. Updates the lowered/dropped counts."""
+def column_caps(heightmap, arrays, waypoints: np.ndarray, clearance: float) -> np.ndarray:
+    """(m, n) per column of ``heightmap``, the height it is lowered to
+    under the robot all along the nominal, waypoints and the motion between
+    them (each body grown by how far it can move between the samples), so
+    that the nominal is free of V at every s, not only at waypoints; inf
+    where the robot never passes over it. The caps depend on the path and
+    the robot alone: :func:`lower_along_path` takes each column's height
+    down to its cap."""
+    caps = np.full(heightmap.shape, np.inf)
     W = np.asarray(waypoints, float)
     dq = np.abs(np.diff(W, axis=0))  # (g-1, k)
+    if not len(dq):
+        return caps
     rev = arrays.revolute
     motion = np.where(
         rev[None, :, None], dq[:, :, None] * arrays.reach[None], dq[:, :, None] * arrays.moved_by[None]
     ).sum(axis=1)  # (g-1, B)
-    if not len(dq):
-        return
     pieces = np.maximum(1, np.ceil(motion.max(axis=1) / (2 * LOWERING_MOTION))).astype(int)
     # Piece centres t = (m + 0.5) / n of every stretch, all at once.
     stretch = np.repeat(np.arange(len(pieces)), pieces)
@@ -260,18 +264,24 @@ def lower_along_path(vol: Volume, arrays, waypoints: np.ndarray, clearance: floa
     t = (m + 0.5) / pieces[stretch]
     Q = W[stretch] + t[:, None] * (W[stretch + 1] - W[stretch])
     E = motion[stretch] / (2 * pieces[stretch])[:, None]
-    hm = vol.heightmap
-    heights = np.ascontiguousarray(vol.heights, dtype=np.float64)
-    a = arrays
     K.lower_columns_under(
         np.ascontiguousarray(Q),
         np.ascontiguousarray(E),
-        a.model,
-        heights,
-        (float(hm.origin[0]), float(hm.origin[1]), float(hm.side)),
+        arrays.model,
+        caps,
+        (float(heightmap.origin[0]), float(heightmap.origin[1]), float(heightmap.side)),
         float(clearance),
     )
-    vol.heights = heights
+    return caps
+
+
+def lower_along_path(vol: Volume, arrays, waypoints: np.ndarray, clearance: float, caps=None) -> None:
+    """Lowers the columns under the robot all along the nominal to their
+    :func:`column_caps` (``caps``: those already computed for the same
+    path, robot, clearance and grid). Updates the lowered/dropped counts."""
+    if caps is None:
+        caps = column_caps(vol.heightmap, arrays, waypoints, clearance)
+    vol.heights = np.minimum(np.asarray(vol.heights, dtype=np.float64), caps)
     vol.changed()
     changed = vol.heights < vol.raw_heights
     vol.dropped = int(np.count_nonzero(changed & (vol.heights <= 0)))

@@ -39,7 +39,7 @@ from drake_cfvol.algorithm.heightmap import Volume, height_function
 from drake_cfvol.algorithm.planning import NominalPath
 from drake_cfvol.algorithm.sweep import default_rate, sweep_range, sweep_setup
 from drake_cfvol.algorithm.table import BoundsTable, absolute_bounds, box_at, waypoint_boxes
-from drake_cfvol.algorithm.volume import footprint_masks, lower_along_path
+from drake_cfvol.algorithm.volume import column_caps, footprint_masks, lower_along_path
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.kernel import kinds
 from drake_cfvol.online.obstacle_map import ObstacleMap
@@ -218,6 +218,7 @@ class OnlineBounds:
         self._sign = self._setup.chains[:, 1].astype(float)
         self._heights = np.array(self._vb.volume.heights, float)
         self._table = None  # V's range-max table, built when first needed after a change
+        self._caps = None  # V's columns' caps under the nominal (column_caps), made at the first change
         self._boxes = np.zeros((0, 6))
         self._map: ObstacleMap | None = None
         self._perceived_only = None
@@ -304,7 +305,9 @@ class OnlineBounds:
         d_ng = K.distance_map(no_goal)[ix, iy] * fp.pixel if no_goal.any() else np.full(hm.shape, np.inf)
         raw = height_function(vb.d_t, vb.d_g, d_ng, vb.active, self.params)
         vol = Volume(hm, raw.copy(), raw)
-        lower_along_path(vol, self._arrays0, self._W, self.params.column_clearance)
+        if self._caps is None:  # the path's caps on V, the same at every update
+            self._caps = column_caps(hm, self._arrays0, self._W, self.params.column_clearance)
+        lower_along_path(vol, self._arrays0, self._W, self.params.column_clearance, self._caps)
         return np.asarray(vol.heights, float)
 
     def _changed(self, heights: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
