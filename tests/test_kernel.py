@@ -10,6 +10,7 @@ import drake_cfvol as cf
 from drake_cfvol import kernel as K
 from drake_cfvol.algorithm.heightmap import HeightMap, Volume
 from drake_cfvol.algorithm.sweep import volume_table
+from drake_cfvol.online import MapGrid, ObstacleMap, OnlineBounds
 
 MESH_CELL = "tests/data/mesh_cell.yaml"
 
@@ -311,6 +312,14 @@ def test_the_warm_up_compiles_the_signatures_the_package_calls(automotive, mesh_
         A = np.broadcast_to(Q[0], (3, wc.num_joints))  # read-only views
         js = np.zeros(3, np.int64)
         regions_may_collide(arrays, A, Q[1:4], js, Q[:3, 0] - 0.1, Q[:3, 0], 0.02)
+    # The sweep without a memo (bounding) and with one (the online bounds).
+    path = cf.plan_nominal_path(mesh_cell, *mesh_cell.configuration("path1"), seed=0)
+    table = cf.estimate_bounds(mesh_cell, path, resolution=200)
+    online = OnlineBounds(mesh_cell, table)
+    grid = MapGrid.covering(np.asarray(mesh_cell.height_map_origin), np.asarray(mesh_cell.height_map_size), 0.05)
+    H = np.zeros(grid.shape)
+    H[grid.shape[0] // 2, grid.shape[1] // 2] = 0.5
+    online.update(ObstacleMap(grid, H))
     assert _signatures() == before
 
 
