@@ -208,12 +208,18 @@ def _helper_wanted(jobs: int | None) -> bool:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:  # not Linux
         cores = os.cpu_count() or 1
-    if cores < 2:
-        return False
-    try:  # numba's own index file of the entry point's cached code
-        return not os.path.exists(sweep_chains._cache._cache_file._index_path)
-    except AttributeError:  # numba's internals moved: compile here alone, as before
-        return False
+    return cores >= 2 and not cached(sweep_chains)
+
+
+def cached(dispatcher) -> bool:
+    """Whether numba's cache holds compiled code of a ``cache=True``
+    function (its index file exists: a fresh cache has none). True where
+    numba's internals moved (nothing is then done ahead that would not be
+    done at first use)."""
+    try:
+        return os.path.exists(dispatcher._cache._cache_file._index_path)
+    except AttributeError:
+        return True
 
 
 def warm_up_shares(jobs: int | None = None) -> dict:
