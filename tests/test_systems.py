@@ -489,6 +489,72 @@ def test_clearance_monitor_agrees_with_the_workcell(named_obstacles, ignore_inva
     assert seen_collision and seen_free
 
 
+def test_clearance_monitor_skips_pairs_without_changing_the_minimum():
+    """Along a slow random walk of the robot and of a free box beside it
+    (an obstacle that moves and turns), the monitor's clearance equals the
+    minimum over every named pair queried afresh, exactly, at every step,
+    while its pair memo spares most of the queries; a jump (every pose far
+    from the memo's) is exact too, and so is another context."""
+    from pydrake.geometry import Box
+    from pydrake.math import RigidTransform, RotationMatrix
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, CoulombFriction
+    from pydrake.multibody.tree import SpatialInertia
+    from pydrake.systems.framework import DiagramBuilder
+
+    from drake_cfvol.scene.workcell import robot_geometry_ids
+    from drake_cfvol.systems import ClearanceMonitor
+
+    wc = cf.load_workcell("automotive")
+    builder = DiagramBuilder()
+    plant, sg = AddMultibodyPlantSceneGraph(builder, 0.0)
+    robot = wc.add_to_plant(plant)
+    visitor = plant.AddRigidBody(
+        "visitor", plant.AddModelInstance("visitor"), SpatialInertia.SolidBoxWithMass(1.0, 0.4, 0.2, 0.1)
+    )
+    plant.RegisterCollisionGeometry(
+        visitor, RigidTransform([0.1, 0.0, 0.0]), Box(0.4, 0.2, 0.1), "visitor", CoulombFriction(0.5, 0.5)
+    )
+    plant.Finalize()
+    every, moving = robot_geometry_ids(plant, robot)
+    inspector = sg.model_inspector()
+    obstacles = [
+        g for g in inspector.GetAllGeometryIds() if g not in every and inspector.GetProximityProperties(g) is not None
+    ]
+    mon = builder.AddSystem(ClearanceMonitor(robot_ids=every, moving_ids=moving, volume_ids=[], obstacle_ids=obstacles))
+    builder.Connect(sg.get_query_output_port(), mon.query_object_input)
+    diagram = builder.Build()
+    ctx = diagram.CreateDefaultContext()
+    mctx = mon.GetMyContextFromRoot(ctx)
+    pctx = plant.GetMyMutableContextFromRoot(ctx)
+    pairs = [(a, b) for a in moving for b in obstacles]
+    rng = np.random.default_rng(3)
+    q = np.asarray(wc.configuration("path1")[0], float)
+    p_box, yaw = np.array([1.2, 0.8, 1.0]), 0.0
+    queried = []
+    for step in range(120):
+        q = np.clip(q + rng.normal(0.0, 0.01, q.shape), wc.position_lower, wc.position_upper)
+        p_box, yaw = p_box + rng.normal(0.0, 0.01, 3), yaw + rng.normal(0.0, 0.02)
+        if step == 80:
+            q = rng.uniform(wc.position_lower, wc.position_upper)  # a jump
+        plant.SetPositions(pctx, robot, q)
+        plant.SetFreeBodyPose(pctx, visitor, RigidTransform(RotationMatrix.MakeZRotation(yaw), p_box))
+        before = mon.pair_queries
+        got = mon.min_distance_output.Eval(mctx)[0]
+        queried.append(mon.pair_queries - before)
+        query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(ctx))
+        brute = min([2.0] + [query.ComputeSignedDistancePairClosestPoints(a, b).distance for a, b in pairs])
+        assert got == brute
+    assert queried[0] == len(pairs)  # nothing remembered yet
+    assert np.median(queried) < 0.5 * len(pairs)
+    # The memo's facts hold in another context: a second context at the
+    # nominal start gives the same minimum as every pair queried there.
+    ctx2 = diagram.CreateDefaultContext()
+    plant.SetPositions(plant.GetMyMutableContextFromRoot(ctx2), robot, wc.configuration("path1")[0])
+    query = sg.get_query_output_port().Eval(sg.GetMyContextFromRoot(ctx2))
+    brute = min([2.0] + [query.ComputeSignedDistancePairClosestPoints(a, b).distance for a, b in pairs])
+    assert mon.min_distance_output.Eval(mon.GetMyContextFromRoot(ctx2))[0] == brute
+
+
 def test_gains_are_numeric_parameters():
     """M, D, K live in the context: a context with a stiffer K settles at
     tau / K_new while the system's defaults stay as constructed."""

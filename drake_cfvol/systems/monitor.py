@@ -1,8 +1,9 @@
 """Clearance, collision and volume contact through a SceneGraph's query
 port."""
 
+import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import QueryObject
+from pydrake.geometry import QueryObject, Role
 from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from drake_cfvol.exceptions import ParameterError
@@ -30,8 +31,17 @@ class ClearanceMonitor(LeafSystem):
     ``max_distance``.
     ``in_collision`` is 1 where the robot penetrates an obstacle or itself
     (the plant's collision filters apply), ``in_volume`` 1 where it
-    penetrates a box of the volume V. The system keeps no state and writes
-    nothing outside its context.
+    penetrates a box of the volume V. The system keeps no state; its
+    outputs are functions of its context alone.
+
+    With ``obstacle_ids``, ``min_distance`` remembers each pair's last
+    distance and the two geometries' poses then (facts about the shapes,
+    true in any context): a pair whose distance can have shrunk since by at
+    most how far each geometry's points moved (translation plus rotation
+    times the geometry's radius about its origin) and that still cannot
+    come below the smallest distance found, nor below 0, is not queried
+    again. The minimum is the same as querying every pair; a
+    pair near the robot is queried at every evaluation.
 
     Args:
         robot_ids: proximity geometry ids of the robot (all links).
@@ -68,6 +78,9 @@ class ClearanceMonitor(LeafSystem):
                 if (a, b) not in self._ignored
             ]
         )
+        self._memo = None  # min_distance's pair memo (see the class docs)
+        #: Signed-distance queries of single pairs made so far (for tests and benchmarks).
+        self.pair_queries = 0
         if not self._moving <= self._robot:
             raise ParameterError("ClearanceMonitor: moving_ids must be a subset of robot_ids.")
         self._max = float(max_distance)
@@ -103,15 +116,71 @@ class ClearanceMonitor(LeafSystem):
         query = self.query_object_input.Eval(context)
         best = self._max
         if self._pairs is not None:
-            for a, b in self._pairs:
-                best = min(best, query.ComputeSignedDistancePairClosestPoints(a, b).distance)
-            return best
+            return self._pairs_min(query)
         for pair in query.ComputeSignedDistancePairwiseClosestPoints(max_distance=self._max):
             a, b = pair.id_A, pair.id_B
             if a in self._volume or b in self._volume or (a, b) in self._ignored:
                 continue
             if (a in self._moving and b not in self._robot) or (b in self._moving and a not in self._robot):
                 best = min(best, pair.distance)
+        return best
+
+    def _pair_memo(self, query):
+        """The pair memo, made anew when the scene's proximity shapes
+        changed: the geometries' poses as flat rows (the anchored ones
+        filled in for good, the others' rows listed in ``posed``), each
+        pair's two rows, each end's radius about its origin (m; 1e300 where
+        Drake gives no bounding box), the pairs' last distances (-inf: none
+        yet) and the two poses they were measured at."""
+        inspector = query.inspector()
+        version = inspector.geometry_version()
+        memo = self._memo
+        if memo is not None and memo["version"].IsSameAs(version, Role.kProximity):
+            return memo
+        ids = sorted({g for pair in self._pairs for g in pair}, key=lambda g: g.get_value())
+        at = {g: n for n, g in enumerate(ids)}
+        X = np.array([query.GetPoseInWorld(g).GetAsMatrix34().ravel() for g in ids]).reshape(len(ids), 12)
+        radius = np.full(len(ids), 1e300)
+        for n, g in enumerate(ids):
+            obb = query.ComputeObbInWorld(g)
+            if obb is not None:
+                radius[n] = np.linalg.norm(obb.center() - X[n, _POSITION]) + np.linalg.norm(obb.half_width())
+        ends = np.array([[at[a], at[b]] for a, b in self._pairs], np.int64).reshape(-1, 2)
+        world = inspector.world_frame_id()
+        self._memo = memo = {
+            "version": version,
+            "X": X,
+            "posed": [(n, g) for n, g in enumerate(ids) if inspector.GetFrameId(g) != world],
+            "ends": ends,
+            "radius": radius[ends],
+            "distance": np.full(len(ends), -np.inf),
+            "X0": np.zeros((len(ends), 2, 12)),
+        }
+        return memo
+
+    def _pairs_min(self, query) -> float:
+        """The named pairs' smallest distance, skipping those the memo
+        shows cannot be the smallest (see the class docs): each end's
+        points moved at most the origin's displacement plus the rotation's
+        change (Frobenius norm, >= its spectral norm) times its radius."""
+        memo = self._pair_memo(query)
+        X = memo["X"]
+        for n, g in memo["posed"]:
+            X[n] = query.GetPoseInWorld(g).GetAsMatrix34().ravel()
+        now = X[memo["ends"]]  # (P, 2, 12)
+        sq = np.square(now - memo["X0"])
+        moved = np.sqrt(sq[..., _POSITION].sum(axis=-1)) + np.sqrt(sq[..., _ROTATION].sum(axis=-1)) * memo["radius"]
+        lower = memo["distance"] - moved.sum(axis=1)
+        best = self._max
+        for n in np.argsort(lower, kind="stable").tolist():
+            if lower[n] > 0.0 and lower[n] >= best:
+                break  # this pair and every later one stay at least this far apart
+            ga, gb = self._pairs[n]
+            d = query.ComputeSignedDistancePairClosestPoints(ga, gb).distance
+            self.pair_queries += 1
+            memo["distance"][n] = d
+            memo["X0"][n] = now[n]
+            best = min(best, d)
         return best
 
     def _contacts(self, context) -> tuple[bool, bool]:
@@ -126,3 +195,8 @@ class ClearanceMonitor(LeafSystem):
                 if self._obstacles is None or other in self._robot or other in self._obstacles:
                     collides = True
         return collides, touches_volume
+
+
+#: Where a pose's rotation and translation sit in its 3 x 4 matrix's flat row.
+_ROTATION = [0, 1, 2, 4, 5, 6, 8, 9, 10]
+_POSITION = [3, 7, 11]
