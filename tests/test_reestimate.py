@@ -213,3 +213,32 @@ def test_refuses_a_table_without_its_volume(bounded, automotive):
         OnlineBounds(automotive, table)
     with pytest.raises(ParameterError, match="horizon"):
         OnlineBounds(automotive, bounded("automotive"), horizon=0)
+
+
+def test_no_goal_distance_equals_the_raster_transform(mesh_setup):
+    """The no-goal distance at V's columns with perceived boxes (the cell's
+    part transformed once, each box's rectangle in closed form) equals the
+    exact distance transform of the whole raster with the boxes marked in
+    it, bit for bit: boxes inside, across the raster's edges and wholly
+    outside it (nothing marked), of random sizes."""
+    from drake_cfvol import kernel as K
+
+    wc, _, table = mesh_setup
+    online = OnlineBounds(wc, table)
+    fp = online._fp
+    X, Y = online._vb.volume.heightmap.centres()
+    ix, iy = fp.indices(X, Y)
+    shape = fp.masks["no_goal"].shape
+    span = np.array([fp.x0, fp.y0]), np.array([fp.x0, fp.y0]) + np.array(shape) * fp.pixel
+    rng = np.random.default_rng(5)
+    for n in (0, 1, 3, 6):
+        centres = np.c_[rng.uniform(span[0] - 0.5, span[1] + 0.5, (n, 2)), rng.uniform(0.2, 1.0, n)]
+        sizes = rng.uniform(0.02, 0.8, (n, 3))
+        mask = fp.masks["no_goal"].copy()
+        for c, s in zip(centres, sizes):  # rasterised as the pixels the box's footprint meets
+            i0, j0 = np.floor((c[:2] - s[:2] / 2 - (fp.x0, fp.y0)) / fp.pixel).astype(int)
+            i1, j1 = np.ceil((c[:2] + s[:2] / 2 - (fp.x0, fp.y0)) / fp.pixel).astype(int)
+            i0, j0, i1, j1 = np.clip([i0, j0, i1, j1], 0, [shape[0], shape[1], shape[0], shape[1]])
+            mask[i0:i1, j0:j1] = True
+        expected = K.distance_map(mask)[ix, iy] * fp.pixel if mask.any() else np.full(X.shape, np.inf)
+        np.testing.assert_array_equal(online._no_goal_distance(centres, sizes), expected)

@@ -92,8 +92,15 @@ def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | No
     joint it needed (at most START_SPLITS): tested again, it starts from
     that many pieces (automotive path 1's certification: 454k region tests
     instead of 515k)."""
-    memo = {} if memo is None else memo
     stretch_tasks, keys, again = [], [], []
+    if memo is None:  # nothing remembered or kept: every edge tested whole, its own root
+        for i in stretches:
+            A, B, js, va, vb, sig = edge_tasks(lower[i], upper[i], lower[i + 1], upper[i + 1])
+            if len(js):
+                roots = range(len(keys), len(keys) + len(js))
+                keys += [None] * len(js)
+                stretch_tasks.append((i, A, B, js, sig, list(zip(range(len(js)), va, vb, roots, [0] * len(js)))))
+        return _failures_of(arrays, lower, upper, nominal, stretch_tasks, margins, None, keys, again)
     for i in stretches:
         A, B, js, va, vb, sig = edge_tasks(lower[i], upper[i], lower[i + 1], upper[i + 1])
         if not len(js):
@@ -145,6 +152,13 @@ def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | No
             v[-1] = vb[n]
             first += [(n, v[m], v[m + 1], root, d) for m in range(2**d)]
         stretch_tasks.append((i, A, B, js, sig, first))
+    return _failures_of(arrays, lower, upper, nominal, stretch_tasks, margins, memo, keys, again)
+
+
+def _failures_of(arrays, lower, upper, nominal, stretch_tasks, margins, memo, keys, again):
+    """:func:`_failures` from its first regions on: tests them, halves the
+    failing ones and (with a ``memo``) records each edge's outcome under
+    its key in ``keys``."""
     # The first test of every region as arrays (most pass whole): an item
     # object only for those that fail, halved further by _halvings.
     hit, tests = _first_test(arrays, stretch_tasks, margins)
@@ -161,6 +175,8 @@ def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | No
     tests += more
     for r, d in deeper.items():
         passed_at[r] = min(passed_at.get(r, MAX_SPLITS + 1), d)
+    if memo is None:
+        return failed + again, tests
     by_root: dict = {}
     for it in failed:
         by_root.setdefault(it.root, []).append(it)

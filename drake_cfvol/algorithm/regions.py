@@ -5,6 +5,7 @@ region test, corners as points, and the shared constants of the proof.
 
 from __future__ import annotations
 
+import functools
 import itertools
 
 import numpy as np
@@ -26,11 +27,14 @@ S_SPLITS = 3
 MOTION_TOLERANCE = 0.01
 
 
+@functools.lru_cache(maxsize=None)
 def _signs(k: int, j: int) -> np.ndarray:
     """(2^(k-1), k) corner patterns of the joints other than j (1 upper,
-    0 lower; column j unused)."""
+    0 lower; column j unused); made once per (k, j), read-only."""
     rows = np.array(list(itertools.product((0, 1), repeat=k - 1)), np.int64).reshape(-1, k - 1)
-    return np.insert(rows, j, 0, axis=1)
+    out = np.insert(rows, j, 0, axis=1)
+    out.flags.writeable = False
+    return out
 
 
 def edge_tasks(lo_a, hi_a, lo_b, hi_b):

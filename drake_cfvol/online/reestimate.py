@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from drake_cfvol import kernel as K
-from drake_cfvol.algorithm.boundary import _failures
+from drake_cfvol.algorithm.boundary import _colliding_points, _failures
 from drake_cfvol.algorithm.heightmap import Volume, height_function
 from drake_cfvol.algorithm.planning import NominalPath
 from drake_cfvol.algorithm.sweep import default_rate, sweep_range, sweep_setup
@@ -202,6 +202,9 @@ class OnlineBounds:
         self.workcell, self.base, self.horizon = workcell, base, horizon
         self.max_proofs = int(max_proofs)
         self._proven_map: dict = {}  # stretch -> the map its last boundary proof was run on
+        # stretch -> (lower, upper, points): the box its last boundary proof
+        # failed on and configurations of that box's edges that may collide
+        self._failed_at: dict = {}
         known = {f.name for f in dataclasses.fields(VolumeParams)}
         self.params = VolumeParams(**{k: v for k, v in base.params.items() if k in known})
         W = np.ascontiguousarray(base.nominal, dtype=np.float64)
@@ -219,6 +222,9 @@ class OnlineBounds:
         self._heights = np.array(self._vb.volume.heights, float)
         self._table = None  # V's range-max table, built when first needed after a change
         self._caps = None  # V's columns' caps under the nominal (column_caps), made at the first change
+        self._static_ng = (
+            None  # the cell's no-goal distance at V's columns (_no_goal_distance), made at the first change
+        )
         self._boxes = np.zeros((0, 6))
         self._map: ObstacleMap | None = None
         self._perceived_only = None
@@ -292,23 +298,45 @@ class OnlineBounds:
 
     def _volume(self, centres: np.ndarray, sizes: np.ndarray) -> np.ndarray:
         """V's heights with the perceived boxes in the no-goal footprint."""
-        fp, vb = self._fp, self._vb
-        no_goal = fp.masks["no_goal"].copy()
-        shape = no_goal.shape
-        for c, s in zip(centres, sizes):
-            i0, j0 = np.floor((c[:2] - s[:2] / 2 - (fp.x0, fp.y0)) / fp.pixel).astype(int)
-            i1, j1 = np.ceil((c[:2] + s[:2] / 2 - (fp.x0, fp.y0)) / fp.pixel).astype(int)
-            no_goal[max(i0, 0) : min(i1, shape[0]), max(j0, 0) : min(j1, shape[1])] = True
+        vb = self._vb
         hm = vb.volume.heightmap
-        X, Y = hm.centres()
-        ix, iy = fp.indices(X, Y)
-        d_ng = K.distance_map(no_goal)[ix, iy] * fp.pixel if no_goal.any() else np.full(hm.shape, np.inf)
+        d_ng = self._no_goal_distance(centres, sizes)
         raw = height_function(vb.d_t, vb.d_g, d_ng, vb.active, self.params)
         vol = Volume(hm, raw.copy(), raw)
         if self._caps is None:  # the path's caps on V, the same at every update
             self._caps = column_caps(hm, self._arrays0, self._W, self.params.column_clearance)
         lower_along_path(vol, self._arrays0, self._W, self.params.column_clearance, self._caps)
         return np.asarray(vol.heights, float)
+
+    def _no_goal_distance(self, centres: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+        """(m, n) distance from each column of V to the no-goal footprint
+        with the perceived boxes rasterised into it, m: what the exact
+        distance transform of that raster gives at the columns' pixels
+        (pixel centre to the nearest marked pixel centre). The cell's own
+        part is transformed once; a box's pixels form a rectangle of the
+        raster, whose nearest pixel centre to a column's pixel is the
+        clamped one, so its distance is sqrt(dx^2 + dy^2) in whole pixels
+        (the same integers the transform adds up; the minimum of correctly
+        rounded square roots is the root of the minimum)."""
+        fp = self._fp
+        if self._static_ng is None:
+            X, Y = self._vb.volume.heightmap.centres()
+            self._column_px = fp.indices(X, Y)
+            mask = fp.masks["no_goal"]
+            self._static_ng = K.distance_map(mask)[self._column_px] if mask.any() else np.full(X.shape, np.inf)
+        ix, iy = self._column_px
+        shape = fp.masks["no_goal"].shape
+        d = self._static_ng
+        for c, s in zip(centres, sizes):
+            i0, j0 = np.floor((c[:2] - s[:2] / 2 - (fp.x0, fp.y0)) / fp.pixel).astype(int)
+            i1, j1 = np.ceil((c[:2] + s[:2] / 2 - (fp.x0, fp.y0)) / fp.pixel).astype(int)
+            i0, j0, i1, j1 = max(i0, 0), max(j0, 0), min(i1, shape[0]), min(j1, shape[1])
+            if i0 >= i1 or j0 >= j1:
+                continue  # outside the raster: nothing marked
+            dx = np.maximum(np.maximum(i0 - ix, ix - (i1 - 1)), 0)
+            dy = np.maximum(np.maximum(j0 - iy, iy - (j1 - 1)), 0)
+            d = np.minimum(d, np.sqrt((dx * dx + dy * dy).astype(float)))
+        return d * fp.pixel
 
     def _changed(self, heights: np.ndarray, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
         """((n, n_st) searches whose footprint meets a changed column or box,
@@ -483,14 +511,27 @@ class OnlineBounds:
         balls = np.concatenate([p_WB[0] - grow[:, None], p_WB[0] + grow[:, None]], axis=1)
         if not _overlap(balls, self._boxes).any():
             return True
+        lo, up = self._tighter_linear(i, lo, up)
+        margin = np.array([float(self._setup.margins[i])])
+        known = self._failed_at.get(i)
+        if known is not None and np.array_equal(known[0], lo) and np.array_equal(known[1], up):
+            # A configuration on an edge of this very box that may still
+            # collide fails its proof (every region holding it may collide),
+            # without running it: no proof spent.
+            if self._perceived_only.may_collide(known[2], float(margin[0])).any():
+                return False
         if not proofs or self._map.same_as(self._proven_map.get(i)):
             return False
         proofs.pop()
         self._proven_map[i] = self._map
-        lo, up = self._tighter_linear(i, lo, up)
-        failed, _ = _failures(
-            self._perceived_only, lo, up, self._W[i : i + 2], [0], np.array([float(self._setup.margins[i])])
-        )
+        W = self._W[i : i + 2]
+        failed, _ = _failures(self._perceived_only, lo, up, W, [0], margin)
+        hits = _colliding_points(self._perceived_only, lo, up, W, failed, margin, np.zeros(1)) if failed else []
+        points = [q for hit in hits if hit is not None for q in (hit[1],)]
+        if points:
+            self._failed_at[i] = (lo, up, np.array(points))
+        else:
+            self._failed_at.pop(i, None)
         return not failed
 
     def _tighter_linear(self, i: int, lo: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
