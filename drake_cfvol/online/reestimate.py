@@ -253,6 +253,7 @@ class OnlineBounds:
         )
         self._rate = np.asarray(rate, float)
         self._radii = shape_radii(self._arrays0)
+        self._p_WB = self._arrays0.fk(W)[1]  # (g, B, 3) each body's origin at each waypoint, m
         # Per joint and body: how far a unit of the joint moves the body's points (m/rad, or 1 m/m).
         self._body_reach = np.where(
             self._arrays0.revolute[:, None], self._arrays0.reach, self._arrays0.moved_by.astype(float)
@@ -506,9 +507,9 @@ class OnlineBounds:
             return True
         lo, up = self._outer_box(i, chains)
         dev = np.maximum(np.abs(up - self._W[i]), np.abs(self._W[i] - lo)).max(axis=0)  # (k,)
-        _, p_WB = self._arrays0.fk(self._W[i : i + 1])
+        p_WB = self._p_WB[i]
         grow = self._radii + dev @ self._body_reach + float(self._setup.margins[i])  # (B,)
-        balls = np.concatenate([p_WB[0] - grow[:, None], p_WB[0] + grow[:, None]], axis=1)
+        balls = np.concatenate([p_WB - grow[:, None], p_WB + grow[:, None]], axis=1)
         if not _overlap(balls, self._boxes).any():
             return True
         lo, up = self._tighter_linear(i, lo, up)
