@@ -21,6 +21,7 @@ from drake_cfvol.kernel import kinds
 from drake_cfvol.kernel.batch import _near_exact
 from drake_cfvol.kernel.blocks import NB
 from drake_cfvol.kernel.shapes import support
+from drake_cfvol.kernel.spheres import ball_apart_row
 from drake_cfvol.scene.arrays import shape_row
 from drake_cfvol.scene.covers import check_cover, shape_cover, shape_points
 from drake_cfvol.systems import damper_kernel as DK
@@ -156,6 +157,19 @@ def test_every_kind_through_every_function(name):
         d = _distance(query, shape, C)
         assert np.all(near[d <= r] == 1.0)
         assert np.any(near == 0.0) and np.any(near == 1.0)
+
+    # The region tests' ball test (a cover ball over a cell, against a
+    # shape): "apart" only where Drake's distance of the centre exceeds the
+    # radius; exact for a kind with a closed form, else against its box.
+    C = t + rng.uniform(-0.6, 0.6, (400, 3))
+    d = _distance(query, shape, C)
+    apart = np.array([ball_apart_row(*c, 0.05, row, box) for c in C])
+    assert not apart[d <= 0.05].any()
+    if k.exact_near:
+        np.testing.assert_array_equal(apart, d > 0.05 + 1e-9)
+    else:
+        outside = np.maximum(np.maximum(box[:3] - C, C - box[3:]), 0.0)
+        np.testing.assert_array_equal(apart, np.linalg.norm(outside, axis=1) > 0.05 + 1e-9)
 
     # The safety filter: probes on the shape (their lowest points touch it),
     # its bounding ball and box about the shape's frame, and its closed-form

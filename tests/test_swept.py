@@ -120,6 +120,47 @@ def test_quick_pass_never_frees_a_colliding_region(cell, request):
     assert free.all(), f"{(~free).sum()} colliding configurations in regions called free"
 
 
+@pytest.mark.parametrize("cell", ["automotive", "mesh"])
+def test_the_whole_region_test_never_frees_a_colliding_region(cell, request):
+    """The whole region test (the broad phase, the scene cell by cell, the
+    self pairs with their cover balls over each cell before GJK) on random
+    regions anywhere in the joint limits, where the robot often nears
+    itself: wherever it calls a region free, Drake's padded checker (self
+    pairs included) finds a dense grid over it free. Both verdicts occur."""
+    from drake_cfvol.algorithm.regions import regions_may_collide
+
+    if cell == "mesh":
+        import drake_cfvol as cf
+
+        wc = cf.load_workcell("tests/data/mesh_cell.yaml")
+    else:
+        wc = request.getfixturevalue(cell)
+    k = wc.num_joints
+    rng = np.random.default_rng(3)
+    lo, hi = wc.position_lower, wc.position_upper
+    checker = wc.padded_checker(0.02)
+    A, B, js, va, vb = [], [], [], [], []
+    while len(js) < 200:
+        a = rng.uniform(lo, hi)
+        b = np.clip(a + rng.normal(scale=0.02, size=k), lo, hi)
+        if not all(checker.CheckConfigsCollisionFree(a + np.linspace(0, 1, 11)[:, None] * (b - a))):
+            continue
+        j = int(rng.integers(k))
+        A.append(a), B.append(b), js.append(j), va.append(a[j])
+        vb.append(min(a[j] + rng.uniform(0.05, 0.6), hi[j]))
+    A, B, js, va, vb = map(np.array, (A, B, js, va, vb))
+    hit = regions_may_collide(wc.scene_arrays(), A, B, js, va, vb, 0.02)
+    assert 10 <= (~hit).sum() and 10 <= hit.sum(), "both verdicts, or the test says nothing"
+    t, v = np.meshgrid(np.linspace(0, 1, 11), np.linspace(0, 1, 21))
+    Q = []
+    for n in np.flatnonzero(~hit):
+        q = A[n] + t.reshape(-1, 1) * (B[n] - A[n])
+        q[:, js[n]] = va[n] + v.ravel() * (vb[n] - va[n])
+        Q.append(q)
+    free = np.array(checker.CheckConfigsCollisionFree(np.concatenate(Q), parallelize=True), bool)
+    assert free.all(), f"{(~free).sum()} colliding configurations in regions called free"
+
+
 def _two_finger_model():
     """A fixed palm with two fingers on revolute joints about z, 0.4 m apart
     along x (a tree): finger 0 a 4 cm knuckle on its joint, finger 1 a box

@@ -14,7 +14,7 @@ from numba import njit
 from drake_cfvol.kernel.checks import _object_vs_scene
 from drake_cfvol.kernel.gjk import _gjk_from
 from drake_cfvol.kernel.shapes import _aabb_apart, row_aabb_inline
-from drake_cfvol.kernel.spheres import box_above_columns
+from drake_cfvol.kernel.spheres import ball_apart_row, box_above_columns
 
 __all__ = ["shape_bounds"]
 
@@ -179,12 +179,38 @@ def _cell_rows(obj, c00, c01, c10, c11, cell):
     cell[3] = obj[c11]
 
 
+@njit(cache=True, inline="always")
+def _cell_balls_apart(cen, radii, nq, c00, c01, c10, c11, row, row_box):
+    """Whether every cover ball of a shape stays apart from ``row`` over a
+    grid cell (:func:`ball_apart_row`; ``row_box`` its axis-aligned box):
+    ball q's centre is at cen[q, c] at the cell's corner c, its radius
+    radii[q] (the second-order bound and the margin included). A
+    point of the shape in ball q lies, over the cell, in the hull of its
+    four corner positions grown by the bound, each in ball q at its corner:
+    within radii[q] + rho of the corners' mean, rho the farthest corner."""
+    for q in range(nq):
+        m0 = 0.25 * (cen[q, c00, 0] + cen[q, c01, 0] + cen[q, c10, 0] + cen[q, c11, 0])
+        m1 = 0.25 * (cen[q, c00, 1] + cen[q, c01, 1] + cen[q, c10, 1] + cen[q, c11, 1])
+        m2 = 0.25 * (cen[q, c00, 2] + cen[q, c01, 2] + cen[q, c10, 2] + cen[q, c11, 2])
+        rho2 = 0.0
+        for c in (c00, c01, c10, c11):
+            d0 = cen[q, c, 0] - m0
+            d1 = cen[q, c, 1] - m1
+            d2 = cen[q, c, 2] - m2
+            rho2 = max(rho2, d0 * d0 + d1 * d1 + d2 * d2)
+        if not ball_apart_row(m0, m1, m2, radii[q] + np.sqrt(rho2), row, row_box):
+            return False
+    return True
+
+
 @njit(cache=True)
-def _cells_hit_row(obj, nt, nv, rs, row, row_box, verts, ws, dirs):
+def _cells_hit_row(obj, nt, nv, rs, row, row_box, verts, ws, dirs, nq):
     """The grid object ``obj`` (nt x nv rows, their boxes in rs.rowbox)
-    against one shape row (its box ``row_box``), cell by cell as in
-    :func:`_cells_vs_scene`: a cell whose box misses the row's is done, the
-    others go to GJK on their four rows."""
+    against one shape row ((1, SHAPE_W); its box ``row_box``), cell by cell as in
+    :func:`_cells_vs_scene`: a cell whose box misses the row's is done, then
+    one whose ``nq`` cover balls (rs.cover_cen, rs.cover_r) all stay apart
+    from the row (:func:`_cell_balls_apart`; none: skipped); the others go
+    to GJK on their four rows."""
     cell, rowbox = rs.cell, rs.rowbox
     for ti in range(max(nt - 1, 1)):
         t1 = min(ti + 1, nt - 1)
@@ -192,6 +218,8 @@ def _cells_hit_row(obj, nt, nv, rs, row, row_box, verts, ws, dirs):
             c00, c01, c10, c11 = _corners(ti, t1, vi, nv)
             _cell_box(rowbox, c00, c01, c10, c11, rs.qbox)
             if _aabb_apart(rs.qbox, row_box):
+                continue
+            if nq > 0 and _cell_balls_apart(rs.cover_cen, rs.cover_r, nq, c00, c01, c10, c11, row[0], row_box):
                 continue
             _cell_rows(obj, c00, c01, c10, c11, cell)
             if _gjk_from(cell, verts, row, verts, 64, ws, dirs):

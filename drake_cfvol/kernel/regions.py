@@ -213,6 +213,9 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
                     near = near or not _aabb_apart(rel_aabb, rs.local_box[sf])
             if not near:
                 continue
+            q0, q1 = m.shape_spheres[sm, 0], m.shape_spheres[sm, 1]
+            for q in range(q0, q1):
+                rs.cover_r[q - q0] = m.spheres[q, 3] + grow + pad
             for c in range(P):
                 # X_fm = X_Wf^-1 X_Wm at grid point c.
                 Rf = RP[c, f]
@@ -225,6 +228,10 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
                     p_fm[r] = Rf[0, r] * dp[0] + Rf[1, r] * dp[1] + Rf[2, r] * dp[2]
                 pose_shape_inline(shapes[sm], R_fm, p_fm, relP[c])
                 set_motion(relP[c], grow + pad, 0.0, 0.0, 1.0, 0.0, 0.0)
+                for q in range(q0, q1):  # the cover balls in f's frame, for the cells' ball test
+                    b0, b1, b2 = m.spheres[q, 0], m.spheres[q, 1], m.spheres[q, 2]
+                    for r in range(3):
+                        rs.cover_cen[q - q0, c, r] = p_fm[r] + R_fm[r, 0] * b0 + R_fm[r, 1] * b1 + R_fm[r, 2] * b2
             _row_boxes(relP, verts, rs.rowbox, rel_aabb)
             for sf in range(S):
                 if shape_body[sf] != f:
@@ -233,7 +240,7 @@ def _region_self_pairs(W, i, j, ts, vs, m, sc, rs, pad):
                 if _aabb_apart(rel_aabb, rs.local_box[sf]):
                     continue
                 if _cells_hit_row(
-                    relP, nt, nv, rs, shapes[sf : sf + 1], rs.local_box[sf], verts, ws, rs.dirs[sm, O + sf]
+                    relP, nt, nv, rs, shapes[sf : sf + 1], rs.local_box[sf], verts, ws, rs.dirs[sm, O + sf], q1 - q0
                 ):
                     return True
     return False
@@ -434,6 +441,8 @@ def _region_workspace(B, k, O, shapes, verts, spheres, ranges):
         np.empty(6),
         np.empty((S, 4)),
         np.empty((S, 6)),
+        np.empty((max(1, (ranges[:, 1] - ranges[:, 0]).max()), P, 3)),
+        np.empty(max(1, (ranges[:, 1] - ranges[:, 0]).max())),
     )
     shape_bounds(spheres, ranges, rs.bound)
     _local_boxes(shapes, verts, rs.local_box)

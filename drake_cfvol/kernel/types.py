@@ -129,6 +129,8 @@ class RegionScratch(NamedTuple):
     qbox: np.ndarray  #: (6,) a ball's box
     bound: np.ndarray  #: (S, 4) each shape's bounding ball (centre in its body frame, radius)
     local_box: np.ndarray  #: (S, 6) each shape's axis-aligned box in its body's frame (min xyz, max xyz), m
+    cover_cen: np.ndarray  #: (Q, P, 3) a shape's cover balls' centres at each grid pose (a self pair's frame)
+    cover_r: np.ndarray  #: (Q,) their radii grown by the second-order bound and the margin, m
 
 
 #: Most poses sampled along t and along v in one region test.

@@ -6,7 +6,8 @@ covers, the online re-estimation and the safety filter know of it).
 Adding a kind is adding a module: its class here in :data:`KINDS`, its code
 in :mod:`drake_cfvol.kernel.types`, and its branch in the kernel's
 dispatchers (``shapes._local_support`` and ``shapes._row_aabb``; where it
-has them, ``batch._near_exact`` and the damper's ``point_distance``). A row
+has them, ``batch._near_exact``, ``spheres.ball_apart_row`` and the
+damper's ``point_distance``). A row
 of a kind the kernel does not know is refused when the scene is built
 (:func:`check_rows`), and the kernel's default branch answers "may
 collide" for it.

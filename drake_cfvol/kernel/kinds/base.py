@@ -59,8 +59,9 @@ class ShapeKind:
         code: the kind's number in a kernel shape row (``kernel.types``).
         name: its name in messages.
         drake_names: the Drake shape classes it reads.
-        exact_near: the block check has its closed-form ball test (the
-            module's ``excess`` and ``core_radius``).
+        exact_near: the block check and the region tests have its
+            closed-form ball test (the module's ``excess`` and
+            ``core_radius``); other kinds are tested by their boxes.
         point_query: the filter's damper has its closed-form signed distance
             of a point (the module's ``point_distance``; its parameters are
             ``sizes``).
