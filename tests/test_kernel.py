@@ -88,6 +88,31 @@ def test_batch_check_answers_do_not_depend_on_the_batch(cell, request, mesh_cell
             assert checker.CalcRobotClearance(Q[i], 0.05).distances().min(initial=np.inf) >= 0.02 - 1e-9
 
 
+def test_a_large_batch_is_checked_in_a_coherent_order_with_the_same_answers(automotive):
+    """The batch check sorts a large batch so that neighbours are near (a
+    Morton order): the order is a permutation whose consecutive
+    configurations are nearer than the drawn order's, and every answer is
+    the one the configuration gets on the serial path, whatever order the
+    batch comes in."""
+    arrays = automotive.scene_arrays()
+    Q = _random_configs(automotive, 3000, 5)
+    order = K.coherent_order(Q, K.COHERENT_DIMS, K.COHERENT_BITS)
+    np.testing.assert_array_equal(np.sort(order), np.arange(len(Q)))
+    odd = Q.copy()  # a constant joint, a NaN and infinities still give a permutation
+    odd[:, 1], odd[5, 0], odd[7, 2], odd[9, 3] = 0.3, np.nan, np.inf, -np.inf
+    np.testing.assert_array_equal(np.sort(K.coherent_order(odd, K.COHERENT_DIMS, K.COHERENT_BITS)), np.arange(len(Q)))
+    step = np.linalg.norm(np.diff(Q[order][:, :4], axis=0), axis=1).mean()
+    assert step < 0.5 * np.linalg.norm(np.diff(Q[:, :4], axis=0), axis=1).mean()
+    whole = arrays.may_collide(Q, 0.02)
+    perm = np.random.default_rng(0).permutation(len(Q))
+    np.testing.assert_array_equal(arrays.may_collide(Q[perm], 0.02), whole[perm])
+    serial = np.concatenate(
+        [K.configs_may_collide_serial(Q[i : i + 200], arrays.model, arrays.blocks, 0.02) for i in range(0, len(Q), 200)]
+    )
+    np.testing.assert_array_equal(whole, serial)
+    assert 0 < whole.sum() < len(Q)
+
+
 def test_sincos_matches_the_library():
     """The kernel's branch-free sine and cosine equal libm's within 3e-16
     over the angles a joint can have, quadrant boundaries included."""
@@ -285,7 +310,15 @@ def test_the_warm_up_file_is_not_part_of_the_cache_stamp(tmp_path):
     assert not entry.exists()
 
 
-_ENTRY_POINTS = ("configs_may_collide", "configs_may_collide_serial", "regions_hit", "sweep_chains", "fk", "fk_blocks")
+_ENTRY_POINTS = (
+    "configs_may_collide",
+    "configs_may_collide_serial",
+    "coherent_order",
+    "regions_hit",
+    "sweep_chains",
+    "fk",
+    "fk_blocks",
+)
 
 
 def _signatures():

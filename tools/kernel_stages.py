@@ -49,8 +49,9 @@ REGION_STAGES = ("quick pass (lever-arm balls)", "grid poses", "shapes vs the sc
 
 @njit
 def _batch_to(Q, m, blk, pad, stage, counts):
-    """batch._check_blocks up to ``stage``; counts: undecided lanes and
-    their candidates (at stage 3)."""
+    """batch._check_blocks up to ``stage`` (Q in the order the kernel
+    takes it: coherent_order); counts: undecided lanes and their
+    candidates (at stage 3)."""
     N, k = Q.shape
     B, S, O, P = m.chain.parent.shape[0], m.shapes.shape[0], m.obstacles.shape[0], m.shape_pairs.shape[0]
     ws = _fk_scratch(B, k)
@@ -167,7 +168,8 @@ def main() -> None:
             f"{m.shape_pairs.shape[0]} self pairs, {blk.balls.shape[0]} cover balls"
         )
 
-        Q = np.ascontiguousarray(samples_in_bounds(table, args.samples))
+        Q = samples_in_bounds(table, args.samples)
+        Q = np.ascontiguousarray(Q[cf.kernel.coherent_order(Q, cf.kernel.COHERENT_DIMS, cf.kernel.COHERENT_BITS)])
         _batch_to(Q[:NB], m, blk, 0.0, 4, np.zeros(2, np.int64))  # compiled
         cum, out, (und, cands) = _staged(lambda s, c: _batch_to(Q, m, blk, 0.0, s, c), 5, args.repeats, 3)
         if not np.array_equal(out, arrays.may_collide(Q, 0.0)):

@@ -88,7 +88,16 @@ def _cache_folders(package: _Path) -> list:
 _clear_stale_cache(_Path(__file__).resolve().parent, _cache_folders(_Path(__file__).resolve().parent.parent))
 
 from drake_cfvol.kernel.batch import configs_may_collide, configs_may_collide_serial  # noqa: E402
-from drake_cfvol.kernel.blocks import EXACT_KINDS, NB, block_chain, fk_blocks, shape_bounds  # noqa: E402
+from drake_cfvol.kernel.blocks import (  # noqa: E402
+    COHERENT_BITS,
+    COHERENT_DIMS,
+    EXACT_KINDS,
+    NB,
+    block_chain,
+    coherent_order,
+    fk_blocks,
+    shape_bounds,
+)
 from drake_cfvol.kernel.checks import lower_columns_under, obstacle_distances  # noqa: E402
 from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint  # noqa: E402
 from drake_cfvol.kernel.gjk import gjk_intersect  # noqa: E402
@@ -171,6 +180,9 @@ __all__ = [
     "block_chain",
     "shape_bounds",
     "fk_blocks",
+    "coherent_order",
+    "COHERENT_DIMS",
+    "COHERENT_BITS",
     "sweep_chains",
     "regions_hit",
     "MEMO_T",

@@ -412,8 +412,10 @@ def _lane_hits(m, X, i, pad, L, nc, E):
 
 
 @njit(cache=True)
-def _check_blocks(Q, b0, b1, m, blk, pad, out):
-    """The batch check of blocks b0 .. b1 - 1 on one thread, into out."""
+def _check_blocks(Q, order, b0, b1, m, blk, pad, out):
+    """The batch check of blocks b0 .. b1 - 1 on one thread, into out: lane
+    i of block b is configuration order[b NB + i] (``order`` empty: Q's
+    own order), its answer written to its own place in out."""
     N, k = Q.shape
     B = m.chain.parent.shape[0]
     S = m.shapes.shape[0]
@@ -424,10 +426,16 @@ def _check_blocks(Q, b0, b1, m, blk, pad, out):
     L = _lanes(S, blk.balls.shape[0], S * O + P)
     E = _exact(B, S, O, P)
     obs = _obstacle_lanes(m)
+    Qb = np.empty((NB, k))
+    rows = np.empty(NB, np.int64)
     for b in range(b0, b1):
         start = b * NB
         n = min(NB, N - start)
-        fk_block(Q, start, n, m.chain, blk.KR, blk.Kp, ws)
+        for i in range(n):
+            rows[i] = order[start + i] if order.shape[0] > 0 else start + i
+            for j in range(k):
+                Qb[i, j] = Q[rows[i], j]
+        fk_block(Qb, 0, n, m.chain, blk.KR, blk.Kp, ws)
         for s in range(S):
             Xb = X[m.shape_body[s]]
             _place(Xb, blk.bounds[s, 0], blk.bounds[s, 1], blk.bounds[s, 2], L.SC[s], n)
@@ -439,20 +447,23 @@ def _check_blocks(Q, b0, b1, m, blk, pad, out):
         nc = _broad_obstacles(m, blk, obs, pad, L, n)
         nc = _broad_pairs(m, blk, X, pad, L, nc, n)
         for i in range(n):
-            out[start + i] = L.lane[i] > 0.0 and _lane_hits(m, X, i, pad, L, nc, E)
+            out[rows[i]] = L.lane[i] > 0.0 and _lane_hits(m, X, i, pad, L, nc, E)
 
 
 @njit(cache=True, parallel=True)
-def configs_may_collide(Q, m, blk, pad, per=4):
+def configs_may_collide(Q, order, m, blk, pad, per=4):
     """(N,) True where a configuration may collide with the obstacles or
     itself, or come closer to them than ``pad`` (m); False is certified
     free (farther than ``pad`` from everything). ``m``: a :class:`Model`
     (its ``shape_pairs`` the robot shape pairs Drake does not filter);
     ``blk``: its :class:`Blocks`. Bodies no joint moves are welded to the
-    world, like the obstacles, and not tested against them. ``per``: blocks
-    per task (a task's scratch, the obstacles on every lane, the candidate
-    table and the separating directions, is made once and serves them
-    all; :meth:`SceneArrays.may_collide` gives about two tasks per thread)."""
+    world, like the obstacles, and not tested against them. ``order``:
+    the order in which the configurations fill the blocks
+    (:func:`~drake_cfvol.kernel.blocks.coherent_order`; empty: as given);
+    the answers are in Q's order either way. ``per``: blocks per task (a
+    task's scratch, the obstacles on every lane, the candidate table and
+    the separating directions, is made once and serves them all;
+    :meth:`SceneArrays.may_collide` gives about two tasks per thread)."""
     N = Q.shape[0]
     out = np.zeros(N, np.bool_)
     n_blocks = (N + NB - 1) // NB
@@ -498,7 +509,7 @@ def configs_may_collide(Q, m, blk, pad, per=4):
             shape_spheres_,
         )
         _check_blocks(
-            Q, t * per, min(n_blocks, (t + 1) * per), mm, Blocks(KR, Kp, balls, ranges, bounds, kind), pad, out
+            Q, order, t * per, min(n_blocks, (t + 1) * per), mm, Blocks(KR, Kp, balls, ranges, bounds, kind), pad, out
         )
     return out
 
@@ -509,5 +520,5 @@ def configs_may_collide_serial(Q, m, blk, pad):
     configurations (a guard's checks), where waking the thread pool costs
     more than the work."""
     out = np.zeros(Q.shape[0], np.bool_)
-    _check_blocks(Q, 0, (Q.shape[0] + NB - 1) // NB, m, blk, pad, out)
+    _check_blocks(Q, np.zeros(0, np.int64), 0, (Q.shape[0] + NB - 1) // NB, m, blk, pad, out)
     return out

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from drake_cfvol.kernel.batch import configs_may_collide, configs_may_collide_serial
-from drake_cfvol.kernel.blocks import block_chain, fk_blocks, shape_bounds
+from drake_cfvol.kernel.blocks import COHERENT_BITS, COHERENT_DIMS, block_chain, coherent_order, fk_blocks, shape_bounds
 from drake_cfvol.kernel.checks import lower_columns_under, obstacle_distances
 from drake_cfvol.kernel.footprints import distance_map, fill_convex_polygon, robot_footprint, shape_footprint
 from drake_cfvol.kernel.gjk import gjk_intersect
@@ -167,7 +167,10 @@ def _steps():
         ("fk", lambda: (fk(Q, chain), fk_blocks(Q, chain, KR, Kp))),
         # ``per`` given, as SceneArrays.may_collide gives it: an omitted
         # argument is another signature, compiled again at the first use.
-        ("configs_may_collide", lambda: configs_may_collide(Q, m, blk, 0.0, 4)),
+        (
+            "configs_may_collide",
+            lambda: configs_may_collide(Q, coherent_order(Q, COHERENT_DIMS, COHERENT_BITS), m, blk, 0.0, 4),
+        ),
         ("configs_may_collide_serial", lambda: configs_may_collide_serial(Q, m, blk, 0.0)),
         ("range_max_table", lambda: range_max_table(heights)),
         ("sweep_chains", sweep),

@@ -153,10 +153,15 @@ class SceneArrays:
         # waking numba's thread pool costs milliseconds.
         if len(Q) <= _SERIAL_MAX:
             return K.configs_may_collide_serial(Q, self.model, self.blocks, float(pad))
-        # About two tasks per thread, each with its own scratch.
+        # About two tasks per thread, each with its own scratch; in an order
+        # whose blocks are coherent (K.coherent_order: samples of a path's
+        # bounds, 1.49 -> 1.10 us a configuration on automotive path 1 and
+        # 2.63 -> 1.89 on aerospace path 2, on one thread). Answers do not
+        # depend on the order.
         tasks = 2 * numba.get_num_threads()
         per = max(4, -(-len(Q) // (K.NB * tasks)))
-        return K.configs_may_collide(Q, self.model, self.blocks, float(pad), per)
+        order = K.coherent_order(Q, K.COHERENT_DIMS, K.COHERENT_BITS)
+        return K.configs_may_collide(Q, order, self.model, self.blocks, float(pad), per)
 
     def with_boxes(self, centres: np.ndarray, sizes: np.ndarray, name: str = "perceived") -> "SceneArrays":
         """These arrays with axis-aligned boxes added to the obstacles (the
