@@ -430,6 +430,9 @@ def _region_workspace(B, k, O, shapes, verts, spheres, ranges):
     bounding ball and its box in its body's frame)."""
     P = MAX_T_SAMPLES * MAX_V_SAMPLES
     S = shapes.shape[0]
+    Q = 1  # the most cover balls of one shape
+    for s in range(ranges.shape[0]):
+        Q = max(Q, ranges[s, 1] - ranges[s, 0])
     rs = RegionScratch(
         np.empty((P, B, 3, 3)),
         np.empty((P, B, 3)),
@@ -448,8 +451,8 @@ def _region_workspace(B, k, O, shapes, verts, spheres, ranges):
         np.empty(6),
         np.empty((S, 4)),
         np.empty((S, 6)),
-        np.empty((max(1, (ranges[:, 1] - ranges[:, 0]).max()), P, 3)),
-        np.empty(max(1, (ranges[:, 1] - ranges[:, 0]).max())),
+        np.empty((Q, P, 3)),
+        np.empty(Q),
     )
     shape_bounds(spheres, ranges, rs.bound)
     _local_boxes(shapes, verts, rs.local_box)
