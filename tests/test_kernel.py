@@ -2,6 +2,8 @@
 collision checks, exact sphere and box geometry, and brute force over the
 height field."""
 
+import time
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -308,6 +310,91 @@ def test_the_warm_up_file_is_not_part_of_the_cache_stamp(tmp_path):
     (src / "a.py").write_text("x = 2\n")
     _clear_stale_cache(src, [cache])
     assert not entry.exists()
+
+
+def test_every_compiled_function_of_the_package_caches_under_the_lock():
+    """Every numba function of the package (the kernel's, the filter's, the
+    online map's, the certificate's) keeps its cache through the locked
+    index, in a folder counted as the package's; numba's class for other
+    libraries' functions is the subclass, which locks nothing for them."""
+    import importlib
+    import pkgutil
+
+    from numba.core import caching
+    from numba.core.registry import CPUDispatcher
+
+    import drake_cfvol
+    from drake_cfvol.kernel import cache_lock
+
+    found = 0
+    for info in pkgutil.walk_packages(drake_cfvol.__path__, "drake_cfvol."):
+        if info.name.startswith("drake_cfvol.apps") or info.name.endswith("__main__"):
+            continue  # command lines: nothing compiled
+        module = importlib.import_module(info.name)
+        for obj in vars(module).values():
+            if isinstance(obj, CPUDispatcher) and obj.__module__ == info.name and obj._cache is not None:
+                cache_file = getattr(obj._cache, "_cache_file", None)
+                if cache_file is None:  # numba's "no cache" object
+                    continue
+                assert getattr(cache_file, "_drake_cfvol_locked", False), info.name
+                assert cache_file._lock_folder is not None, (info.name, obj._cache.cache_path)
+                found += 1
+    assert found > 100  # the package's compiled functions, not a handful
+    assert caching.IndexDataCacheFile._drake_cfvol_locked
+    assert not cache_lock.is_ours("/tmp/elsewhere/__pycache__")
+
+
+_SAVER = """
+import sys, time
+from pathlib import Path
+from numba.core import caching
+from drake_cfvol.kernel import cache_lock
+
+folder, tag, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
+cache_lock.OURS = (folder.lstrip("/"),)
+f = caching.IndexDataCacheFile(cache_path=folder, filename_base="f-1.py311", source_stamp=(1.0, 2))
+(Path(folder) / ("ready-" + tag)).touch()
+while not (Path(folder) / "go").exists():
+    time.sleep(0.001)
+for i in range(n):
+    f.save((tag, i), (tag, i, "compiled for", tag, i))
+"""
+
+
+def test_two_processes_saving_one_functions_cache_at_once_keep_each_entry(tmp_path):
+    """numba's own save is a read-modify-write of the index without a lock
+    between processes (two processes could each take data file 1 for their
+    own signature, and a later load would get the other's code). Under the
+    package's lock, two processes saving 150 signatures each at the same
+    time leave an index where every signature names a data file of its
+    own, holding the code saved for that signature."""
+    import subprocess
+    import sys
+
+    from numba.core import caching
+
+    from drake_cfvol.kernel import cache_lock
+
+    folder = tmp_path / "cache"
+    folder.mkdir()
+    n = 150
+    procs = [subprocess.Popen([sys.executable, "-c", _SAVER, str(folder), tag, str(n)]) for tag in ("a", "b")]
+    deadline = time.monotonic() + 120
+    while not all((folder / f"ready-{t}").exists() for t in ("a", "b")) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    (folder / "go").touch()  # both start saving at once
+    assert [p.wait(timeout=120) for p in procs] == [0, 0]
+    old = cache_lock.OURS
+    try:
+        cache_lock.OURS = (str(folder).lstrip("/"),)
+        f = caching.IndexDataCacheFile(cache_path=str(folder), filename_base="f-1.py311", source_stamp=(1.0, 2))
+        index = f._load_index()
+        assert len(index) == 2 * n and len(set(index.values())) == 2 * n
+        for tag in ("a", "b"):
+            for i in range(n):
+                assert f.load((tag, i)) == (tag, i, "compiled for", tag, i)
+    finally:
+        cache_lock.OURS = old
 
 
 _ENTRY_POINTS = (

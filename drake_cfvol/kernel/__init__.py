@@ -25,8 +25,9 @@ size (3), first vertex, end vertex, e_iso, axis u (3), e_disc, e_seg.
 Modules, by concern: ``types`` (constants and the typed arguments),
 ``kinematics``, ``shapes``, ``gjk``, ``heightfield``, ``checks``
 (configurations), ``blocks`` and ``batch`` (configurations in blocks of
-``NB``: forward kinematics and the batch check), ``regions`` (region tests and the sweep), ``footprints``
-and ``warmup``. Imports nothing of the package.
+``NB``: forward kinematics and the batch check), ``regions`` (region
+tests and the sweep), ``footprints``, ``warmup`` and ``cache_lock`` (numba's
+cache kept consistent across processes). Imports nothing of the package.
 
 numba's cache (``cache=True``) invalidates a compiled function when its own
 file changes, not when a function it calls from another file does; so the
@@ -38,9 +39,11 @@ kinds' included) differs from the ones it was compiled from
 import hashlib as _hashlib
 from pathlib import Path as _Path
 
+from drake_cfvol.kernel import cache_lock as _cache_lock
+
 #: Kernel files with nothing compiled in them (no numba function, no
 #: constant a compiled one reads): left out of the cache stamp.
-_NOT_COMPILED = (_Path("warmup.py"),)
+_NOT_COMPILED = (_Path("warmup.py"), _Path("cache_lock.py"))
 
 
 def _clear_stale_cache(folder: _Path, caches) -> None:
@@ -60,11 +63,11 @@ def _clear_stale_cache(folder: _Path, caches) -> None:
         try:
             if stamp.is_file() and stamp.read_text() == stamp_text:
                 continue
-            if cache.is_dir():
+            cache.mkdir(parents=True, exist_ok=True)
+            with _cache_lock.folder_lock(cache, exclusive=True):
                 for f in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
                     f.unlink(missing_ok=True)
-            cache.mkdir(parents=True, exist_ok=True)
-            stamp.write_text(stamp_text)
+                stamp.write_text(stamp_text)
         except OSError:
             pass  # a read-only place holds no cache numba could use either
 
@@ -86,6 +89,9 @@ def _cache_folders(package: _Path) -> list:
 
 
 _clear_stale_cache(_Path(__file__).resolve().parent, _cache_folders(_Path(__file__).resolve().parent.parent))
+# Before any of the package's functions is decorated: their cache entries
+# are written and read under a lock shared by all processes (cache_lock).
+_cache_lock.install()
 
 from drake_cfvol.kernel.batch import configs_may_collide, configs_may_collide_serial  # noqa: E402
 from drake_cfvol.kernel.blocks import (  # noqa: E402

@@ -1,0 +1,110 @@
+"""numba's cache for the package's compiled code, safe across processes.
+
+numba's cache (``cache=True``) keeps one index per function that names, for
+each compiled signature, the data file holding its code. Saving is a
+read-modify-write of that index with no lock between processes: two
+processes compiling one function for two signatures at once both read an
+index without either and both take data file 1, so the index may end up
+naming, for one signature, the code compiled for the other. A later process
+loading it runs code built for other types and crashes (numba issues #4807
+and #10128, open). Processes share a fresh cache often here: pytest-xdist
+workers, Dask workers on one machine, the warm-up's helper process.
+
+:func:`install` (called by :mod:`drake_cfvol.kernel` before any function of
+the package is compiled) has the package's cache entries written under an
+exclusive lock of their cache folder and read under a shared one
+(``fcntl.flock`` on a ``drake_cfvol.lock`` file there), so an index and the
+data files it names always agree. Other libraries' numba caches are left
+as numba keeps them. Where ``fcntl`` is missing (Windows) nothing is
+locked.
+
+This file holds no compiled code: it is left out of the kernel's cache
+stamp.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+
+try:
+    import fcntl
+except ImportError:  # Windows: no flock; numba's own behaviour
+    fcntl = None
+
+#: The lock file in each cache folder.
+LOCK_NAME = "drake_cfvol.lock"
+
+#: Cache folders whose path contains one of these (the package's folder,
+#: without its root) are the package's: numba keeps a module's cache beside
+#: it (``__pycache__``) or in a folder named after the module's path.
+OURS = (str(Path(__file__).resolve().parents[1]).lstrip(os.sep),)
+
+
+def is_ours(cache_path) -> bool:
+    """Whether ``cache_path`` is where numba caches a module of the package."""
+    text = os.path.abspath(str(cache_path))
+    return any(p and p in text for p in OURS)
+
+
+@contextlib.contextmanager
+def folder_lock(folder, *, exclusive: bool):
+    """Holds ``folder``'s lock (exclusive or shared) for the ``with`` block;
+    no lock where the folder cannot hold one (missing, read-only) or the
+    platform has no ``flock``."""
+    fd = None
+    if fcntl is not None:
+        try:
+            fd = os.open(os.path.join(folder, LOCK_NAME), os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError:
+            fd = None
+    try:
+        if fd is not None:
+            fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+        yield
+    finally:
+        if fd is not None:
+            os.close(fd)  # releases the lock
+
+
+def _locked(base):
+    class LockedIndexDataCacheFile(base):
+        """numba's index and data files, read and written under the cache
+        folder's lock when the folder is the package's."""
+
+        _drake_cfvol_locked = True
+
+        def __init__(self, cache_path, *args, **kwargs):
+            super().__init__(cache_path, *args, **kwargs)
+            self._lock_folder = cache_path if is_ours(cache_path) else None
+
+        def save(self, key, data):
+            if self._lock_folder is None:
+                return super().save(key, data)
+            with folder_lock(self._lock_folder, exclusive=True):
+                return super().save(key, data)
+
+        def load(self, key):
+            if self._lock_folder is None:
+                return super().load(key)
+            with folder_lock(self._lock_folder, exclusive=False):
+                return super().load(key)
+
+    return LockedIndexDataCacheFile
+
+
+def install() -> bool:
+    """Makes numba's caches made from now on lock the package's folders
+    (idempotent). Returns False where numba's internals have moved and
+    nothing could be installed (``tests/test_kernel.py`` checks it is)."""
+    try:
+        from numba.core import caching
+    except ImportError:
+        return False
+    current = getattr(caching, "IndexDataCacheFile", None)
+    if current is None or not all(hasattr(current, m) for m in ("save", "load")):
+        return False
+    if not getattr(current, "_drake_cfvol_locked", False):
+        caching.IndexDataCacheFile = _locked(current)
+    return True
