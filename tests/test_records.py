@@ -108,3 +108,43 @@ def test_certified_outputs_say_so():
 
     assert output_stem("automotive", "path1", 1000) == "automotive_path1_R1000"
     assert output_stem("automotive", "path1", 1000, certified=True) == "automotive_path1_R1000_certified"
+
+
+_WRITER = """
+import sys
+from pathlib import Path
+from drake_cfvol.io.cache import write_atomic
+
+path, letter = Path(sys.argv[1]), sys.argv[2]
+text = letter * 2_000_000
+(path.parent / ("ready-" + letter)).touch()
+while not (path.parent / "go").exists():
+    pass
+for _ in range(60):
+    write_atomic(path, text)
+"""
+
+
+def test_a_file_written_atomically_is_never_read_in_part(tmp_path):
+    """Two processes rewrite one cache file (2 MB of 'a', of 'b') 60 times
+    each while this one reads it: every read is one writer's whole text,
+    and no temporary file is left behind."""
+    import subprocess
+    import sys
+    import time
+
+    path = tmp_path / "model.urdf"
+    path.write_text("a" * 2_000_000)
+    procs = [subprocess.Popen([sys.executable, "-c", _WRITER, str(path), c]) for c in "ab"]
+    deadline = time.monotonic() + 120
+    while not all((tmp_path / f"ready-{c}").exists() for c in "ab") and time.monotonic() < deadline:
+        time.sleep(0.01)
+    (tmp_path / "go").touch()
+    reads = 0
+    while any(p.poll() is None for p in procs):
+        text = path.read_text()
+        assert text in ("a" * 2_000_000, "b" * 2_000_000), (len(text), set(text))
+        reads += 1
+    assert [p.returncode for p in procs] == [0, 0]
+    assert reads > 0
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["go", "model.urdf", "ready-a", "ready-b"]

@@ -5,14 +5,14 @@ changed input or method never reuses an old entry.
 """
 
 import hashlib
+import io
 import json
-import os
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from drake_cfvol.io.cache import cache_root
+from drake_cfvol.io.cache import cache_root, write_atomic
 
 __all__ = ["cache_dir", "cache_key", "cache_load", "cache_store"]
 
@@ -83,8 +83,8 @@ def cache_store(file: Path, lower, upper, report) -> None:
     """Saves an entry atomically; a read-only or full disk is no error."""
     try:
         file.parent.mkdir(parents=True, exist_ok=True)
-        tmp = file.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez(tmp, lower=lower, upper=upper, report=json.dumps(report.to_dict()))
-        os.replace(tmp, file)
+        buf = io.BytesIO()
+        np.savez(buf, lower=lower, upper=upper, report=json.dumps(report.to_dict()))
+        write_atomic(file, buf.getvalue())
     except OSError:
         pass  # a read-only or full disk only costs the next run its time

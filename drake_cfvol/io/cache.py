@@ -7,9 +7,10 @@ import atexit
 import os
 import shutil
 import tempfile
+import uuid
 from pathlib import Path
 
-__all__ = ["cache_root", "files_dir"]
+__all__ = ["cache_root", "files_dir", "write_atomic"]
 
 #: Values of ``$DRAKE_CFVOL_CACHE`` that turn every cache off.
 OFF = ("", "off", "0", "no", "false")
@@ -39,3 +40,22 @@ def files_dir() -> Path:
         _scratch = Path(tempfile.mkdtemp(prefix="drake_cfvol-"))
         atexit.register(shutil.rmtree, _scratch, ignore_errors=True)
     return _scratch
+
+
+def write_atomic(path: Path, data: str | bytes) -> Path:
+    """Writes ``data`` (text as UTF-8) to ``path`` through a temporary file
+    of this process's own beside it, then renames it into place: another
+    process reading ``path`` meanwhile (Dask workers, pytest-xdist, a
+    second ``cfvol`` sharing the cache) sees the old file or the whole new
+    one, never a part. Returns ``path``."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        if isinstance(data, str):
+            tmp.write_text(data, encoding="utf-8")
+        else:
+            tmp.write_bytes(data)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path

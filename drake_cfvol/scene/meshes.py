@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from drake_cfvol.exceptions import WorkcellFormatError
-from drake_cfvol.io.cache import files_dir
+from drake_cfvol.io.cache import files_dir, write_atomic
 
 _URDF_MESH = re.compile(r'(<mesh\b[^>]*?\bfilename\s*=\s*")([^"]+)(")', re.IGNORECASE)
 _SDF_URI = re.compile(r"(<mesh\b[^>]*>\s*<uri>\s*)([^<\s]+)(\s*</uri>)", re.IGNORECASE | re.DOTALL)
@@ -62,10 +62,7 @@ def stl_to_obj(stl: Path) -> Path:
     lines = [f"# converted from {stl} by drake_cfvol"]
     lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in verts]
     lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
-    tmp = out.with_suffix(".tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(out)
-    return out
+    return write_atomic(out, "\n".join(lines) + "\n")
 
 
 def package_url_error(url: str, error: Exception, package_map) -> str:
@@ -169,7 +166,7 @@ def convert_stl_references(model_file: Path, package_map) -> tuple[Path, list[st
     out = cache_dir() / "models" / f"{model_file.stem}_{digest}{model_file.suffix}"
     out.parent.mkdir(parents=True, exist_ok=True)
     if not out.is_file():
-        out.write_text(new_text)
+        write_atomic(out, new_text)
     _remember(out, model_file.resolve())
     note = (
         f"{model_file.name}: converted {len(converted)} STL mesh(es) to OBJ because Drake 1.51 "

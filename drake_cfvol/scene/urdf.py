@@ -27,6 +27,7 @@ import xml.etree.ElementTree as ET
 from collections import Counter
 from pathlib import Path
 
+from drake_cfvol.io.cache import write_atomic
 from drake_cfvol.scene import meshes as _meshes
 
 __all__ = ["AddModels", "UrdfQuirks", "fix_urdf_quirks", "condensed_drake_warnings"]
@@ -124,7 +125,7 @@ def fix_urdf_quirks(model_file: Path, package_map, original: Path | None = None)
     out = _meshes.cache_dir() / "models" / f"{model_file.stem}_{digest}.urdf"
     out.parent.mkdir(parents=True, exist_ok=True)
     if not out.is_file():
-        out.write_text(text)
+        write_atomic(out, text)
     _meshes._remember(out, Path(original or model_file).resolve())
     return UrdfQuirks(out, renamed + notes, world, name)
 
