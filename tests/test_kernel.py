@@ -344,11 +344,16 @@ def test_every_compiled_function_of_the_package_caches_under_the_lock():
     assert not cache_lock.is_ours("/tmp/elsewhere/__pycache__")
 
 
+# The children load cache_lock.py alone (the package's import would take
+# seconds): it installs the same class the package does.
 _SAVER = """
-import sys, time
+import importlib.util, sys, time
 from pathlib import Path
+spec = importlib.util.spec_from_file_location("cache_lock", sys.argv[4])
+cache_lock = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(cache_lock)
+assert cache_lock.install()
 from numba.core import caching
-from drake_cfvol.kernel import cache_lock
 
 folder, tag, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
 cache_lock.OURS = (folder.lstrip("/"),)
@@ -378,7 +383,10 @@ def test_two_processes_saving_one_functions_cache_at_once_keep_each_entry(tmp_pa
     folder = tmp_path / "cache"
     folder.mkdir()
     n = 150
-    procs = [subprocess.Popen([sys.executable, "-c", _SAVER, str(folder), tag, str(n)]) for tag in ("a", "b")]
+    procs = [
+        subprocess.Popen([sys.executable, "-c", _SAVER, str(folder), tag, str(n), cache_lock.__file__])
+        for tag in ("a", "b")
+    ]
     deadline = time.monotonic() + 120
     while not all((folder / f"ready-{t}").exists() for t in ("a", "b")) and time.monotonic() < deadline:
         time.sleep(0.01)

@@ -110,10 +110,15 @@ def test_certified_outputs_say_so():
     assert output_stem("automotive", "path1", 1000, certified=True) == "automotive_path1_R1000_certified"
 
 
+# The children load io/cache.py alone (the package's import would take
+# seconds; the module imports nothing of it).
 _WRITER = """
-import sys
+import importlib.util, sys
 from pathlib import Path
-from drake_cfvol.io.cache import write_atomic
+spec = importlib.util.spec_from_file_location("cache", sys.argv[3])
+cache = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(cache)
+write_atomic = cache.write_atomic
 
 path, letter = Path(sys.argv[1]), sys.argv[2]
 text = letter * 2_000_000
@@ -133,9 +138,11 @@ def test_a_file_written_atomically_is_never_read_in_part(tmp_path):
     import sys
     import time
 
+    from drake_cfvol.io import cache as io_cache
+
     path = tmp_path / "model.urdf"
     path.write_text("a" * 2_000_000)
-    procs = [subprocess.Popen([sys.executable, "-c", _WRITER, str(path), c]) for c in "ab"]
+    procs = [subprocess.Popen([sys.executable, "-c", _WRITER, str(path), c, io_cache.__file__]) for c in "ab"]
     deadline = time.monotonic() + 120
     while not all((tmp_path / f"ready-{c}").exists() for c in "ab") and time.monotonic() < deadline:
         time.sleep(0.01)
