@@ -293,6 +293,28 @@ def test_a_changed_kernel_source_clears_numbas_cache(tmp_path):
     assert not any(f.exists() for f in entries)
 
 
+def test_a_cache_folder_numba_makes_later_gets_the_hash_with_its_first_entry(tmp_path, monkeypatch):
+    """The stale check does not make folders (numba's user-wide one, say);
+    numba's first save into one, under the package's lock, writes the
+    sources' hash beside the entry, so the next check keeps it."""
+    from numba.core import caching
+
+    from drake_cfvol.kernel import _clear_stale_cache, cache_lock
+
+    src, cache = tmp_path / "kernel", tmp_path / "elsewhere" / "kernel_0123"
+    src.mkdir()
+    (src / "a.py").write_text("x = 1\n")
+    monkeypatch.setattr(cache_lock, "STAMP", ("kernel_sources.sha256", _clear_stale_cache(src, [cache])))
+    assert not cache.exists()
+    monkeypatch.setattr(cache_lock, "OURS", (str(cache).lstrip("/"),))
+    cache.mkdir(parents=True)  # numba's ensure_cache_path
+    f = caching.IndexDataCacheFile(cache_path=str(cache), filename_base="a.f-1.py311", source_stamp=(1.0, 2))
+    f.save(("sig",), ("code",))
+    assert (cache / "kernel_sources.sha256").read_text() == cache_lock.STAMP[1]
+    _clear_stale_cache(src, [cache])  # the same sources: the entry kept
+    assert f.load(("sig",)) == ("code",)
+
+
 def test_the_warm_up_file_is_not_part_of_the_cache_stamp(tmp_path):
     """warmup.py compiles nothing: editing it keeps the cache."""
     from drake_cfvol.kernel import _clear_stale_cache
@@ -342,6 +364,32 @@ def test_every_compiled_function_of_the_package_caches_under_the_lock():
     assert found > 100  # the package's compiled functions, not a handful
     assert caching.IndexDataCacheFile._drake_cfvol_locked
     assert not cache_lock.is_ours("/tmp/elsewhere/__pycache__")
+
+
+def test_the_package_cache_folders_are_where_numba_puts_them(monkeypatch, tmp_path):
+    """The folders the stale-cache check clears and the lock covers are the
+    ones numba's own locators give for a kernel function: beside its file,
+    under NUMBA_CACHE_DIR and in numba's user-wide folder; another
+    library's folders are not the package's."""
+    import inspect
+
+    import numba
+    from numba.core import caching
+
+    from drake_cfvol.kernel import cache_lock
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path / "numba_cache"))
+    monkeypatch.setattr(cache_lock, "_folders", None)  # named again with this CACHE_DIR
+    folders = {str(f) for f in cache_lock.package_cache_folders()}
+    for fn in (K.fk, K.regions_hit):
+        file = inspect.getsourcefile(fn.py_func)
+        for locator in (caching.InTreeCacheLocator, caching.UserProvidedCacheLocator, caching.UserWideCacheLocator):
+            path = locator(fn.py_func, file).get_cache_path()
+            assert path in folders, (locator.__name__, path)
+            assert cache_lock.is_ours(path)
+    other = inspect.getsourcefile(numba.core.caching)
+    for locator in (caching.InTreeCacheLocator, caching.UserWideCacheLocator):
+        assert not cache_lock.is_ours(locator(caching.Cache.__init__, other).get_cache_path())
 
 
 # The children load cache_lock.py alone (the package's import would take

@@ -36,16 +36,52 @@ except ImportError:  # Windows: no flock; numba's own behaviour
 #: The lock file in each cache folder.
 LOCK_NAME = "drake_cfvol.lock"
 
+#: The package's folder.
+PACKAGE = Path(__file__).resolve().parents[1]
+
 #: Cache folders whose path contains one of these (the package's folder,
-#: without its root) are the package's: numba keeps a module's cache beside
-#: it (``__pycache__``) or in a folder named after the module's path.
-OURS = (str(Path(__file__).resolve().parents[1]).lstrip(os.sep),)
+#: without its root) are the package's, as are the folders
+#: :func:`package_cache_folders` names.
+OURS = (str(PACKAGE).lstrip(os.sep),)
+
+_folders: set | None = None
+
+#: (file name, text): the hash of the kernel's sources the package's cache
+#: folders keep (set by :mod:`drake_cfvol.kernel` at import); written into
+#: a folder with its first entry, where it is missing.
+STAMP: tuple | None = None
+
+
+def package_cache_folders(package: Path = PACKAGE) -> list:
+    """Every folder where numba may keep compiled code of the package's
+    modules: beside each subpackage's files (``__pycache__``), and, named
+    after the subpackage's path, under ``NUMBA_CACHE_DIR`` when it is set
+    and in numba's user-wide folder (its fallback where the package's own
+    folder is read-only, as in a system-wide install)."""
+    folders = sorted({f.parent for f in Path(package).rglob("*.py") if "__pycache__" not in f.parts})
+    out = [f / "__pycache__" for f in folders]
+    try:
+        from numba.core import caching, config
+        from numba.misc.appdirs import AppDirs
+
+        subpaths = [caching._CacheLocator.get_suitable_cache_subpath(str(f / "__init__.py")) for f in folders]
+        if config.CACHE_DIR:
+            out += [Path(config.CACHE_DIR) / s for s in subpaths]
+        out += [Path(AppDirs(appname="numba", appauthor=False).user_cache_dir) / s for s in subpaths]
+    except Exception:  # numba's internals moved: the tree's folders only (a test checks they have not)
+        pass
+    return out
 
 
 def is_ours(cache_path) -> bool:
     """Whether ``cache_path`` is where numba caches a module of the package."""
+    global _folders
     text = os.path.abspath(str(cache_path))
-    return any(p and p in text for p in OURS)
+    if any(p and p in text for p in OURS):
+        return True
+    if _folders is None:
+        _folders = {os.path.abspath(str(f)) for f in package_cache_folders()}
+    return text in _folders
 
 
 @contextlib.contextmanager
@@ -68,6 +104,19 @@ def folder_lock(folder, *, exclusive: bool):
             os.close(fd)  # releases the lock
 
 
+def _write_stamp(folder) -> None:
+    """The sources' hash into ``folder`` where it has none (a folder numba
+    made after the package's import checked the existing ones)."""
+    if STAMP is None:
+        return
+    path = Path(folder) / STAMP[0]
+    try:
+        if not path.exists():
+            path.write_text(STAMP[1])
+    except OSError:
+        pass  # numba's own save reports a folder it cannot write
+
+
 def _locked(base):
     class LockedIndexDataCacheFile(base):
         """numba's index and data files, read and written under the cache
@@ -83,6 +132,7 @@ def _locked(base):
             if self._lock_folder is None:
                 return super().save(key, data)
             with folder_lock(self._lock_folder, exclusive=True):
+                _write_stamp(self._lock_folder)
                 return super().save(key, data)
 
         def load(self, key):
