@@ -306,7 +306,7 @@ def test_a_cache_folder_numba_makes_later_gets_the_hash_with_its_first_entry(tmp
     (src / "a.py").write_text("x = 1\n")
     monkeypatch.setattr(cache_lock, "STAMP", ("kernel_sources.sha256", _clear_stale_cache(src, [cache])))
     assert not cache.exists()
-    monkeypatch.setattr(cache_lock, "OURS", (str(cache).lstrip("/"),))
+    monkeypatch.setattr(cache_lock, "_folders", {str(cache)})
     cache.mkdir(parents=True)  # numba's ensure_cache_path
     f = caching.IndexDataCacheFile(cache_path=str(cache), filename_base="a.f-1.py311", source_stamp=(1.0, 2))
     f.save(("sig",), ("code",))
@@ -404,7 +404,7 @@ assert cache_lock.install()
 from numba.core import caching
 
 folder, tag, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
-cache_lock.OURS = (folder.lstrip("/"),)
+cache_lock._folders = {folder}  # this folder counts as the package's
 f = caching.IndexDataCacheFile(cache_path=folder, filename_base="f-1.py311", source_stamp=(1.0, 2))
 (Path(folder) / ("ready-" + tag)).touch()
 while not (Path(folder) / "go").exists():
@@ -440,9 +440,9 @@ def test_two_processes_saving_one_functions_cache_at_once_keep_each_entry(tmp_pa
         time.sleep(0.01)
     (folder / "go").touch()  # both start saving at once
     assert [p.wait(timeout=120) for p in procs] == [0, 0]
-    old = cache_lock.OURS
+    old = cache_lock._folders
     try:
-        cache_lock.OURS = (str(folder).lstrip("/"),)
+        cache_lock._folders = {str(folder)}
         f = caching.IndexDataCacheFile(cache_path=str(folder), filename_base="f-1.py311", source_stamp=(1.0, 2))
         index = f._load_index()
         assert len(index) == 2 * n and len(set(index.values())) == 2 * n
@@ -450,7 +450,7 @@ def test_two_processes_saving_one_functions_cache_at_once_keep_each_entry(tmp_pa
             for i in range(n):
                 assert f.load((tag, i)) == (tag, i, "compiled for", tag, i)
     finally:
-        cache_lock.OURS = old
+        cache_lock._folders = old
 
 
 _ENTRY_POINTS = (

@@ -36,14 +36,12 @@ except ImportError:  # Windows: no flock; numba's own behaviour
 #: The lock file in each cache folder.
 LOCK_NAME = "drake_cfvol.lock"
 
-#: The package's folder.
-PACKAGE = Path(__file__).resolve().parents[1]
+#: The package's folder as Python imported it (numba names its folders
+#: after the sources' paths as imported, symbolic links unresolved).
+PACKAGE = Path(os.path.abspath(Path(__file__).parents[1]))
 
-#: Cache folders whose path contains one of these (the package's folder,
-#: without its root) are the package's, as are the folders
-#: :func:`package_cache_folders` names.
-OURS = (str(PACKAGE).lstrip(os.sep),)
-
+#: The package's cache folders (:func:`package_cache_folders`, absolute),
+#: named at the first :func:`is_ours`.
 _folders: set | None = None
 
 #: (file name, text): the hash of the kernel's sources the package's cache
@@ -58,7 +56,8 @@ def package_cache_folders(package: Path = PACKAGE) -> list:
     after the subpackage's path, under ``NUMBA_CACHE_DIR`` when it is set
     and in numba's user-wide folder (its fallback where the package's own
     folder is read-only, as in a system-wide install)."""
-    folders = sorted({f.parent for f in Path(package).rglob("*.py") if "__pycache__" not in f.parts})
+    roots = {Path(os.path.abspath(package)), Path(package).resolve()}  # as imported, and resolved
+    folders = sorted({f.parent for root in roots for f in root.rglob("*.py") if "__pycache__" not in f.parts})
     out = [f / "__pycache__" for f in folders]
     try:
         from numba.core import caching, config
@@ -76,12 +75,9 @@ def package_cache_folders(package: Path = PACKAGE) -> list:
 def is_ours(cache_path) -> bool:
     """Whether ``cache_path`` is where numba caches a module of the package."""
     global _folders
-    text = os.path.abspath(str(cache_path))
-    if any(p and p in text for p in OURS):
-        return True
     if _folders is None:
         _folders = {os.path.abspath(str(f)) for f in package_cache_folders()}
-    return text in _folders
+    return os.path.abspath(str(cache_path)) in _folders or os.path.realpath(str(cache_path)) in _folders
 
 
 @contextlib.contextmanager
