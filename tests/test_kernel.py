@@ -304,13 +304,13 @@ def test_a_cache_folder_numba_makes_later_gets_the_hash_with_its_first_entry(tmp
     src, cache = tmp_path / "kernel", tmp_path / "elsewhere" / "kernel_0123"
     src.mkdir()
     (src / "a.py").write_text("x = 1\n")
-    monkeypatch.setattr(cache_lock, "STAMP", ("kernel_sources.sha256", _clear_stale_cache(src, [cache])))
+    monkeypatch.setattr(cache_lock, "STAMP", _clear_stale_cache(src, [cache]))
     assert not cache.exists()
     monkeypatch.setattr(cache_lock, "_folders", {str(cache)})
     cache.mkdir(parents=True)  # numba's ensure_cache_path
     f = caching.IndexDataCacheFile(cache_path=str(cache), filename_base="a.f-1.py311", source_stamp=(1.0, 2))
     f.save(("sig",), ("code",))
-    assert (cache / "kernel_sources.sha256").read_text() == cache_lock.STAMP[1]
+    assert (cache / "kernel_sources.sha256").read_text() == cache_lock.STAMP
     _clear_stale_cache(src, [cache])  # the same sources: the entry kept
     assert f.load(("sig",)) == ("code",)
 

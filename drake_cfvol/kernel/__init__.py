@@ -36,7 +36,6 @@ kinds' included) differs from the ones it was compiled from
 (:func:`_clear_stale_cache`, before anything compiles).
 """
 
-import hashlib as _hashlib
 from pathlib import Path as _Path
 
 from drake_cfvol.kernel import cache_lock as _cache_lock
@@ -45,44 +44,18 @@ from drake_cfvol.kernel import cache_lock as _cache_lock
 #: constant a compiled one reads): left out of the cache stamp.
 _NOT_COMPILED = (_Path("warmup.py"), _Path("cache_lock.py"))
 
-#: The file, in each of numba's cache folders of the package, holding the
-#: hash of the kernel's sources its entries were compiled from.
-_STAMP_NAME = "kernel_sources.sha256"
-
 
 def _clear_stale_cache(folder: _Path, caches) -> str:
-    """Removes numba's cache files (``*.nbi``, ``*.nbc``) from ``caches``
-    when the sources in ``folder`` and its subfolders (the kinds) differ
-    from those the cache was made from (a hash of them,
-    ``kernel_sources.sha256``, kept in each; :data:`_NOT_COMPILED` left
-    out). A folder that does not exist is not made: the lock's first save
-    into it writes the hash (:data:`cache_lock.STAMP`). Returns the hash."""
-    digest = _hashlib.sha256()
-    for f in sorted(folder.rglob("*.py")):
-        if f.relative_to(folder) in _NOT_COMPILED:
-            continue
-        digest.update(str(f.relative_to(folder)).encode() + f.read_bytes())
-    stamp_text = digest.hexdigest()
-    for cache in caches:
-        stamp = cache / _STAMP_NAME
-        try:
-            if not cache.is_dir() or (stamp.is_file() and stamp.read_text() == stamp_text):
-                continue
-            with _cache_lock.folder_lock(cache, exclusive=True):
-                for f in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
-                    f.unlink(missing_ok=True)
-                stamp.write_text(stamp_text)
-        except OSError:
-            pass  # a read-only place holds no cache numba could use either
-    return stamp_text
+    """:func:`cache_lock.clear_stale` of the kernel's sources in ``folder``
+    (its kinds' included, :data:`_NOT_COMPILED` left out) over the cache
+    folders ``caches``; returns the sources' hash."""
+    return _cache_lock.clear_stale(folder, caches, _NOT_COMPILED)
 
 
-# Where numba keeps the compiled code of the whole package (the kernel's
-# and that of modules calling it, such as the damper's).
-_cache_lock.STAMP = (
-    _STAMP_NAME,
-    _clear_stale_cache(_Path(__file__).resolve().parent, _cache_lock.package_cache_folders()),
-)
+# numba's cache folders of the whole package (the kernel's and that of
+# modules calling it, such as the damper's) cleared if the kernel changed;
+# a folder numba makes later gets the hash with its first entry.
+_cache_lock.STAMP = _clear_stale_cache(_Path(__file__).resolve().parent, _cache_lock.package_cache_folders())
 # Before any of the package's functions is decorated: their cache entries
 # are written and read under a lock shared by all processes (cache_lock).
 _cache_lock.install()

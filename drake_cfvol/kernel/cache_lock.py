@@ -25,6 +25,7 @@ stamp.
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 from pathlib import Path
 
@@ -44,10 +45,13 @@ PACKAGE = Path(os.path.abspath(Path(__file__).parents[1]))
 #: named at the first :func:`is_ours`.
 _folders: set | None = None
 
-#: (file name, text): the hash of the kernel's sources the package's cache
-#: folders keep (set by :mod:`drake_cfvol.kernel` at import); written into
-#: a folder with its first entry, where it is missing.
-STAMP: tuple | None = None
+#: The file, in each of numba's cache folders of the package, holding the
+#: hash of the kernel's sources its entries were compiled from.
+STAMP_NAME = "kernel_sources.sha256"
+
+#: That hash for this process's sources (set by :mod:`drake_cfvol.kernel`
+#: at import); written into a folder with its first entry, where missing.
+STAMP: str | None = None
 
 
 def package_cache_folders(package: Path = PACKAGE) -> list:
@@ -100,15 +104,44 @@ def folder_lock(folder, *, exclusive: bool):
             os.close(fd)  # releases the lock
 
 
+def clear_stale(sources: Path, folders, skip=()) -> str:
+    """Removes numba's cache files (``*.nbi``, ``*.nbc``) from ``folders``
+    when the ``*.py`` files under ``sources`` (subfolders included; the
+    relative paths in ``skip`` left out) differ from those the cache was
+    made from: a hash of them is kept in each folder (:data:`STAMP_NAME`).
+    numba invalidates a function's cache only when its own file changes,
+    not when a function it calls from another file does. A folder that
+    does not exist is not made (the lock's first save into it writes the
+    hash). Returns the hash."""
+    digest = hashlib.sha256()
+    for f in sorted(Path(sources).rglob("*.py")):
+        if f.relative_to(sources) in skip:
+            continue
+        digest.update(str(f.relative_to(sources)).encode() + f.read_bytes())
+    text = digest.hexdigest()
+    for folder in folders:
+        stamp = Path(folder) / STAMP_NAME
+        try:
+            if not Path(folder).is_dir() or (stamp.is_file() and stamp.read_text() == text):
+                continue
+            with folder_lock(folder, exclusive=True):
+                for f in list(Path(folder).glob("*.nbi")) + list(Path(folder).glob("*.nbc")):
+                    f.unlink(missing_ok=True)
+                stamp.write_text(text)
+        except OSError:
+            pass  # a read-only place holds no cache numba could use either
+    return text
+
+
 def _write_stamp(folder) -> None:
     """The sources' hash into ``folder`` where it has none (a folder numba
     made after the package's import checked the existing ones)."""
     if STAMP is None:
         return
-    path = Path(folder) / STAMP[0]
+    path = Path(folder) / STAMP_NAME
     try:
         if not path.exists():
-            path.write_text(STAMP[1])
+            path.write_text(STAMP)
     except OSError:
         pass  # numba's own save reports a folder it cannot write
 
