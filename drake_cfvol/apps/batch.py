@@ -160,17 +160,17 @@ def load_jobs(file: str | Path | None = None, *, text: str | None = None) -> tup
     from pydrake.common.yaml import yaml_load_typed
 
     from drake_cfvol.comanip.scenario import _check_fields
-    from drake_cfvol.scene.schema import read_yaml
+    from drake_cfvol.scene.schema import read_yaml, read_yaml_text, yaml_error_line
 
     where = Path(file) if file is not None else Path("<text>")
     if file is not None:
         if not where.is_file():
             raise BatchError(where, None, "does not exist: pass the path of a jobs YAML file")
-        text = where.read_text()
+        text = read_yaml_text(where, "jobs", lambda message: BatchError(where, None, message.rstrip(".")))
     try:
         raw = read_yaml(text or "")
     except yaml.YAMLError as e:
-        raise BatchError(where, None, f"cannot be read as YAML ({e})") from None
+        raise BatchError(where, None, f"cannot be read as YAML ({yaml_error_line(e)})") from None
     try:
         _check_fields(raw, BatchJobs, "", where)
     except ScenarioError as e:

@@ -27,7 +27,7 @@ from drake_cfvol.comanip.checks import (
 )
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.params import VolumeParams
-from drake_cfvol.scene.schema import CfvolSection, read_yaml
+from drake_cfvol.scene.schema import CfvolSection, read_yaml, read_yaml_text, yaml_error_line
 from drake_cfvol.systems import (
     CoManipulationConfig,
     MovingObstacle,
@@ -508,14 +508,15 @@ def load_scenario(
             raise ScenarioError(
                 name_or_path, None, f"{what}. Bundled: {', '.join(known)}; or pass the path of a scenario YAML file"
             )
+    text = read_yaml_text(p, "scenario", lambda message: ScenarioError(p, None, message.rstrip(".")))
     try:
-        raw = read_yaml(p.read_text())
-    except (OSError, yaml.YAMLError) as e:
-        raise ScenarioError(p, None, f"cannot be read as YAML ({e})") from None
+        raw = read_yaml(text)
+    except yaml.YAMLError as e:
+        raise ScenarioError(p, None, f"cannot be read as YAML ({yaml_error_line(e)})") from None
     _check_form(raw, p)
     _check_fields(raw, Scenario, "", p)
     try:
-        scenario = yaml_load_typed(schema=Scenario, filename=str(p), defaults=Scenario())
+        scenario = yaml_load_typed(schema=Scenario, data=text, defaults=Scenario())
     except Exception as e:
         raise ScenarioError(p, None, f"not a valid scenario: {e}") from None
     if scenario_text:
@@ -523,7 +524,7 @@ def load_scenario(
         try:
             extra = read_yaml(scenario_text)
         except yaml.YAMLError as e:
-            raise ScenarioError(where, None, f"cannot be read as YAML ({e})") from None
+            raise ScenarioError(where, None, f"cannot be read as YAML ({yaml_error_line(e)})") from None
         _check_form(extra, where)
         _check_fields(extra, Scenario, "", where)
         try:

@@ -76,6 +76,16 @@ def save_record(path, record: dict, array_keys: tuple, what: str, *, overwrite: 
     return path
 
 
+def _unique_keys(pairs: list) -> dict:
+    """A JSON object, refused if it names a key twice (json keeps the last)."""
+    out = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"the key '{key}' appears twice in one object; remove one of them")
+        out[key] = value
+    return out
+
+
 def load_record(path, array_keys: tuple, what: str, optional: tuple = (), required: tuple = ()) -> tuple[dict, dict]:
     """Reads a record saved by :func:`save_record`: (metadata, float arrays);
     the ``optional`` arrays are left out where the file lacks them.
@@ -92,7 +102,7 @@ def load_record(path, array_keys: tuple, what: str, optional: tuple = (), requir
         raise RecordFormatError(path, what, "no such file" if not path.exists() else "it is not a file")
     try:
         if path.suffix == ".json":
-            d = json.loads(path.read_text())
+            d = json.loads(path.read_text(encoding="utf-8-sig"), object_pairs_hook=_unique_keys)
             if not isinstance(d, dict):
                 raise RecordFormatError(path, what, "it holds no JSON object")
             arrays = {k: np.array(d[k], dtype=np.float64) for k in array_keys + optional if k in d}
@@ -100,7 +110,7 @@ def load_record(path, array_keys: tuple, what: str, optional: tuple = (), requir
             with np.load(path, allow_pickle=False) as z:
                 if "meta" not in z.files:
                     raise RecordFormatError(path, what, "it has no 'meta' entry")
-                d = json.loads(str(z["meta"]))
+                d = json.loads(str(z["meta"]), object_pairs_hook=_unique_keys)
                 arrays = {k: np.asarray(z[k], dtype=np.float64) for k in array_keys + optional if k in z.files}
     except RecordFormatError:
         raise

@@ -8,12 +8,13 @@ from __future__ import annotations
 import copy
 from pathlib import Path
 
+import yaml
 from pydrake.multibody.parsing import ModelDirectives, ProcessModelDirectives
 from pydrake.planning import RobotDiagramBuilder
 
 from drake_cfvol.exceptions import WorkcellFormatError
 from drake_cfvol.scene import meshes as _meshes
-from drake_cfvol.scene.schema import models_dir
+from drake_cfvol.scene.schema import models_dir, read_yaml, read_yaml_text, yaml_error_line
 from drake_cfvol.scene.urdf import condensed_drake_warnings, fix_urdf_quirks
 
 __all__ = ["add_packages", "diagram_from_directives", "prepare_directives"]
@@ -43,6 +44,8 @@ def prepare_directives(directives: list, package_map, path: Path, lines: dict, n
     out = []
     for d in directives:
         d = copy.deepcopy(d)
+        if d.add_directives is not None:
+            _check_included(str(d.add_directives.file), package_map, path, lines)
         if d.add_model is not None:
             url = str(d.add_model.file)
             if url.startswith("package://"):
@@ -68,6 +71,26 @@ def prepare_directives(directives: list, package_map, path: Path, lines: dict, n
             d.add_model.file = "file://" + str(quirks.path)
         out.append(d)
     return out
+
+
+def _check_included(url: str, package_map, path: Path, lines: dict) -> None:
+    """A directives file that ``add_directives`` includes, read as this
+    package reads YAML (UTF-8, no key twice) before Drake reads it."""
+    try:
+        included = Path(package_map.ResolveUrl(url)) if "://" in url else (path.parent / url).resolve()
+    except Exception as e:  # Drake raises RuntimeError for an unknown package.
+        raise WorkcellFormatError(
+            str(path), _meshes.package_url_error(url, e, package_map) + ".", lines.get("add_directives")
+        ) from None
+    if not included.is_file():
+        return  # Drake names the missing file itself.
+    text = read_yaml_text(
+        included, "directives", lambda message: WorkcellFormatError(str(included), "the directives file " + message)
+    )
+    try:
+        read_yaml(text, tags=False)
+    except yaml.YAMLError as e:
+        raise WorkcellFormatError(str(included), f"not valid YAML: {yaml_error_line(e)}. Fix it there.") from None
 
 
 def _check_world_welds(quirks, model: str, directives: list, path: Path, lines: dict) -> None:

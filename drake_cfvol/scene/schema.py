@@ -28,6 +28,7 @@ and the obstacles, and a ``cfvol:`` section::
 import dataclasses
 import os
 import re
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 
@@ -35,7 +36,7 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 from pydrake.multibody.parsing import ModelDirective
 
-from drake_cfvol.exceptions import WorkcellError, WorkcellFormatError
+from drake_cfvol.exceptions import FileError, WorkcellError, WorkcellFormatError
 
 __all__ = [
     "WorkcellFile",
@@ -46,6 +47,9 @@ __all__ = [
     "models_dir",
     "read_workcell_file",
     "read_yaml",
+    "read_yaml_text",
+    "yaml_error_line",
+    "DuplicateKeyError",
     "DEFAULT_EDGE_STEP",
 ]
 
@@ -146,8 +150,38 @@ class WorkcellFile:
     cfvol: CfvolSection = dataclasses.field(default_factory=CfvolSection)
 
 
-class _TagLoader(yaml.SafeLoader):
-    """YAML's safe loader, reading a tagged node (``!IiwaDriver {...}``) as
+class DuplicateKeyError(yaml.constructor.ConstructorError):
+    """A mapping names one key twice (PyYAML and Drake's reader would keep
+    the last one without a word)."""
+
+    def __init__(self, key: str, first_line: int, mark):
+        super().__init__(
+            None,
+            None,
+            f"duplicate key '{key}' (first on line {first_line}; YAML would keep only the last): "
+            "remove or rename one of them",
+            mark,
+        )
+
+
+class _UniqueLoader(yaml.SafeLoader):
+    """YAML's safe loader that refuses a key given twice in one mapping."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[str, int] = {}
+            for key_node, _ in node.value:
+                # A merge key (<<) may be overridden by design; other keys not.
+                if not isinstance(key_node, yaml.ScalarNode) or key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                if key_node.value in seen:
+                    raise DuplicateKeyError(key_node.value, seen[key_node.value], key_node.start_mark)
+                seen[key_node.value] = key_node.start_mark.line + 1
+        return super().construct_mapping(node, deep)
+
+
+class _TagLoader(_UniqueLoader):
+    """The unique-key loader, reading a tagged node (``!IiwaDriver {...}``) as
     its plain value (Drake's reader checks the variant)."""
 
 
@@ -163,10 +197,85 @@ _TagLoader.add_multi_constructor(
 )
 
 
-def read_yaml(text: str):
+def read_yaml(text: str, *, tags: bool = True):
     """A YAML text as plain Python values, Drake's variant tags read as the
-    value they tag."""
-    return yaml.load(text, Loader=_TagLoader)
+    value they tag (``tags=False``: refused, as YAML's safe loader does).
+
+    Raises:
+        yaml.YAMLError: not valid YAML, or a key given twice in one mapping
+            (:class:`DuplicateKeyError`).
+    """
+    return yaml.load(text, Loader=_TagLoader if tags else _UniqueLoader)
+
+
+def yaml_error_line(e: yaml.YAMLError) -> str:
+    """A YAML error on one line: where (line, column) and what."""
+    if isinstance(e, yaml.MarkedYAMLError):
+        mark = e.problem_mark or e.context_mark
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        what = " ".join(x for x in (e.context, e.problem) if x)
+        return where + (what or type(e).__name__)
+    return " ".join(str(e).split())
+
+
+_SAVE_AS_UTF8 = (
+    "save it as UTF-8 (an editor's 'Save As' with encoding UTF-8; PowerShell: "
+    "Get-Content FILE | Set-Content -Encoding utf8 NEW; or iconv -f {enc} -t UTF-8 FILE > NEW)"
+)
+
+
+def _encoding_found(data: bytes) -> str | None:
+    """The encoding of a file's bytes if it is not UTF-8 (with or without
+    its byte-order mark): a name for the user, or None for UTF-8."""
+    if data.startswith((b"\xff\xfe\x00\x00", b"\x00\x00\xfe\xff")):
+        return "UTF-32"
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return "UTF-16"
+    if b"\x00" in data:
+        head = data[:4096]
+        # UTF-16 without a byte-order mark: ASCII text with every other byte 0.
+        if len(head) >= 2 and (head[1::2].count(0) > 0.4 * len(head) / 2 or head[0::2].count(0) > 0.4 * len(head) / 2):
+            return "UTF-16"
+        return "binary"
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        # Windows-1252 is Latin-1 with printable characters where Latin-1 has controls.
+        text = data.decode("cp1252", errors="replace")
+        printable = sum((c.isprintable() and c != "\ufffd") or c in "\t\r\n" for c in text)
+        return "Latin-1 (or Windows-1252)" if printable > 0.95 * len(text) else "binary"
+    return None
+
+
+def read_yaml_text(path: Path, what: str = "YAML", error: Callable[[str], Exception] | None = None) -> str:
+    """The text of a YAML file, which must be UTF-8 (a UTF-8 byte-order
+    mark, as Windows' editors write it, is accepted and dropped).
+
+    Args:
+        error: makes the exception from the problem's text (default: a
+            :class:`FileError` naming ``path``).
+
+    Raises:
+        FileError (or what ``error`` makes): the file cannot be read, or it
+            is not UTF-8 text (the encoding found and how to save it as UTF-8
+            in the message).
+    """
+    error = error or (lambda message: FileError(f"{what} file '{path}' {message}"))
+    try:
+        data = Path(path).read_bytes()
+    except OSError as e:
+        raise error(f"cannot be read ({e.strerror or e}).") from None
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    found = _encoding_found(data)
+    if found == "binary":
+        raise error(
+            "holds binary data, not text (encoding found: binary). Pass the YAML text file itself, saved as UTF-8."
+        )
+    if found is not None:
+        enc = "UTF-16" if found.startswith("UTF-16") else "UTF-32" if found == "UTF-32" else "LATIN1"
+        raise error(f"is {found} text, but YAML files are read as UTF-8: " + _SAVE_AS_UTF8.format(enc=enc) + ".")
+    return data.decode("utf-8")
 
 
 def _key_lines(text: str) -> dict[str, int]:
@@ -206,16 +315,14 @@ def read_workcell_file(path: Path, *, embedded: bool = False) -> tuple[WorkcellF
         WorkcellFormatError: unreadable, not YAML, an unknown key (named, with
             its line), or a value of the wrong type.
     """
+    text = read_yaml_text(path, "workcell", lambda message: WorkcellFormatError(str(path), "the file " + message))
     try:
-        text = path.read_text()
-    except OSError as e:
-        raise WorkcellFormatError(str(path), f"cannot read the file ({e.strerror}).") from e
-    try:
-        data = read_yaml(text) if embedded else yaml.safe_load(text)
-    except yaml.MarkedYAMLError as e:
-        mark = e.problem_mark or e.context_mark
+        data = read_yaml(text, tags=embedded)
+    except yaml.YAMLError as e:
+        mark = (e.problem_mark or e.context_mark) if isinstance(e, yaml.MarkedYAMLError) else None
+        what = (e.problem or yaml_error_line(e)) if isinstance(e, yaml.MarkedYAMLError) else yaml_error_line(e)
         line = mark.line + 1 if mark is not None else None
-        raise WorkcellFormatError(str(path), f"not valid YAML: {e.problem or e}. Fix the syntax there.", line) from e
+        raise WorkcellFormatError(str(path), f"not valid YAML: {what}. Fix it there.", line) from None
     if not isinstance(data, dict):
         raise WorkcellFormatError(str(path), "expected a mapping with 'directives:' and 'cfvol:' at the top.", 1)
     lines = _key_lines(text)
