@@ -411,6 +411,8 @@ def cmd_bench(args) -> int:
         return _bench_targets(args, "kernel", "KernelBenchConfig", "trials", "bench-kernel")
     if args.realtime:  # the control stack's wall time per update
         return _bench_targets(args, "realtime", "RealtimeBenchConfig", "repeats", "bench-realtime")
+    if args.iris:  # the certified box beside the best box inside Drake's IrisZo region
+        return _bench_targets(args, "iris", "IrisBenchConfig", "repeats", "bench-iris")
     harness = bench_harness()
     BenchConfig, run_bench, write_outputs = harness.BenchConfig, harness.run_bench, harness.write_outputs
 
@@ -601,6 +603,13 @@ def _add_bench(sub) -> None:
         help="the control-rate benchmark instead: the control stack's wall time per update on a "
         "kinematic station at 10 ms and 1 ms periods (default --out out/bench-realtime; uses "
         "--quick, --cells, --trials as repeats, --json)",
+    )
+    n.add_argument(
+        "--iris",
+        action="store_true",
+        help="the IrisZo comparison instead: at evenly spaced waypoints of the built-in paths and the mesh "
+        "robot, the certified box beside the largest box inside Drake's IrisZo region, and certification "
+        "time (default --out out/bench-iris; uses --quick, --cells, --trials as repeats, --json)",
     )
     n.add_argument("--cells", nargs="+", help="cells (default both)")
     n.add_argument("--paths", nargs="+", help="paths, e.g. 1 2 3 (default all)")
