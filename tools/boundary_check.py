@@ -1,4 +1,4 @@
-"""Counts colliding corners and edge points of a path's boxes, by Drake
+"""Counts colliding corners, edge points and face points of a path's boxes, by Drake
 (thin CLI over drake_cfvol.algorithm.metrics.boundary_check).
 
     tools/dev.sh python tools/boundary_check.py automotive path1 [--certify [--no-boundary-proof] [--no-cache]] [--clearance 0.02]
@@ -10,7 +10,7 @@ import json
 import time
 
 import drake_cfvol as cf
-from drake_cfvol.algorithm.metrics import boundary_check
+from drake_cfvol.algorithm.metrics import boundary_check, judged_margins
 
 
 def main() -> None:
@@ -44,10 +44,10 @@ def main() -> None:
         "freedom": round(cf.freedom(table).mean, 4),
     }
     # Judged at the margin each stretch keeps (the nominal's own where it is nearer), less 1 mm.
-    margin = float(table.info.get("min_margin_m", params.clearance))
-    out["checked_at_m"] = max(0.0, margin - 1e-3)
+    margins = judged_margins(wc, table)
+    out["checked_at_m"] = float(margins.min()) if len(margins) else max(0.0, params.clearance - 1e-3)
     out["certificate"] = {k: v for k, v in table.info.get("certificate", {}).items() if k not in ("proven", "sampled")}
-    out.update(dataclasses.asdict(boundary_check(wc, table, clearance=out["checked_at_m"])))
+    out.update(dataclasses.asdict(boundary_check(wc, table, clearance=margins)))
     print(json.dumps(out))
 
 

@@ -15,6 +15,9 @@ __all__ = [
     "shown_percent",
     "BoundaryCheck",
     "boundary_check",
+    "judged_margins",
+    "kept_margins",
+    "position_margins",
     "CFResult",
     "Freedom",
     "confidence_factor",
@@ -231,10 +234,46 @@ def shown_percent(percent: float, colliding: int, digits: int = 4) -> float:
     return round(percent, digits)
 
 
+#: How much nearer than its margin Drake may find a box's boundary before the
+#: check calls it colliding, m: the kernel and Drake model the same shapes
+#: (meshes as their convex hulls, covers, rounding) a little differently.
+JUDGE_SLACK = 1e-3
+
+
+def kept_margins(workcell, bounds: BoundsTable) -> np.ndarray:
+    """(g-1,) the margin each stretch's boxes keep, m: the table's
+    clearance, less only where the nominal itself is nearer
+    (:func:`~drake_cfvol.algorithm.sweep.stretch_margins`)."""
+    from drake_cfvol.algorithm.sweep import stretch_margins
+
+    clearance = float(bounds.params.get("clearance", 0.0))
+    return stretch_margins(workcell.scene_arrays(), bounds.nominal, clearance)
+
+
+def judged_margins(workcell, bounds: BoundsTable) -> np.ndarray:
+    """(g-1,) the padding at which Drake judges each stretch's boxes, m:
+    :func:`kept_margins` less :data:`JUDGE_SLACK`, never below 0."""
+    return np.maximum(kept_margins(workcell, bounds) - JUDGE_SLACK, 0.0)
+
+
+def position_margins(margins: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """The padding at each path position s, from per-stretch ``margins``
+    (g-1,): a waypoint ends both stretches beside it, so it keeps the larger
+    of their two margins; a position inside a stretch keeps that stretch's."""
+    margins = np.asarray(margins, float)
+    s = np.asarray(s, float)
+    if len(margins) == 0:
+        return np.zeros(len(s))
+    last = len(margins) - 1
+    before = np.clip(np.ceil(s).astype(int) - 1, 0, last)
+    after = np.clip(np.floor(s).astype(int), 0, last)
+    return np.maximum(margins[before], margins[after])
+
+
 @dataclasses.dataclass
 class BoundaryCheck:
-    """Where a clamp lands, judged by Drake: the box's corners and edge
-    points at every waypoint and stretch midpoint.
+    """Where a clamp lands, judged by Drake: the box's corners, edge points
+    and face points at every waypoint and stretch midpoint.
 
     Attributes:
         positions: path positions checked (waypoints and midpoints).
@@ -243,7 +282,12 @@ class BoundaryCheck:
         edge_points, edges_colliding: edge points (one joint uniform in its
             range, every other joint at a random one of its bounds) and how
             many collide.
-        clearance: Drake's padding used, m (0: plain collision).
+        clearance: Drake's padding used, m (0: plain collision; the
+            smallest one where it differs by position).
+        face_points, faces_colliding: face points (one joint at a random
+            one of its bounds, every other joint uniform in its range) and
+            how many collide.
+        colliding_at: the path positions where anything collided.
     """
 
     positions: int
@@ -252,28 +296,70 @@ class BoundaryCheck:
     edge_points: int
     edges_colliding: int
     clearance: float
+    face_points: int = 0
+    faces_colliding: int = 0
+    colliding_at: list[float] = dataclasses.field(default_factory=list)
 
 
 def boundary_check(
-    workcell, bounds: BoundsTable, *, clearance: float = 0.0, edge_points: int = 64, seed: int = 0
+    workcell,
+    bounds: BoundsTable,
+    *,
+    clearance: float | np.ndarray = 0.0,
+    edge_points: int = 64,
+    face_points: int = 64,
+    seed: int = 0,
 ) -> BoundaryCheck:
-    """Checks the box's corners and edge points at every waypoint and
-    stretch midpoint with Drake's checker, padded by ``clearance`` (m; a
-    configuration nearer than that to an obstacle or to the robot itself
-    counts as colliding). Seeded."""
+    """Checks the box's corners, edge points and face points at every
+    waypoint and stretch midpoint with Drake's checker, padded by
+    ``clearance`` (m; a configuration nearer than that to an obstacle or to
+    the robot itself counts as colliding): one value, or one per stretch
+    ((g-1,), e.g. :func:`judged_margins`; see :func:`position_margins`).
+    Seeded."""
     rng = np.random.default_rng(seed)
-    checker = workcell.padded_checker(clearance)
     s = np.arange(0, bounds.g - 0.5, 0.5) if bounds.g > 1 else np.zeros(1)
+    pads = np.asarray(clearance, float)
+    if pads.ndim == 0:
+        pads = np.full(len(s), float(pads))
+    elif pads.shape == (bounds.g - 1,):
+        pads = position_margins(pads, s)
+    else:
+        raise DimensionError(
+            f"boundary_check: clearance must be one value or one per stretch ({bounds.g - 1}), got shape {pads.shape}."
+        )
     lo, hi, _ = bounds.boxes_at(s)
     k = bounds.k
     pattern = (np.arange(2**k)[:, None] >> np.arange(k)[None, :]) & 1
-    corners = bad_c = bad_e = 0
+    corners = bad_c = bad_e = bad_f = 0
+    where = []
+
+    def colliding(checker, Q) -> int:
+        return int(np.sum(~np.asarray(checker.CheckConfigsCollisionFree(Q, parallelize=True), bool)))
+
     for a in range(len(s)):
+        checker = workcell.padded_checker(float(pads[a]))
         C = np.where(pattern == 1, hi[a], lo[a])
         corners += len(C)
-        bad_c += int(np.sum(~np.asarray(checker.CheckConfigsCollisionFree(C, parallelize=True), bool)))
+        c = colliding(checker, C)
         E = C[rng.integers(0, len(C), edge_points)]
         j = rng.integers(0, k, edge_points)
         E[np.arange(edge_points), j] = lo[a, j] + rng.random(edge_points) * (hi[a, j] - lo[a, j])
-        bad_e += int(np.sum(~np.asarray(checker.CheckConfigsCollisionFree(E, parallelize=True), bool)))
-    return BoundaryCheck(len(s), corners, bad_c, edge_points * len(s), bad_e, float(clearance))
+        e = colliding(checker, E)
+        F = lo[a] + rng.random((face_points, k)) * (hi[a] - lo[a])
+        j = rng.integers(0, k, face_points)
+        F[np.arange(face_points), j] = np.where(rng.random(face_points) < 0.5, lo[a, j], hi[a, j])
+        f = colliding(checker, F)
+        bad_c, bad_e, bad_f = bad_c + c, bad_e + e, bad_f + f
+        if c + e + f:
+            where.append(float(s[a]))
+    return BoundaryCheck(
+        len(s),
+        corners,
+        bad_c,
+        edge_points * len(s),
+        bad_e,
+        float(pads.min()),
+        face_points * len(s),
+        bad_f,
+        where,
+    )
