@@ -14,14 +14,18 @@ def _gm(w) -> float:
     return float(np.exp(np.mean(np.log(np.maximum(w, 1e-300)))))
 
 
-def _random_instance(rng, k: int, m: int):
+def _random_instance(rng, k: int, m: int, one_sided: bool = False):
     """A random polytope {A x <= b} with q inside (each row 0.1-1 from it),
-    and a box [lower, upper] around q."""
+    and a box [lower, upper] around q (``one_sided``: the first joint may
+    only grow upwards from q)."""
     q = rng.uniform(-1, 1, k)
     A = rng.normal(size=(m, k))
     A /= np.linalg.norm(A, axis=1, keepdims=True)
     b = A @ q + rng.uniform(0.1, 1.0, m)
-    return A, b, q, q - rng.uniform(0.5, 2.0, k), q + rng.uniform(0.5, 2.0, k)
+    lower, upper = q - rng.uniform(0.5, 2.0, k), q + rng.uniform(0.5, 2.0, k)
+    if one_sided:
+        lower[0] = q[0]
+    return A, b, q, lower, upper
 
 
 def _grid_best(A, b, q, lower, upper, n: int) -> float:
@@ -52,13 +56,17 @@ def _corners(lo, hi) -> np.ndarray:
     return np.where(pattern == 1, hi, lo)
 
 
-@pytest.mark.parametrize(("k", "m", "n", "seed"), [(2, 5, 40, 0), (2, 8, 40, 1), (3, 6, 13, 2), (3, 10, 13, 3)])
-def test_largest_box_is_the_brute_force_optimum(k, m, n, seed):
-    """On random 2-D and 3-D polytopes: the box contains q, lies in
-    [lower, upper], every corner satisfies A x <= b; no grid box has a larger
-    geometric mean of widths, and the best grid box comes within the grid's
-    step of it (the optimum rounded inwards onto the grid is a grid box)."""
-    A, b, q, lower, upper = _random_instance(np.random.default_rng(seed), k, m)
+@pytest.mark.parametrize(
+    ("k", "m", "n", "seed", "one_sided"),
+    [(2, 5, 40, 0, False), (2, 8, 40, 1, False), (2, 6, 40, 5, True), (3, 6, 13, 2, False), (3, 10, 13, 3, True)],
+)
+def test_largest_box_is_the_brute_force_optimum(k, m, n, seed, one_sided):
+    """On random 2-D and 3-D polytopes (a joint with room on one side of q
+    only in some): the box contains q, lies in [lower, upper], every corner
+    satisfies A x <= b; no grid box has a larger geometric mean of widths,
+    and the best grid box comes within the grid's step of it (the optimum
+    rounded inwards onto the grid is a grid box)."""
+    A, b, q, lower, upper = _random_instance(np.random.default_rng(seed), k, m, one_sided)
     lo, hi = largest_box(A, b, q, lower, upper)
     assert np.all(lo <= q) and np.all(q <= hi)
     assert np.all(lower <= lo) and np.all(hi <= upper)
@@ -71,17 +79,23 @@ def test_largest_box_is_the_brute_force_optimum(k, m, n, seed):
 
 def test_largest_box_by_hand():
     """In the triangle x, y >= 0, x + y <= 1 around (0.25, 0.25), the box of
-    the largest area is [0, 0.5]^2 (a + b <= 1, ab largest at a = b); a joint
-    without room is held at q, and the other takes all of its room."""
+    the largest area is [0, 0.5]^2 (a + b <= 1, ab largest at a = b). With x
+    kept >= 0.25, the box [0.25, a] x [0, c] with a + c <= 1 is largest at
+    c = 0.375 ((0.75 - c) c). A joint without room is held at q, and the
+    other takes all of its room."""
     A = np.array([[-1.0, 0.0], [0.0, -1.0], [1.0, 1.0]])
     b = np.array([0.0, 0.0, 1.0])
     q = np.array([0.25, 0.25])
+    # The optimum is flat (an area's error is the square of a side's): the
+    # sides to 1e-4, the areas to 1e-8.
     lo, hi = largest_box(A, b, q, [-1, -1], [1, 1])
-    np.testing.assert_allclose(lo, [0, 0], atol=1e-6)
-    np.testing.assert_allclose(hi, [0.5, 0.5], atol=1e-6)
+    np.testing.assert_allclose(np.r_[lo, hi], [0, 0, 0.5, 0.5], atol=1e-4)
+    assert np.prod(hi - lo) == pytest.approx(0.25, abs=1e-8)
+    lo, hi = largest_box(A, b, q, [0.25, -1], [1, 1])
+    np.testing.assert_allclose(np.r_[lo, hi], [0.25, 0, 0.625, 0.375], atol=1e-4)
+    assert np.prod(hi - lo) == pytest.approx(0.375**2, abs=1e-8)
     lo, hi = largest_box(A, b, q, [0.25, -1], [0.25, 1])
-    np.testing.assert_allclose(lo, [0.25, 0], atol=1e-6)
-    np.testing.assert_allclose(hi, [0.25, 0.75], atol=1e-6)
+    np.testing.assert_allclose(np.r_[lo, hi], [0.25, 0, 0.25, 0.75], atol=1e-4)
 
 
 def test_largest_box_refuses_bad_input():
