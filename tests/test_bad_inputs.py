@@ -157,3 +157,201 @@ def test_a_duplicate_json_key_in_a_saved_path_is_refused(tmp_path, capsys):
     f = tmp_path / "p.json"
     f.write_text('{"format": "drake_cfvol.NominalPath", "waypoints": [[0]], "waypoints": [[1]]}')
     refused(["bounds", "automotive", "--path-file", f], capsys, str(f), "'waypoints' appears twice")
+
+
+# --- 2. Saved tables and paths: values, and the cell they were made in ---------------------------------
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory, bounded, planned, automotive):
+    """A table and a path of the automotive cell, saved by cfvol bounds (with their fingerprints)."""
+    folder = tmp_path_factory.mktemp("saved")
+    table = bounded("automotive")
+    table.save(folder / "bounds.npz")
+    table.save(folder / "bounds.json")
+    path = planned("automotive")
+    from drake_cfvol.algorithm.reuse import fingerprint_of
+
+    path.fingerprint = fingerprint_of(automotive, path)
+    path.save(folder / "path.json")
+    return folder
+
+
+def _edited_table(saved: Path, tmp_path: Path, edit) -> Path:
+    import json
+
+    d = json.loads((saved / "bounds.json").read_text())
+    edit(d)
+    f = tmp_path / "edited.json"
+    f.write_text(json.dumps(d).replace("Infinity", "1e999"))  # json writes inf as Infinity
+    return f
+
+
+TABLE_EDITS = {
+    "lower-above-upper": (lambda d: d["lower"][5].__setitem__(1, d["upper"][5][1] + 0.5), "lower", "> upper"),
+    "nan-lower": (lambda d: d["lower"][3].__setitem__(0, float("nan")), "lower", "not a finite number"),
+    "inf-upper": (lambda d: d["upper"][0].__setitem__(2, float("inf")), "upper", "not a finite number"),
+    "nan-nominal": (lambda d: d["nominal"][7].__setitem__(4, float("nan")), "nominal", "not a finite number"),
+    "nominal-outside": (lambda d: d["nominal"][9].__setitem__(0, d["upper"][9][0] + 0.1), "nominal", "> upper"),
+    "nominal-below": (lambda d: d["nominal"][9].__setitem__(0, d["lower"][9][0] - 0.1), "lower", "> nominal"),
+    "stretch-inverted": (
+        lambda d: d["stretch_lower"][2].__setitem__(1, d["stretch_upper"][2][1] + 1),
+        "stretch_lower",
+        "stretch 3",
+    ),
+    "negative-rate": (lambda d: d.__setitem__("rate", [-1.0] * 6), "rate", ">= 0"),
+    "box-outside-limits": (
+        lambda d: (d["upper"][0].__setitem__(0, 3.5), d["upper"][1].__setitem__(0, 3.5)),
+        "limit",
+        "joint_1",
+    ),
+    "short-row": (lambda d: d["lower"].__setitem__(0, d["lower"][0][:5]), "bounds", "bounds"),
+    "joint-names-not-list": (lambda d: d.__setitem__("joint_names", 3), "bounds", "bounds"),
+    "bad-interpolation": (lambda d: d.__setitem__("interpolation", "cubic"), "interpolation", "cubic"),
+    "edited-nominal": (
+        lambda d: d["nominal"][20].__setitem__(5, d["nominal"][20][5] + 1e-4),
+        "nominal",
+        "edited after saving",
+    ),
+    "other-path-label": (lambda d: d["info"].__setitem__("path", "path2"), "path2", "path1"),
+}
+
+
+@pytest.mark.parametrize("edit", TABLE_EDITS)
+def test_an_unusable_saved_table_is_refused(saved, tmp_path, capsys, edit):
+    change, *named = TABLE_EDITS[edit]
+    f = _edited_table(saved, tmp_path, change)
+    refused(["bounds", "automotive", "--path", "1", "--bounds-file", f, "--cf-samples", "1"], capsys, str(f), *named)
+
+
+def test_a_table_is_refused_where_a_system_meets_it(bounded, planned):
+    import dataclasses
+
+    import numpy as np
+
+    from drake_cfvol.systems import JointBoundsSource
+
+    table = bounded("automotive")
+    upper = table.upper.copy()
+    upper[4, 2] = table.lower[4, 2] - 0.1
+    raises(lambda: JointBoundsSource(dataclasses.replace(table, upper=upper)), "JointBoundsSource", "joint_3")
+    nominal = table.nominal.copy()
+    nominal[0, 0] = np.nan
+    raises(lambda: JointBoundsSource(dataclasses.replace(table, nominal=nominal)), "nominal", "finite")
+    raises(lambda: JointBoundsSource(planned("automotive")), "BoundsTable", "NominalPath")
+    raises(lambda: JointBoundsSource(None), "BoundsTable", "NoneType")
+
+
+def _cell_with(tmp_path: Path, extra: str) -> Path:
+    """The automotive cell with ``extra`` directives (obstacles) added."""
+    f = tmp_path / "automotive.yaml"
+    f.write_text(AUTOMOTIVE.replace("cfvol:\n", extra + "cfvol:\n", 1))
+    return f
+
+
+def _crate(tmp_path: Path, centre=(1.5, 0.0, 1.2), name: str = "crate") -> str:
+    """A directive adding a 0.2 m box named ``name`` at ``centre``."""
+    sdf = tmp_path / f"{name}.sdf"
+    sdf.write_text(
+        f'<?xml version="1.0"?><sdf version="1.9"><model name="{name}"><static>true</static>'
+        f'<link name="{name}"><pose>{" ".join(map(str, centre))} 0 0 0</pose><collision name="c"><geometry><box>'
+        "<size>0.2 0.2 0.2</size></box></geometry></collision></link></model></sdf>"
+    )
+    return f"- add_model:\n    name: {name}\n    file: {sdf}\n"
+
+
+def test_a_stale_table_names_the_obstacle_added_inside_its_box(saved, bounded, tmp_path, capsys):
+    """Bounds made for the cell; a crate placed where the path's box lets the
+    robot go (the tool's position at a waypoint, checked to collide there);
+    the table and the path are refused, naming the crate."""
+    import drake_cfvol as cf
+
+    table = bounded("automotive")
+    q = table.nominal[len(table.nominal) // 2]
+    wc = cf.load_workcell("automotive")
+    plant = wc.plant
+    ctx = plant.GetMyContextFromRoot(wc.context)
+    plant.SetPositions(ctx, wc.robot, q)
+    tool = plant.GetFrameByName("tcp").CalcPoseInWorld(ctx).translation()
+    cell = _cell_with(tmp_path, _crate(tmp_path, tuple(float(x) for x in tool)))
+    stale = cf.load_workcell(str(cell))
+    assert not stale.checker.CheckConfigCollisionFree(q)  # the crate lies inside the box: the nominal hits it
+    refused(["bounds", cell, "--bounds-file", saved / "bounds.npz"], capsys, "obstacle 'crate' was added")
+    refused(["bounds", cell, "--path-file", saved / "path.json"], capsys, "obstacle 'crate' was added")
+
+
+def test_a_moved_or_removed_obstacle_is_named(saved, tmp_path, capsys):
+    import re
+
+    from drake_cfvol.scene.schema import models_dir
+
+    sdf = (models_dir() / "cells" / "automotive_cell.sdf").read_text()
+
+    poses = re.findall(r"<pose>([^<]*)</pose>", sdf)
+    assert poses
+    first = poses[0]
+    x, *rest = first.split()
+    shifted = sdf.replace(f"<pose>{first}</pose>", f"<pose>{float(x) + 0.25} {' '.join(rest)}</pose>", 1)
+    (tmp_path / "cell.sdf").write_text(shifted)
+    f = tmp_path / "cell.yaml"
+    f.write_text(
+        AUTOMOTIVE.replace("package://drake_cfvol_models/cells/automotive_cell.sdf", str(tmp_path / "cell.sdf"))
+    )
+    line = refused(["bounds", f, "--bounds-file", saved / "bounds.npz"], capsys, "was moved", "0.25")
+    assert "obstacle '" in line
+
+
+def test_another_robot_or_limits_is_named(saved, tmp_path, capsys):
+    limited = AUTOMOTIVE.replace("  params: {}\n", "  params: {}\n  joint_limits: {joint_1: [-2.0, 2.0]}\n")
+    f = tmp_path / "limited.yaml"
+    f.write_text(limited)
+    refused(["bounds", f, "--bounds-file", saved / "bounds.npz"], capsys, "joint limits changed", "joint_1")
+    refused(["bounds", "aerospace", "--bounds-file", saved / "bounds.npz"], capsys, "joints")
+
+
+@pytest.mark.parametrize("flag", ["--bounds-file", "--path-file"])
+def test_a_file_for_another_path_than_the_one_named_is_refused(saved, capsys, flag):
+    name = "bounds.npz" if flag == "--bounds-file" else "path.json"
+    refused(["bounds", "automotive", "--path", "2", flag, saved / name], capsys, "'path1'", "'path2' was named")
+
+
+def test_an_old_file_without_a_fingerprint_loads_with_a_notice(saved, tmp_path, capsys):
+    import json
+
+    import numpy as np
+
+    from drake_cfvol.algorithm.table import BoundsTable
+
+    d = json.loads((saved / "bounds.json").read_text())
+    del d["info"]["fingerprint"]
+    f = tmp_path / "old.json"
+    f.write_text(json.dumps(d))
+    capsys.readouterr()
+    assert main(["bounds", "automotive", "--bounds-file", str(f), "--cf-samples", "10", "--cf-windows", "2"]) == 0
+    notes = [ln for ln in capsys.readouterr().err.splitlines() if "fingerprint" in ln]
+    assert len(notes) == 1 and notes[0].startswith("cfvol: note:") and str(f) in notes[0]
+    # The table itself is what was saved, bit for bit.
+    a, b = BoundsTable.load(f), BoundsTable.load(saved / "bounds.npz")
+    assert np.array_equal(a.lower, b.lower) and np.array_equal(a.upper, b.upper)
+
+
+PATH_EDITS = {
+    "nan-waypoint": (lambda d: d["waypoints"][2].__setitem__(1, float("nan")), "not a number"),
+    "edited-waypoint": (lambda d: d["waypoints"][2].__setitem__(1, d["waypoints"][2][1] + 1e-3), "edited after"),
+    "one-waypoint": (lambda d: (d.__setitem__("waypoints", d["waypoints"][:1]), d.pop("sha256")), "g >= 2"),
+    "wrong-columns": (lambda d: (d.__setitem__("waypoints", [w[:5] for w in d["waypoints"]]), d.pop("sha256")), "5"),
+    "no-waypoints": (lambda d: d.pop("waypoints"), "'waypoints'"),
+    "not-an-object": (lambda d: d.clear(), "'waypoints'"),
+}
+
+
+@pytest.mark.parametrize("edit", PATH_EDITS)
+def test_an_unusable_saved_path_is_refused(saved, tmp_path, capsys, edit):
+    import json
+
+    change, named = PATH_EDITS[edit]
+    d = json.loads((saved / "path.json").read_text())
+    change(d)
+    f = tmp_path / "p.json"
+    f.write_text(json.dumps(d))
+    refused(["bounds", "automotive", "--path-file", f], capsys, str(f), named)

@@ -15,6 +15,7 @@ from drake_cfvol import kernel as K
 from drake_cfvol.algorithm.certify import CUTS_SHARE, Certify, certified_table, certify_bounds, warm_up_cuts
 from drake_cfvol.algorithm.planning import NominalPath
 from drake_cfvol.algorithm.reference import drake_sweep_bounds
+from drake_cfvol.algorithm.reuse import fingerprint_of
 from drake_cfvol.algorithm.sweep import default_rate, stretch_bounds
 from drake_cfvol.algorithm.table import (
     BoundsTable,
@@ -165,6 +166,7 @@ def estimate_bounds(
         "grid": list(vb.volume.heightmap.shape),
         "jit_warmup_ms": jit_ms,
         **stats,
+        "fingerprint": fingerprint_of(workcell, path),
     }
     timing = {
         "categorize": (t1 - t0) * 1e3,

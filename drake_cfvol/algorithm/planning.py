@@ -18,9 +18,11 @@ from pydrake.multibody.tree import JacobianWrtVariable
 
 from drake_cfvol.algorithm import _ompl
 from drake_cfvol.exceptions import (
+    CfvolError,
     DimensionError,
     ParameterError,
     PlanningError,
+    RecordFormatError,
     SingularityError,
 )
 from drake_cfvol.io.records import load_record, save_record
@@ -43,6 +45,9 @@ class NominalPath:
         label: e.g. ``"path1"`` (or "" for a custom pair).
         seed: the planner's seed.
         stats: planning statistics (times in ms, counts).
+        fingerprint: the cell it was made in
+            (:func:`drake_cfvol.algorithm.reuse.fingerprint_of`; empty when
+            not recorded), saved with it and checked when it is used again.
     """
 
     waypoints: np.ndarray
@@ -51,6 +56,7 @@ class NominalPath:
     label: str = ""
     seed: int = 0
     stats: dict = dataclasses.field(default_factory=dict)
+    fingerprint: dict = dataclasses.field(default_factory=dict, compare=False)
 
     def __post_init__(self):
         self.waypoints = np.ascontiguousarray(self.waypoints, dtype=np.float64)
@@ -100,6 +106,7 @@ class NominalPath:
             "waypoints": self.waypoints.tolist(),
             "sha256": self.sha256,
             "stats": self.stats,
+            **({"fingerprint": self.fingerprint} if self.fingerprint else {}),
         }
 
     def save(self, path: str | Path, *, overwrite: bool = False) -> Path:
@@ -120,14 +127,29 @@ class NominalPath:
             RecordFormatError: the file is missing, empty, truncated or not a path.
         """
         d, arrays = load_record(path, ("waypoints",), "path", required=("joint_names",))
-        return cls(
-            arrays["waypoints"],
-            d["joint_names"],
-            d.get("cell", ""),
-            d.get("label", ""),
-            d.get("seed", 0),
-            d.get("stats", {}),
-        )
+        try:
+            out = cls(
+                arrays["waypoints"],
+                d["joint_names"],
+                str(d.get("cell", "")),
+                str(d.get("label", "")),
+                d.get("seed", 0),
+                d.get("stats", {}),
+                d.get("fingerprint") or {},
+            )
+        except (CfvolError, TypeError, ValueError) as e:
+            raise RecordFormatError(path, "path", " ".join(str(e).split()).rstrip(".")) from None
+        bad = np.argwhere(~np.isfinite(out.waypoints))
+        if len(bad):
+            i, j = bad[0]
+            raise RecordFormatError(
+                path, "path", f"waypoint {i + 1}, joint '{out.joint_names[j]}' is {out.waypoints[i, j]}, not a number"
+            )
+        if "sha256" in d and d["sha256"] != out.sha256:
+            raise RecordFormatError(
+                path, "path", "its waypoints do not match the sha256 saved with them (the file was edited after saving)"
+            )
+        return out
 
 
 def densify(vertices: np.ndarray, max_step: float) -> np.ndarray:

@@ -17,12 +17,13 @@ import numpy as np
 from numba import njit
 from pydrake.trajectories import PiecewisePolynomial
 
-from drake_cfvol.exceptions import DimensionError, ParameterError, RecordFormatError
+from drake_cfvol.exceptions import CfvolError, DimensionError, ParameterError, RecordFormatError
 from drake_cfvol.io.records import load_record, save_record
 
 __all__ = [
     "BoundsTable",
     "absolute_bounds",
+    "check_table",
     "box_at",
     "nominal_trajectory",
     "waypoint_boxes",
@@ -41,6 +42,9 @@ FORMAT_VERSION = 3
 #: the certificate can prove the box's edges and corners).
 INTERPOLATIONS = ("stretch", "linear")
 _ARRAYS = ("lower", "upper", "nominal")
+#: How far (rad or m) a saved value may pass the one it must not pass:
+#: float noise, far below any bound's meaning.
+_CHECK_TOLERANCE = 1e-9
 _STRETCH_ARRAYS = ("stretch_lower", "stretch_upper")
 
 
@@ -479,6 +483,54 @@ class BoundsTable:
         """(g, k) upper - lower."""
         return self.upper - self.lower
 
+    def problem(self, position_lower=None, position_upper=None) -> str | None:
+        """What makes the table unusable, as one phrase (the first found), or
+        None: a non-finite value, lower > upper, a nominal outside its box,
+        a negative rate, or (given the robot's position limits, inf where a
+        joint has none) a box outside the limits."""
+        arrays = {
+            "lower": self.lower,
+            "upper": self.upper,
+            "nominal": self.nominal,
+            "stretch_lower": self.stretch_lower,
+            "stretch_upper": self.stretch_upper,
+        }
+        for name, a in arrays.items():
+            bad = np.argwhere(~np.isfinite(a))
+            if len(bad):
+                i, j = bad[0]
+                return f"{name} of joint '{self.joint_names[j]}' at waypoint {i + 1} is {a[i, j]}, not a finite number"
+        for name, a in (("limit_lower", self.limit_lower), ("limit_upper", self.limit_upper)):
+            if a.shape != (self.k,) or np.isnan(a).any():
+                return f"{name} must hold {self.k} numbers, got {np.asarray(a).tolist()}"
+        if np.isnan(self.rate).any() or (self.rate < 0).any():
+            return f"rate must be >= 0 (or none) for every joint, got {self.rate.tolist()}"
+        inf = np.full(self.k, np.inf)
+        given = position_lower is not None and position_upper is not None
+        if given and np.shape(position_lower) == np.shape(position_upper) == (self.k,):
+            lo = np.where(np.isfinite(position_lower), position_lower, -np.inf)
+            hi = np.where(np.isfinite(position_upper), position_upper, np.inf)
+        else:  # no limits, or another robot's (its joints are named where they are compared)
+            lo, hi = -inf, inf
+        tol = _CHECK_TOLERANCE
+        checks = (
+            ("lower", self.lower, "upper", self.upper, "waypoint"),
+            ("stretch_lower", self.stretch_lower, "stretch_upper", self.stretch_upper, "stretch"),
+            ("lower", self.lower, "nominal", self.nominal, "waypoint"),
+            ("nominal", self.nominal, "upper", self.upper, "waypoint"),
+            ("the joint's lower limit", np.broadcast_to(lo, self.lower.shape), "lower", self.lower, "waypoint"),
+            ("upper", self.upper, "the joint's upper limit", np.broadcast_to(hi, self.upper.shape), "waypoint"),
+        )
+        for a_name, a, b_name, b, unit in checks:
+            bad = np.argwhere(a > b + tol)
+            if len(bad):
+                i, j = bad[0]
+                return (
+                    f"{a_name} {a[i, j]:.6g} > {b_name} {b[i, j]:.6g} for joint '{self.joint_names[j]}' "
+                    f"at {unit} {i + 1} (counted from 1)"
+                )
+        return None
+
     def to_json_dict(self) -> dict:
         return {
             "format": "drake_cfvol.BoundsTable",
@@ -522,21 +574,46 @@ class BoundsTable:
                 f"reads versions up to {FORMAT_VERSION} (update drake_cfvol to read it)",
             )
         rate = d.get("rate")
-        return cls(
-            a["lower"],
-            a["upper"],
-            a["nominal"],
-            d["joint_names"],
-            np.array(d["limit_lower"], float),
-            np.array(d["limit_upper"], float),
-            d.get("params", {}),
-            d.get("timing_ms", {}),
-            d.get("info", {}),
-            stretch_lower=a.get("stretch_lower"),
-            stretch_upper=a.get("stretch_upper"),
-            rate=None if rate is None else np.array([np.inf if v is None else v for v in rate], float),
-            interpolation=d.get("interpolation", "stretch"),
+        try:
+            table = cls(
+                a["lower"],
+                a["upper"],
+                a["nominal"],
+                d["joint_names"],
+                np.array(d["limit_lower"], float),
+                np.array(d["limit_upper"], float),
+                d.get("params", {}),
+                d.get("timing_ms", {}),
+                d.get("info", {}),
+                stretch_lower=a.get("stretch_lower"),
+                stretch_upper=a.get("stretch_upper"),
+                rate=None if rate is None else np.array([np.inf if v is None else v for v in rate], float),
+                interpolation=d.get("interpolation", "stretch"),
+            )
+        except (CfvolError, TypeError, ValueError) as e:
+            raise RecordFormatError(path, "bounds", " ".join(str(e).split()).rstrip(".")) from None
+        problem = table.problem()
+        if problem is not None:
+            raise RecordFormatError(path, "bounds", problem)
+        return table
+
+
+def check_table(table, where: str, position_lower=None, position_upper=None) -> None:
+    """Refuses what is not a usable :class:`BoundsTable` before a system
+    or a run uses it (:meth:`BoundsTable.problem`).
+
+    Raises:
+        ParameterError: not a table, or its values are unusable (named).
+    """
+    if not isinstance(table, BoundsTable):
+        hint = " (a NominalPath is the path, not its bounds)" if type(table).__name__ == "NominalPath" else ""
+        raise ParameterError(
+            f"{where}: expected a BoundsTable (drake_cfvol.estimate_bounds or BoundsTable.load), got "
+            f"{type(table).__name__}{hint}."
         )
+    problem = table.problem(position_lower, position_upper)
+    if problem is not None:
+        raise ParameterError(f"{where}: the bounds table is unusable: {problem}. Compute or load a valid table.")
 
 
 def _jsonable(obj):

@@ -161,6 +161,9 @@ def cmd_plan(args) -> int:
         wc, start, goal, seed=args.seed, time_limit=args.time_limit, label=label, clearance=args.clearance
     )
     if out is not None:
+        from drake_cfvol.algorithm.reuse import fingerprint_of
+
+        path.fingerprint = fingerprint_of(wc, path)
         out = str(path.save(out, overwrite=args.force))
     summary = {
         "cell": wc.name,
@@ -188,12 +191,37 @@ def _bundled_scenarios() -> list[str]:
     return sorted(p.name[:-5] for p in resources.files("drake_cfvol.diagrams").iterdir() if p.name.endswith(".yaml"))
 
 
+def _notes(notes: list) -> None:
+    """Notices of the library's checks, one line each on stderr."""
+    for note in notes:
+        print(f"cfvol: note: {note}", file=sys.stderr)
+
+
+def _bounds_label(args) -> str:
+    """The path the bounds are for: ``--path``; else the saved path's or
+    table's own label (so that a file is never named for another path)."""
+    if args.path is not None:
+        return path_label(args.path)
+    from drake_cfvol.algorithm.planning import NominalPath
+    from drake_cfvol.algorithm.table import BoundsTable
+
+    saved = ""
+    if args.path_file:
+        saved = NominalPath.load(_out_path(args.path_file)).label
+    elif args.bounds_file:
+        saved = str(BoundsTable.load(_out_path(args.bounds_file)).info.get("path", ""))
+    return path_label(saved or "1")
+
+
 def _path_to_bound(args, wc, label: str, clearance: float):
     """The saved path of ``--path-file`` (checked against the cell), or one planned."""
     if args.path_file:
         from drake_cfvol.algorithm.reuse import load_path_for
 
-        return load_path_for(wc, _out_path(args.path_file))
+        notes: list = []
+        path = load_path_for(wc, _out_path(args.path_file), label=label if args.path is not None else None, notes=notes)
+        _notes(notes)
+        return path
     from drake_cfvol.algorithm.planning import plan_nominal_path
 
     wc.configuration(label)
@@ -208,7 +236,10 @@ def _path_and_table(args, wc, label: str, params, bars: bool):
         from drake_cfvol.algorithm.reuse import load_bounds_for
 
         path = _path_to_bound(args, wc, label, params.clearance) if args.path_file else None
-        table = load_bounds_for(wc, _out_path(args.bounds_file), path)
+        notes: list = []
+        named = label if args.path is not None else None
+        table = load_bounds_for(wc, _out_path(args.bounds_file), path, label=named, notes=notes)
+        _notes(notes)
         if path is None:
             path = NominalPath(table.nominal, list(table.joint_names), wc.name, label, args.seed)
         return path, table
@@ -258,7 +289,7 @@ def cmd_bounds(args) -> int:
         )
     out = _out_path(args.out)
     wc = _load_cell(load_workcell, args.cell)
-    label = path_label(args.path)
+    label = _bounds_label(args)
     stem = output_stem(wc.name, label, args.resolution, certified=args.certify)
     if out is not None:
         prepare_output(out, overwrite=args.force, folder=True)
@@ -277,6 +308,7 @@ def cmd_bounds(args) -> int:
     if out is not None:
         files["bounds_npz"] = str(table.save(out / f"{stem}_bounds.npz", overwrite=args.force))
         files["bounds_json"] = str(table.save(out / f"{stem}_bounds.json", overwrite=args.force))
+        path.fingerprint = path.fingerprint or table.info.get("fingerprint", {})
         files["path_json"] = str(path.save(out / f"{stem}_path.json", overwrite=args.force))
         if args.plot:
             from drake_cfvol.io.plotting import plot_bounds
@@ -497,7 +529,9 @@ def _add_bounds(sub) -> None:
     """The ``bounds`` command."""
     b = sub.add_parser("bounds", help="plan a path and compute its joint bounds, CF and freedom")
     b.add_argument("cell", help="built-in cell name or a workcell YAML path")
-    b.add_argument("--path", default="1", help="configuration pair: 1, 2, 3 or a name (default 1)")
+    b.add_argument(
+        "--path", help="configuration pair: 1, 2, 3 or a name (default 1, or the label of --path-file/--bounds-file)"
+    )
     b.add_argument("--resolution", "-R", type=int, default=1000, help="height-map cells R (default 1000)")
     b.add_argument("--seed", type=int, default=0, help="planner and CF seed (default 0)")
     b.add_argument(

@@ -298,9 +298,11 @@ def _workcell_path_bounds(scenario: Scenario, base_dir, file, path, bounds, prog
     height_map_of(wc, params)
     name = scenario.path.name
     if path is None and scenario.path.file is not None:
-        path = load_path_for(wc, scenario_file_path(scenario.path.file, base_dir))
+        path = load_path_for(wc, scenario_file_path(scenario.path.file, base_dir), label=name, notes=wc.notes)
     if bounds is None and scenario.bounds.file is not None:
-        bounds = load_bounds_for(wc, scenario_file_path(scenario.bounds.file, base_dir), path)
+        bounds = load_bounds_for(
+            wc, scenario_file_path(scenario.bounds.file, base_dir), path, label=name, notes=wc.notes
+        )
     if path is None and bounds is not None:
         path = NominalPath(bounds.nominal, list(bounds.joint_names), wc.name, name, scenario.random_seed)
     if path is None:

@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 
 import numba
 import numpy as np
@@ -29,7 +30,7 @@ from drake_cfvol.kernel import kinds
 from drake_cfvol.scene.covers import robot_covers
 from drake_cfvol.scene.robot import robot_bodies
 
-__all__ = ["SceneArrays", "robot_chain", "scene_arrays", "shape_row"]
+__all__ = ["SceneArrays", "cell_fingerprint", "fingerprint_differences", "robot_chain", "scene_arrays", "shape_row"]
 
 
 def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[np.ndarray, float, np.ndarray]:
@@ -531,4 +532,103 @@ def _curvature(reach: np.ndarray, moved: np.ndarray, revolute: np.ndarray) -> np
             else:
                 val = np.zeros(B)
             out[a, c] = np.where(both, val, 0.0)
+    return out
+
+
+#: The version of :func:`cell_fingerprint`'s record (a saved file's
+#: fingerprint of another version is not compared).
+FINGERPRINT_VERSION = 1
+
+
+def _digest(*arrays) -> str:
+    """A short hash of arrays' values, rounded to 1e-9 (a cell loaded twice
+    gives the same values; -0.0 and 0.0 count as one)."""
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.round(np.asarray(a, float), 9) + 0.0
+        h.update(str(a.shape).encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:16]
+
+
+def _rows_digest(rows: np.ndarray, verts: np.ndarray) -> str:
+    """The hash of shape rows with their hull vertices (not the vertices'
+    place in the scene's array, which another shape may shift)."""
+    parts = []
+    for row in rows:
+        r = row.copy()
+        v0, v1 = int(r[K._V0]), int(r[K._V1])
+        r[K._V0] = r[K._V1] = 0.0
+        parts += [r, verts[v0:v1] if v1 > v0 else np.zeros((0, 3))]
+    return _digest(*parts)
+
+
+def cell_fingerprint(workcell) -> dict:
+    """What a path or a table made in this cell depends on, for checking it
+    against the cell it meets later: the robot (its chain and shapes), its
+    joints and limits, and each obstacle's shapes and poses (a hash and its
+    bounding box, so that a difference can be named).
+
+    Returns:
+        A JSON-ready dict (:func:`fingerprint_differences` compares two).
+    """
+    A = workcell.scene_arrays()
+    names = list(dict.fromkeys(A.obstacle_names))
+    obstacles = {}
+    for name in names:
+        idx = [i for i, n in enumerate(A.obstacle_names) if n == name]
+        box = A.obstacle_aabb[idx]
+        obstacles[name] = {
+            "sha": _rows_digest(A.obstacles[idx], A.verts),
+            "box": np.round(np.concatenate([box[:, :3].min(0), box[:, 3:].max(0)]), 6).tolist(),
+        }
+    finite = [
+        [float(x) if np.isfinite(x) else None for x in v] for v in (workcell.position_lower, workcell.position_upper)
+    ]
+    return {
+        "version": FINGERPRINT_VERSION,
+        "robot": workcell.robot_name,
+        "robot_sha": _digest(A.parent, A.jtype, A.qidx, A.axis, A.R_PF, A.p_PF, A.R_MB, A.p_MB, A.shape_body)
+        + _rows_digest(A.shapes, A.verts),
+        "joints": list(workcell.joint_names),
+        "limits": finite,
+        "obstacles": obstacles,
+    }
+
+
+def fingerprint_differences(saved: dict, current: dict) -> list[str]:
+    """How the cell a file was made in (``saved``) differs from ``current``
+    (both :func:`cell_fingerprint`), one phrase each; empty if the same."""
+    if saved.get("version") != current["version"]:
+        return []
+    out = []
+    if saved.get("robot") != current["robot"] or saved.get("robot_sha") != current["robot_sha"]:
+        what = "another robot" if saved.get("robot") != current["robot"] else "the same robot with other geometry"
+        out.append(f"it was made for {what} ('{saved.get('robot')}'; this cell has '{current['robot']}')")
+    if saved.get("joints") != current["joints"]:
+        out.append(f"it was made for joints {saved.get('joints')}, this cell has {current['joints']}")
+    elif saved.get("limits") != current["limits"]:
+        lo, hi = saved.get("limits") or [[], []]
+        changed = [
+            f"{j} [{lo[n]}, {hi[n]}] -> [{current['limits'][0][n]}, {current['limits'][1][n]}]"
+            for n, j in enumerate(current["joints"])
+            if n < len(lo) and (lo[n], hi[n]) != (current["limits"][0][n], current["limits"][1][n])
+        ]
+        out.append(f"the joint limits changed ({'; '.join(changed)})")
+    old, new = saved.get("obstacles", {}), current["obstacles"]
+    for name in new:
+        if name not in old:
+            out.append(f"obstacle '{name}' was added (its box {new[name]['box']})")
+    for name in old:
+        if name not in new:
+            out.append(f"obstacle '{name}' was removed")
+        elif old[name].get("sha") != new[name]["sha"]:
+            a, b = np.asarray(old[name].get("box"), float), np.asarray(new[name]["box"], float)
+            size_a, size_b = a[3:] - a[:3], b[3:] - b[:3]
+            if a.shape == b.shape == (6,) and np.allclose(size_a, size_b, atol=1e-6):
+                shift = np.round((b[:3] - a[:3]), 4)
+                moved = f"moved (by {shift.tolist()} m)" if shift.any() else "turned or reshaped in place"
+                out.append(f"obstacle '{name}' was {moved}")
+            else:
+                out.append(f"obstacle '{name}' was changed (its shape or pose)")
     return out

@@ -8,7 +8,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import LeafSystem_, ValueProducer
 from pydrake.systems.scalar_conversion import TemplateSystem
 
-from drake_cfvol.algorithm.table import BoundsTable
+from drake_cfvol.algorithm.table import BoundsTable, check_table
 from drake_cfvol.systems._util import default_instantiation
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_"]
@@ -56,6 +56,7 @@ def JointBoundsSource_(T):
 
         def _construct(self, bounds: BoundsTable, *, clamp: bool = False, converter=None):
             LeafSystem_[T].__init__(self, converter)
+            check_table(bounds, "JointBoundsSource: bounds")
             self._bounds = bounds
             self._clamp = clamp
             k = bounds.k

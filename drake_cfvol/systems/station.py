@@ -17,6 +17,7 @@ from pydrake.multibody.tree import ModelInstanceIndex
 from pydrake.systems.framework import LeafSystem
 from pydrake.systems.primitives import Adder, Demultiplexer
 
+from drake_cfvol.algorithm.table import check_table
 from drake_cfvol.exceptions import StationError
 from drake_cfvol.scene.robot import RobotSlice, robot_instances
 from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformation
@@ -77,6 +78,7 @@ def _robot_instance(plant, robot):
 
 
 def _check_table(table, robot_slice, plant, robot) -> None:
+    check_table(table, "AddCoManipulation: table")
     names = list(table.joint_names)
     if names != robot_slice.joint_names:
         raise StationError(
@@ -84,6 +86,12 @@ def _check_table(table, robot_slice, plant, robot) -> None:
             f"'{plant.GetModelInstanceName(robot)}' of the plant has {robot_slice.joint_names}. Compute the bounds "
             "on a workcell of the same robot (Workcell.FromRobotDiagram of the same models)."
         )
+    check_table(
+        table,
+        "AddCoManipulation: table",
+        plant.GetPositionLowerLimits()[robot_slice.qidx],
+        plant.GetPositionUpperLimits()[robot_slice.qidx],
+    )
 
 
 @dataclasses.dataclass
