@@ -355,3 +355,104 @@ def test_an_unusable_saved_path_is_refused(saved, tmp_path, capsys, edit):
     f = tmp_path / "p.json"
     f.write_text(json.dumps(d))
     refused(["bounds", "automotive", "--path-file", f], capsys, str(f), named)
+
+
+# --- 3. Values checked where they are read ---------------------------------------------------------------
+
+CELL_VALUES = {
+    "negative-reach": (("  reach: 2.8\n", "  reach: -1.0\n"), "reach"),
+    "nan-reach": (("  reach: 2.8\n", "  reach: .nan\n"), "reach"),
+    "inf-reach": (("  reach: 2.8\n", "  reach: .inf\n"), "reach"),
+    "negative-size": (("    size: [5.6, 5.6]\n", "    size: [-5.6, 5.6]\n"), "height_map.size"),
+    "zero-size": (("    size: [5.6, 5.6]\n", "    size: [5.6, 0.0]\n"), "height_map.size"),
+    "nan-origin": (("    origin: [-2.8, -2.8]\n", "    origin: [.nan, -2.8]\n"), "height_map.origin"),
+    "three-sizes": (("    size: [5.6, 5.6]\n", "    size: [5.6, 5.6, 1.0]\n"), "height_map.size"),
+}
+
+
+@pytest.mark.parametrize("case", CELL_VALUES)
+def test_a_bad_workcell_value_is_named_with_its_field(tmp_path, capsys, case):
+    (old, new), field = CELL_VALUES[case]
+    f = tmp_path / "cell.yaml"
+    assert old in AUTOMOTIVE
+    f.write_text(AUTOMOTIVE.replace(old, new, 1))
+    refused(["plan", f], capsys, str(f), field)
+
+
+@pytest.mark.parametrize("value", ["inf", "-1", "0", "nan", "1e999"])
+def test_a_time_limit_that_is_not_a_finite_positive_number_is_refused(capsys, value):
+    refused(["plan", "automotive", "--time-limit", value], capsys, "time_limit", "--time-limit")
+
+
+@pytest.mark.parametrize(("windows", "samples"), [(30, 10_000_000_000), (100_000, 100_000), (1, 2**40)])
+def test_cf_samples_beyond_memory_are_refused_before_any_work(capsys, monkeypatch, windows, samples):
+    import drake_cfvol.algorithm.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "estimate_bounds", lambda *a, **k: pytest.fail("bounds computed before the check"))
+    refused(["bounds", "automotive", "--cf-windows", windows, "--cf-samples", samples], capsys, "GB", "--cf-samples")
+
+
+SCENARIO_VALUES = {
+    "nan-push-torque": (
+        ("      joint_torque: [0, 900, 0, 0, 0, 0]\n", "      joint_torque: [0, .nan, 0, 0, 0, 0]\n"),
+        "joint_torque",
+    ),
+    "inf-push-wrench": (("      wrench: [0, 0, 0, 0, 250, 0]\n", "      wrench: [0, 0, 0, 0, .inf, 0]\n"), "wrench"),
+    "nan-toward": (
+        ("    toward_nearest_obstacle: 300.0\n", "    toward_nearest_obstacle: .nan\n"),
+        "toward_nearest_obstacle",
+    ),
+    "inf-duration": (("  duration: 8.0\n", "  duration: .inf\n"), "path.duration"),
+    "period-over-path": (("  period: 0.01\n", "  period: 20\n"), "control.period"),
+    "period-equal-path": (("  period: 0.01\n", "  period: 8.0\n"), "control.period"),
+    "inf-period": (("  period: 0.01\n", "  period: .inf\n"), "control.period"),
+    "inf-log-period": (("  log_period: 0.02\n", "  log_period: .inf\n"), "simulation.log_period"),
+    "nan-push-start": (("    - start: 1.5\n", "    - start: .nan\n"), "start"),
+    "inf-push-duration": (("      duration: 1.5\n      wrench", "      duration: .inf\n      wrench"), "duration"),
+}
+
+
+@pytest.mark.parametrize("case", SCENARIO_VALUES)
+def test_a_bad_scenario_value_is_named_with_its_field(tmp_path, capsys, case):
+    (old, new), field = SCENARIO_VALUES[case]
+    assert old in SCENARIO, old
+    f = tmp_path / "scenario.yaml"
+    f.write_text(SCENARIO.replace(old, new, 1))
+    refused(["simulate", f, "--out", tmp_path / "out"], capsys, str(f), field)
+    assert not (tmp_path / "out").exists()
+
+
+# --- 6. Interrupts ---------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("command", [["plan", "automotive"], ["bounds", "automotive"], ["simulate", "automotive_push"]])
+def test_ctrl_c_ends_a_command_with_one_line_and_exit_130(capsys, monkeypatch, command):
+    import drake_cfvol.scene.workcell as workcell
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(workcell, "load_workcell", interrupted)
+    import drake_cfvol.comanip as comanip
+
+    monkeypatch.setattr(comanip, "run_scenario", interrupted)
+    capsys.readouterr()
+    assert main(command) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "cfvol: interrupted"
+
+
+def test_an_interrupted_save_leaves_no_partial_file(tmp_path, monkeypatch, bounded):
+    import numpy as np
+
+    table = bounded("automotive")
+    real = np.savez
+
+    def half_then_interrupt(f, **arrays):
+        real(f, **arrays)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(np, "savez", half_then_interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        table.save(tmp_path / "t.npz")
+    assert list(tmp_path.iterdir()) == []

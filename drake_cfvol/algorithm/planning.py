@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
 import time
 from pathlib import Path
 
@@ -211,8 +212,13 @@ def _checked_request(workcell, q_start, q_goal, seed, time_limit, max_step, sing
     goal's own clearance where that is nearer)."""
     if not (isinstance(seed, (int, np.integer)) and seed >= 0):
         raise ParameterError(f"seed must be a non-negative integer, got {seed!r}.")
-    if not time_limit > 0:
-        raise ParameterError(f"time_limit must be > 0 s, got {time_limit}.")
+    if isinstance(time_limit, bool) or not isinstance(time_limit, (int, float, np.floating, np.integer)):
+        raise ParameterError(f"time_limit must be a number of seconds, got {type(time_limit).__name__} {time_limit!r}.")
+    if not 0 < time_limit < math.inf:
+        raise ParameterError(
+            f"time_limit must be a finite number of seconds > 0, got {time_limit} (CLI: --time-limit 10): "
+            "the planner stops only at it when the goal cannot be reached."
+        )
     if not max_step > 0:
         raise ParameterError(f"max_step must be > 0, got {max_step}.")
     lower, upper = workcell.finite_limits("Planning a nominal path")

@@ -1,7 +1,10 @@
 """Saved paths and bounds tables used again: loaded and checked against the
-cell they are to run in (its joints, limits and obstacles, and the
-fingerprint of the cell they were made in), so that a file made for another
-cell or robot, or before the cell changed, is refused before anything runs."""
+cell they are to run in (its joints, limits and obstacles), so that a file
+made for another cell or robot is refused before anything runs.
+
+A file records the fingerprint of the cell it was made in
+(:func:`fingerprint_of`): one made before the cell changed is refused too,
+naming the change."""
 
 from __future__ import annotations
 

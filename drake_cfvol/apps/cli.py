@@ -259,6 +259,21 @@ def _path_and_table(args, wc, label: str, params, bars: bool):
     return path, estimate_bounds(wc, path, params, backend=args.backend, certify=certify, progress=bars)
 
 
+#: The CF's samples may take at most this much memory (bytes): they are
+#: drawn at once, a path parameter and k joint values each, with copies.
+MAX_CF_BYTES = 2 * 1024**3
+
+
+def _check_cf_memory(windows: int, samples: int, k: int) -> None:
+    """Refuses CF sample counts whose arrays would not fit, before any work."""
+    need = 4.0 * windows * samples * (k + 1) * 8  # the draws, their checks' copies
+    if need > MAX_CF_BYTES:
+        raise ParameterError(
+            f"--cf-windows {windows} x --cf-samples {samples} would need about {need / 1e9:.1f} GB for the CF's "
+            f"samples (at most {MAX_CF_BYTES / 1e9:.1f} GB): lower --cf-samples (default 10000)."
+        )
+
+
 def cmd_bounds(args) -> int:
     from drake_cfvol.algorithm.metrics import confidence_factor, freedom, shown_percent
     from drake_cfvol.algorithm.volume import height_map_of
@@ -289,6 +304,7 @@ def cmd_bounds(args) -> int:
         )
     out = _out_path(args.out)
     wc = _load_cell(load_workcell, args.cell)
+    _check_cf_memory(args.cf_windows, args.cf_samples, wc.num_joints)
     label = _bounds_label(args)
     stem = output_stem(wc.name, label, args.resolution, certified=args.certify)
     if out is not None:
@@ -768,6 +784,10 @@ def main(argv: list[str] | None = None) -> int:
     _quiet_drake()
     try:
         return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        # Files are written whole or not at all (records and caches go through a temporary file).
+        print("cfvol: interrupted", file=sys.stderr)
+        return 130
     except CfvolError as e:
         print(f"cfvol: error: {e}", file=sys.stderr)
         return 2

@@ -4,6 +4,7 @@ error names the file, the field (list items counted from 1) and the fix."""
 import dataclasses
 from pathlib import Path
 
+import numpy as np
 from pydrake.manipulation import IiwaDriver
 
 from drake_cfvol.exceptions import ParameterError, ScenarioError
@@ -30,6 +31,12 @@ def _check_pushes(human, where) -> None:
                 f"has {len(p.wrench)} values; give 6, [torque N m; force "
                 "N] at the tool in the world frame (or leave it out)",
             )
+        for field in ("wrench", "joint_torque", "toward_nearest_obstacle"):
+            values = np.atleast_1d(np.asarray(getattr(p, field, None) or [], float))
+            if not np.isfinite(values).all():
+                raise ScenarioError(where, f"{name}: {field}", f"must be finite numbers, got {values.tolist()}")
+        if not np.isfinite(p.start + p.duration):
+            raise ScenarioError(where, f"{name}: start, duration", "must be finite seconds")
         if len(p.joint_torque):
             lengths[i] = len(p.joint_torque)
     if len(set(lengths.values())) > 1:
@@ -139,8 +146,10 @@ def _check_sources(scenario, where, base_dir) -> None:
 def _positive(where, section, obj, names, *, strict: bool = True, unit: str = "") -> None:
     for name in names:
         v = getattr(obj, name)
-        if not (v > 0 if strict else v >= 0):
-            raise ScenarioError(where, f"{section}.{name}", f"must be {'>' if strict else '>='} 0{unit}, got {v!r}")
+        if not (v > 0 if strict else v >= 0) or v == float("inf"):
+            raise ScenarioError(
+                where, f"{section}.{name}", f"must be {'>' if strict else '>='} 0{unit} and finite, got {v!r}"
+            )
 
 
 def _check_control(control, where) -> None:
@@ -246,6 +255,13 @@ def validate_scenario(scenario, file: Path | None = None, *, base_dir: Path | No
     _check_pushes(scenario.human, where)
     _check_sources(scenario, where, base_dir)
     _positive(where, "path", scenario.path, ("duration",), unit=" s")
+    if scenario.control.period >= scenario.path.duration:
+        raise ScenarioError(
+            where,
+            "control.period",
+            f"is {scenario.control.period:g} s, not shorter than the path's duration ({scenario.path.duration:g} s): "
+            "the controller would update once or never along the path; use a period of a few ms (0.01)",
+        )
     _positive(where, "path", scenario.path, ("end_hold",), strict=False, unit=" s")
     _positive(where, "simulation", scenario.simulation, ("log_period",), unit=" s")
     _check_control(scenario.control, where)

@@ -1,6 +1,7 @@
 """Saving and loading records as ``.npz`` (arrays + JSON metadata) or
 readable ``.json``, shared by NominalPath and BoundsTable."""
 
+import io
 import json
 import zipfile
 from pathlib import Path
@@ -8,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from drake_cfvol.exceptions import OutputExistsError, OutputPathError, ParameterError, RecordFormatError
+from drake_cfvol.io.cache import write_atomic
 
 #: The ``format`` tag each kind of record carries.
 FORMATS = {"path": "drake_cfvol.NominalPath", "bounds": "drake_cfvol.BoundsTable"}
@@ -63,14 +65,19 @@ def save_record(path, record: dict, array_keys: tuple, what: str, *, overwrite: 
         raise ParameterError(f"unknown {what} file type '{path.suffix}' in '{path}': use .npz or .json.")
     prepare_output(path, overwrite=overwrite)
     try:
+        # Through a temporary file: an interrupted save leaves no partial file.
         if path.suffix == ".json":
-            path.write_text(
-                json.dumps({k: (np.asarray(v).tolist() if k in array_keys else v) for k, v in record.items()}, indent=1)
+            write_atomic(
+                path,
+                json.dumps(
+                    {k: (np.asarray(v).tolist() if k in array_keys else v) for k, v in record.items()}, indent=1
+                ),
             )
         else:
             meta = {k: v for k, v in record.items() if k not in array_keys}
-            with open(path, "wb") as f:
-                np.savez(f, **{k: np.asarray(record[k]) for k in array_keys}, meta=json.dumps(meta))
+            buffer = io.BytesIO()
+            np.savez(buffer, **{k: np.asarray(record[k]) for k in array_keys}, meta=json.dumps(meta))
+            write_atomic(path, buffer.getvalue())
     except OSError as e:
         raise OutputPathError(path, e.strerror or str(e)) from None
     return path

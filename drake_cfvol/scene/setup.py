@@ -85,11 +85,21 @@ class WorkcellSetup:
 
     def _read_settings(self, reach, origin, size, params, configurations) -> None:
         """Reach, height map extent, parameter overrides, named configurations."""
+        if reach is not None and not (reach >= 0 and np.isfinite(reach)):
+            raise self._fail(
+                f"reach must be a finite distance >= 0 (m; 0 or left out: from the robot's geometry), got {reach}.",
+                "reach",
+            )
         self._given_reach = float(reach) if reach else None
         self._given_extent = [None if v is None else np.asarray(v, float) for v in (origin, size)]
         for label, v in zip(("origin", "size"), self._given_extent):
             if v is not None and v.shape != (2,):
                 raise self._fail(f"height_map.{label} must be [x, y] (m), got {v.size} values.", "height_map")
+            if v is not None and not np.isfinite(v).all():
+                raise self._fail(f"height_map.{label} must be finite numbers (m), got {v.tolist()}.", "height_map")
+        size = self._given_extent[1]
+        if size is not None and not (size > 0).all():
+            raise self._fail(f"height_map.size must be > 0 in x and y (m), got {size.tolist()}.", "height_map")
         self.params = dict(params)
         self.configurations: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         for cname, (start, goal) in configurations.items():
