@@ -370,15 +370,6 @@ CELL_VALUES = {
 }
 
 
-@pytest.mark.parametrize("case", CELL_VALUES)
-def test_a_bad_workcell_value_is_named_with_its_field(tmp_path, capsys, case):
-    (old, new), field = CELL_VALUES[case]
-    f = tmp_path / "cell.yaml"
-    assert old in AUTOMOTIVE
-    f.write_text(AUTOMOTIVE.replace(old, new, 1))
-    refused(["plan", f], capsys, str(f), field)
-
-
 @pytest.mark.parametrize("value", ["inf", "-1", "0", "nan", "1e999"])
 def test_a_time_limit_that_is_not_a_finite_positive_number_is_refused(capsys, value):
     refused(["plan", "automotive", "--time-limit", value], capsys, "time_limit", "--time-limit")
@@ -412,14 +403,21 @@ SCENARIO_VALUES = {
 }
 
 
-@pytest.mark.parametrize("case", SCENARIO_VALUES)
-def test_a_bad_scenario_value_is_named_with_its_field(tmp_path, capsys, case):
-    (old, new), field = SCENARIO_VALUES[case]
-    assert old in SCENARIO, old
-    f = tmp_path / "scenario.yaml"
-    f.write_text(SCENARIO.replace(old, new, 1))
-    refused(["simulate", f, "--out", tmp_path / "out"], capsys, str(f), field)
-    assert not (tmp_path / "out").exists()
+VALUES = {
+    **{("workcell", k): v for k, v in CELL_VALUES.items()},
+    **{("scenario", k): v for k, v in SCENARIO_VALUES.items()},
+}
+
+
+@pytest.mark.parametrize(("reader", "case"), VALUES, ids=[f"{r}-{c}" for r, c in VALUES])
+def test_a_bad_value_is_named_with_its_file_and_field(tmp_path, capsys, reader, case):
+    (old, new), field = VALUES[reader, case]
+    text, argv = READERS[reader]
+    assert old in text, old
+    f = tmp_path / "file.yaml"
+    f.write_text(text.replace(old, new, 1))
+    refused(argv(f), capsys, str(f), field)
+    assert not (tmp_path / "out").exists()  # nothing written
 
 
 # --- 6. Interrupts ---------------------------------------------------------------------------------------
