@@ -42,7 +42,7 @@ from drake_cfvol.algorithm.certify import Certify
 from drake_cfvol.algorithm.metrics import freedom
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import plan_nominal_path
-from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.exceptions import CfvolError, ParameterError
 from drake_cfvol.scene.workcell import load_workcell
 
 __all__ = [
@@ -245,7 +245,8 @@ def _padding(wc, q, clearance: float) -> float:
 
 def _compare(wc, i: int, unc, cert, cfg: IrisBenchConfig) -> dict:
     """One waypoint: IrisZo, the largest box inside it and the uncertified
-    box, its samples by Drake and the measures."""
+    box, its samples by Drake and the measures (``cert`` None: no
+    certified table, its measure NaN)."""
     q = unc.nominal[i]
     lim_lo, lim_hi = unc.limit_lower, unc.limit_upper
     pad = _padding(wc, q, cfg.clearance)
@@ -254,7 +255,7 @@ def _compare(wc, i: int, unc, cert, cfg: IrisBenchConfig) -> dict:
         "waypoint": int(i),
         "padding_m": pad,
         "uncertified": box_freedom(unc.lower[i], unc.upper[i], lim_lo, lim_hi),
-        "certified": box_freedom(cert.lower[i], cert.upper[i], lim_lo, lim_hi),
+        "certified": float("nan") if cert is None else box_freedom(cert.lower[i], cert.upper[i], lim_lo, lim_hi),
     }
     t0 = time.perf_counter()
     try:
@@ -275,7 +276,7 @@ def _compare(wc, i: int, unc, cert, cfg: IrisBenchConfig) -> dict:
     return {
         **row,
         "iris": iris,
-        "ratio": row["certified"] / iris if iris > 0 else float("inf"),
+        "ratio": row["certified"] / iris if iris > 0 else float("inf"),  # NaN without a certified table
         "samples": int(len(S)),
         "colliding": int((~free).sum()),
         "free_share": float(free.mean()),
@@ -300,11 +301,16 @@ def run_path(cell: str, label: str, cfg: IrisBenchConfig, *, progress: bool = Fa
         )
     path = plan_nominal_path(wc, *wc.configuration(label), seed=cfg.seed, label=label, clearance=cfg.clearance)
     unc = estimate_bounds(wc, path, resolution=cfg.resolution, clearance=cfg.clearance)
-    times, cert = [], None
+    times, cert, error = [], None, None
     for _ in range(cfg.repeats):
-        cert = estimate_bounds(
-            wc, path, resolution=cfg.resolution, clearance=cfg.clearance, certify=Certify(cache=False)
-        )
+        try:
+            cert = estimate_bounds(
+                wc, path, resolution=cfg.resolution, clearance=cfg.clearance, certify=Certify(cache=False)
+            )
+        except CfvolError as e:  # kept as the path's result; IRIS is still measured against the uncertified box
+            cert, error = None, f"{type(e).__name__}: {e}"
+            _say(progress, f"{cell} {label}: certification failed: {error}")
+            break
         times.append(cert.timing_ms["certify"] / 1e3)
         _say(progress, f"{cell} {label}: certified in {times[-1]:.1f} s")
     idx = np.unique(np.linspace(0, path.g - 1, cfg.waypoints).round().astype(int))
@@ -328,11 +334,14 @@ def run_path(cell: str, label: str, cfg: IrisBenchConfig, *, progress: bool = Fa
         "path": label,
         "g": path.g,
         "k": path.k,
-        "certify_s": statistics.median(times),
+        "certify_error": error,
+        "certify_s": statistics.median(times) if times and not error else float("nan"),
         "certify_s_runs": times,
         "freedom_uncertified": freedom(unc).mean,
-        "freedom_certified": freedom(cert).mean,
-        "certificate": {k: v for k, v in cert.info.get("certificate", {}).items() if k not in ("proven", "sampled")},
+        "freedom_certified": freedom(cert).mean if cert is not None else float("nan"),
+        "certificate": {}
+        if cert is None
+        else {k: v for k, v in cert.info.get("certificate", {}).items() if k not in ("proven", "sampled")},
         "iris_s_median": statistics.median(iris_s) if iris_s else float("nan"),
         "waypoints": rows,
     }
@@ -361,6 +370,10 @@ def iris_targets(result: dict) -> list[tuple[str, bool, str]]:
     out = []
     for p in result["paths"]:
         name = f"{p['cell']} {p['path']}"
+        error = p.get("certify_error")
+        if error:
+            out.append((f"{name}: certification", False, f"failed: {error}"))
+            continue
         free = _compared(p)
         short = [r for r in free if r["certified"] < r["iris"]]
         others = len(p["waypoints"]) - len(free)
@@ -424,6 +437,7 @@ def iris_markdown(result: dict, machine: dict | None = None) -> str:
             "",
             f"### {p['cell']} {p['path']}",
             "",
+            *([f"Certification failed: {p['certify_error']}", ""] if p.get("certify_error") else []),
             "| waypoint | padding mm | uncertified | certified (ours) | IRIS's box ∩ uncertified | ours / IRIS's "
             "| IRIS's box free share | IrisZo s | faces | IrisZo warnings |",
             "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",

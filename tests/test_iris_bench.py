@@ -2,11 +2,13 @@
 polytope against brute force and by hand, the measure of a box against the
 package's freedom, and the targets' verdicts on made-up results."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from benchmarks.iris import box_freedom, iris_region, iris_targets, largest_box
+from benchmarks.iris import IrisBenchConfig, box_freedom, iris_markdown, iris_region, iris_targets, largest_box
 from drake_cfvol.algorithm.table import BoundsTable
 
 
@@ -122,24 +124,45 @@ def test_box_freedom_is_the_packages_freedom():
     assert box_freedom(lower[2], upper[2], lim_lo, lim_hi) == 0.0
 
 
-def _result(rows, certify_s):
-    path = {"cell": "automotive", "path": "path1", "certify_s": certify_s, "certify_s_runs": [certify_s]}
-    return {"paths": [{**path, "waypoints": rows}]}
+def _result(rows, certify_s, error=None):
+    path = {
+        "cell": "automotive",
+        "path": "path1",
+        "g": 119,
+        "certify_error": error,
+        "certify_s": certify_s,
+        "certify_s_runs": [] if error else [certify_s],
+        "freedom_uncertified": 0.5,
+        "freedom_certified": float("nan") if error else 0.3,
+        "iris_s_median": 7.0,
+    }
+    config = dataclasses.asdict(IrisBenchConfig())
+    return {"config": config, "wall_s": 1.0, "paths": [{**path, "waypoints": rows}]}
 
 
 def test_targets_judge_only_where_iris_box_is_free():
     """A waypoint where ours is narrower misses the freedom target only if
     IRIS's box was free by every sample; a refused waypoint is not compared;
-    the time target is met at or under its limit."""
-    free_narrow = {"waypoint": 3, "certified": 0.2, "iris": 0.3, "ratio": 2 / 3, "colliding": 0}
-    hit_narrow = {**free_narrow, "waypoint": 5, "colliding": 4}
-    wide = {"waypoint": 7, "certified": 0.4, "iris": 0.3, "ratio": 4 / 3, "colliding": 0}
-    refused = {"waypoint": 0, "certified": 0.1, "refused": "in collision"}
+    the time target is met at or under its limit; a failed certification
+    misses. The report names each case."""
+    base = {"padding_m": 0.02, "uncertified": 0.5, "iris_s": 7.0, "faces": 90, "warnings": [], "samples": 2000}
+    free_narrow = {**base, "waypoint": 3, "certified": 0.2, "iris": 0.3, "ratio": 2 / 3, "colliding": 0}
+    free_narrow["free_share"] = 1.0
+    hit_narrow = {**free_narrow, "waypoint": 5, "colliding": 4, "free_share": 0.998}
+    wide = {**free_narrow, "waypoint": 7, "certified": 0.4, "ratio": 4 / 3}
+    refused = {**base, "waypoint": 0, "certified": 0.1, "refused": "in collision"}
     (f1, ok1, text1), (t1, tok1, _) = iris_targets(_result([wide, hit_narrow, refused], 5.0))
     assert ok1 and tok1 and "1 waypoints compared" in text1 and "certification <= 5 s" in t1
     (_, ok2, text2), (_, tok2, ttext2) = iris_targets(_result([wide, free_narrow], 6.0))
     assert not ok2 and "narrower at 3" in text2 and "0.67" in text2
     assert not tok2 and "1.2x over" in ttext2
+    failed = _result([{**free_narrow, "certified": float("nan"), "ratio": float("nan")}], float("nan"), "boom")
+    ((_, ok3, text3),) = iris_targets(failed)
+    assert not ok3 and "boom" in text3
+    md = iris_markdown(_result([wide, hit_narrow, refused], 5.0), {"cpu": "x", "cores": 2})
+    assert "| 5 | 20.0 | 0.500 | 0.200 | 0.300 | 0.67 | 0.9980 (4 of 2,000 collide)" in md
+    assert "refused: in collision" in md and "Machine: x (2 cores)" in md
+    assert "Certification failed: boom" in iris_markdown(failed)
 
 
 @pytest.mark.slow
