@@ -159,9 +159,13 @@ def _starved_without_cause(workcell, table) -> list[str]:
     bisection delta while its uncertified width there is over 10 delta,
     widened alone by delta on a side with that much room in the uncertified
     box, whose widened box at that waypoint has every corner free by Drake
-    at the margin (the larger of the two stretches' beside the waypoint)."""
+    at the margin (the larger of the two stretches' beside the waypoint).
+    A side whose widened bound would move faster than the table's rate
+    limit from a neighbour's is not tried: the neighbour holds it (and is
+    itself checked)."""
     delta = np.where(workcell.revolute, table.params["delta"], table.params["delta_prismatic"])
     lo0, hi0 = table.info["uncertified_lower"], table.info["uncertified_upper"]
+    rate = np.full(table.k, np.inf) if table.rate is None else np.asarray(table.rate, float)
     pads = position_margins(kept_margins(workcell, table), np.arange(table.g, dtype=float))
     k = table.k
     pattern = ((np.arange(2**k)[:, None] >> np.arange(k)[None, :]) & 1) == 1
@@ -171,11 +175,12 @@ def _starved_without_cause(workcell, table) -> list[str]:
             lo, hi = table.lower[i].copy(), table.upper[i].copy()
             if side == "lower":
                 lo[j] -= delta[j]
-                room = lo[j] >= lo0[i, j]
+                room, bound, bounds = lo[j] >= lo0[i, j], lo[j], table.lower[:, j]
             else:
                 hi[j] += delta[j]
-                room = hi[j] <= hi0[i, j]
-            if not room:
+                room, bound, bounds = hi[j] <= hi0[i, j], hi[j], table.upper[:, j]
+            near = bounds[[n for n in (i - 1, i + 1) if 0 <= n < table.g]]
+            if not room or np.any(np.abs(near - bound) > rate[j] + 1e-12):
                 continue
             corners = np.where(pattern, hi, lo)
             free = np.asarray(workcell.padded_checker(float(pads[i])).CheckConfigsCollisionFree(corners), bool)
@@ -194,7 +199,8 @@ def test_no_joint_is_starved_without_cause(cell, label, certified):
     bisection delta (the table's ``delta``, or ``delta_prismatic`` for a
     prismatic joint) though its uncertified width is over 10 delta, widening
     that joint alone by delta, on each side with that room inside the
-    uncertified box, makes some corner of the box at that waypoint come
+    uncertified box (and within the table's rate limit of the neighbouring
+    waypoints' bounds), makes some corner of the box at that waypoint come
     nearer than the margin by Drake's checker."""
     wc, table = certified(cell, label)
     found = _starved_without_cause(wc, table)
