@@ -420,6 +420,98 @@ def test_a_bad_value_is_named_with_its_file_and_field(tmp_path, capsys, reader, 
     assert not (tmp_path / "out").exists()  # nothing written
 
 
+# --- 5. Outputs: nothing overwritten, every output checked before any work ---------------------------------
+
+
+def _no_work(monkeypatch) -> None:
+    """Planning, bounding and building a run fail the test: a refusal must come first."""
+    import drake_cfvol.algorithm.pipeline as pipeline
+    import drake_cfvol.algorithm.planning as planning
+    import drake_cfvol.comanip.run as run
+
+    def work(*args, **kwargs):
+        pytest.fail("work started before the outputs were checked")
+
+    monkeypatch.setattr(pipeline, "estimate_bounds", work)
+    monkeypatch.setattr(planning, "plan_nominal_path", work)
+    monkeypatch.setattr(run, "build_comanipulation_diagram", work)
+
+
+SIMULATE_OUTPUTS = ["summary.json", "logs.npz", "run.png", "recording.html", "diagram.dot", "diagram.svg"]
+
+
+@pytest.mark.parametrize("name", SIMULATE_OUTPUTS)
+def test_simulate_refuses_an_earlier_runs_file_before_any_work(tmp_path, capsys, monkeypatch, name):
+    _no_work(monkeypatch)
+    (tmp_path / name).write_text("mine")
+    refused(["simulate", "automotive_push", "--out", tmp_path], capsys, str(tmp_path), name, "--force")
+    assert [f.name for f in tmp_path.iterdir()] == [name] and (tmp_path / name).read_text() == "mine"
+
+
+def test_simulate_names_every_file_in_the_way_in_one_line(tmp_path, capsys, monkeypatch):
+    _no_work(monkeypatch)
+    for name in SIMULATE_OUTPUTS:
+        (tmp_path / name).write_text("mine")
+    refused(["simulate", "automotive_push", "--out", tmp_path], capsys, *SIMULATE_OUTPUTS)
+
+
+def test_simulate_force_and_files_it_will_not_write_pass_the_check(tmp_path, capsys, monkeypatch):
+    """--no-record leaves recording.html alone, so it is not in the way;
+    --force lets any file through: both reach the build (stopped there)."""
+    import drake_cfvol.comanip.run as run
+    from drake_cfvol.exceptions import ScenarioError
+
+    def built(*args, **kwargs):
+        raise ScenarioError("here", None, "the build was reached")
+
+    monkeypatch.setattr(run, "build_comanipulation_diagram", built)
+    (tmp_path / "recording.html").write_text("mine")
+    refused(["simulate", "automotive_push", "--out", tmp_path, "--no-record"], capsys, "the build was reached")
+    (tmp_path / "summary.json").write_text("mine")
+    refused(["simulate", "automotive_push", "--out", tmp_path, "--force"], capsys, "the build was reached")
+
+
+BOUNDS_OUTPUTS = ["bounds.npz", "bounds.json", "path.json", "bounds.png"]
+
+
+@pytest.mark.parametrize("kind", BOUNDS_OUTPUTS)
+def test_bounds_refuses_an_existing_output_plot_included_before_any_work(tmp_path, capsys, monkeypatch, kind):
+    _no_work(monkeypatch)
+    name = f"automotive_path1_R1000_{kind}"
+    (tmp_path / name).write_text("mine")
+    refused(["bounds", "automotive", "--out", tmp_path, "--plot"], capsys, name, "--force")
+    assert (tmp_path / name).read_text() == "mine"
+
+
+def test_a_second_certification_into_one_folder_refuses_at_once(tmp_path, capsys, monkeypatch, bounded, planned):
+    """The first --certify run writes its files (its computation replaced by
+    the session's table, to stay fast); the second refuses before planning
+    or bounding anything, naming the files the first one wrote."""
+    import drake_cfvol.algorithm.certify as certify
+    import drake_cfvol.algorithm.pipeline as pipeline
+    import drake_cfvol.algorithm.planning as planning
+
+    monkeypatch.setattr(certify, "Certify", lambda **settings: settings)
+    monkeypatch.setattr(planning, "plan_nominal_path", lambda *a, **k: planned("automotive"))
+    monkeypatch.setattr(pipeline, "estimate_bounds", lambda *a, **k: bounded("automotive"))
+    argv = ["bounds", "automotive", "--certify", "--out", tmp_path, "--cf-samples", "1", "--cf-windows", "1"]
+    assert main([str(a) for a in argv]) == 0
+    written = sorted(f.name for f in tmp_path.iterdir())
+    assert written == sorted(f"automotive_path1_R1000_certified_{k}" for k in BOUNDS_OUTPUTS[:3])
+    _no_work(monkeypatch)
+    refused(argv, capsys, *written)
+
+
+def test_batch_names_every_existing_output(tmp_path, capsys):
+    jobs = tmp_path / "jobs.yaml"
+    jobs.write_text("cells: [automotive]\npaths: [path1, path2]\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    for name in ("results.json", "automotive_path2_R1000_bounds.npz"):
+        (out / name).write_text("mine")
+    refused(["batch", jobs, "--serial", "--out", out], capsys, "results.json", "automotive_path2_R1000_bounds.npz")
+
+
 # --- 6. Interrupts ---------------------------------------------------------------------------------------
 
 

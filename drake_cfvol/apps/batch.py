@@ -33,7 +33,7 @@ import yaml
 
 from drake_cfvol.exceptions import BatchError, CfvolError, ScenarioError
 from drake_cfvol.io.progress import Progress
-from drake_cfvol.io.records import path_label, prepare_output
+from drake_cfvol.io.records import path_label, prepare_outputs
 
 __all__ = [
     "BatchSettings",
@@ -391,13 +391,9 @@ def output_files(jobs: list[Job], out: str | Path, *, overwrite: bool = False) -
     (``<cell>_<path>_<setting>_bounds.npz``) and ``results.json``; checked
     before anything runs (the folder can be made, nothing that exists is
     replaced unless ``overwrite``)."""
-    out = Path(out)
-    prepare_output(out, overwrite=overwrite, folder=True)
-    files = {j.stem: out / f"{j.stem}_bounds.npz" for j in jobs}
-    files["results"] = out / "results.json"
-    for f in files.values():
-        prepare_output(f, overwrite=overwrite)
-    return files
+    keys = [j.stem for j in jobs] + ["results"]
+    names = [f"{j.stem}_bounds.npz" for j in jobs] + ["results.json"]
+    return dict(zip(keys, prepare_outputs(out, names, overwrite=overwrite)))
 
 
 def write_batch(results: list[JobResult], out: str | Path, *, overwrite: bool = False) -> dict:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from drake_cfvol._version import __version__
 from drake_cfvol.exceptions import CfvolError, ParameterError
-from drake_cfvol.io.records import output_stem, path_label, prepare_output
+from drake_cfvol.io.records import output_stem, path_label, prepare_output, prepare_outputs
 
 #: drake_cfvol.comanip.adversarial.PATTERNS, spelled out so that ``cfvol --help``
 #: does not import Drake (tests/test_cli.py checks the two agree).
@@ -307,10 +307,9 @@ def cmd_bounds(args) -> int:
     _check_cf_memory(args.cf_windows, args.cf_samples, wc.num_joints)
     label = _bounds_label(args)
     stem = output_stem(wc.name, label, args.resolution, certified=args.certify)
-    if out is not None:
-        prepare_output(out, overwrite=args.force, folder=True)
-        for kind, ext in (("bounds", ".npz"), ("bounds", ".json"), ("path", ".json")):
-            prepare_output(out / f"{stem}_{kind}{ext}", overwrite=args.force)
+    if out is not None:  # every output checked before any work (a second --certify refuses at once)
+        kinds = ("bounds.npz", "bounds.json", "path.json") + (("bounds.png",) if args.plot else ())
+        prepare_outputs(out, [f"{stem}_{kind}" for kind in kinds], overwrite=args.force)
     # Check the configuration pair and the resolution (and its memory) before planning.
     params = VolumeParams.for_workcell(wc, resolution=args.resolution, clearance=args.clearance)
     height_map_of(wc, params)
@@ -394,6 +393,7 @@ def cmd_simulate(args) -> int:
             progress=not args.json,
             scenario_text=args.scenario_text,
             overrides=files,
+            overwrite=args.force,  # every output checked before the run is built
         )
     except BaseException:
         if created and out.is_dir() and not any(out.iterdir()):
@@ -621,6 +621,9 @@ def _add_simulate(sub) -> None:
     m.add_argument("scenario", help=f"bundled scenario name ({', '.join(_bundled_scenarios())}) or a YAML path")
     m.add_argument("--out", help="output folder (default out/<scenario>)")
     m.add_argument("--no-record", action="store_true", help="skip the Meshcat recording")
+    m.add_argument(
+        "--force", action="store_true", help="overwrite the files of an earlier run in --out (summary, logs, plots)"
+    )
     m.add_argument(
         "--path-file",
         help="a saved path (cfvol plan/bounds --out) instead of planning; checked against the scenario's cell",

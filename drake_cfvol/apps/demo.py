@@ -106,6 +106,7 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
             path=path,
             bounds=table if scenario.bounds.resolution == resolution else None,
             progress=True,
+            overwrite=True,  # the demo's folder is its own: each demo replaces the last
         )
         print(f"   {s['steps']} logged steps over {s['duration_s']:.1f} s (simulated in {s['sim_wall_s']:.2f} s)")
         print(

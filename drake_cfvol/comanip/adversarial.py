@@ -163,9 +163,9 @@ def steady_push_runs(
     with tempfile.TemporaryDirectory() as tmp:
         for seed in seeds:
             signs, text = _push_text(wc, path, pattern, seed, len(seeds), torque, certify, safety_filter, clearance)
-            s = run_scenario(
-                name, tmp, record=False, plot=False, svg=False, path=path, bounds=bounds, scenario_text=text
-            )
+            # Logs only, in its own temporary folder: each run replaces the last one's files.
+            logs_only = {"record": False, "plot": False, "svg": False, "overwrite": True}
+            s = run_scenario(name, tmp, path=path, bounds=bounds, scenario_text=text, **logs_only)
             logs = np.load(Path(tmp) / "logs.npz")
             margin = s["filter_clearance_m"] if s["filter_clearance_m"] is not None else margin_default
             row = {

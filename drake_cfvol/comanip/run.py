@@ -16,8 +16,9 @@ from drake_cfvol.comanip.online import online_figures, show_online_freedom
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
 from drake_cfvol.comanip.scenario import load_scenario
 from drake_cfvol.io.progress import Progress
+from drake_cfvol.io.records import prepare_outputs
 
-__all__ = ["bound_figures", "run_scenario"]
+__all__ = ["bound_figures", "run_outputs", "run_scenario"]
 
 
 def _log(sim_context, logger):
@@ -103,6 +104,15 @@ def _margins(cm, scenario) -> tuple[float, float]:
     return margin, float(nominal_own)
 
 
+def run_outputs(out_dir: str | Path, *, record: bool = True, plot: bool = True, svg: bool = True) -> list[Path]:
+    """The files a run writes into ``out_dir`` (:func:`run_scenario`): its
+    summary and logs, and as asked the plot, the recording and the diagram
+    (its source, and its SVG where Graphviz is installed)."""
+    names = ["summary.json", "logs.npz"]
+    names += ["run.png"] * plot + ["recording.html"] * record + ["diagram.dot", "diagram.svg"] * svg
+    return [Path(out_dir) / name for name in names]
+
+
 def run_scenario(
     scenario_name_or_path,
     out_dir: str | Path,
@@ -115,6 +125,7 @@ def run_scenario(
     progress: bool = False,
     scenario_text: str | None = None,
     overrides: dict | None = None,
+    overwrite: bool = False,
 ) -> dict:
     """Loads a scenario, builds its diagram, simulates it and writes the
     recording (self-contained HTML), plots and a summary.
@@ -124,10 +135,14 @@ def run_scenario(
 
     Returns:
         The summary dict (also written as ``summary.json``).
+
+    Raises:
+        OutputExistsError: a file of :func:`run_outputs` exists and
+            ``overwrite`` is False (checked before anything is built).
     """
     scenario, file = load_scenario(scenario_name_or_path, scenario_text=scenario_text, overrides=overrides)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    prepare_outputs(out, [f.name for f in run_outputs(out, record=record, plot=plot, svg=svg)], overwrite=overwrite)
     meshcat = None
     if record:
         meshcat = Meshcat(MeshcatParams(host="localhost"))

@@ -52,6 +52,26 @@ def prepare_output(path, *, overwrite: bool, folder: bool = False) -> Path:
     return path
 
 
+def prepare_outputs(folder, names, *, overwrite: bool) -> list[Path]:
+    """Checks every file a command writes into ``folder`` before any work
+    starts: creates the folder and refuses, in one line naming them all,
+    the files that exist unless ``overwrite``. Returns their paths.
+
+    Raises:
+        OutputExistsError: some of the files exist and ``overwrite`` is False.
+        OutputPathError: the folder cannot be created or written to.
+    """
+    folder = prepare_output(folder, overwrite=overwrite, folder=True)
+    files = [folder / name for name in names]
+    existing = [f.name for f in files if f.exists()]
+    if existing and not overwrite:
+        raise OutputExistsError(
+            f"{folder} already holds {', '.join(existing)}; pass overwrite=True (CLI: --force) to replace "
+            f"{'it' if len(existing) == 1 else 'them'}, or write to another folder."
+        )
+    return files
+
+
 def save_record(path, record: dict, array_keys: tuple, what: str, *, overwrite: bool) -> Path:
     """Writes ``record`` (JSON-ready; the ``array_keys`` entries are arrays).
 
