@@ -357,6 +357,47 @@ def test_an_unusable_saved_path_is_refused(saved, tmp_path, capsys, edit):
     refused(["bounds", "automotive", "--path-file", f], capsys, str(f), named)
 
 
+def _arm_without_collision_geometry(tmp_path: Path) -> tuple[Path, Path]:
+    """A one-link arm (limits +-3 rad) and a post in its swing at angle 0;
+    returns the cell's file with the link's <collision> and the same cell
+    without it (the link drawn only)."""
+    import re
+
+    from conftest import write_arm_cell
+
+    configurations = {"path1": {"start": [-1.0], "goal": [1.0]}}
+    link = {"length": 1.0, "half_width": 0.05, "lower": -3.0, "upper": 3.0}
+    post = {"post": ((0.2, 0.2, 1.0), (0.7, 0.0, 0.5))}
+    solid = write_arm_cell(tmp_path / "solid", links=[link], obstacles=post, configurations=configurations)
+    hollow = write_arm_cell(tmp_path / "hollow", links=[link], obstacles=post, configurations=configurations)
+    urdf = hollow.parent / "toy_description" / "urdf" / "toy.urdf"
+    text = urdf.read_text()
+    link1 = re.search(r'<link name="link1">.*?</link>', text).group(0)
+    urdf.write_text(text.replace(link1, re.sub(r"<collision>.*?</collision>", "", link1)))
+    return solid, hollow
+
+
+def test_a_robot_without_collision_geometry_is_refused_by_every_command(tmp_path, capsys):
+    """With its collision geometry the arm's straight swing from -1 to 1
+    rad hits the post (Drake); without it every check would call the swing
+    free, so plan, bounds and simulate refuse the cell, naming the robot."""
+    import drake_cfvol as cf
+    from drake_cfvol.exceptions import WorkcellError
+
+    solid, hollow = _arm_without_collision_geometry(tmp_path)
+    assert not cf.load_workcell(str(solid)).checker.CheckConfigCollisionFree([0.0])
+    wc = cf.load_workcell(str(hollow))
+    assert wc.checker.CheckConfigCollisionFree([0.0])  # the hole the refusal closes
+    for argv in (["plan", hollow], ["bounds", hollow]):
+        refused(argv, capsys, "robot 'toy'", str(hollow), "no collision geometry", "<collision>")
+    scenario = tmp_path / "run.yaml"
+    scenario.write_text(f"cell: {{name: {hollow}}}\npath: {{name: path1, duration: 2.0}}\n")
+    refused(["simulate", scenario, "--out", tmp_path / "out"], capsys, "robot 'toy'", "co-manipulation run")
+    raises(lambda: cf.plan_nominal_path(wc, [-1.0], [1.0], seed=0), "no collision geometry", "planning")
+    with pytest.raises(WorkcellError):
+        wc.scene_arrays()
+
+
 # --- 3. Values checked where they are read ---------------------------------------------------------------
 
 CELL_VALUES = {

@@ -221,6 +221,7 @@ def _checked_request(workcell, q_start, q_goal, seed, time_limit, max_step, sing
         )
     if not max_step > 0:
         raise ParameterError(f"max_step must be > 0, got {max_step}.")
+    workcell.require_collision_geometry("planning a path")
     lower, upper = workcell.finite_limits("Planning a nominal path")
     start = workcell.validate_configuration(q_start, "start configuration")
     goal = workcell.validate_configuration(q_goal, "goal configuration")

@@ -294,6 +294,7 @@ def _workcell_path_bounds(scenario: Scenario, base_dir, file, path, bounds, prog
     validate_scenario(scenario, file, base_dir=base_dir)
     wc = _scenario_workcell(scenario, base_dir, file)
     check_scenario_against_cell(scenario, wc, file)
+    wc.require_collision_geometry("a co-manipulation run (its safety filter and clearance)")
     params = VolumeParams.for_workcell(wc, **scenario.bounds.overrides())
     height_map_of(wc, params)
     name = scenario.path.name

@@ -371,6 +371,7 @@ def _chain_arrays(plant, robot, robot_slice, order, inboard):
 def _robot_shapes(workcell, order, verts):
     """The robot's proximity shapes as kernel rows (hull vertices appended
     to ``verts``): rows, their bodies, bounding-ball centres and radii."""
+    workcell.require_collision_geometry("the bounds")
     plant, inspector = workcell.plant, workcell.scene_graph.model_inspector()
     rows, bodies, bcs, brs = [], [], [], []
     for n, body in enumerate(order):
@@ -384,8 +385,6 @@ def _robot_shapes(workcell, order, verts):
             bodies.append(n)
             bcs.append(centre)
             brs.append(radius)
-    if not rows:
-        raise WorkcellError(f"robot '{workcell.robot_name}' has no proximity geometry; the bounds need it.")
     return np.array(rows), np.array(bodies, np.int64), np.array(bcs), np.array(brs)
 
 

@@ -451,6 +451,20 @@ class WorkcellQueries:
         if not self.is_free(q):
             raise CollisionError(what, self.colliding_pairs(q))
 
+    def require_collision_geometry(self, needed_for: str) -> None:
+        """Raises :class:`WorkcellError` if no link the robot's joints move
+        has collision (proximity) geometry: every check would then call any
+        configuration free, and a path or a box would go through walls.
+        Planning, the bounds and a co-manipulation run all ask this first."""
+        _, moving = robot_geometry_ids(self.plant, self.robot)
+        if not moving:
+            where = f" (workcell {self.path})" if self.path is not None else ""
+            raise WorkcellError(
+                f"robot '{self.robot_name}'{where} has no collision geometry on the links its joints move, so "
+                f"{needed_for} would take every configuration as free. Add <collision> elements to its links "
+                "(URDF or SDFormat), or use a model of the robot that has them."
+            )
+
     def configuration(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """Returns the named (start, goal) pair."""
         if name not in self.configurations:
