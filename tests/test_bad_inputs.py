@@ -461,6 +461,164 @@ def test_a_bad_value_is_named_with_its_file_and_field(tmp_path, capsys, reader, 
     assert not (tmp_path / "out").exists()  # nothing written
 
 
+# --- 4. The Python API: a wrong type or shape is named, never a TypeError from inside ------------------------
+
+
+@pytest.fixture(scope="module")
+def api(automotive, planned, bounded):
+    """What the calls below need: the automotive cell, its path 1 and table, and a finalized plant of the
+    cell in a builder (for AddCoManipulation, which refuses before adding anything)."""
+    from types import SimpleNamespace
+
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+    from pydrake.systems.framework import DiagramBuilder
+
+    builder = DiagramBuilder()
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
+    robot = automotive.add_to_plant(plant)
+    plant.Finalize()
+    start, goal = automotive.configuration("path1")
+    station = {"plant": plant, "scene_graph": scene_graph, "robot": robot, "table": bounded("automotive")}
+    station["tool_frame"] = "tcp"
+    return SimpleNamespace(
+        wc=automotive,
+        path=planned("automotive"),
+        table=bounded("automotive"),
+        start=start,
+        goal=goal,
+        builder=builder,
+        station=station,
+    )
+
+
+def _plan(c, **changes):
+    import drake_cfvol as cf
+
+    args = {"workcell": c.wc, "q_start": c.start, "q_goal": c.goal, "seed": 0, **changes}
+    return cf.plan_nominal_path(**args)
+
+
+def _station(c, **changes):
+    from drake_cfvol.systems import AddCoManipulation
+
+    args = {"builder": c.builder, **c.station, **changes}
+    return AddCoManipulation(args.pop("builder"), **args)
+
+
+def _cf():
+    import drake_cfvol
+
+    return drake_cfvol
+
+
+#: id -> (the call on the fixture api, what the message names)
+API_CASES = {
+    "load_workcell-int": (lambda c: _cf().load_workcell(3), "name_or_path", "int"),
+    "load_workcell-dict": (lambda c: _cf().load_workcell({"cell": "automotive"}), "name_or_path", "dict"),
+    "load_workcell-unknown-argument": (lambda c: _cf().load_workcell("automotive", edge=0.1), "edge"),
+    "load_workcell-edge-step-str": (lambda c: _cf().load_workcell("automotive", edge_step="0.1"), "edge_step", "str"),
+    "load_workcell-edge-step-negative": (lambda c: _cf().load_workcell("automotive", edge_step=-1), "edge_step"),
+    "plan-start-dict": (lambda c: _plan(c, q_start=dict(enumerate(c.start))), "start configuration", "dict"),
+    "plan-goal-dict": (lambda c: _plan(c, q_goal={"joint_1": 0.0}), "goal configuration", "dict"),
+    "plan-start-short": (lambda c: _plan(c, q_start=c.start[:5]), "start configuration", "expected 6, got 5"),
+    "plan-goal-long": (lambda c: _plan(c, q_goal=list(c.goal) + [0.0]), "goal configuration", "expected 6, got 7"),
+    "plan-start-str": (lambda c: _plan(c, q_start="home"), "start configuration", "str"),
+    "plan-start-strings": (lambda c: _plan(c, q_start=["0"] * 6), "start configuration", "list ['0'"),
+    "plan-start-is-the-pair": (lambda c: _plan(c, q_start=(c.start, c.goal)), "start configuration", "(2, 6)"),
+    "plan-start-nan": (lambda c: _plan(c, q_start=c.start * float("nan")), "start configuration", "finite"),
+    "plan-workcell-name": (lambda c: _plan(c, workcell="automotive"), "workcell", "str"),
+    "plan-time-limit-str": (lambda c: _plan(c, time_limit="10"), "time_limit", "str"),
+    "plan-seed-float": (lambda c: _plan(c, seed=0.5), "seed", "float"),
+    "plan-seed-negative": (lambda c: _plan(c, seed=-1), "seed", ">= 0"),
+    "plan-clearance-str": (lambda c: _plan(c, clearance="0.02"), "clearance", "str"),
+    "plan-max-step-zero": (lambda c: _plan(c, max_step=0), "max_step", "> 0"),
+    "plan-label-int": (lambda c: _plan(c, label=1), "label", "int"),
+    "plan-shortcuts-float": (lambda c: _plan(c, shortcut_iterations=1.5), "shortcut_iterations"),
+    "bounds-workcell-none": (lambda c: _cf().estimate_bounds(None, c.path), "workcell", "NoneType"),
+    "bounds-path-none": (lambda c: _cf().estimate_bounds(c.wc, None), "path", "NoneType"),
+    "bounds-path-is-the-table": (lambda c: _cf().estimate_bounds(c.wc, c.table), "path", "BoundsTable"),
+    "bounds-path-as-waypoints": (lambda c: _cf().estimate_bounds(c.wc, c.path.waypoints), "path", "ndarray"),
+    "bounds-params-dict": (lambda c: _cf().estimate_bounds(c.wc, c.path, {"resolution": 100}), "params", "dict"),
+    "bounds-resolution-str": (lambda c: _cf().estimate_bounds(c.wc, c.path, resolution="1000"), "resolution"),
+    "bounds-unknown-parameter": (lambda c: _cf().estimate_bounds(c.wc, c.path, resolutoin=100), "resolutoin"),
+    "bounds-certify-true": (lambda c: _cf().estimate_bounds(c.wc, c.path, certify=True), "certify", "bool"),
+    "bounds-path-of-another-robot": (
+        lambda c: _cf().estimate_bounds(c.wc, _cf().NominalPath([[0.0] * 7] * 2, [f"j{i}" for i in range(7)])),
+        "path's configurations",
+        "expected 6, got 7",
+    ),
+    "cf-table-none": (lambda c: _cf().confidence_factor(c.wc, None), "bounds", "NoneType"),
+    "cf-table-is-the-path": (lambda c: _cf().confidence_factor(c.wc, c.path), "bounds", "NominalPath"),
+    "cf-workcell-name": (lambda c: _cf().confidence_factor("automotive", c.table), "workcell", "str"),
+    "cf-samples-str": (lambda c: _cf().confidence_factor(c.wc, c.table, samples="100"), "samples", "str"),
+    "cf-samples-float": (lambda c: _cf().confidence_factor(c.wc, c.table, samples=10.5), "samples", "float"),
+    "cf-seed-str": (lambda c: _cf().confidence_factor(c.wc, c.table, seed="0"), "seed", "str"),
+    "cf-windows-zero": (lambda c: _cf().confidence_factor(c.wc, c.table, windows=0), "windows", ">= 1"),
+    "freedom-mask-short": (lambda c: _cf().freedom(c.table, [True] * 5), "revolute", "expected 6, got (5,)"),
+    "freedom-mask-dict": (lambda c: _cf().freedom(c.table, {"joint_1": True}), "revolute", "dict"),
+    "freedom-mask-str": (lambda c: _cf().freedom(c.table, "revolute"), "revolute", "str"),
+    "freedom-table-is-the-path": (lambda c: _cf().freedom(c.path, [True] * 6), "bounds", "NominalPath"),
+    "freedom-table-none": (lambda c: _cf().freedom(None), "bounds", "NoneType"),
+    "at-array": (lambda c: c.table.at(__import__("numpy").array([1.0, 2.0])), "BoundsTable.at", "boxes_at"),
+    "at-str": (lambda c: c.table.at("1"), "BoundsTable.at", "str"),
+    "at-none": (lambda c: c.table.at(None), "BoundsTable.at", "NoneType"),
+    "at-beyond-the-path": (lambda c: c.table.at(c.table.g), "outside", "[0, "),
+    "boxes_at-2d": (lambda c: c.table.boxes_at([[1.0, 2.0]]), "boxes_at", "dimension"),
+    "boxes_at-strings": (lambda c: c.table.boxes_at(["a"]), "boxes_at", "list"),
+    "table-save-int": (lambda c: c.table.save(3), "bounds file", "int"),
+    "table-save-suffix": (lambda c: c.table.save("bounds.txt"), "'.txt'", ".npz or .json"),
+    "table-load-none": (lambda c: _cf().BoundsTable.load(None), "bounds file", "NoneType"),
+    "path-load-dict": (lambda c: _cf().NominalPath.load({}), "path file", "dict"),
+    "table-lower-dict": (
+        lambda c: _cf().BoundsTable({}, c.table.upper, c.table.nominal, c.table.joint_names, [0] * 6, [1] * 6),
+        "BoundsTable: lower",
+        "dict",
+    ),
+    "table-rate-short": (
+        lambda c: __import__("dataclasses").replace(c.table, rate=[1.0, 2.0]),
+        "rate",
+        "expected 6",
+    ),
+    "path-waypoints-dict": (lambda c: _cf().NominalPath({"q": [0.0]}, ["joint_1"]), "waypoints", "dict"),
+    "path-joint-names-none": (lambda c: _cf().NominalPath(c.path.waypoints, None), "joint_names", "NoneType"),
+    "path-joint-names-short": (lambda c: _cf().NominalPath(c.path.waypoints, ["joint_1"]), "columns", "expected 1"),
+    "path-waypoint-nan": (
+        lambda c: _cf().NominalPath(c.path.waypoints * float("nan"), c.path.joint_names),
+        "waypoint 1",
+        "not a number",
+    ),
+    "path-at-str": (lambda c: c.path.at("1"), "NominalPath.at", "str"),
+    "bounds-source-path": (
+        lambda c: __import__("drake_cfvol.systems", fromlist=["x"]).JointBoundsSource(c.path),
+        "JointBoundsSource",
+        "NominalPath",
+    ),
+    "bounds-source-clamp-str": (
+        lambda c: __import__("drake_cfvol.systems", fromlist=["x"]).JointBoundsSource(c.table, clamp="yes"),
+        "clamp",
+        "str",
+    ),
+    "station-builder-none": (lambda c: _station(c, builder=None), "builder", "NoneType"),
+    "station-plant-str": (lambda c: _station(c, plant="plant"), "plant", "str"),
+    "station-scene-graph-none": (lambda c: _station(c, scene_graph=None), "scene_graph", "NoneType"),
+    "station-table-is-the-path": (lambda c: _station(c, table=c.path), "table", "NominalPath"),
+    "station-tool-frame-int": (lambda c: _station(c, tool_frame=7), "tool_frame", "int"),
+    "station-period-str": (lambda c: _station(c, period="0.01"), "period", "str"),
+    "station-period-zero": (lambda c: _station(c, period=0.0), "period", "> 0"),
+    "station-config-dict": (lambda c: _station(c, config={}), "config", "dict"),
+    "is-free-dict": (lambda c: c.wc.is_free({"joint_1": 0.0}), "q", "dict"),
+    "configuration-list": (lambda c: c.wc.configuration(["path1"]), "configuration", "path1, path2"),
+    "params-for-no-workcell": (lambda c: _cf().VolumeParams.for_workcell(None), "workcell", "NoneType"),
+    "params-replace-unknown": (lambda c: _cf().VolumeParams().replace(resoluton=5), "resoluton", "known"),
+}
+
+
+@pytest.mark.parametrize("case", API_CASES)
+def test_the_api_names_a_wrong_argument(api, case):
+    call, *named = API_CASES[case]
+    raises(lambda: call(api), *named)
+
+
 # --- 5. Outputs: nothing overwritten, every output checked before any work ---------------------------------
 
 

@@ -7,9 +7,11 @@ import math
 
 import numpy as np
 
-from drake_cfvol.algorithm.table import BoundsTable
+from drake_cfvol.algorithm.table import BoundsTable, require_table
 from drake_cfvol.exceptions import DimensionError, ParameterError, WorkcellError
+from drake_cfvol.io.arguments import instance, real_array, whole_number
 from drake_cfvol.io.progress import Progress
+from drake_cfvol.scene.workcell import Workcell
 
 __all__ = [
     "shown_percent",
@@ -121,6 +123,10 @@ def confidence_factor(
         WorkcellError: (judge "kernel") the kernel called free a sample
             Drake finds colliding.
     """
+    instance(workcell, Workcell, "confidence_factor: workcell", "drake_cfvol.load_workcell")
+    require_table(bounds, "confidence_factor: bounds")
+    for name, value in (("windows", windows), ("samples", samples), ("seed", seed), ("cross_check", cross_check)):
+        whole_number(value, f"confidence_factor: {name}")
     if windows < 1 or samples < 1:
         raise ParameterError(f"windows and samples must be >= 1, got {windows} and {samples}.")
     if judge not in ("drake", "kernel"):
@@ -215,12 +221,27 @@ class Freedom:
 
 def freedom(bounds: BoundsTable, revolute=None) -> Freedom:
     """Freedom of a bounds table (reported beside every CF: a box of zero
-    width has CF 100 %)."""
+    width has CF 100 %); ``revolute``: (k,) True for a revolute joint (its
+    widths in degrees), default all.
+
+    Raises:
+        ParameterError: ``bounds`` is not a table, ``revolute`` not a mask.
+        DimensionError: ``revolute`` has another length than the joints.
+    """
+    require_table(bounds, "freedom: bounds")
+    if revolute is None:
+        revolute = np.ones(bounds.k, bool)
+    else:
+        mask = real_array(revolute, "freedom: revolute (one flag per joint)")
+        if mask.shape != (bounds.k,):
+            raise DimensionError(
+                "freedom: revolute", bounds.k, mask.shape, f"The joints: {', '.join(bounds.joint_names)}."
+            )
+        revolute = mask != 0
     rng = bounds.limit_upper - bounds.limit_lower
     frac = np.clip(bounds.widths() / rng, 0.0, 1.0)
     with np.errstate(divide="ignore"):
         gm = np.exp(np.mean(np.log(frac), axis=1))
-    revolute = np.ones(bounds.k, bool) if revolute is None else np.asarray(revolute, bool)
     med = np.median(bounds.widths(), axis=0)
     med = np.where(revolute, np.degrees(med), med)
     return Freedom(float(gm.mean()), gm, med, ["deg" if r else "m" for r in revolute])

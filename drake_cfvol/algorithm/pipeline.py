@@ -25,8 +25,10 @@ from drake_cfvol.algorithm.table import (
 )
 from drake_cfvol.algorithm.volume import build_volume, categorize, height_map_of
 from drake_cfvol.exceptions import DimensionError, ParameterError
+from drake_cfvol.io.arguments import instance
 from drake_cfvol.io.progress import timed_steps
 from drake_cfvol.scene.params import VolumeParams
+from drake_cfvol.scene.workcell import Workcell
 
 __all__ = ["estimate_bounds", "BACKENDS", "warm_up"]
 
@@ -64,7 +66,10 @@ def warm_up(*, progress: bool = False, meanwhile=()) -> float:
     return _warm_up_ms
 
 
-def _check_inputs(workcell, path, backend: str, certify) -> None:
+def _check_inputs(workcell, path, params, backend: str, certify) -> None:
+    instance(workcell, Workcell, "workcell", "drake_cfvol.load_workcell")
+    if params is not None:
+        instance(params, VolumeParams, "params", "drake_cfvol.VolumeParams.for_workcell, or keyword overrides")
     if not isinstance(path, NominalPath):
         raise ParameterError(f"path must be a NominalPath, got {type(path).__name__}.")
     if path.k != workcell.num_joints:
@@ -134,11 +139,11 @@ def estimate_bounds(
         the paper's "time to compute the boundaries" (categorization +
         volume + bounding).
     """
+    _check_inputs(workcell, path, params, backend, certify)
     if params is None:
         params = VolumeParams.for_workcell(workcell, **overrides)
     elif overrides:
         params = params.replace(**overrides)
-    _check_inputs(workcell, path, backend, certify)
     height_map_of(workcell, params)  # checks R (memory) before any work
     jit_ms = warm_up(progress=progress) if backend == "fast" else 0.0
     workcell.scene_arrays()  # read from Drake once per workcell, like loading it

@@ -26,6 +26,7 @@ from drake_cfvol.exceptions import (
     RecordFormatError,
     SingularityError,
 )
+from drake_cfvol.io.arguments import instance, names, real_array, real_number, text, whole_number
 from drake_cfvol.io.records import load_record, save_record
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.workcell import Workcell
@@ -60,11 +61,18 @@ class NominalPath:
     fingerprint: dict = dataclasses.field(default_factory=dict, compare=False)
 
     def __post_init__(self):
-        self.waypoints = np.ascontiguousarray(self.waypoints, dtype=np.float64)
+        self.waypoints = np.ascontiguousarray(real_array(self.waypoints, "NominalPath: waypoints"))
         if self.waypoints.ndim != 2 or self.waypoints.shape[0] < 2:
             raise DimensionError("path waypoints", "(g >= 2, k)", self.waypoints.shape)
+        self.joint_names = names(self.joint_names, "NominalPath: joint_names")
         if self.waypoints.shape[1] != len(self.joint_names):
             raise DimensionError("path waypoints' columns", len(self.joint_names), self.waypoints.shape[1])
+        bad = np.argwhere(~np.isfinite(self.waypoints))
+        if len(bad):
+            i, j = bad[0]
+            raise ParameterError(
+                f"NominalPath: waypoint {i + 1}, joint '{self.joint_names[j]}' is {self.waypoints[i, j]}, not a number"
+            )
 
     @property
     def g(self) -> int:
@@ -89,7 +97,7 @@ class NominalPath:
     def at(self, s: float) -> np.ndarray:
         """The nominal at path parameter ``s`` in [0, g-1] (linear between
         waypoints)."""
-        s = float(s)
+        s = real_number(s, "NominalPath.at: s")
         if not (0.0 <= s <= self.g - 1) or not np.isfinite(s):
             raise ParameterError(f"path index s = {s} is outside [0, {self.g - 1}] (g = {self.g} waypoints).")
         i = min(int(np.floor(s)), self.g - 2)
@@ -140,12 +148,6 @@ class NominalPath:
             )
         except (CfvolError, TypeError, ValueError) as e:
             raise RecordFormatError(path, "path", " ".join(str(e).split()).rstrip(".")) from None
-        bad = np.argwhere(~np.isfinite(out.waypoints))
-        if len(bad):
-            i, j = bad[0]
-            raise RecordFormatError(
-                path, "path", f"waypoint {i + 1}, joint '{out.joint_names[j]}' is {out.waypoints[i, j]}, not a number"
-            )
         if "sha256" in d and d["sha256"] != out.sha256:
             raise RecordFormatError(
                 path, "path", "its waypoints do not match the sha256 saved with them (the file was edited after saving)"
@@ -210,17 +212,18 @@ def _checked_request(workcell, q_start, q_goal, seed, time_limit, max_step, sing
     """Checks a planning request; returns (start, goal, lower, upper, the
     margin the path keeps: the clearance, lowered to 0.9 x the start's or
     goal's own clearance where that is nearer)."""
-    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
-        raise ParameterError(f"seed must be a non-negative integer, got {seed!r}.")
-    if isinstance(time_limit, bool) or not isinstance(time_limit, (int, float, np.floating, np.integer)):
-        raise ParameterError(f"time_limit must be a number of seconds, got {type(time_limit).__name__} {time_limit!r}.")
+    instance(workcell, Workcell, "workcell", "drake_cfvol.load_workcell")
+    whole_number(seed, "seed")
+    time_limit = real_number(time_limit, "time_limit")
     if not 0 < time_limit < math.inf:
         raise ParameterError(
             f"time_limit must be a finite number of seconds > 0, got {time_limit} (CLI: --time-limit 10): "
             "the planner stops only at it when the goal cannot be reached."
         )
-    if not max_step > 0:
-        raise ParameterError(f"max_step must be > 0, got {max_step}.")
+    if not 0 < real_number(max_step, "max_step") < math.inf:
+        raise ParameterError(f"max_step must be a finite number > 0, got {max_step}.")
+    if not 0 <= real_number(singular_threshold, "singular_threshold") < math.inf:
+        raise ParameterError(f"singular_threshold must be a finite number >= 0, got {singular_threshold}.")
     workcell.require_collision_geometry("planning a path")
     lower, upper = workcell.finite_limits("Planning a nominal path")
     start = workcell.validate_configuration(q_start, "start configuration")
@@ -237,7 +240,7 @@ def _checked_request(workcell, q_start, q_goal, seed, time_limit, max_step, sing
             )
     if clearance is None:
         clearance = VolumeParams.for_workcell(workcell).clearance
-    if not (np.isfinite(clearance) and 0.0 <= clearance <= 0.5):
+    if not (np.isfinite(real_number(clearance, "clearance")) and 0.0 <= clearance <= 0.5):
         raise ParameterError(f"clearance must be in [0, 0.5] m, got {clearance!r}.")
     margin = float(clearance)
     if margin > 0:
@@ -345,6 +348,8 @@ def plan_nominal_path(
     start, goal, lower, upper, margin = _checked_request(
         workcell, q_start, q_goal, seed, time_limit, max_step, singular_threshold, clearance
     )
+    whole_number(shortcut_iterations, "shortcut_iterations")
+    text(label, "label")
     # Drake's answers either way; the kernel asked first where it is loaded
     # in this process already (a fresh environment would compile it inside
     # the planning's time limit).

@@ -18,12 +18,14 @@ from numba import njit
 from pydrake.trajectories import PiecewisePolynomial
 
 from drake_cfvol.exceptions import CfvolError, DimensionError, ParameterError, RecordFormatError
+from drake_cfvol.io.arguments import names, real_array, real_number
 from drake_cfvol.io.records import load_record, save_record
 
 __all__ = [
     "BoundsTable",
     "absolute_bounds",
     "check_table",
+    "require_table",
     "box_at",
     "nominal_trajectory",
     "waypoint_boxes",
@@ -399,7 +401,8 @@ class BoundsTable:
 
     def __post_init__(self):
         for name in ("lower", "upper", "nominal", "limit_lower", "limit_upper"):
-            setattr(self, name, np.asarray(getattr(self, name), float))
+            setattr(self, name, real_array(getattr(self, name), f"BoundsTable: {name}"))
+        self.joint_names = names(self.joint_names, "BoundsTable: joint_names")
         if not (self.lower.shape == self.upper.shape == self.nominal.shape) or self.nominal.ndim != 2:
             raise DimensionError("bounds arrays", self.nominal.shape, (self.lower.shape, self.upper.shape))
         if self.nominal.shape[1] != len(self.joint_names):
@@ -407,11 +410,14 @@ class BoundsTable:
         g, k = self.nominal.shape
         if self.stretch_lower is None or self.stretch_upper is None:
             self.stretch_lower, self.stretch_upper = intersection_stretches(self.lower, self.upper)
-        self.stretch_lower = np.asarray(self.stretch_lower, float)
-        self.stretch_upper = np.asarray(self.stretch_upper, float)
+        self.stretch_lower = real_array(self.stretch_lower, "BoundsTable: stretch_lower")
+        self.stretch_upper = real_array(self.stretch_upper, "BoundsTable: stretch_upper")
         if self.stretch_lower.shape != (max(g - 1, 0), k) or self.stretch_upper.shape != (max(g - 1, 0), k):
             raise DimensionError("stretch bounds", (g - 1, k), (self.stretch_lower.shape, self.stretch_upper.shape))
-        self.rate = np.full(k, np.inf) if self.rate is None else np.asarray(self.rate, float).reshape(k)
+        self.rate = np.full(k, np.inf) if self.rate is None else real_array(self.rate, "BoundsTable: rate")
+        if self.rate.size != k:
+            raise DimensionError("BoundsTable: rate (one per joint)", k, self.rate.shape)
+        self.rate = self.rate.reshape(k)
         if self.interpolation not in INTERPOLATIONS:
             raise ParameterError(
                 f"BoundsTable: interpolation must be one of {', '.join(map(repr, INTERPOLATIONS))}"
@@ -459,7 +465,7 @@ class BoundsTable:
             self.lower,
             self.upper,
             self.nominal,
-            float(s),
+            real_number(s, "BoundsTable.at: s (one path parameter; boxes_at takes many)"),
             stretch_lower=self.stretch_lower,
             stretch_upper=self.stretch_upper,
             rate=self.rate,
@@ -472,7 +478,7 @@ class BoundsTable:
             self.lower,
             self.upper,
             self.nominal,
-            np.asarray(s, float),
+            real_array(s, "BoundsTable.boxes_at: s", ndim=(0, 1)),
             stretch_lower=self.stretch_lower,
             stretch_upper=self.stretch_upper,
             rate=self.rate,
@@ -598,12 +604,11 @@ class BoundsTable:
         return table
 
 
-def check_table(table, where: str, position_lower=None, position_upper=None) -> None:
-    """Refuses what is not a usable :class:`BoundsTable` before a system
-    or a run uses it (:meth:`BoundsTable.problem`).
+def require_table(table, where: str) -> BoundsTable:
+    """``table`` itself if it is a :class:`BoundsTable`.
 
     Raises:
-        ParameterError: not a table, or its values are unusable (named).
+        ParameterError: it is not (a path given as the table is named).
     """
     if not isinstance(table, BoundsTable):
         hint = " (a NominalPath is the path, not its bounds)" if type(table).__name__ == "NominalPath" else ""
@@ -611,6 +616,17 @@ def check_table(table, where: str, position_lower=None, position_upper=None) -> 
             f"{where}: expected a BoundsTable (drake_cfvol.estimate_bounds or BoundsTable.load), got "
             f"{type(table).__name__}{hint}."
         )
+    return table
+
+
+def check_table(table, where: str, position_lower=None, position_upper=None) -> None:
+    """Refuses what is not a usable :class:`BoundsTable` before a system
+    or a run uses it (:meth:`BoundsTable.problem`).
+
+    Raises:
+        ParameterError: not a table, or its values are unusable (named).
+    """
+    require_table(table, where)
     problem = table.problem(position_lower, position_upper)
     if problem is not None:
         raise ParameterError(f"{where}: the bounds table is unusable: {problem}. Compute or load a valid table.")

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from drake_cfvol.exceptions import OutputExistsError, OutputPathError, ParameterError, RecordFormatError
+from drake_cfvol.io.arguments import file_path
 from drake_cfvol.io.cache import write_atomic
 
 #: The ``format`` tag each kind of record carries.
@@ -80,7 +81,7 @@ def save_record(path, record: dict, array_keys: tuple, what: str, *, overwrite: 
         OutputPathError: the file cannot be written.
         ParameterError: the suffix is neither .npz nor .json.
     """
-    path = Path(path)
+    path = file_path(path, f"the {what} file to save")
     if path.suffix not in (".npz", ".json"):
         raise ParameterError(f"unknown {what} file type '{path.suffix}' in '{path}': use .npz or .json.")
     prepare_output(path, overwrite=overwrite)
@@ -122,7 +123,7 @@ def load_record(path, array_keys: tuple, what: str, optional: tuple = (), requir
             kind (a bounds file given as a path, say) or lacks a field.
         ParameterError: the suffix is neither .npz nor .json.
     """
-    path = Path(path)
+    path = file_path(path, f"the {what} file to load")
     if path.suffix not in (".npz", ".json"):
         raise ParameterError(f"unknown {what} file type '{path.suffix}' in '{path}': use .npz or .json.")
     if not path.is_file():

@@ -6,6 +6,8 @@ import dataclasses
 import math
 
 from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.io.arguments import instance
+from drake_cfvol.scene.workcell import Workcell
 
 __all__ = ["VolumeParams"]
 
@@ -112,19 +114,26 @@ class VolumeParams:
     @classmethod
     def for_workcell(cls, workcell, **overrides) -> "VolumeParams":
         """Defaults, then the workcell's ``cfvol.params``, then ``overrides``."""
-        names = {f.name for f in dataclasses.fields(cls)}
+        instance(workcell, Workcell, "VolumeParams.for_workcell: workcell", "drake_cfvol.load_workcell")
         merged = dict(workcell.params)
         merged.update({k: v for k, v in overrides.items() if v is not None})
-        unknown = sorted(set(merged) - names)
-        if unknown:
-            raise ParameterError(f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}.")
+        _known(merged)
         if merged.get("reach") is None and workcell.reach > 0:
             merged["reach"] = workcell.reach
         return cls(**merged)
 
     def replace(self, **changes) -> "VolumeParams":
         """A copy with some fields changed (validated)."""
+        _known(changes)
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+
+def _known(values: dict) -> None:
+    """Refuses parameters :class:`VolumeParams` does not have, naming the ones it has."""
+    names = {f.name for f in dataclasses.fields(VolumeParams)}
+    unknown = sorted(set(values) - names)
+    if unknown:
+        raise ParameterError(f"unknown parameter(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}.")

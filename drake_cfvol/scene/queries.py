@@ -23,6 +23,7 @@ from drake_cfvol.exceptions import (
     ParameterError,
     WorkcellError,
 )
+from drake_cfvol.io.arguments import real_array
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies, robot_instances
 
 __all__ = ["KernelFirstChecker", "RobotChecker", "WorkcellQueries", "geometry_key", "robot_geometry_ids"]
@@ -311,7 +312,7 @@ class WorkcellQueries:
         """Returns the workcell's plant context, set to ``q`` if given."""
         ctx = self.plant.GetMyMutableContextFromRoot(self._context)
         if q is not None:
-            self.slice.set_positions(ctx, np.asarray(q, float))
+            self.slice.set_positions(ctx, real_array(q, "q"))
         return ctx
 
     @property
@@ -350,7 +351,7 @@ class WorkcellQueries:
         """The robot's signed distance to the obstacles and to itself at
         ``q`` (m; the smallest pair, by Drake; ``influence`` if none is
         nearer)."""
-        d = np.asarray(self.checker.CalcRobotClearance(np.asarray(q, float), influence).distances())
+        d = np.asarray(self.checker.CalcRobotClearance(real_array(q, "q"), influence).distances())
         return float(d.min()) if d.size else float(influence)
 
     def finite_limits(self, needed_for: str) -> tuple[np.ndarray, np.ndarray]:
@@ -370,10 +371,11 @@ class WorkcellQueries:
         """Checks a configuration's size and limits; returns it as an array.
 
         Raises:
+            ParameterError: ``q`` does not hold numbers (a dict, say).
             DimensionError: ``q`` is not (k,).
             JointLimitError: a joint lies outside its limits.
         """
-        q = np.asarray(q, dtype=float)
+        q = real_array(q, what)
         if q.shape != (self.num_joints,):
             raise DimensionError(
                 what,
@@ -431,7 +433,7 @@ class WorkcellQueries:
             ConfigurationError: a value that is not finite.
             ParameterError: a negative clearance.
         """
-        Q = np.asarray(Q, dtype=float)
+        Q = real_array(Q, "Q")
         if Q.ndim not in (1, 2) or Q.shape[-1] != self.num_joints:
             raise DimensionError(
                 "Q", f"(N, {self.num_joints})", Q.shape, f"The robot's joints are {', '.join(self.joint_names)}."
@@ -444,7 +446,7 @@ class WorkcellQueries:
 
     def is_free(self, q) -> bool:
         """True if ``q`` is free of collision with the real scene."""
-        return bool(self.checker.CheckConfigCollisionFree(np.asarray(q, float)))
+        return bool(self.checker.CheckConfigCollisionFree(real_array(q, "q")))
 
     def require_free(self, q, what: str) -> None:
         """Raises :class:`CollisionError` naming the bodies if ``q`` collides."""
@@ -467,7 +469,7 @@ class WorkcellQueries:
 
     def configuration(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """Returns the named (start, goal) pair."""
-        if name not in self.configurations:
+        if not isinstance(name, str) or name not in self.configurations:
             raise WorkcellError(
                 f"Cell '{self.name}' has no configuration '{name}'. It has: "
                 f"{', '.join(self.configurations) or '(none)'}; add it under cfvol.configurations."

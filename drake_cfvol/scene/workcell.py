@@ -9,6 +9,8 @@ world, with proximity geometry; the floor is one of them.
 
 import copy
 import dataclasses
+import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -19,12 +21,14 @@ from pydrake.multibody.tree import BodyIndex, ModelInstanceIndex
 from pydrake.planning import RobotDiagramBuilder
 
 from drake_cfvol.exceptions import (
+    ParameterError,
     StationError,
     UnknownCellError,
     WorkcellError,
     WorkcellFileNotFoundError,
     WorkcellFormatError,
 )
+from drake_cfvol.io.arguments import got, real_number
 from drake_cfvol.scene.arrays import SceneArrays, scene_arrays
 from drake_cfvol.scene.directives import add_packages, diagram_from_directives
 from drake_cfvol.scene.queries import WorkcellQueries, geometry_key, robot_geometry_ids
@@ -445,6 +449,18 @@ def load_workcell(name_or_path: str | Path, **kwargs) -> Workcell:
         WorkcellFormatError: the file is malformed (file and line in the message).
     """
     cells = builtin_cells()
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise ParameterError(
+            f"load_workcell: name_or_path must be a built-in cell's name ({', '.join(sorted(cells))}) or a workcell "
+            f"file's path, got {got(name_or_path)}."
+        )
+    unknown = sorted(set(kwargs) - {"edge_step", "embedded"})
+    if unknown:
+        raise ParameterError(f"load_workcell: unknown argument(s) {', '.join(unknown)}; it takes edge_step.")
+    if "edge_step" in kwargs and not 0 < real_number(kwargs["edge_step"], "load_workcell: edge_step") < math.inf:
+        raise ParameterError(
+            f"load_workcell: edge_step must be a finite number > 0 (rad or m), got {kwargs['edge_step']}."
+        )
     key = str(name_or_path)
     if key in cells:
         return Workcell(cells[key], **kwargs)

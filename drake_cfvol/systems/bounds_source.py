@@ -9,6 +9,8 @@ from pydrake.systems.framework import LeafSystem_, ValueProducer
 from pydrake.systems.scalar_conversion import TemplateSystem
 
 from drake_cfvol.algorithm.table import BoundsTable, check_table
+from drake_cfvol.exceptions import ParameterError
+from drake_cfvol.io.arguments import got
 from drake_cfvol.systems._util import default_instantiation
 
 __all__ = ["JointBoundsSource", "JointBoundsSource_"]
@@ -57,6 +59,8 @@ def JointBoundsSource_(T):
         def _construct(self, bounds: BoundsTable, *, clamp: bool = False, converter=None):
             LeafSystem_[T].__init__(self, converter)
             check_table(bounds, "JointBoundsSource: bounds")
+            if not isinstance(clamp, bool):
+                raise ParameterError(f"JointBoundsSource: clamp must be True or False, got {got(clamp)}.")
             self._bounds = bounds
             self._clamp = clamp
             k = bounds.k

@@ -7,18 +7,21 @@ real force.
 """
 
 import dataclasses
+import math
 import typing
 
 import numpy as np
 from pydrake.common.value import AbstractValue
+from pydrake.geometry import SceneGraph
 from pydrake.multibody.math import SpatialForce
-from pydrake.multibody.plant import ExternallyAppliedSpatialForce
-from pydrake.multibody.tree import ModelInstanceIndex
-from pydrake.systems.framework import LeafSystem
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlant
+from pydrake.multibody.tree import Frame, ModelInstanceIndex
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import Adder, Demultiplexer
 
 from drake_cfvol.algorithm.table import check_table
-from drake_cfvol.exceptions import StationError
+from drake_cfvol.exceptions import ParameterError, StationError
+from drake_cfvol.io.arguments import instance, real_number
 from drake_cfvol.scene.robot import RobotSlice, robot_instances
 from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformation
 from drake_cfvol.systems.bounds_source import JointBoundsSource
@@ -112,6 +115,19 @@ class CoManipulationConfig:
     safety_filter: typing.Optional[SafetyFilterConfig] = dataclasses.field(default_factory=SafetyFilterConfig)
     path_progress: PathProgressConfig = dataclasses.field(default_factory=PathProgressConfig)
     velocity_limits: list[float] = dataclasses.field(default_factory=list)
+
+
+def _check_arguments(builder, plant, scene_graph, tool_frame, period, config) -> None:
+    """AddCoManipulation's arguments of the wrong type refused by name (the table and the robot are checked
+    against the plant by :func:`_resolve`)."""
+    instance(builder, DiagramBuilder, "AddCoManipulation: builder", "pydrake.systems.framework.DiagramBuilder")
+    instance(plant, MultibodyPlant, "AddCoManipulation: plant", "e.g. from AddMultibodyPlantSceneGraph")
+    instance(scene_graph, SceneGraph, "AddCoManipulation: scene_graph", "the plant's, from AddMultibodyPlantSceneGraph")
+    if not isinstance(tool_frame, str):
+        instance(tool_frame, Frame, "AddCoManipulation: tool_frame", "a Frame of the plant, or a frame's name")
+    if not 0 < real_number(period, "AddCoManipulation: period") < math.inf:
+        raise ParameterError(f"AddCoManipulation: period must be a finite number of seconds > 0, got {period}.")
+    instance(config, CoManipulationConfig, "AddCoManipulation: config")
 
 
 def _named(name: str, what: str) -> str:
@@ -222,6 +238,7 @@ def AddCoManipulation(
     Raises:
         StationError: an unknown robot or frame, or a table for other joints.
     """
+    _check_arguments(builder, plant, scene_graph, tool_frame, period, config)
     if not plant.is_finalized():
         raise StationError("AddCoManipulation: finalize the plant first (plant.Finalize()).")
     robot, k, tool_frame, limits, rate = _resolve(plant, robot, table, tool_frame, config)
