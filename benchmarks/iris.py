@@ -15,10 +15,12 @@ Per path (R = 1000, clearance 0.02 m, seed 0, the certificate's cache off):
   (:func:`box_freedom`: the package's freedom of one box).
 
 Where the nominal itself is nearer than the clearance (a start or goal the
-user placed near an obstacle) IrisZo refuses to start; there its checker is
-padded to the nominal's own clearance less 1 mm, as the boundary check
-judges a certified box there (the certificate keeps about the nominal's
-own clearance).
+user placed near an obstacle) IrisZo refuses a seed inside its padding;
+there its checker is padded to the nominal's own clearance less 1 mm, as the
+boundary check judges a certified box there (the certificate keeps about
+the nominal's own clearance). IrisZo may still refuse (its seed within its
+configuration-space margin of a collision): such a waypoint is reported,
+not compared.
 
 :func:`iris_targets` reports the comparison's targets as met or not with the
 figures. ``cfvol bench --iris`` runs it.
@@ -29,11 +31,13 @@ import logging
 import statistics
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
+from numpy.typing import ArrayLike
 from pydrake.common import Parallelism
 from pydrake.geometry.optimization import HPolyhedron, Hyperellipsoid
-from pydrake.planning import IrisZo, IrisZoOptions
+from pydrake.planning import IrisZo, IrisZoOptions, SceneGraphCollisionChecker
 from pydrake.solvers import ClarabelSolver, MathematicalProgram
 
 from benchmarks.realtime import CELLS
@@ -42,8 +46,9 @@ from drake_cfvol.algorithm.certify import Certify
 from drake_cfvol.algorithm.metrics import freedom
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import plan_nominal_path
+from drake_cfvol.algorithm.table import BoundsTable
 from drake_cfvol.exceptions import CfvolError, ParameterError
-from drake_cfvol.scene.workcell import load_workcell
+from drake_cfvol.scene.workcell import Workcell, load_workcell
 
 __all__ = [
     "IrisBenchConfig",
@@ -105,7 +110,9 @@ class IrisBenchConfig:
         return cls(cells=["automotive"], paths=["path1"], waypoints=3, repeats=1, iris_threads=1)
 
 
-def largest_box(A, b, q, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+def largest_box(
+    A: ArrayLike, b: ArrayLike, q: ArrayLike, lower: ArrayLike, upper: ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
     """The axis-aligned box [lo, hi] of the largest geometric mean of widths
     that contains ``q`` and lies inside {x : A x <= b} and inside [lower, upper].
 
@@ -181,7 +188,7 @@ def largest_box(A, b, q, lower, upper) -> tuple[np.ndarray, np.ndarray]:
     return lo_v, hi_v
 
 
-def box_freedom(lo, hi, limit_lower, limit_upper) -> np.ndarray:
+def box_freedom(lo: ArrayLike, hi: ArrayLike, limit_lower: ArrayLike, limit_upper: ArrayLike) -> float | np.ndarray:
     """The measure of boxes: the geometric mean over joints of width / joint
     range, each share clipped to [0, 1] (the package's
     :func:`~drake_cfvol.algorithm.metrics.freedom` at one waypoint).
@@ -202,7 +209,7 @@ def box_freedom(lo, hi, limit_lower, limit_upper) -> np.ndarray:
 class _Warnings(logging.Handler):
     """Collects drake's warnings (IrisZo's iteration caps void its guarantees)."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         super().__init__(logging.WARNING)
         self.messages: list[str] = []
 
@@ -210,7 +217,9 @@ class _Warnings(logging.Handler):
         self.messages.append(record.getMessage())
 
 
-def iris_region(checker, q, lower, upper, *, seed: int, threads: int) -> tuple[HPolyhedron, list[str]]:
+def iris_region(
+    checker: SceneGraphCollisionChecker, q: ArrayLike, lower: ArrayLike, upper: ArrayLike, *, seed: int, threads: int
+) -> tuple[HPolyhedron, list[str]]:
     """IrisZo grown around ``q`` with Drake's ``checker`` (a
     ``SceneGraphCollisionChecker``), the domain [lower, upper], IrisZo's
     default options but the seed and the threads. Returns the region and
@@ -235,7 +244,7 @@ def iris_region(checker, q, lower, upper, *, seed: int, threads: int) -> tuple[H
     return region, handler.messages
 
 
-def _padding(wc, q, clearance: float) -> float:
+def _padding(wc: Workcell, q: np.ndarray, clearance: float) -> float:
     """IrisZo's padding at ``q``: the clearance, or where the nominal is
     nearer, its own clearance less :data:`_NEAR_ALLOWANCE`."""
     if wc.padded_checker(clearance).CheckConfigCollisionFree(q):
@@ -243,7 +252,7 @@ def _padding(wc, q, clearance: float) -> float:
     return max(0.0, min(clearance, wc.clearance(q)) - _NEAR_ALLOWANCE)
 
 
-def _compare(wc, i: int, unc, cert, cfg: IrisBenchConfig) -> dict:
+def _compare(wc: Workcell, i: int, unc: BoundsTable, cert: BoundsTable | None, cfg: IrisBenchConfig) -> dict:
     """One waypoint: IrisZo, the largest box inside it and the uncertified
     box, its samples by Drake and the measures (``cert`` None: no
     certified table, its measure NaN)."""
@@ -454,6 +463,6 @@ def iris_markdown(result: dict, machine: dict | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_iris_outputs(result: dict, out_dir, machine: dict | None = None) -> dict:
+def write_iris_outputs(result: dict, out_dir: str | Path, machine: dict | None = None) -> dict:
     """results.json and results.md in ``out_dir``."""
     return write_results(out_dir, result, iris_markdown(result, machine), machine)

@@ -25,7 +25,7 @@ def targets_lines(targets: list[tuple[str, bool, str]]) -> list[str]:
     ]
 
 
-def write_results(out_dir, result: dict, markdown: str, machine: dict | None = None) -> dict:
+def write_results(out_dir: str | Path, result: dict, markdown: str, machine: dict | None = None) -> dict:
     """``results.json`` (the result and the machine) and ``results.md`` in
     ``out_dir``; returns their paths."""
     out = Path(out_dir)

@@ -12,11 +12,11 @@ from benchmarks.iris import IrisBenchConfig, box_freedom, iris_markdown, iris_re
 from drake_cfvol.algorithm.table import BoundsTable
 
 
-def _gm(w) -> float:
+def _gm(w: np.ndarray) -> float:
     return float(np.exp(np.mean(np.log(np.maximum(w, 1e-300)))))
 
 
-def _random_instance(rng, k: int, m: int, one_sided: bool = False):
+def _random_instance(rng: np.random.Generator, k: int, m: int, one_sided: bool = False) -> tuple[np.ndarray, ...]:
     """A random polytope {A x <= b} with q inside (each row 0.1-1 from it),
     and a box [lower, upper] around q (``one_sided``: the first joint may
     only grow upwards from q)."""
@@ -30,7 +30,7 @@ def _random_instance(rng, k: int, m: int, one_sided: bool = False):
     return A, b, q, lower, upper
 
 
-def _grid_best(A, b, q, lower, upper, n: int) -> float:
+def _grid_best(A: np.ndarray, b: np.ndarray, q: np.ndarray, lower: np.ndarray, upper: np.ndarray, n: int) -> float:
     """The largest geometric mean of widths over every box whose ends lie on
     an n-point grid per joint side ([lower, q] for lo, [q, upper] for hi)
     and whose every corner satisfies A x <= b (exhaustive)."""
@@ -38,7 +38,7 @@ def _grid_best(A, b, q, lower, upper, n: int) -> float:
     los = [np.linspace(lower[j], q[j], n) for j in range(k)]
     his = [np.linspace(q[j], upper[j], n) for j in range(k)]
 
-    def axes(j, a):  # an (n, n) array of (lo_j, hi_j) placed on axes 2j, 2j+1
+    def axes(j: int, a: np.ndarray) -> np.ndarray:  # an (n, n) array of (lo_j, hi_j) placed on axes 2j, 2j+1
         shape = [1] * (2 * k)
         shape[2 * j] = shape[2 * j + 1] = n
         return a.reshape(shape)
@@ -52,7 +52,7 @@ def _grid_best(A, b, q, lower, upper, n: int) -> float:
     return float(np.exp(log_w[ok].max() / k))
 
 
-def _corners(lo, hi) -> np.ndarray:
+def _corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     k = len(lo)
     pattern = (np.arange(2**k)[:, None] >> np.arange(k)[None, :]) & 1
     return np.where(pattern == 1, hi, lo)
@@ -62,7 +62,7 @@ def _corners(lo, hi) -> np.ndarray:
     ("k", "m", "n", "seed", "one_sided"),
     [(2, 5, 40, 0, False), (2, 8, 40, 1, False), (2, 6, 40, 5, True), (3, 6, 13, 2, False), (3, 10, 13, 3, True)],
 )
-def test_largest_box_is_the_brute_force_optimum(k, m, n, seed, one_sided):
+def test_largest_box_is_the_brute_force_optimum(k: int, m: int, n: int, seed: int, one_sided: bool) -> None:
     """On random 2-D and 3-D polytopes (a joint with room on one side of q
     only in some): the box contains q, lies in [lower, upper], every corner
     satisfies A x <= b; no grid box has a larger geometric mean of widths,
@@ -79,7 +79,7 @@ def test_largest_box_is_the_brute_force_optimum(k, m, n, seed, one_sided):
     assert best >= _gm(hi - lo - step) - 1e-9
 
 
-def test_largest_box_by_hand():
+def test_largest_box_by_hand() -> None:
     """In the triangle x, y >= 0, x + y <= 1 around (0.25, 0.25), the box of
     the largest area is [0, 0.5]^2 (a + b <= 1, ab largest at a = b). With x
     kept >= 0.25, the box [0.25, a] x [0, c] with a + c <= 1 is largest at
@@ -100,7 +100,7 @@ def test_largest_box_by_hand():
     np.testing.assert_allclose(np.r_[lo, hi], [0.25, 0, 0.25, 0.75], atol=1e-4)
 
 
-def test_largest_box_refuses_bad_input():
+def test_largest_box_refuses_bad_input() -> None:
     A, b = np.eye(2), np.ones(2)
     with pytest.raises(cf.ParameterError, match="outside the polytope"):
         largest_box(A, b, [2.0, 0.0], [-3, -3], [3, 3])
@@ -110,7 +110,7 @@ def test_largest_box_refuses_bad_input():
         largest_box(A, np.ones(3), [0.0, 0.0], [-3, -3], [3, 3])
 
 
-def test_box_freedom_is_the_packages_freedom():
+def test_box_freedom_is_the_packages_freedom() -> None:
     """Per waypoint, the measure of a table's boxes equals freedom's
     per-waypoint figure (widths over the joints' ranges, clipped, their
     geometric mean)."""
@@ -124,7 +124,7 @@ def test_box_freedom_is_the_packages_freedom():
     assert box_freedom(lower[2], upper[2], lim_lo, lim_hi) == 0.0
 
 
-def _result(rows, certify_s, error=None):
+def _result(rows: list[dict], certify_s: float, error: str | None = None) -> dict:
     path = {
         "cell": "automotive",
         "path": "path1",
@@ -140,7 +140,7 @@ def _result(rows, certify_s, error=None):
     return {"config": config, "wall_s": 1.0, "paths": [{**path, "waypoints": rows}]}
 
 
-def test_targets_judge_only_where_iris_box_is_free():
+def test_targets_judge_only_where_iris_box_is_free() -> None:
     """A waypoint where ours is narrower misses the freedom target only if
     IRIS's box was free by every sample; a refused waypoint is not compared;
     the time target is met at or under its limit; a failed certification
@@ -166,7 +166,7 @@ def test_targets_judge_only_where_iris_box_is_free():
 
 
 @pytest.mark.slow
-def test_iris_region_and_its_box_on_a_real_cell():
+def test_iris_region_and_its_box_on_a_real_cell() -> None:
     """IrisZo around a waypoint of automotive path 1 (padded checker, one
     thread): the region holds the nominal, and the largest box inside it
     and the uncertified box keeps every corner inside the region and is
