@@ -74,6 +74,14 @@ def test_no_certified_box_has_a_colliding_boundary_point(cell, label, certified)
     )
 
 
+def test_position_margins_by_hand():
+    """Stretch margins (10, 20, 5) mm: a midpoint keeps its stretch's, a
+    waypoint the larger of the two stretches it ends (the path's ends their
+    one stretch's)."""
+    got = position_margins(np.array([0.01, 0.02, 0.005]), np.arange(0.0, 3.01, 0.5))
+    np.testing.assert_array_equal(got, [0.01, 0.01, 0.02, 0.02, 0.02, 0.005, 0.005])
+
+
 # 2. A planted obstacle --------------------------------------------------------
 
 #: The planar arm of the planted-obstacle test: each joint alone sweeps its
@@ -95,6 +103,30 @@ def pinned(tmp_path_factory):
     without = cf.load_workcell(write_arm_cell(tmp_path_factory.mktemp("unpinned"), links=_ARM, obstacles={}))
     path = cf.NominalPath(np.zeros((3, 2)), with_pin.joint_names, with_pin.name)
     return with_pin, without, path
+
+
+def test_boundary_check_judges_each_stretch_at_its_own_margin(pinned):
+    """The arm without the pin, 0.45 m above the floor at every
+    configuration of a small box ([-0.1, 0.1] rad each) on a standing
+    three-waypoint path: padded by 0.5 m on stretch 0 every point collides
+    (with the floor), by 0.3 m on stretch 1 none does. So the positions 0,
+    0.5 and 1 (a waypoint keeps the larger margin) collide at every
+    corner, edge point and face point, 1.5 and 2 at none; a clearance of
+    the wrong length is refused."""
+    from drake_cfvol.algorithm.table import BoundsTable
+
+    _, without, path = pinned
+    box = BoundsTable(
+        np.full((3, 2), -0.1), np.full((3, 2), 0.1), path.waypoints, without.joint_names, -np.ones(2), np.ones(2)
+    )
+    res = boundary_check(without, box, clearance=np.array([0.5, 0.3]), edge_points=8, face_points=16)
+    assert res.positions == 5 and res.colliding_at == [0.0, 0.5, 1.0]
+    assert (res.corners, res.corners_colliding) == (20, 12)
+    assert (res.edge_points, res.edges_colliding) == (40, 24)
+    assert (res.face_points, res.faces_colliding) == (80, 48)
+    assert res.clearance == 0.3
+    with pytest.raises(cf.DimensionError, match="one per stretch"):
+        boundary_check(without, box, clearance=np.zeros(3))
 
 
 def _colliding(workcell, table, n: int, seed: int) -> int:

@@ -346,7 +346,10 @@ def boundary_check(
         pads = position_margins(pads, s)
     else:
         raise DimensionError(
-            f"boundary_check: clearance must be one value or one per stretch ({bounds.g - 1}), got shape {pads.shape}."
+            "boundary_check's clearance",
+            (bounds.g - 1,),
+            pads.shape,
+            "Give one padding (m) or one per stretch of the table.",
         )
     lo, hi, _ = bounds.boxes_at(s)
     k = bounds.k
