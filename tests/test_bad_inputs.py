@@ -9,10 +9,14 @@ session's fixtures.
 
 from __future__ import annotations
 
+import math
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from drake_cfvol.apps.cli import main
 from drake_cfvol.exceptions import CfvolError
@@ -153,6 +157,20 @@ def test_a_duplicate_key_in_included_directives_is_refused(tmp_path, capsys):
     refused(["plan", f], capsys, str(inc), "duplicate key 'directives'")
 
 
+@pytest.mark.parametrize("included", [False, True])
+def test_a_directive_that_does_nothing_is_refused(tmp_path, capsys, included):
+    """An empty directive (``- {}``) crashed Drake's loader (it checks a directive only in a debug build)."""
+    empty = "- {}\n"
+    if included:
+        inc = tmp_path / "more.dmd.yaml"
+        inc.write_text("directives:\n" + empty)
+        empty = "- add_directives:\n    file: more.dmd.yaml\n"
+    f = tmp_path / "cell.yaml"
+    f.write_text(AUTOMOTIVE.replace("cfvol:\n", empty + "cfvol:\n", 1))
+    where = str(tmp_path / "more.dmd.yaml") if included else str(f)
+    refused(["plan", f], capsys, where, "directive", "exactly one of add_model")
+
+
 def test_a_duplicate_json_key_in_a_saved_path_is_refused(tmp_path, capsys):
     f = tmp_path / "p.json"
     f.write_text('{"format": "drake_cfvol.NominalPath", "waypoints": [[0]], "waypoints": [[1]]}')
@@ -214,14 +232,45 @@ TABLE_EDITS = {
         "edited after saving",
     ),
     "other-path-label": (lambda d: d["info"].__setitem__("path", "path2"), "path2", "path1"),
+    "info-not-a-mapping": (lambda d: d.__setitem__("info", []), "info", "list"),
+    "fingerprint-limits-edited": (
+        lambda d: d["info"]["fingerprint"].__setitem__("limits", "wide"),
+        "fingerprint has no valid 'limits'",
+        "edited",
+    ),
+    "fingerprint-box-short": (
+        lambda d: d["info"]["fingerprint"]["obstacles"]["floor"].__setitem__("box", [0.0] * 5),
+        "obstacle 'floor'",
+        "fingerprint",
+    ),
+    "fingerprint-of-a-later-version": (
+        lambda d: d["info"]["fingerprint"].__setitem__("version", 99),
+        "version 99",
+        "fingerprint",
+    ),
 }
 
 
 @pytest.mark.parametrize("edit", TABLE_EDITS)
-def test_an_unusable_saved_table_is_refused(saved, tmp_path, capsys, edit):
+def test_an_unusable_saved_table_is_refused(saved, tmp_path, automotive, edit):
+    """What --bounds-file and bounds.file load (the CLI's line is the error's message: checked below)."""
+    from drake_cfvol.algorithm.reuse import load_bounds_for
+
     change, *named = TABLE_EDITS[edit]
     f = _edited_table(saved, tmp_path, change)
-    refused(["bounds", "automotive", "--path", "1", "--bounds-file", f, "--cf-samples", "1"], capsys, str(f), *named)
+    raises(lambda: load_bounds_for(automotive, f, None, label="path1", notes=[]), str(f), *named)
+
+
+def test_the_cli_refuses_an_unusable_table_or_path_in_one_line(saved, tmp_path, capsys):
+    import json
+
+    f = _edited_table(saved, tmp_path, TABLE_EDITS["lower-above-upper"][0])
+    refused(["bounds", "automotive", "--path", "1", "--bounds-file", f, "--cf-samples", "1"], capsys, str(f), "> upper")
+    d = json.loads((saved / "path.json").read_text())
+    PATH_EDITS["nan-waypoint"][0](d)
+    f = tmp_path / "p.json"
+    f.write_text(json.dumps(d))
+    refused(["bounds", "automotive", "--path-file", f], capsys, str(f), "not a number")
 
 
 def test_a_table_is_refused_where_a_system_meets_it(bounded, planned):
@@ -346,15 +395,18 @@ PATH_EDITS = {
 
 
 @pytest.mark.parametrize("edit", PATH_EDITS)
-def test_an_unusable_saved_path_is_refused(saved, tmp_path, capsys, edit):
+def test_an_unusable_saved_path_is_refused(saved, tmp_path, automotive, edit):
+    """What --path-file and path.file load."""
     import json
+
+    from drake_cfvol.algorithm.reuse import load_path_for
 
     change, named = PATH_EDITS[edit]
     d = json.loads((saved / "path.json").read_text())
     change(d)
     f = tmp_path / "p.json"
     f.write_text(json.dumps(d))
-    refused(["bounds", "automotive", "--path-file", f], capsys, str(f), named)
+    raises(lambda: load_path_for(automotive, f, notes=[]), str(f), named)
 
 
 def _arm_without_collision_geometry(tmp_path: Path) -> tuple[Path, Path]:
@@ -408,6 +460,11 @@ CELL_VALUES = {
     "zero-size": (("    size: [5.6, 5.6]\n", "    size: [5.6, 0.0]\n"), "height_map.size"),
     "nan-origin": (("    origin: [-2.8, -2.8]\n", "    origin: [.nan, -2.8]\n"), "height_map.origin"),
     "three-sizes": (("    size: [5.6, 5.6]\n", "    size: [5.6, 5.6, 1.0]\n"), "height_map.size"),
+    "nan-start": (("      start: [1.22173, 0.872665,", "      start: [.nan, 0.872665,"), "configurations.path1.start"),
+    "two-number-translation": (
+        ("      translation: [0.0, 0.0, 0.42]\n", "      translation: [0.0, 0.42]\n"),
+        "a Transform field got array([0.",
+    ),
 }
 
 
@@ -435,6 +492,8 @@ SCENARIO_VALUES = {
         "toward_nearest_obstacle",
     ),
     "inf-duration": (("  duration: 8.0\n", "  duration: .inf\n"), "path.duration"),
+    "null-duration": (("  duration: 8.0\n", "  duration: null\n"), "path.duration"),
+    "list-log-period": (("  log_period: 0.02\n", "  log_period: [0.02]\n"), "simulation.log_period"),
     "period-over-path": (("  period: 0.01\n", "  period: 20\n"), "control.period"),
     "period-equal-path": (("  period: 0.01\n", "  period: 8.0\n"), "control.period"),
     "inf-period": (("  period: 0.01\n", "  period: .inf\n"), "control.period"),
@@ -709,6 +768,190 @@ def test_batch_names_every_existing_output(tmp_path, capsys):
     for name in ("results.json", "automotive_path2_R1000_bounds.npz"):
         (out / name).write_text("mine")
     refused(["batch", jobs, "--serial", "--out", out], capsys, "results.json", "automotive_path2_R1000_bounds.npz")
+
+
+# --- 7. Mutated files: nothing but CfvolErrors and valid results (hypothesis) -------------------------------
+
+#: Values of other types and out of range, put where a valid one was.
+ODD_VALUES = [None, True, "text", "", -1, 0, 2.5, 1e308, -1e308, 10**30, math.nan, math.inf, -math.inf, [], {}]
+ODD_VALUES += [[1.0, 2.0], {"a": 1}, "1e-3", [None], [[0.0]]]
+#: A comment with letters outside ASCII, in the encodings a file may come in (UTF-8 with or without BOM is valid).
+ENCODED = {
+    "utf-8": "# Größe – “cell”\n",
+    "utf-8-sig": "# Größe – “cell”\n",
+    "utf-16": "# Größe\n",
+    "utf-16-be": "# Größe\n",
+    "utf-32": "# Größe\n",
+    "latin-1": "# Größe\n",
+    "cp1252": "# Größe – “cell”\n",
+}
+
+
+def _nodes(tree, at=()):
+    """The paths (keys and indices) of every node of a parsed file below its root."""
+    if isinstance(tree, dict):
+        items = tree.items()
+    elif isinstance(tree, list):
+        items = enumerate(tree)
+    else:
+        return
+    for key, value in items:
+        yield at + (key,)
+        yield from _nodes(value, at + (key,))
+
+
+def _mutated(data, tree, dump) -> bytes:
+    """One mutation of a parsed file, drawn by hypothesis, as the bytes of a file: a node's value replaced by
+    one of another type or range, a number's sign flipped, a key or item removed, a key given twice, or the
+    whole file in another encoding."""
+    import copy
+    import functools
+    import operator
+    import re
+
+    from hypothesis import strategies as st
+
+    tree = copy.deepcopy(tree)
+    op = data.draw(st.sampled_from(["value", "negate", "delete", "duplicate", "encoding"]), label="op")
+    if op == "encoding":
+        encoding = data.draw(st.sampled_from(sorted(ENCODED)), label="encoding")
+        return (ENCODED[encoding] + dump(tree)).encode(encoding)
+    path = data.draw(st.sampled_from(list(_nodes(tree))), label="node")
+    parent = functools.reduce(operator.getitem, path[:-1], tree)
+    key = path[-1]
+    if op == "value":
+        parent[key] = data.draw(st.sampled_from(ODD_VALUES), label="value")
+    elif op == "negate" and isinstance(parent[key], (int, float)) and not isinstance(parent[key], bool):
+        parent[key] = -parent[key] if parent[key] else -1.0
+    elif op in ("delete", "negate"):
+        del parent[key]
+    text = dump(tree)
+    if op == "duplicate":
+        lines = text.splitlines(keepends=True)
+        keyed = [i for i, ln in enumerate(lines) if re.match(r'\s*(- )?"?[\w.]+"?\s*:', ln)]
+        i = data.draw(st.sampled_from(keyed), label="line")
+        # The line again (a list item's first key again inside its item): a scalar key holds the same value
+        # twice; a section's key opens once empty, then with its block.
+        lines.insert(i + 1, re.sub(r"^(\s*)- ", r"\1  ", lines[i]))
+        text = "".join(lines)
+    return text.encode()
+
+
+def _yaml_dump(tree) -> str:
+    import yaml
+
+    return yaml.safe_dump(tree, sort_keys=False, allow_unicode=True)
+
+
+def _json_dump(tree) -> str:
+    import json
+
+    return json.dumps(tree, indent=1)  # one key a line, as save() writes it; NaN and Infinity as JSON reads them
+
+
+def _only_cfvol_errors(call):
+    """``call()``'s result, or None if it raised a CfvolError of one line; anything else fails the test."""
+    try:
+        return call()
+    except CfvolError as e:
+        assert "\n" not in str(e), str(e)
+        return None
+
+
+@pytest.fixture(scope="module")
+def mutation_folder(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("mutated")
+
+
+def _check_mutated_workcell(data, folder: Path) -> None:
+    import yaml
+
+    import drake_cfvol as cf
+
+    f = folder / "cell.yaml"
+    f.write_bytes(_mutated(data, yaml.safe_load(AUTOMOTIVE), _yaml_dump))
+    wc = _only_cfvol_errors(lambda: cf.load_workcell(str(f)))
+    if wc is not None:  # a valid cell: its settings are usable numbers
+        assert 0 < wc.reach < math.inf
+        assert all(0 < x < math.inf for x in wc.height_map_size)
+        for start, goal in wc.configurations.values():
+            assert np.isfinite(start).all() and np.isfinite(goal).all()
+
+
+def _check_mutated_scenario(data, folder: Path, automotive) -> None:
+    import yaml
+
+    import drake_cfvol as cf
+    from drake_cfvol.comanip.checks import check_scenario_against_cell
+    from drake_cfvol.comanip.scenario import load_scenario
+
+    f = folder / "scenario.yaml"
+    f.write_bytes(_mutated(data, yaml.safe_load(SCENARIO), _yaml_dump))
+
+    def check():
+        scenario, file = load_scenario(f)
+        cell = scenario.cell.name
+        wc = automotive if cell == "automotive" else cf.load_workcell(cell)
+        check_scenario_against_cell(scenario, wc, file)
+        return scenario
+
+    scenario = _only_cfvol_errors(check)
+    if scenario is not None:  # a valid scenario: its times are usable numbers
+        assert 0 < scenario.control.period < scenario.path.duration < math.inf
+        assert 0 < scenario.simulation.log_period < math.inf
+
+
+def _check_mutated_table(data, folder: Path, saved: Path, automotive) -> None:
+    import json
+
+    from drake_cfvol.algorithm.reuse import load_bounds_for
+
+    f = folder / "bounds.json"
+    f.write_bytes(_mutated(data, json.loads((saved / "bounds.json").read_text()), _json_dump))
+    table = _only_cfvol_errors(lambda: load_bounds_for(automotive, f, None, notes=[]))
+    if table is not None:  # a table taken for this cell is usable in it (an invariant of its own)
+        assert table.problem(automotive.position_lower, automotive.position_upper) is None
+        assert table.nominal.shape[1] == automotive.num_joints
+
+
+def _property(examples: int):
+    from hypothesis import HealthCheck, settings
+
+    return settings(max_examples=examples, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+FEW, MANY = 12, 200  # examples in the default group (a few seconds) and in the slow group
+
+
+@_property(FEW)
+@given(data=st.data())
+def test_a_mutated_workcell_file_loads_or_is_refused(data, mutation_folder):
+    _check_mutated_workcell(data, mutation_folder)
+
+
+@_property(FEW)
+@given(data=st.data())
+def test_a_mutated_scenario_file_loads_or_is_refused(data, mutation_folder, automotive):
+    _check_mutated_scenario(data, mutation_folder, automotive)
+
+
+@_property(2 * FEW)
+@given(data=st.data())
+def test_a_mutated_table_file_loads_or_is_refused(data, mutation_folder, saved, automotive):
+    _check_mutated_table(data, mutation_folder, saved, automotive)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["workcell", "scenario", "table"])
+@_property(MANY)
+@given(data=st.data())
+def test_many_mutated_files_load_or_are_refused(data, kind, mutation_folder, saved, automotive):
+    if kind == "workcell":
+        _check_mutated_workcell(data, mutation_folder)
+    elif kind == "scenario":
+        _check_mutated_scenario(data, mutation_folder, automotive)
+    else:
+        _check_mutated_table(data, mutation_folder, saved, automotive)
 
 
 # --- 6. Interrupts ---------------------------------------------------------------------------------------

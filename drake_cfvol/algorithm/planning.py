@@ -65,6 +65,8 @@ class NominalPath:
         if self.waypoints.ndim != 2 or self.waypoints.shape[0] < 2:
             raise DimensionError("path waypoints", "(g >= 2, k)", self.waypoints.shape)
         self.joint_names = names(self.joint_names, "NominalPath: joint_names")
+        for name in ("stats", "fingerprint"):
+            instance(getattr(self, name), dict, f"NominalPath: {name}")
         if self.waypoints.shape[1] != len(self.joint_names):
             raise DimensionError("path waypoints' columns", len(self.joint_names), self.waypoints.shape[1])
         bad = np.argwhere(~np.isfinite(self.waypoints))

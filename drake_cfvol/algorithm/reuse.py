@@ -16,7 +16,7 @@ from drake_cfvol.algorithm.planning import NominalPath
 from drake_cfvol.algorithm.table import BoundsTable, absolute_bounds
 from drake_cfvol.exceptions import CollisionError, ConfigurationError
 from drake_cfvol.io.records import path_label
-from drake_cfvol.scene.arrays import cell_fingerprint, fingerprint_differences
+from drake_cfvol.scene.arrays import cell_fingerprint, fingerprint_differences, fingerprint_problem
 
 __all__ = ["fingerprint_of", "check_fingerprint", "load_path_for", "load_bounds_for"]
 
@@ -45,6 +45,12 @@ def check_fingerprint(workcell, saved: dict, file, what: str, notes: list | None
         if notes is not None:
             notes.append(_NO_FINGERPRINT.format(file=file))
         return
+    problem = fingerprint_problem(saved)
+    if problem is not None:
+        raise ConfigurationError(
+            f"{file}: the {what}'s fingerprint {problem}, so the cell it was made in cannot be checked (the file "
+            f"was edited after saving). Make the {what} again (cfvol {'plan' if what == 'path' else 'bounds'} ... --out)."
+        )
     differences = fingerprint_differences(saved, cell_fingerprint(workcell))
     if differences:
         more = f" (and {len(differences) - 1} more difference(s))" if len(differences) > 1 else ""

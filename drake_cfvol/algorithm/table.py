@@ -18,7 +18,7 @@ from numba import njit
 from pydrake.trajectories import PiecewisePolynomial
 
 from drake_cfvol.exceptions import CfvolError, DimensionError, ParameterError, RecordFormatError
-from drake_cfvol.io.arguments import names, real_array, real_number
+from drake_cfvol.io.arguments import instance, names, real_array, real_number
 from drake_cfvol.io.records import load_record, save_record
 
 __all__ = [
@@ -403,6 +403,8 @@ class BoundsTable:
         for name in ("lower", "upper", "nominal", "limit_lower", "limit_upper"):
             setattr(self, name, real_array(getattr(self, name), f"BoundsTable: {name}"))
         self.joint_names = names(self.joint_names, "BoundsTable: joint_names")
+        for name in ("params", "timing_ms", "info"):
+            instance(getattr(self, name), dict, f"BoundsTable: {name}")
         if not (self.lower.shape == self.upper.shape == self.nominal.shape) or self.nominal.ndim != 2:
             raise DimensionError("bounds arrays", self.nominal.shape, (self.lower.shape, self.upper.shape))
         if self.nominal.shape[1] != len(self.joint_names):

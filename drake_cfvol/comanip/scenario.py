@@ -393,9 +393,11 @@ def _is_number(value) -> bool:
         return False
     if isinstance(value, (int, float)):
         return True
+    if not isinstance(value, str):
+        return False  # None, a list, a mapping
     try:
         float(value)
-        return isinstance(value, str)
+        return True
     except ValueError:
         return False
 

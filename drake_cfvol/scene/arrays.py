@@ -30,7 +30,15 @@ from drake_cfvol.kernel import kinds
 from drake_cfvol.scene.covers import robot_covers
 from drake_cfvol.scene.robot import robot_bodies
 
-__all__ = ["SceneArrays", "cell_fingerprint", "fingerprint_differences", "robot_chain", "scene_arrays", "shape_row"]
+__all__ = [
+    "SceneArrays",
+    "cell_fingerprint",
+    "fingerprint_differences",
+    "fingerprint_problem",
+    "robot_chain",
+    "scene_arrays",
+    "shape_row",
+]
 
 
 def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[np.ndarray, float, np.ndarray]:
@@ -593,6 +601,37 @@ def cell_fingerprint(workcell) -> dict:
         "limits": finite,
         "obstacles": obstacles,
     }
+
+
+def _numbers(values, size: int, *, none: bool = False) -> bool:
+    """A list of ``size`` numbers (or None where ``none``)."""
+    return (
+        isinstance(values, list)
+        and len(values) == size
+        and all((x is None and none) or (isinstance(x, (int, float)) and not isinstance(x, bool)) for x in values)
+    )
+
+
+def fingerprint_problem(saved) -> str | None:
+    """What makes a saved fingerprint unreadable, as one phrase, or None:
+    another version, or a field that is missing or not of the form
+    :func:`cell_fingerprint` writes (a file edited by hand)."""
+    if not isinstance(saved, dict):
+        return f"is a {type(saved).__name__}, not a mapping"
+    if saved.get("version") != FINGERPRINT_VERSION:
+        return f"is of version {saved.get('version')!r} (this drake_cfvol reads version {FINGERPRINT_VERSION})"
+    for key, kind in (("robot", str), ("robot_sha", str), ("joints", list), ("limits", list), ("obstacles", dict)):
+        if not isinstance(saved.get(key), kind):
+            return f"has no valid '{key}' (a {kind.__name__})"
+    joints = saved["joints"]
+    if not all(isinstance(j, str) for j in joints):
+        return "has no valid 'joints' (their names)"
+    if len(saved["limits"]) != 2 or not all(_numbers(side, len(joints), none=True) for side in saved["limits"]):
+        return f"has no valid 'limits' (lower and upper, {len(joints)} numbers each)"
+    for name, ob in saved["obstacles"].items():
+        if not (isinstance(ob, dict) and isinstance(ob.get("sha"), str) and _numbers(ob.get("box"), 6)):
+            return f"has no valid entry for obstacle '{name}' (its sha and box)"
+    return None
 
 
 def fingerprint_differences(saved: dict, current: dict) -> list[str]:

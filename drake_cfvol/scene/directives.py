@@ -37,12 +37,24 @@ def add_packages(package_map, path: Path, package_paths: dict, lines: dict) -> N
         package_map.Add(str(pname), str(folder))
 
 
+#: What a model directive may do: exactly one of these per directive.
+_ACTIONS = ("add_model", "add_model_instance", "add_frame", "add_weld", "add_collision_filter_group", "add_directives")
+
+
 def prepare_directives(directives: list, package_map, path: Path, lines: dict, notes: list) -> list:
     """Copies of the typed directives with model files resolved (relative to
     the file at ``path``) and STL meshes converted; what the conversion did
     is appended to ``notes``."""
     out = []
-    for d in directives:
+    for n, d in enumerate(directives, 1):
+        actions = [name for name in _ACTIONS if getattr(d, name) is not None]
+        if len(actions) != 1:  # Drake checks this only in a debug build: an empty one crashes its loader
+            raise WorkcellFormatError(
+                str(path),
+                f"directive {n} (counted from 1) must hold exactly one of {', '.join(_ACTIONS)}, "
+                f"got {', '.join(actions) or 'none'}.",
+                lines.get("directives"),
+            )
         d = copy.deepcopy(d)
         if d.add_directives is not None:
             _check_included(str(d.add_directives.file), package_map, path, lines)
@@ -88,9 +100,15 @@ def _check_included(url: str, package_map, path: Path, lines: dict) -> None:
         included, "directives", lambda message: WorkcellFormatError(str(included), "the directives file " + message)
     )
     try:
-        read_yaml(text, tags=False)
+        raw = read_yaml(text, tags=False)
     except yaml.YAMLError as e:
         raise WorkcellFormatError(str(included), f"not valid YAML: {yaml_error_line(e)}. Fix it there.") from None
+    items = raw.get("directives") if isinstance(raw, dict) else None
+    for n, d in enumerate(items if isinstance(items, list) else [], 1):
+        if not (isinstance(d, dict) and len(d) == 1 and next(iter(d)) in _ACTIONS):
+            raise WorkcellFormatError(
+                str(included), f"directive {n} (counted from 1) must hold exactly one of {', '.join(_ACTIONS)}."
+            )
 
 
 def _check_world_welds(quirks, model: str, directives: list, path: Path, lines: dict) -> None:

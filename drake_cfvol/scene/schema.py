@@ -164,8 +164,9 @@ class DuplicateKeyError(yaml.constructor.ConstructorError):
         )
 
 
-class _UniqueLoader(yaml.SafeLoader):
-    """YAML's safe loader that refuses a key given twice in one mapping."""
+class _UniqueLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):
+    """YAML's safe loader that refuses a key given twice in one mapping
+    (libyaml's parser where PyYAML has it: about 5x faster than PyYAML's own)."""
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -346,5 +347,9 @@ def read_workcell_file(path: Path, *, embedded: bool = False) -> tuple[WorkcellF
                 "Check its spelling (see the drake_cfvol.scene.workcell docstring for the keys).",
                 line,
             ) from e
-        raise WorkcellFormatError(str(path), f"a value has the wrong type: {msg}. Fix it there.") from e
+        flat = " ".join(msg.split())  # pybind11 lists the signatures it tried over several lines
+        tried = re.search(r"self: ([\w.]+).*Invoked with: .*\), (.+)$", flat)
+        if tried:  # e.g. a translation of two numbers: "a Transform field got array([1., 2.])"
+            flat = f"a {tried.group(1).rsplit('.', 1)[-1]} field got {tried.group(2)}"
+        raise WorkcellFormatError(str(path), f"a value has the wrong type or size: {flat}. Fix it there.") from e
     return typed, lines

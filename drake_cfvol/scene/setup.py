@@ -105,13 +105,17 @@ class WorkcellSetup:
         for cname, (start, goal) in configurations.items():
             start, goal = np.asarray(start, float), np.asarray(goal, float)
             for label, q in (("start", start), ("goal", goal)):
+                key = f"cfvol.configurations.{cname}.{label}"
+                line = key if key in self._lines else cname
                 if q.shape != (self.num_joints,):
                     raise self._fail(
                         f"configurations.{cname}.{label} has {q.size} values; the robot has {self.num_joints} "
                         f"joints ({', '.join(self.joint_names)}).",
-                        f"cfvol.configurations.{cname}.{label}"
-                        if f"cfvol.configurations.{cname}.{label}" in self._lines
-                        else cname,
+                        line,
+                    )
+                if not np.isfinite(q).all():
+                    raise self._fail(
+                        f"configurations.{cname}.{label} must be finite numbers (rad or m), got {q.tolist()}.", line
                     )
             self.configurations[str(cname)] = (start, goal)
 
