@@ -212,11 +212,7 @@ TABLE_EDITS = {
     "nan-nominal": (lambda d: d["nominal"][7].__setitem__(4, float("nan")), "nominal", "not a finite number"),
     "nominal-outside": (lambda d: d["nominal"][9].__setitem__(0, d["upper"][9][0] + 0.1), "nominal", "> upper"),
     "nominal-below": (lambda d: d["nominal"][9].__setitem__(0, d["lower"][9][0] - 0.1), "lower", "> nominal"),
-    "stretch-inverted": (
-        lambda d: d["stretch_lower"][2].__setitem__(1, d["stretch_upper"][2][1] + 1),
-        "stretch_lower",
-        "stretch 3",
-    ),
+    "nan-stretch": (lambda d: d["stretch_lower"][2].__setitem__(1, float("nan")), "stretch_lower", "stretch 3"),
     "negative-rate": (lambda d: d.__setitem__("rate", [-1.0] * 6), "rate", ">= 0"),
     "box-outside-limits": (
         lambda d: (d["upper"][0].__setitem__(0, 3.5), d["upper"][1].__setitem__(0, 3.5)),
@@ -271,6 +267,23 @@ def test_the_cli_refuses_an_unusable_table_or_path_in_one_line(saved, tmp_path, 
     f = tmp_path / "p.json"
     f.write_text(json.dumps(d))
     refused(["bounds", "automotive", "--path-file", f], capsys, str(f), "not a number")
+
+
+def test_a_table_whose_stretch_bounds_cross_is_valid():
+    """Two waypoint boxes that do not overlap (the joint has no room beyond the nominal, which moves): their
+    stretch box crosses (lower 0.0339 > upper 0.0298), and the box rule widens it to hold the nominal, as the sweep's
+    own tables do (aerospace path 1, joint A4): the table is usable, not refused."""
+    import numpy as np
+
+    from drake_cfvol.algorithm.table import BoundsTable, check_table
+    from drake_cfvol.systems import JointBoundsSource
+
+    table = BoundsTable([[0.0], [0.0339]], [[0.0298], [0.0339]], [[0.0], [0.0339]], ["a4"], [-1.0], [1.0])
+    assert table.stretch_lower[0, 0] > table.stretch_upper[0, 0]
+    check_table(table, "here", np.array([-1.0]), np.array([1.0]))
+    JointBoundsSource(table)
+    lo, hi, nom = table.at(0.5)
+    assert lo[0] == nom[0] == 0.0339 / 2 <= hi[0]  # it holds the nominal (no room below it)
 
 
 def test_a_table_is_refused_where_a_system_meets_it(bounded, planned):

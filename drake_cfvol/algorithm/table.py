@@ -494,7 +494,8 @@ class BoundsTable:
     def problem(self, position_lower=None, position_upper=None) -> str | None:
         """What makes the table unusable, as one phrase (the first found), or
         None: a non-finite value, lower > upper, a nominal outside its box,
-        a negative rate, or (given the robot's position limits, inf where a
+        a negative rate (a stretch's bounds may cross: :func:`box_at` widens
+        them to hold the nominal, as the sweep leaves a joint with no room), or (given the robot's position limits, inf where a
         joint has none) a box outside the limits."""
         arrays = {
             "lower": self.lower,
@@ -507,7 +508,8 @@ class BoundsTable:
             bad = np.argwhere(~np.isfinite(a))
             if len(bad):
                 i, j = bad[0]
-                return f"{name} of joint '{self.joint_names[j]}' at waypoint {i + 1} is {a[i, j]}, not a finite number"
+                unit = "stretch" if name.startswith("stretch") else "waypoint"
+                return f"{name} of joint '{self.joint_names[j]}' at {unit} {i + 1} is {a[i, j]}, not a finite number"
         for name, a in (("limit_lower", self.limit_lower), ("limit_upper", self.limit_upper)):
             if a.shape != (self.k,) or np.isnan(a).any():
                 return f"{name} must hold {self.k} numbers, got {np.asarray(a).tolist()}"
@@ -523,7 +525,6 @@ class BoundsTable:
         tol = _CHECK_TOLERANCE
         checks = (
             ("lower", self.lower, "upper", self.upper, "waypoint"),
-            ("stretch_lower", self.stretch_lower, "stretch_upper", self.stretch_upper, "stretch"),
             ("lower", self.lower, "nominal", self.nominal, "waypoint"),
             ("nominal", self.nominal, "upper", self.upper, "waypoint"),
             ("the joint's lower limit", np.broadcast_to(lo, self.lower.shape), "lower", self.lower, "waypoint"),
