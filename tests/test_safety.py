@@ -57,6 +57,8 @@ def _arm(obstacle: str, **kw):
     if speed is not None:
         kw["constraints"] = [ToolSpeedLimit(link2.body_frame(), speed, point=[L2, 0, 0])]
     kw.setdefault("period", H)
+    if kw.pop("obstacle_moves", False):  # the obstacle taken as moving on its own (as perceived geometry is)
+        kw["dynamic_ids"] = [obs]
     measured = kw.pop("measured", False)  # the SceneGraph posed from an exported measured position
     sf = builder.AddSystem(SafetyFilter(plant, sg, arm, velocity_limits=VMAX, **kw))
     to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
@@ -349,6 +351,49 @@ def test_hold_keeps_the_last_command(wall):
     sim.AdvanceTo(2.5 * sf.period)
     assert np.abs(sf.commanded_position_output.Eval(sctx) - [2.0, 0.3]).max() > 0
     assert sf.hold_count_output.Eval(sctx)[0] == 2.0
+
+
+@pytest.mark.parametrize(("depth", "fault"), [(0.10, 2), (0.20, 0)])
+def test_an_obstacle_overlapping_the_robot_deeper_than_the_depth_faults_and_holds(depth, fault):
+    """The arm straight along x: its tip sphere spans x in [0.85, 0.95], the wall's face lies at x = 0.8, so
+    they overlap by 0.15 m (by hand; Drake agrees). Taken as moving on its own (perceived) with an
+    overlap_depth of 0.10 m, the filter faults (2) at its first update and holds the command there for good,
+    whatever is asked; with 0.20 m it does not fault, and the damper moves the tip out of the wall."""
+    diagram, sf, tip, wall_id = _arm("wall", clearance=0.02, obstacle_moves=True, overlap_depth=depth)
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    sf.set_initial_position(sctx, [0.0, 0.0])
+    assert _drake_distance(diagram, ctx, tip, wall_id) == pytest.approx(0.8 - (L1 + L2 + R))
+    _fix(diagram, ctx, [0.0, 0.0])
+    sim = Simulator(diagram, ctx)
+    sim.AdvanceTo(5.5 * H)
+    assert sf.filter_fault_output.Eval(sctx)[0] == fault
+    q = sf.commanded_position_output.Eval(sctx)
+    if fault:
+        np.testing.assert_array_equal(q, [0.0, 0.0])
+        _fix(diagram, ctx, [0.5, 0.5])  # asked to move: still held
+        sim.AdvanceTo(10.5 * H)
+        np.testing.assert_array_equal(sf.commanded_position_output.Eval(sctx), [0.0, 0.0])
+        np.testing.assert_array_equal(sf.commanded_velocity_output.Eval(sctx), [0.0, 0.0])
+    else:
+        assert _drake_distance(diagram, ctx, tip, wall_id) > 0.8 - (L1 + L2 + R)  # moving out of the wall
+
+
+def test_more_rows_than_the_cap_fault_the_filter_and_hold():
+    """The tip 0.105 m from the wall's face (inside the influence distance: the damper has rows): a filter whose
+    row cap is 0 faults (1) at its first update instead of solving, and holds the command."""
+    diagram, sf, tip, wall_id = _arm("wall", clearance=0.02)
+    sf.MAX_ROWS = 0  # this instance only
+    ctx = diagram.CreateDefaultContext()
+    sctx = sf.GetMyContextFromRoot(ctx)
+    q0 = [0.0, -1.2]
+    sf.set_initial_position(sctx, q0)
+    d = _drake_distance(diagram, ctx, tip, wall_id)
+    assert 0 < d < sf.influence_distance
+    _fix(diagram, ctx, [0.1, -1.2])
+    Simulator(diagram, ctx).AdvanceTo(1.5 * H)
+    assert sf.filter_fault_output.Eval(sctx)[0] == 1
+    np.testing.assert_array_equal(sf.commanded_position_output.Eval(sctx), q0)
 
 
 def test_constructor_checks(wall):

@@ -45,7 +45,7 @@ from drake_cfvol.comanip.iiwa import (
     grip_point,
     tool_radius,
 )
-from drake_cfvol.comanip.online import OnlineParts, add_online
+from drake_cfvol.comanip.online import OnlineParts, add_online, perceived_overlap_depth
 from drake_cfvol.comanip.recording import show_tool_path
 from drake_cfvol.comanip.scenario import Scenario, check_scenario_against_cell, scenario_file_path, validate_scenario
 from drake_cfvol.exceptions import ScenarioError
@@ -540,6 +540,7 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
                 "filter_box_exits": safety.box_exits_output,
                 "filter_holds": safety.hold_count_output,
                 "tracking_faults": safety.tracking_faults_output,
+                "filter_fault": safety.filter_fault_output,
             }
         )
     loggers = {}
@@ -616,6 +617,7 @@ def build_comanipulation_diagram(
         obstacle_ids=obstacle_ids,
         dynamic_ids=online.filter_ids if online is not None else (),
         name="",
+        overlap_depth=perceived_overlap_depth(scenario) if online is not None else None,
     )
     progress, adm, safety = control.progress, control.admittance, control.safety
     commanded = control.commanded_position_output

@@ -18,7 +18,15 @@ from drake_cfvol.online import MapGrid, ObstacleMap, OnlineBounds, PerceptionPar
 from drake_cfvol.systems import AddCellCamera, MovingBoxes, OnlineBoundsEstimator, PerceivedColumns
 from drake_cfvol.systems.perception import AddCellModel, make_renderable
 
-__all__ = ["OnlineParts", "add_online", "perception_params", "online_figures", "map_grid", "show_online_freedom"]
+__all__ = [
+    "OnlineParts",
+    "add_online",
+    "perceived_overlap_depth",
+    "perception_params",
+    "online_figures",
+    "map_grid",
+    "show_online_freedom",
+]
 
 
 class OnlineParts(typing.NamedTuple):
@@ -48,6 +56,15 @@ def perception_params(scenario) -> PerceptionParams:
     return PerceptionParams(
         cell=o.cell, dilation=1 + int(math.ceil(o.obstacle_speed * lag / o.cell - 1e-9)), speed=o.obstacle_speed
     )
+
+
+def perceived_overlap_depth(scenario) -> float:
+    """How deep the perceived columns may overlap the robot while what the
+    camera saw does not: the margin the map adds around it (its dilation,
+    :func:`perception_params`), m. Deeper, the obstacle as seen overlaps
+    the robot, and the safety filter faults (``overlap_depth``)."""
+    params = perception_params(scenario)
+    return params.dilation * params.cell
 
 
 def map_grid(workcell, cell: float) -> MapGrid:

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 from pydrake.common import RandomGenerator
 from pydrake.geometry import Meshcat, MeshcatParams
-from pydrake.systems.analysis import ApplySimulatorConfig, Simulator
+from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorStatus
+from pydrake.systems.framework import EventStatus
 
 from drake_cfvol.comanip.diagram import Comanipulation, build_comanipulation_diagram
 from drake_cfvol.comanip.online import online_figures, show_online_freedom
@@ -17,6 +18,7 @@ from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagr
 from drake_cfvol.comanip.scenario import load_scenario
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.io.records import prepare_outputs
+from drake_cfvol.systems.safety import FAULTS
 
 __all__ = ["bound_figures", "run_outputs", "run_scenario"]
 
@@ -39,13 +41,25 @@ def _simulate(cm, scenario, meshcat, progress: bool):
             frames_per_second=1.0 / scenario.simulation.visualization.publish_period,
             set_visualizations_while_recording=False,
         )
+    if cm.diagram.HasOutputPort("filter_fault"):
+        # A faulted filter holds the robot for good (safety.py, Fault): the run ends there.
+        fault = cm.diagram.GetOutputPort("filter_fault")
+        sim.set_monitor(
+            lambda root: (
+                EventStatus.ReachedTermination(cm.diagram, "the safety filter faulted")
+                if fault.Eval(root)[0]
+                else EventStatus.Succeeded()
+            )
+        )
     t0 = time.perf_counter()
     duration = cm.duration
     with Progress(duration, "Simulating", enabled=progress, unit="simulated s") as bar:
         steps = 100
         for n in range(1, steps + 1):
-            sim.AdvanceTo(duration * n / steps)
+            status = sim.AdvanceTo(duration * n / steps)
             bar.update(duration / steps)
+            if status.reason() == SimulatorStatus.ReturnReason.kReachedTerminationCondition:
+                break
     return ctx, time.perf_counter() - t0
 
 
@@ -182,6 +196,8 @@ def run_scenario(
         "filter_holds": _count(cm, ctx, "filter_holds"),
         "tracking_faults": _count(cm, ctx, "tracking_faults"),
         "faults": _count(cm, ctx, "fault_count"),
+        "filter_fault": FAULTS.get(_count(cm, ctx, "filter_fault")),
+        "ended_s": ctx.get_time(),
         "safety_filter": cm.control.safety is not None,
         "filter_clearance_m": cm.filter_clearance,
         "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
@@ -252,8 +268,14 @@ def run_problems(summary: dict) -> list[str]:
     collided, came nearer than min(margin, the nominal's own clearance) -
     MARGIN_TOLERANCE, or moved a joint faster than its limit (measured at
     the control update rate), or left the base table's box where the
-    filter did not give the box way to a damper row (``filter_box_exits``)."""
+    filter did not give the box way to a damper row (``filter_box_exits``),
+    or the safety filter faulted (``filter_fault``: the run ended there)."""
     out = []
+    if summary.get("filter_fault"):
+        out.append(
+            f"the safety filter faulted at {summary.get('ended_s', 0.0):.2f} s ({summary['filter_fault']}): it held "
+            "the last command and the run ended there"
+        )
     if summary.get("collisions", 0) > 0:
         out.append(f"the robot collided at {summary['collisions']} update(s)")
     need = min(summary.get("clearance_m", 0.0), summary.get("nominal_min_clearance_m", 0.0))

@@ -41,6 +41,19 @@ flag falls at the next update that misses no row, or is held. A
 non-finite measured position holds the command as a non-finite input
 does.
 
+**Fault**: every update's cost is bounded: at most ``SECOND_ORDER_ROUNDS``
+QP rounds of at most one solve per priority stage, each by a solver with
+an iteration cap; the distance queries are the damper's pairs at most
+(fixed when it is built); and the QP's size is capped: an update whose
+damper rows number more than ``MAX_ROWS`` is not solved. Where that cap
+is hit (``filter_fault`` 1), or a pair with geometry that moves on its
+own (``dynamic_ids``: perceived obstacles) overlaps the robot by more
+than ``overlap_depth`` (``filter_fault`` 2: the obstacle as perceived,
+not only the margin its map adds around it, overlaps the robot), the
+filter holds the last command (v = 0) at that update and every update
+after: the fault is latched until the context is reset. A run reports
+it and ends (:func:`~drake_cfvol.comanip.run_scenario`).
+
 **Hold**: while the optional ``hold`` input is above 0.5 (or NaN), an
 update keeps the last command (v = 0) and counts itself in ``hold_count``:
 a robot whose status went stale (:class:`~drake_cfvol.systems.StatusWatchdog`)
@@ -182,7 +195,7 @@ from drake_cfvol.systems.constraints import (
 from drake_cfvol.systems.damper import DamperRows, DynamicPairs, VelocityDamper
 from drake_cfvol.systems.filter_kernel import budget_after, finish, request
 
-__all__ = ["SafetyFilter", "SafetyFilterConfig"]
+__all__ = ["FAULTS", "SafetyFilter", "SafetyFilterConfig"]
 
 
 @dataclasses.dataclass
@@ -210,8 +223,16 @@ class SafetyFilterConfig:
 #: |v_j| / limit_j of the last update, updates that used the fallback,
 #: updates that had to miss a damper row, updates whose command left the
 #: box, updates held, a tracking fault at the last update, updates with
-#: one].
-_ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS, _HOLDS, _TRACKING, _TRACKING_COUNT = range(10)
+#: one, the latched fault (:data:`FAULTS`; 0: none)].
+_ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS, _HOLDS, _TRACKING, _TRACKING_COUNT, _FAULT = range(
+    11
+)
+
+#: The filter's faults (its ``filter_fault`` output), by code: what hit it.
+FAULTS = {
+    1: "too_many_rows",  # more damper rows than SafetyFilter.MAX_ROWS: the QP is not solved
+    2: "perceived_overlap",  # a perceived obstacle overlaps the robot deeper than overlap_depth
+}
 
 #: The share of the velocity limits the filter keeps below them.
 _HAIR = 1e-9
@@ -265,6 +286,7 @@ def _declare_status_outputs(system, status) -> None:
         ("hold_count", _HOLDS),
         ("tracking_fault", _TRACKING),
         ("tracking_faults", _TRACKING_COUNT),
+        ("filter_fault", _FAULT),
     ]:
         port = system.DeclareVectorOutputPort(
             name=name,
@@ -312,6 +334,7 @@ class SafetyFilter(LeafSystem):
         - hold_count
         - tracking_fault
         - tracking_faults
+        - filter_fault
 
     The update, its constraints and guarantees, the outputs and the measured
     position: see :mod:`drake_cfvol.systems.safety`. Scalar type: float only.
@@ -343,6 +366,10 @@ class SafetyFilter(LeafSystem):
             update (:meth:`~.damper.DynamicPairs.mark`), rows never relaxed.
         constraints: further :class:`~drake_cfvol.systems.constraints.FilterConstraint`
             objects (e.g. a :class:`~drake_cfvol.systems.constraints.ToolSpeedLimit`).
+        overlap_depth: m (>= 0): a pair with geometry of ``dynamic_ids``
+            overlapping the robot deeper than this faults the filter (see
+            the module's Fault); None: never (perceived columns: the margin
+            their map adds around what the camera saw).
     """
 
     #: Weight of a damper row's miss (slack) against the request's, (s/m)^2
@@ -356,6 +383,10 @@ class SafetyFilter(LeafSystem):
 
     #: Most QP solves per update for the rows' second-order term.
     SECOND_ORDER_ROUNDS = 4
+
+    #: Most damper rows an update solves a QP over: more fault the filter (the QP's cost grows with the cube of
+    #: its rows where they conflict; the bundled moving-obstacle runs peak at 172 and 232 rows).
+    MAX_ROWS = 400
 
     def __init__(
         self,
@@ -375,8 +406,14 @@ class SafetyFilter(LeafSystem):
         skip_far_pairs: bool = True,
         dynamic_ids=(),
         constraints=(),
+        overlap_depth: float | None = None,
     ):
         super().__init__()
+        if overlap_depth is not None and not 0 <= overlap_depth < np.inf:
+            raise ParameterError(
+                f"SafetyFilter: overlap_depth must be a finite depth >= 0 m or None, got {overlap_depth}."
+            )
+        self.overlap_depth = None if overlap_depth is None else float(overlap_depth)
         robot_slice = RobotSlice(plant, robot)
         k = robot_slice.k
         _check_parameters(period, clearance, allowance, influence_distance, damper_gain)
@@ -446,7 +483,7 @@ class SafetyFilter(LeafSystem):
         )
         self._position = self.DeclareDiscreteState(q0)
         self._velocity = self.DeclareDiscreteState(k)  # the last commanded velocity
-        self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
+        self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
         # Per pair, how far it is known to lie beyond the influence distance
         # (m; negative: measure it at the next update), with the robot at the
         # last update's base position (the budget's last entry on).
@@ -554,6 +591,9 @@ class SafetyFilter(LeafSystem):
         q = context.get_discrete_state(self._position).CopyToVector()
         v_last = context.get_discrete_state(self._velocity).CopyToVector()
         status = context.get_discrete_state(self._status).CopyToVector()
+        if status[_FAULT]:  # latched: the last command stays (see the module's Fault)
+            discrete_state.get_mutable_vector(self._velocity).SetFromVector(np.zeros(k))
+            return
         if self.hold_input.HasValue(context) and not self.hold_input.Eval(context)[0] <= 0.5:
             # Held (a stale robot status, a fault upstream): the last command
             # stays; every pair is measured again when the hold ends.
@@ -603,6 +643,14 @@ class SafetyFilter(LeafSystem):
             # distance; the budget kept: measured pairs' distance beyond it,
             # the others' budget, both with the robot at this base.
             dmin, keep = budget_after(rows.distances, budget, self.influence_distance, base)
+            fault = self._fault(rows)
+            if fault:  # held from now on: no QP at this update or after
+                discrete_state.get_mutable_vector(self._velocity).SetFromVector(np.zeros(k))
+                faulted = status.copy()
+                faulted[_ACTIVE], faulted[_RATIO], faulted[_MIN_DISTANCE], faulted[_FAULT] = 1.0, 0.0, dmin, fault
+                faulted[_COUNT] += 1
+                discrete_state.get_mutable_vector(self._status).SetFromVector(faulted)
+                return
             v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal, drift)
             tracking = missed and drift is not None
             if drift is not None:
@@ -629,8 +677,21 @@ class SafetyFilter(LeafSystem):
                 status[_HOLDS],
                 float(tracking),
                 status[_TRACKING_COUNT] + tracking,
+                0.0,  # no fault (a faulted update returned above)
             ]
         )
+
+    def _fault(self, rows: DamperRows) -> int:
+        """The fault these rows raise (:data:`FAULTS`), or 0: more rows than
+        :attr:`MAX_ROWS`; a pair with self-moving geometry overlapping the
+        robot deeper than :attr:`overlap_depth`."""
+        if len(rows.b) > self.MAX_ROWS:
+            return 1
+        if self.overlap_depth is not None and len(self._dynamic):
+            d = rows.distances[self._dynamic.pairs]
+            if (d[np.isfinite(d)] < -self.overlap_depth).any():
+                return 2
+        return 0
 
     def _base_and_drift(self, context, q, v_last):
         """(base, drift): :meth:`base_position`, and with a measured

@@ -160,16 +160,15 @@ def _resolve(plant, robot, table, tool_frame, config):
     return robot, rs.k, tool_frame, limits, rate
 
 
-def _safety_filter(
-    f: SafetyFilterConfig, plant, scene_graph, robot, table, limits, period, obstacle_ids, dynamic_ids, tool_frame=None
-) -> SafetyFilter:
-    """The filter of a config: its margin the table's where the config leaves it None."""
+def _safety_filter(f: SafetyFilterConfig, scene, table, limits, period, watched, tool_frame=None) -> SafetyFilter:
+    """The filter of a config (``scene``: the plant, its SceneGraph and the robot; ``watched``: the obstacles'
+    ids, those moving on their own, the overlap depth that faults it): its margin the table's where the config
+    leaves it None."""
     margin = float(table.params.get("clearance", 0.0)) if f.clearance is None else float(f.clearance)
+    obstacle_ids, dynamic_ids, overlap_depth = watched
     dynamic = list(dynamic_ids)
     return SafetyFilter(
-        plant,
-        scene_graph,
-        robot,
+        *scene,
         velocity_limits=limits,
         obstacle_ids=None if obstacle_ids is None else list(obstacle_ids) + dynamic,
         clearance=margin,
@@ -180,6 +179,7 @@ def _safety_filter(
         initial_position=table.nominal[0],
         dynamic_ids=dynamic,
         constraints=[] if f.tool_speed is None else [ToolSpeedLimit(tool_frame, f.tool_speed)],
+        overlap_depth=overlap_depth,
     )
 
 
@@ -197,6 +197,7 @@ def AddCoManipulation(
     obstacle_ids=None,
     dynamic_ids=(),
     name: str = "cfvol",
+    overlap_depth: float | None = None,
 ) -> CoManipulationSystems:
     """Adds co-manipulation to a user's builder: path progress, the bounds
     of ``table`` one control period ahead, the push's check, the admittance
@@ -231,6 +232,9 @@ def AddCoManipulation(
             (default: every proximity geometry not on the robot).
         dynamic_ids: those of them that move on their own (measured at every update).
         name: prefix of the added systems' names (unique per builder; empty: none).
+        overlap_depth: m: a geometry of ``dynamic_ids`` overlapping the robot
+            deeper than this faults the filter, which then holds (the
+            safety filter's ``filter_fault_output``); None: never.
 
     Returns:
         The :class:`CoManipulationSystems`.
@@ -273,7 +277,15 @@ def AddCoManipulation(
     if f is not None:
         safety = builder.AddNamedSystem(
             _named(name, "safety_filter"),
-            _safety_filter(f, plant, scene_graph, robot, table, limits, period, obstacle_ids, dynamic_ids, tool_frame),
+            _safety_filter(
+                f,
+                (plant, scene_graph, robot),
+                table,
+                limits,
+                period,
+                (obstacle_ids, dynamic_ids, overlap_depth),
+                tool_frame,
+            ),
         )
         for port in ("nominal", "lower", "upper"):
             builder.Connect(bounds.GetOutputPort(port), safety.GetInputPort(port))
