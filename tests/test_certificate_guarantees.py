@@ -10,6 +10,7 @@ whatever way the certificate chooses its boxes."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -27,8 +28,21 @@ from drake_cfvol.algorithm.metrics import (
 
 MESH_CELL = Path(__file__).parent / "data" / "mesh_cell.yaml"
 
-#: Every built-in path of the automotive and aerospace cells, and the mesh test robot's path.
-PATHS = [(cell, f"path{i}") for cell in ("automotive", "aerospace") for i in (1, 2, 3)] + [("mesh", "path1")]
+#: Every built-in path of the automotive and aerospace cells, and the mesh
+#: test robot's path. Certifying all seven takes 10-20 minutes here, more
+#: than CI's budget: its slow group takes automotive path 1;
+#: CFVOL_ALL_PATHS=1 takes them all.
+ALL_PATHS = [(cell, f"path{i}") for cell in ("automotive", "aerospace") for i in (1, 2, 3)] + [("mesh", "path1")]
+PATHS = ALL_PATHS if os.environ.get("CFVOL_ALL_PATHS") == "1" else ALL_PATHS[:1]
+
+
+def _known(paths, failing: dict):
+    """The paths as parameters, those in ``failing`` marked as the known
+    failures of the open issue 48 (strict: a fix makes them pass, and the
+    mark must then go)."""
+    return [
+        pytest.param(*p, marks=pytest.mark.xfail(strict=True, reason=failing[p])) if p in failing else p for p in paths
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -55,8 +69,17 @@ def certified(automotive, aerospace, planned):
 # 1. The boundary ------------------------------------------------------------
 
 
-@pytest.mark.slow  # certifying all seven paths takes minutes (shared with the starvation test)
-@pytest.mark.parametrize("cell, label", PATHS)
+@pytest.mark.slow  # certifying takes minutes (shared with the starvation test)
+@pytest.mark.parametrize(
+    "cell, label",
+    _known(
+        PATHS,
+        {
+            ("aerospace", "path2"): "issue 48: 1 of 15,040 face points of the certified box collides "
+            "(waypoint 74, joint 3 on its lower bound): faces are only sampled"
+        },
+    ),
+)
 def test_no_certified_box_has_a_colliding_boundary_point(cell, label, certified):
     """At every waypoint and stretch midpoint, every corner of the certified
     box, 64 edge points (one joint uniform over its width, the others at
@@ -225,7 +248,17 @@ def _starved_without_cause(workcell, table) -> list[str]:
 
 
 @pytest.mark.slow  # shares the certified tables of the boundary test
-@pytest.mark.parametrize("cell, label", PATHS)
+@pytest.mark.parametrize(
+    "cell, label",
+    _known(
+        PATHS,
+        {
+            ("automotive", "path1"): "issue 48: joint 1 cut to 0.000 rad at waypoint 108 (1.75 uncertified), "
+            "its corners free when widened: the cut-by-cut shrinking starves it",
+            ("aerospace", "path2"): "issue 48: joint 3 cut to 0.006 rad at waypoint 113 (3.43 uncertified)",
+        },
+    ),
+)
 def test_no_joint_is_starved_without_cause(cell, label, certified):
     """Wherever a joint's certified width at a waypoint is under the
     bisection delta (the table's ``delta``, or ``delta_prismatic`` for a
