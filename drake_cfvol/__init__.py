@@ -32,12 +32,9 @@ The benchmark harness (the paper's tables) lives outside the library, in
 ``benchmarks/`` of a development checkout.
 """
 
+import importlib
+
 from drake_cfvol._version import __version__
-from drake_cfvol.algorithm.certify import Certify
-from drake_cfvol.algorithm.metrics import CFResult, Freedom, confidence_factor, freedom
-from drake_cfvol.algorithm.pipeline import estimate_bounds
-from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
-from drake_cfvol.algorithm.table import BoundsTable
 from drake_cfvol.exceptions import (
     BatchError,
     CfvolError,
@@ -60,9 +57,43 @@ from drake_cfvol.exceptions import (
     WorkcellFileNotFoundError,
     WorkcellFormatError,
 )
-from drake_cfvol.scene.params import VolumeParams
-from drake_cfvol.scene.urdf import AddModels
-from drake_cfvol.scene.workcell import Workcell, builtin_cells, load_workcell
+
+#: The public names that need Drake, each with its module: imported on first
+#: use (PEP 562), so ``import drake_cfvol`` and ``cfvol --help`` load no pydrake.
+_LAZY = {
+    "Certify": "drake_cfvol.algorithm.certify",
+    "CFResult": "drake_cfvol.algorithm.metrics",
+    "Freedom": "drake_cfvol.algorithm.metrics",
+    "confidence_factor": "drake_cfvol.algorithm.metrics",
+    "freedom": "drake_cfvol.algorithm.metrics",
+    "estimate_bounds": "drake_cfvol.algorithm.pipeline",
+    "NominalPath": "drake_cfvol.algorithm.planning",
+    "plan_nominal_path": "drake_cfvol.algorithm.planning",
+    "BoundsTable": "drake_cfvol.algorithm.table",
+    "VolumeParams": "drake_cfvol.scene.params",
+    "AddModels": "drake_cfvol.scene.urdf",
+    "Workcell": "drake_cfvol.scene.workcell",
+    "builtin_cells": "drake_cfvol.scene.workcell",
+    "load_workcell": "drake_cfvol.scene.workcell",
+}
+
+#: The subpackages, reachable as attributes as before (imported on first use).
+_SUBPACKAGES = ("io", "kernel", "scene", "algorithm", "online", "systems", "comanip", "apps")
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value  # later lookups skip this function
+        return value
+    if name in _SUBPACKAGES:
+        return importlib.import_module(f"drake_cfvol.{name}")
+    raise AttributeError(f"module 'drake_cfvol' has no attribute {name!r}")
+
+
+def __dir__() -> list:
+    return sorted(set(globals()) | set(_LAZY) | set(_SUBPACKAGES))
+
 
 __all__ = [
     "__version__",

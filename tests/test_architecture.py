@@ -295,3 +295,43 @@ def test_size_report_sees_planted_long_function():
     assert found == {("function", "long", 91), ("compiled parameters", "many", 13)}
     tool.violations = lambda: planted  # the report on a tree over the limits still exits 0
     assert tool.main() == 0
+
+
+_PYDRAKE_PROBE = (
+    "import sys, importlib\n"
+    "for m in sys.argv[1:]:\n"
+    "    importlib.import_module(m)\n"
+    "print(' '.join(sorted({n.split('.')[0] for n in sys.modules if n.split('.')[0] == 'pydrake'})))\n"
+)
+
+
+def _pydrake_after(*modules: str) -> list:
+    """The pydrake packages a fresh interpreter holds after importing ``modules``."""
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, "-c", _PYDRAKE_PROBE, *modules], capture_output=True, text=True, check=True
+    ).stdout
+    return out.splitlines()[-1].split() if out.strip() else []
+
+
+def test_the_top_level_and_the_cli_load_no_pydrake():
+    """``import drake_cfvol`` and the CLI module load no pydrake (the public
+    names that need it are imported on first use); the probe itself sees
+    pydrake where a module does import it (a planted violation: the
+    workcell module), so its empty answer means something."""
+    assert _pydrake_after("drake_cfvol", "drake_cfvol.apps.cli") == []
+    assert _pydrake_after("drake_cfvol.scene.workcell") == ["pydrake"]
+
+
+def test_every_public_name_resolves():
+    """Every name of ``drake_cfvol.__all__`` is reachable, lazily or not, and
+    is the object its module defines."""
+    for name in cf.__all__:
+        value = getattr(cf, name)
+        if name in cf._LAZY:
+            assert value is getattr(importlib.import_module(cf._LAZY[name]), name)
+    assert cf.algorithm.certify.Certify is cf.Certify
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        cf.nope  # noqa: B018
