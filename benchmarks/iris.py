@@ -12,7 +12,7 @@ Per path (R = 1000, clearance 0.02 m, seed 0, the certificate's cache off):
   contains the nominal and lies inside the region, the joint limits and the
   uncertified box (:func:`largest_box`); 2,000 uniform samples of that box
   checked by the same padded checker; each box's measure
-  (:func:`box_freedom`: the package's freedom of one box).
+  (:func:`~drake_cfvol.algorithm.metrics.box_freedom`: the package's freedom of one box).
 
 Where the nominal itself is nearer than the clearance (a start or goal the
 user placed near an obstacle) IrisZo refuses a seed inside its padding;
@@ -43,7 +43,7 @@ from pydrake.solvers import ClarabelSolver, MathematicalProgram
 from benchmarks.realtime import CELLS
 from benchmarks.report import machine_lines, targets_lines, write_results
 from drake_cfvol.algorithm.certify import Certify
-from drake_cfvol.algorithm.metrics import freedom
+from drake_cfvol.algorithm.metrics import box_freedom, freedom
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import plan_nominal_path
 from drake_cfvol.algorithm.table import BoundsTable
@@ -186,24 +186,6 @@ def largest_box(
         t = float(np.min(slack[over] / reach[over]))
         lo_v, hi_v = q + t * (lo_v - q), q + t * (hi_v - q)
     return lo_v, hi_v
-
-
-def box_freedom(lo: ArrayLike, hi: ArrayLike, limit_lower: ArrayLike, limit_upper: ArrayLike) -> float | np.ndarray:
-    """The measure of boxes: the geometric mean over joints of width / joint
-    range, each share clipped to [0, 1] (the package's
-    :func:`~drake_cfvol.algorithm.metrics.freedom` at one waypoint).
-
-    Args:
-        lo, hi: (k,) or (n, k) boxes.
-        limit_lower, limit_upper: (k,) the joints' ranges (a table's absolute bounds).
-
-    Returns:
-        A float for one box, else (n,).
-    """
-    frac = np.clip((np.asarray(hi, float) - lo) / (np.asarray(limit_upper, float) - limit_lower), 0.0, 1.0)
-    with np.errstate(divide="ignore"):
-        gm = np.exp(np.mean(np.log(frac), axis=-1))
-    return float(gm) if np.ndim(gm) == 0 else gm
 
 
 class _Warnings(logging.Handler):

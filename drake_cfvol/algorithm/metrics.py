@@ -24,6 +24,7 @@ __all__ = [
     "Freedom",
     "confidence_factor",
     "freedom",
+    "box_freedom",
     "sample_boxes",
 ]
 
@@ -219,6 +220,23 @@ class Freedom:
     units: list[str]
 
 
+def box_freedom(lo, hi, limit_lower, limit_upper) -> float | np.ndarray:
+    """The freedom of boxes: the geometric mean over joints of width / joint
+    range, each share clipped to [0, 1] (0 where a joint has no width).
+
+    Args:
+        lo, hi: (k,) or (n, k) boxes.
+        limit_lower, limit_upper: (k,) the joints' ranges (a table's absolute bounds).
+
+    Returns:
+        A float for one box, else (n,).
+    """
+    frac = np.clip((np.asarray(hi, float) - lo) / (np.asarray(limit_upper, float) - limit_lower), 0.0, 1.0)
+    with np.errstate(divide="ignore"):
+        gm = np.exp(np.mean(np.log(frac), axis=-1))
+    return float(gm) if np.ndim(gm) == 0 else gm
+
+
 def freedom(bounds: BoundsTable, revolute=None) -> Freedom:
     """Freedom of a bounds table (reported beside every CF: a box of zero
     width has CF 100 %); ``revolute``: (k,) True for a revolute joint (its
@@ -238,10 +256,7 @@ def freedom(bounds: BoundsTable, revolute=None) -> Freedom:
                 "freedom: revolute", bounds.k, mask.shape, f"The joints: {', '.join(bounds.joint_names)}."
             )
         revolute = mask != 0
-    rng = bounds.limit_upper - bounds.limit_lower
-    frac = np.clip(bounds.widths() / rng, 0.0, 1.0)
-    with np.errstate(divide="ignore"):
-        gm = np.exp(np.mean(np.log(frac), axis=1))
+    gm = box_freedom(bounds.lower, bounds.upper, bounds.limit_lower, bounds.limit_upper)
     med = np.median(bounds.widths(), axis=0)
     med = np.where(revolute, np.degrees(med), med)
     return Freedom(float(gm.mean()), gm, med, ["deg" if r else "m" for r in revolute])
