@@ -20,7 +20,7 @@ MODELS = Path(__file__).resolve().parent.parent / "models"
 D = math.radians
 
 # Shapes: ("box", (sx, sy, sz), xyz) | ("capsule", r, (x0,y0,z0), (x1,y1,z1))
-#       | ("cylinder_x", r, length, xyz)  (cylinder along the link's x axis)
+#       | ("cylinder_x", r, length, xyz)  (cylinder along the link's x axis; _y, _z alike)
 
 # Masses (public datasheets): the IRB 6700-205/2.80 weighs 1170 kg, the KR
 # 210 R3100 ultra about 1068 kg; each arm's mass is spread over its links by
@@ -147,6 +147,104 @@ IIWA = dict(
 )
 
 
+# The Franka Emika Panda (Franka's robot and interface specification):
+# link frames are Franka's modified Denavit-Hartenberg frames (Craig), so the
+# joint angles are the robot's own. Joint i's origin in frame i-1 is
+# RotX(alpha) TransX(a) TransZ(d) (written below as xyz and an rpy), and every
+# joint turns about its z. The arm weighs about 18 kg (17.8 kg, spread by
+# volume as above); the Franka Hand 0.73 kg, turned -45 deg about the flange
+# as Franka mounts it. Collision shapes: capsules of radius 0.07 m around
+# tubes that are 0.055-0.06 m in radius on the robot, boxes around the base,
+# the wrist housings and the hand, sized from the link extents in Franka's
+# published description (the shapes hold the real links with 1 cm to spare).
+PANDA_MASS_KG = 17.8
+PANDA_HAND_MASS_KG = 0.73
+PANDA_R = 0.07
+P2 = math.pi / 2
+
+PANDA = dict(
+    name="panda",
+    root="panda_link0",
+    colour="0.93 0.93 0.93 1",
+    mass=PANDA_MASS_KG,
+    gripper_mass=PANDA_HAND_MASS_KG,
+    efforts=(87, 87, 87, 87, 12, 12, 12),
+    accelerations=(15, 7.5, 10, 12.5, 15, 20, 20),
+    # The flange (link 7) turns 0.088 m off joint 6's axis, beside the wrist
+    # housing of link 5: their real hulls pass within a few millimetres at
+    # every angle of joint 6 (link 6 holds them apart), so two covers with a
+    # margin would always touch. The hand against link 5 stays checked.
+    unchecked_pairs=[("panda_link5", "panda_link7")],
+    links={
+        "panda_link0": [("box", (0.26, 0.23, 0.17), (-0.04, 0.0, 0.075))],
+        "panda_link1": [
+            ("capsule", PANDA_R, (0.0, 0.0, -0.19), (0.0, 0.0, 0.0)),
+            ("capsule", PANDA_R, (0.0, -0.08, 0.0), (0.0, 0.0, 0.0)),
+        ],
+        "panda_link2": [
+            ("capsule", PANDA_R, (0.0, 0.0, 0.0), (0.0, -0.19, 0.0)),
+            ("capsule", PANDA_R, (0.0, 0.0, 0.0), (0.0, 0.0, 0.075)),
+        ],
+        "panda_link3": [
+            ("capsule", PANDA_R, (0.0, 0.0, -0.12), (0.0, 0.0, 0.0)),
+            ("capsule", PANDA_R, (0.0, 0.0, 0.0), (0.0825, 0.0, 0.0)),
+            ("capsule", PANDA_R, (0.0825, 0.0, 0.0), (0.0825, 0.06, 0.0)),
+        ],
+        "panda_link4": [
+            ("capsule", PANDA_R, (0.0, 0.0, 0.0), (-0.0825, 0.0, 0.0)),
+            ("capsule", PANDA_R, (0.0, 0.0, 0.0), (0.0, 0.0, 0.06)),
+            ("capsule", PANDA_R, (-0.0825, 0.0, 0.0), (-0.0825, 0.12, 0.0)),
+        ],
+        # The forearm, its rib and the wrist housing.
+        "panda_link5": [
+            ("capsule", PANDA_R, (0.0, 0.0, -0.25), (0.0, 0.0, -0.06)),
+            ("capsule", 0.06, (0.0, 0.075, -0.23), (0.0, 0.075, -0.03)),
+            ("cylinder_y", 0.062, 0.134, (0.0, 0.073, 0.0)),
+        ],
+        "panda_link6": [("box", (0.208, 0.156, 0.128), (0.042, 0.018, 0.006))],
+        "panda_link7": [("box", (0.15, 0.15, 0.08), (0.02, 0.02, 0.08))],
+        # The Franka Hand (frame turned -45 deg from the flange's): the hand
+        # and its two fingers, open (to 0.08 m between them).
+        "gripper": [
+            ("box", (0.09, 0.235, 0.115), (0.0, 0.0, 0.0225)),
+            ("box", (0.05, 0.16, 0.08), (0.0, 0.0, 0.085)),
+        ],
+    },
+    joint_rpy={
+        "panda_joint2": (-P2, 0, 0),
+        "panda_joint3": (P2, 0, 0),
+        "panda_joint4": (P2, 0, 0),
+        "panda_joint5": (-P2, 0, 0),
+        "panda_joint6": (P2, 0, 0),
+        "panda_joint7": (P2, 0, 0),
+        "tool_mount": (0, 0, -math.pi / 4),
+    },
+    joints=[
+        # Origins (a, -d sin(alpha), d cos(alpha)) from the DH table.
+        ("panda_joint1", "revolute", "panda_link0", "panda_link1", (0, 0, 0.333), (0, 0, 1), -2.8973, 2.8973, 2.1750),
+        ("panda_joint2", "revolute", "panda_link1", "panda_link2", (0, 0, 0), (0, 0, 1), -1.7628, 1.7628, 2.1750),
+        ("panda_joint3", "revolute", "panda_link2", "panda_link3", (0, -0.316, 0), (0, 0, 1), -2.8973, 2.8973, 2.1750),
+        ("panda_joint4", "revolute", "panda_link3", "panda_link4", (0.0825, 0, 0), (0, 0, 1), -3.0718, -0.0698, 2.1750),
+        (
+            "panda_joint5",
+            "revolute",
+            "panda_link4",
+            "panda_link5",
+            (-0.0825, 0.384, 0),
+            (0, 0, 1),
+            -2.8973,
+            2.8973,
+            2.6100,
+        ),
+        ("panda_joint6", "revolute", "panda_link5", "panda_link6", (0, 0, 0), (0, 0, 1), -0.0175, 3.7525, 2.6100),
+        ("panda_joint7", "revolute", "panda_link6", "panda_link7", (0.088, 0, 0), (0, 0, 1), -2.8973, 2.8973, 2.6100),
+        ("flange_joint", "fixed", "panda_link7", "flange", (0, 0, 0.107), None, 0, 0, 0),
+        ("tool_mount", "fixed", "flange", "gripper", (0, 0, 0), None, 0, 0, 0),
+        # Franka's default TCP with its hand: 0.1034 m out from the flange.
+        ("tcp_joint", "fixed", "gripper", "tcp", (0, 0, 0.1034), None, 0, 0, 0),
+    ],
+)
+
 # Workcells: static SDF models, one named body per obstacle (box size, centre
 # in the world). The robot bases: ABB on a 0.42 m pedestal at the origin; the
 # KUKA's rail centred on the origin along x.
@@ -244,14 +342,21 @@ def _geometry(shape) -> tuple[str, str]:
     if kind == "cylinder_z":
         _, r, length, xyz = shape
         return f'<origin xyz="{_f(xyz)}" rpy="0 0 0"/>', f'<cylinder radius="{r:g}" length="{length:g}"/>'
+    if kind == "cylinder_y":
+        _, r, length, xyz = shape
+        return (
+            f'<origin xyz="{_f(xyz)}" rpy="{-math.pi / 2:.9f} 0 0"/>',
+            f'<cylinder radius="{r:g}" length="{length:g}"/>',
+        )
     if kind == "capsule":
         _, r, p0, p1 = shape
         d = [b - a for a, b in zip(p0, p1)]
         length = math.sqrt(sum(x * x for x in d))
         mid = [(a + b) / 2 for a, b in zip(p0, p1)]
-        # Capsule axis is the geometry's z; rotate z onto d (only x, y, z
-        # aligned axes are used in the tables).
-        if abs(d[0]) > 1e-9:
+        # Capsule axis is the geometry's z; rotate z onto d.
+        if sum(abs(x) > 1e-9 for x in d) > 1:  # oblique: pitch z towards x, then yaw
+            rpy = (0.0, math.atan2(math.hypot(d[0], d[1]), d[2]), math.atan2(d[1], d[0]))
+        elif abs(d[0]) > 1e-9:
             rpy = (0.0, math.pi / 2, 0.0)
         elif abs(d[1]) > 1e-9:
             rpy = (-math.pi / 2, 0.0, 0.0)
@@ -276,9 +381,9 @@ def _shape_inertia(shape):
             list(xyz),
             [[v * (b * b + c * c) / 12, 0, 0], [0, v * (a * a + c * c) / 12, 0], [0, 0, v * (a * a + b * b) / 12]],
         )
-    if kind in ("cylinder_x", "cylinder_z"):
+    if kind in ("cylinder_x", "cylinder_y", "cylinder_z"):
         _, r, length, xyz = shape
-        axis, centre = (0 if kind == "cylinder_x" else 2), list(xyz)
+        axis, centre = "xyz".index(kind[-1]), list(xyz)
     else:
         _, r, p0, p1 = shape
         d = [b - a for a, b in zip(p0, p1)]
@@ -324,11 +429,16 @@ def _densities(robot: dict) -> dict:
     return out
 
 
+def _uses_drake(robot: dict) -> bool:
+    """Whether the URDF needs Drake's XML namespace (its own elements)."""
+    return "accelerations" in robot or "unchecked_pairs" in robot
+
+
 def write_urdf(robot: dict) -> str:
     lines = [
         '<?xml version="1.0"?>',
         "<!-- Generated by tools/make_models.py from the reference numbers; do not edit. -->",
-        f'<robot name="{robot["name"]}">',
+        f'<robot name="{robot["name"]}"' + (' xmlns:drake="http://drake.mit.edu">' if _uses_drake(robot) else ">"),
         f'  <material name="body"><color rgba="{robot["colour"]}"/></material>',
         '  <material name="gripper"><color rgba="0.35 0.35 0.40 1"/></material>',
     ]
@@ -354,15 +464,32 @@ def write_urdf(robot: dict) -> str:
             lines.append(f'    <collision name="{link}_collision_{i}">{origin}<geometry>{geom}</geometry></collision>')
         lines.append("  </link>")
     efforts = iter(robot.get("efforts", ()))
+    accelerations = iter(robot.get("accelerations", ()))
     for name, jtype, parent, child, xyz, axis, lo, hi, vmax in robot["joints"]:
         lines.append(f'  <joint name="{name}" type="{jtype}">')
         lines.append(f'    <parent link="{parent}"/><child link="{child}"/>')
-        lines.append(f'    <origin xyz="{_f(xyz)}" rpy="0 0 0"/>')
+        # A joint frame turned from its parent's (the Panda's DH frames): the
+        # angles in full precision, so the kinematics are exact.
+        rpy = " ".join(f"{a:.17g}" for a in robot.get("joint_rpy", {}).get(name, (0, 0, 0)))
+        lines.append(f'    <origin xyz="{_f(xyz)}" rpy="{rpy}"/>')
         if jtype != "fixed":
             lines.append(f'    <axis xyz="{_f(axis)}"/>')
             effort = next(efforts, 10000)
-            lines.append(f'    <limit lower="{lo:.9f}" upper="{hi:.9f}" velocity="{vmax:.6f}" effort="{effort}"/>')
+            # Drake reads an acceleration limit from this attribute
+            # (MultibodyPlant.GetAccelerationUpperLimits).
+            acceleration = next(accelerations, None)
+            extra = "" if acceleration is None else f' drake:acceleration="{acceleration:g}"'
+            lines.append(
+                f'    <limit lower="{lo:.9f}" upper="{hi:.9f}" velocity="{vmax:.6f}" effort="{effort}"{extra}/>'
+            )
         lines.append("  </joint>")
+    for a, b in robot.get("unchecked_pairs", ()):  # Drake skips collisions within a group
+        lines += [
+            f'  <drake:collision_filter_group name="{a}_{b}">',
+            f'    <drake:member link="{a}"/><drake:member link="{b}"/>',
+            f'    <drake:ignored_collision_filter_group name="{a}_{b}"/>',
+            "  </drake:collision_filter_group>",
+        ]
     if "efforts" in robot:  # transmissions: Drake makes an actuator for each
         for name, jtype, *_ in robot["joints"]:
             if jtype != "fixed":
@@ -492,7 +619,7 @@ def write_mesh_arm() -> list[Path]:
 
 
 def main() -> None:
-    for robot, folder in ((ABB, "abb_irb6700"), (KUKA, "kuka_kr210"), (IIWA, "iiwa14")):
+    for robot, folder in ((ABB, "abb_irb6700"), (KUKA, "kuka_kr210"), (IIWA, "iiwa14"), (PANDA, "franka_panda")):
         out = MODELS / folder / f"{robot['name']}.urdf"
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(write_urdf(robot))
