@@ -37,16 +37,17 @@ from drake_cfvol.algorithm.volume import build_volume, height_map_of
 from drake_cfvol.comanip.checks import cell_file, looks_like_path
 from drake_cfvol.comanip.dynamics import add_driver, add_simulated_plant, driver_of
 from drake_cfvol.comanip.iiwa import (
+    IIWA_STATUS_PERIOD,
     add_hand,
     add_iiwa_controller_interface,
     add_iiwa_station,
-    add_measured,
-    add_status_watchdog,
+    add_iiwa_status_watchdog,
     grip_point,
     tool_radius,
 )
 from drake_cfvol.comanip.online import OnlineParts, add_online, perceived_overlap_depth
 from drake_cfvol.comanip.recording import show_tool_path
+from drake_cfvol.comanip.robot_status import add_measured
 from drake_cfvol.comanip.scenario import Scenario, check_scenario_against_cell, scenario_file_path, validate_scenario
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.io.style import CATEGORY_COLOURS, COLOUR_NAMES, FLOOR_COLOUR, ROBOT_COLOUR, VOLUME_COLOUR
@@ -510,7 +511,7 @@ def _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human,
     lcm = add_iiwa_station(builder, driver, wc.robot_name, scene.plant, scene.models)
     status = add_iiwa_controller_interface(builder, lcm, desired, wc.num_joints)
     if safety is not None:
-        add_status_watchdog(builder, lcm, safety)
+        add_iiwa_status_watchdog(builder, lcm=lcm, safety=safety)
     tool = scene.plant.GetFrameByName(wc.tool_frame.name(), scene.robot)
     add_hand(
         builder,
@@ -522,7 +523,8 @@ def _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human,
         initial_direction=first_push_direction(scenario.human.pushes),
         p_BG=grip_point(wc),
     )
-    return add_measured(builder, status, commanded, wc.num_joints), status.get_torque_external_output_port()
+    measured = add_measured(builder, status=status, commanded=commanded, k=wc.num_joints, period=IIWA_STATUS_PERIOD)
+    return measured, status.get_torque_external_output_port()
 
 
 def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:

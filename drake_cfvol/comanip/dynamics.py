@@ -59,7 +59,9 @@ def _control_plant(wc, time_step: float):
     """The robot alone, every joint actuated: the controller's model."""
     control = MultibodyPlant(time_step)
     robot = wc.add_robot_to_plant(control)
-    actuated = {control.get_joint_actuator(a).joint().index() for a in control.GetJointActuatorIndices(robot)}
+    # Every actuator (the plant holds only the robot): a model instance's
+    # own list is empty before Finalize.
+    actuated = {control.get_joint_actuator(a).joint().index() for a in control.GetJointActuatorIndices()}
     for joint in (control.get_joint(j) for j in control.GetJointIndices(robot)):
         if joint.type_name() in ("revolute", "prismatic") and joint.index() not in actuated:
             control.AddJointActuator(f"cfvol_{joint.name()}", joint)

@@ -20,25 +20,22 @@ from pydrake.geometry import SceneGraph
 from pydrake.lcm import DrakeLcm
 from pydrake.manipulation import ApplyDriverConfigs, IiwaCommandSender, IiwaControlMode, IiwaStatusReceiver
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.systems.framework import LeafSystem
-from pydrake.systems.lcm import LcmBuses, LcmInterfaceSystem, LcmPublisherSystem, LcmSubscriberSystem
+from pydrake.systems.lcm import LcmBuses, LcmInterfaceSystem
 from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
+from drake_cfvol.comanip.robot_status import add_measured, add_status_watchdog, publish_on_lcm, subscribe_on_lcm
 from drake_cfvol.exceptions import StationError
 from drake_cfvol.systems.hand import CoworkerHand
 from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig
-from drake_cfvol.systems.watchdog import StatusWatchdog, cheaply_copied
 
 __all__ = [
     "IIWA_STATUS_PERIOD",
-    "UntilFirstStatus",
     "add_iiwa_controller",
     "add_iiwa_station",
     "add_iiwa_controller_interface",
-    "add_status_watchdog",
+    "add_iiwa_status_watchdog",
     "add_hand",
-    "add_measured",
     "grip_point",
     "tool_radius",
 ]
@@ -81,42 +78,49 @@ def add_iiwa_controller_interface(
     zero = builder.AddNamedSystem(f"{prefix}iiwa_feedforward_torque", ConstantVectorSource(np.zeros(k)))
     builder.Connect(split.get_output_port(0), sender.get_position_input_port())
     builder.Connect(zero.get_output_port(), sender.get_torque_input_port())
-    publish = builder.AddNamedSystem(
-        f"{prefix}iiwa_command_publisher",
-        LcmPublisherSystem.Make(
-            channel="IIWA_COMMAND",
-            lcm_type=lcmt_iiwa_command,
-            lcm=lcm,
-            publish_period=IIWA_STATUS_PERIOD,
-            use_cpp_serializer=True,
-        ),
-    )
-    builder.Connect(sender.get_output_port(), publish.get_input_port())
-    subscribe = builder.AddNamedSystem(
-        f"{prefix}iiwa_status_subscriber",
-        LcmSubscriberSystem.Make(channel=status_channel, lcm_type=lcmt_iiwa_status, lcm=lcm, use_cpp_serializer=True),
+    publish_on_lcm(
+        builder,
+        sender.get_output_port(),
+        name=f"{prefix}iiwa_command_publisher",
+        channel="IIWA_COMMAND",
+        lcm_type=lcmt_iiwa_command,
+        lcm=lcm,
+        period=IIWA_STATUS_PERIOD,
     )
     receiver = builder.AddNamedSystem(f"{prefix}iiwa_status_receiver", IiwaStatusReceiver(k))
-    builder.Connect(subscribe.get_output_port(), receiver.get_input_port())
+    subscribe_on_lcm(
+        builder,
+        receiver.get_input_port(),
+        name=f"{prefix}iiwa_status_subscriber",
+        channel=status_channel,
+        lcm_type=lcmt_iiwa_status,
+        lcm=lcm,
+    )
     return receiver
 
 
-def add_status_watchdog(
-    builder, lcm, safety, *, status_channel: str = "IIWA_STATUS", timeout: float = 3 * IIWA_STATUS_PERIOD, prefix=""
+def add_iiwa_status_watchdog(
+    builder,
+    *,
+    lcm,
+    safety,
+    status_channel: str = "IIWA_STATUS",
+    timeout: float = 3 * IIWA_STATUS_PERIOD,
+    prefix: str = "",
 ):
-    """A :class:`~drake_cfvol.systems.StatusWatchdog` (``{prefix}status_watchdog``)
-    on the iiwa's status channel, its fault holding the safety filter's last
-    command. Returns the watchdog."""
-    watchdog = builder.AddNamedSystem(
-        f"{prefix}status_watchdog", StatusWatchdog(lcmt_iiwa_status(), period=IIWA_STATUS_PERIOD, timeout=timeout)
+    """:func:`~drake_cfvol.comanip.robot_status.add_status_watchdog` on the
+    iiwa's status (``lcmt_iiwa_status`` every :data:`IIWA_STATUS_PERIOD`).
+    Returns the watchdog."""
+    return add_status_watchdog(
+        builder,
+        lcm=lcm,
+        safety=safety,
+        status_type=lcmt_iiwa_status,
+        status_channel=status_channel,
+        period=IIWA_STATUS_PERIOD,
+        timeout=timeout,
+        prefix=prefix,
     )
-    stamps = builder.AddNamedSystem(  # the status as a Python message (the receiver's subscriber is C++'s)
-        f"{prefix}status_stamp_subscriber",
-        LcmSubscriberSystem.Make(channel=status_channel, lcm_type=cheaply_copied(lcmt_iiwa_status), lcm=lcm),
-    )
-    builder.Connect(stamps.get_output_port(), watchdog.status_input)
-    builder.Connect(watchdog.fault_output, safety.hold_input)
-    return watchdog
 
 
 def grip_point(wc) -> np.ndarray:
@@ -150,43 +154,6 @@ def tool_radius(wc) -> float:
     }
     depths = [-r.distance for r in query.ComputeSignedDistanceToPoint(p_WT, threshold=1.0) if r.id_G in mine]
     return max([0.01] + depths)
-
-
-class UntilFirstStatus(LeafSystem):
-    """The measured position once the driver's status has arrived: before
-    ``wait`` seconds (two status periods) it passes ``fallback`` (the
-    command, where the robot starts), since a status receiver reports zeros
-    until its first message.
-
-    .. pydrake_system::
-
-        name: UntilFirstStatus
-        input_ports:
-        - measured
-        - fallback
-        output_ports:
-        - position
-    """
-
-    def __init__(self, k: int, wait: float = 2 * IIWA_STATUS_PERIOD):
-        super().__init__()
-        self._wait = float(wait)
-        self.measured_input = self.DeclareVectorInputPort(name="measured", size=k)
-        self.fallback_input = self.DeclareVectorInputPort(name="fallback", size=k)
-        self.position_output = self.DeclareVectorOutputPort(name="position", size=k, calc=self._calc)
-
-    def _calc(self, context, output) -> None:
-        source = self.fallback_input if context.get_time() < self._wait else self.measured_input
-        output.SetFromVector(source.Eval(context))
-
-
-def add_measured(builder, status, commanded, k: int, prefix: str = ""):
-    """The measured position from the iiwa's status, the command standing in
-    until the first status arrives. Returns the port."""
-    gate = builder.AddNamedSystem(f"{prefix}measured_position", UntilFirstStatus(k))
-    builder.Connect(status.get_position_measured_output_port(), gate.measured_input)
-    builder.Connect(commanded, gate.fallback_input)
-    return gate.position_output
 
 
 def add_hand(builder, plant, hand_body, tool_frame, wrench, *, tool_radius: float, initial_direction, p_BG=None):
@@ -272,10 +239,17 @@ def add_iiwa_controller(
     status = add_iiwa_controller_interface(
         builder, lcm, cm.desired_state_output, k, prefix=f"{name}_", status_channel=status_channel
     )
-    add_status_watchdog(
-        builder, lcm, cm.safety, status_channel=status_channel, timeout=status_timeout, prefix=f"{name}_"
+    add_iiwa_status_watchdog(
+        builder, lcm=lcm, safety=cm.safety, status_channel=status_channel, timeout=status_timeout, prefix=f"{name}_"
     )
-    measured = add_measured(builder, status, cm.commanded_position_output, k, prefix=f"{name}_")
+    measured = add_measured(
+        builder,
+        status=status,
+        commanded=cm.commanded_position_output,
+        k=k,
+        period=IIWA_STATUS_PERIOD,
+        prefix=f"{name}_",
+    )
     to_pose = builder.AddNamedSystem(f"{name}_to_pose", MultibodyPositionToGeometryPose(plant))
     builder.Connect(measured, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))

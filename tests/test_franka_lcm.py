@@ -1,0 +1,178 @@
+"""A Franka arm over drake-franka-driver's LCM (drake_cfvol.comanip.franka):
+the controller's side and the simulated station talking over an in-memory
+LCM loopback, every message captured on the bus and decoded on its own
+(``drake.lcmt_panda_*.decode``), not through the systems under test."""
+
+import numpy as np
+import pytest
+from drake import lcmt_panda_command, lcmt_panda_status
+from pydrake.lcm import DrakeLcm
+from pydrake.manipulation import PandaControlMode
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput
+
+import drake_cfvol as cf
+from drake_cfvol.comanip.dynamics import _control_plant
+from drake_cfvol.comanip.franka import (
+    FRANKA_PERIOD,
+    PANDA_COMMAND_CHANNEL,
+    PANDA_STATUS_CHANNEL,
+    add_franka_controller_interface,
+    add_franka_station,
+    panda_control_mode,
+)
+
+# A 7-joint arm of the repository (the iiwa of the cobot cell): the wiring
+# does not depend on the arm.
+CELL = "cobot"
+
+
+def _loopback(mode: str, desired, *, status_channel: str = PANDA_STATUS_CHANNEL, v0=None):
+    """Station and controller interface on one memq LCM, the desired state a
+    constant; the bus's messages captured raw. Returns (diagram, parts)."""
+    wc = cf.load_workcell(CELL)
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=FRANKA_PERIOD), builder)
+    wc.add_models(plant)
+    plant.Finalize()
+    robot = plant.GetModelInstanceByName(wc.robot_name)
+    q0 = wc.configuration("path1")[0]
+    plant.SetDefaultPositions(robot, q0)
+    lcm = DrakeLcm("memq://")
+    station = add_franka_station(
+        builder,
+        plant=plant,
+        robot=robot,
+        controller_plant=_control_plant(wc, FRANKA_PERIOD),
+        lcm=lcm,
+        control_mode=mode,
+    )
+    source = builder.AddSystem(ConstantVectorSource(np.asarray(desired(q0), float)))
+    interface = add_franka_controller_interface(
+        builder, lcm=lcm, desired_state=source.get_output_port(), control_mode=mode, status_channel=status_channel
+    )
+    truth = LogVectorOutput(plant.get_state_output_port(robot), builder, publish_period=FRANKA_PERIOD)
+    fault = LogVectorOutput(interface.watchdog.fault_output, builder, publish_period=FRANKA_PERIOD)
+    diagram = builder.Build()
+    sent = {PANDA_COMMAND_CHANNEL: [], PANDA_STATUS_CHANNEL: []}
+    for channel, kind in ((PANDA_COMMAND_CHANNEL, lcmt_panda_command), (PANDA_STATUS_CHANNEL, lcmt_panda_status)):
+        lcm.Subscribe(channel, lambda data, out=sent[channel], kind=kind: out.append(kind.decode(data)))
+    sim = Simulator(diagram)
+    if v0 is not None:
+        plant.SetVelocities(plant.GetMyMutableContextFromRoot(sim.get_mutable_context()), robot, v0)
+    return sim, dict(
+        lcm=lcm,
+        plant=plant,
+        robot=robot,
+        q0=q0,
+        station=station,
+        interface=interface,
+        truth=truth,
+        fault=fault,
+        sent=sent,
+    )
+
+
+# Distinct values per joint, so that a swapped or dropped joint shows.
+OFFSET = np.linspace(0.01, 0.07, 7)
+VELOCITY = np.linspace(-0.3, 0.3, 7)
+
+
+@pytest.mark.parametrize("mode", ["position", "velocity"])
+def test_command_arrives_decoded_intact_in_its_mode(mode):
+    """Every command on the bus carries the controller's values bit for bit,
+    the mode's bit in control_mode_expected and only that mode's vector (what
+    drake-franka-driver checks before it moves the arm), stamped at 1 kHz;
+    the station's decoder outputs the same values."""
+    sim, p = _loopback(mode, lambda q0: np.concatenate([q0 + OFFSET, VELOCITY]))
+    sim.AdvanceTo(0.02)
+    commands = p["sent"][PANDA_COMMAND_CHANNEL]
+    assert len(commands) >= 20
+    expected = p["q0"] + OFFSET if mode == "position" else VELOCITY
+    bit = PandaControlMode.kPosition if mode == "position" else PandaControlMode.kVelocity
+    for m in commands:
+        assert m.control_mode_expected == bit and m.num_joint_torque == 0
+        if mode == "position":
+            assert m.num_joint_position == 7 and m.num_joint_velocity == 0
+            np.testing.assert_array_equal(m.joint_position, expected)
+        else:
+            assert m.num_joint_velocity == 7 and m.num_joint_position == 0
+            np.testing.assert_array_equal(m.joint_velocity, expected)
+    np.testing.assert_array_equal(np.diff([m.utime for m in commands]), 1000)  # us: Franka's 1 kHz
+    receiver = p["station"].command_receiver
+    port = (
+        receiver.get_commanded_position_output_port()
+        if mode == "position"
+        else receiver.get_commanded_velocity_output_port()
+    )
+    np.testing.assert_array_equal(port.Eval(receiver.GetMyContextFromRoot(sim.get_context())), expected)
+
+
+def test_status_decodes_to_the_plant_state():
+    """Every status on the bus holds the plant's state at its time stamp (the
+    logged state at that instant, moving: the arm starts with a velocity),
+    and the controller's receiver reports the last one that arrived."""
+    v0 = np.linspace(0.2, -0.2, 7)
+    sim, p = _loopback("position", lambda q0: np.concatenate([q0, np.zeros(7)]), v0=v0)
+    sim.AdvanceTo(0.02)
+    ctx = sim.get_context()
+    log = p["truth"].FindLog(ctx)
+    times, states = log.sample_times(), log.data().T
+    status = p["sent"][PANDA_STATUS_CHANNEL]
+    assert len(status) >= 20
+    for m in status:
+        (i,) = np.flatnonzero(np.isclose(times, m.utime * 1e-6, rtol=0, atol=1e-9))
+        assert m.num_joints == 7
+        np.testing.assert_array_equal(m.joint_position, states[i, :7])
+        np.testing.assert_array_equal(m.joint_velocity, states[i, 7:])
+    assert np.abs(status[0].joint_velocity - v0).max() == 0.0 and np.abs(status[-1].joint_position - p["q0"]).max() > 0
+    receiver = p["interface"].status_receiver
+    rctx = receiver.GetMyContextFromRoot(ctx)
+    delivered = [m for m in status if m.utime <= ctx.get_time() * 1e6]
+    latest = receiver.get_position_measured_output_port().Eval(rctx)
+    assert any(np.array_equal(latest, m.joint_position) for m in delivered[-2:])  # the bus's latency: one period
+
+
+def test_a_stopped_status_raises_the_watchdog_within_its_timeout_and_resumed_status_clears_it():
+    """The controller reads its status through a relay that stops for 10 ms
+    (10 status periods): the watchdog's fault rises once the last status
+    relayed is more than its timeout (3 ms) old when it arrives: the status
+    reaches the watchdog's update two periods after the relay (the bus's
+    hop, then the update that reads it), and the fault is raised at the
+    first check strictly past the timeout, before the relay resumes; it
+    falls again within those two periods of the next status."""
+    sim, p = _loopback("position", lambda q0: np.concatenate([q0, np.zeros(7)]), status_channel="RELAY")
+    stop, resume = 0.020, 0.030
+    timeout = p["interface"].watchdog.timeout
+    relayed = []
+
+    def relay(data):
+        now = sim.get_context().get_time()
+        if not stop <= now < resume:
+            relayed.append(now)
+            p["lcm"].Publish("RELAY", data)
+
+    p["lcm"].Subscribe(PANDA_STATUS_CHANNEL, relay)
+    sim.AdvanceTo(0.045)
+    log = p["fault"].FindLog(sim.get_context())
+    t, fault = log.sample_times(), log.data()[0]
+    last = max(u for u in relayed if u < stop)
+    first_again = min(u for u in relayed if u >= resume)
+    assert timeout == pytest.approx(3 * FRANKA_PERIOD)
+    assert fault[t <= last + timeout].max() == 0.0  # not before the timeout
+    risen = t[fault > 0.5]
+    assert risen.min() <= last + 2 * FRANKA_PERIOD + timeout + FRANKA_PERIOD + 1e-9
+    assert risen.max() <= first_again + 2 * FRANKA_PERIOD + 1e-9 and fault[t > risen.max()].max() == 0.0
+    assert np.ptp(risen) == pytest.approx(FRANKA_PERIOD * (len(risen) - 1))  # one stretch
+
+
+def test_control_mode_names():
+    """Position and velocity are the modes; torque (and anything else) is
+    refused with what to give."""
+    assert panda_control_mode("position") == PandaControlMode.kPosition
+    assert panda_control_mode(PandaControlMode.kVelocity) == PandaControlMode.kVelocity
+    for bad in ("torque", PandaControlMode.kTorque, "Position", 3):
+        with pytest.raises(cf.ParameterError, match="'position' or 'velocity'"):
+            panda_control_mode(bad)
