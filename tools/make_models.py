@@ -296,6 +296,31 @@ COBOT = dict(
     },
 )
 
+# The Franka cell: the Panda on a work table (top 0.80 m, base at the
+# origin), an open shelf (one board) on the table at its left, a part
+# fixture in front, a parts tray (with parts in it) at its right front and
+# a camera post behind. Shelf and tray are open boxes of thin panels.
+FRANKA = dict(
+    name="franka_cell",
+    obstacles={
+        "floor": ((6.0, 6.0, 0.10), (0.0, 0.0, -0.05)),
+        "table": ((1.40, 1.50, 0.80), (0.25, 0.0, 0.40)),
+        "shelf_left": ((0.02, 0.28, 0.54), (0.06, 0.50, 1.07)),
+        "shelf_right": ((0.02, 0.28, 0.54), (0.54, 0.50, 1.07)),
+        "shelf_back": ((0.50, 0.02, 0.54), (0.30, 0.65, 1.07)),
+        "shelf_board": ((0.46, 0.28, 0.02), (0.30, 0.50, 1.00)),
+        "fixture": ((0.20, 0.20, 0.14), (0.55, 0.05, 0.87)),
+        "tray_floor": ((0.34, 0.26, 0.02), (0.45, -0.42, 0.81)),
+        "tray_front": ((0.02, 0.26, 0.07), (0.63, -0.42, 0.835)),
+        "tray_back": ((0.02, 0.26, 0.07), (0.27, -0.42, 0.835)),
+        "tray_left": ((0.38, 0.02, 0.07), (0.45, -0.28, 0.835)),
+        "tray_right": ((0.38, 0.02, 0.07), (0.45, -0.56, 0.835)),
+        "tray_part_1": ((0.06, 0.05, 0.04), (0.34, -0.36, 0.84)),
+        "tray_part_2": ((0.08, 0.04, 0.05), (0.54, -0.50, 0.845)),
+        "camera_post": ((0.06, 0.06, 0.90), (-0.40, -0.55, 1.25)),
+    },
+)
+
 OBSTACLE_COLOURS = {"floor": "0.55 0.55 0.52 1"}
 
 
@@ -442,7 +467,7 @@ def write_urdf(robot: dict) -> str:
         f'  <material name="body"><color rgba="{robot["colour"]}"/></material>',
         '  <material name="gripper"><color rgba="0.35 0.35 0.40 1"/></material>',
     ]
-    children = {j[3] for j in robot["joints"]}
+    children = dict.fromkeys(j[3] for j in robot["joints"])  # ordered: the same file every run
     densities = _densities(robot)
     all_links = list(robot["links"]) + [c for c in children if c not in robot["links"]]
     for link in all_links:
@@ -624,7 +649,7 @@ def main() -> None:
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(write_urdf(robot))
         print(f"wrote {out.relative_to(MODELS.parent)}")
-    for cell in (AUTOMOTIVE, AEROSPACE, COBOT):
+    for cell in (AUTOMOTIVE, AEROSPACE, COBOT, FRANKA):
         out = MODELS / "cells" / f"{cell['name']}.sdf"
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(write_cell_sdf(cell))
