@@ -176,3 +176,95 @@ def test_control_mode_names():
     for bad in ("torque", PandaControlMode.kTorque, "Position", 3):
         with pytest.raises(cf.ParameterError, match="'position' or 'velocity'"):
             panda_control_mode(bad)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["position", "velocity"])
+def test_a_stopped_status_holds_the_safety_filter_and_every_command_keeps_the_limits(mode):
+    """The controller that runs beside a real arm (add_franka_controller: its
+    own SceneGraph, posed from the status), at 1 ms, drives the simulated
+    station over LCM only, its status relayed through a channel that stops
+    for 40 ms while the path moves: the command is held (the sent position
+    constant, the sent velocity zero) from the first update after the fault
+    until the status resumes, and moves along the path before and after;
+    every command sent is within the arm's position and velocity limits (a
+    position command's step over 1 ms included)."""
+    from drake_cfvol.comanip.franka import add_franka_controller
+    from drake_cfvol.systems import CoManipulationConfig, PathProgressConfig
+
+    wc = cf.load_workcell(CELL)
+    table = cf.estimate_bounds(wc, cf.plan_nominal_path(wc, *wc.configuration("path1"), seed=0), resolution=300)
+    builder = DiagramBuilder()
+    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=FRANKA_PERIOD), builder)
+    wc.add_models(plant)
+    plant.Finalize()
+    robot = plant.GetModelInstanceByName(wc.robot_name)
+    plant.SetDefaultPositions(robot, table.nominal[0])
+    lcm = DrakeLcm("memq://")
+    add_franka_station(
+        builder,
+        plant=plant,
+        robot=robot,
+        controller_plant=_control_plant(wc, FRANKA_PERIOD),
+        lcm=lcm,
+        control_mode=mode,
+    )
+    config = CoManipulationConfig(path_progress=PathProgressConfig(start_time=0.1))
+    cm, _ = add_franka_controller(
+        builder, workcell=wc, table=table, lcm=lcm, control_mode=mode, config=config, status_channel="RELAY"
+    )
+    watchdog = builder.GetSubsystemByName("controller_status_watchdog")
+    fault_log = LogVectorOutput(watchdog.fault_output, builder, publish_period=FRANKA_PERIOD)
+    diagram = builder.Build()
+    sim = Simulator(diagram)
+    stop, resume = 0.30, 0.34
+    commands = []
+
+    def relay(data):
+        if not stop <= sim.get_context().get_time() < resume:
+            lcm.Publish("RELAY", data)
+
+    lcm.Subscribe(PANDA_STATUS_CHANNEL, relay)
+    lcm.Subscribe(PANDA_COMMAND_CHANNEL, lambda data: commands.append(lcmt_panda_command.decode(data)))
+    sim.AdvanceTo(0.5)
+    ctx = sim.get_context()
+    t, fault = fault_log.FindLog(ctx).sample_times(), fault_log.FindLog(ctx).data()[0]
+    raised = t[fault > 0.5]
+    assert len(raised) and stop < raised.min() < resume and raised.max() < resume + 3 * FRANKA_PERIOD
+    stamp = np.array([m.utime * 1e-6 for m in commands])
+    if mode == "position":
+        sent = np.array([m.joint_position for m in commands])
+        step = np.abs(np.diff(sent, axis=0)) / FRANKA_PERIOD
+        assert (sent >= wc.position_lower - 1e-9).all() and (sent <= wc.position_upper + 1e-9).all()
+        assert (step <= wc.velocity_limits * (1 + 1e-6)).all()
+        held = (stamp > raised.min() + FRANKA_PERIOD) & (stamp <= raised.max())
+        assert held.sum() >= 20 and np.abs(sent[held] - sent[held][0]).max() == 0.0
+        moving = sent
+    else:
+        sent = np.array([m.joint_velocity for m in commands])
+        assert (np.abs(sent) <= wc.velocity_limits * (1 + 1e-6)).all()
+        held = (stamp > raised.min() + FRANKA_PERIOD) & (stamp <= raised.max())
+        assert held.sum() >= 20 and np.abs(sent[held]).max() == 0.0
+        moving = np.cumsum(sent, axis=0)
+    before, after = (stamp > stop - 0.05) & (stamp < stop), stamp > resume + 0.05
+    assert np.abs(np.diff(moving[before], axis=0)).max() > 0 and np.abs(np.diff(moving[after], axis=0)).max() > 0
+    assert cm.safety.hold_count_output.Eval(cm.safety.GetMyContextFromRoot(ctx))[0] >= 20
+
+
+def test_a_scenario_names_the_franka_driver_checked():
+    """``!FrankaDriver`` in a scenario's model_drivers loads; a mode that is
+    not position or velocity, and a joint-torque push (the arm feels pushes
+    through contact), are refused naming the field."""
+    from drake_cfvol.comanip import load_scenario
+    from drake_cfvol.comanip.scenario import FrankaDriver
+
+    drivers = "simulation: {model_drivers: {iiwa: !FrankaDriver {control_mode: %s}}}"
+    scenario, _ = load_scenario("cobot_push", scenario_text="{%s}" % (drivers % "velocity"))
+    assert scenario.simulation.model_drivers["iiwa"] == FrankaDriver(control_mode="velocity")
+    with pytest.raises(cf.ScenarioError, match="model_drivers.iiwa.control_mode.*'position' or 'velocity'"):
+        load_scenario("cobot_push", scenario_text="{%s}" % (drivers % "torque"))
+    with pytest.raises(cf.ScenarioError, match="pushes item 1: joint_torque.*FrankaDriver"):
+        load_scenario(
+            "cobot_push",
+            scenario_text="{%s, human: {pushes: [{joint_torque: [1, 0, 0, 0, 0, 0, 0]}]}}" % (drivers % "position"),
+        )

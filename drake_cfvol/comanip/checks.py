@@ -5,7 +5,6 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-from pydrake.manipulation import IiwaDriver
 
 from drake_cfvol.exceptions import ParameterError, ScenarioError
 from drake_cfvol.scene.params import VolumeParams
@@ -127,7 +126,12 @@ def _check_sources(scenario, where, base_dir) -> None:
         )
     if sim.model_drivers and pc is None:
         raise ScenarioError(where, "simulation.model_drivers", "needs plant_config: drivers act in a dynamic run only")
-    if any(isinstance(d, IiwaDriver) for d in sim.model_drivers.values()):
+    from drake_cfvol.comanip.scenario import TORQUE_SENSING_DRIVERS, FrankaDriver  # scenario imports this module
+
+    for name, d in sim.model_drivers.items():
+        if isinstance(d, FrankaDriver):
+            _check_franka_driver(d, where, f"simulation.model_drivers.{name}")
+    if any(isinstance(d, TORQUE_SENSING_DRIVERS) for d in sim.model_drivers.values()):
         human = scenario.human
         felt = [f"human.pushes item {i}: joint_torque" for i, p in enumerate(human.pushes, 1) if len(p.joint_torque)]
         felt += ["human.random_pushes.count"] * (human.random_pushes.count > 0) + ["human.reactive.gain"] * (
@@ -137,10 +141,19 @@ def _check_sources(scenario, where, base_dir) -> None:
             raise ScenarioError(
                 where,
                 felt[0],
-                "is a joint torque, which a torque-sensing arm (IiwaDriver) would "
+                "is a joint torque, which a torque-sensing arm (IiwaDriver, FrankaDriver) would "
                 "not feel through contact: give the co-worker's pushes as tool wrenches (the "
                 "hand's force) in this cell",
             )
+
+
+def _check_franka_driver(driver, where, section: str) -> None:
+    """A Franka driver's mode and gains."""
+    if driver.control_mode not in ("position", "velocity"):
+        raise ScenarioError(
+            where, f"{section}.control_mode", f"must be 'position' or 'velocity', got {driver.control_mode!r}"
+        )
+    _positive(where, section, driver, ("kp", "kd"))
 
 
 def _positive(where, section, obj, names, *, strict: bool = True, unit: str = "") -> None:

@@ -20,6 +20,7 @@ from pydrake.geometry import (
     RoleAssign,
     SceneGraph,
 )
+from pydrake.lcm import DrakeLcm
 from pydrake.manipulation import IiwaDriver
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
@@ -35,7 +36,8 @@ from drake_cfvol.algorithm.reference import register_volume_boxes
 from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
 from drake_cfvol.algorithm.volume import build_volume, height_map_of
 from drake_cfvol.comanip.checks import cell_file, looks_like_path
-from drake_cfvol.comanip.dynamics import add_driver, add_simulated_plant, driver_of
+from drake_cfvol.comanip.dynamics import _control_plant, add_driver, add_simulated_plant, driver_of
+from drake_cfvol.comanip.franka import FRANKA_PERIOD, add_franka_controller_interface, add_franka_station
 from drake_cfvol.comanip.iiwa import (
     IIWA_STATUS_PERIOD,
     add_hand,
@@ -48,7 +50,14 @@ from drake_cfvol.comanip.iiwa import (
 from drake_cfvol.comanip.online import OnlineParts, add_online, perceived_overlap_depth
 from drake_cfvol.comanip.recording import show_tool_path
 from drake_cfvol.comanip.robot_status import add_measured
-from drake_cfvol.comanip.scenario import Scenario, check_scenario_against_cell, scenario_file_path, validate_scenario
+from drake_cfvol.comanip.scenario import (
+    TORQUE_SENSING_DRIVERS,
+    FrankaDriver,
+    Scenario,
+    check_scenario_against_cell,
+    scenario_file_path,
+    validate_scenario,
+)
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.io.style import CATEGORY_COLOURS, COLOUR_NAMES, FLOOR_COLOUR, ROBOT_COLOUR, VOLUME_COLOUR
 from drake_cfvol.scene.params import VolumeParams
@@ -353,7 +362,7 @@ def _add_scene(builder, wc, vb, scenario, q0) -> Scene:
         robot = wc.add_to_plant(plant)
     else:
         plant, scene_graph, robot, models, hand = add_simulated_plant(
-            builder, wc, plant_config, hand=isinstance(driver_of(scenario, wc), IiwaDriver)
+            builder, wc, plant_config, hand=isinstance(driver_of(scenario, wc), TORQUE_SENSING_DRIVERS)
         )
     centres, sizes, merge_info = vb.volume.merged_boxes(MAX_PROXIMITY_BOXES)
     volume_ids = register_volume_boxes(
@@ -475,6 +484,8 @@ def _drive(builder, scenario, wc, scene, torque, human, control: CoManipulationS
     driver, sensed = driver_of(scenario, wc), None
     if isinstance(driver, IiwaDriver):
         measured, sensed = _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human, safety)
+    elif isinstance(driver, FrankaDriver):
+        measured, sensed = _drive_franka(builder, scenario, wc, scene, driver, commanded, desired, human, safety)
     else:
         measured = add_driver(
             builder,
@@ -499,32 +510,76 @@ def _drive_iiwa(builder, scenario, wc, scene, driver, commanded, desired, human,
     co-worker's hand pushing the tool, the safety filter (if any) held by a
     status watchdog. Returns (measured position, external torque) from the
     iiwa's status."""
-    if desired is None:
-        interp = builder.AddNamedSystem(
-            "desired_state",
-            StateInterpolatorWithDiscreteDerivative(
-                wc.num_joints, scenario.control.period, suppress_initial_transient=True
-            ),
-        )
-        builder.Connect(commanded, interp.get_input_port())
-        desired = interp.get_output_port()
+    desired = _desired_state(builder, scenario, wc, commanded, desired)
     lcm = add_iiwa_station(builder, driver, wc.robot_name, scene.plant, scene.models)
     status = add_iiwa_controller_interface(builder, lcm, desired, wc.num_joints)
     if safety is not None:
         add_iiwa_status_watchdog(builder, lcm=lcm, safety=safety)
-    tool = scene.plant.GetFrameByName(wc.tool_frame.name(), scene.robot)
+    _add_coworker_hand(builder, scenario, wc, scene, human)
+    measured = add_measured(builder, status=status, commanded=commanded, k=wc.num_joints, period=IIWA_STATUS_PERIOD)
+    return measured, status.get_torque_external_output_port()
+
+
+def _drive_franka(builder, scenario, wc, scene, driver: FrankaDriver, commanded, desired, human, safety):
+    """A Franka arm over drake-franka-driver's LCM (in memory): the
+    simulated station (:func:`~drake_cfvol.comanip.franka.add_franka_station`)
+    and the controller's side in the driver's mode, the status watchdog
+    holding the safety filter (if any), the co-worker's hand pushing the
+    tool. Returns (measured position, external torque) from the status."""
+    desired = _desired_state(builder, scenario, wc, commanded, desired)
+    lcm = DrakeLcm("memq://")
+    add_franka_station(
+        builder,
+        plant=scene.plant,
+        robot=scene.robot,
+        controller_plant=_control_plant(wc, scene.plant.time_step()),
+        lcm=lcm,
+        control_mode=driver.control_mode,
+        kp=driver.kp,
+        kd=driver.kd,
+    )
+    interface = add_franka_controller_interface(
+        builder,
+        lcm=lcm,
+        desired_state=desired,
+        control_mode=driver.control_mode,
+        num_joints=wc.num_joints,
+        safety=safety,
+    )
+    _add_coworker_hand(builder, scenario, wc, scene, human)
+    status = interface.status_receiver
+    measured = add_measured(builder, status=status, commanded=commanded, k=wc.num_joints, period=FRANKA_PERIOD)
+    return measured, status.get_torque_external_output_port()
+
+
+def _desired_state(builder, scenario, wc, commanded, desired):
+    """The desired state's port: the safety filter's, or without it the
+    command with its discrete derivative."""
+    if desired is not None:
+        return desired
+    interp = builder.AddNamedSystem(
+        "desired_state",
+        StateInterpolatorWithDiscreteDerivative(
+            wc.num_joints, scenario.control.period, suppress_initial_transient=True
+        ),
+    )
+    builder.Connect(commanded, interp.get_input_port())
+    return interp.get_output_port()
+
+
+def _add_coworker_hand(builder, scenario, wc, scene, human) -> None:
+    """The co-worker's hand (the scene's body) pushing the tool with the
+    scripted wrench, through contact."""
     add_hand(
         builder,
         scene.plant,
         scene.hand,
-        tool,
+        scene.plant.GetFrameByName(wc.tool_frame.name(), scene.robot),
         human.human_wrench_output,
         tool_radius=tool_radius(wc),
         initial_direction=first_push_direction(scenario.human.pushes),
         p_BG=grip_point(wc),
     )
-    measured = add_measured(builder, status=status, commanded=commanded, k=wc.num_joints, period=IIWA_STATUS_PERIOD)
-    return measured, status.get_torque_external_output_port()
 
 
 def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:

@@ -47,10 +47,11 @@ from pydrake.systems.primitives import (
     StateInterpolatorWithDiscreteDerivative,
 )
 
-from drake_cfvol.comanip.robot_status import add_status_watchdog, publish_on_lcm, subscribe_on_lcm
+from drake_cfvol.comanip.robot_status import add_lcm_controller, add_status_watchdog, publish_on_lcm, subscribe_on_lcm
 from drake_cfvol.comanip.scenario import InverseDynamicsDriver
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.scene.robot import RobotSlice
+from drake_cfvol.systems.station import CoManipulationConfig, CoManipulationSystems
 from drake_cfvol.systems.watchdog import StatusWatchdog
 
 __all__ = [
@@ -61,6 +62,7 @@ __all__ = [
     "FrankaInterface",
     "FrankaStation",
     "VelocityCommandIntegrator",
+    "add_franka_controller",
     "add_franka_controller_interface",
     "add_franka_station",
     "panda_control_mode",
@@ -371,3 +373,63 @@ def add_franka_controller_interface(
         prefix=prefix,
     )
     return FrankaInterface(sender, publisher, receiver, watchdog)
+
+
+def add_franka_controller(
+    builder: DiagramBuilder,
+    *,
+    workcell,
+    table,
+    lcm: DrakeLcm,
+    control_mode: str | int = "position",
+    period: float = FRANKA_PERIOD,
+    config: CoManipulationConfig = CoManipulationConfig(),
+    name: str = "controller",
+    command_channel: str = PANDA_COMMAND_CHANNEL,
+    status_channel: str = PANDA_STATUS_CHANNEL,
+    status_timeout: float | None = None,
+) -> tuple[CoManipulationSystems, PandaStatusReceiver]:
+    """The co-manipulation controller of a Franka arm, talking to
+    drake-franka-driver over LCM only: what runs beside the real robot
+    (:func:`~drake_cfvol.comanip.robot_status.add_lcm_controller`), its
+    desired state sent in ``control_mode`` by
+    :func:`add_franka_controller_interface`, whose status watchdog
+    (``{name}_status_watchdog``) holds the command while no new status has
+    come for ``status_timeout``. On the robot, ``lcm`` is the robot's
+    network; in a test, ``DrakeLcm("memq://")`` shared with a simulated
+    station (:func:`add_franka_station`).
+
+    Args:
+        period: the control period, s (Franka's 1 ms by default: the
+            command is sent every millisecond).
+
+    Returns:
+        (the :class:`~drake_cfvol.systems.CoManipulationSystems`, the
+        ``PandaStatusReceiver``)
+    """
+
+    def interface(cm: CoManipulationSystems) -> PandaStatusReceiver:
+        return add_franka_controller_interface(
+            builder,
+            lcm=lcm,
+            desired_state=cm.desired_state_output,
+            control_mode=control_mode,
+            num_joints=workcell.num_joints,
+            safety=cm.safety,
+            status_timeout=status_timeout,
+            command_channel=command_channel,
+            status_channel=status_channel,
+            prefix=f"{name}_",
+        ).status_receiver
+
+    return add_lcm_controller(
+        builder,
+        workcell=workcell,
+        table=table,
+        period=period,
+        config=config,
+        name=name,
+        status_period=FRANKA_PERIOD,
+        add_interface=interface,
+        who="add_franka_controller: the Franka arm",
+    )

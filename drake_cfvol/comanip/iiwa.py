@@ -16,18 +16,14 @@ from __future__ import annotations
 
 import numpy as np
 from drake import lcmt_iiwa_command, lcmt_iiwa_status
-from pydrake.geometry import SceneGraph
 from pydrake.lcm import DrakeLcm
 from pydrake.manipulation import ApplyDriverConfigs, IiwaCommandSender, IiwaControlMode, IiwaStatusReceiver
-from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.lcm import LcmBuses, LcmInterfaceSystem
 from pydrake.systems.primitives import ConstantVectorSource, Demultiplexer
-from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
-from drake_cfvol.comanip.robot_status import add_measured, add_status_watchdog, publish_on_lcm, subscribe_on_lcm
-from drake_cfvol.exceptions import StationError
+from drake_cfvol.comanip.robot_status import add_lcm_controller, add_status_watchdog, publish_on_lcm, subscribe_on_lcm
 from drake_cfvol.systems.hand import CoworkerHand
-from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig
+from drake_cfvol.systems.station import CoManipulationConfig
 
 __all__ = [
     "IIWA_STATUS_PERIOD",
@@ -213,47 +209,25 @@ def add_iiwa_controller(
         (the :class:`~drake_cfvol.systems.CoManipulationSystems`, the
         ``IiwaStatusReceiver``)
     """
-    if config.safety_filter is None:
-        raise StationError(
-            "add_iiwa_controller: the iiwa is commanded the safety filter's desired state; give "
-            "config.safety_filter (not None)."
-        )
-    scene_graph = builder.AddNamedSystem(f"{name}_scene_graph", SceneGraph())
-    plant = MultibodyPlant(0.0)
-    plant.RegisterAsSourceForSceneGraph(scene_graph)
-    robot = workcell.add_to_plant(plant)
-    plant.Finalize()
     k = workcell.num_joints
-    cm = AddCoManipulation(
+
+    def interface(cm):
+        status = add_iiwa_controller_interface(
+            builder, lcm, cm.desired_state_output, k, prefix=f"{name}_", status_channel=status_channel
+        )
+        add_iiwa_status_watchdog(
+            builder, lcm=lcm, safety=cm.safety, status_channel=status_channel, timeout=status_timeout, prefix=f"{name}_"
+        )
+        return status
+
+    return add_lcm_controller(
         builder,
-        plant=plant,
-        scene_graph=scene_graph,
-        robot=robot,
+        workcell=workcell,
         table=table,
-        tool_frame=workcell.tool_frame.name(),
         period=period,
-        measured_state=False,
         config=config,
         name=name,
+        status_period=IIWA_STATUS_PERIOD,
+        add_interface=interface,
+        who="add_iiwa_controller: the iiwa",
     )
-    status = add_iiwa_controller_interface(
-        builder, lcm, cm.desired_state_output, k, prefix=f"{name}_", status_channel=status_channel
-    )
-    add_iiwa_status_watchdog(
-        builder, lcm=lcm, safety=cm.safety, status_channel=status_channel, timeout=status_timeout, prefix=f"{name}_"
-    )
-    measured = add_measured(
-        builder,
-        status=status,
-        commanded=cm.commanded_position_output,
-        k=k,
-        period=IIWA_STATUS_PERIOD,
-        prefix=f"{name}_",
-    )
-    to_pose = builder.AddNamedSystem(f"{name}_to_pose", MultibodyPositionToGeometryPose(plant))
-    builder.Connect(measured, to_pose.get_input_port())
-    builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
-    builder.Connect(measured, cm.admittance.measured_position_input)
-    builder.Connect(measured, cm.safety.measured_position_input)
-    builder.Connect(status.get_torque_external_output_port(), cm.human_torque_input)
-    return cm, status

@@ -2,18 +2,33 @@
 :mod:`~drake_cfvol.comanip.iiwa`; drake-franka-driver's,
 :mod:`~drake_cfvol.comanip.franka`): the watchdog on the status channel and
 its hold on the safety filter, the measured position once the first status
-has come, and the messages' publishers and subscribers.
+has come, the messages' publishers and subscribers, and the controller
+that runs beside a real arm (:func:`add_lcm_controller`).
 """
 
 from __future__ import annotations
 
+import typing
+
+from pydrake.geometry import SceneGraph
 from pydrake.lcm import DrakeLcm
+from pydrake.multibody.plant import MultibodyPlant
 from pydrake.systems.framework import DiagramBuilder, InputPort, LeafSystem, OutputPort
 from pydrake.systems.lcm import LcmPublisherSystem, LcmSubscriberSystem
+from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
+from drake_cfvol.exceptions import StationError
+from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig, CoManipulationSystems
 from drake_cfvol.systems.watchdog import StatusWatchdog, cheaply_copied
 
-__all__ = ["UntilFirstStatus", "add_measured", "add_status_watchdog", "publish_on_lcm", "subscribe_on_lcm"]
+__all__ = [
+    "UntilFirstStatus",
+    "add_lcm_controller",
+    "add_measured",
+    "add_status_watchdog",
+    "publish_on_lcm",
+    "subscribe_on_lcm",
+]
 
 
 def publish_on_lcm(
@@ -132,3 +147,73 @@ def add_measured(
     builder.Connect(status.get_position_measured_output_port(), gate.measured_input)
     builder.Connect(commanded, gate.fallback_input)
     return gate.position_output
+
+
+def add_lcm_controller(
+    builder: DiagramBuilder,
+    *,
+    workcell,
+    table,
+    period: float,
+    config: CoManipulationConfig,
+    name: str,
+    status_period: float,
+    add_interface: typing.Callable[[CoManipulationSystems], object],
+    who: str,
+) -> tuple[CoManipulationSystems, object]:
+    """The co-manipulation controller of a torque-sensing arm that talks to
+    it over LCM only: its own SceneGraph with the workcell (a plant posed
+    from the status's measured positions, never simulated),
+    :func:`~drake_cfvol.systems.AddCoManipulation` on it fed the measured
+    position and the status's external torque. ``add_interface(cm)`` adds
+    the arm's LCM interface on the safety filter's desired state (and its
+    status watchdog) and returns the status receiver (Drake's, with
+    ``get_position_measured_output_port`` and
+    ``get_torque_external_output_port``), whose status comes every
+    ``status_period`` s. ``who`` names the caller in errors.
+
+    Returns:
+        (the :class:`~drake_cfvol.systems.CoManipulationSystems`, the
+        status receiver)
+
+    Raises:
+        StationError: no safety filter in ``config`` (the arm is commanded
+            its desired state).
+    """
+    if config.safety_filter is None:
+        raise StationError(
+            f"{who} is commanded the safety filter's desired state; give config.safety_filter (not None)."
+        )
+    scene_graph = builder.AddNamedSystem(f"{name}_scene_graph", SceneGraph())
+    plant = MultibodyPlant(0.0)
+    plant.RegisterAsSourceForSceneGraph(scene_graph)
+    robot = workcell.add_to_plant(plant)
+    plant.Finalize()
+    cm = AddCoManipulation(
+        builder,
+        plant=plant,
+        scene_graph=scene_graph,
+        robot=robot,
+        table=table,
+        tool_frame=workcell.tool_frame.name(),
+        period=period,
+        measured_state=False,
+        config=config,
+        name=name,
+    )
+    status = add_interface(cm)
+    measured = add_measured(
+        builder,
+        status=status,
+        commanded=cm.commanded_position_output,
+        k=workcell.num_joints,
+        period=status_period,
+        prefix=f"{name}_",
+    )
+    to_pose = builder.AddNamedSystem(f"{name}_to_pose", MultibodyPositionToGeometryPose(plant))
+    builder.Connect(measured, to_pose.get_input_port())
+    builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
+    builder.Connect(measured, cm.admittance.measured_position_input)
+    builder.Connect(measured, cm.safety.measured_position_input)
+    builder.Connect(status.get_torque_external_output_port(), cm.human_torque_input)
+    return cm, status

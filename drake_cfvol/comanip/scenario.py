@@ -43,6 +43,8 @@ __all__ = [
     "check_scenario_against_cell",
     "scenario_file_path",
     "InverseDynamicsDriver",
+    "FrankaDriver",
+    "TORQUE_SENSING_DRIVERS",
     "RandomPushes",
     "Reactive",
     "CellConfig",
@@ -83,8 +85,36 @@ class InverseDynamicsDriver:
     ki: float = 0.0
 
 
+@dataclasses.dataclass
+class FrankaDriver:
+    """A dynamic run's Franka arm over drake-franka-driver's LCM
+    (``simulation: {model_drivers: {robot: !FrankaDriver {...}}}``; Drake's
+    driver configs have no Panda entry): the controller talks to a
+    simulated station over an in-memory LCM as it would to the driver
+    (:mod:`drake_cfvol.comanip.franka`), the co-worker's hand pushes the
+    tool through contact, and a status watchdog holds the safety filter's
+    command. The command is sent every millisecond (Franka's rate): give
+    ``control.period: 0.001``.
+
+    Attributes:
+        control_mode: ``position`` or ``velocity`` (the driver's
+            ``--control_mode``).
+        kp: 1/s^2; kd: 1/s: the simulated arm's tracking gains (its
+            ``InverseDynamicsController``'s, standing in for Franka's joint
+            impedance).
+    """
+
+    control_mode: str = "position"
+    kp: float = InverseDynamicsDriver.kp
+    kd: float = InverseDynamicsDriver.kd
+
+
 #: The drivers a scenario's ``model_drivers`` may name (YAML tags).
-DriverConfig = typing.Union[InverseDynamicsDriver, IiwaDriver]
+DriverConfig = typing.Union[InverseDynamicsDriver, IiwaDriver, FrankaDriver]
+
+#: Drivers of arms that sense the co-worker's push as joint torque (through
+#: the hand's contact), as a real torque-sensing arm does.
+TORQUE_SENSING_DRIVERS = (IiwaDriver, FrankaDriver)
 
 
 def _loadable(cls, name: str, doc: str, *, optional: bool = False, exclude=()):
@@ -249,8 +279,9 @@ class SimulationConfig:
             pushes real forces); null (default): kinematic (the plant posed
             from the command).
         model_drivers: the robot's driver in a dynamic run, by model
-            instance name: ``!InverseDynamicsDriver`` (default) or Drake's
-            ``!IiwaDriver``.
+            instance name: ``!InverseDynamicsDriver`` (default), Drake's
+            ``!IiwaDriver`` or ``!FrankaDriver`` (a Franka arm over
+            drake-franka-driver's LCM).
         visualization: Drake's visualization settings for the recording
             (illustration and proximity layers, publish period, colours;
             see :func:`meshcat_params`).
