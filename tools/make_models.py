@@ -176,7 +176,7 @@ PANDA = dict(
     # margin would always touch. The hand against link 5 stays checked.
     unchecked_pairs=[("panda_link5", "panda_link7")],
     links={
-        "panda_link0": [("box", (0.26, 0.23, 0.17), (-0.04, 0.0, 0.075))],
+        "panda_link0": [("box", (0.26, 0.23, 0.18), (-0.04, 0.0, 0.07))],
         "panda_link1": [
             ("capsule", PANDA_R, (0.0, 0.0, -0.19), (0.0, 0.0, 0.0)),
             ("capsule", PANDA_R, (0.0, -0.08, 0.0), (0.0, 0.0, 0.0)),
@@ -194,6 +194,8 @@ PANDA = dict(
             ("capsule", PANDA_R, (0.0, 0.0, 0.0), (-0.0825, 0.0, 0.0)),
             ("capsule", PANDA_R, (0.0, 0.0, 0.0), (0.0, 0.0, 0.06)),
             ("capsule", PANDA_R, (-0.0825, 0.0, 0.0), (-0.0825, 0.12, 0.0)),
+            # Along the elbow-wrist line, which runs by the casing's edge.
+            ("capsule", 0.06, (0.0, 0.0, 0.0), (-0.04125, 0.192, 0.0)),
         ],
         # The forearm, its rib and the wrist housing.
         "panda_link5": [
