@@ -33,12 +33,12 @@ def _random_configs(wc, n, seed):
 def _cell(cell, request, mesh_cell):
     if cell == "mesh":
         return mesh_cell
-    if cell == "cobot":
-        return cf.load_workcell("cobot")
+    if cell in ("cobot", "franka"):
+        return cf.load_workcell(cell)
     return request.getfixturevalue(cell)
 
 
-@pytest.mark.parametrize("cell", ["automotive", "aerospace", "cobot", "mesh"])
+@pytest.mark.parametrize("cell", ["automotive", "aerospace", "cobot", "franka", "mesh"])
 def test_fk_matches_drake(cell, request, mesh_cell):
     """Body poses from the kernel's chain, computed in blocks of NB
     configurations (45: a full block and a partial one), equal Drake's to
@@ -55,7 +55,7 @@ def test_fk_matches_drake(cell, request, mesh_cell):
             np.testing.assert_allclose(p[n, b], X.translation(), atol=1e-12, rtol=0)
 
 
-@pytest.mark.parametrize("cell", ["automotive", "aerospace", "cobot", "mesh"])
+@pytest.mark.parametrize("cell", ["automotive", "aerospace", "cobot", "franka", "mesh"])
 def test_never_calls_free_where_drake_collides(cell, request, mesh_cell):
     """On random configurations (about half colliding), the kernel reports
     every configuration Drake finds in collision; and since every shape is
