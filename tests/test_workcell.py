@@ -285,7 +285,7 @@ def test_invariant_pairs_of_a_planar_arm(tmp_path):
         assert "floor" not in changeable and changeable["post"] == every["post"]
 
 
-@pytest.mark.parametrize("cell", ["automotive", "aerospace", "cobot", "tests/data/mesh_cell.yaml"])
+@pytest.mark.parametrize("cell", ["automotive", "aerospace", "cobot", "franka", "tests/data/mesh_cell.yaml"])
 def test_collision_free_never_free_where_drake_collides(cell, request):
     """The public batch check is never True where Drake's checker (padded by
     the same clearance, 0 and 2 cm) finds a collision, on random

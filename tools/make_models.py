@@ -153,10 +153,14 @@ IIWA = dict(
 # RotX(alpha) TransX(a) TransZ(d) (written below as xyz and an rpy), and every
 # joint turns about its z. The arm weighs about 18 kg (17.8 kg, spread by
 # volume as above); the Franka Hand 0.73 kg, turned -45 deg about the flange
-# as Franka mounts it. Collision shapes: capsules of radius 0.07 m around
-# tubes that are 0.055-0.06 m in radius on the robot, boxes around the base,
-# the wrist housings and the hand, sized from the link extents in Franka's
-# published description (the shapes hold the real links with 1 cm to spare).
+# as Franka mounts it. Collision shapes: capsules and cylinders of radius
+# 0.066-0.07 m around tubes 0.055 m in radius on the robot, boxes around the
+# base, link 6, the flange and the hand, sized from the link extents in
+# Franka's published description: they hold its collision hulls with 1 cm
+# to spare, 3 mm where link 6 and the hand face each other 3 cm apart (so
+# that links one joint apart stay more than 2 cm apart, as the runtime
+# filter's margin needs: 2.4-4.3 cm here). Flat tube ends are cylinders:
+# a capsule's cap would reach 7 cm past them.
 PANDA_MASS_KG = 17.8
 PANDA_HAND_MASS_KG = 0.73
 PANDA_R = 0.07
@@ -182,7 +186,7 @@ PANDA = dict(
             ("capsule", PANDA_R, (0.0, -0.08, 0.0), (0.0, 0.0, 0.0)),
         ],
         "panda_link2": [
-            ("capsule", PANDA_R, (0.0, 0.0, 0.0), (0.0, -0.19, 0.0)),
+            ("cylinder_y", 0.066, 0.204, (0.0, -0.102, 0.0)),
             ("capsule", PANDA_R, (0.0, 0.0, 0.0), (0.0, 0.0, 0.075)),
         ],
         "panda_link3": [
@@ -199,16 +203,16 @@ PANDA = dict(
         ],
         # The forearm, its rib and the wrist housing.
         "panda_link5": [
-            ("capsule", PANDA_R, (0.0, 0.0, -0.25), (0.0, 0.0, -0.06)),
+            ("cylinder_z", 0.066, 0.275, (0.0, 0.0, -0.1375)),
             ("capsule", 0.06, (0.0, 0.075, -0.23), (0.0, 0.075, -0.03)),
             ("cylinder_y", 0.062, 0.134, (0.0, 0.073, 0.0)),
         ],
-        "panda_link6": [("box", (0.208, 0.156, 0.128), (0.042, 0.018, 0.006))],
-        "panda_link7": [("box", (0.15, 0.15, 0.08), (0.02, 0.02, 0.08))],
+        "panda_link6": [("box", (0.208, 0.15, 0.128), (0.042, 0.021, 0.006))],
+        "panda_link7": [("box", (0.15, 0.15, 0.09), (0.02, 0.02, 0.075))],
         # The Franka Hand (frame turned -45 deg from the flange's): the hand
         # and its two fingers, open (to 0.08 m between them).
         "gripper": [
-            ("box", (0.09, 0.235, 0.115), (0.0, 0.0, 0.0225)),
+            ("box", (0.09, 0.235, 0.109), (0.0, 0.0, 0.0255)),
             ("box", (0.05, 0.16, 0.08), (0.0, 0.0, 0.085)),
         ],
     },
