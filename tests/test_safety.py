@@ -705,7 +705,7 @@ def test_a_non_finite_measured_position_holds_the_command():
 def test_the_stacked_rows_are_the_constraints_written_out():
     """The filter's own constraints stacked in one compiled call equal the
     rows written out by hand with numpy: [I; -I] over the joints with a
-    finite limit (b = -vmax twice), the box [I; -I] (b = lo, -hi), each
+    finite limit (b = v_lo, -v_hi), the box [I; -I] (b = lo, -hi), each
     damper block's rows of its pairs in order (with their row indices),
     the per-row priorities, weights and relaxation, zeros' signs included."""
     from drake_cfvol.systems.constraints import BOX, HARD, ROW
@@ -716,6 +716,7 @@ def test_the_stacked_rows_are_the_constraints_written_out():
         k, P, m = rng.integers(1, 8), rng.integers(0, 6), rng.integers(0, 15)
         vmax = rng.uniform(0.5, 2.0, k)
         vmax[rng.random(k) < 0.3] = np.inf
+        v_lo, v_hi = -vmax * rng.uniform(0.5, 1.0, k), vmax * rng.uniform(0.5, 1.0, k)
         lo, hi = -rng.uniform(0, 1, k), rng.uniform(0, 1, k)
         dA, db = rng.normal(size=(m, k)), rng.normal(size=m)
         dpair = rng.integers(0, max(P, 1), m) if P else np.zeros(0, np.int64)
@@ -727,13 +728,13 @@ def test_the_stacked_rows_are_the_constraints_written_out():
         relaxed = np.array([False, False, True, False])
         pairs = np.array([np.zeros(P, bool), np.zeros(P, bool), ~dynamic, dynamic])
         A, b, prio, weight, so, rel, counts = stack_rows(
-            kinds, weights, prios, relaxed, pairs, vmax, lo, hi, dA, db, dpair
+            kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db, dpair
         )
         finite = np.isfinite(vmax)
         eye = np.eye(k)
         static, moving = ~dynamic[dpair], dynamic[dpair]
         want_A = np.vstack([eye[finite], -eye[finite], eye, -eye, dA[static], dA[moving]])
-        want_b = np.concatenate([-vmax[finite], -vmax[finite], lo, -hi, db[static], db[moving]])
+        want_b = np.concatenate([v_lo[finite], -v_hi[finite], lo, -hi, db[static], db[moving]])
         want_counts = [2 * finite.sum(), 2 * k, static.sum(), moving.sum()]
         assert counts.tolist() == want_counts
         assert np.array_equal(A, want_A) and np.array_equal(np.signbit(A), np.signbit(want_A))

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drake_cfvol.comanip.drivers import TORQUE_SENSING_DRIVERS, FrankaDriver
 from drake_cfvol.exceptions import ParameterError, ScenarioError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.workcell import builtin_cells
@@ -71,6 +72,8 @@ def check_scenario_against_cell(scenario, workcell, file: Path | None = None) ->
     for name, values in (
         ("human.reactive.offset", scenario.human.reactive.offset),
         ("control.velocity_limits", scenario.control.velocity_limits),
+        ("control.acceleration_limits", scenario.control.acceleration_limits),
+        ("control.jerk_limits", scenario.control.jerk_limits),
     ):
         if len(values) and len(values) != k:
             raise ScenarioError(where, name, f"has {len(values)} values; the robot has {k} joints ({names})")
@@ -126,8 +129,6 @@ def _check_sources(scenario, where, base_dir) -> None:
         )
     if sim.model_drivers and pc is None:
         raise ScenarioError(where, "simulation.model_drivers", "needs plant_config: drivers act in a dynamic run only")
-    from drake_cfvol.comanip.scenario import TORQUE_SENSING_DRIVERS, FrankaDriver  # scenario imports this module
-
     for name, d in sim.model_drivers.items():
         if isinstance(d, FrankaDriver):
             _check_franka_driver(d, where, f"simulation.model_drivers.{name}")
@@ -194,10 +195,10 @@ def _check_control(control, where) -> None:
     _positive(where, "control.path_progress", pp, ("start_time",), strict=False, unit=" s")
     if pp.max_rate is not None:
         _positive(where, "control.path_progress", pp, ("max_rate",), unit=" waypoints/s")
-    if any(not v > 0 for v in control.velocity_limits):
-        raise ScenarioError(
-            where, "control.velocity_limits", f"must be > 0 (or left out: the robot's), got {control.velocity_limits}"
-        )
+    for key in ("velocity_limits", "acceleration_limits", "jerk_limits"):
+        values = getattr(control, key)
+        if any(not v > 0 for v in values):
+            raise ScenarioError(where, f"control.{key}", f"must be > 0 (or left out: the robot's), got {values}")
 
 
 def _check_online(scenario, where) -> None:

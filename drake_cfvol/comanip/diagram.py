@@ -594,6 +594,7 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
                 "filter_count": safety.filter_count_output,
                 "filter_fallbacks": safety.fallback_count_output,
                 "filter_damper_misses": safety.damper_misses_output,
+                "filter_braking_faults": safety.braking_faults_output,
                 "filter_box_exits": safety.box_exits_output,
                 "filter_holds": safety.hold_count_output,
                 "tracking_faults": safety.tracking_faults_output,
@@ -755,7 +756,7 @@ def build_comanipulation_diagram(
 
 def _control_config(scenario: Scenario, wc, path):
     """The scenario's control section for AddCoManipulation: the cell's
-    velocity limits unless given, and the path no faster than its
+    velocity, acceleration and jerk limits unless given, and the path no faster than its
     ``path.duration``."""
     c = scenario.control
     pp = c.path_progress
@@ -763,6 +764,8 @@ def _control_config(scenario: Scenario, wc, path):
     return dataclasses.replace(
         c,
         velocity_limits=list(c.velocity_limits) or list(wc.velocity_limits),
+        acceleration_limits=list(c.acceleration_limits) or list(wc.acceleration_limits),
+        jerk_limits=list(c.jerk_limits) or list(wc.jerk_limits),
         path_progress=dataclasses.replace(pp, max_rate=rate if pp.max_rate is None else min(pp.max_rate, rate)),
     )
 

@@ -18,7 +18,7 @@ from pydrake.systems.primitives import (
     StateInterpolatorWithDiscreteDerivative,
 )
 
-from drake_cfvol.comanip.scenario import InverseDynamicsDriver
+from drake_cfvol.comanip.drivers import InverseDynamicsDriver
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.robot import RobotSlice
 from drake_cfvol.systems.hand import add_hand_body

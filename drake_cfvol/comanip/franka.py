@@ -47,8 +47,8 @@ from pydrake.systems.primitives import (
     StateInterpolatorWithDiscreteDerivative,
 )
 
+from drake_cfvol.comanip.drivers import InverseDynamicsDriver
 from drake_cfvol.comanip.robot_status import add_lcm_controller, add_status_watchdog, publish_on_lcm, subscribe_on_lcm
-from drake_cfvol.comanip.scenario import InverseDynamicsDriver
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.scene.robot import RobotSlice
 from drake_cfvol.systems.station import CoManipulationConfig, CoManipulationSystems

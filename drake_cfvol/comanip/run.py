@@ -186,12 +186,15 @@ def run_scenario(
         "sim_wall_s": sim_s,
         "min_clearance_m": rates["min_clearance_m"],
         "max_velocity_ratio": rates["max_velocity_ratio"],
+        "max_acceleration_ratio": rates["max_acceleration_ratio"],
+        "max_jerk_ratio": rates["max_jerk_ratio"],
         "volume_penetrations": penetrations,
         "collisions": rates["collisions"],
         **bound_figures(t, q, *cm.bounds.boxes_at(np.clip(s_log[:, 0], 0.0, cm.bounds.g - 1))[:2], lo, hi),
         "filter_steps": _count(cm, ctx, "filter_count"),
         "filter_fallbacks": _count(cm, ctx, "filter_fallbacks"),
         "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
+        "braking_faults": _count(cm, ctx, "filter_braking_faults"),
         "filter_box_exits": _count(cm, ctx, "filter_box_exits"),
         "filter_holds": _count(cm, ctx, "filter_holds"),
         "tracking_faults": _count(cm, ctx, "tracking_faults"),
@@ -282,8 +285,15 @@ def run_problems(summary: dict) -> list[str]:
     low = summary.get("min_clearance_m")
     if low is not None and low < need - MARGIN_TOLERANCE:
         out.append(f"the clearance fell to {low * 1e3:.1f} mm, below the margin of {need * 1e3:.1f} mm")
-    if summary.get("max_velocity_ratio", 0.0) > 1.0 + 1e-9:
-        out.append(f"a joint moved at {summary['max_velocity_ratio']:.2f} x its velocity limit")
+    for key, what in (("velocity", "moved at"), ("acceleration", "accelerated at"), ("jerk", "jerked at")):
+        ratio = summary.get(f"max_{key}_ratio", 0.0)
+        if ratio > 1.0 + 1e-6 and summary.get("safety_filter", True):
+            out.append(f"a joint {what} {ratio:.2f} x its {key} limit")
+    if summary.get("braking_faults", 0):
+        out.append(
+            f"the command braked at its limits at {summary['braking_faults']} update(s): the margin could not be "
+            "kept within the acceleration and jerk limits"
+        )
     if summary.get("max_bound_violation", 0.0) > 1e-6 and not summary.get("filter_box_exits", 0):
         out.append(
             f"the command left the bounds table by {summary['max_bound_violation']:.2e} rad (m) "
@@ -305,19 +315,26 @@ def update_rate_figures(logs: dict, cm: Comanipulation) -> dict:
     rate (``update_*``): the largest |dq_j| / (period x velocity_limit_j)
     between consecutive updates (one update period apart by construction,
     so the period is the time step, not the difference of two rounded
-    sample times), the smallest clearance (moving links to the obstacles,
-    m) and the number of updates in collision."""
+    sample times), likewise the largest change of that velocity over the
+    acceleration limit's and of that acceleration over the jerk limit's
+    (the finite ones; 0: none), the smallest clearance (moving links to the
+    obstacles, m) and the number of updates in collision."""
     _, q = logs["update_commanded_position"]
     _, dist = logs["update_min_distance"]
     _, coll = logs["update_in_collision"]
     h = cm.scenario.control.period
     vmax = np.asarray(cm.workcell.velocity_limits, float)
-    ratio = 0.0
-    if len(q) > 1:
-        speed = np.abs(np.diff(q, axis=0)) / h
-        ratio = float(np.max(np.where(np.isfinite(vmax), speed / vmax, 0.0)))
+    c = cm.scenario.control
+    amax = np.asarray(list(c.acceleration_limits) or list(cm.workcell.acceleration_limits), float)
+    jmax = np.asarray(list(c.jerk_limits) or list(cm.workcell.jerk_limits), float)
+    ratios = []
+    for n, limit in enumerate((vmax, amax, jmax), start=1):
+        change = np.abs(np.diff(q, n=n, axis=0)) / h**n if len(q) > n else np.zeros((0, len(limit)))
+        ratios.append(float(np.max(np.where(np.isfinite(limit), change / limit, 0.0), initial=0.0)))
     return {
-        "max_velocity_ratio": ratio,
+        "max_velocity_ratio": ratios[0],
+        "max_acceleration_ratio": ratios[1],
+        "max_jerk_ratio": ratios[2],
         "min_clearance_m": float(dist.min()) if len(dist) else None,
         "collisions": int(coll.sum()),
     }

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import yaml
 from pydrake.common.yaml import yaml_load_typed
-from pydrake.manipulation import IiwaDriver
 from pydrake.multibody.parsing import ModelDirective
 from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import SimulatorConfig
@@ -25,6 +24,7 @@ from drake_cfvol.comanip.checks import (
     scenario_file_path,
     validate_scenario,
 )
+from drake_cfvol.comanip.drivers import TORQUE_SENSING_DRIVERS, DriverConfig, FrankaDriver, InverseDynamicsDriver
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.schema import CfvolSection, read_yaml, read_yaml_text, yaml_error_line
@@ -67,54 +67,6 @@ __all__ = [
 def diagrams_dir() -> Path:
     """The folder of the bundled scenarios."""
     return Path(str(resources.files("drake_cfvol.diagrams")))
-
-
-@dataclasses.dataclass
-class InverseDynamicsDriver:
-    """A dynamic run's robot under Drake's ``InverseDynamicsController``
-    (``simulation: {model_drivers: {robot: !InverseDynamicsDriver {...}}}``):
-    per joint, the desired acceleration is kp (q_d - q) + kd (v_d - v) + ki
-    (its integral), mapped through the robot's own inverse dynamics.
-
-    Attributes:
-        kp: 1/s^2; kd: 1/s; ki: 1/s^3.
-    """
-
-    kp: float = 10000.0
-    kd: float = 200.0
-    ki: float = 0.0
-
-
-@dataclasses.dataclass
-class FrankaDriver:
-    """A dynamic run's Franka arm over drake-franka-driver's LCM
-    (``simulation: {model_drivers: {robot: !FrankaDriver {...}}}``; Drake's
-    driver configs have no Panda entry): the controller talks to a
-    simulated station over an in-memory LCM as it would to the driver
-    (:mod:`drake_cfvol.comanip.franka`), the co-worker's hand pushes the
-    tool through contact, and a status watchdog holds the safety filter's
-    command. The command is sent every millisecond (Franka's rate): give
-    ``control.period: 0.001``.
-
-    Attributes:
-        control_mode: ``position`` or ``velocity`` (the driver's
-            ``--control_mode``).
-        kp: 1/s^2; kd: 1/s: the simulated arm's tracking gains (its
-            ``InverseDynamicsController``'s, standing in for Franka's joint
-            impedance).
-    """
-
-    control_mode: str = "position"
-    kp: float = InverseDynamicsDriver.kp
-    kd: float = InverseDynamicsDriver.kd
-
-
-#: The drivers a scenario's ``model_drivers`` may name (YAML tags).
-DriverConfig = typing.Union[InverseDynamicsDriver, IiwaDriver, FrankaDriver]
-
-#: Drivers of arms that sense the co-worker's push as joint torque (through
-#: the hand's contact), as a real torque-sensing arm does.
-TORQUE_SENSING_DRIVERS = (IiwaDriver, FrankaDriver)
 
 
 def _loadable(cls, name: str, doc: str, *, optional: bool = False, exclude=()):

@@ -20,6 +20,8 @@ and the obstacles, and a ``cfvol:`` section::
       height_map: {origin: [x, y], size: [x_dim, y_dim]}   # m, on the floor
       package_paths: {my_pkg: relative/or/absolute/dir}     # optional
       joint_limits: {joint: [lower, upper]}                 # optional overrides
+      acceleration_limits: [...]                            # rad/s^2 (m/s^2) per joint, optional
+      jerk_limits: [...]                                    # rad/s^3 (m/s^3) per joint, optional
       params: {h_max: 1.5, ...}                             # VolumeParams overrides
       configurations:
         path1: {start: [...], goal: [...]}                  # rad / m
@@ -120,6 +122,9 @@ class CfvolSection:
         height_map: the height map's extent.
         package_paths: package name -> folder (relative to the file).
         joint_limits: joint -> [lower, upper] overrides, rad or m.
+        acceleration_limits: per joint, rad/s^2 (m/s^2); empty: the model's
+            (``drake:acceleration`` in a URDF), else none.
+        jerk_limits: per joint, rad/s^3 (m/s^3); empty: none.
         params: :class:`drake_cfvol.VolumeParams` overrides.
         configurations: named start/goal pairs.
     """
@@ -132,6 +137,8 @@ class CfvolSection:
     height_map: HeightMapExtent | None = None
     package_paths: dict[str, str] = dataclasses.field(default_factory=dict)
     joint_limits: dict[str, list[float]] = dataclasses.field(default_factory=dict)
+    acceleration_limits: list[float] = dataclasses.field(default_factory=list)
+    jerk_limits: list[float] = dataclasses.field(default_factory=list)
     params: dict[str, float] = dataclasses.field(default_factory=dict)
     configurations: dict[str, NamedConfiguration] = dataclasses.field(default_factory=dict)
 

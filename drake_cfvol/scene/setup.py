@@ -31,7 +31,7 @@ class WorkcellSetup:
             )
             self.notes.append(f"held at the plant's default configuration: {names}")
 
-    def _read_joints(self, joint_limits) -> None:
+    def _read_joints(self, joint_limits, acceleration_limits=(), jerk_limits=()) -> None:
         """The robot's joints, their kinds and limits (overrides applied)."""
         plant = self.plant
         joints = robot_joints(plant, self.robot)
@@ -55,6 +55,22 @@ class WorkcellSetup:
         self.position_lower = lower
         self.position_upper = upper
         self.velocity_limits = np.array([j.velocity_upper_limits()[0] for j in joints], float)
+        model = np.array([j.acceleration_upper_limits()[0] for j in joints], float)
+        self.acceleration_limits = self._per_joint(acceleration_limits, "acceleration_limits", "rad/s^2", model)
+        self.jerk_limits = self._per_joint(jerk_limits, "jerk_limits", "rad/s^3", np.full(len(joints), np.inf))
+
+    def _per_joint(self, values, key: str, unit: str, default) -> np.ndarray:
+        """A per-joint limit of the settings (> 0; inf: none), or ``default`` where none is given."""
+        if values is None or not len(values):
+            return np.asarray(default, float)
+        v = np.asarray(values, float)
+        if v.shape != (len(self.joint_names),) or np.isnan(v).any() or (v <= 0).any():
+            raise self._fail(
+                f"{key} must be one limit > 0 per joint ({len(self.joint_names)}: {', '.join(self.joint_names)}; "
+                f"{unit}, .inf: none), got {list(values)}.",
+                key,
+            )
+        return v
 
     def _read_frames(self, tool_frame, base_frame, rail_joint) -> None:
         """The tool and base frames and the rail joint."""

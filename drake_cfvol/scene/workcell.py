@@ -97,6 +97,9 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         position_lower, position_upper: Position limits (k,), rad or m; may be
             infinite when the model has none.
         velocity_limits: (k,) rad/s or m/s.
+        acceleration_limits: (k,) rad/s^2 or m/s^2 (inf: none): the runtime
+            filter's, the settings' or else the model's.
+        jerk_limits: (k,) rad/s^3 or m/s^3 (inf: none).
         revolute: (k,) True for revolute joints, False for prismatic.
         tool_frame: The tool's ``Frame``.
         base_frame: The frame the reach is measured from.
@@ -139,6 +142,8 @@ class Workcell(WorkcellSetup, WorkcellQueries):
             height_map_origin=hm.origin if hm and hm.origin else None,
             height_map_size=hm.size if hm and hm.size else None,
             joint_limits=cf.joint_limits,
+            acceleration_limits=cf.acceleration_limits,
+            jerk_limits=cf.jerk_limits,
             params=cf.params,
             configurations={n: (c.start, c.goal) for n, c in cf.configurations.items()},
             edge_step=edge_step,
@@ -157,6 +162,8 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         height_map_origin=None,
         height_map_size=None,
         joint_limits: dict | None = None,
+        acceleration_limits=None,
+        jerk_limits=None,
         params: dict | None = None,
         configurations: dict | None = None,
         name: str = "station",
@@ -186,6 +193,9 @@ class Workcell(WorkcellSetup, WorkcellQueries):
                 and size (x_dim, y_dim), m (default: the reach around the
                 base, over the rail's travel).
             joint_limits: joint name -> [lower, upper] overrides, rad or m.
+            acceleration_limits: (k,) rad/s^2 (m/s^2) for the runtime filter
+                (default: the plant's, inf where it has none).
+            jerk_limits: (k,) rad/s^3 (m/s^3) (default: none).
             params: :class:`drake_cfvol.VolumeParams` overrides.
             configurations: name -> (start, goal), each (k,).
             name: the workcell's name (records, file names).
@@ -226,6 +236,8 @@ class Workcell(WorkcellSetup, WorkcellQueries):
             height_map_origin=height_map_origin,
             height_map_size=height_map_size,
             joint_limits=joint_limits or {},
+            acceleration_limits=acceleration_limits,
+            jerk_limits=jerk_limits,
             params=params or {},
             configurations=configurations or {},
             edge_step=edge_step,
@@ -255,6 +267,8 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         params,
         configurations,
         edge_step,
+        acceleration_limits=None,
+        jerk_limits=None,
     ) -> None:
         """Everything after the diagram: the robot, joints, frames, settings, obstacles."""
         self.name = name
@@ -273,7 +287,7 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         except WorkcellError as e:
             raise self._fail(str(e)) from None
         self._note_held()
-        self._read_joints(joint_limits)
+        self._read_joints(joint_limits, acceleration_limits, jerk_limits)
         self._read_frames(tool_frame, base_frame, rail_joint)
         self._read_settings(reach, height_map_origin, height_map_size, params, configurations)
         self.obstacles = self._find_obstacles()

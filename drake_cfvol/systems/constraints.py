@@ -68,6 +68,10 @@ class FilterStep:
         period: dt, s.
         lo, hi: the velocity interval per joint that keeps the limits and lands in the box, (k,).
         vmax: the velocity limits the filter commands at most, (k,).
+        v_lo, v_hi: the hard velocity interval of this update, (k,): the
+            velocity limits, and the acceleration and jerk limits from the
+            last command (:func:`~.filter_kernel.hard_interval`); default
+            -vmax, vmax.
         nominal: the nominal at the next path position (k,), or None.
         drift: the measured robot's velocity beyond the command's, rad/s
             (m/s), (k,): the tracking error's rate, which the damper's rows
@@ -94,8 +98,12 @@ class FilterStep:
         plant_context,
         kinematics,
         drift=None,
+        v_lo=None,
+        v_hi=None,
     ):
         self.q, self.q_c, self.period, self.lo, self.hi, self.vmax = q, q_c, period, lo, hi, vmax
+        self.v_lo = -np.asarray(vmax, float) if v_lo is None else np.asarray(v_lo, float)
+        self.v_hi = np.asarray(vmax, float) if v_hi is None else np.asarray(v_hi, float)
         self.drift = np.zeros(len(q_c)) if drift is None else np.asarray(drift, float)
         self.nominal, self.damper, self.kinematics = nominal, damper, kinematics
         self.plant, self.robot_slice = plant, robot_slice
@@ -154,7 +162,8 @@ def _own_rows(c, step) -> tuple:
         np.array([c.priority], np.int64),
         np.array([c.relaxed]),
         pairs,
-        np.asarray(step.vmax, float),
+        np.asarray(step.v_lo, float),
+        np.asarray(step.v_hi, float),
         np.asarray(step.lo, float),
         np.asarray(step.hi, float),
         damper.A,
@@ -175,7 +184,9 @@ def _check_pairs(kinds, pairs, damper) -> None:
 
 
 class VelocityLimits(FilterConstraint):
-    """|v_j| <= vmax_j (:data:`HARD`)."""
+    """v_lo <= v <= v_hi (:data:`HARD`): the velocity limits, and the
+    acceleration and jerk limits from the last command
+    (:func:`~.filter_kernel.hard_interval`)."""
 
     name, priority, stack = "velocity_limits", HARD, LIMIT_ROWS
 
@@ -501,7 +512,18 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
         damper = step.damper
         _check_pairs(kinds, pairs, damper)
         A, b, prio, weight, so_row, relaxed_rows, counts = stack_rows(
-            kinds, weights, prios, relaxed, pairs, step.vmax, step.lo, step.hi, damper.A, damper.b, damper.pair
+            kinds,
+            weights,
+            prios,
+            relaxed,
+            pairs,
+            step.v_lo,
+            step.v_hi,
+            step.lo,
+            step.hi,
+            damper.A,
+            damper.b,
+            damper.pair,
         )
         counts = counts.tolist()
         layout = tuple((name, n) for name, n in zip(names, counts) if n)

@@ -15,7 +15,17 @@ from numba import njit
 from drake_cfvol.systems.damper_kinematics import _second_order, _slot_poses
 from drake_cfvol.systems.qp import staged_solve
 
-__all__ = ["budget_after", "filter_rounds"]
+__all__ = [
+    "ROW_DECELERATION_SHARE",
+    "brake_rows",
+    "brake_speed",
+    "budget_after",
+    "face_speed",
+    "filter_rounds",
+    "hard_interval",
+    "request",
+    "stop_distance",
+]
 
 
 @njit(cache=True)
@@ -159,42 +169,183 @@ def filter_rounds(v_t, rows, damper, kin, at, qp, warm):
 
 
 @njit(cache=True)
-def request(q, desired, lower, upper, vmax, period, v_last, acceleration):
-    """The update's request: (sane, lo, hi, v_t). Per joint the velocity
-    interval [lo, hi] within the limits that lands in the box (where the
-    box lies farther than one step, the step towards it at the limit), and
-    the requested v_t = (desired - q) / dt, held within ``acceleration`` dt
-    of the last velocity, clipped to it. Not sane (a non-finite or crossed
-    input): the hold, as far as the box allows where it is usable (v_t 0
-    clipped to the interval of the usable joints' box)."""
+def stop_distance(v, a, acceleration, jerk, period):
+    """How far the update q <- q + v' dt carries on after a step that left
+    velocity v and acceleration a, braking as hard as the limits allow:
+    a' = max(a - jerk dt, -acceleration), v' = v + a' dt, summing the
+    positive v' dt until v' <= 0 (0 for v <= 0). Exact for the discrete
+    update; the ramp's steps are walked, the constant deceleration summed
+    in closed form."""
+    if v <= 0.0:
+        return 0.0
+    if not np.isfinite(acceleration) and not np.isfinite(jerk):
+        return 0.0  # no limit: stopped at the next step
+    d = 0.0
+    for _ in range(1000000):  # the ramp: jerk-limited, until the deceleration is at its limit
+        if v <= 0.0 or a <= -acceleration:
+            break
+        a = max(a - jerk * period, -acceleration)
+        v += a * period
+        if v > 0.0:
+            d += v * period
+    if v > 0.0:  # v - i acceleration dt for i = 1 .. n, n = floor(v / (acceleration dt))
+        n = np.floor(v / (acceleration * period))
+        d += period * (n * v - acceleration * period * n * (n + 1.0) / 2.0)
+    return d
+
+
+@njit(cache=True)
+def face_speed(gap, v_last, lo, hi, acceleration, jerk, period):
+    """The largest velocity v in [lo, hi] from which the robot, braking at
+    its limits after this step, stops within ``gap`` of where it is:
+    v dt + :func:`stop_distance` (v, (v - v_last) / dt) <= gap; ``lo``
+    where none (the command brakes as hard as the limits allow)."""
+    if not np.isfinite(acceleration) and not np.isfinite(jerk):
+        return min(max(gap / period, lo), hi)
+    if hi * period + stop_distance(hi, (hi - v_last) / period, acceleration, jerk, period) <= gap:
+        return hi
+    if lo * period + stop_distance(lo, (lo - v_last) / period, acceleration, jerk, period) > gap:
+        return lo
+    a, b = lo, hi
+    for _ in range(60):
+        m = 0.5 * (a + b)
+        if m <= a or m >= b:
+            break
+        if m * period + stop_distance(m, (m - v_last) / period, acceleration, jerk, period) <= gap:
+            a = m
+        else:
+            b = m
+    return a
+
+
+@njit(cache=True)
+def hard_interval(vmax, period, v_last, a_last, acceleration, jerk):
+    """Per joint the velocity interval [lo, hi] every command keeps: the
+    velocity limits, braked in time under the jerk limit (an acceleration
+    a' > 0 ramped down to 0 at the jerk limit adds at most a'^2 / (2 jerk)
+    to v), |v - v_last| <= acceleration dt and |v - v_last - a_last dt| <=
+    jerk dt^2. Where they cannot all hold (a start or a hold that left the
+    state outside them), the point of the acceleration and jerk interval
+    nearest the velocity limits'."""
+    k = len(vmax)
+    lo, hi = np.empty(k), np.empty(k)
+    h = period
+    for j in range(k):
+        ja, jj = acceleration[j] * h, jerk[j] * h * h
+        lo_aj = max(v_last[j] - ja, v_last[j] + a_last[j] * h - jj)
+        hi_aj = min(v_last[j] + ja, v_last[j] + a_last[j] * h + jj)
+        lo_v, hi_v = -vmax[j], vmax[j]
+        if np.isfinite(jj) and np.isfinite(vmax[j]):
+            # v + (v - v_last)^2 / (2 jerk dt^2) <= vmax for v > v_last: the largest such step x
+            x = jj * (np.sqrt(1.0 + 2.0 * max(vmax[j] - v_last[j], 0.0) / jj) - 1.0)
+            hi_v = min(vmax[j], max(v_last[j], v_last[j] + x))
+            x = jj * (np.sqrt(1.0 + 2.0 * max(vmax[j] + v_last[j], 0.0) / jj) - 1.0)
+            lo_v = max(-vmax[j], min(v_last[j], v_last[j] - x))
+        a, b = max(lo_aj, lo_v), min(hi_aj, hi_v)
+        if a > b:  # the point of the acceleration and jerk interval nearest the velocity limits'
+            if lo_aj > hi_aj:  # the jerk interval misses the acceleration one: the latter's alone
+                lo_aj, hi_aj = v_last[j] - ja, v_last[j] + ja
+            a = b = min(max(min(max(0.0, lo_v), hi_v), lo_aj), hi_aj)
+        lo[j], hi[j] = a, b
+    return lo, hi
+
+
+@njit(cache=True)
+def request(q, desired, lower, upper, vmax, period, v_last, a_last, acceleration, jerk):
+    """The update's request: (sane, lo, hi, v_t, hard_lo, hard_hi). Per
+    joint the hard interval (:func:`hard_interval`) and within it the
+    velocity interval [lo, hi] that keeps the box, braked in time: from
+    each face the largest velocity from which braking at the limits stops
+    inside it (:func:`face_speed`; without acceleration and jerk limits,
+    the step that lands in the box). Where the box lies farther than that
+    (outside it, or one face too close to brake for), the command moves
+    towards it as fast as the limits allow. The requested v_t =
+    (desired - q) / dt clipped to [lo, hi]. Not sane (a non-finite or
+    crossed input): the hold, braked at the limits, as far as the box
+    allows where it is usable."""
     k = len(q)
     sane = True
     for j in range(k):
         if not (np.isfinite(desired[j]) and np.isfinite(lower[j]) and np.isfinite(upper[j]) and lower[j] <= upper[j]):
             sane = False
+    h_lo, h_hi = hard_interval(vmax, period, v_last, a_last, acceleration, jerk)
     lo, hi, v_t = np.zeros(k), np.zeros(k), np.zeros(k)
     for j in range(k):
         ok = np.isfinite(lower[j]) and np.isfinite(upper[j]) and lower[j] <= upper[j]
         low, up = (lower[j], upper[j]) if ok else (q[j], q[j])
-        to_lo, to_hi = (low - q[j]) / period, (up - q[j]) / period
-        a, b = max(-vmax[j], to_lo), min(vmax[j], to_hi)
-        if to_lo > vmax[j]:
-            a = vmax[j]
-        if to_hi < -vmax[j]:
-            b = -vmax[j]
-        lo[j], hi[j] = a, max(a, b)
-        if sane:
-            target = (desired[j] - q[j]) / period
-            target = min(max(target, v_last[j] - acceleration[j] * period), v_last[j] + acceleration[j] * period)
-        else:
-            target = 0.0
+        b = face_speed(up - q[j], v_last[j], h_lo[j], h_hi[j], acceleration[j], jerk[j], period)
+        a = -face_speed(q[j] - low, -v_last[j], -h_hi[j], -h_lo[j], acceleration[j], jerk[j], period)
+        if a > b:  # both faces cannot be kept: towards the box's middle, as far as the limits allow
+            if q[j] > up:
+                a = b
+            elif q[j] < low:
+                b = a
+            else:
+                a = b = min(max(0.5 * (a + b), h_lo[j]), h_hi[j])
+        lo[j], hi[j] = a, b
+        target = (desired[j] - q[j]) / period if sane else 0.0
         v_t[j] = min(max(target, lo[j]), hi[j])
-    return sane, lo, hi, v_t
+    return sane, lo, hi, v_t, h_lo, h_hi
+
+
+#: The share of the arm's deceleration along a row that the row counts on:
+#: the rest is left to the other rows and the box, braking at the same time.
+ROW_DECELERATION_SHARE = 0.5
 
 
 @njit(cache=True)
-def finish(q, v, lo, hi, vmax, limits, desired, period, sane, changed):
-    """The update's command from the velocity v: (v clipped to the limits,
+def brake_speed(gap, rate, deceleration, delay):
+    """The speed at which a distance ``gap`` above the target may shrink:
+    the velocity damper's rate x gap where riding it needs no more than
+    ``deceleration`` (gap <= g0 = deceleration / rate^2), beyond that the
+    point mass's stopping speed sqrt(2 deceleration (gap - g0) + (rate
+    g0)^2), the two meeting with the same slope at g0; both of the gap
+    less what the speed covers over ``delay`` (the deceleration's ramp and
+    the update's half step)."""
+    g = gap / (1.0 + rate * delay)  # the damper's speed at most: gap - rate g delay >= g
+    if not deceleration > 0.0 or not np.isfinite(deceleration):
+        return rate * g
+    g0 = deceleration / (rate * rate)
+    if g <= g0:
+        return rate * g
+    return np.sqrt(2.0 * deceleration * g - deceleration * deceleration / (rate * rate))
+
+
+@njit(cache=True)
+def brake_rows(A, b, rate, vmax, acceleration, jerk, period):
+    """The damper's rows braked in time: a row i that lets its distance
+    shrink (b_i < 0: gap = -b_i / rate above the target) lets it shrink no
+    faster than :func:`brake_speed` allows, the deceleration the row's
+    share (:data:`ROW_DECELERATION_SHARE`) of sum_j |A_ij|
+    acceleration_j, the delay its ramp at sum_j |A_ij| jerk_j plus half an
+    update (v <= sqrt(2 a (d - d_s)) with the update's terms). A row is
+    kept as it is where that speed is above the fastest it can shrink
+    (sum_j |A_ij| vmax_j: a row the arm barely moves needs no braking), or
+    no joint it moves has a limit."""
+    out = b.copy()
+    m, k = A.shape
+    for i in range(m):
+        if b[i] >= 0.0:
+            continue
+        acc, jrk, fastest = 0.0, 0.0, 0.0
+        for j in range(k):
+            acc += abs(A[i, j]) * acceleration[j]
+            jrk += abs(A[i, j]) * jerk[j]
+            fastest += abs(A[i, j]) * vmax[j]
+        if not np.isfinite(acc) or acc <= 0.0:
+            continue
+        acc *= ROW_DECELERATION_SHARE
+        delay = 0.5 * period + (acc / jrk if np.isfinite(jrk) and jrk > 0.0 else 0.0)
+        speed = brake_speed(-b[i] / rate, rate, acc, delay)
+        if speed < fastest:
+            out[i] = -min(-b[i], speed)
+    return out
+
+
+@njit(cache=True)
+def finish(q, v, lo, hi, h_lo, h_hi, limits, desired, period, sane, changed):
+    """The update's command from the velocity v: (v clipped to the hard
+    interval [h_lo, h_hi] (:func:`hard_interval`),
     q_next = q + v dt, whether v left the interval [lo, hi] (by > 1e-9),
     max_j |v_j| / limit_j over the finite limits, whether the command
     differs from the request by more than ``changed`` (or the input was
@@ -203,7 +354,7 @@ def finish(q, v, lo, hi, vmax, limits, desired, period, sane, changed):
     out, q_next = np.zeros(k), np.zeros(k)
     exited, acted, ratio = False, not sane, 0.0
     for j in range(k):
-        x = min(max(v[j], -vmax[j]), vmax[j])
+        x = min(max(v[j], h_lo[j]), h_hi[j])
         out[j] = x
         q_next[j] = q[j] + x * period
         if x < lo[j] - 1e-9 or x > hi[j] + 1e-9:
@@ -242,27 +393,28 @@ LIMIT_ROWS, BOX_ROWS, DAMPER_ROWS = 0, 1, 2
 
 
 @njit(cache=True)
-def stack_rows(kinds, weights, prios, relaxed, pairs, vmax, lo, hi, dA, db, dpair):
+def stack_rows(kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db, dpair):
     """The rows of the filter's own constraints, stacked block after block
     in one call: (A (m, k), b, priority, weight, second-order row (the damper
     row a row is; -1: none), relaxed per row, rows per block).
 
     Args:
-        kinds: (n,) per block :data:`LIMIT_ROWS` (v_j >= -vmax_j and -v_j >=
-            -vmax_j over the joints with a finite limit), :data:`BOX_ROWS`
+        kinds: (n,) per block :data:`LIMIT_ROWS` (v_j >= v_lo_j and -v_j >=
+            -v_hi_j over the joints with finite limits), :data:`BOX_ROWS`
             (v >= lo, -v >= -hi) or :data:`DAMPER_ROWS` (the damper's rows
             of the pairs the block's ``pairs`` row holds).
         weights, prios, relaxed: (n,) the blocks' weight, priority and
             relaxation.
         pairs: (n, P) bools, per damper block its pairs.
-        vmax, lo, hi: (k,) the velocity limits and the box's velocity
-            interval.
+        v_lo, v_hi, lo, hi: (k,) the hard velocity interval (the velocity,
+            acceleration and jerk limits: :func:`hard_interval`) and the
+            box's.
         dA, db, dpair: the damper's rows (m_d, k), (m_d,) and their pairs.
     """
     n, k, md = len(kinds), len(lo), len(db)
     finite = 0
     for j in range(k):
-        if np.isfinite(vmax[j]):
+        if np.isfinite(v_lo[j]) and np.isfinite(v_hi[j]):
             finite += 1
     counts = np.zeros(n, np.int64)
     for i in range(n):
@@ -294,14 +446,14 @@ def stack_rows(kinds, weights, prios, relaxed, pairs, vmax, lo, hi, dA, db, dpai
             half = counts[i] // 2
             r = at
             for j in range(k):
-                if kinds[i] == BOX_ROWS or np.isfinite(vmax[j]):
+                if kinds[i] == BOX_ROWS or (np.isfinite(v_lo[j]) and np.isfinite(v_hi[j])):
                     for c in range(k):
                         A[r + half, c] = -0.0
                     A[r, j], A[r + half, j] = 1.0, -1.0
                     if kinds[i] == BOX_ROWS:
                         b[r], b[r + half] = lo[j], -hi[j]
                     else:
-                        b[r], b[r + half] = -vmax[j], -vmax[j]
+                        b[r], b[r + half] = v_lo[j], -v_hi[j]
                     r += 1
         for r in range(at, at + counts[i]):
             prio[r], weight[r], rel[r] = prios[i], weights[i], relaxed[i]

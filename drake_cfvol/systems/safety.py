@@ -73,13 +73,25 @@ and sets q_c <- q_c + v dt (dt = ``period``), v solving::
       lower_j <= q_c,j + v_j dt <= upper_j                (the box ahead)
       n_i^T (J_Ai - J_Bi) v >= -rate (d_i - d_t)          (each row i of the damper)
 
-**Velocity limits** are hard: no update moves joint j by more than
-``velocity_limit_j`` x dt, whatever the inputs (no jumps, ever); the
-filter commands at most (1 - 1e-9) of each limit, so that rounding in
-q_c + v dt never shows a step above it. ``acceleration_limits``, where
-given, shape the request instead (v_des is held within a_j dt of the
-last velocity): the hard constraints always win over them, so a braking
-damper is never overruled by them.
+**Velocity, acceleration and jerk limits** are hard: no update moves
+joint j by more than ``velocity_limit_j`` x dt, changes its velocity by
+more than ``acceleration_limit_j`` x dt, or its acceleration (the change
+of velocity over dt) by more than ``jerk_limit_j`` x dt, whatever the
+inputs (:func:`~.filter_kernel.hard_interval`; the velocity limit is
+braked for in time under the jerk limit). The filter commands at most
+(1 - 1e-9) of each velocity limit and (1 - 1e-6) of the others, so that
+rounding in q_c + v dt never shows a step above them. A hold, a fault and
+a bad input brake at these limits rather than stop at once.
+
+**Braking in time**: the box's faces are approached so that braking at
+the limits after the step still stops inside them
+(:func:`~.filter_kernel.face_speed`, exact for the discrete update), and
+each damper row lets its distance shrink no faster than a point mass
+decelerating at the row's share of the acceleration limits stops at the
+margin (:func:`~.filter_kernel.brake_rows`). Where the limits leave no
+way to keep a row (a moving obstacle faster than the arm can brake, a
+fault upstream), the command brakes at its limits and the update counts
+in ``braking_faults``.
 
 **The box**: ``lower`` and ``upper`` are the bounds at the next path
 position (where the command takes effect: a second JointBoundsSource fed
@@ -193,7 +205,7 @@ from drake_cfvol.systems.constraints import (
     solve_rounds,
 )
 from drake_cfvol.systems.damper import DamperRows, DynamicPairs, VelocityDamper
-from drake_cfvol.systems.filter_kernel import budget_after, finish, request
+from drake_cfvol.systems.filter_kernel import brake_rows, budget_after, finish, hard_interval, request
 
 __all__ = ["FAULTS", "SafetyFilter", "SafetyFilterConfig"]
 
@@ -224,9 +236,21 @@ class SafetyFilterConfig:
 #: updates that had to miss a damper row, updates whose command left the
 #: box, updates held, a tracking fault at the last update, updates with
 #: one, the latched fault (:data:`FAULTS`; 0: none)].
-_ACTIVE, _COUNT, _MIN_DISTANCE, _RATIO, _FALLBACKS, _MISSES, _EXITS, _HOLDS, _TRACKING, _TRACKING_COUNT, _FAULT = range(
-    11
-)
+#: updates that missed a row with acceleration or jerk limits in force.
+(
+    _ACTIVE,
+    _COUNT,
+    _MIN_DISTANCE,
+    _RATIO,
+    _FALLBACKS,
+    _MISSES,
+    _EXITS,
+    _HOLDS,
+    _TRACKING,
+    _TRACKING_COUNT,
+    _FAULT,
+    _BRAKING,
+) = range(12)
 
 #: The filter's faults (its ``filter_fault`` output), by code: what hit it.
 FAULTS = {
@@ -236,6 +260,11 @@ FAULTS = {
 
 #: The share of the velocity limits the filter keeps below them.
 _HAIR = 1e-9
+
+#: The share of the acceleration and jerk limits the filter keeps below
+#: them: a velocity recomputed from two commanded positions differs from
+#: the commanded one by rounding (about 1e-13 rad/s at 1 ms).
+_HAIR_ACCELERATION = 1e-6
 
 #: A command counts as changed when it differs from the request by more
 #: than this, rad (m).
@@ -287,6 +316,7 @@ def _declare_status_outputs(system, status) -> None:
         ("tracking_fault", _TRACKING),
         ("tracking_faults", _TRACKING_COUNT),
         ("filter_fault", _FAULT),
+        ("braking_faults", _BRAKING),
     ]:
         port = system.DeclareVectorOutputPort(
             name=name,
@@ -335,6 +365,7 @@ class SafetyFilter(LeafSystem):
         - tracking_fault
         - tracking_faults
         - filter_fault
+        - braking_faults
 
     The update, its constraints and guarantees, the outputs and the measured
     position: see :mod:`drake_cfvol.systems.safety`. Scalar type: float only.
@@ -351,7 +382,8 @@ class SafetyFilter(LeafSystem):
             virtual geometry such as the volume V's boxes).
         clearance, influence_distance, damper_gain, allowance: see :class:`SafetyFilterConfig` (clearance: 0).
         period: update period dt, s (> 0).
-        acceleration_limits: (k,) rad/s^2 (m/s^2), or None.
+        acceleration_limits: (k,) rad/s^2 (m/s^2; inf: none), or None: none.
+        jerk_limits: (k,) rad/s^3 (m/s^3; inf: none), or None: none.
         initial_position: the default q_c (k,); default zeros (see
             :meth:`set_initial_position`).
         skip_far_pairs: measure a pair again only once the robot's motion
@@ -402,6 +434,7 @@ class SafetyFilter(LeafSystem):
         damper_gain: float = SafetyFilterConfig.damper_gain,
         allowance: float = SafetyFilterConfig.allowance,
         acceleration_limits=None,
+        jerk_limits=None,
         initial_position=None,
         skip_far_pairs: bool = True,
         dynamic_ids=(),
@@ -438,7 +471,13 @@ class SafetyFilter(LeafSystem):
         self.acceleration_limits = (
             None if acceleration_limits is None else _limits(acceleration_limits, k, "acceleration_limits")
         )
-        self._acceleration = np.full(k, np.inf) if self.acceleration_limits is None else self.acceleration_limits
+        self.jerk_limits = None if jerk_limits is None else _limits(jerk_limits, k, "jerk_limits")
+        # Commanded at most these, a hair under the limits (see _HAIR_ACCELERATION).
+        self._acceleration = (np.full(k, np.inf) if self.acceleration_limits is None else self.acceleration_limits) * (
+            1.0 - _HAIR_ACCELERATION
+        )
+        self._jerk = (np.full(k, np.inf) if self.jerk_limits is None else self.jerk_limits) * (1.0 - _HAIR_ACCELERATION)
+        self._braked = bool(np.isfinite(self._acceleration).any() or np.isfinite(self._jerk).any())
         q0 = np.zeros(k) if initial_position is None else np.asarray(initial_position, float)
         if q0.shape != (k,):
             raise DimensionError("initial_position", k, q0.shape)
@@ -483,7 +522,9 @@ class SafetyFilter(LeafSystem):
         )
         self._position = self.DeclareDiscreteState(q0)
         self._velocity = self.DeclareDiscreteState(k)  # the last commanded velocity
-        self._status = self.DeclareDiscreteState(np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
+        self._status = self.DeclareDiscreteState(
+            np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+        )
         # Per pair, how far it is known to lie beyond the influence distance
         # (m; negative: measure it at the next update), with the robot at the
         # last update's base position (the budget's last entry on).
@@ -491,6 +532,9 @@ class SafetyFilter(LeafSystem):
         # The measured position at the last update (NaN: none yet, or held):
         # the robot's drift from its command between updates.
         self._measured_last = self.DeclareDiscreteState(np.full(k, np.nan))
+        # The last commanded acceleration, (v - v_last) / dt (declared last: the
+        # other states keep their indices).
+        self._accel = self.DeclareDiscreteState(k)
         # Pairs measured at every update whatever their budget: geometry that
         # moves on its own (not the perceived kind, whose pairs are measured
         # while it is in use: DynamicPairs.mark).
@@ -590,14 +634,16 @@ class SafetyFilter(LeafSystem):
         h, k = self.period, self.k
         q = context.get_discrete_state(self._position).CopyToVector()
         v_last = context.get_discrete_state(self._velocity).CopyToVector()
+        a_last = context.get_discrete_state(self._accel).CopyToVector()
         status = context.get_discrete_state(self._status).CopyToVector()
-        if status[_FAULT]:  # latched: the last command stays (see the module's Fault)
-            discrete_state.get_mutable_vector(self._velocity).SetFromVector(np.zeros(k))
+        if status[_FAULT]:  # latched: the command brakes to a stop and stays (see the module's Fault)
+            self._brake(discrete_state, q, v_last, a_last)
             return
         if self.hold_input.HasValue(context) and not self.hold_input.Eval(context)[0] <= 0.5:
-            # Held (a stale robot status, a fault upstream): the last command
-            # stays; every pair is measured again when the hold ends.
-            discrete_state.get_mutable_vector(self._velocity).SetFromVector(np.zeros(k))
+            # Held (a stale robot status, a fault upstream): the command
+            # brakes to a stop at its limits; every pair is measured again
+            # when the hold ends.
+            self._brake(discrete_state, q, v_last, a_last)
             self._restart(discrete_state.get_mutable_vector)
             held = status.copy()
             held[_ACTIVE], held[_RATIO], held[_HOLDS], held[_TRACKING] = 1.0, 0.0, status[_HOLDS] + 1, 0.0
@@ -609,16 +655,17 @@ class SafetyFilter(LeafSystem):
         upper = np.asarray(self.upper_input.Eval(context), float)
         nominal = np.asarray(self.nominal_input.Eval(context), float) if self.nominal_input.HasValue(context) else None
         fallback = False
-        sane, lo, hi, v_t = request(q, desired, lower, upper, self._vmax, h, v_last, self._acceleration)
+        sane, lo, hi, v_t, h_lo, h_hi = request(
+            q, desired, lower, upper, self._vmax, h, v_last, a_last, self._acceleration, self._jerk
+        )
         base, drift = self._base_and_drift(context, q, v_last)
         finite = bool(np.isfinite(base).all())
         if sane and (status[_TRACKING] or not finite):
             # The last update could not keep the measured robot's rows, or the
-            # measured position is not finite: the request is held (only the
-            # box and, with a finite measured position, the rows move the
-            # command), within the acceleration limits where given.
-            stop = np.minimum(np.maximum(0.0, v_last - self._acceleration * h), v_last + self._acceleration * h)
-            v_t = np.minimum(np.maximum(stop, lo), hi)
+            # measured position is not finite: the request is held, braked at
+            # the limits (only the box and, with a finite measured position,
+            # the rows move the command).
+            v_t = np.minimum(np.maximum(np.minimum(np.maximum(0.0, h_lo), h_hi), lo), hi)
             sane = finite
         if not sane:  # hold, as far as the box (if it is usable) allows
             v, fallback, dmin, missed, tracking = v_t, True, status[_MIN_DISTANCE], False, False
@@ -644,23 +691,26 @@ class SafetyFilter(LeafSystem):
             # the others' budget, both with the robot at this base.
             dmin, keep = budget_after(rows.distances, budget, self.influence_distance, base)
             fault = self._fault(rows)
-            if fault:  # held from now on: no QP at this update or after
-                discrete_state.get_mutable_vector(self._velocity).SetFromVector(np.zeros(k))
+            if fault:  # braked to a stop from now on: no QP at this update or after
+                self._brake(discrete_state, q, v_last, a_last)
                 faulted = status.copy()
                 faulted[_ACTIVE], faulted[_RATIO], faulted[_MIN_DISTANCE], faulted[_FAULT] = 1.0, 0.0, dmin, fault
                 faulted[_COUNT] += 1
                 discrete_state.get_mutable_vector(self._status).SetFromVector(faulted)
                 return
-            v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal, drift)
+            if self._braked and len(rows.b):
+                rows = rows._replace(
+                    b=brake_rows(rows.A, rows.b, self.rate, self._vmax, self._acceleration, self._jerk, h)
+                )
+            v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal, drift, (h_lo, h_hi))
             tracking = missed and drift is not None
             if drift is not None:
                 discrete_state.get_mutable_vector(self._measured_last).SetFromVector(base)
             fallback = fallback or not solved
         v, q_next, exited, ratio, acted = finish(
-            q, np.asarray(v, float), lo, hi, self._vmax, self.velocity_limits, desired, h, sane, _CHANGED
+            q, np.asarray(v, float), lo, hi, h_lo, h_hi, self.velocity_limits, desired, h, sane, _CHANGED
         )
-        discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
-        discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
+        self._command(discrete_state, q_next, v, v_last)
         if sane and self._damper.num_pairs and self.skip_far_pairs:
             discrete_state.get_mutable_vector(self._budget).SetFromVector(keep)
         else:  # measure every pair at the next update
@@ -678,8 +728,22 @@ class SafetyFilter(LeafSystem):
                 float(tracking),
                 status[_TRACKING_COUNT] + tracking,
                 0.0,  # no fault (a faulted update returned above)
+                status[_BRAKING] + (missed and self._braked),
             ]
         )
+
+    def _command(self, discrete_state, q_next, v, v_last) -> None:
+        """Writes the update's command: the position, its velocity and acceleration."""
+        discrete_state.get_mutable_vector(self._position).SetFromVector(q_next)
+        discrete_state.get_mutable_vector(self._velocity).SetFromVector(v)
+        discrete_state.get_mutable_vector(self._accel).SetFromVector((v - v_last) / self.period)
+
+    def _brake(self, discrete_state, q, v_last, a_last) -> None:
+        """The command brakes towards a stop as hard as the limits allow (at
+        once, without acceleration and jerk limits)."""
+        h_lo, h_hi = hard_interval(self._vmax, self.period, v_last, a_last, self._acceleration, self._jerk)
+        v = np.minimum(np.maximum(0.0, h_lo), h_hi)
+        self._command(discrete_state, q + v * self.period, v, v_last)
 
     def _fault(self, rows: DamperRows) -> int:
         """The fault these rows raise (:data:`FAULTS`), or 0: more rows than
@@ -705,7 +769,7 @@ class SafetyFilter(LeafSystem):
         drift = (base - last) / self.period - v_last
         return base, np.where(np.isfinite(drift), drift, 0.0)
 
-    def _filter(self, context, base, q, v_t, lo, hi, rows: DamperRows, nominal, drift=None):
+    def _filter(self, context, base, q, v_t, lo, hi, rows: DamperRows, nominal, drift=None, hard=None):
         """The velocity commanded for the request v_t: (v, missed: a
         :data:`~drake_cfvol.systems.constraints.ROW` row missed at v,
         solved (False: the fallback)). Each constraint's rows at the step
@@ -732,5 +796,7 @@ class SafetyFilter(LeafSystem):
             plant_context=self._pctx(context),
             kinematics=self._damper.kinematics,
             drift=drift,
+            v_lo=None if hard is None else hard[0],
+            v_hi=None if hard is None else hard[1],
         )
         return solve_rounds(self._qp, self.constraints, step, v_t, rounds=self.SECOND_ORDER_ROUNDS, nudge=_NUDGE)

@@ -109,12 +109,18 @@ class CoManipulationConfig:
         path_progress: the path's share of the velocity limits, start time
             and rate cap.
         velocity_limits: (k,) rad/s (m/s); empty: the plant's.
+        acceleration_limits: (k,) rad/s^2 (m/s^2; .inf: none) every command
+            keeps; empty: the plant's (inf where it has none).
+        jerk_limits: (k,) rad/s^3 (m/s^3; .inf: none) every command keeps;
+            empty: none.
     """
 
     admittance: AdmittanceConfig = dataclasses.field(default_factory=AdmittanceConfig)
     safety_filter: typing.Optional[SafetyFilterConfig] = dataclasses.field(default_factory=SafetyFilterConfig)
     path_progress: PathProgressConfig = dataclasses.field(default_factory=PathProgressConfig)
     velocity_limits: list[float] = dataclasses.field(default_factory=list)
+    acceleration_limits: list[float] = dataclasses.field(default_factory=list)
+    jerk_limits: list[float] = dataclasses.field(default_factory=list)
 
 
 def _check_arguments(builder, plant, scene_graph, tool_frame, period, config) -> None:
@@ -157,7 +163,13 @@ def _resolve(plant, robot, table, tool_frame, config):
     rate = safe_path_rate(table, limits, share=pp.velocity_share)
     if pp.max_rate is not None:
         rate = min(rate, float(pp.max_rate))
-    return robot, rs.k, tool_frame, limits, rate
+    acceleration = (
+        np.asarray(config.acceleration_limits, float)
+        if len(config.acceleration_limits)
+        else plant.GetAccelerationUpperLimits()[rs.vidx]
+    )
+    jerk = np.asarray(config.jerk_limits, float) if len(config.jerk_limits) else np.full(rs.k, np.inf)
+    return robot, rs.k, tool_frame, (limits, acceleration, jerk), rate
 
 
 def _safety_filter(f: SafetyFilterConfig, scene, table, limits, period, watched, tool_frame=None) -> SafetyFilter:
@@ -167,9 +179,12 @@ def _safety_filter(f: SafetyFilterConfig, scene, table, limits, period, watched,
     margin = float(table.params.get("clearance", 0.0)) if f.clearance is None else float(f.clearance)
     obstacle_ids, dynamic_ids, overlap_depth = watched
     dynamic = list(dynamic_ids)
+    velocity, acceleration, jerk = limits
     return SafetyFilter(
         *scene,
-        velocity_limits=limits,
+        velocity_limits=velocity,
+        acceleration_limits=acceleration,
+        jerk_limits=jerk,
         obstacle_ids=None if obstacle_ids is None else list(obstacle_ids) + dynamic,
         clearance=margin,
         influence_distance=f.influence_distance,
@@ -263,7 +278,7 @@ def AddCoManipulation(
             period=period,
             plant=plant,
             tool_frame=tool_frame,
-            velocity_limits=limits,
+            velocity_limits=limits[0],
             path_share=config.path_progress.velocity_share,
             robot=robot,
         ),

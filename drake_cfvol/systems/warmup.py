@@ -55,7 +55,17 @@ def _two_link_station():
     plant.RegisterCollisionGeometry(plant.world_body(), wall, Box(1.0, 4.0, 1.0), "wall", friction)
     plant.Finalize()
     sf = builder.AddSystem(
-        SafetyFilter(plant, sg, arm, velocity_limits=[1.0, 1.5], period=1e-3, clearance=0.02, influence_distance=0.15)
+        SafetyFilter(
+            plant,
+            sg,
+            arm,
+            velocity_limits=[1.0, 1.5],
+            acceleration_limits=[10.0, 15.0],  # limited: the braking parts compile too
+            jerk_limits=[500.0, 750.0],
+            period=1e-3,
+            clearance=0.02,
+            influence_distance=0.15,
+        )
     )
     to_pose = builder.AddSystem(MultibodyPositionToGeometryPose(plant))
     builder.Connect(sf.commanded_position_output, to_pose.get_input_port())
@@ -72,6 +82,8 @@ _COMPILED = (
     filter_kernel.stack_rows,
     filter_kernel.budget_after,
     filter_kernel.request,
+    filter_kernel.hard_interval,
+    filter_kernel.brake_rows,
     filter_kernel.finish,
     damper_kernel.pair_rows,
     damper_kernel.near_pairs,

@@ -1,0 +1,153 @@
+"""The safety filter's acceleration and jerk limits against independent
+facts: the discrete update's braking walked step by step, a point mass
+approaching a plane (closed-form stopping distance), and random requests,
+boxes and limits on the two-link arm of test_safety (Drake's distances)."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pydrake.systems.analysis import Simulator
+from test_safety import VMAX, _arm, _drake_distance, _fix
+
+from drake_cfvol.systems.filter_kernel import brake_speed, face_speed, hard_interval, stop_distance
+
+
+def _walked(v, a, acc, jerk, h):
+    """The braking of the discrete update walked one step at a time (no
+    closed form): the distance the positive velocities cover."""
+    d = 0.0
+    while v > 0:
+        a = max(a - jerk * h, -acc)
+        v = v + a * h
+        d += max(v, 0.0) * h
+    return d
+
+
+def test_stop_distance_is_the_update_walked_step_by_step():
+    rng = np.random.default_rng(0)
+    for _ in range(300):
+        acc, h = rng.uniform(1, 20), rng.choice([0.001, 0.01])
+        jerk = np.inf if rng.random() < 0.3 else rng.uniform(50, 5000)
+        v, a = rng.uniform(-0.5, 3.0), rng.uniform(-acc, acc)
+        assert stop_distance(v, a, acc, jerk, h) == pytest.approx(_walked(v, a, acc, jerk, h), rel=1e-9, abs=1e-12)
+
+
+def test_face_speed_is_the_fastest_that_still_stops_in_time():
+    """The velocity returned stops within the gap; a hair faster does not
+    (unless it is the interval's end)."""
+    rng = np.random.default_rng(1)
+    for _ in range(300):
+        acc, jerk, h = rng.uniform(2, 20), rng.uniform(100, 5000), rng.choice([0.001, 0.01])
+        v_last, gap = rng.uniform(-1, 1), rng.uniform(0.0, 0.3)
+        lo, hi = v_last - acc * h, v_last + acc * h
+        v = face_speed(gap, v_last, lo, hi, acc, jerk, h)
+
+        def travel(x):
+            return x * h + _walked(x, (x - v_last) / h, acc, jerk, h)
+
+        if v > lo:
+            assert travel(v) <= gap + 1e-12
+        if v < hi:
+            assert travel(v + 1e-9) > gap - 1e-9
+
+
+def test_a_point_mass_braking_on_the_row_stops_at_the_plane():
+    """A point mass approaching a plane at its largest allowed speed (the
+    row's, within the deceleration a per update): it never crosses the
+    target, it never needs more than a to follow the row, and in the
+    square-root regime the allowed speed is the closed-form stopping speed
+    sqrt(2 a d) of the distance left after the delay."""
+    rate, h = 6.7, 0.001
+    for acc in (0.5, 2.0, 8.0):
+        delay = 0.5 * h + 0.02
+        gap, s = 0.149, 0.0
+        for _ in range(20000):
+            allowed = brake_speed(gap, rate, acc, delay)
+            s_next = min(allowed, s + acc * h)
+            assert s_next >= s - acc * h * (1 + 1e-9)  # the row never asks for more than a
+            s = s_next
+            gap -= s * h
+            assert gap >= 0.0
+        assert gap < 1e-3  # and it gets there
+        # Far out (where sqrt(2 a g) is below the damper's rate x g), the closed form.
+        g = 0.1 / (1 + rate * delay)
+        if acc / rate**2 < g:
+            g0 = acc / rate**2
+            assert brake_speed(0.1, rate, acc, delay) == pytest.approx(np.sqrt(2 * acc * (g - g0) + (rate * g0) ** 2))
+            # A point mass at that speed, braking at a, stops within the gap less the delay's travel.
+            v = brake_speed(0.1, rate, acc, delay)
+            assert v**2 / (2 * acc) + v * delay <= 0.1 + 1e-12
+
+
+def test_the_hard_interval_keeps_every_limit_and_stays_open():
+    """Random walks from rest, each step a random velocity of the interval:
+    every step keeps |dv| <= a h, |da| <= j h and |v| <= vmax, braking the
+    acceleration to 0 at the jerk limit would keep |v| <= vmax, and the
+    interval is never empty (the invariant carries over)."""
+    rng = np.random.default_rng(2)
+    for _ in range(40):
+        k = 3
+        vmax, acc, jerk = rng.uniform(0.5, 2, k), rng.uniform(2, 20, k), rng.uniform(100, 5000, k)
+        h = rng.choice([0.001, 0.01])
+        v_last, a_last = np.zeros(k), np.zeros(k)
+        for _ in range(400):
+            lo, hi = hard_interval(vmax, h, v_last, a_last, acc, jerk)
+            assert np.all(lo <= hi)
+            v = lo + rng.choice([0.0, 1.0, rng.random()], size=k) * (hi - lo)
+            a = (v - v_last) / h
+            assert np.all(np.abs(a) <= acc * (1 + 1e-9))
+            assert np.all(np.abs(a - a_last) <= jerk * h * (1 + 1e-9))
+            assert np.all(np.abs(v) <= vmax * (1 + 1e-9))
+            assert np.all(np.abs(v) + np.maximum(np.sign(v) * a, 0) ** 2 / (2 * jerk) <= vmax * (1 + 1e-9))
+            v_last, a_last = v, a
+
+
+@pytest.fixture(scope="module")
+def limited_arms():
+    acc, jerk = np.array([6.0, 9.0]), np.array([300.0, 500.0])
+    return (
+        {h: _arm("wall", clearance=0.02, period=h, acceleration_limits=acc, jerk_limits=jerk) for h in (0.01, 0.001)},
+        acc,
+        jerk,
+    )
+
+
+@pytest.mark.slow
+@settings(max_examples=12, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    fast=st.booleans(),
+)
+def test_random_pushes_and_boxes_never_break_a_limit_nor_collide(limited_arms, seed, fast):
+    """Random desired positions (a push that jumps every few updates), boxes
+    that widen, narrow and move: every commanded update keeps the
+    velocity, acceleration and jerk limits, and the tip never touches the
+    wall (Drake's distance, at every update)."""
+    arms, acc, jerk = limited_arms
+    h = 0.001 if fast else 0.01
+    diagram, sf, tip, wall_id = arms[h]
+    rng = np.random.default_rng(seed)
+    sim = Simulator(diagram)
+    ctx = sim.get_mutable_context()
+    start = np.array([1.2, 0.3])  # the tip 0.54 m from the wall
+    sf.set_initial_position(sf.GetMyMutableContextFromRoot(ctx), start)
+    qs, n = [], 0
+    centre, width = start.copy(), np.array([2.0, 2.0])
+    for _ in range(12):
+        desired = rng.uniform(-1.5, 1.5, 2)
+        centre = centre + rng.uniform(-0.3, 0.3, 2)
+        width = np.clip(width + rng.uniform(-0.6, 0.6, 2), 0.05, 3.0)
+        _fix(diagram, ctx, desired, centre - width / 2, centre + width / 2, nominal=centre)
+        for _ in range(int(round(0.1 / h))):
+            n += 1
+            sim.AdvanceTo((n + 0.5) * h)  # between two updates: one update per sample
+            qs.append(sf.commanded_position_output.Eval(sf.GetMyContextFromRoot(ctx)).copy())
+            assert _drake_distance(diagram, ctx, tip, wall_id) > 0.0
+    q = np.array(qs)
+    v = np.diff(q, axis=0) / h
+    a = np.diff(v, axis=0) / h
+    j = np.diff(a, axis=0) / h
+    assert np.all(np.abs(v) <= VMAX * (1 + 1e-9))
+    assert np.all(np.abs(a) <= acc * (1 + 1e-6))
+    assert np.all(np.abs(j) <= jerk * (1 + 1e-5))
