@@ -151,3 +151,32 @@ def test_random_pushes_and_boxes_never_break_a_limit_nor_collide(limited_arms, s
     assert np.all(np.abs(v) <= VMAX * (1 + 1e-9))
     assert np.all(np.abs(a) <= acc * (1 + 1e-6))
     assert np.all(np.abs(j) <= jerk * (1 + 1e-5))
+
+
+def test_the_box_ahead_holds_the_nominal_and_every_box_it_looks_at(bounded):
+    """JointBoundsSource's lower_ahead, upper_ahead on automotive path 1:
+    inside the box at s and holding the nominal; about the nominal, no
+    wider than any box in [s, s + L] (checked at 200 points of the window,
+    between the source's own samples too, within the box's change over a
+    quarter step); and somewhere tighter than the box at s (a face that
+    closes in ahead)."""
+    from drake_cfvol.systems import JointBoundsSource
+
+    table = bounded("automotive", "path1")
+    L = 3.0
+    src = JointBoundsSource(table, clamp=True, lookahead=L)
+    ctx = src.CreateDefaultContext()
+    q_lo, q_hi, q_nom = table.boxes_at(np.arange(0.0, table.g - 1.0, 0.25))
+    quarter = max(np.abs(np.diff(q_lo - q_nom, axis=0)).max(), np.abs(np.diff(q_hi - q_nom, axis=0)).max())
+    tighter = False
+    for s in np.linspace(0.0, table.g - 1.0, 157):
+        src.path_index_input.FixValue(ctx, [s])
+        lo, hi, nom = (src.GetOutputPort(n).Eval(ctx) for n in ("lower", "upper", "nominal"))
+        lo_a, hi_a = src.lower_ahead_output.Eval(ctx), src.upper_ahead_output.Eval(ctx)
+        assert np.all(lo <= lo_a) and np.all(lo_a <= nom) and np.all(nom <= hi_a) and np.all(hi_a <= hi)
+        sig = np.linspace(s, min(s + L, table.g - 1.0), 200)
+        lo_s, hi_s, nom_s = table.boxes_at(sig)
+        assert np.all(lo_a - nom >= (lo_s - nom_s).max(axis=0) - quarter - 1e-12)
+        assert np.all(hi_a - nom <= (hi_s - nom_s).min(axis=0) + quarter + 1e-12)
+        tighter = tighter or bool(np.any(lo_a > lo + 1e-6) or np.any(hi_a < hi - 1e-6))
+    assert tighter

@@ -137,9 +137,11 @@ def test_the_filter_warm_up_compiles_what_a_run_uses(run):
 
     compiled = warmup._COMPILED
     used = {f.py_func.__name__: list(f.signatures) for f in compiled}
-    assert all(len(v) == 1 for v in used.values()), used  # the run called each
+    # The run called each at most once (the braking parts only under acceleration limits).
+    assert all(len(v) <= 1 for v in used.values()) and sum(map(len, used.values())) >= 8, used
     warmup._two_link_run()  # the warm-up's station, run whether cached or not
-    assert {f.py_func.__name__: list(f.signatures) for f in compiled} == used
+    after = {f.py_func.__name__: list(f.signatures) for f in compiled}
+    assert all(after[name] == v for name, v in used.items() if v) and all(len(v) == 1 for v in after.values())
 
 
 def _chromium():

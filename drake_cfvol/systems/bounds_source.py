@@ -32,6 +32,8 @@ def JointBoundsSource_(T):
             - lower
             - upper
             - nominal
+            - lower_ahead
+            - upper_ahead
 
         ``path_index`` is the path parameter s in [0, g-1] (a float; integer
         s is a waypoint). Between waypoints the bounds follow SPEC 7: the
@@ -50,57 +52,66 @@ def JointBoundsSource_(T):
         connected they replace the table given here, which still fixes the
         number of joints.
 
+        ``lower_ahead`` and ``upper_ahead`` are the box a robot braking in
+        time keeps (the safety filter's faces under acceleration limits):
+        with ``lookahead`` L > 0 (float only), about the nominal at s, each
+        joint's deviation from the nominal no larger than the boxes allow
+        anywhere in [s, s + L] (the boxes' deviations sampled at every
+        waypoint and at quarter steps between): a face that will close in
+        is seen while there is still time to brake for it. It lies inside
+        the box at s and holds the nominal; with L = 0 it is the box at s.
+
         Args:
             bounds: the bounds table.
             clamp: clamp s into [0, g-1] instead of raising (default False:
                 an s outside raises :class:`~drake_cfvol.ParameterError`).
+            lookahead: L, path index units (>= 0; 0: the box at s).
         """
 
-        def _construct(self, bounds: BoundsTable, *, clamp: bool = False, converter=None):
+        def _construct(self, bounds: BoundsTable, *, clamp: bool = False, lookahead: float = 0.0, converter=None):
             LeafSystem_[T].__init__(self, converter)
             check_table(bounds, "JointBoundsSource: bounds")
             if not isinstance(clamp, bool):
                 raise ParameterError(f"JointBoundsSource: clamp must be True or False, got {got(clamp)}.")
+            if not 0.0 <= lookahead < np.inf:
+                raise ParameterError(f"JointBoundsSource: lookahead must be >= 0 (path index units), got {lookahead}.")
             self._bounds = bounds
             self._clamp = clamp
+            self._lookahead = float(lookahead)
             k = bounds.k
             self.path_index_input = self.DeclareVectorInputPort(name="path_index", size=1)
             self.bounds_input = self.DeclareAbstractInputPort(name="bounds", model_value=AbstractValue.Make(bounds))
             tickets = {self.path_index_input.ticket(), self.bounds_input.ticket()}
             # The three outputs share one lookup per path index (a cache entry).
             self._box = self.DeclareCacheEntry(
-                description="(lower, upper, nominal) at the path index",
+                description="(lower, upper, nominal, lower_ahead, upper_ahead) at the path index",
                 value_producer=ValueProducer(
                     allocate=lambda: AbstractValue.Make(object()),
                     calc=lambda ctx, value: value.set_value(self._at(ctx)),
                 ),
                 prerequisites_of_calc=tickets,
             )
-            self.lower_output = self.DeclareVectorOutputPort(
-                name="lower",
-                size=k,
-                calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[0]),
-                prerequisites_of_calc=tickets,
-            )
-            self.upper_output = self.DeclareVectorOutputPort(
-                name="upper",
-                size=k,
-                calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[1]),
-                prerequisites_of_calc=tickets,
-            )
-            self.nominal_output = self.DeclareVectorOutputPort(
-                name="nominal",
-                size=k,
-                calc=lambda ctx, out: out.SetFromVector(self._box.Eval(ctx)[2]),
-                prerequisites_of_calc=tickets,
-            )
+            # lower_output, upper_output, nominal_output, lower_ahead_output, upper_ahead_output.
+            for i, port in enumerate(("lower", "upper", "nominal", "lower_ahead", "upper_ahead")):
+                handle = self.DeclareVectorOutputPort(
+                    name=port,
+                    size=k,
+                    calc=lambda ctx, out, i=i: out.SetFromVector(self._box.Eval(ctx)[i]),
+                    prerequisites_of_calc=tickets,
+                )
+                setattr(self, f"{port}_output", handle)
 
         def _construct_copy(self, other, converter=None):
-            Impl._construct(self, other._bounds, clamp=other._clamp, converter=converter)
+            Impl._construct(self, other._bounds, clamp=other._clamp, lookahead=other._lookahead, converter=converter)
 
         @property
         def bounds(self) -> BoundsTable:
             return self._bounds
+
+        @property
+        def lookahead(self) -> float:
+            """L, path index units: how far ahead ``lower_ahead`` and ``upper_ahead`` look."""
+            return self._lookahead
 
         def _lookup(self, s: float, bounds=None):
             bounds = self._bounds if bounds is None else bounds
@@ -112,7 +123,8 @@ def JointBoundsSource_(T):
             s_in = self.path_index_input.Eval(context)[0]
             live = self.bounds_input.Eval(context) if self.bounds_input.HasValue(context) else None
             if T is float:
-                return self._lookup(float(s_in), live)
+                box = self._lookup(float(s_in), live)
+                return tuple(box) + (self._ahead(float(s_in), box, live) if self._lookahead > 0 else tuple(box[:2]))
             s = float(s_in.value())
             lo, hi, nom = self._lookup(s, live)
             ds = s_in.derivatives()
@@ -127,10 +139,26 @@ def JointBoundsSource_(T):
                 slopes.append(self._bounds.nominal[i + 1] - self._bounds.nominal[i] if g > 1 else 0 * nom)
             else:
                 slopes = [0 * lo, 0 * hi, 0 * nom]
-            return tuple(
+            out = tuple(
                 np.array([AutoDiffXd(float(v), float(dv) * ds) for v, dv in zip(val, slope)], dtype=object)
                 for val, slope in zip((lo, hi, nom), slopes)
             )
+            return out + out[:2]
+
+        def _ahead(self, s: float, box, live):
+            """(lower, upper): the box at s tightened to the deviations the boxes allow over [s, s + lookahead]."""
+            lo, hi, nom = box
+            bounds = self._bounds if live is None else live
+            end = min(s + self._lookahead, bounds.g - 1.0)
+            if not np.isfinite(s) or end <= s:
+                return lo, hi
+            ahead = np.arange(np.floor(4.0 * s) + 1.0, np.ceil(4.0 * end)) / 4.0
+            dev_lo, dev_hi = lo - nom, hi - nom
+            for sigma in np.append(ahead, end):
+                lo_s, hi_s, nom_s = self._lookup(float(sigma), live)
+                dev_lo, dev_hi = np.maximum(dev_lo, lo_s - nom_s), np.minimum(dev_hi, hi_s - nom_s)
+            # About the nominal at s, never past the box at s (rounding).
+            return np.clip(nom + np.minimum(dev_lo, 0.0), lo, hi), np.clip(nom + np.maximum(dev_hi, 0.0), lo, hi)
 
     return Impl
 

@@ -251,7 +251,7 @@ def hard_interval(vmax, period, v_last, a_last, acceleration, jerk):
 
 
 @njit(cache=True)
-def request(q, desired, lower, upper, vmax, period, v_last, a_last, acceleration, jerk):
+def request(q, desired, lower, upper, ahead, vmax, period, v_last, a_last, acceleration, jerk, face_velocity):
     """The update's request: (sane, lo, hi, v_t, hard_lo, hard_hi). Per
     joint the hard interval (:func:`hard_interval`) and within it the
     velocity interval [lo, hi] that keeps the box, braked in time: from
@@ -259,7 +259,10 @@ def request(q, desired, lower, upper, vmax, period, v_last, a_last, acceleration
     inside it (:func:`face_speed`; without acceleration and jerk limits,
     the step that lands in the box). Where the box lies farther than that
     (outside it, or one face too close to brake for), the command moves
-    towards it as fast as the limits allow. The requested v_t =
+    towards it as fast as the limits allow. The faces are taken as moving
+    at ``face_velocity`` (the nominal's: braking means matching it), and
+    braked for where ``ahead`` (2, k: the box ahead, inside the box; NaN
+    where none) puts them. The requested v_t =
     (desired - q) / dt clipped to [lo, hi]. Not sane (a non-finite or
     crossed input): the hold, braked at the limits, as far as the box
     allows where it is usable."""
@@ -273,14 +276,17 @@ def request(q, desired, lower, upper, vmax, period, v_last, a_last, acceleration
     for j in range(k):
         ok = np.isfinite(lower[j]) and np.isfinite(upper[j]) and lower[j] <= upper[j]
         low, up = (lower[j], upper[j]) if ok else (q[j], q[j])
-        b = face_speed(up - q[j], v_last[j], h_lo[j], h_hi[j], acceleration[j], jerk[j], period)
-        a = -face_speed(q[j] - low, -v_last[j], -h_hi[j], -h_lo[j], acceleration[j], jerk[j], period)
-        if a > b:  # both faces cannot be kept: towards the box's middle, as far as the limits allow
-            if q[j] > up:
-                a = b
-            elif q[j] < low:
+        if ok and np.isfinite(ahead[0, j]) and np.isfinite(ahead[1, j]) and ahead[0, j] <= ahead[1, j]:
+            low, up = max(low, ahead[0, j]), min(up, ahead[1, j])
+        u = face_velocity[j]
+        b = u + face_speed(up - q[j], v_last[j] - u, h_lo[j] - u, h_hi[j] - u, acceleration[j], jerk[j], period)
+        a = u - face_speed(q[j] - low, u - v_last[j], u - h_hi[j], u - h_lo[j], acceleration[j], jerk[j], period)
+        if a > b:  # both faces cannot be kept
+            if q[j] > up:  # above the box: down to it, fast enough to stop above its lower face
                 b = a
-            else:
+            elif q[j] < low:  # below: up to it, slow enough to stop below its upper face
+                a = b
+            else:  # towards the box's middle, as far as the limits allow
                 a = b = min(max(0.5 * (a + b), h_lo[j]), h_hi[j])
         lo[j], hi[j] = a, b
         target = (desired[j] - q[j]) / period if sane else 0.0

@@ -101,7 +101,12 @@ moves by a share of the velocity limit per update and stays reachable;
 should q_c lie farther outside it than one step at the limit, the joint
 moves towards it at the limit rather than jumping. The box gives way to
 the damper only (see Solver): an uncertified box whose corner sweeps
-into an obstacle is left rather than followed in (``box_exits``).
+into an obstacle is left rather than followed in (``box_exits``). Under
+acceleration limits a face is braked for (Braking in time), as are the
+faces ahead where the box comes from a source with ``lookahead``; a face
+that turns inwards faster than the joint can brake (the nominal itself
+turning at a waypoint, where the box leaves no room beside it) is left by
+as little as the limits allow, and the update counts in ``box_exits``.
 
 **The damper** (Faverjon and Tournassoud's velocity damper; Drake's
 ``DifferentialInverseKinematicsSystem.CollisionConstraint`` is its
@@ -347,6 +352,8 @@ class SafetyFilter(LeafSystem):
         - lower
         - upper
         - nominal (optional)
+        - lower_ahead (optional)
+        - upper_ahead (optional)
         - measured_position (optional)
         - hold (optional)
         - query_object
@@ -515,6 +522,9 @@ class SafetyFilter(LeafSystem):
         self.lower_input = self.DeclareVectorInputPort(name="lower", size=k)
         self.upper_input = self.DeclareVectorInputPort(name="upper", size=k)
         self.nominal_input = self.DeclareVectorInputPort(name="nominal", size=k)
+        # The box a robot braking in time keeps (JointBoundsSource's lower_ahead, upper_ahead).
+        self.lower_ahead_input = self.DeclareVectorInputPort(name="lower_ahead", size=k)
+        self.upper_ahead_input = self.DeclareVectorInputPort(name="upper_ahead", size=k)
         self.measured_position_input = self.DeclareVectorInputPort(name="measured_position", size=k)
         self.hold_input = self.DeclareVectorInputPort(name="hold", size=1)
         self.query_object_input = self.DeclareAbstractInputPort(
@@ -535,6 +545,9 @@ class SafetyFilter(LeafSystem):
         # The last commanded acceleration, (v - v_last) / dt (declared last: the
         # other states keep their indices).
         self._accel = self.DeclareDiscreteState(k)
+        # The nominal at the last update (NaN: none): the box's faces move
+        # with it, and braking for them means matching its velocity.
+        self._nominal_last = self.DeclareDiscreteState(np.full(k, np.nan))
         # Pairs measured at every update whatever their budget: geometry that
         # moves on its own (not the perceived kind, whose pairs are measured
         # while it is in use: DynamicPairs.mark).
@@ -621,6 +634,7 @@ class SafetyFilter(LeafSystem):
         (``state``: discrete state index -> its mutable vector)."""
         self._reset_budget(state(self._budget))
         state(self._measured_last).SetFromVector(np.full(self.k, np.nan))
+        state(self._nominal_last).SetFromVector(np.full(self.k, np.nan))
 
     def _reset_budget(self, vector) -> None:
         """Every pair measured at the next update."""
@@ -655,8 +669,27 @@ class SafetyFilter(LeafSystem):
         upper = np.asarray(self.upper_input.Eval(context), float)
         nominal = np.asarray(self.nominal_input.Eval(context), float) if self.nominal_input.HasValue(context) else None
         fallback = False
+        face_velocity = np.zeros(k)
+        if nominal is not None and self._braked:
+            last = context.get_discrete_state(self._nominal_last).CopyToVector()
+            face_velocity = np.nan_to_num((nominal - last) / h, nan=0.0, posinf=0.0, neginf=0.0)
+            discrete_state.get_mutable_vector(self._nominal_last).SetFromVector(nominal)
+        ahead = np.full((2, k), np.nan)
+        if self.lower_ahead_input.HasValue(context) and self.upper_ahead_input.HasValue(context):
+            ahead = np.array([self.lower_ahead_input.Eval(context), self.upper_ahead_input.Eval(context)], float)
         sane, lo, hi, v_t, h_lo, h_hi = request(
-            q, desired, lower, upper, self._vmax, h, v_last, a_last, self._acceleration, self._jerk
+            q,
+            desired,
+            lower,
+            upper,
+            ahead,
+            self._vmax,
+            h,
+            v_last,
+            a_last,
+            self._acceleration,
+            self._jerk,
+            face_velocity,
         )
         base, drift = self._base_and_drift(context, q, v_last)
         finite = bool(np.isfinite(base).all())
@@ -710,6 +743,8 @@ class SafetyFilter(LeafSystem):
         v, q_next, exited, ratio, acted = finish(
             q, np.asarray(v, float), lo, hi, h_lo, h_hi, self.velocity_limits, desired, h, sane, _CHANGED
         )
+        if sane and self._braked:  # a face the limits could not brake for in time counts as leaving the box
+            exited = exited or bool(np.any((q_next < lower - 1e-9) | (q_next > upper + 1e-9)))
         self._command(discrete_state, q_next, v, v_last)
         if sane and self._damper.num_pairs and self.skip_far_pairs:
             discrete_state.get_mutable_vector(self._budget).SetFromVector(keep)

@@ -198,6 +198,20 @@ def _safety_filter(f: SafetyFilterConfig, scene, table, limits, period, watched,
     )
 
 
+def _lookahead(limits, rate: float, period: float) -> float:
+    """How far ahead (path index units) the safety filter brakes for the
+    box's faces: the path's travel in twice the slowest joint's braking
+    time (from its velocity limit, the jerk's ramp and an update
+    included); 0 without acceleration limits."""
+    velocity, acceleration, jerk = limits
+    finite = np.isfinite(acceleration) & np.isfinite(velocity)
+    if not finite.any():
+        return 0.0
+    ramp = np.where(np.isfinite(jerk), acceleration / jerk, 0.0)
+    braking = float(np.max((velocity / acceleration + ramp)[finite]))
+    return rate * 2.0 * (braking + period)
+
+
 def AddCoManipulation(
     builder,
     *,
@@ -266,7 +280,10 @@ def AddCoManipulation(
         _named(name, "path_progress"),
         PathProgress(table.g, rate=rate, start_time=config.path_progress.start_time, lead=period),
     )
-    bounds = builder.AddNamedSystem(_named(name, "joint_bounds"), JointBoundsSource(table, clamp=True))
+    bounds = builder.AddNamedSystem(
+        _named(name, "joint_bounds"),
+        JointBoundsSource(table, clamp=True, lookahead=_lookahead(limits, rate, period)),
+    )
     check = builder.AddNamedSystem(_named(name, "human_input_check"), HumanInputCheck(k, period=period))
     adm = builder.AddNamedSystem(
         _named(name, "admittance"),
@@ -302,7 +319,8 @@ def AddCoManipulation(
                 tool_frame,
             ),
         )
-        for port in ("nominal", "lower", "upper"):
+        ports = ("nominal", "lower", "upper") + (("lower_ahead", "upper_ahead") if bounds.lookahead > 0 else ())
+        for port in ports:
             builder.Connect(bounds.GetOutputPort(port), safety.GetInputPort(port))
         builder.Connect(adm.commanded_position_output, safety.desired_position_input)
         builder.Connect(scene_graph.get_query_output_port(), safety.query_object_input)
