@@ -180,3 +180,38 @@ def test_the_box_ahead_holds_the_nominal_and_every_box_it_looks_at(bounded):
         assert np.all(hi_a - nom <= (hi_s - nom_s).min(axis=0) + quarter + 1e-12)
         tighter = tighter or bool(np.any(lo_a > lo + 1e-6) or np.any(hi_a < hi - 1e-6))
     assert tighter
+
+
+@pytest.mark.parametrize("period", [0.01, 0.001])
+def test_the_admittance_meets_a_face_at_rest(period):
+    """A steady push towards the upper face: with acceleration limits the
+    deviation's rate falls by at most (1 - path_share) a dt per update and
+    is (nearly) zero when the deviation reaches the face, never past it;
+    without them the clamp stops it from full speed in one update."""
+    from drake_cfvol.systems import AdmittanceDeformation
+
+    k, a, share = 2, np.array([4.0, 9.0]), 0.5
+
+    def run(limits):
+        adm = AdmittanceDeformation(
+            k, mass=2.0, damping=5.0, stiffness=0.0, period=period, path_share=share, acceleration_limits=limits
+        )
+        ctx = adm.CreateDefaultContext()
+        adm.nominal_input.FixValue(ctx, np.zeros(k))
+        adm.lower_input.FixValue(ctx, np.full(k, -0.5))
+        adm.upper_input.FixValue(ctx, np.full(k, 0.3))
+        adm.human_torque_input.FixValue(ctx, np.full(k, 20.0))
+        rates = []
+        for _ in range(int(round(1.5 / period))):
+            x = adm.EvalUniquePeriodicDiscreteUpdate(ctx).get_vector(0).CopyToVector()
+            ctx.SetDiscreteState(0, x)
+            rates.append(x[k:].copy())
+            assert np.all(x[:k] <= 0.3 + 1e-12)
+        return np.array(rates), x
+
+    rates, x = run(a)
+    np.testing.assert_allclose(x[:k], 0.3, atol=1e-3)  # it got there
+    drops = -np.diff(rates, axis=0)
+    assert np.all(drops <= (1 - share) * a * period * (1 + 1e-6) + 1e-12)
+    free, _ = run(None)
+    assert np.max(-np.diff(free, axis=0)) > 10 * (1 - share) * a.max() * period  # the clamp's stop, for contrast

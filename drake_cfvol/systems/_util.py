@@ -22,6 +22,17 @@ def _vector(value, k: int, name: str, *, positive: bool = False, nonnegative: bo
     return v
 
 
+def _limits(value, k: int, name: str) -> np.ndarray:
+    """Per-joint limits (k,) from a scalar or k values, each > 0 (inf: no limit)."""
+    v = np.broadcast_to(np.asarray(value, float), (k,)).copy() if np.ndim(value) == 0 else np.asarray(value, float)
+    v = v.reshape(-1) if v.ndim > 1 else v
+    if v.shape != (k,):
+        raise DimensionError(name, k, v.shape)
+    if np.any(np.isnan(v)) or np.any(v <= 0):
+        raise ParameterError(f"{name} must be > 0 (inf: no limit), got {v.tolist()}.")
+    return v
+
+
 def _values(x) -> np.ndarray:
     """Float values of a float or AutoDiffXd array (derivatives dropped)."""
     x = np.asarray(x)

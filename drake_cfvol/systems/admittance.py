@@ -14,7 +14,7 @@ from pydrake.systems.scalar_conversion import TemplateSystem
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.scene.robot import RobotSlice
-from drake_cfvol.systems._util import _clip, _values, _vector, default_instantiation
+from drake_cfvol.systems._util import _clip, _limits, _values, _vector, default_instantiation
 
 __all__ = ["AdmittanceConfig", "AdmittanceDeformation", "AdmittanceDeformation_"]
 
@@ -66,8 +66,20 @@ def _commanded(nominal, d, lower, upper):
     return out
 
 
+@njit(cache=True)
+def braking_rate(gap, acceleration, h):
+    """The largest rate v >= 0 from which the update d <- d + v h, braking
+    at ``acceleration`` from the next update on, stops within ``gap``:
+    v h / 2 + v^2 / (2 a) + a h^2 / 8 <= gap (the sum of the steps
+    v - i a h bounded in closed form); inf without a limit."""
+    if not np.isfinite(acceleration):
+        return np.inf
+    c = max(gap - acceleration * h * h / 8.0, 0.0)
+    return acceleration * (-h / 2.0 + np.sqrt(h * h / 4.0 + 2.0 * c / acceleration))
+
+
 @njit(cache=True, error_model="numpy")
-def _step(x, nominal, lower, upper, tau, M, D, K, h, max_rate):
+def _step(x, nominal, lower, upper, tau, M, D, K, h, max_rate, brake):
     """The float update's arithmetic (see ``Impl._update``, the same
     operations in the same order): the new [d, v]."""
     k = len(nominal)
@@ -76,8 +88,9 @@ def _step(x, nominal, lower, upper, tau, M, D, K, h, max_rate):
         d, v = x[j], x[k + j]
         v = v + h * (tau[j] - D[j] * v - K[j] * d) / M[j]
         v = min(max(v, -max_rate[j]), max_rate[j])
-        d = d + h * v
         lo, hi = lower[j] - nominal[j], upper[j] - nominal[j]
+        v = min(max(v, -braking_rate(d - lo, brake[j], h)), braking_rate(hi - d, brake[j], h))
+        d = d + h * v
         at_hi, at_lo = d >= hi, d <= lo
         d = min(max(d, lo), hi)
         if (at_hi and v > 0) or (at_lo and v < 0):
@@ -135,6 +148,11 @@ def AdmittanceDeformation_(T):
         (:func:`safe_path_rate`) the commanded position never moves a joint
         faster than its limit (clamping is 1-Lipschitz in its inputs).
 
+        Acceleration limits: with them the deviation's rate approaches a
+        bound no faster than braking at ``1 - path_share`` of each limit
+        still stops at it (:func:`braking_rate`): the command meets a face
+        at rest, not reversing there.
+
         Holding: an update while ``hold`` is > 0.5 keeps the deviation and
         its rate as they are (the last safe command: ``commanded_position``
         = clamp(nominal + held deviation, lower, upper) follows the path).
@@ -169,6 +187,7 @@ def AdmittanceDeformation_(T):
                 context).
             velocity_limits: (k,) joint velocity limits, rad/s (m/s; inf: no
                 limit), or None (no limit).
+            acceleration_limits: (k,) rad/s^2 (m/s^2; inf: no limit), or None.
             path_share: see above; in (0, 1).
         """
 
@@ -185,6 +204,7 @@ def AdmittanceDeformation_(T):
             velocity_limits=None,
             path_share: float = 0.5,
             robot=None,
+            acceleration_limits=None,
             converter=None,
         ):
             LeafSystem_[T].__init__(self, converter)
@@ -201,13 +221,12 @@ def AdmittanceDeformation_(T):
             self.max_rate = None
             self._velocity_limits = velocity_limits
             if velocity_limits is not None:
-                vl = np.asarray(velocity_limits, float).reshape(-1)
-                if vl.shape != (self.k,):
-                    raise DimensionError("velocity_limits", self.k, vl.shape)
-                if np.any(np.isnan(vl)) or np.any(vl <= 0):
-                    raise ParameterError(f"velocity_limits must be > 0 (inf: no limit), got {vl.tolist()}.")
-                self.max_rate = (1.0 - self.path_share) * vl
+                self.max_rate = (1.0 - self.path_share) * _limits(velocity_limits, self.k, "velocity_limits")
             self._rate_or_inf = np.full(self.k, np.inf) if self.max_rate is None else self.max_rate
+            self._acceleration_limits = acceleration_limits
+            self._brake = np.full(self.k, np.inf)  # the deviation's braking, rad/s^2 (m/s^2)
+            if acceleration_limits is not None:
+                self._brake = (1.0 - self.path_share) * _limits(acceleration_limits, self.k, "acceleration_limits")
             # The unconnected sensors' values (float; shared, never written).
             self._zeros, self._no_wrench = np.zeros(self.k), np.zeros(6)
             self._slice = None
@@ -278,6 +297,7 @@ def AdmittanceDeformation_(T):
                 velocity_limits=other._velocity_limits,
                 path_share=other.path_share,
                 robot=other._robot,
+                acceleration_limits=other._acceleration_limits,
                 converter=converter,
             )
 
@@ -366,9 +386,14 @@ def AdmittanceDeformation_(T):
             v = v + h * (tau - D * v - K * d) / M
             if self.max_rate is not None:
                 v = _clip(v, -self.max_rate, self.max_rate)
+            lo, hi = lower - nominal, upper - nominal
+            if np.isfinite(self._brake).any():  # the braking caps, on values (a clamp's derivative is the clamped's)
+                dv0, lo0, hi0 = _values(d), _values(lo), _values(hi)
+                cap_lo = np.array([-braking_rate(dv0[j] - lo0[j], self._brake[j], h) for j in range(self.k)])
+                cap_hi = np.array([braking_rate(hi0[j] - dv0[j], self._brake[j], h) for j in range(self.k)])
+                v = _clip(v, cap_lo, cap_hi)
             d = d + h * v
             # No wind-up: keep nominal + d inside [lower, upper]; stop outward rates.
-            lo, hi = lower - nominal, upper - nominal
             dv, vv = _values(d), _values(v)
             at_hi, at_lo = dv >= _values(hi), dv <= _values(lo)
             d = _clip(d, lo, hi)
@@ -399,7 +424,7 @@ def AdmittanceDeformation_(T):
             M, D, K = self.gains(context)
             rate = self._rate_or_inf
             discrete_state.get_mutable_vector(self._state).SetFromVector(
-                _step(x, nominal, lower, upper, np.asarray(tau, float), M, D, K, self.period, rate)
+                _step(x, nominal, lower, upper, np.asarray(tau, float), M, D, K, self.period, rate, self._brake)
             )
 
         def _calc_commanded(self, context, output):

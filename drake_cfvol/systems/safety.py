@@ -201,6 +201,7 @@ from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.scene.robot import RobotSlice
+from drake_cfvol.systems._util import _limits
 from drake_cfvol.systems.constraints import (
     DamperConstraint,
     FilterStep,
@@ -278,15 +279,6 @@ _CHANGED = 1e-9
 #: What a row that fell short of its second-order term asks for beyond it
 #: at the next solve, m/s (10 nm per 10 ms update): the rounds converge.
 _NUDGE = 1e-6
-
-
-def _limits(value, k: int, name: str) -> np.ndarray:
-    v = np.broadcast_to(np.asarray(value, float), (k,)).copy() if np.ndim(value) == 0 else np.asarray(value, float)
-    if v.shape != (k,):
-        raise DimensionError(name, k, v.shape)
-    if np.any(np.isnan(v)) or np.any(v <= 0):
-        raise ParameterError(f"{name} must be > 0 (inf: no limit), got {v.tolist()}.")
-    return v
 
 
 def _check_parameters(period, clearance, allowance, influence_distance, damper_gain) -> None:

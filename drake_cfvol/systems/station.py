@@ -296,6 +296,7 @@ def AddCoManipulation(
             plant=plant,
             tool_frame=tool_frame,
             velocity_limits=limits[0],
+            acceleration_limits=limits[1],
             path_share=config.path_progress.velocity_share,
             robot=robot,
         ),
