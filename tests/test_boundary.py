@@ -103,20 +103,20 @@ def test_proven_edges_are_not_tested_again(corner):
     nominal = np.zeros((2, 2))
     margins = np.zeros(1)
     memo: dict = {}
-    failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
+    failed, tests = B.failures(arrays, lower, upper, nominal, [0], margins, memo)
     n_edges = len(B.edge_tasks(lower[0], upper[0], lower[1], upper[1])[2])
     assert not failed and tests == n_edges == 4 and len(memo) == 4
-    assert B._failures(arrays, lower, upper, nominal, [0], margins, memo) == ([], 0)
+    assert B.failures(arrays, lower, upper, nominal, [0], margins, memo) == ([], 0)
     upper[:, 0] = 0.05
-    failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
+    failed, tests = B.failures(arrays, lower, upper, nominal, [0], margins, memo)
     assert not failed and tests == 1  # joint 1's edge with joint 0 on its (moved) upper bound
     # Joint 0's lower bound moved at the far waypoint only: joint 1's edge
     # on that bound is a new region (the other joint's path changed).
     lower[1, 0] = -0.04
-    failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
+    failed, tests = B.failures(arrays, lower, upper, nominal, [0], margins, memo)
     assert not failed and tests == 1
     # A larger margin than the proven one is tested again.
-    assert B._failures(arrays, lower, upper, nominal, [0], np.full(1, 0.01), memo)[1] == 4
+    assert B.failures(arrays, lower, upper, nominal, [0], np.full(1, 0.01), memo)[1] == 4
 
 
 def test_an_edge_tested_again_starts_from_the_pieces_it_needed(corner):
@@ -132,14 +132,14 @@ def test_an_edge_tested_again_starts_from_the_pieces_it_needed(corner):
     nominal = np.zeros((2, 2))
     margins = np.full(1, 0.02)
     memo: dict = {}
-    failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
+    failed, tests = B.failures(arrays, lower, upper, nominal, [0], margins, memo)
     sig = B.edge_tasks(lower[0], upper[0], lower[1], upper[1])[5].dtype
     depths = {(k[2], tuple(np.frombuffer(k[3], sig))): v for k, v in memo.items() if k[0] == "depth"}
     # Joint 0 with joint 1 on its upper bound, and joint 1 with joint 0 on
     # its upper bound, both nearest the post: each passed in two halves.
     assert not failed and depths == {(0, (0, 1)): 1, (1, (1, 0)): 1}
     upper[:, 1] = 0.59
-    failed, tests = B._failures(arrays, lower, upper, nominal, [0], margins, memo)
+    failed, tests = B.failures(arrays, lower, upper, nominal, [0], margins, memo)
     assert not failed and tests == 2  # joint 0's edge at joint 1's moved bound, from its halves
     s = np.linspace(0.0, 1.0, 11)
     v = np.linspace(lower[0, 0], upper[0, 0], 41)
@@ -158,19 +158,19 @@ def test_failed_edges_are_remembered_and_cut_once_per_round(corner):
     upper = np.array([[0.4, 0.8], [0.4, 0.8]])
     nominal = np.zeros((2, 2))
     memo: dict = {}
-    failed, tests = B._failures(arrays, lower, upper, nominal, [0], np.zeros(1), memo)
+    failed, tests = B.failures(arrays, lower, upper, nominal, [0], np.zeros(1), memo)
     assert failed and tests > 0
-    again, tests_again = B._failures(arrays, lower, upper, nominal, [0], np.zeros(1), memo)
+    again, tests_again = B.failures(arrays, lower, upper, nominal, [0], np.zeros(1), memo)
     assert tests_again == 0
-    fresh, fresh_tests = B._failures(arrays, lower, upper, nominal, [0], np.zeros(1), None)
+    fresh, fresh_tests = B.failures(arrays, lower, upper, nominal, [0], np.zeros(1), None)
     assert fresh_tests == tests
     regions = [(f.sa, f.sb, f.j, f.va, f.vb, f.S.tobytes()) for f in fresh]
     assert [(f.sa, f.sb, f.j, f.va, f.vb, f.S.tobytes()) for f in again] == regions
     # The failing edges' own range changed at one end only: tested again.
     lower_1 = lower.copy()
     lower_1[1] += 0.01
-    assert B._failures(arrays, lower_1, upper, nominal, [0], np.zeros(1), memo)[1] > 0
-    assert B._failures(arrays, lower, upper, nominal, [0], np.full(1, 0.01), memo)[1] > 0
+    assert B.failures(arrays, lower_1, upper, nominal, [0], np.zeros(1), memo)[1] > 0
+    assert B.failures(arrays, lower, upper, nominal, [0], np.full(1, 0.01), memo)[1] > 0
     first = B._one_per_edge(failed)
     edges = {(f.j, f.S.tobytes(), f.root) for f in failed}
     assert len(first) == len(edges) and {(f.j, f.S.tobytes(), f.root) for f in first} == edges
@@ -190,7 +190,7 @@ def test_prove_boundary_leaves_no_failing_edge(corner):
     stats = B.prove_boundary(wc, arrays, lower, upper, nominal, np.full(2, np.inf), margins)
     assert stats["unproven"] == [] and stats["edge_cuts"] > 0
     assert np.all(lower >= lo0) and np.all(upper <= hi0)
-    assert B._failures(arrays, lower, upper, nominal, [0, 1], margins, None)[0] == []
+    assert B.failures(arrays, lower, upper, nominal, [0, 1], margins, None)[0] == []
     Q = B.corner_points(lower, upper, nominal, np.linspace(0.0, 2.0, 41))
     assert all(wc.is_free(q) for q in Q)
 

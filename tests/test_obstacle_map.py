@@ -107,7 +107,7 @@ def test_dilation_is_the_neighbourhood_max_by_brute_force():
     (2r+1) neighbourhood taken cell by cell, for height maps (dilated
     around their occupied block only), maps with negative values and an
     empty map, at r = 0..7."""
-    from drake_cfvol.online.obstacle_map import _dilate
+    from drake_cfvol.online.obstacle_map import dilate
 
     rng = np.random.default_rng(5)
     for shape in ((1, 1), (7, 3), (30, 41)):
@@ -124,7 +124,7 @@ def test_dilation_is_the_neighbourhood_max_by_brute_force():
                         for i in range(shape[0])
                     ]
                 )
-                assert np.array_equal(_dilate(H, r), want)
+                assert np.array_equal(dilate(H, r), want)
 
 
 def test_an_image_taken_by_masks_equals_its_gathered_points():

@@ -72,10 +72,12 @@ __all__ = [
     "reaching_joints",
     "cut_point",
     "cut_slacks",
+    "colliding_points",
+    "failures",
 ]
 
 
-def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | None = None):
+def failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | None = None):
     """The edge regions of the given stretches (``margins``: (g-1,) array,
     m) that still may collide after MAX_SPLITS halvings (a region with a point of its REAL_GRID x REAL_GRID
     grid that may collide is not halved further, nor is the rest of its
@@ -156,7 +158,7 @@ def _failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | No
 
 
 def _failures_of(arrays, lower, upper, nominal, stretch_tasks, margins, memo, keys, again):
-    """:func:`_failures` from its first regions on: tests them, halves the
+    """:func:`failures` from its first regions on: tests them, halves the
     failing ones and (with a ``memo``) records each edge's outcome under
     its key in ``keys``."""
     # The first test of every region as arrays (most pass whole): an item
@@ -223,7 +225,7 @@ def _first_test(arrays, stretch_tasks, margins):
 
 
 def _halvings(arrays, lower, upper, nominal, items, margins, tested: bool = False):
-    """Tests the regions, halving the failing ones (see :func:`_failures`),
+    """Tests the regions, halving the failing ones (see :func:`failures`),
     until each whole edge (an item's ``root``) is proven or has a failing
     region: the shallowest halving's first, in order (the others of that
     edge are not halved further). An item's ``depth`` counts the halvings
@@ -254,7 +256,7 @@ def _halvings(arrays, lower, upper, nominal, items, margins, tested: bool = Fals
         real = np.array(
             [
                 h is not None
-                for h in _colliding_points(
+                for h in colliding_points(
                     arrays, lower, upper, nominal, bad, margins, np.zeros(len(margins)), n=REAL_GRID
                 )
             ]
@@ -338,7 +340,7 @@ def corner_pass(
     return {"corner_rounds": rounds, "corner_cuts": cuts}
 
 
-def _colliding_points(arrays, lower, upper, nominal, fails, margins, slacks, n: int = 9):
+def colliding_points(arrays, lower, upper, nominal, fails, margins, slacks, n: int = 9):
     """For each failing region, a configuration of the box's edge in it
     that may collide, (s, q), or None: an n x n grid over the region (s
     and joint j; the first colliding point in s-major order), points
@@ -446,7 +448,7 @@ def prove_boundary(
         cp = corner_pass(workcell, arrays, lower, upper, nominal, rate, margins, slacks)
         cuts += cp["corner_cuts"]
         todo = [i for i in range(n_st) if proven.get(i) != _signature(lower, upper, i)]
-        fails, t = _failures(arrays, lower, upper, nominal, todo, margins, memo)
+        fails, t = failures(arrays, lower, upper, nominal, todo, margins, memo)
         tests += t
         fails = _one_per_edge(fails)
         failing = {f.i for f in fails}
@@ -455,7 +457,7 @@ def prove_boundary(
                 proven[i] = _signature(lower, upper, i)
         taken: set = set()
         stuck = set()
-        points = _colliding_points(arrays, lower, upper, nominal, fails, margins, slacks)
+        points = colliding_points(arrays, lower, upper, nominal, fails, margins, slacks)
         for fail, hit in zip(fails, points):
             if fail.i in stuck:
                 continue

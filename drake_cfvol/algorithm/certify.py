@@ -52,7 +52,7 @@ import time
 import numpy as np
 from numba import njit
 
-from drake_cfvol.algorithm.boundary import _failures, cut_point, cut_slacks, prove_boundary, reaching_joints
+from drake_cfvol.algorithm.boundary import cut_point, cut_slacks, failures, prove_boundary, reaching_joints
 from drake_cfvol.algorithm.cert_cache import cache_dir, cache_key, cache_load, cache_store
 from drake_cfvol.algorithm.metrics import freedom
 from drake_cfvol.algorithm.sweep import stretch_margins
@@ -638,7 +638,7 @@ class _Certification:
                         continue
                     lower, upper = self.lower.copy(), self.upper.copy()
                     (upper if side > 0 else lower)[w, j] += side * step
-                    failed, tests = _failures(
+                    failed, tests = failures(
                         self.arrays, lower, upper, self.nominal, stretches, self.margins, self.memo
                     )
                     self.boundary["edge_tests"] += tests

@@ -14,7 +14,7 @@ from drake_cfvol import kernel as K
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.scene.params import VolumeParams
 
-__all__ = ["HeightMap", "height_function", "Volume"]
+__all__ = ["HeightMap", "height_function", "merge_equal", "Volume"]
 
 
 #: The volume's tables may take at most this much memory (bytes).
@@ -199,7 +199,7 @@ class Volume:
             Hb = P.reshape(mb, blk, nb, blk).max(axis=(1, 3))
             for q in steps:
                 Hq = Hb if q == 0 else np.where(Hb > 0, np.ceil(Hb / q - 1e-12) * q, 0.0)
-                rects = _merge_equal(Hq)
+                rects = merge_equal(Hq)
                 if len(rects) > max_boxes:
                     continue
                 r = np.array(rects, float).reshape(-1, 5) * [blk, blk, blk, blk, 1]
@@ -209,7 +209,7 @@ class Volume:
                 if best is None or vol < best[0]:
                     best = (vol, r, blk, q)
                 break  # a larger q only adds volume at this block size
-            if best is not None and blk > 1 and len(_merge_equal(Hb)) <= max_boxes:
+            if best is not None and blk > 1 and len(merge_equal(Hb)) <= max_boxes:
                 break  # exact heights fit: coarser blocks only add volume
         if best is None:
             raise ValueError(f"the volume cannot be merged into {max_boxes} boxes; raise max_boxes.")
@@ -226,7 +226,7 @@ class Volume:
         )
 
 
-def _merge_equal(H: np.ndarray) -> list[tuple[int, int, int, int, float]]:
+def merge_equal(H: np.ndarray) -> list[tuple[int, int, int, int, float]]:
     """Rectangles [i0, i1) x [j0, j1) of equal positive value covering every
     positive cell of H exactly once: runs along the first axis per column j,
     extended over consecutive j with the same run."""

@@ -122,7 +122,9 @@ class _Item:
 
     def __init__(self, i, sa, sb, j, va, vb, S, A, B, root=-1, depth=0):
         self.i, self.sa, self.sb, self.j, self.va, self.vb, self.S, self.A, self.B = i, sa, sb, j, va, vb, S, A, B
-        self.root = root  # the edge it was halved from (an index of _failures' edges), or ("again", n): a remembered failed edge
+        self.root = (
+            root  # the edge it was halved from (an index of failures' edges), or ("again", n): a remembered failed edge
+        )
         self.depth = depth  # halvings from its whole edge
 
 

@@ -159,7 +159,7 @@ def load_jobs(file: str | Path | None = None, *, text: str | None = None) -> tup
     the field and the fix (:class:`drake_cfvol.BatchError`)."""
     from pydrake.common.yaml import yaml_load_typed
 
-    from drake_cfvol.comanip.scenario import _check_fields
+    from drake_cfvol.comanip.scenario import check_fields
     from drake_cfvol.scene.schema import read_yaml, read_yaml_text, yaml_error_line
 
     where = Path(file) if file is not None else Path("<text>")
@@ -172,7 +172,7 @@ def load_jobs(file: str | Path | None = None, *, text: str | None = None) -> tup
     except yaml.YAMLError as e:
         raise BatchError(where, None, f"cannot be read as YAML ({yaml_error_line(e)})") from None
     try:
-        _check_fields(raw, BatchJobs, "", where)
+        check_fields(raw, BatchJobs, "", where)
     except ScenarioError as e:
         raise BatchError(e.file, e.field, e.detail) from None
     try:

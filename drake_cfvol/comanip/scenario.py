@@ -40,6 +40,7 @@ from drake_cfvol.systems import (
 )
 
 __all__ = [
+    "check_fields",
     "check_scenario_against_cell",
     "scenario_file_path",
     "InverseDynamicsDriver",
@@ -410,7 +411,7 @@ def _check_value(value, t, name: str, file: Path) -> None:
             _check_value(value, args[0], name, file)
         return  # None, or a tagged variant: Drake's reader checks it
     if dataclasses.is_dataclass(t):
-        _check_fields(value, t, name, file)
+        check_fields(value, t, name, file)
     elif origin is list:
         if not isinstance(value, list):
             raise ScenarioError(file, name, f"must be a list, got {value!r}")
@@ -435,7 +436,7 @@ def _check_value(value, t, name: str, file: Path) -> None:
         _check_scalar(value, t, name, file)
 
 
-def _check_fields(raw, schema, where: str, file: Path) -> None:
+def check_fields(raw, schema, where: str, file: Path) -> None:
     """Checks a scenario mapping against its dataclass before Drake reads
     it: unknown or renamed keys and values of the wrong type are named with
     the file, the field (list items by position, counted from 1) and the fix."""
@@ -499,7 +500,7 @@ def load_scenario(
     except yaml.YAMLError as e:
         raise ScenarioError(p, None, f"cannot be read as YAML ({yaml_error_line(e)})") from None
     _check_form(raw, p)
-    _check_fields(raw, Scenario, "", p)
+    check_fields(raw, Scenario, "", p)
     try:
         scenario = yaml_load_typed(schema=Scenario, data=text, defaults=Scenario())
     except Exception as e:
@@ -511,7 +512,7 @@ def load_scenario(
         except yaml.YAMLError as e:
             raise ScenarioError(where, None, f"cannot be read as YAML ({yaml_error_line(e)})") from None
         _check_form(extra, where)
-        _check_fields(extra, Scenario, "", where)
+        check_fields(extra, Scenario, "", where)
         try:
             scenario = yaml_load_typed(schema=Scenario, data=scenario_text, defaults=scenario)
         except Exception as e:

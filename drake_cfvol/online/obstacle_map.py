@@ -31,10 +31,10 @@ import math
 import numpy as np
 from numba import njit
 
-from drake_cfvol.algorithm.heightmap import _merge_equal
+from drake_cfvol.algorithm.heightmap import merge_equal
 from drake_cfvol.exceptions import ParameterError
 
-__all__ = ["MapGrid", "ObstacleMap", "PerceptionParams", "merged_rectangles"]
+__all__ = ["MapGrid", "ObstacleMap", "PerceptionParams", "dilate", "merged_rectangles"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,7 +104,7 @@ class MapGrid:
         return i, j, inside
 
 
-def _dilate(H: np.ndarray, r: int) -> np.ndarray:
+def dilate(H: np.ndarray, r: int) -> np.ndarray:
     """Max over the (2r+1) x (2r+1) neighbourhood of each cell (separably:
     along the rows, then the columns). A map of heights (no negative cell)
     is dilated only around its occupied block: elsewhere every
@@ -125,7 +125,7 @@ def _dilate(H: np.ndarray, r: int) -> np.ndarray:
 
 @njit(cache=True)
 def _dilate_max(H, r):
-    """:func:`_dilate` in compiled code: each axis in turn, the max over
+    """:func:`dilate` in compiled code: each axis in turn, the max over
     the cells within r along it (exact: a max of the same values), by van
     Herk and Gil-Werman's block prefix and suffix maxima (three
     comparisons per cell whatever r)."""
@@ -253,7 +253,7 @@ def merged_rectangles(H: np.ndarray) -> np.ndarray:
     if not len(i):
         return np.zeros((0, 5))
     i0, j0 = i.min(), j.min()
-    rects = np.array(_merge_equal(H[i0 : i.max() + 1, j0 : j.max() + 1]), float).reshape(-1, 5)
+    rects = np.array(merge_equal(H[i0 : i.max() + 1, j0 : j.max() + 1]), float).reshape(-1, 5)
     rects[:, :2] += i0
     rects[:, 2:4] += j0
     return rects
@@ -338,13 +338,13 @@ class ObstacleMap:
         if hidden is not None:
             for P, use in _sources(hidden):
                 _mark(P, use, ox, oy, g.side, hidden_cells)
-            hidden_cells = _dilate(hidden_cells.astype(float), 1) > 0
+            hidden_cells = dilate(hidden_cells.astype(float), 1) > 0
         prev = self.heights if self.observed is None else self.observed
         prev_at = np.full(g.shape, self.stamp) if self.seen_at is None else self.seen_at
         observed, seen_at = _observe(
             occ, seen_cells, np.ascontiguousarray(prev, dtype=np.float64), prev_at, float(stamp)
         )
-        heights = _dilate(observed, int(params.dilation))
+        heights = dilate(observed, int(params.dilation))
         if params.speed > 0:
             _spread(
                 heights,

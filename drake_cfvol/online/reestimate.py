@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from drake_cfvol import kernel as K
-from drake_cfvol.algorithm.boundary import _colliding_points, _failures
+from drake_cfvol.algorithm.boundary import colliding_points, failures
 from drake_cfvol.algorithm.heightmap import Volume, height_function
 from drake_cfvol.algorithm.planning import NominalPath
 from drake_cfvol.algorithm.sweep import default_rate, sweep_range, sweep_setup
@@ -526,8 +526,8 @@ class OnlineBounds:
         proofs.pop()
         self._proven_map[i] = self._map
         W = self._W[i : i + 2]
-        failed, _ = _failures(self._perceived_only, lo, up, W, [0], margin)
-        hits = _colliding_points(self._perceived_only, lo, up, W, failed, margin, np.zeros(1)) if failed else []
+        failed, _ = failures(self._perceived_only, lo, up, W, [0], margin)
+        hits = colliding_points(self._perceived_only, lo, up, W, failed, margin, np.zeros(1)) if failed else []
         points = [q for hit in hits if hit is not None for q in (hit[1],)]
         if points:
             self._failed_at[i] = (lo, up, np.array(points))

@@ -20,7 +20,7 @@ from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
 
 from drake_cfvol.exceptions import ParameterError
-from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap, PerceptionParams, _dilate
+from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap, PerceptionParams, dilate
 
 __all__ = ["MovingObstacle", "MovingBoxes", "MOVING_LABEL_BASE"]
 
@@ -160,7 +160,7 @@ class MovingBoxes(LeafSystem):
             top = np.ceil((c[2] + half[2]) / p.height_step - 1e-9) * p.height_step
             if i0 <= i1 and j0 <= j1 and top > p.floor:
                 H[i0 : i1 + 1, j0 : j1 + 1] = np.maximum(H[i0 : i1 + 1, j0 : j1 + 1], top)
-        return ObstacleMap(g, _dilate(H, int(p.dilation)), float(t))
+        return ObstacleMap(g, dilate(H, int(p.dilation)), float(t))
 
     def _calc_poses(self, context, output) -> None:
         poses = output.get_mutable_value()
