@@ -65,7 +65,7 @@ class ConfigurationError(CfvolError):
 class DimensionError(ConfigurationError, ValueError):
     """An array has the wrong length or shape."""
 
-    def __init__(self, what: str, expected: int | Sequence[int], got, hint: str = ""):
+    def __init__(self, what: str, expected: int | Sequence[int] | str, got: object, hint: str = ""):
         self.expected = expected
         self.got = got
         msg = f"{what} has the wrong size: expected {expected}, got {got}."

@@ -94,7 +94,9 @@ def failures(arrays, lower, upper, nominal, stretches, margins, memo: dict | Non
     joint it needed (at most START_SPLITS): tested again, it starts from
     that many pieces (automotive path 1's certification: 454k region tests
     instead of 515k)."""
-    stretch_tasks, keys, again = [], [], []
+    stretch_tasks: list[tuple] = []
+    keys: list[tuple | None] = []
+    again: list[_Item] = []
     if memo is None:  # nothing remembered or kept: every edge tested whole, its own root
         for i in stretches:
             A, B, js, va, vb, sig = edge_tasks(lower[i], upper[i], lower[i + 1], upper[i + 1])
@@ -280,13 +282,25 @@ def _halvings(arrays, lower, upper, nominal, items, margins, tested: bool = Fals
             ss = np.array([it.sa, 0.5 * (it.sa + it.sb), it.sb])
             lo, hi, _ = _box(lower, upper, nominal, it.i, ss)
             c = np.where(it.S == 1, hi, lo)
-            for h in range(2):
-                v_lo = max(min(lo[h, it.j], lo[h + 1, it.j]), it.va)
-                v_hi = min(max(hi[h, it.j], hi[h + 1, it.j]), it.vb)
+            for half in range(2):
+                v_lo = max(min(lo[half, it.j], lo[half + 1, it.j]), it.va)
+                v_hi = min(max(hi[half, it.j], hi[half + 1, it.j]), it.vb)
                 vm = 0.5 * (v_lo + v_hi)
                 for u0, u1 in ((v_lo, vm), (vm, v_hi)):
                     items.append(
-                        _Item(it.i, ss[h], ss[h + 1], it.j, u0, u1, it.S, c[h].copy(), c[h + 1].copy(), it.root, d)
+                        _Item(
+                            it.i,
+                            ss[half],
+                            ss[half + 1],
+                            it.j,
+                            u0,
+                            u1,
+                            it.S,
+                            c[half].copy(),
+                            c[half + 1].copy(),
+                            it.root,
+                            d,
+                        )
                     )
     return failed, tests, passed_at
 
@@ -346,7 +360,7 @@ def colliding_points(arrays, lower, upper, nominal, fails, margins, slacks, n: i
     and joint j; the first colliding point in s-major order), points
     outside the box at their s left out. All regions' points in one batch
     per margin."""
-    out = [None] * len(fails)
+    out: list[tuple[float, np.ndarray] | None] = [None] * len(fails)
     if not fails:
         return out
     u = np.linspace(0.0, 1.0, n)

@@ -48,6 +48,7 @@ evaluation's.
 import dataclasses
 import math
 import time
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -502,7 +503,13 @@ class _Certification:
         self.samples = self.shrinks = 0
         self.proven: dict = {}
         self.memo: dict = {}
-        self.boundary = {"edge_tests": 0, "edge_cuts": 0, "edge_rounds": 0, "margins_lowered": 0, "unproven": []}
+        self.boundary: dict[str, Any] = {
+            "edge_tests": 0,
+            "edge_cuts": 0,
+            "edge_rounds": 0,
+            "margins_lowered": 0,
+            "unproven": [],
+        }
         self.start_lower, self.start_upper = self.lower.copy(), self.upper.copy()  # before any cut
         self.current = certified_table(table, self.lower, self.upper)
 

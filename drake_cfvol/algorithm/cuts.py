@@ -153,17 +153,20 @@ def _joint_scale_options(arrays, lower, upper, nominal, rate, fail: _Item, reach
     if not members_of:
         return []
     lams = np.array(CUT_SCALES)
-    keys, LO, HI, LAM = [], [], [], []
+    keys: list[tuple[int, int]] = []
+    lo_parts: list[np.ndarray] = []
+    hi_parts: list[np.ndarray] = []
+    lam_parts: list[np.ndarray] = []
     for key, members in members_of.items():
         lo, hi = _scaled_many(lower, upper, nominal, i, members, sides, lams)
         changed = ~(np.all(lo == lower[i : i + 2], axis=(1, 2)) & np.all(hi == upper[i : i + 2], axis=(1, 2)))
         keys += [key] * int(changed.sum())
-        LO.append(lo[changed])
-        HI.append(hi[changed])
-        LAM.append(lams[changed])
+        lo_parts.append(lo[changed])
+        hi_parts.append(hi[changed])
+        lam_parts.append(lams[changed])
     if not keys:
         return []
-    LO, HI, LAM = np.concatenate(LO), np.concatenate(HI), np.concatenate(LAM)
+    LO, HI, LAM = np.concatenate(lo_parts), np.concatenate(hi_parts), np.concatenate(lam_parts)
     ok = ~_edge_regions(fail, LO, HI, pad, arrays)
     best_l, failing = {}, {}  # key -> (passing scale, lo, hi); key -> largest failing scale
     for n, key in enumerate(keys):
@@ -327,7 +330,8 @@ def cut_point(workcell, arrays, lower, upper, nominal, rate, i, s, q, margin, sl
                 trials.append((tuple(group), lam))
                 Q.append(x)
         ok = ~arrays.may_collide(np.array(Q), margin + slack)
-        bracket, failing = {}, {}  # group -> (largest failing scale, largest passing scale)
+        bracket: dict[tuple, tuple[float, float]] = {}
+        failing: dict[tuple, float] = {}  # group -> (largest failing scale, largest passing scale)
         for (key, lam), good in zip(trials, ok):
             if key in bracket:
                 continue

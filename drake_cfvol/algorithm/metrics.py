@@ -256,7 +256,7 @@ def freedom(bounds: BoundsTable, revolute=None) -> Freedom:
                 "freedom: revolute", bounds.k, mask.shape, f"The joints: {', '.join(bounds.joint_names)}."
             )
         revolute = mask != 0
-    gm = box_freedom(bounds.lower, bounds.upper, bounds.limit_lower, bounds.limit_upper)
+    gm = np.asarray(box_freedom(bounds.lower, bounds.upper, bounds.limit_lower, bounds.limit_upper))
     med = np.median(bounds.widths(), axis=0)
     med = np.where(revolute, np.degrees(med), med)
     return Freedom(float(gm.mean()), gm, med, ["deg" if r else "m" for r in revolute])

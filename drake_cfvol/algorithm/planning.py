@@ -190,22 +190,22 @@ def min_singular_value(workcell: Workcell, q: np.ndarray) -> float:
 
 def _shortcut(verts: np.ndarray, edge_free, rng: np.random.Generator, iterations: int) -> np.ndarray:
     """Seeded random shortcutting, then greedy vertex reduction."""
-    verts = [v for v in verts]
+    rows = [v for v in verts]
     for _ in range(iterations):
-        if len(verts) <= 2:
+        if len(rows) <= 2:
             break
-        i, j = sorted(rng.choice(len(verts), size=2, replace=False))
+        i, j = sorted(rng.choice(len(rows), size=2, replace=False))
         if j - i < 2:
             continue
-        if edge_free(verts[i], verts[j]):
-            verts = verts[: i + 1] + verts[j:]
-    out = [verts[0]]
+        if edge_free(rows[i], rows[j]):
+            rows = rows[: i + 1] + rows[j:]
+    out = [rows[0]]
     i = 0
-    while i < len(verts) - 1:
-        j = len(verts) - 1
-        while j > i + 1 and not edge_free(verts[i], verts[j]):
+    while i < len(rows) - 1:
+        j = len(rows) - 1
+        while j > i + 1 and not edge_free(rows[i], rows[j]):
             j -= 1
-        out.append(verts[j])
+        out.append(rows[j])
         i = j
     return np.array(out)
 

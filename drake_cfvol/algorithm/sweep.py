@@ -139,12 +139,12 @@ def stretch_bounds(
     hi_nom = np.maximum(W[:-1], W[1:])
     upper = bounds[0::2].T.copy()
     lower = bounds[1::2].T.copy()
-    tests = int(tests.sum())
+    region_tests = int(tests.sum())
     # A bound inside the nominal's own range over the stretch is kept as it
     # is: where the nominal passes it, the box is held at the nominal (the
     # box at s always holds nom(s); see table.box_at).
     stats = {
-        "region_tests": tests,
+        "region_tests": region_tests,
         "searches": 2 * n_st * k,
         "pinned": int((upper < hi_nom).sum() + (lower > lo_nom).sum()),
         "max_t_samples": int(setup.nts.max()) if setup.nts.size else 0,

@@ -269,6 +269,8 @@ def box_at(
         w = s[at].astype(int)
         lo[at], hi[at], nom[at] = lower[w], upper[w], nominal[w]
     else:
+        # The stretch rule with g > 1: its arrays were filled in above.
+        assert stretch_lower is not None and stretch_upper is not None and rate is not None
         lo, hi = _stretch_rule(stretch_lower, stretch_upper, rate, s, i)
         lo, hi = np.minimum(lo, nom), np.maximum(hi, nom)
         at = s == np.floor(s)
@@ -497,6 +499,9 @@ class BoundsTable:
         a negative rate (a stretch's bounds may cross: :func:`box_at` widens
         them to hold the nominal, as the sweep leaves a joint with no room), or (given the robot's position limits, inf where a
         joint has none) a box outside the limits."""
+        assert (
+            self.stretch_lower is not None and self.stretch_upper is not None and self.rate is not None
+        )  # __post_init__
         arrays = {
             "lower": self.lower,
             "upper": self.upper,
@@ -541,6 +546,9 @@ class BoundsTable:
         return None
 
     def to_json_dict(self) -> dict:
+        assert (
+            self.stretch_lower is not None and self.stretch_upper is not None and self.rate is not None
+        )  # __post_init__
         return {
             "format": "drake_cfvol.BoundsTable",
             "version": FORMAT_VERSION,

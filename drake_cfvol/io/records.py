@@ -5,6 +5,7 @@ import io
 import json
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -97,7 +98,9 @@ def save_record(path, record: dict, array_keys: tuple, what: str, *, overwrite: 
         else:
             meta = {k: v for k, v in record.items() if k not in array_keys}
             buffer = io.BytesIO()
-            np.savez(buffer, **{k: np.asarray(record[k]) for k in array_keys}, meta=json.dumps(meta))
+            # Any: numpy's stub would take a key of the dict for savez's allow_pickle.
+            arrays: dict[str, Any] = {k: np.asarray(record[k]) for k in array_keys} | {"meta": json.dumps(meta)}
+            np.savez(buffer, **arrays)
             write_atomic(path, buffer.getvalue())
     except OSError as e:
         raise OutputPathError(path, e.strerror or str(e)) from None

@@ -27,8 +27,12 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+from collections.abc import Iterable, Iterator
 from pathlib import Path
+from types import ModuleType
+from typing import Any
 
+fcntl: ModuleType | None
 try:
     import fcntl
 except ImportError:  # Windows: no flock; numba's own behaviour
@@ -43,7 +47,7 @@ PACKAGE = Path(os.path.abspath(Path(__file__).parents[1]))
 
 #: The package's cache folders (:func:`package_cache_folders`, absolute),
 #: named at the first :func:`is_ours`.
-_folders: set | None = None
+_folders: set[str] | None = None
 
 #: The file, in each of numba's cache folders of the package, holding the
 #: hash of the kernel's sources its entries were compiled from.
@@ -54,7 +58,7 @@ STAMP_NAME = "kernel_sources.sha256"
 STAMP: str | None = None
 
 
-def package_cache_folders(package: Path = PACKAGE) -> list:
+def package_cache_folders(package: Path = PACKAGE) -> list[Path]:
     """Every folder where numba may keep compiled code of the package's
     modules: beside each subpackage's files (``__pycache__``), and, named
     after the subpackage's path, under ``NUMBA_CACHE_DIR`` when it is set
@@ -68,15 +72,17 @@ def package_cache_folders(package: Path = PACKAGE) -> list:
         from numba.misc.appdirs import AppDirs
 
         subpaths = [caching._CacheLocator.get_suitable_cache_subpath(str(f / "__init__.py")) for f in folders]
-        if config.CACHE_DIR:
-            out += [Path(config.CACHE_DIR) / s for s in subpaths]
+        # numba sets its config's names at run time (from the environment): no stub has them.
+        cache_dir = getattr(config, "CACHE_DIR")
+        if cache_dir:
+            out += [Path(cache_dir) / s for s in subpaths]
         out += [Path(AppDirs(appname="numba", appauthor=False).user_cache_dir) / s for s in subpaths]
     except Exception:  # numba's internals moved: the tree's folders only (a test checks they have not)
         pass
     return out
 
 
-def is_ours(cache_path) -> bool:
+def is_ours(cache_path: str | os.PathLike[str]) -> bool:
     """Whether ``cache_path`` is where numba caches a module of the package."""
     global _folders
     if _folders is None:
@@ -85,7 +91,7 @@ def is_ours(cache_path) -> bool:
 
 
 @contextlib.contextmanager
-def folder_lock(folder, *, exclusive: bool):
+def folder_lock(folder: str | os.PathLike[str], *, exclusive: bool) -> Iterator[None]:
     """Holds ``folder``'s lock (exclusive or shared) for the ``with`` block;
     no lock where the folder cannot hold one (missing, read-only) or the
     platform has no ``flock``."""
@@ -96,7 +102,7 @@ def folder_lock(folder, *, exclusive: bool):
         except OSError:
             fd = None
     try:
-        if fd is not None:
+        if fd is not None and fcntl is not None:
             fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
         yield
     finally:
@@ -104,7 +110,7 @@ def folder_lock(folder, *, exclusive: bool):
             os.close(fd)  # releases the lock
 
 
-def clear_stale(sources: Path, folders, skip=()) -> str:
+def clear_stale(sources: Path, folders: Iterable[str | os.PathLike[str]], skip: Iterable[Path] = ()) -> str:
     """Removes numba's cache files (``*.nbi``, ``*.nbc``) from ``folders``
     when the ``*.py`` files under ``sources`` (subfolders included; the
     relative paths in ``skip`` left out) differ from those the cache was
@@ -133,7 +139,7 @@ def clear_stale(sources: Path, folders, skip=()) -> str:
     return text
 
 
-def _write_stamp(folder) -> None:
+def _write_stamp(folder: str | os.PathLike[str]) -> None:
     """The sources' hash into ``folder`` where it has none (a folder numba
     made after the package's import checked the existing ones)."""
     if STAMP is None:
@@ -146,7 +152,7 @@ def _write_stamp(folder) -> None:
         pass  # numba's own save reports a folder it cannot write
 
 
-def _locked(base):
+def _locked(base: Any) -> type:
     class LockedIndexDataCacheFile(base):
         """numba's index and data files, read and written under the cache
         folder's lock when the folder is the package's."""
@@ -185,5 +191,6 @@ def install() -> bool:
     if current is None or not all(hasattr(current, m) for m in ("save", "load")):
         return False
     if not getattr(current, "_drake_cfvol_locked", False):
-        caching.IndexDataCacheFile = _locked(current)
+        # numba's class replaced in its module (setattr: its stub types the name as that class).
+        setattr(caching, "IndexDataCacheFile", _locked(current))
     return True

@@ -43,6 +43,7 @@ from drake_cfvol.algorithm.volume import column_caps, footprint_masks, lower_alo
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.kernel import kinds
 from drake_cfvol.online.obstacle_map import ObstacleMap
+from drake_cfvol.scene.arrays import SceneArrays
 from drake_cfvol.scene.params import VolumeParams
 
 __all__ = ["LiveBounds", "OnlineBounds", "BoundsUpdate", "shape_radii", "FrozenLog"]
@@ -163,7 +164,7 @@ def _overlap(fp: np.ndarray, boxes: np.ndarray) -> np.ndarray:
     if not len(boxes):
         return np.zeros(fp.shape[:-1], bool)
     f = fp[..., None, :]
-    return (
+    hit = (
         (f[..., 0] <= boxes[:, 3])
         & (boxes[:, 0] <= f[..., 3])
         & (f[..., 1] <= boxes[:, 4])
@@ -171,6 +172,7 @@ def _overlap(fp: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         & (f[..., 2] <= boxes[:, 5])
         & (boxes[:, 2] <= f[..., 5])
     ).any(axis=-1)
+    return np.asarray(hit)  # numpy's stub: any() may give a scalar
 
 
 class OnlineBounds:
@@ -221,13 +223,14 @@ class OnlineBounds:
         self._sign = self._setup.chains[:, 1].astype(float)
         self._heights = np.array(self._vb.volume.heights, float)
         self._table = None  # V's range-max table, built when first needed after a change
-        self._caps = None  # V's columns' caps under the nominal (column_caps), made at the first change
-        self._static_ng = (
-            None  # the cell's no-goal distance at V's columns (_no_goal_distance), made at the first change
+        self._caps: np.ndarray | None = (
+            None  # V's columns' caps under the nominal (column_caps), made at the first change
         )
+        # The cell's no-goal distance at V's columns (_no_goal_distance), made at the first change.
+        self._static_ng: np.ndarray | None = None
         self._boxes = np.zeros((0, 6))
         self._map: ObstacleMap | None = None
-        self._perceived_only = None
+        self._perceived_only: SceneArrays | None = None
         n_st = len(W) - 1
         # Each search's tests as last run (kept for the next update: a test
         # whose footprint no change meets keeps its verdict).
@@ -374,7 +377,7 @@ class OnlineBounds:
         (stretches, searches, tests run)."""
         n_st, done, searches, tests, i = self._dirty.shape[1], 0, 0, 0, lo
         field = self._field()
-        any_dirty = self._dirty.any(axis=0)
+        any_dirty = np.asarray(self._dirty.any(axis=0))  # numpy's stub: any() may give a scalar
         while i <= hi:
             if not any_dirty[i]:
                 i += 1
@@ -479,7 +482,7 @@ class OnlineBounds:
         widened = 0
         proofs = [None] * self.max_proofs
         for i in todo:
-            if self._certified(i, self._cand[:, i], proofs if lo <= i <= hi else []):
+            if self._certified(int(i), self._cand[:, i], proofs if lo <= i <= hi else []):
                 self._pub[:, i] = self._cand[:, i]
                 widened += 1
         return tightened, widened, int(wider.sum()) - widened
@@ -505,6 +508,8 @@ class OnlineBounds:
         proof, :mod:`drake_cfvol.algorithm.boundary`), with the margin."""
         if not len(self._boxes):
             return True
+        # Boxes perceived: update set the map and its scene with them.
+        assert self._perceived_only is not None and self._map is not None
         lo, up = self._outer_box(i, chains)
         dev = np.maximum(np.abs(up - self._W[i]), np.abs(self._W[i] - lo)).max(axis=0)  # (k,)
         p_WB = self._p_WB[i]
@@ -544,6 +549,7 @@ class OnlineBounds:
         if b.interpolation == "linear":
             bl, bu = b.lower[i : i + 2], b.upper[i : i + 2]
         else:
+            assert b.stretch_lower is not None and b.stretch_upper is not None  # BoundsTable.__post_init__
             bl = np.minimum(b.stretch_lower[i][None, :], self._W[i : i + 2])
             bu = np.maximum(b.stretch_upper[i][None, :], self._W[i : i + 2])
         use_b_lo = bl.min(axis=0) >= lo.min(axis=0)
