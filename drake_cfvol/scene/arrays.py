@@ -57,6 +57,7 @@ def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[n
         WorkcellError: an unsupported shape, or a mesh without a proper hull.
     """
     g = kinds.geometry(shape)
+    assert g is not None  # strict: an unsupported shape raised
     row = np.zeros(K.SHAPE_W)
     R = np.asarray(R_BG, float)
     c = np.asarray(p_BG, float) + R @ g.centre
@@ -228,7 +229,7 @@ class SceneArrays:
                 self.obstacle_aabb,
                 self.self_pairs,
                 self.shape_pairs,
-                self.moved_by.any(axis=0),
+                np.asarray(self.moved_by.any(axis=0)),  # numpy's stub: any() may give a scalar
                 self.moved_by,
                 self.reach,
                 self.curvature,
@@ -508,7 +509,7 @@ def _reach(
     k = len(joint_body)
     reach = np.zeros((k, B))
     for j in range(k):
-        for b in np.flatnonzero(moved[j]):
+        for b in np.flatnonzero(moved[j]).tolist():
             total, x = own[b], b
             while x != joint_body[j]:
                 total += step[x]

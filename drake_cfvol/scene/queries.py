@@ -9,10 +9,18 @@ Results computed once are kept in the workcell's ``_cache`` dict (one
 idiom: :meth:`WorkcellQueries._memo`).
 """
 
+from __future__ import annotations
+
 import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from pydrake.planning import SceneGraphCollisionChecker
+from pydrake.geometry import GeometryId, SceneGraph
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import Frame, ModelInstanceIndex
+from pydrake.planning import RobotDiagram, SceneGraphCollisionChecker
+from pydrake.systems.framework import Context
 
 from drake_cfvol.exceptions import (
     CollisionError,
@@ -25,6 +33,9 @@ from drake_cfvol.exceptions import (
 )
 from drake_cfvol.io.arguments import real_array
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies, robot_instances
+
+if TYPE_CHECKING:
+    from drake_cfvol.scene.arrays import SceneArrays
 
 __all__ = ["KernelFirstChecker", "RobotChecker", "WorkcellQueries", "geometry_key", "robot_geometry_ids"]
 
@@ -181,6 +192,42 @@ class WorkcellQueries:
     it uses the workcell's plant, scene graph, context, robot, joints and
     obstacles)."""
 
+    # The workcell's state, for the type checker: set by Workcell._setup
+    # (name ... _geometry_owner) and WorkcellSetup (joints, frames, settings);
+    # described in Workcell's docstring.
+    name: str
+    path: Path | None
+    diagram: RobotDiagram
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    robot: ModelInstanceIndex
+    robot_name: str
+    slice: RobotSlice
+    notes: list[str]
+    joint_names: list[str]
+    revolute: np.ndarray
+    position_lower: np.ndarray
+    position_upper: np.ndarray
+    velocity_limits: np.ndarray
+    acceleration_limits: np.ndarray
+    jerk_limits: np.ndarray
+    tool_frame: Frame
+    base_frame: Frame
+    rail_joint: str | None
+    params: dict[str, Any]
+    configurations: dict[str, tuple[np.ndarray, np.ndarray]]
+    _lines: dict[str, int]
+    _edge_step: float
+    _cache: dict[Any, Any]
+    _context: Context
+    _geometry_owner: dict[GeometryId, str]
+
+    if TYPE_CHECKING:  # Workcell's own
+
+        def _fail(self, message: str, key: str | None = None) -> WorkcellError: ...
+
+        def scene_arrays(self) -> SceneArrays: ...
+
     def _memo(self, key, make):
         """The value kept under ``key`` in the workcell's cache, made once by ``make()``."""
         if key not in self._cache:
@@ -212,6 +259,7 @@ class WorkcellQueries:
             if r in fixed or (r, o) in invariant:
                 continue
             name = a if a is not None else b
+            assert name is not None  # one of the two is an obstacle (checked above)
             out[name] = min(out.get(name, np.inf), pair.distance)
         return out
 

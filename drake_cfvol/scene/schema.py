@@ -33,6 +33,7 @@ import re
 from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 import yaml
 from pydrake.common.yaml import yaml_load_typed
@@ -171,7 +172,11 @@ class DuplicateKeyError(yaml.constructor.ConstructorError):
         )
 
 
-class _UniqueLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):
+# libyaml's loader where PyYAML was built with it.
+_SafeLoader: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class _UniqueLoader(_SafeLoader):
     """YAML's safe loader that refuses a key given twice in one mapping
     (libyaml's parser where PyYAML has it: about 5x faster than PyYAML's own)."""
 

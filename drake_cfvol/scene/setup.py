@@ -8,15 +8,16 @@ from __future__ import annotations
 import numpy as np
 from pydrake.multibody.tree import JointIndex
 
+from drake_cfvol.scene.queries import WorkcellQueries
 from drake_cfvol.scene.robot import robot_instances, robot_joints
 
 __all__ = ["WorkcellSetup"]
 
 
-class WorkcellSetup:
-    """Reading the robot and the settings (a mixin of
+class WorkcellSetup(WorkcellQueries):
+    """Reading the robot and the settings (a part of
     :class:`~drake_cfvol.scene.workcell.Workcell`: it uses the workcell's
-    plant, robot, ``_fail`` and ``_memo``)."""
+    plant, robot, ``_fail`` and the queries' ``_memo``)."""
 
     def _note_held(self) -> None:
         """Notes the degrees of freedom outside the robot, held at the

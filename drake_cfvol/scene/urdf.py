@@ -107,9 +107,11 @@ def fix_urdf_quirks(model_file: Path, package_map, original: Path | None = None)
     except ET.ParseError:
         return UrdfQuirks(model_file, [], [])  # Drake's parser names the syntax error
     world = [
-        j.find("child").get("link")
+        str(child.get("link"))
         for j in root.iter("joint")
-        if j.find("parent") is not None and j.find("parent").get("link") == "world" and j.find("child") is not None
+        if (parent := j.find("parent")) is not None
+        and parent.get("link") == "world"
+        and (child := j.find("child")) is not None
     ]
     notes = _massless_links(root, name)
     renamed = _rename_clashing_actuators(root, name)
@@ -213,6 +215,7 @@ def AddModels(
         except Exception as e:
             raise WorkcellFormatError(url, _meshes.package_url_error(url, e, package_map) + ".") from None
     else:
+        assert file is not None  # exactly one of file and url (checked above)
         path = Path(file).expanduser().resolve()
     if not path.is_file():
         raise WorkcellFormatError(str(path), "model file not found.")

@@ -119,7 +119,7 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         self.path = path
         self.notes: list[str] = []
         spec, lines = read_workcell_file(path, embedded=embedded)
-        self.spec = spec
+        self.spec: WorkcellFile | None = spec  # None: from a RobotDiagram
         self._lines = lines
         cf = spec.cfvol
         for key in ("robot", "tool_frame"):
@@ -360,6 +360,7 @@ class Workcell(WorkcellSetup, WorkcellQueries):
                 "use Workcell.build_scene() (a clone of that diagram), or wire the systems into your own station "
                 "with drake_cfvol.systems.AddCoManipulation."
             )
+        assert self.path is not None and self.spec is not None  # from a file: it kept its directives
         parser = parser or Parser(plant)
         add_packages(parser.package_map(), self.path, self.spec.cfvol.package_paths, self._lines)
         with condensed_drake_warnings(log=False):  # said once, when the workcell was loaded
@@ -396,6 +397,7 @@ class Workcell(WorkcellSetup, WorkcellQueries):
                     d.add_weld.parent = "world"
                     d.add_weld.X_PC = Transform(X_WP if X_PC is None else X_WP @ X_PC)
                 kept.append(d)
+        assert self.path is not None and self.spec is not None  # from a file: it kept its directives
         parser = parser or Parser(plant)
         add_packages(parser.package_map(), self.path, self.spec.cfvol.package_paths, self._lines)
         with condensed_drake_warnings(log=False):
