@@ -69,7 +69,8 @@ def _module_by_globals():
         return
 
     def by_globals(frame=2):
-        module = sys.modules.get(sys._getframe(frame).f_globals.get("__name__"))
+        name = sys._getframe(frame).f_globals.get("__name__")
+        module = sys.modules.get(name) if name is not None else None
         return module if module is not None else original(frame + 1)
 
     cpp_template._get_module_from_stack = by_globals

@@ -351,6 +351,7 @@ def AdmittanceDeformation_(T):
                         "AdmittanceDeformation: 'human_wrench' is connected but no plant and "
                         "tool_frame were given to map it through the Jacobian."
                     )
+                assert self._scratch is not None  # declared with the plant
                 pctx = self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
                 if self.measured_position_input.HasValue(context):
                     q = self.measured_position_input.Eval(context)

@@ -120,7 +120,9 @@ class PerceivedColumns(LeafSystem):
                 scene_graph.AssignRole(self.source_id, gid, ProximityProperties())
                 self.frame_ids.append(frame)
                 self.geometry_ids.append(gid)
-        self._last = None  # (map, its tiles): a memo of the last map seen (it says nothing about the context)
+        self._last: tuple[ObstacleMap, tuple[list, int]] | None = (
+            None  # (map, its tiles): a memo of the last map seen (it says nothing about the context)
+        )
         self.obstacle_map_input = self.DeclareAbstractInputPort(
             "obstacle_map", AbstractValue.Make(ObstacleMap.empty(grid))
         )

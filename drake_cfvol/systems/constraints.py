@@ -137,7 +137,7 @@ class FilterConstraint:
     #: :func:`~.filter_kernel.stack_rows` makes for them, so that an update
     #: stacks them in one compiled call; None for any other (its
     #: :meth:`rows` are called).
-    stack = None
+    stack: int | None = None
 
     def rows(self, step: FilterStep) -> tuple[np.ndarray, np.ndarray]:
         """(A (m, k), b (m,)) at this update, to first order."""

@@ -7,7 +7,7 @@ row (:class:`VelocityDamper`).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
@@ -265,7 +265,8 @@ class VelocityDamper:
         measured[look] = True
         # The near pairs' Drake results, for the kernel's rows (index, distance,
         # normal, witnesses) or, for the few it cannot make, Drake's (slow).
-        near, slow = [], []
+        near: list[int] = []
+        slow: list[tuple[int, Any]] = []
         N = len(look)
         dist, normal, witness = np.empty(N), np.empty((N, 3)), np.empty((N, 2, 3))
         for index in look.tolist():

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from drake_cfvol.kernel import Chain
 from drake_cfvol.kernel.kinematics import fk_into
 from drake_cfvol.scene.arrays import robot_chain
 
@@ -196,7 +197,7 @@ class SlotKinematics:
         #: turns by at most the sum of their |dq_j| in a step dq).
         self.rev = (self._moves & revolute).astype(float)
 
-    def compiled(self) -> tuple:
+    def compiled(self) -> tuple[Chain, np.ndarray, np.ndarray, np.ndarray]:
         """(chain, the slots' bodies in it, scratch poses): the arguments of
         the compiled code that poses the slots."""
         return self._chain, self._body, self._R_WB, self._p_WB

@@ -1,6 +1,8 @@
 """Clearance, collision and volume contact through a SceneGraph's query
 port."""
 
+from typing import Any
+
 import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.geometry import QueryObject, Role
@@ -66,19 +68,20 @@ class ClearanceMonitor(LeafSystem):
         self._robot = frozenset(robot_ids)
         self._moving = frozenset(moving_ids)
         self._volume = frozenset(volume_ids)
-        self._obstacles = None if obstacle_ids is None else frozenset(obstacle_ids)
+        obstacles = None if obstacle_ids is None else frozenset(obstacle_ids)
+        self._obstacles = obstacles
         self._ignored = frozenset((a, b) for a, b in ignored_pairs) | frozenset((b, a) for a, b in ignored_pairs)
         self._pairs = (
             None
-            if obstacle_ids is None
+            if obstacles is None
             else [
                 (a, b)
                 for a in sorted(self._moving, key=lambda g: g.get_value())
-                for b in sorted(self._obstacles, key=lambda g: g.get_value())
+                for b in sorted(obstacles, key=lambda g: g.get_value())
                 if (a, b) not in self._ignored
             ]
         )
-        self._memo = None  # min_distance's pair memo (see the class docs)
+        self._memo: dict[str, Any] | None = None  # min_distance's pair memo (see the class docs)
         #: Signed-distance queries of single pairs made so far (for tests and benchmarks).
         self.pair_queries = 0
         if not self._moving <= self._robot:
@@ -132,6 +135,7 @@ class ClearanceMonitor(LeafSystem):
         pair's two rows, each end's radius about its origin (m; 1e300 where
         Drake gives no bounding box), the pairs' last distances (-inf: none
         yet) and the two poses they were measured at."""
+        assert self._pairs is not None  # min_distance asks only with the pairs named
         inspector = query.inspector()
         version = inspector.geometry_version()
         memo = self._memo
@@ -163,6 +167,7 @@ class ClearanceMonitor(LeafSystem):
         shows cannot be the smallest (see the class docs): each end's
         points moved at most the origin's displacement plus the rotation's
         change (Frobenius norm, >= its spectral norm) times its radius."""
+        assert self._pairs is not None  # min_distance asks only with the pairs named
         memo = self._pair_memo(query)
         X = memo["X"]
         for n, g in memo["posed"]:

@@ -151,6 +151,8 @@ class MovingBoxes(LeafSystem):
         touches, at its top (rounded up to the height step), lent to the
         neighbours as the camera's map is (``params.dilation``)."""
         g, p = self.grid, self.params
+        if g is None:
+            raise ParameterError("MovingBoxes.obstacle_map needs the grid: give MovingBoxes(grid=..., params=...).")
         H = np.zeros(g.shape)
         for o in self.obstacles:
             c, half = o.position(t), np.asarray(o.box, float) / 2

@@ -5,6 +5,7 @@ that Drake's Python-valued ports copy cheaply (:func:`cheaply_copied`)."""
 from __future__ import annotations
 
 import copy
+from typing import Any
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -24,7 +25,7 @@ def _copy_field(value):
     return copy.deepcopy(value)  # a nested message
 
 
-def cheaply_copied(lcm_type):
+def cheaply_copied(lcm_type: Any) -> type:
     """A subclass of a Python LCM message type whose messages copy field by
     field (numbers and tuples, as LCM decodes number arrays, shared; lists
     copied; nested messages deep-copied): a Python-valued port holding a message (an
