@@ -16,7 +16,7 @@ from pydrake.geometry import SceneGraph
 from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlant
 from pydrake.multibody.tree import Frame, ModelInstanceIndex
-from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.framework import DiagramBuilder, InputPort, LeafSystem, OutputPort
 from pydrake.systems.primitives import Adder, Demultiplexer
 
 from drake_cfvol.algorithm.table import check_table
@@ -56,16 +56,16 @@ class CoManipulationSystems:
             count, the bounds); ``safety`` is None without the filter.
     """
 
-    human_wrench_input: object
-    human_torque_input: object
-    desired_state_output: object
-    commanded_position_output: object
-    path_index_output: object
+    human_wrench_input: InputPort
+    human_torque_input: InputPort
+    desired_state_output: OutputPort
+    commanded_position_output: OutputPort
+    path_index_output: OutputPort
     duration: float
     progress: PathProgress
     bounds: JointBoundsSource
     check: HumanInputCheck
-    admittance: object
+    admittance: LeafSystem  # an AdmittanceDeformation (a template's instantiation: no static type)
     safety: SafetyFilter | None
 
 
