@@ -27,6 +27,7 @@ import os
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -34,6 +35,9 @@ import yaml
 from drake_cfvol.exceptions import BatchError, CfvolError, ScenarioError
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.io.records import path_label, prepare_outputs
+
+if TYPE_CHECKING:  # imported where used: `cfvol batch --help` loads no Drake
+    from drake_cfvol.algorithm.table import BoundsTable
 
 __all__ = [
     "BatchSettings",
@@ -127,7 +131,7 @@ class JobResult:
 
     job: Job
     summary: dict
-    table: object
+    table: "BoundsTable"
 
 
 def _checked_settings(jobs: BatchJobs, file) -> None:
@@ -190,7 +194,7 @@ def expand_jobs(jobs: BatchJobs, base_dir: Path | None = None) -> list[Job]:
     from drake_cfvol.scene.schema import builtin_cells
 
     labels = [path_label(label) for label in jobs.paths]
-    out = []
+    out: list[Job] = []
     for cell in jobs.cells:
         if cell not in builtin_cells():
             p = cell_file(str(Path(cell).expanduser()), base_dir)
@@ -240,7 +244,8 @@ def _run_job(job: Job, threads: int | None) -> JobResult:
     if threads is not None:
         import numba
 
-        numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+        # numba sets its config's names at run time (from the environment): no stub has them.
+        numba.set_num_threads(max(1, min(int(threads), getattr(numba.config, "NUMBA_NUM_THREADS"))))
     s = job.setting
     wc = _workcell(job.cell)
     t0 = time.perf_counter()
@@ -250,7 +255,7 @@ def _run_job(job: Job, threads: int | None) -> JobResult:
         if s.certify
         else None
     )
-    extra = {} if s.clearance is None else {"clearance": s.clearance}
+    extra: dict[str, Any] = {} if s.clearance is None else {"clearance": s.clearance}
     table = estimate_bounds(wc, path, resolution=s.resolution, certify=certify, **extra)
     t_cf = time.perf_counter()
     cf = confidence_factor(wc, table, windows=s.cf_windows, samples=s.cf_samples, seed=s.seed)
@@ -362,7 +367,7 @@ def run_batch(
             for job in jobs:
                 out[job.index] = run_job(job)
                 bar.update(1)
-            return out
+            return _every_job(out)
         own = client is None
         cluster = None
         if own:
@@ -383,7 +388,14 @@ def run_batch(
                     cluster.close()
     finally:
         bar.close()
-    return out
+    return _every_job(out)
+
+
+def _every_job(out: list[JobResult | None]) -> list[JobResult]:
+    """The results, every job's slot filled (run_batch ran them all)."""
+    done = [r for r in out if r is not None]
+    assert len(done) == len(out)
+    return done
 
 
 def output_files(jobs: list[Job], out: str | Path, *, overwrite: bool = False) -> dict:

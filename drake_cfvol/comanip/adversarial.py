@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -164,8 +165,17 @@ def steady_push_runs(
         for seed in seeds:
             signs, text = _push_text(wc, path, pattern, seed, len(seeds), torque, certify, safety_filter, clearance)
             # Logs only, in its own temporary folder: each run replaces the last one's files.
-            logs_only = {"record": False, "plot": False, "svg": False, "overwrite": True}
-            s = run_scenario(name, tmp, path=path, bounds=bounds, scenario_text=text, **logs_only)
+            s = run_scenario(
+                name,
+                tmp,
+                path=path,
+                bounds=bounds,
+                scenario_text=text,
+                record=False,
+                plot=False,
+                svg=False,
+                overwrite=True,
+            )
             logs = np.load(Path(tmp) / "logs.npz")
             margin = s["filter_clearance_m"] if s["filter_clearance_m"] is not None else margin_default
             row = {
@@ -324,7 +334,7 @@ def adversarial_suite(cell: str, runs: int = 16, patterns=PATTERNS, *, torque: f
     t0 = time.perf_counter()
     tables["certified"] = estimate_bounds(wc, path, **params, certify=Certify(seed=scenario.random_seed))
     certify_s = time.perf_counter() - t0
-    out = {
+    out: dict[str, Any] = {
         "cell": cell,
         "clearance_m": float(tables["certified"].params.get("clearance", 0.0)),
         "certify_s": certify_s,

@@ -2,6 +2,7 @@
 error names the file, the field (list items counted from 1) and the fix."""
 
 import dataclasses
+import typing
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +80,10 @@ def check_scenario_against_cell(scenario, workcell, file: Path | None = None) ->
             raise ScenarioError(where, name, f"has {len(values)} values; the robot has {k} joints ({names})")
 
 
+@typing.overload
+def scenario_file_path(name: str, base_dir: Path | None) -> Path: ...
+@typing.overload
+def scenario_file_path(name: None, base_dir: Path | None) -> None: ...
 def scenario_file_path(name: str | None, base_dir: Path | None) -> Path | None:
     """A file named by a scenario (relative: from the scenario's folder)."""
     if name is None:

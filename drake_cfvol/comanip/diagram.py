@@ -13,6 +13,7 @@ import numpy as np
 from pydrake.common import RandomDistribution
 from pydrake.geometry import (
     IllustrationProperties,
+    Meshcat,
     MeshcatVisualizer,
     MeshcatVisualizerParams,
     Rgba,
@@ -24,9 +25,15 @@ from pydrake.lcm import DrakeLcm
 from pydrake.manipulation import IiwaDriver
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.multibody.tree import ModelInstanceIndex
-from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import Adder, LogVectorOutput, RandomSource, StateInterpolatorWithDiscreteDerivative
+from pydrake.multibody.tree import ModelInstanceIndex, RigidBody
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import (
+    Adder,
+    LogVectorOutput,
+    RandomSource,
+    StateInterpolatorWithDiscreteDerivative,
+    VectorLogSink,
+)
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 from pydrake.visualization import VisualizationConfig
 
@@ -34,6 +41,7 @@ from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
 from drake_cfvol.algorithm.reference import register_volume_boxes
 from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
+from drake_cfvol.algorithm.table import BoundsTable
 from drake_cfvol.algorithm.volume import build_volume, height_map_of
 from drake_cfvol.comanip.checks import cell_file, looks_like_path
 from drake_cfvol.comanip.dynamics import _control_plant, add_driver, add_simulated_plant, driver_of
@@ -118,16 +126,16 @@ class Comanipulation:
         control: what :func:`~drake_cfvol.systems.AddCoManipulation` added.
     """
 
-    diagram: object
+    diagram: Diagram
     scenario: Scenario
-    workcell: object
-    path: object
-    bounds: object
-    plant: object
-    scene_graph: object
-    loggers: dict
+    workcell: Workcell
+    path: NominalPath
+    bounds: BoundsTable
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    loggers: dict[str, VectorLogSink]
     progress: PathProgress
-    meshcat: object = None
+    meshcat: Meshcat | None = None
     volume_boxes: dict = dataclasses.field(default_factory=dict)
     build_ms: dict = dataclasses.field(default_factory=dict)
     filter_clearance: float | None = None
@@ -336,13 +344,13 @@ def _workcell_path_bounds(scenario: Scenario, base_dir, file, path, bounds, prog
 class Scene(typing.NamedTuple):
     """The plant side of a co-manipulation diagram."""
 
-    plant: object
-    scene_graph: object
-    robot: object
+    plant: MultibodyPlant
+    scene_graph: SceneGraph
+    robot: ModelInstanceIndex
     volume_ids: list
     merge_info: dict
     models: list  # Drake's ModelInstanceInfo of the cell's models (a dynamic run's)
-    hand: object  # the co-worker's hand body, or None
+    hand: RigidBody | None  # the co-worker's hand body
 
 
 def _add_scene(builder, wc, vb, scenario, q0) -> Scene:

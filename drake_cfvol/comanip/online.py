@@ -79,7 +79,7 @@ def map_grid(workcell, cell: float) -> MapGrid:
     if len(rev):
         j = int(rev[0])
         body = int(a.joint_body[j])
-        ends = []
+        end_rows = []
         q0 = np.zeros(workcell.num_joints)
         rail = workcell.joint_names.index(workcell.rail_joint) if workcell.rail_joint is not None else None
         for v in (workcell.position_lower[rail], workcell.position_upper[rail]) if rail is not None else (0.0,):
@@ -87,8 +87,8 @@ def map_grid(workcell, cell: float) -> MapGrid:
             if rail is not None:
                 q[rail] = v
             _, p_WB = a.fk(q[None])
-            ends.append(p_WB[0, body, :2])
-        ends = np.array(ends)
+            end_rows.append(p_WB[0, body, :2])
+        ends = np.array(end_rows)
         r = float(a.reach[j].max()) + float(np.linalg.norm(a.p_MB[body]))  # from the body origin
         lo, hi = np.minimum(lo, ends.min(axis=0) - r), np.maximum(hi, ends.max(axis=0) + r)
     return MapGrid.covering(lo - 0.5, hi - lo + 1.0, cell)

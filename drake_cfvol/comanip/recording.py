@@ -149,7 +149,7 @@ def animate_columns(
                 continue
             visible = pose is not None
             anim.SetProperty(frame, path, "visible", visible)
-            if visible:
+            if pose is not None:
                 anim.SetTransform(frame, path, RigidTransform(list(pose[:3])))
                 anim.SetProperty(frame, path, "scale", [1.0, 1.0, max(pose[3], 1e-3)])
         shown = now

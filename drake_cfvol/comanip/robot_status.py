@@ -13,7 +13,7 @@ import typing
 from pydrake.geometry import SceneGraph
 from pydrake.lcm import DrakeLcm
 from pydrake.multibody.plant import MultibodyPlant
-from pydrake.systems.framework import DiagramBuilder, InputPort, LeafSystem, OutputPort
+from pydrake.systems.framework import DiagramBuilder, InputPort, LeafSystem, OutputPort, System
 from pydrake.systems.lcm import LcmPublisherSystem, LcmSubscriberSystem
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
@@ -158,9 +158,9 @@ def add_lcm_controller(
     config: CoManipulationConfig,
     name: str,
     status_period: float,
-    add_interface: typing.Callable[[CoManipulationSystems], object],
+    add_interface: typing.Callable[[CoManipulationSystems], System],
     who: str,
-) -> tuple[CoManipulationSystems, object]:
+) -> tuple[CoManipulationSystems, System]:
     """The co-manipulation controller of a torque-sensing arm that talks to
     it over LCM only: its own SceneGraph with the workcell (a plant posed
     from the status's measured positions, never simulated),
@@ -214,6 +214,7 @@ def add_lcm_controller(
     builder.Connect(measured, to_pose.get_input_port())
     builder.Connect(to_pose.get_output_port(), scene_graph.get_source_pose_port(plant.get_source_id()))
     builder.Connect(measured, cm.admittance.measured_position_input)
+    assert cm.safety is not None  # config.safety_filter given (checked above)
     builder.Connect(measured, cm.safety.measured_position_input)
     builder.Connect(status.get_torque_external_output_port(), cm.human_torque_input)
     return cm, status

@@ -77,7 +77,7 @@ def _loadable(cls, name: str, doc: str, *, optional: bool = False, exclude=()):
     defaults stay written once. ``optional``: every field may be null (the
     default), meaning "not given"."""
     hints = typing.get_type_hints(cls)
-    fields = []
+    fields: list[tuple[str, typing.Any, typing.Any]] = []
     for f in dataclasses.fields(cls):
         if f.name in exclude:
             continue
@@ -91,22 +91,25 @@ def _loadable(cls, name: str, doc: str, *, optional: bool = False, exclude=()):
     return out
 
 
-#: The volume's parameters a scenario sets (``bounds.params``): the fields of
-#: :class:`~drake_cfvol.VolumeParams` but ``resolution`` (``bounds.resolution``),
-#: each null (not given: the cell's ``cfvol.params``, else the default).
-VolumeParamsConfig = _loadable(
-    VolumeParams,
-    "VolumeParamsConfig",
-    "The fields of VolumeParams a scenario overrides (null: not given).",
-    optional=True,
-    exclude=("resolution",),
-)
-
-#: The certificate's settings (``bounds.certify``): the fields of
-#: :class:`~drake_cfvol.Certify` but ``seed`` (the scenario's ``random_seed``).
-CertifyConfig = _loadable(
-    Certify, "CertifyConfig", "The fields of Certify but seed (the scenario's random_seed).", exclude=("seed",)
-)
+if typing.TYPE_CHECKING:  # classes made at import: the type checker takes them as Any
+    VolumeParamsConfig = typing.Any
+    CertifyConfig = typing.Any
+else:
+    #: The volume's parameters a scenario sets (``bounds.params``): the fields of
+    #: :class:`~drake_cfvol.VolumeParams` but ``resolution`` (``bounds.resolution``),
+    #: each null (not given: the cell's ``cfvol.params``, else the default).
+    VolumeParamsConfig = _loadable(
+        VolumeParams,
+        "VolumeParamsConfig",
+        "The fields of VolumeParams a scenario overrides (null: not given).",
+        optional=True,
+        exclude=("resolution",),
+    )
+    #: The certificate's settings (``bounds.certify``): the fields of
+    #: :class:`~drake_cfvol.Certify` but ``seed`` (the scenario's ``random_seed``).
+    CertifyConfig = _loadable(
+        Certify, "CertifyConfig", "The fields of Certify but seed (the scenario's random_seed).", exclude=("seed",)
+    )
 
 
 @dataclasses.dataclass
@@ -525,7 +528,11 @@ def load_scenario(
 
 def _replace(obj, names: list[str], value, file, key: str):
     """A copy of ``obj`` with the dotted field ``names`` set to ``value``."""
-    if not dataclasses.is_dataclass(obj) or names[0] not in {f.name for f in dataclasses.fields(obj)}:
+    if (
+        not dataclasses.is_dataclass(obj)
+        or isinstance(obj, type)
+        or names[0] not in {f.name for f in dataclasses.fields(obj)}
+    ):
         raise ScenarioError(file, key, "is not a field of Scenario")
     if len(names) == 1:
         return dataclasses.replace(obj, **{names[0]: value})
