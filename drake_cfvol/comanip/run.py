@@ -289,11 +289,6 @@ def run_problems(summary: dict) -> list[str]:
         ratio = summary.get(f"max_{key}_ratio", 0.0)
         if ratio > 1.0 + 1e-6 and summary.get("safety_filter", True):
             out.append(f"a joint {what} {ratio:.2f} x its {key} limit")
-    if summary.get("braking_faults", 0):
-        out.append(
-            f"the command braked at its limits at {summary['braking_faults']} update(s): the margin could not be "
-            "kept within the acceleration and jerk limits"
-        )
     if summary.get("max_bound_violation", 0.0) > 1e-6 and not summary.get("filter_box_exits", 0):
         out.append(
             f"the command left the bounds table by {summary['max_bound_violation']:.2e} rad (m) "

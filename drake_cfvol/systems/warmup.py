@@ -104,6 +104,8 @@ def _two_link_run() -> None:
         diagram.GetInputPort(name).FixValue(ctx, np.asarray(value, float))
     diagram.GetInputPort("nominal").FixValue(ctx, np.asarray(q0, float))
     sim.AdvanceTo(0.05)
+    # A hold's braking calls this from Python (the update only from compiled code).
+    filter_kernel.hard_interval(np.ones(2), 1e-3, np.zeros(2), np.zeros(2), np.full(2, 10.0), np.full(2, 500.0))
 
 
 def warm_up() -> float:
