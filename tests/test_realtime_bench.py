@@ -1,36 +1,170 @@
 """The control-rate benchmark (benchmarks/realtime.py) on a tiny run: its
-figures are consistent with the run they come from (no timing is asserted)."""
+figures are consistent with the run they come from and with figures worked
+out by hand (no timing is asserted)."""
 
 import numpy as np
 import pytest
 
-from benchmarks.realtime import RealtimeBenchConfig, realtime_markdown, realtime_targets, run_realtime_bench
+from benchmarks.realtime import (
+    RealtimeBenchConfig,
+    _cell,
+    bench_limits,
+    desired_motion,
+    diffik_case,
+    motion_figures,
+    push_share,
+    realtime_markdown,
+    realtime_targets,
+    run_case,
+    run_realtime_bench,
+    steady_torque,
+)
+
+# 1 s of motion: long enough that the push, not the path's start, sets the share.
+TINY = RealtimeBenchConfig(cells=["automotive"], periods=[0.01], updates=100, repeats=1, iiwa=False, probe_cells=[])
 
 
 @pytest.fixture(scope="module")
 def tiny():
-    cfg = RealtimeBenchConfig(cells=["automotive"], periods=[0.001], pushes=["steady"], updates=40, repeats=1)
-    return run_realtime_bench(cfg, progress=False)
+    return run_realtime_bench(TINY, progress=False)
+
+
+@pytest.fixture(scope="module")
+def automotive():
+    return _cell("automotive", TINY)
 
 
 def test_rows_are_consistent(tiny):
-    """One row per (cell, period, push, seed); median <= p99 <= max of the
-    step times; each system's own time is at most the step's; the filter
-    measured at most its pairs and kept the velocity limits."""
-    (row,) = tiny["runs"]
-    assert row["steps"] == 40 and row["period_s"] == 0.001 and row["push"] == "steady"
-    assert 0 < row["median_s"] <= row["p99_s"] <= row["max_s"]
+    """One row per (cell, period, push, seed) and run kind; median <= p99
+    <= max of the step times; each system's own time is at most the step's;
+    the filter measured at most its pairs and kept the velocity limits."""
+    rows = {r["variant"]: r for r in tiny["runs"]}
+    assert set(rows) == {"ours", "ours, no a/j limits", "Drake DiffIK"}
+    for row in rows.values():
+        assert row["steps"] == 100 and row["period_s"] == 0.01 and row["push"] == "steady"
+        assert 0 < row["median_s"] <= row["p99_s"] <= row["max_s"]
+    row = rows["ours"]
     assert set(row["per_system"]) >= {"safety filter", "admittance", "bounds", "input check"}
     assert sum(s["median_s"] for s in row["per_system"].values()) <= row["max_s"]
     assert 0 <= row["distance_pairs_per_update"] <= row["num_pairs"]
-    assert row["max_velocity_ratio"] <= 1.0 and np.isfinite(row["min_distance_m"])
+    assert row["filter_velocity_ratio"] <= 1.0 and np.isfinite(row["min_distance_m"])
+
+
+def test_motion_fields_present_and_consistent(tiny):
+    """Every run reports the motion's figures: the ratios agree with the
+    rad/s^2 and rad/s^3 figures and the cell's limits, the p99 of the
+    velocity change is at most its max; our filter with the limits keeps
+    them (ratios <= 1 + 1e-6); shares lie in [0, 1.2]; the collision
+    figures are Drake's (none deeper than the closest approach)."""
+    wc, _ = _cell("automotive", TINY)
+    a, j, source = bench_limits(wc)
+    assert source == "opt-in"  # the automotive cell gives no acceleration limits
+    np.testing.assert_allclose(a, np.asarray(wc.velocity_limits) / 0.2)
+    np.testing.assert_allclose(j, a / 0.02)
+    for row in tiny["runs"]:
+        for key in ("max_acceleration", "max_jerk", "dv_ratio_max", "dv_ratio_p99", "share", "collisions"):
+            assert key in row, (row["variant"], key)
+        assert row["max_acceleration_ratio"] <= row["max_acceleration"] / a.min() + 1e-9
+        assert row["max_acceleration_ratio"] >= row["max_acceleration"] / a.max() - 1e-9
+        assert row["max_jerk_ratio"] <= row["max_jerk"] / j.min() + 1e-9
+        assert 0 <= row["dv_ratio_p99"] <= row["dv_ratio_max"]
+        assert 0.0 <= row["share"] <= 1.2
+        assert row["deepest_m"] <= 0.0 and row["deepest_m"] <= row["drake_min_distance_m"]
+        assert (row["collisions"] > 0) == (row["drake_min_distance_m"] < 0)
+    ours = next(r for r in tiny["runs"] if r["variant"] == "ours")
+    assert max(ours["max_velocity_ratio"], ours["max_acceleration_ratio"], ours["max_jerk_ratio"]) <= 1 + 1e-6
+    assert ours["braking_faults"] >= 0 and ours["limits"] == "opt-in"
 
 
 def test_targets_and_markdown(tiny):
-    """A target line per 1 ms (cell, push), met iff both figures are within
-    the targets; the table has a line per summary row."""
-    ((name, met, text),) = realtime_targets(tiny)
-    s = tiny["summary"][0]
-    assert met == (s["median_s"] <= 0.5e-3 and s["p99_s"] <= 1e-3) and "automotive steady" in name
+    """Target lines for our filter's run only; the limits' line is met iff
+    every ratio is; at 1 ms (the tiny run's summary moved there) the step's
+    line is met iff both figures are within the targets; the tables have a
+    line per summary row."""
+    targets = {name: (met, text) for name, met, text in realtime_targets(tiny)}
+    s = next(x for x in tiny["summary"] if x["variant"] == "ours")
+    limits = targets["automotive steady 10 ms: velocity, acceleration and jerk within the limits"][0]
+    assert limits == (max(s["max_velocity_ratio"], s["max_acceleration_ratio"], s["max_jerk_ratio"]) <= 1 + 1e-6)
+    assert "automotive steady 10 ms: share of the push passed >= 0.9x before" in targets
+    assert not any(name.endswith(": step") for name in targets)  # the step's target is at 1 ms
+    at_1ms = {**tiny, "summary": [{**x, "period_s": 0.001} for x in tiny["summary"]]}
+    step = {name: met for name, met, _ in realtime_targets(at_1ms)}["automotive steady 1 ms: step"]
+    assert step == (s["median_s"] <= 0.5e-3 and s["p99_s"] <= 1e-3)
     md = realtime_markdown(tiny)
-    assert md.count("| automotive | 1 ms | steady |") == 1
+    assert md.count("| automotive | 10 ms | ours |") == 1
+    assert md.count("| automotive | 10 ms | Drake DiffIK |") == 1
+    assert md.count("| automotive | 10 ms | ours, steady |") == 1  # the timing table
+
+
+def test_motion_figures_by_hand():
+    """One joint moved by d in one update, then held: velocity d/h, then an
+    acceleration of d/h^2 and -d/h^2, so a jerk of up to 2 d/h^3; the
+    velocity's change per update is d/h at most."""
+    h, d = 0.01, 0.003
+    q = np.array([[d], [d], [d]])
+    f = motion_figures(q, [0.0], h, [1.0], [0.5 * d / h**2], [d / h**3])
+    assert f["max_velocity_ratio"] == pytest.approx(d / h)
+    assert f["max_acceleration"] == pytest.approx(d / h**2)
+    assert f["max_acceleration_ratio"] == pytest.approx(2.0)
+    assert f["max_jerk"] == pytest.approx(2 * d / h**3)
+    assert f["max_jerk_ratio"] == pytest.approx(2.0)
+    assert f["dv_ratio_max"] == pytest.approx(d / h)
+    inf = motion_figures(q, [0.0], h, [np.inf], [np.inf], [np.inf])
+    assert inf["max_acceleration_ratio"] == 0.0 and inf["max_acceleration"] == pytest.approx(d / h**2)
+
+
+def test_push_share_is_least_squares():
+    """The share is the factor c minimising |achieved - c desired|^2: a
+    scaled push gives its scale, a part orthogonal to the push adds nothing,
+    and numpy's least squares agrees on a random case."""
+    rng = np.random.default_rng(0)
+    desired = rng.normal(size=(30, 6))
+    assert push_share(0.7 * desired, desired) == pytest.approx(0.7)
+    other = rng.normal(size=(30, 6))
+    other -= desired * np.sum(other * desired) / np.sum(desired * desired)
+    assert push_share(0.4 * desired + other, desired) == pytest.approx(0.4)
+    achieved = rng.normal(size=(30, 6))
+    c = np.linalg.lstsq(desired.reshape(-1, 1), achieved.reshape(-1), rcond=None)[0][0]
+    assert push_share(achieved, desired) == pytest.approx(c)
+    assert np.isnan(push_share(achieved, np.zeros_like(achieved)))
+
+
+def test_desired_motion_by_hand(automotive):
+    """The admittance's first update from rest (semi-implicit Euler): rate
+    h tau / M, deviation h^2 tau / M; none before it; the nominal at update
+    i is the table's at the path index one period later."""
+    wc, table = automotive
+    h, tau = 0.01, steady_torque(table.k, 2.0, 0)
+    nominal, deviation = desired_motion(wc, table, period=h, steps=5, tau=tau)
+    assert np.all(deviation[0] == 0.0)
+    np.testing.assert_allclose(deviation[1], h * h * tau / 10.0, rtol=1e-12)  # AdmittanceConfig's mass, 10
+    assert np.all(np.abs(deviation[2]) > np.abs(deviation[1]))
+    assert not np.allclose(nominal[0], table.nominal[0])  # it moved during the first period
+    np.testing.assert_allclose(nominal[0], table.at(_index_after(wc, table, h))[2])
+    np.testing.assert_allclose(nominal[4], table.at(_index_after(wc, table, 5 * h))[2])
+
+
+def _index_after(wc, table, t):
+    """The path index at time t, as AddCoManipulation's path progress runs it."""
+    from drake_cfvol.systems import PathProgress, safe_path_rate
+
+    return PathProgress(table.g, rate=safe_path_rate(table, wc.velocity_limits)).index_at(t)
+
+
+def test_small_push_passes_whole(automotive):
+    """A push too small to reach the box or the damper: our filter without
+    the limits passes all of it (share 1: the command's deviation is the
+    admittance's, update for update), and Drake's DiffIK, tracking the same
+    motion's tool pose, nearly all of it."""
+    wc, table = automotive
+    h, steps = 0.01, 30
+    tau = steady_torque(table.k, 20.0, 1)
+    nominal, deviation = desired_motion(wc, table, period=h, steps=steps, tau=tau)
+    motion = (nominal, deviation, 0.0)
+    ours = run_case(
+        wc, table, period=h, push="steady", updates=steps, torque=20.0, seed=1, motion=motion, instrument=False
+    )
+    assert ours["filter_active_share"] == 0.0
+    assert ours["share"] == pytest.approx(1.0, abs=1e-9)
+    drake = diffik_case(wc, table, period=h, steps=steps, motion=motion, seed=1)
+    assert drake["share"] == pytest.approx(1.0, abs=0.05) and drake["collisions"] == 0

@@ -30,7 +30,7 @@ BENCH_RUNS = {
     "default": "cfvol bench",
     "kernel": "cfvol bench --kernel",
     "adversarial": "cfvol bench --adversarial-only --adversarial-runs 16",
-    "realtime": "cfvol bench --realtime --trials 2",
+    "realtime": "cfvol bench --realtime",
     "iris": "cfvol bench --iris --cells automotive mesh --trials 1",
 }
 BENCH_HEADER = (
