@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from numba import njit
 from pydrake.trajectories import PiecewisePolynomial
 
@@ -463,7 +464,7 @@ class BoundsTable:
         """The path parameter of each waypoint: 0 .. g-1."""
         return np.arange(self.g, dtype=float)
 
-    def at(self, s: float):
+    def at(self, s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(lower, upper, nominal) at path parameter s in [0, g-1]."""
         return box_at(
             self.lower,
@@ -476,7 +477,7 @@ class BoundsTable:
             interpolation=self.interpolation,
         )
 
-    def boxes_at(self, s: np.ndarray):
+    def boxes_at(self, s: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`at` for many s at once: three (n, k) arrays."""
         return box_at(
             self.lower,

@@ -201,7 +201,7 @@ def run_scenario(
         "faults": _count(cm, ctx, "fault_count"),
         "filter_fault": FAULTS.get(_count(cm, ctx, "filter_fault")),
         "ended_s": ctx.get_time(),
-        "safety_filter": cm.control.safety is not None,
+        "safety_filter": cm.control is not None and cm.control.safety is not None,
         "filter_clearance_m": cm.filter_clearance,
         "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
         "n_boxes": cm.bounds.info["n_boxes"],

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
 from pydrake.geometry import GeometryId, SceneGraph
 from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import Frame, ModelInstanceIndex
@@ -235,7 +236,7 @@ class WorkcellQueries:
         return self._cache[key]
 
     def obstacle_distances(
-        self, q, max_distance: float, *, moving_only: bool = False, changeable_only: bool = False
+        self, q: npt.ArrayLike, max_distance: float, *, moving_only: bool = False, changeable_only: bool = False
     ) -> dict[str, float]:
         """Smallest signed distance per obstacle to the robot at ``q`` (real
         geometry, Drake), for the obstacles within ``max_distance``, m. With
@@ -263,7 +264,9 @@ class WorkcellQueries:
             out[name] = min(out.get(name, np.inf), pair.distance)
         return out
 
-    def nearest_obstacle(self, q, max_distance: float = 5.0):
+    def nearest_obstacle(
+        self, q: npt.ArrayLike, max_distance: float = 5.0
+    ) -> tuple[str, float, np.ndarray, np.ndarray] | None:
         """The obstacle nearest to the robot's moving links at ``q`` (Drake,
         real geometry), among the pairs whose distance a joint motion
         changes (:meth:`invariant_pairs`).
@@ -290,6 +293,7 @@ class WorkcellQueries:
             )
             if robot_id in fixed or (robot_id, obs_id) in invariant:
                 continue
+            assert name is not None  # one of the two is an obstacle (checked above)
             if best is None or pair.distance < best[1]:
                 best = (name, pair.distance, query.GetPoseInWorld(robot_id) @ p_R, query.GetPoseInWorld(obs_id) @ p_O)
         return best
@@ -352,11 +356,11 @@ class WorkcellQueries:
         return len(self.joint_names)
 
     @property
-    def context(self):
+    def context(self) -> Context:
         """A diagram context owned by the workcell (do not keep references)."""
         return self._context
 
-    def plant_context(self, q: np.ndarray | None = None):
+    def plant_context(self, q: npt.ArrayLike | None = None) -> Context:
         """Returns the workcell's plant context, set to ``q`` if given."""
         ctx = self.plant.GetMyMutableContextFromRoot(self._context)
         if q is not None:
@@ -364,12 +368,12 @@ class WorkcellQueries:
         return ctx
 
     @property
-    def checker(self):
+    def checker(self) -> SceneGraphCollisionChecker:
         """A Drake ``SceneGraphCollisionChecker`` of the real scene (obstacles
         + self-collision, adjacent links filtered)."""
         return self.padded_checker(0.0)
 
-    def padded_checker(self, clearance: float):
+    def padded_checker(self, clearance: float) -> SceneGraphCollisionChecker:
         """A ``SceneGraphCollisionChecker`` that calls a configuration nearer
         than ``clearance`` (m) to an obstacle or to the robot itself
         colliding (Drake's collision padding); one per distinct value."""
@@ -395,7 +399,7 @@ class WorkcellQueries:
             lambda: KernelFirstChecker(self, self.padded_checker(clearance), clearance),
         )
 
-    def clearance(self, q, influence: float = 1.0) -> float:
+    def clearance(self, q: npt.ArrayLike, influence: float = 1.0) -> float:
         """The robot's signed distance to the obstacles and to itself at
         ``q`` (m; the smallest pair, by Drake; ``influence`` if none is
         nearer)."""
@@ -414,7 +418,7 @@ class WorkcellQueries:
         return self.position_lower.copy(), self.position_upper.copy()
 
     def validate_configuration(
-        self, q, what: str = "configuration", *, check_limits: bool = True, tolerance: float = 1e-9
+        self, q: npt.ArrayLike, what: str = "configuration", *, check_limits: bool = True, tolerance: float = 1e-9
     ) -> np.ndarray:
         """Checks a configuration's size and limits; returns it as an array.
 
@@ -443,7 +447,7 @@ class WorkcellQueries:
                     raise JointLimitError(what, n, float(v), float(lo), float(hi))
         return q
 
-    def colliding_pairs(self, q) -> list[tuple[str, str]]:
+    def colliding_pairs(self, q: npt.ArrayLike) -> list[tuple[str, str]]:
         """Names the pairs of bodies in collision at ``q`` (real scene)."""
         self.plant_context(q)
         sg_context = self.scene_graph.GetMyContextFromRoot(self._context)
@@ -456,7 +460,7 @@ class WorkcellQueries:
             pairs.add(tuple(sorted((a, b))))
         return sorted(pairs)
 
-    def collision_free(self, Q, *, clearance: float = 0.0) -> np.ndarray:
+    def collision_free(self, Q: npt.ArrayLike, *, clearance: float = 0.0) -> np.ndarray:
         """Which configurations are certainly free: the compiled kernel's
         batch check, for your own sampling and planners.
 
@@ -492,11 +496,11 @@ class WorkcellQueries:
             raise ParameterError(f"clearance must be >= 0 m, got {clearance}.")
         return ~self.scene_arrays().may_collide(np.atleast_2d(Q), float(clearance))
 
-    def is_free(self, q) -> bool:
+    def is_free(self, q: npt.ArrayLike) -> bool:
         """True if ``q`` is free of collision with the real scene."""
         return bool(self.checker.CheckConfigCollisionFree(real_array(q, "q")))
 
-    def require_free(self, q, what: str) -> None:
+    def require_free(self, q: npt.ArrayLike, what: str) -> None:
         """Raises :class:`CollisionError` naming the bodies if ``q`` collides."""
         if not self.is_free(q):
             raise CollisionError(what, self.colliding_pairs(q))
@@ -525,7 +529,7 @@ class WorkcellQueries:
         s, g = self.configurations[name]
         return s.copy(), g.copy()
 
-    def tool_position(self, q) -> np.ndarray:
+    def tool_position(self, q: npt.ArrayLike) -> np.ndarray:
         """p_WT: the tool frame's origin in the world at ``q``, m."""
         ctx = self.plant_context(q)
         return self.tool_frame.CalcPoseInWorld(ctx).translation().copy()

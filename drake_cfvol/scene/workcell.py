@@ -11,14 +11,17 @@ import copy
 import dataclasses
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy.typing as npt
 from pydrake.common.schema import Transform
-from pydrake.geometry import Role
+from pydrake.geometry import Role, SceneGraph
 from pydrake.multibody.parsing import ModelDirectives, Parser, ProcessModelDirectives
+from pydrake.multibody.plant import MultibodyPlant
 from pydrake.multibody.tree import BodyIndex, ModelInstanceIndex
-from pydrake.planning import RobotDiagramBuilder
+from pydrake.planning import RobotDiagram, RobotDiagramBuilder
 
 from drake_cfvol.exceptions import (
     ParameterError,
@@ -152,18 +155,18 @@ class Workcell(WorkcellSetup, WorkcellQueries):
     @classmethod
     def FromRobotDiagram(
         cls,
-        robot_diagram,
+        robot_diagram: RobotDiagram,
         *,
-        robot,
+        robot: str | ModelInstanceIndex,
         tool_frame: str,
         base_frame: str | None = None,
         rail_joint: str | None = None,
         reach: float | None = None,
-        height_map_origin=None,
-        height_map_size=None,
+        height_map_origin: npt.ArrayLike | None = None,
+        height_map_size: npt.ArrayLike | None = None,
         joint_limits: dict | None = None,
-        acceleration_limits=None,
-        jerk_limits=None,
+        acceleration_limits: npt.ArrayLike | None = None,
+        jerk_limits: npt.ArrayLike | None = None,
         params: dict | None = None,
         configurations: dict | None = None,
         name: str = "station",
@@ -337,7 +340,7 @@ class Workcell(WorkcellSetup, WorkcellQueries):
             )
         return obstacles
 
-    def add_to_plant(self, plant, parser=None):
+    def add_to_plant(self, plant: MultibodyPlant, parser: Parser | None = None) -> ModelInstanceIndex:
         """Adds this workcell's models to an unfinalized ``MultibodyPlant``.
 
         Returns:
@@ -351,7 +354,7 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         self.add_models(plant, parser)
         return plant.GetModelInstanceByName(self.robot_name)
 
-    def add_models(self, plant, parser=None) -> list:
+    def add_models(self, plant: MultibodyPlant, parser: Parser | None = None) -> list:
         """:meth:`add_to_plant`, returning Drake's ``ModelInstanceInfo`` of
         every model added (for ``ApplyDriverConfigs``)."""
         if self._directives is None:
@@ -366,7 +369,7 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         with condensed_drake_warnings(log=False):  # said once, when the workcell was loaded
             return ProcessModelDirectives(ModelDirectives(directives=self._directives), plant, parser)
 
-    def add_robot_to_plant(self, plant, parser=None):
+    def add_robot_to_plant(self, plant: MultibodyPlant, parser: Parser | None = None) -> ModelInstanceIndex:
         """Adds the robot alone (and the model instances it carries, e.g. a
         gripper) to an unfinalized plant: a controller's model. A weld of
         the robot to an obstacle (a pedestal) becomes a weld to the world at
@@ -409,7 +412,9 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         model, _, name = scoped.rpartition("::")
         return self.plant.GetFrameByName(name, self.plant.GetModelInstanceByName(model))
 
-    def build_scene(self, add_geometry=None, *, time_step: float = 0.0):
+    def build_scene(
+        self, add_geometry: Callable[[MultibodyPlant, SceneGraph], object] | None = None, *, time_step: float = 0.0
+    ) -> tuple[RobotDiagram, ModelInstanceIndex]:
         """Builds a fresh ``RobotDiagram`` of this workcell.
 
         Args:
