@@ -168,3 +168,23 @@ def test_small_push_passes_whole(automotive):
     assert ours["share"] == pytest.approx(1.0, abs=1e-9)
     drake = diffik_case(wc, table, period=h, steps=steps, motion=motion, seed=1)
     assert drake["share"] == pytest.approx(1.0, abs=0.05) and drake["collisions"] == 0
+
+
+def test_probe_section_lists_every_setting():
+    """The step probe's table has a line per (cell, setting) it ran."""
+    from benchmarks.realtime import PROBE_SETTINGS, _probe_section
+
+    probe = [
+        {
+            "setting": label,
+            "cell": "cobot",
+            "median_s": 3e-4,
+            "p99_s": 5e-4,
+            "filter_active_share": 0.5,
+            "reference_step_s": [1e-5, 1.1e-5],
+        }
+        for label, *_ in PROBE_SETTINGS
+    ]
+    lines = _probe_section({"probe": probe})
+    assert sum(line.startswith("| cobot | ") for line in lines) == len(PROBE_SETTINGS)
+    assert _probe_section({"probe": []}) == []
