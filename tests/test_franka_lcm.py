@@ -29,16 +29,14 @@ from drake_cfvol.comanip.franka import (
 CELL = "cobot"
 
 
-def _loopback(mode: str, desired, *, status_channel: str = PANDA_STATUS_CHANNEL, v0=None):
-    """Station and controller interface on one memq LCM, the desired state a
-    constant; the bus's messages captured raw. Returns (diagram, parts)."""
-    wc = cf.load_workcell(CELL)
-    builder = DiagramBuilder()
+def _station(builder: DiagramBuilder, wc, q0: np.ndarray, mode: str):
+    """A time-stepping plant of ``wc`` (its robot at ``q0``) and the
+    simulated Franka station on a fresh memq LCM. Returns (plant, robot,
+    lcm, station)."""
     plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=FRANKA_PERIOD), builder)
     wc.add_models(plant)
     plant.Finalize()
     robot = plant.GetModelInstanceByName(wc.robot_name)
-    q0 = wc.configuration("path1")[0]
     plant.SetDefaultPositions(robot, q0)
     lcm = DrakeLcm("memq://")
     station = add_franka_station(
@@ -49,6 +47,16 @@ def _loopback(mode: str, desired, *, status_channel: str = PANDA_STATUS_CHANNEL,
         lcm=lcm,
         control_mode=mode,
     )
+    return plant, robot, lcm, station
+
+
+def _loopback(mode: str, desired, *, status_channel: str = PANDA_STATUS_CHANNEL, v0=None):
+    """Station and controller interface on one memq LCM, the desired state a
+    constant; the bus's messages captured raw. Returns (diagram, parts)."""
+    wc = cf.load_workcell(CELL)
+    builder = DiagramBuilder()
+    q0 = wc.configuration("path1")[0]
+    plant, robot, lcm, station = _station(builder, wc, q0, mode)
     source = builder.AddSystem(ConstantVectorSource(np.asarray(desired(q0), float)))
     interface = add_franka_controller_interface(
         builder, lcm=lcm, desired_state=source.get_output_port(), control_mode=mode, status_channel=status_channel
@@ -178,46 +186,28 @@ def test_control_mode_names():
             panda_control_mode(bad)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("mode", ["position", "velocity"])
-def test_a_stopped_status_holds_the_safety_filter_and_every_command_keeps_the_limits(mode):
+def _dropped_status_run(cell: str, mode: str, stop: float, resume: float, until: float, **limits):
     """The controller that runs beside a real arm (add_franka_controller: its
-    own SceneGraph, posed from the status), at 1 ms, drives the simulated
-    station over LCM only, its status relayed through a channel that stops
-    for 40 ms while the path moves: the command is held (the sent position
-    constant, the sent velocity zero) from the first update after the fault
-    until the status resumes, and moves along the path before and after;
-    every command sent is within the arm's position and velocity limits (a
-    position command's step over 1 ms included)."""
+    own SceneGraph, posed from the status) on path 1 of ``cell``, at 1 ms,
+    driving the simulated station over LCM only, its status relayed through
+    a channel that stops in [stop, resume). ``limits``: the
+    CoManipulationConfig's limit fields. Returns (commands sent, the
+    watchdog's fault log as (times, values), the controller's systems, the
+    root context)."""
     from drake_cfvol.comanip.franka import add_franka_controller
     from drake_cfvol.systems import CoManipulationConfig, PathProgressConfig
 
-    wc = cf.load_workcell(CELL)
+    wc = cf.load_workcell(cell)
     table = cf.estimate_bounds(wc, cf.plan_nominal_path(wc, *wc.configuration("path1"), seed=0), resolution=300)
     builder = DiagramBuilder()
-    plant, _ = AddMultibodyPlant(MultibodyPlantConfig(time_step=FRANKA_PERIOD), builder)
-    wc.add_models(plant)
-    plant.Finalize()
-    robot = plant.GetModelInstanceByName(wc.robot_name)
-    plant.SetDefaultPositions(robot, table.nominal[0])
-    lcm = DrakeLcm("memq://")
-    add_franka_station(
-        builder,
-        plant=plant,
-        robot=robot,
-        controller_plant=_control_plant(wc, FRANKA_PERIOD),
-        lcm=lcm,
-        control_mode=mode,
-    )
-    config = CoManipulationConfig(path_progress=PathProgressConfig(start_time=0.1))
+    _, _, lcm, _ = _station(builder, wc, table.nominal[0], mode)
+    config = CoManipulationConfig(path_progress=PathProgressConfig(start_time=0.1), **limits)
     cm, _ = add_franka_controller(
         builder, workcell=wc, table=table, lcm=lcm, control_mode=mode, config=config, status_channel="RELAY"
     )
     watchdog = builder.GetSubsystemByName("controller_status_watchdog")
     fault_log = LogVectorOutput(watchdog.fault_output, builder, publish_period=FRANKA_PERIOD)
-    diagram = builder.Build()
-    sim = Simulator(diagram)
-    stop, resume = 0.30, 0.34
+    sim = Simulator(builder.Build())
     commands = []
 
     def relay(data):
@@ -226,9 +216,23 @@ def test_a_stopped_status_holds_the_safety_filter_and_every_command_keeps_the_li
 
     lcm.Subscribe(PANDA_STATUS_CHANNEL, relay)
     lcm.Subscribe(PANDA_COMMAND_CHANNEL, lambda data: commands.append(lcmt_panda_command.decode(data)))
-    sim.AdvanceTo(0.5)
-    ctx = sim.get_context()
-    t, fault = fault_log.FindLog(ctx).sample_times(), fault_log.FindLog(ctx).data()[0]
+    sim.AdvanceTo(until)
+    log = fault_log.FindLog(sim.get_context())
+    return commands, (log.sample_times(), log.data()[0]), cm, sim.get_context()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["position", "velocity"])
+def test_a_stopped_status_holds_the_safety_filter_and_every_command_keeps_the_limits(mode):
+    """On an arm without acceleration limits (the cobot cell's iiwa), the
+    status stopping for 40 ms while the path moves holds the command (the
+    sent position constant, the sent velocity zero) from the first update
+    after the fault until the status resumes, and it moves along the path
+    before and after; every command sent is within the arm's position and
+    velocity limits (a position command's step over 1 ms included)."""
+    wc = cf.load_workcell(CELL)
+    stop, resume = 0.30, 0.34
+    commands, (t, fault), cm, ctx = _dropped_status_run(CELL, mode, stop, resume, 0.5)
     raised = t[fault > 0.5]
     assert len(raised) and stop < raised.min() < resume and raised.max() < resume + 3 * FRANKA_PERIOD
     stamp = np.array([m.utime * 1e-6 for m in commands])
@@ -251,6 +255,85 @@ def test_a_stopped_status_holds_the_safety_filter_and_every_command_keeps_the_li
     assert cm.safety.hold_count_output.Eval(cm.safety.GetMyContextFromRoot(ctx))[0] >= 20
 
 
+# Franka's published joint limits, joints 1-7 (its robot and interface
+# specification; tests/test_franka.py checks the model's against them):
+# written here as the independent fact, never read from the model.
+PANDA_Q_MIN = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])  # rad
+PANDA_Q_MAX = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])  # rad
+PANDA_LIMITS = {  # per derivative of the joint position: velocity, acceleration, jerk
+    "velocity": np.array([2.1750, 2.1750, 2.1750, 2.1750, 2.6100, 2.6100, 2.6100]),  # rad/s
+    "acceleration": np.array([15, 7.5, 10, 12.5, 15, 20, 20.0]),  # rad/s^2
+    "jerk": np.array([7500, 3750, 5000, 6250, 7500, 10000, 10000.0]),  # rad/s^3
+}
+
+
+def _commanded_velocity(commands: list, mode: str) -> np.ndarray:
+    """The joint velocities the commands ask for, one row per 1 ms, the arm
+    at rest before the first (as Franka's interface requires a motion to
+    start): a position command's step over the period, or the sent
+    velocity. Checks the commands' modes and their 1 ms spacing."""
+    assert len(commands) > 1 and all(m.control_mode_expected == panda_control_mode(mode) for m in commands)
+    us = np.array([m.utime for m in commands])  # the sender truncates the time to whole us
+    ms = (us + 500) // 1000
+    assert np.abs(us - 1000 * ms).max() <= 1 and (np.diff(ms) == 1).all()
+    if mode == "position":
+        q = np.array([m.joint_position for m in commands])
+        assert (q >= PANDA_Q_MIN).all() and (q <= PANDA_Q_MAX).all()
+        return np.diff(np.vstack([q[:1], q]), axis=0) / FRANKA_PERIOD
+    return np.array([m.joint_velocity for m in commands])
+
+
+def _limit_ratios(v: np.ndarray) -> dict[str, float]:
+    """The largest |velocity|, |acceleration| and |jerk| of the commanded
+    velocities ``v`` (finite differences over 1 ms, from rest) as shares of
+    Franka's limits, per quantity."""
+    ratios, x = {}, np.vstack([np.zeros((2, v.shape[1])), v])
+    for name, limit in PANDA_LIMITS.items():
+        ratios[name] = float((np.abs(x) / limit).max())
+        x = np.diff(x, axis=0) / FRANKA_PERIOD
+    return ratios
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["position", "velocity"])
+def test_franka_stopped_status_brakes_the_command_to_a_hold_within_franka_limits(mode):
+    """The Franka cell under Franka's limits: the status stops for 60 ms
+    while the path moves; once the watchdog's fault rises the command brakes
+    (the filter brakes at its limits on a hold) until its velocity is 0, and
+    stays 0 until the fault falls; after the status resumes it moves along
+    the path again. Every command sent, before, during and after,
+    keeps Franka's published position, velocity, acceleration and jerk
+    limits (1e-6 relative)."""
+    wc = cf.load_workcell("franka")
+    # 60 ms: the arm moves at up to 0.55 rad/s when the fault rises (5 ms
+    # after the status stops), and braking at 15 rad/s^2 takes 37 ms.
+    stop, resume = 0.30, 0.36
+    commands, (t, fault), cm, ctx = _dropped_status_run(
+        "franka",
+        mode,
+        stop,
+        resume,
+        0.5,
+        acceleration_limits=list(wc.acceleration_limits),
+        jerk_limits=list(wc.jerk_limits),
+    )
+    raised = t[fault > 0.5]
+    assert len(raised) and stop < raised.min() < resume and raised.max() < resume + 3 * FRANKA_PERIOD
+    v = _commanded_velocity(commands, mode)
+    ratios = _limit_ratios(v)
+    assert all(r <= 1 + 1e-6 for r in ratios.values()), ratios
+    stamp = np.array([m.utime * 1e-6 for m in commands])
+    speed = np.abs(v).max(axis=1)
+    held = speed[(stamp > raised.min()) & (stamp <= raised.max())]
+    # Braking under the jerk limit may pass through 0 and come back (the
+    # acceleration cannot vanish in one tick): the hold is the zero stretch
+    # that ends the fault's window.
+    moving = np.flatnonzero(held > 0.0)
+    assert held[0] > 0.0 and len(held) - 1 - moving[-1] >= 5, held
+    assert speed[(stamp > stop - 0.05) & (stamp < stop)].max() > 0 and speed[stamp > resume + 0.05].max() > 0
+    assert cm.safety.hold_count_output.Eval(cm.safety.GetMyContextFromRoot(ctx))[0] >= 20
+
+
 def test_a_scenario_names_the_franka_driver_checked():
     """``!FrankaDriver`` in a scenario's model_drivers loads; a mode that is
     not position or velocity, and a joint-torque push (the arm feels pushes
@@ -268,3 +351,36 @@ def test_a_scenario_names_the_franka_driver_checked():
             "cobot_push",
             scenario_text="{%s, human: {pushes: [{joint_torque: [1, 0, 0, 0, 0, 0, 0]}]}}" % (drivers % "position"),
         )
+
+
+@pytest.mark.slow
+def test_franka_lcm_push_run_sends_only_commands_within_franka_limits(tmp_path, monkeypatch):
+    """The bundled franka_lcm scenario (the Franka cell dynamic over the
+    in-memory LCM, position mode, the co-worker's hand pushing the tool):
+    every lcmt_panda_command on the bus, captured on the run's own LCM,
+    keeps Franka's published position, velocity, acceleration and jerk
+    limits (1e-6 relative), from rest, one every 1 ms; the run is clean (no
+    collision, the margin kept) and the pushes, felt through the status's
+    external torque, deform it."""
+    import drake_cfvol.comanip.diagram as diagram
+    from drake_cfvol.comanip import run_scenario
+
+    buses, commands = [], []
+
+    def recording_lcm(url: str) -> DrakeLcm:
+        lcm = DrakeLcm(url)
+        lcm.Subscribe(PANDA_COMMAND_CHANNEL, lambda data: commands.append(lcmt_panda_command.decode(data)))
+        buses.append(lcm)
+        return lcm
+
+    monkeypatch.setattr(diagram, "DrakeLcm", recording_lcm)
+    s = run_scenario("franka_lcm", tmp_path, record=False, plot=False, svg=False)
+    assert len(buses) == 1 and s["dynamic"]
+    assert s["collisions"] == 0 and s["problems"] == []
+    ratios = _limit_ratios(_commanded_velocity(commands, "position"))
+    assert all(r <= 1 + 1e-6 for r in ratios.values()), ratios
+    assert commands[-1].utime * 1e-6 >= s["ended_s"] - 2 * FRANKA_PERIOD  # every tick of the run
+    logs = np.load(tmp_path / "logs.npz")
+    t, tau = logs["human_torque_t"], logs["human_torque"]
+    assert np.abs(tau[(t > 1.2) & (t < 2.5)]).max() > 5.0  # N m, felt by the arm's torque sensing
+    assert s["max_deviation"] > 0.01
