@@ -134,8 +134,13 @@ def _emit(summary: dict, as_json: bool) -> None:
 
 
 def _out_path(p: str | None) -> Path | None:
+    """A path the user gave, resolved against their current folder (None: none given)."""
+    return _given_path(p) if p else None
+
+
+def _given_path(p: str) -> Path:
     """A path the user gave, resolved against their current folder."""
-    return Path(p).expanduser().resolve() if p else None
+    return Path(p).expanduser().resolve()
 
 
 def _load_cell(load_workcell, cell: str):
@@ -164,7 +169,9 @@ def cmd_plan(args) -> int:
         from drake_cfvol.algorithm.reuse import fingerprint_of
 
         path.fingerprint = fingerprint_of(wc, path)
-        out = str(path.save(out, overwrite=args.force))
+        saved_to: str | None = str(path.save(out, overwrite=args.force))
+    else:
+        saved_to = None
     summary = {
         "cell": wc.name,
         "path": label,
@@ -177,7 +184,7 @@ def cmd_plan(args) -> int:
         "attempts": path.stats["attempts"],
         "path_length": round(path.length, 6),
         "waypoints_sha256": path.sha256,
-        "out": out,
+        "out": saved_to,
     }
     _emit(summary, args.json)
     return 0
@@ -207,9 +214,9 @@ def _bounds_label(args) -> str:
 
     saved = ""
     if args.path_file:
-        saved = NominalPath.load(_out_path(args.path_file)).label
+        saved = NominalPath.load(_given_path(args.path_file)).label
     elif args.bounds_file:
-        saved = str(BoundsTable.load(_out_path(args.bounds_file)).info.get("path", ""))
+        saved = str(BoundsTable.load(_given_path(args.bounds_file)).info.get("path", ""))
     return path_label(saved or "1")
 
 
@@ -219,7 +226,9 @@ def _path_to_bound(args, wc, label: str, clearance: float):
         from drake_cfvol.algorithm.reuse import load_path_for
 
         notes: list = []
-        path = load_path_for(wc, _out_path(args.path_file), label=label if args.path is not None else None, notes=notes)
+        path = load_path_for(
+            wc, _given_path(args.path_file), label=label if args.path is not None else None, notes=notes
+        )
         _notes(notes)
         return path
     from drake_cfvol.algorithm.planning import plan_nominal_path
@@ -238,7 +247,7 @@ def _path_and_table(args, wc, label: str, params, bars: bool):
         path = _path_to_bound(args, wc, label, params.clearance) if args.path_file else None
         notes: list = []
         named = label if args.path is not None else None
-        table = load_bounds_for(wc, _out_path(args.bounds_file), path, label=named, notes=notes)
+        table = load_bounds_for(wc, _given_path(args.bounds_file), path, label=named, notes=notes)
         _notes(notes)
         if path is None:
             path = NominalPath(table.nominal, list(table.joint_names), wc.name, label, args.seed)
@@ -517,7 +526,7 @@ def cmd_bench(args) -> int:
 def cmd_demo(args) -> int:
     from drake_cfvol.apps.demo import run_demo
 
-    out = _out_path(args.out)
+    out = _given_path(args.out)
     prepare_output(out, overwrite=True, folder=True)
     return run_demo(out_dir=out, seed=args.seed, quick=args.quick)
 
@@ -717,6 +726,7 @@ def cmd_batch(args) -> int:
         raise ParameterError("--workers sizes the local cluster: a number >= 1, without --scheduler or --serial.")
     jobs_file = _out_path(args.jobs)
     jobs, file = load_jobs(jobs_file)
+    assert file is not None  # read from a file: its path
     todo = expand_jobs(jobs, file.parent)
     out = _out_path(args.out) or (file.parent / f"{file.stem}_results")
     output_files(todo, out, overwrite=args.force)  # checked before anything runs
