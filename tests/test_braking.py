@@ -215,3 +215,17 @@ def test_the_admittance_meets_a_face_at_rest(period):
     assert np.all(drops <= (1 - share) * a * period * (1 + 1e-6) + 1e-12)
     free, _ = run(None)
     assert np.max(-np.diff(free, axis=0)) > 10 * (1 - share) * a.max() * period  # the clamp's stop, for contrast
+
+
+def test_the_tables_deviation_range_equals_its_boxes(bounded):
+    """BoundsTable.deviation_range (the bounds source's window, one compiled
+    call) equals the largest lower and smallest upper deviation of the
+    boxes boxes_at gives at the same path parameters, bit for bit."""
+    table = bounded("automotive", "path1")
+    rng = np.random.default_rng(5)
+    for _ in range(100):
+        sigma = np.sort(rng.uniform(0, table.g - 1, rng.integers(1, 20)))
+        sigma[0] = np.floor(sigma[0])  # a waypoint too
+        lo, hi, nom = table.boxes_at(sigma)
+        d_lo, d_hi = table.deviation_range(sigma)
+        assert np.array_equal(d_lo, (lo - nom).max(axis=0)) and np.array_equal(d_hi, (hi - nom).min(axis=0))

@@ -152,11 +152,13 @@ def JointBoundsSource_(T):
             end = min(s + self._lookahead, bounds.g - 1.0)
             if not np.isfinite(s) or end <= s:
                 return lo, hi
-            ahead = np.arange(np.floor(4.0 * s) + 1.0, np.ceil(4.0 * end)) / 4.0
-            dev_lo, dev_hi = lo - nom, hi - nom
-            for sigma in np.append(ahead, end):
-                lo_s, hi_s, nom_s = self._lookup(float(sigma), live)
-                dev_lo, dev_hi = np.maximum(dev_lo, lo_s - nom_s), np.minimum(dev_hi, hi_s - nom_s)
+            sigma = np.append(np.arange(np.floor(4.0 * s) + 1.0, np.ceil(4.0 * end)) / 4.0, end)
+            if hasattr(bounds, "deviation_range"):  # a table: every sample in one compiled call
+                d_lo, d_hi = bounds.deviation_range(sigma)
+            else:  # live bounds: one lookup a sample
+                lo_s, hi_s, nom_s = (np.array(a) for a in zip(*(bounds.at(float(x)) for x in sigma)))
+                d_lo, d_hi = (lo_s - nom_s).max(axis=0), (hi_s - nom_s).min(axis=0)
+            dev_lo, dev_hi = np.maximum(lo - nom, d_lo), np.minimum(hi - nom, d_hi)
             # About the nominal at s, never past the box at s (rounding).
             return np.clip(nom + np.minimum(dev_lo, 0.0), lo, hi), np.clip(nom + np.maximum(dev_hi, 0.0), lo, hi)
 
