@@ -229,3 +229,35 @@ def test_the_tables_deviation_range_equals_its_boxes(bounded):
         lo, hi, nom = table.boxes_at(sigma)
         d_lo, d_hi = table.deviation_range(sigma)
         assert np.array_equal(d_lo, (lo - nom).max(axis=0)) and np.array_equal(d_hi, (hi - nom).min(axis=0))
+
+
+def test_the_path_starts_and_stops_within_the_acceleration_limits(bounded):
+    """PathProgress with path_ramp's ramp: s(t) reaches the rate from rest
+    and comes back to rest, the nominal's joint accelerations (second
+    differences of the nominal along s(t), 1 ms apart) within the share of
+    the limits away from the waypoints' kinks; the end still reached, later
+    by the ramp; without limits no ramp (the linear progress as before)."""
+    from drake_cfvol.systems import PathProgress, path_ramp, safe_path_rate
+
+    table = bounded("automotive", "path1")
+    vmax = np.array([1.92, 1.92, 1.92, 3.32, 2.62, 3.67])
+    acc = vmax / 0.2
+    rate = safe_path_rate(table, vmax, share=0.5)
+    ramp = path_ramp(table, rate, acc, share=0.5)
+    assert ramp > 0 and path_ramp(table, rate, np.full(6, np.inf), share=0.5) == 0.0
+    p = PathProgress(table.g, rate=rate, start_time=0.5, ramp=ramp)
+    flat = PathProgress(table.g, rate=rate, start_time=0.5)
+    assert p.duration == pytest.approx(flat.duration + ramp)
+    h = 1e-3
+    t = np.arange(0.5, p.duration + 0.1, h)
+    s = np.array([p.index_at(x) for x in t])
+    assert s[0] == 0.0 and s[-1] == table.g - 1 and np.all(np.diff(s) >= 0)
+    ds = np.diff(s) / h
+    # From rest: the first millisecond's mean speed is the quadratic's, rate h / (2 ramp); back to rest at the end.
+    assert ds[0] == pytest.approx(rate * h / (2 * p.ramp), rel=1e-6) and ds.max() == pytest.approx(rate, rel=1e-6)
+    moving = np.flatnonzero(ds > 0)
+    assert ds[moving[-1]] <= rate * h / p.ramp * (1 + 1e-6)
+    # In the ramps, the path's own acceleration times the nominal's steepest step stays within share x limit.
+    dds = np.abs(np.diff(ds)) / h
+    steps = np.abs(np.diff(table.nominal, axis=0)).max(axis=0)
+    assert np.all(dds.max() * steps <= 0.5 * acc * (1 + 1e-3))

@@ -48,7 +48,7 @@ from drake_cfvol.systems.humans import Push, RandomPushes, RandomPushShaper, Rea
 from drake_cfvol.systems.monitor import ClearanceMonitor
 from drake_cfvol.systems.moving_boxes import MovingBoxes, MovingObstacle
 from drake_cfvol.systems.online_bounds import OnlineBoundsConfig, OnlineBoundsEstimator
-from drake_cfvol.systems.path import PathProgress, PathProgressConfig, safe_path_rate
+from drake_cfvol.systems.path import PathProgress, PathProgressConfig, path_ramp, safe_path_rate
 from drake_cfvol.systems.perception import (
     AddCellCamera,
     AddCellModel,
@@ -75,6 +75,7 @@ __all__ = [
     "RandomPushShaper",
     "ReactiveCoworker",
     "SafetyFilter",
+    "path_ramp",
     "safe_path_rate",
     "AddCoManipulation",
     "CoManipulationSystems",

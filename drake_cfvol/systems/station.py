@@ -27,7 +27,7 @@ from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformati
 from drake_cfvol.systems.bounds_source import JointBoundsSource
 from drake_cfvol.systems.constraints import ToolSpeedLimit
 from drake_cfvol.systems.human_input import HumanInputCheck
-from drake_cfvol.systems.path import PathProgress, PathProgressConfig, safe_path_rate
+from drake_cfvol.systems.path import PathProgress, PathProgressConfig, path_ramp, safe_path_rate
 from drake_cfvol.systems.safety import SafetyFilter, SafetyFilterConfig
 
 __all__ = ["AddCoManipulation", "CoManipulationConfig", "CoManipulationSystems", "ToolPushForce"]
@@ -278,7 +278,13 @@ def AddCoManipulation(
     a, f = config.admittance, config.safety_filter
     progress = builder.AddNamedSystem(
         _named(name, "path_progress"),
-        PathProgress(table.g, rate=rate, start_time=config.path_progress.start_time, lead=period),
+        PathProgress(
+            table.g,
+            rate=rate,
+            start_time=config.path_progress.start_time,
+            lead=period,
+            ramp=path_ramp(table, rate, limits[1], share=config.path_progress.velocity_share),
+        ),
     )
     bounds = builder.AddNamedSystem(
         _named(name, "joint_bounds"),
