@@ -10,7 +10,14 @@ from hypothesis import strategies as st
 from pydrake.systems.analysis import Simulator
 from test_safety import VMAX, _arm, _drake_distance, _fix
 
-from drake_cfvol.systems.filter_kernel import brake_speed, face_speed, hard_interval, stop_distance
+from drake_cfvol.systems.filter_kernel import (
+    ROW_DECELERATION_SHARE,
+    brake_rows,
+    braking_lead,
+    face_speed,
+    hard_interval,
+    stop_distance,
+)
 
 
 def _walked(v, a, acc, jerk, h):
@@ -53,31 +60,63 @@ def test_face_speed_is_the_fastest_that_still_stops_in_time():
 
 
 def test_a_point_mass_braking_on_the_row_stops_at_the_plane():
-    """A point mass approaching a plane at its largest allowed speed (the
-    row's, within the deceleration a per update): it never crosses the
-    target, it never needs more than a to follow the row, and in the
-    square-root regime the allowed speed is the closed-form stopping speed
-    sqrt(2 a d) of the distance left after the delay."""
-    rate, h = 6.7, 0.001
-    for acc in (0.5, 2.0, 8.0):
-        delay = 0.5 * h + 0.02
-        gap, s = 0.149, 0.0
-        for _ in range(20000):
-            allowed = brake_speed(gap, rate, acc, delay)
-            s_next = min(allowed, s + acc * h)
-            assert s_next >= s - acc * h * (1 + 1e-9)  # the row never asks for more than a
-            s = s_next
-            gap -= s * h
-            assert gap >= 0.0
-        assert gap < 1e-3  # and it gets there
-        # Far out (where sqrt(2 a g) is below the damper's rate x g), the closed form.
-        g = 0.1 / (1 + rate * delay)
-        if acc / rate**2 < g:
-            g0 = acc / rate**2
-            assert brake_speed(0.1, rate, acc, delay) == pytest.approx(np.sqrt(2 * acc * (g - g0) + (rate * g0) ** 2))
-            # A point mass at that speed, braking at a, stops within the gap less the delay's travel.
-            v = brake_speed(0.1, rate, acc, delay)
-            assert v**2 / (2 * acc) + v * delay <= 0.1 + 1e-12
+    """A point mass (one joint, the row A = -1: its distance shrinks at its
+    velocity) driven at the plane as fast as brake_rows' row and its hard
+    interval allow, from 0.3 m above the target: it never crosses the
+    target, keeps its acceleration and jerk limits, and ends at rest
+    within a millimetre of the target (the damper's own rule near it)."""
+    rate = 6.7
+    for h in (0.01, 0.001):
+        for acc_, jerk_ in ((0.5, 20.0), (2.0, 100.0), (8.0, np.inf)):
+            acc, jerk, vmax = np.array([acc_]), np.array([jerk_]), np.array([2.0])
+            A = np.array([[-1.0]])
+            gap, v, a = 0.3, np.zeros(1), np.zeros(1)
+            for _ in range(int(round(20.0 / h))):
+                lo, hi = hard_interval(vmax, h, v, a, acc, jerk)
+                b = brake_rows(A, np.array([-rate * gap]), rate, acc, jerk, h, v, lo, hi, np.zeros(1))
+                v_new = np.minimum(hi, -b)  # as fast towards the plane as the row allows
+                assert v_new[0] >= lo[0] - 1e-12
+                a_new = (v_new - v) / h
+                assert abs(a_new[0]) <= acc_ * (1 + 1e-9)
+                assert abs(a_new[0] - a[0]) <= jerk_ * h * (1 + 1e-9) or not np.isfinite(jerk_)
+                v, a = v_new, a_new
+                gap -= v[0] * h
+                assert gap >= -1e-12
+            assert gap < 1e-3 and abs(v[0]) < 1e-3
+
+
+def test_a_row_made_at_the_braking_lead_can_still_stop_its_pair():
+    """Random rows, limits, velocities and accelerations: a pair first seen
+    at the gap braking_lead gives for its speed and acceleration bounds
+    (sum_j |A_ij| (|v_j| + a_j dt), sum_j |A_ij| (|a_j| + j_j dt), as
+    VelocityDamper.pair_speeds bounds them) can still be stopped by the
+    row's own braking (brake_rows' point mass at the share of the row's
+    limits): from the slowest closing the hard interval allows, the walked
+    stop (stop_distance) stays within the gap."""
+    rng = np.random.default_rng(4)
+    rate, share = 7.75, ROW_DECELERATION_SHARE
+    checked = 0
+    for _ in range(3000):
+        k = int(rng.integers(1, 8))
+        h = rng.choice([0.001, 0.01])
+        vmax = rng.uniform(0.5, 3.0, k)
+        acc = rng.uniform(1.0, 30.0, k)
+        jerk = np.where(rng.random(k) < 0.2, np.inf, rng.uniform(50.0, 5000.0, k))
+        v, a = rng.uniform(-vmax, vmax), rng.uniform(-acc, acc)
+        A = rng.uniform(-2.0, 2.0, k) * (rng.random(k) < 0.8)
+        if not A.any():
+            continue
+        lo, hi = hard_interval(vmax, h, v, a, acc, jerk)
+        speed = float(np.abs(A) @ np.minimum(np.abs(v) + acc * h, vmax))
+        closing = float(np.abs(A) @ np.where(np.isfinite(jerk), np.abs(a) + jerk * h, 0.0))
+        lead, ramp = braking_lead(v, a, vmax, acc, jerk, rate, h)
+        gap = (speed + ramp * closing) * lead
+        s_last, s_lo = -float(A @ v), -float(np.maximum(A * lo, A * hi).sum())
+        nz = A != 0
+        row_acc, row_jerk = share * float(np.abs(A[nz]) @ acc[nz]), share * float(np.abs(A[nz]) @ jerk[nz])
+        assert s_lo * h + stop_distance(s_lo, (s_lo - s_last) / h, row_acc, row_jerk, h) <= gap + 1e-12
+        checked += 1
+    assert checked > 2500
 
 
 def test_the_hard_interval_keeps_every_limit_and_stays_open():
@@ -261,3 +300,35 @@ def test_the_path_starts_and_stops_within_the_acceleration_limits(bounded):
     dds = np.abs(np.diff(ds)) / h
     steps = np.abs(np.diff(table.nominal, axis=0)).max(axis=0)
     assert np.all(dds.max() * steps <= 0.5 * acc * (1 + 1e-3))
+
+
+@pytest.mark.parametrize("period", [0.01, 0.001])
+def test_a_fast_approach_from_afar_brakes_in_time_for_the_margin(period):
+    """The two-link arm swung at the wall from 0.5 m away with low
+    acceleration limits: its tip, up to 1.5 m/s, needs about 0.6 m to
+    stop, four times the influence distance. The filter brakes for it all
+    the same: Drake's distance never comes more than 2 mm under the margin,
+    and every command keeps the limits; at 10 ms no update misses a row (at
+    1 ms the jerk limit leaves an interval of 1e-4 rad/s, and a row met to
+    first order can miss its second-order term by micrometres per second)."""
+    acc, jerk = np.array([1.5, 2.0]), np.array([40.0, 50.0])
+    diagram, sf, tip, wall_id = _arm("wall", clearance=0.02, period=period, acceleration_limits=acc, jerk_limits=jerk)
+    sim = Simulator(diagram)
+    ctx = sim.get_mutable_context()
+    sf.set_initial_position(sf.GetMyMutableContextFromRoot(ctx), np.array([1.2, 0.3]))
+    _fix(diagram, ctx, [-0.6, 0.0], nominal=[1.2, 0.3])  # deep in the wall
+    qs, closest = [], np.inf
+    for n in range(int(round(3.0 / period))):
+        sim.AdvanceTo((n + 1.5) * period)
+        qs.append(sf.commanded_position_output.Eval(sf.GetMyContextFromRoot(ctx)).copy())
+        closest = min(closest, _drake_distance(diagram, ctx, tip, wall_id))
+    sctx = sf.GetMyContextFromRoot(ctx)
+    q = np.array(qs)
+    v = np.diff(q, axis=0) / period
+    assert np.abs(v).max() > 0.8  # it did swing fast
+    assert closest >= 0.02 - 0.002
+    if period == 0.01:
+        assert sf.GetOutputPort("braking_faults").Eval(sctx)[0] == 0
+    a = np.diff(v, axis=0) / period
+    assert np.all(np.abs(a) <= acc * (1 + 1e-6))
+    assert np.all(np.abs(np.diff(a, axis=0) / period) <= jerk * (1 + 1e-5))

@@ -117,6 +117,9 @@ class VelocityDamper:
         self.k = self._slice.k
         self.target_distance = float(target_distance)
         self.influence_distance = float(influence_distance)
+        #: The distance within which the last :meth:`rows` made rows, m (the
+        #: influence distance, or farther where braking needs it).
+        self.reach = self.influence_distance
         self.rate = float(rate)
         self._plant = plant
         self._pairs = self._make_pairs(plant, scene_graph, robot, obstacle_ids)
@@ -157,6 +160,13 @@ class VelocityDamper:
             dtype=int,
         ).reshape(-1, 2)
         self._kin = SlotKinematics(plant, robot, self._slice, self._bodies)
+        # The pairs of two moving bodies, and per such pair the joints that
+        # move one side and not the other (a joint moving both moves the
+        # pair rigidly: its distance does not change).
+        self._self_pairs = np.flatnonzero((self._pair_bodies >= 0).all(axis=1))
+        moves = self._kin.moves
+        one, two = self._pair_bodies[self._self_pairs, 0], self._pair_bodies[self._self_pairs, 1]
+        self._only = (moves[one] & ~moves[two], moves[two] & ~moves[one])
         self._sides, self._drake_rows = side_arrays(self, inspector)
 
     def poses(self, q) -> tuple[np.ndarray, np.ndarray]:
@@ -238,7 +248,7 @@ class VelocityDamper:
 
         return [(a, b, side(a), side(b)) for a, b in pairs]
 
-    def rows(self, query, q, measure=None, poses=None) -> DamperRows:
+    def rows(self, query, q, measure=None, poses=None, *, reach=None, kin=None) -> DamperRows:
         """The damper's rows at q (``query``: the SceneGraph's query object,
         posed at q): for
         the pairs closer than the influence distance, A (m x k) and b (m,)
@@ -254,14 +264,26 @@ class VelocityDamper:
                 the others' distances are NaN.
             poses: {geometry id: its pose in the world} already looked up
                 in ``query`` at this update (:meth:`DynamicPairs.mark`'s).
+            reach: m, a scalar or per pair (P,) (>= the influence
+                distance): rows for the pairs closer than this (a robot
+                braking at its limits needs them from farther away:
+                :func:`~.filter_kernel.braking_reach`); None: the influence
+                distance.
+            kin: (R, o, J_w, J_v) at q, already computed
+                (:meth:`SlotKinematics.poses_and_jacobians`).
         """
         measured = np.zeros(len(self._pairs), bool)
-        R, o, J_w, J_v = self._kin.poses_and_jacobians(q)
-        # Broad phase: a pair whose bounding balls lie apart by the influence
-        # distance or more is not measured (its distance is at least that).
+        R, o, J_w, J_v = self._kin.poses_and_jacobians(q) if kin is None else kin
+        P = len(self._pairs)
+        pair_reach = np.full(P, self.influence_distance)
+        if reach is not None:
+            pair_reach = np.maximum(pair_reach, np.broadcast_to(np.asarray(reach, float), (P,)))
+        self.reach = float(pair_reach.max()) if P else self.influence_distance
+        # Broad phase: a pair whose bounding balls lie apart by its reach or
+        # more is not measured (its distance is at least that).
         if measure is None:
-            measure = np.ones(len(self._pairs), bool)
-        dists, look = self._broad.near(query, R, o, np.asarray(measure, bool), self.influence_distance, poses)
+            measure = np.ones(P, bool)
+        dists, look = self._broad.near(query, R, o, np.asarray(measure, bool), pair_reach, poses)
         measured[look] = True
         # The near pairs' Drake results, for the kernel's rows (index, distance,
         # normal, witnesses) or, for the few it cannot make, Drake's (slow).
@@ -276,7 +298,7 @@ class VelocityDamper:
             except RuntimeError:  # a shape pair Drake cannot measure: not watched
                 continue
             d = dists[index] = pair.distance
-            if d < self.influence_distance:
+            if d < pair_reach[index]:
                 if self._drake_rows[index]:
                     slow.append((index, pair))
                     continue
@@ -309,7 +331,7 @@ class VelocityDamper:
             (pairs, dist, normal, witness, self._broad.box_R, self._broad.box_p),
             self._sides,
             (R, o, J_w, J_v),
-            (self.influence_distance, self.rate, self.target_distance),
+            (self.reach, self.rate, self.target_distance),
         )
         return A, b, None, dirs, points, slots, rounds, owner
 
@@ -339,6 +361,33 @@ class VelocityDamper:
         Negative: measure it. (Geometry that moves on its own, see
         :attr:`self_moving`, is not covered.)"""
         return self._kin.budget_moved(q0, q1, self._body_radius, self._pair_bodies, np.asarray(budget, float))
+
+    def levers(self, J_w, J_v) -> np.ndarray:
+        """(S, k): per slot and joint, the fastest any point of the body's
+        geometry moves per unit of the joint's velocity, |J_v_j| + |J_w_j|
+        r (r the body's radius about its origin; the Jacobians at the
+        origins, :meth:`SlotKinematics.poses_and_jacobians`)."""
+        return np.linalg.norm(J_v, axis=1) + np.linalg.norm(J_w, axis=1) * self._body_radius[:, None]
+
+    def pair_speeds(self, J_w, J_v, v, dv) -> np.ndarray:
+        """(P,): per pair, the fastest its distance can shrink at the joint
+        velocity v + e for any |e_j| <= dv_j, m/s. Against a side that
+        does not move: its body's fastest point, |J_v v| + |J_w v| r plus
+        sum_j (|J_v_j| + |J_w_j| r) dv_j (r its radius about its origin;
+        the Jacobians at the origins, :meth:`SlotKinematics.poses_and_jacobians`).
+        Between two moving bodies: sum_j (|v_j| + dv_j) times the lever
+        (:meth:`levers`) of the side joint j moves, over the joints that
+        move only one side. Geometry that moves on its own
+        (:attr:`self_moving`) adds its own speed, not counted."""
+        levers = self.levers(J_w, J_v)
+        now = np.linalg.norm(J_v @ v, axis=1) + np.linalg.norm(J_w @ v, axis=1) * self._body_radius
+        slot = np.append(now + levers @ dv, 0.0)  # the last entry: a welded side
+        out = slot[self._pair_bodies].sum(axis=1)
+        if len(self._self_pairs):
+            w = np.abs(v) + dv
+            one, two = self._pair_bodies[self._self_pairs, 0], self._pair_bodies[self._self_pairs, 1]
+            out[self._self_pairs] = (self._only[0] * levers[one] + self._only[1] * levers[two]) @ w
+        return out
 
     @property
     def self_moving(self) -> np.ndarray:

@@ -341,9 +341,10 @@ def bounding_gaps(pairs, slot, centre, half, box_R, box_p, R, o):
 @njit(cache=True)
 def near_pairs(measure, slot, centre, half, box_R, box_p, R, o, influence):
     """The broad phase at one update: (per pair its lower bound
-    (:func:`bounding_gaps`) where that is at least ``influence`` (not
-    measured: its distance is at least that), NaN elsewhere; the pairs of
-    ``measure`` (P,) bools whose lower bound lies below it, to measure)."""
+    (:func:`bounding_gaps`) where that is at least its ``influence`` (P,)
+    (not measured: its distance is at least that), NaN elsewhere; the
+    pairs of ``measure`` (P,) bools whose lower bound lies below it, to
+    measure)."""
     P = len(measure)
     dists = np.full(P, np.nan)
     near = np.empty(P, np.int64)
@@ -352,7 +353,7 @@ def near_pairs(measure, slot, centre, half, box_R, box_p, R, o, influence):
         if not measure[n]:
             continue
         lower = _gap(n, slot, centre, half, box_R, box_p, R, o)
-        if lower >= influence:
+        if lower >= influence[n]:
             dists[n] = lower
         else:
             near[m] = n

@@ -197,6 +197,11 @@ class SlotKinematics:
         #: turns by at most the sum of their |dq_j| in a step dq).
         self.rev = (self._moves & revolute).astype(float)
 
+    @property
+    def moves(self) -> np.ndarray:
+        """(S, k) bools: joint j moves the slot's body (it is the body's joint or an ancestor's)."""
+        return self._moves
+
     def compiled(self) -> tuple[Chain, np.ndarray, np.ndarray, np.ndarray]:
         """(chain, the slots' bodies in it, scratch poses): the arguments of
         the compiled code that poses the slots."""

@@ -129,7 +129,7 @@ class BroadPhase:
         self._posed_R = np.tile(np.eye(3), (len(self._posed_ids), 1, 1))
         self._posed_p = np.zeros((len(self._posed_ids), 3))
 
-    def near(self, query, R, o, measure, influence: float, poses=None) -> tuple[np.ndarray, np.ndarray]:
+    def near(self, query, R, o, measure, influence: np.ndarray, poses=None) -> tuple[np.ndarray, np.ndarray]:
         """The pairs of ``measure`` ((P,) bools) to measure, by lower bounds
         of their distances: between two balls, their gap; between a ball
         and a box, the ball centre's distance from the box less its radius;
@@ -159,7 +159,7 @@ class BroadPhase:
             self.box_p,
             R,
             o,
-            float(influence),
+            np.asarray(influence, float),
         )
 
 
@@ -243,7 +243,7 @@ def drake_pair_rows(damper, query, index, pair, R, o, out) -> None:
             continue
         radii = side[3]
         gaps = sign * (P - other) @ n - radii
-        close = np.flatnonzero(gaps < damper.influence_distance)
+        close = np.flatnonzero(gaps < damper.reach)
         if not len(close):
             continue
         if s_other < 0:  # a static obstacle: the plane's rows
@@ -263,7 +263,7 @@ def drake_pair_rows(damper, query, index, pair, R, o, out) -> None:
             continue  # a moving shape without a point query: the witness row only
         X_WO = query.GetPoseInWorld(id_other)
         dist, grad, p_near = _drake_distances(damper, query, id_other, X_WO, P[close], radii[close])
-        keep = dist - radii[close] < damper.influence_distance
+        keep = dist - radii[close] < damper.reach
         if keep.any():
             out.add(
                 grad[keep],
@@ -285,9 +285,7 @@ def _drake_distances(damper, query, gid, X_WO, P, radii):
     distance)."""
     d, g, near = np.full(len(P), np.inf), np.zeros((len(P), 3)), np.zeros((len(P), 3))
     for i, point in enumerate(P):
-        found = [
-            r for r in query.ComputeSignedDistanceToPoint(point, damper.influence_distance + radii[i]) if r.id_G == gid
-        ]
+        found = [r for r in query.ComputeSignedDistanceToPoint(point, damper.reach + radii[i]) if r.id_G == gid]
         if found:
             d[i], g[i] = found[0].distance, np.asarray(found[0].grad_W, float).reshape(3)
             near[i] = X_WO.multiply(np.asarray(found[0].p_GN, float).reshape(3))

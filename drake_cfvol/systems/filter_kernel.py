@@ -17,8 +17,8 @@ from drake_cfvol.systems.qp import staged_solve
 
 __all__ = [
     "ROW_DECELERATION_SHARE",
+    "braking_lead",
     "brake_rows",
-    "brake_speed",
     "budget_after",
     "face_speed",
     "filter_rounds",
@@ -300,52 +300,88 @@ ROW_DECELERATION_SHARE = 0.5
 
 
 @njit(cache=True)
-def brake_speed(gap, rate, deceleration, delay):
-    """The speed at which a distance ``gap`` above the target may shrink:
-    the velocity damper's rate x gap where riding it needs no more than
-    ``deceleration`` (gap <= g0 = deceleration / rate^2), beyond that the
-    point mass's stopping speed sqrt(2 deceleration (gap - g0) + (rate
-    g0)^2), the two meeting with the same slope at g0; both of the gap
-    less what the speed covers over ``delay`` (the deceleration's ramp and
-    the update's half step)."""
-    g = gap / (1.0 + rate * delay)  # the damper's speed at most: gap - rate g delay >= g
-    if not deceleration > 0.0 or not np.isfinite(deceleration):
-        return rate * g
-    g0 = deceleration / (rate * rate)
-    if g <= g0:
-        return rate * g
-    return np.sqrt(2.0 * deceleration * g - deceleration * deceleration / (rate * rate))
-
-
-@njit(cache=True)
-def brake_rows(A, b, rate, vmax, acceleration, jerk, period):
+def brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, slack):
     """The damper's rows braked in time: a row i that lets its distance
-    shrink (b_i < 0: gap = -b_i / rate above the target) lets it shrink no
-    faster than :func:`brake_speed` allows, the deceleration the row's
-    share (:data:`ROW_DECELERATION_SHARE`) of sum_j |A_ij|
-    acceleration_j, the delay its ramp at sum_j |A_ij| jerk_j plus half an
-    update (v <= sqrt(2 a (d - d_s)) with the update's terms). A row is
-    kept as it is where that speed is above the fastest it can shrink
-    (sum_j |A_ij| vmax_j: a row the arm barely moves needs no braking), or
-    no joint it moves has a limit."""
+    shrink (b_i < 0: the gap -b_i / rate above the target) lets it shrink
+    no faster than a point mass on the row can still stop within that gap
+    (:func:`face_speed`, exact for the discrete update). The point mass:
+    the row's closing speed -A_i v, last -A_i v_last, within [-max A_i v,
+    -min A_i v] over the hard interval [h_lo, h_hi], braking at a share
+    (:data:`ROW_DECELERATION_SHARE`) of the row's acceleration sum_j
+    |A_ij| acceleration_j and jerk sum_j |A_ij| jerk_j (the rest is left
+    to the other rows and the box, braking at the same time); where that
+    cannot stop it any more, at all of them. Where the
+    damper's own rate (-b_i) asks for a faster slow-down than the hard
+    interval allows, the row asks for the slowest closing it allows plus
+    ``slack`` (m/s per row, room for the second-order terms; at most half
+    the interval). A row
+    whose joints have no acceleration limit is kept as it is."""
     out = b.copy()
     m, k = A.shape
     for i in range(m):
         if b[i] >= 0.0:
             continue
-        acc, jrk, fastest = 0.0, 0.0, 0.0
+        acc, jrk, s_last, s_lo, s_hi = 0.0, 0.0, 0.0, 0.0, 0.0
         for j in range(k):
-            acc += abs(A[i, j]) * acceleration[j]
-            jrk += abs(A[i, j]) * jerk[j]
-            fastest += abs(A[i, j]) * vmax[j]
+            x = abs(A[i, j])
+            if x == 0.0:
+                continue
+            acc += x * acceleration[j]
+            jrk += x * jerk[j]
+            s_last -= A[i, j] * v_last[j]
+            s_lo -= max(A[i, j] * h_lo[j], A[i, j] * h_hi[j])
+            s_hi -= min(A[i, j] * h_lo[j], A[i, j] * h_hi[j])
         if not np.isfinite(acc) or acc <= 0.0:
             continue
-        acc *= ROW_DECELERATION_SHARE
-        delay = 0.5 * period + (acc / jrk if np.isfinite(jrk) and jrk > 0.0 else 0.0)
-        speed = brake_speed(-b[i] / rate, rate, acc, delay)
-        if speed < fastest:
-            out[i] = -min(-b[i], speed)
+        gap = -b[i] / rate
+        speed = face_speed(gap, s_last, s_lo, s_hi, ROW_DECELERATION_SHARE * acc, ROW_DECELERATION_SHARE * jrk, period)
+        if speed <= s_lo:  # late (the distance fell faster than its first-order row said): all of it
+            speed = face_speed(gap, s_last, s_lo, s_hi, acc, jrk, period)
+        # The damper's own rule (-b_i) where the limits can keep it, else
+        # the slowest they allow (with room for the rounds' second-order
+        # terms: the row's slack, at most half the interval); never past
+        # the stop.
+        allowed = -b[i] if -b[i] >= s_lo else s_lo + min(slack[i], 0.5 * (s_hi - s_lo))
+        cap = speed if speed < s_hi else np.inf  # at s_hi the stop does not bind
+        out[i] = -min(cap, allowed)
     return out
+
+
+@njit(cache=True)
+def braking_lead(v, a_last, vmax, acceleration, jerk, rate, period):
+    """How far ahead the damper must make a pair's row for :func:`brake_rows`
+    to stop it in time: (lead, s; ramp, s): a pair whose distance shrinks
+    at most at ``speed`` (m/s) up to the next update, and whose closing
+    acceleration is at most ``c`` (m/s^2), needs its row from the target
+    distance plus (speed + ramp c) lead + speed dt on (v, a_last: the last
+    command's velocity and acceleration).
+
+    On the row (a_row = share sum_j |A_ij| a_j, j_row = share sum_j |A_ij|
+    j_j, u_j = min(|v_j| + a_j dt, vmax_j), w_j = |a_last_j| + j_j dt): its
+    closing acceleration c falls to -a_row at j_row within t <= c / j_row
+    + a_row / j_row <= tau_w + tau (tau_w = max_j w_j / (share j_j), tau =
+    max_j a_j / j_j), its speed growing meanwhile by at most c^2 / (2
+    j_row) <= ramp c (ramp = tau_w / 2); from s' = speed + ramp c it stops
+    within s'^2 / (2 a_row) <= s' (T + ramp max_j w_j / (share a_j)) / 2
+    (T = max_j u_j / (share a_j)), plus a step's travel for the discrete
+    update. The damper's own rule (closing at most rate x gap) adds s' /
+    rate. Joints without an acceleration limit do not count (a row that
+    moves them is not braked); without a jerk limit there is no ramp."""
+    T, tau, tau_w, ratio = 0.0, 0.0, 0.0, 0.0
+    for j in range(len(v)):
+        a = acceleration[j]
+        if not (np.isfinite(a) and a > 0.0):
+            continue
+        u = min(abs(v[j]) + a * period, vmax[j])
+        T = max(T, u / (ROW_DECELERATION_SHARE * a))
+        if np.isfinite(jerk[j]) and jerk[j] > 0.0:
+            w = abs(a_last[j]) + jerk[j] * period
+            tau = max(tau, a / jerk[j])
+            tau_w = max(tau_w, w / (ROW_DECELERATION_SHARE * jerk[j]))
+            ratio = max(ratio, w / (ROW_DECELERATION_SHARE * a))
+    ramp = 0.5 * tau_w
+    lead = 1.0 / rate + tau_w + tau + 0.5 * (T + ramp * ratio) + period
+    return lead, ramp
 
 
 @njit(cache=True)

@@ -87,8 +87,12 @@ a bad input brake at these limits rather than stop at once.
 the limits after the step still stops inside them
 (:func:`~.filter_kernel.face_speed`, exact for the discrete update), and
 each damper row lets its distance shrink no faster than a point mass
-decelerating at the row's share of the acceleration limits stops at the
-margin (:func:`~.filter_kernel.brake_rows`). Where the limits leave no
+braking at the row's share of the acceleration and jerk limits still
+stops at the margin (:func:`~.filter_kernel.brake_rows`, exact for the
+discrete update). A pair gets its row as far out as braking needs at the
+speed it may close at by the next update (its reach:
+:func:`~.filter_kernel.braking_lead`, :meth:`VelocityDamper.pair_speeds`),
+not only within the influence distance. Where the limits leave no
 way to keep a row (a moving obstacle faster than the arm can brake, a
 fault upstream), the command brakes at its limits and the update counts
 in ``braking_faults``.
@@ -211,7 +215,7 @@ from drake_cfvol.systems.constraints import (
     solve_rounds,
 )
 from drake_cfvol.systems.damper import DamperRows, DynamicPairs, VelocityDamper
-from drake_cfvol.systems.filter_kernel import brake_rows, budget_after, finish, hard_interval, request
+from drake_cfvol.systems.filter_kernel import brake_rows, braking_lead, budget_after, finish, hard_interval, request
 
 __all__ = ["FAULTS", "SafetyFilter", "SafetyFilterConfig"]
 
@@ -697,17 +701,22 @@ class SafetyFilter(LeafSystem):
             discrete_state.get_mutable_vector(self._measured_last).SetFromVector(np.full(k, np.nan))
         else:
             n = self._damper.num_pairs
+            kin, reach = None, None
+            if self._braked and n:
+                kin = self._damper.kinematics.poses_and_jacobians(base)
+                reach = self._braking_reach(kin, v_last, a_last)
             kept = context.get_discrete_state(self._budget).CopyToVector()
             if self.skip_far_pairs and n:
                 # What the budget kept at the last update's base still certainly holds here.
                 budget = self._damper.budget_moved(kept[-k:], base, kept[:n])
-                measure = (budget < 0) | self._always
+                extra = 0.0 if reach is None else reach - self.influence_distance
+                measure = (budget < extra) | self._always
             else:
                 budget, measure = np.full(n, -1.0), np.ones(n, bool)
             query = self.query_object_input.Eval(context)
             poses = self._dynamic.mark(query, measure)
             try:
-                rows = self._damper.rows(query, base, measure, poses)
+                rows = self._damper.rows(query, base, measure, poses, reach=reach, kin=kin)
             except RuntimeError:
                 rows = self._damper.empty()
                 fallback = True
@@ -715,6 +724,8 @@ class SafetyFilter(LeafSystem):
             # distance; the budget kept: measured pairs' distance beyond it,
             # the others' budget, both with the robot at this base.
             dmin, keep = budget_after(rows.distances, budget, self.influence_distance, base)
+            if self._braked and len(rows.b):
+                rows = self._braked_rows(rows, v_last, h_lo, h_hi, kin)
             fault = self._fault(rows)
             if fault:  # braked to a stop from now on: no QP at this update or after
                 self._brake(discrete_state, q, v_last, a_last)
@@ -723,10 +734,6 @@ class SafetyFilter(LeafSystem):
                 faulted[_COUNT] += 1
                 discrete_state.get_mutable_vector(self._status).SetFromVector(faulted)
                 return
-            if self._braked and len(rows.b):
-                rows = rows._replace(
-                    b=brake_rows(rows.A, rows.b, self.rate, self._vmax, self._acceleration, self._jerk, h)
-                )
             v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal, drift, (h_lo, h_hi))
             tracking = missed and drift is not None
             if drift is not None:
@@ -771,6 +778,53 @@ class SafetyFilter(LeafSystem):
         h_lo, h_hi = hard_interval(self._vmax, self.period, v_last, a_last, self._acceleration, self._jerk)
         v = np.minimum(np.maximum(0.0, h_lo), h_hi)
         self._command(discrete_state, q + v * self.period, v, v_last)
+
+    def _braking_reach(self, kin, v_last, a_last) -> np.ndarray:
+        """Per pair, how near it must be to get a row at this update, m:
+        the influence distance, or farther where its closing speed and
+        acceleration by the next update (the last command's, plus one
+        update's acceleration and jerk: :meth:`VelocityDamper.pair_speeds`)
+        need the row earlier to stop it in time
+        (:func:`~.filter_kernel.braking_lead`)."""
+        h = self.period
+        dv = np.where(np.isfinite(self._acceleration), self._acceleration * h, 0.0)
+        da = np.where(np.isfinite(self._jerk), self._jerk * h, 0.0)
+        speed = self._damper.pair_speeds(kin[2], kin[3], v_last, dv)
+        closing = self._damper.pair_speeds(kin[2], kin[3], a_last, da)
+        lead, ramp = braking_lead(v_last, a_last, self._vmax, self._acceleration, self._jerk, self.rate, h)
+        return np.maximum(self.target_distance + (speed + ramp * closing) * lead + speed * h, self.influence_distance)
+
+    def _braked_rows(self, rows: DamperRows, v_last, h_lo, h_hi, kin) -> DamperRows:
+        """The rows braked in time (:func:`~.filter_kernel.brake_rows`),
+        less those that cannot bind at this update: within the hard
+        interval [h_lo, h_hi] (|v_j| <= w_j) their first-order rate A v
+        stays above b plus twice a bound of the second-order term the
+        rounds add. A point on a slot's body moved by the step dq = v dt
+        falls short of its first-order motion by at most theta (sum_j
+        levers_j |dq_j|) / 2 (theta = sum_j |dq_j|, levers the slot's
+        :meth:`VelocityDamper.levers`: each second derivative of a point is
+        at most the lever of the later joint). Such a pair is measured
+        again at the next update (its budget is spent)."""
+        worst = np.minimum(rows.A * h_lo, rows.A * h_hi).sum(axis=1)  # the least A v in the interval
+        w = np.maximum(np.abs(h_lo), np.abs(h_hi))
+        theta = float(w.sum()) * self.period
+        slot = np.append(self._damper.levers(kin[2], kin[3]) @ w, 0.0)  # per slot; the last: welded
+        bound = theta * slot[rows.slots].sum(axis=1)  # twice the bound, as a rate (m/s)
+        b = brake_rows(
+            rows.A, rows.b, self.rate, self._acceleration, self._jerk, self.period, v_last, h_lo, h_hi, bound
+        )
+        keep = worst < b + bound
+        if keep.all():
+            return rows._replace(b=b)
+        return rows._replace(
+            A=rows.A[keep],
+            b=b[keep],
+            dirs=rows.dirs[keep],
+            points=rows.points[keep],
+            slots=rows.slots[keep],
+            rounds=rows.rounds[keep],
+            pair=rows.pair[keep],
+        )
 
     def _fault(self, rows: DamperRows) -> int:
         """The fault these rows raise (:data:`FAULTS`), or 0: more rows than
