@@ -451,7 +451,9 @@ def _check_blocks(Q, order, b0, b1, m, blk, pad, out):
 
 
 @njit(cache=True, parallel=True)
-def configs_may_collide(Q, order, m, blk, pad, per=4):
+def configs_may_collide(
+    Q: np.ndarray, order: np.ndarray, m: Model, blk: Blocks, pad: float, per: int = 4
+) -> np.ndarray:
     """(N,) True where a configuration may collide with the obstacles or
     itself, or come closer to them than ``pad`` (m); False is certified
     free (farther than ``pad`` from everything). ``m``: a :class:`Model`
@@ -515,7 +517,7 @@ def configs_may_collide(Q, order, m, blk, pad, per=4):
 
 
 @njit(cache=True)
-def configs_may_collide_serial(Q, m, blk, pad):
+def configs_may_collide_serial(Q: np.ndarray, m: Model, blk: Blocks, pad: float) -> np.ndarray:
     """:func:`configs_may_collide` on the calling thread: for a few
     configurations (a guard's checks), where waking the thread pool costs
     more than the work."""

@@ -237,7 +237,7 @@ def fk_block(Q, start, n, chain, KR, Kp, ws):
 
 
 @njit(cache=True, parallel=True)
-def fk_blocks(Q, chain, KR, Kp):
+def fk_blocks(Q: np.ndarray, chain: Chain, KR: np.ndarray, Kp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Body poses for many configurations, in blocks: (N, B, 3, 3), (N, B, 3)."""
     N = Q.shape[0]
     parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = chain
@@ -266,7 +266,7 @@ COHERENT_BITS = 8
 
 
 @njit(cache=True)
-def coherent_order(Q, dims, bits):
+def coherent_order(Q: np.ndarray, dims: int, bits: int) -> np.ndarray:
     """(N,) an order of the configurations Q (N, k) in which neighbours are
     near: by the Morton code of their first ``dims`` joints, ``bits`` each
     over the batch's range (dims x bits <= 32), sorted stably (two 16-bit

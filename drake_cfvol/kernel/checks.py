@@ -20,7 +20,7 @@ from drake_cfvol.kernel.shapes import (
     row_aabb_inline,
     set_motion,
 )
-from drake_cfvol.kernel.types import _C, _EI, SHAPE_W, Chain
+from drake_cfvol.kernel.types import _C, _EI, SHAPE_W, Chain, Model
 
 __all__ = ["lower_columns_under", "obstacle_distances"]
 
@@ -76,7 +76,14 @@ def _pose_padded(s, R_WB, p_WB, shapes, shape_body, verts, pad, objs, aabbs):
 
 
 @njit(cache=True)
-def lower_columns_under(Q, e_body, m, heights, grid, clearance):
+def lower_columns_under(
+    Q: np.ndarray,
+    e_body: np.ndarray,
+    m: Model,
+    heights: np.ndarray,
+    grid: tuple[float, float, float],
+    clearance: float,
+) -> None:
     """Lowers every column under the robot at configurations Q (each body
     grown by e_body[n, b], a ball) to ``clearance`` below the lowest point of
     any shape whose footprint's bounding rectangle covers it (bodies that
@@ -126,7 +133,7 @@ def _touches(objs, S, e, verts, obstacle, ws):
 
 
 @njit(cache=True, parallel=True)
-def obstacle_distances(Q, hi, tol, m):
+def obstacle_distances(Q: np.ndarray, hi: float, tol: float, m: Model) -> np.ndarray:
     """(N, O) distance from the robot at Q[n] (its shapes on bodies some
     joint moves) to obstacle shape o, by bisection on the radius of a ball
     grown around every robot shape: within ``tol`` below the true distance;

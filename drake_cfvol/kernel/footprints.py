@@ -9,11 +9,11 @@ from numba import njit
 
 from drake_cfvol.kernel.kinematics import fk_into
 from drake_cfvol.kernel.shapes import pose_shape, support
-from drake_cfvol.kernel.types import FOOTPRINT_DIRECTIONS, SHAPE_W
+from drake_cfvol.kernel.types import FOOTPRINT_DIRECTIONS, SHAPE_W, Model
 
 
 @njit(cache=True)
-def shape_footprint(row, verts, out):
+def shape_footprint(row: np.ndarray, verts: np.ndarray, out: np.ndarray) -> None:
     """The xy footprint of a shape as a convex polygon: its support points
     along FOOTPRINT_DIRECTIONS horizontal directions, in order (exact at
     the vertices it reaches; never outside the true footprint). out: (n, 2)."""
@@ -27,7 +27,7 @@ def shape_footprint(row, verts, out):
 
 
 @njit(cache=True)
-def fill_convex_polygon(mask, poly, x0, y0, pixel):
+def fill_convex_polygon(mask: np.ndarray, poly: np.ndarray, x0: float, y0: float, pixel: float) -> None:
     """Marks the pixels of ``mask`` (indexed [ix, iy], pixel centres at
     x0 + (ix + 0.5) pixel) whose centre lies in the convex polygon (vertices
     in order, either orientation), plus the pixel under each vertex, so a
@@ -71,7 +71,7 @@ def fill_convex_polygon(mask, poly, x0, y0, pixel):
 
 
 @njit(cache=True)
-def robot_footprint(Q, m, mask, x0, y0, pixel):
+def robot_footprint(Q: np.ndarray, m: Model, mask: np.ndarray, x0: float, y0: float, pixel: float) -> None:
     """Marks the robot's xy footprint at every configuration of Q (bodies
     that never move: once) in ``mask``. ``m``: a :class:`Model`."""
     shapes, shape_body, verts, movable = m.shapes, m.shape_body, m.verts, m.movable
@@ -126,7 +126,7 @@ def _edt_1d(f, n, d, v, z):
 
 
 @njit(cache=True)
-def distance_map(mask):
+def distance_map(mask: np.ndarray) -> np.ndarray:
     """Exact Euclidean distance (in pixels) from each pixel centre to the
     nearest marked pixel centre; inf where nothing is marked."""
     nx, ny = mask.shape

@@ -15,7 +15,7 @@ __all__ = ["gjk_intersect"]
 
 
 @njit(cache=True)
-def gjk_intersect(A, vA, B, vB, max_iter=64):
+def gjk_intersect(A: np.ndarray, vA: np.ndarray, B: np.ndarray, vB: np.ndarray, max_iter: int = 64) -> bool:
     """True where objects A and B (2-D arrays of shape rows) may overlap.
 
     False only with a certificate: a direction d along which the support of

@@ -14,7 +14,7 @@ __all__ = ["range_max_table", "range_max", "object_hits_columns"]
 
 
 @njit(cache=True)
-def range_max_table(h):
+def range_max_table(h: np.ndarray) -> np.ndarray:
     """2-D sparse table of maxima over blocks of 2^a x 2^b cells:
     (la, lb, m, n)."""
     m, n = h.shape
@@ -56,7 +56,7 @@ def _clip_block(i0, i1, j0, j1, m, n):
 
 
 @njit(cache=True)
-def range_max(t, i0, i1, j0, j1):
+def range_max(t: np.ndarray, i0: int, i1: int, j0: int, j1: int) -> float:
     """Max over cells [i0, i1] x [j0, j1] (clipped); -inf if empty."""
     i0, i1, j0, j1 = _clip_block(i0, i1, j0, j1, t.shape[2], t.shape[3])
     if i1 < i0 or j1 < j0:
@@ -69,7 +69,7 @@ def range_max(t, i0, i1, j0, j1):
 
 
 @njit(cache=True)
-def new_workspace():
+def new_workspace() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Scratch arrays for the scene tests (one per thread): GJK rows, the
     footprint stack, a one-row box object, and a 6-vector."""
     ws = np.empty((18, 3))
@@ -84,20 +84,31 @@ def new_workspace():
 
 
 @njit(cache=True)
-def new_scratch():
+def new_scratch() -> Scratch:
     """:func:`new_workspace` as a :class:`Scratch`."""
     ws, stack, box, tmp6 = new_workspace()
     return Scratch(ws, stack, box, tmp6)
 
 
 @njit(cache=True)
-def no_height_field():
+def no_height_field() -> HeightField:
     """A :class:`HeightField` without columns (no volume V)."""
     return HeightField(np.zeros((1, 1, 0, 0)), 0.0, 0.0, 1.0)
 
 
 @njit(cache=True)
-def object_hits_columns(obj, verts, aabb, table, ox, oy, side, ws, stack, box):
+def object_hits_columns(
+    obj: np.ndarray,
+    verts: np.ndarray,
+    aabb: np.ndarray,
+    table: np.ndarray,
+    ox: float,
+    oy: float,
+    side: float,
+    ws: np.ndarray,
+    stack: np.ndarray,
+    box: np.ndarray,
+) -> bool:
     """True where the object (its axis-aligned box ``aabb``) may touch a
     column of V. The footprint's cell block is halved until each half is
     free (its tallest column below the object, or a GJK certificate against

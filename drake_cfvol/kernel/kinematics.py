@@ -43,7 +43,7 @@ def _mm(A, B, out):
 
 
 @njit(cache=True)
-def fk_into(q, chain, R_WB, p_WB):
+def fk_into(q: np.ndarray, chain: Chain, R_WB: np.ndarray, p_WB: np.ndarray) -> None:
     """Body poses X_WB at q into (B, 3, 3) / (B, 3) arrays. Bodies are in
     topological order (parents first); parent -1 is the world.
     X_WB = X_WP X_PF X_FM(q) X_MB. ``chain``: a :class:`Chain`. Written out
@@ -117,7 +117,7 @@ def fk_into(q, chain, R_WB, p_WB):
 
 
 @njit(cache=True, parallel=True)
-def fk(Q, chain):
+def fk(Q: np.ndarray, chain: Chain) -> tuple[np.ndarray, np.ndarray]:
     """Body poses for many configurations: (N, B, 3, 3), (N, B, 3)."""
     N = Q.shape[0]
     B = chain.parent.shape[0]

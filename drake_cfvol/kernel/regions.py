@@ -460,7 +460,20 @@ def _region_workspace(B, k, O, shapes, verts, spheres, ranges):
 
 
 @njit(cache=True, parallel=True)
-def sweep_chains(chains, lims, nts, v_steps, W, m, field, pads, guesses, memo, memo_n, changed):
+def sweep_chains(
+    chains: np.ndarray,
+    lims: tuple[np.ndarray, np.ndarray, np.ndarray],
+    nts: np.ndarray,
+    v_steps: np.ndarray,
+    W: np.ndarray,
+    m: Model,
+    field: HeightField,
+    pads: np.ndarray,
+    guesses: np.ndarray,
+    memo: np.ndarray,
+    memo_n: np.ndarray,
+    changed: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Certified single-joint bounds of every stretch (:func:`_search`),
     keeping stretch i at least ``pads[i]`` (m) from the scene and itself.
     Chain n = (j, sign) walks the stretches in order, each search starting
@@ -567,7 +580,17 @@ QUICK_TRIALS = 8
 
 
 @njit(cache=True, parallel=True)
-def regions_hit(A, B, js, va, vb, nts, nvs, pads, m):
+def regions_hit(
+    A: np.ndarray,
+    B: np.ndarray,
+    js: np.ndarray,
+    va: np.ndarray,
+    vb: np.ndarray,
+    nts: np.ndarray,
+    nvs: np.ndarray,
+    pads: np.ndarray,
+    m: Model,
+) -> np.ndarray:
     """Region tests of many straight pieces (the certificate's box edges).
 
     Task n is the region {c(t) with joint js[n] replaced by v : t in [0, 1],

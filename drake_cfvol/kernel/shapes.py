@@ -43,7 +43,7 @@ _UNKNOWN_REACH = 1e12
 __all__ = ["row_aabb"]
 
 
-def _pose_shape(local, R_WB, p_WB, out):
+def _pose_shape(local: np.ndarray, R_WB: np.ndarray, p_WB: np.ndarray, out: np.ndarray) -> None:
     """A shape row posed in the world: out = local with the body pose applied
     (centre and rotation); the motion fields are left as in ``local``.
     Element by element (a slice copy and nested sums cost twice as much)."""
@@ -68,7 +68,7 @@ pose_shape_inline = njit(inline="always")(_pose_shape)
 
 
 @njit(cache=True, inline="always")
-def set_motion(row, e_iso, u0, u1, u2, e_disc, e_seg):
+def set_motion(row: np.ndarray, e_iso: float, u0: float, u1: float, u2: float, e_disc: float, e_seg: float) -> None:
     row[_EI] = e_iso
     row[_U] = u0
     row[_U + 1] = u1
@@ -141,7 +141,7 @@ def _add_motion(row, d0, d1, d2, out):
 
 
 @njit(cache=True)
-def support(row, verts, d0, d1, d2, out):
+def support(row: np.ndarray, verts: np.ndarray, d0: float, d1: float, d2: float, out: np.ndarray) -> None:
     """The point of the shape (with its motion set) farthest along d, into
     out (3,). Exact for every kind."""
     # Direction in the shape frame: R^T d.
@@ -181,7 +181,7 @@ def support_multi(obj, verts, d0, d1, d2, out, tmp):
             out[2] = tmp[2]
 
 
-def _row_aabb(row, verts, out):
+def _row_aabb(row: np.ndarray, verts: np.ndarray, out: np.ndarray) -> None:
     """A shape row's (with its motion set) axis-aligned box, closed form:
     out = [xmin, ymin, zmin, xmax, ymax, zmax]."""
     kind = int(row[_K])
@@ -222,7 +222,7 @@ row_aabb_inline = njit(inline="always")(_row_aabb)
 
 
 @njit(cache=True)
-def object_aabb(obj, verts, out, tmp6):
+def object_aabb(obj: np.ndarray, verts: np.ndarray, out: np.ndarray, tmp6: np.ndarray) -> None:
     """The axis-aligned box of an object (union over its rows)."""
     row_aabb(obj[0], verts, out)
     for p in range(1, obj.shape[0]):

@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -231,7 +232,12 @@ def warm_up_shares(jobs: int | None = None) -> dict:
     return dict(PARALLEL_SHARES if _helper_wanted(jobs) else STEP_SHARES)
 
 
-def warm_up(on_step=None, *, jobs: int | None = None, meanwhile=()) -> float:
+def warm_up(
+    on_step: Callable[[str, float], object] | None = None,
+    *,
+    jobs: int | None = None,
+    meanwhile: Iterable[tuple[str, Callable[[], object]]] = (),
+) -> float:
     """Compiles (or loads from numba's cache) every kernel by running it
     once on a tiny made-up scene. ``on_step(name, seconds)`` is called after
     each step (:func:`warm_up_shares` names them). Returns the seconds it

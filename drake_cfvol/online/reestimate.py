@@ -222,7 +222,7 @@ class OnlineBounds:
         )
         self._sign = self._setup.chains[:, 1].astype(float)
         self._heights = np.array(self._vb.volume.heights, float)
-        self._table = None  # V's range-max table, built when first needed after a change
+        self._table: np.ndarray | None = None  # V's range-max table, built when first needed after a change
         self._caps: np.ndarray | None = (
             None  # V's columns' caps under the nominal (column_caps), made at the first change
         )
