@@ -311,6 +311,41 @@ def test_configuration_page_lists_every_field():
     assert "safety margin" in row and VolumeParams().clearance == 0.02
 
 
+def test_every_configuration_field_is_described():
+    """Every field reachable from the configuration page's roots has a
+    description (its class's ``Attributes:``, a base dataclass's, or the
+    class a scenario section copies); and the check finds a field left out,
+    in a class nested below a root, and keeps prose with "; name:" whole."""
+    import dataclasses
+
+    tool = _docs_tool()
+    assert tool.undocumented() == [], "describe these fields in their class's Attributes: section"
+
+    @dataclasses.dataclass
+    class Planted:
+        """A made-up section with one undocumented field.
+
+        Attributes:
+            described: a length, m; null: none.
+        """
+
+        described: float | None = None
+        bare: float = 0.0
+
+    @dataclasses.dataclass
+    class Root:
+        """A made-up root.
+
+        Attributes:
+            section: :class:`Planted`.
+        """
+
+        section: Planted = dataclasses.field(default_factory=Planted)
+
+    assert tool.undocumented([Root]) == ["Planted.bare"]
+    assert tool.descriptions(Planted) == {"described": "a length, m; null: none."}
+
+
 def test_benchmark_page_holds_every_result():
     """Every committed run's results are on the page: each table row of
     each benchmarks/*/results.md, and each of its plots linked."""

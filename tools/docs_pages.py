@@ -120,6 +120,8 @@ def benchmarks_page() -> str:
 def attributes(cls) -> dict[str, str]:
     """Field name -> description, from the ``Attributes:`` section of the
     class's docstring (``a, b: text`` describes both)."""
+    # Only a field's name starts a second description on a line: "(...); null: none" is prose.
+    fields = {f.name for f in dataclasses.fields(cls)} if dataclasses.is_dataclass(cls) else set()
     doc = cls.__doc__ or ""
     m = re.search(r"^(\s*)Attributes:\s*\n(.*?)(?=^\s*\n\s*\S[^\n]*:\s*\n|\Z)", doc, re.S | re.M)
     if not m:
@@ -131,7 +133,7 @@ def attributes(cls) -> dict[str, str]:
     def flush():
         text = " ".join(" ".join(lines).split())
         # "kp: 1/s^2; kd: 1/s": several fields described on one line.
-        parts = re.split(r"; ([A-Za-z_][A-Za-z0-9_]*): ", text)
+        parts = re.split(r"; (" + "|".join(map(re.escape, sorted(fields))) + r"): ", text) if fields else [text]
         for n in names:
             out[n] = markdown(parts[0])
         for n, t in zip(parts[1::2], parts[2::2]):
@@ -147,6 +149,16 @@ def attributes(cls) -> dict[str, str]:
         else:
             lines.append(line.strip())
     flush()
+    return out
+
+
+def descriptions(cls) -> dict[str, str]:
+    """Field name -> description, a base dataclass's for the fields the
+    class inherits unless its own docstring describes them again."""
+    out: dict[str, str] = {}
+    for base in reversed(cls.__mro__):
+        if dataclasses.is_dataclass(base):
+            out.update({n: t for n, t in attributes(base).items() if t.strip()})
     return out
 
 
@@ -215,7 +227,7 @@ def _nested(t) -> list:
 
 
 def section(cls, hints) -> list[str]:
-    described = attributes(cls)
+    described = descriptions(cls)
     summary = markdown(" ".join((cls.__doc__ or "").strip().split("\n\n")[0].split()))
     lines = [
         f"### {cls.__name__}",
@@ -243,20 +255,44 @@ def configuration_page() -> str:
         "documented by Drake.",
         "",
     ]
-    done = set()
+    done: set = set()
     for title, module, name, where in ROOTS:
-        cls = getattr(importlib.import_module(module), name)
         out += [f"## {title}", "", where, ""]
-        queue = [cls]
-        while queue:
-            c = queue.pop(0)
-            if c in done:
-                continue
-            done.add(c)
-            hints = typing.get_type_hints(c)
-            out += section(c, hints)
-            queue += [n for f in dataclasses.fields(c) for n in _nested(hints[f.name]) if n not in done]
+        for c in walk([getattr(importlib.import_module(module), name)], done):
+            out += section(c, typing.get_type_hints(c))
     return "\n".join(out).rstrip() + "\n"
+
+
+def walk(roots: list, done: set | None = None) -> list:
+    """The dataclasses ``roots`` and those their fields' types refer to,
+    breadth first, each once (``done``: those already drawn, updated)."""
+    done = set() if done is None else done
+    found, queue = [], list(roots)
+    while queue:
+        c = queue.pop(0)
+        if c in done:
+            continue
+        done.add(c)
+        found.append(c)
+        hints = typing.get_type_hints(c)
+        queue += [n for f in dataclasses.fields(c) for n in _nested(hints[f.name]) if n not in done]
+    return found
+
+
+def root_classes() -> list:
+    """The dataclasses of ``ROOTS``."""
+    return [getattr(importlib.import_module(module), name) for _, module, name, _ in ROOTS]
+
+
+def undocumented(roots: list | None = None) -> list[str]:
+    """``Class.field`` of every field without a description, in the
+    dataclasses reachable from ``roots`` (default: the page's, ``ROOTS``)."""
+    return [
+        f"{c.__name__}.{f.name}"
+        for c in walk(root_classes() if roots is None else roots)
+        for f in dataclasses.fields(c)
+        if not descriptions(c).get(f.name, "").strip()
+    ]
 
 
 #: Each generated page and the function that draws it.

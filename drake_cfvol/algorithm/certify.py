@@ -89,24 +89,27 @@ class Certify:
 
     Attributes:
         epsilon: the largest colliding share allowed, in (0, 1), of
-            configurations uniform in the box.
-        clamp_epsilon: the same for where a clamp lands
+            configurations uniform in the box. With ``confidence`` it sets
+            the certificate's sample count N = ceil(ln(1 / (1 -
+            confidence)) / epsilon).
+        clamp_epsilon: the same, in (0, 1), for where a clamp lands
             (:func:`clamp_draws`); None: 10 x epsilon (at most 0.5). The
             boundary proof, when on, covers the box's edges and corners
             for certain.
         confidence: probability that the certificate is right, in (0, 1).
         seed: seed of the certification samples (a stream distinct from CF's).
-        batch: search samples per stretch in the first search round
-            (rounds double it).
-        search_rounds: search rounds before the certificate run.
+        batch: search samples per stretch in the first search round, a
+            count (>= 1); each round doubles it.
+        search_rounds: search rounds before the certificate run, a count
+            (>= 0; 0: no search).
         search_factor: the search draws at most this many times N samples
-            in all (a small N needs little search).
+            in all, no unit (>= 0; a small N needs little search).
         edge_share: share of search coordinates drawn in the outer tenth
-            of their range.
+            of their range (either end), in [0, 1].
         focus_samples, focus_rounds: after a colliding sample in the
             certificate run, its stretch is searched again with this many
-            samples per round, until a round finds nothing (at most
-            ``focus_rounds``).
+            samples per round (a count, at most N), until a round finds
+            nothing (at most ``focus_rounds`` rounds, a count; 0: none).
         boundary: prove every edge and corner of the box at every s
             (:mod:`drake_cfvol.algorithm.boundary`), where a clamp pushed steadily
             lands (default). False: the sampled certificate only, a little

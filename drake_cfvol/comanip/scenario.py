@@ -4,6 +4,7 @@ checks that name the file and field, and the bundled scenarios' folder.
 """
 
 import dataclasses
+import inspect
 import re
 import types
 import typing
@@ -87,8 +88,27 @@ def _loadable(cls, name: str, doc: str, *, optional: bool = False, exclude=()):
         else:
             fields.append((f.name, t, dataclasses.field(default=f.default)))
     out = dataclasses.make_dataclass(name, fields)
-    out.__module__, out.__doc__ = __name__, doc
+    out.__module__, out.__doc__ = __name__, doc + _attributes_of(cls, exclude)
     return out
+
+
+def _attributes_of(cls: type, exclude: typing.Iterable[str] = ()) -> str:
+    """The ``Attributes:`` section of ``cls``'s docstring without the
+    entries of the fields in ``exclude`` ("" if it has none): a
+    :func:`_loadable` class's fields keep their descriptions, for help()
+    and the configuration reference."""
+    _, found, rest = inspect.cleandoc(cls.__doc__ or "").partition("\nAttributes:\n")
+    kept: list[str] = []
+    keep = True
+    for line in rest.splitlines():
+        if line.strip() and not line.startswith(" "):
+            break  # the section's end: the next unindented paragraph
+        entry = re.match(r"    (\w+(?:, \w+)*):", line)
+        if entry:
+            keep = not set(entry.group(1).split(", ")) <= set(exclude)
+        if keep:
+            kept.append(line)
+    return "\n\nAttributes:\n" + "\n".join(kept).rstrip() if found else ""
 
 
 if typing.TYPE_CHECKING:  # classes made at import: the type checker takes them as Any
@@ -196,8 +216,8 @@ class HumanConfig:
 @dataclasses.dataclass
 class ControlConfig(CoManipulationConfig):
     """The control chain: :class:`~drake_cfvol.systems.CoManipulationConfig`
-    (``admittance``, ``safety_filter``: null for none, ``path_progress``,
-    ``velocity_limits``) and its update period.
+    (its fields described there: the admittance, the safety filter, the
+    path's progress and the joints' limits) and its update period.
 
     Attributes:
         period: the control period, s.

@@ -21,32 +21,48 @@ class VolumeParams:
     arguments to :meth:`for_workcell` override both.
 
     Attributes:
-        resolution: R, the maximum number of height-map cells.
-        alpha_t, alpha_g, alpha_ng: exponents of the Delta terms.
-        d_t_lb, d_t_ub: floor and top of the trail term, m. Cells nearer the
+        resolution: R, the most height-map cells, a count (> 0): the
+            cells' side is sqrt(x_dim y_dim / R).
+        alpha_t, alpha_g, alpha_ng: exponents of the trail, goal and
+            no-goal terms Delta_t, Delta_g, Delta_ng (each in [0, 1]), no
+            unit (> 0).
+        d_t_lb, d_t_ub: floor and top of the trail term, m (0 <= d_t_lb <
+            d_t_ub): Delta_t grows from 0 to 1 as a cell's distance to the
+            trail's footprint grows from one to the other. Cells nearer the
             trail than ``d_t_lb`` get no column (activation A_t = 0).
-        d_g_lb, d_g_ub: floor and top of the goal term, m.
-        d_ng_ub: top of the no-goal term, m.
-        h_max: the largest height one term contributes, m.
-        reach: cells farther than this from the base (or the rail segment)
-            get no column, m. None: the workcell's ``reach``.
-        trail_radius: obstacles this near the robot anywhere on the path
-            join the trail set, m.
-        goal_radius: obstacles this near the robot at the goal (signed
-            distance) form the goal set, m.
-        delta: bisection tolerance for revolute joints, rad.
-        delta_prismatic: bisection tolerance for prismatic joints, m.
+        d_g_lb, d_g_ub: floor and top of the goal term, m (0 <= d_g_lb <
+            d_g_ub): Delta_g grows from 0 to 1 as a cell's distance to the
+            goal set's footprint grows from one to the other.
+        d_ng_ub: top of the no-goal term, m (> 0): Delta_ng falls from 1 on
+            the no-goal set's footprint to 0 this far from it.
+        h_max: the largest height one term contributes, m (>= 0); a column
+            is at most 3 h_max high.
+        reach: cells whose centre is farther than this from the robot's
+            base (or the segment its base travels on a rail) get no column,
+            m (> 0). None: the workcell's ``reach`` (every cell if that is
+            0).
+        trail_radius: obstacles nearer than this to the robot at some
+            nominal waypoint join the trail set, m (>= 0).
+        goal_radius: the other obstacles nearer than this to the robot at
+            the goal (signed distance) form the goal set, m (>= 0).
+        delta: the tolerance of revolute joints' bounds, rad (> 0): a
+            bound's search ends where an interval no wider than this beyond
+            the bound may collide.
+        delta_prismatic: the same for prismatic joints, m (> 0).
         column_clearance: columns are lowered to stay this far below the
-            robot at every nominal waypoint, m.
-        raster: pixel size of the footprint distance maps, m.
+            robot all along the nominal (its waypoints and the motion
+            between them), m (>= 0).
+        raster: pixel side of the rasters the footprints are drawn on for
+            the height function's distances, m (> 0).
         waypoint_time: nominal seconds per waypoint, for the bounds' rate
-            limit (each joint's velocity limit times this, per unit s). None:
-            the nominal at NOMINAL_SPEED_FRACTION (25 %) of the velocity
-            limits (:func:`drake_cfvol.algorithm.sweep.default_rate`).
-        clearance: the safety margin, m: no configuration the bounds allow
-            (and none the runtime safety filter commands) comes nearer to an
-            obstacle or to the robot itself than min(clearance, the
-            nominal's own clearance at s); planning keeps it too. The
+            limit (each joint's velocity limit times this, per unit s), s
+            (> 0). None: the nominal at NOMINAL_SPEED_FRACTION (25 %) of
+            the velocity limits
+            (:func:`drake_cfvol.algorithm.sweep.default_rate`).
+        clearance: the safety margin, m (0 to 0.5): no configuration the
+            bounds allow (and none the runtime safety filter commands) comes
+            nearer to an obstacle or to the robot itself than min(clearance,
+            the nominal's own clearance at s); planning keeps it too. The
             default, 0.02 m, covers the models' tolerance against the real
             cell (a few mm), a tracking error of a few mm at the tool and a
             margin left to stop in; 0 is the paper's setting (touching
