@@ -61,13 +61,18 @@ class BatchSettings:
         name: the setting's label in file names and results (default
             ``R<resolution>``, ``-certified`` when certified, ``-c<clearance>``
             when one is given).
-        resolution: height-map cells R.
+        resolution: height-map cells R, a count (>= 1).
         clearance: margin kept from the obstacles and the robot itself, m
-            (None: the cell's default); planning keeps it too.
+            (>= 0; None: the cell's default); planning keeps it too.
         certify: certify the whole boxes (:class:`drake_cfvol.Certify`).
-        epsilon, confidence, boundary_proof: the certificate's settings.
+        epsilon, confidence: the certificate's largest colliding share and
+            its probability of being right, each in (0, 1) (Certify's).
+        boundary_proof: prove the boxes' edges and corners too (Certify's
+            ``boundary``).
         cache: reuse a certificate computed before for the same inputs.
-        cf_windows, cf_samples: the Confidence Factor's N_tw and N_m.
+        cf_windows, cf_samples: the Confidence Factor's N_tw and N_m: the
+            path split into this many equal windows, this many samples
+            checked in each; counts (>= 1).
         seed: the planner's, the certificate's and CF's seed.
     """
 
