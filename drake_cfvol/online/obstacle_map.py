@@ -27,14 +27,20 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Iterable, Sequence
 
 import numpy as np
+import numpy.typing as npt
 from numba import njit
 
 from drake_cfvol.algorithm.heightmap import merge_equal
 from drake_cfvol.exceptions import ParameterError
 
 __all__ = ["MapGrid", "ObstacleMap", "PerceptionParams", "dilate", "merged_rectangles"]
+
+#: A source of points for :meth:`ObstacleMap.integrate_sources`: points
+#: (3, N), and a mask (N,) of those to take (None: all).
+PointSource = tuple[npt.ArrayLike, npt.ArrayLike | None]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -89,7 +95,9 @@ class MapGrid:
     shape: tuple[int, int]
 
     @classmethod
-    def covering(cls, origin, size, side: float) -> "MapGrid":
+    def covering(
+        cls, origin: Sequence[float] | np.ndarray, size: Sequence[float] | np.ndarray, side: float
+    ) -> "MapGrid":
         """The grid of ``side`` cells covering a rectangle (origin, size), m."""
         if not side > 0:
             raise ParameterError(f"a map cell's side must be > 0 m, got {side!r}.")
@@ -322,7 +330,14 @@ class ObstacleMap:
         hidden = None if hidden_points is None else [(hidden_points, None)]
         return self.integrate_sources([(new_points, None)], [(seen_points, None)], stamp, params, hidden)
 
-    def integrate_sources(self, new, seen, stamp: float, params: PerceptionParams, hidden=None) -> "ObstacleMap":
+    def integrate_sources(
+        self,
+        new: Iterable[PointSource],
+        seen: Iterable[PointSource],
+        stamp: float,
+        params: PerceptionParams,
+        hidden: Iterable[PointSource] | None = None,
+    ) -> "ObstacleMap":
         """:meth:`integrate` with each kind of point given as sources
         ((points (3, N), mask (N,) bools or None: all), ...), so that an
         image's pixels are taken where they lie, never gathered."""

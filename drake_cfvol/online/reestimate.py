@@ -45,6 +45,7 @@ from drake_cfvol.kernel import kinds
 from drake_cfvol.online.obstacle_map import ObstacleMap
 from drake_cfvol.scene.arrays import SceneArrays
 from drake_cfvol.scene.params import VolumeParams
+from drake_cfvol.scene.workcell import Workcell
 
 __all__ = ["LiveBounds", "OnlineBounds", "BoundsUpdate", "shape_radii", "FrozenLog"]
 
@@ -87,16 +88,35 @@ class LiveBounds:
         self.version = version
         self._wl, self._wu = waypoint_boxes(self.stretch_lower, self.stretch_upper, base.nominal, self.rate)
 
-    g = property(lambda self: self.base.g)
-    k = property(lambda self: self.base.k)
-    nominal = property(lambda self: self.base.nominal)
-    params = property(lambda self: self.base.params)
-    joint_names = property(lambda self: self.base.joint_names)
+    @property
+    def g(self) -> int:
+        """The base table's number of waypoints."""
+        return self.base.g
+
+    @property
+    def k(self) -> int:
+        """The base table's number of joints."""
+        return self.base.k
+
+    @property
+    def nominal(self) -> np.ndarray:
+        """(g, k) the base table's nominal waypoints."""
+        return self.base.nominal
+
+    @property
+    def params(self) -> dict:
+        """The base table's parameters."""
+        return self.base.params
+
+    @property
+    def joint_names(self) -> list[str]:
+        """The base table's k joints."""
+        return self.base.joint_names
 
     def __deepcopy__(self, memo) -> "LiveBounds":
         return self  # never changed once made: Drake's state copies share it
 
-    def at(self, s: float):
+    def at(self, s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(lower, upper, nominal) at path parameter s in [0, g-1]."""
         lo, hi, nom = box_at(
             self._wl,
@@ -110,7 +130,7 @@ class LiveBounds:
         lo_b, hi_b, _ = self.base.at(s)
         return np.minimum(np.maximum(lo, lo_b), nom), np.maximum(np.minimum(hi, hi_b), nom), nom
 
-    def boxes_at(self, s: np.ndarray):
+    def boxes_at(self, s: np.ndarray) -> tuple[np.ndarray, ...]:
         """:meth:`at` for many s: three (n, k) arrays."""
         out = [self.at(float(v)) for v in np.atleast_1d(s)]
         return tuple(np.array([o[i] for o in out]) for i in range(3))
@@ -191,7 +211,7 @@ class OnlineBounds:
         ParameterError: a table without its volume, or bad settings.
     """
 
-    def __init__(self, workcell, base: BoundsTable, *, horizon: int | None = None, max_proofs: int = 1):
+    def __init__(self, workcell: Workcell, base: BoundsTable, *, horizon: int | None = None, max_proofs: int = 1):
         if base.volume is None:
             raise ParameterError(
                 "OnlineBounds needs the table's volume: a table loaded from disk has none; grow "
@@ -294,7 +314,7 @@ class OnlineBounds:
         return self._heights.copy()
 
     @property
-    def arrays(self):
+    def arrays(self) -> SceneArrays:
         """The kernel's scene now: the cell's obstacles and the perceived boxes."""
         return self._arrays
 
