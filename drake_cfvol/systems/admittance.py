@@ -9,7 +9,7 @@ from numba import njit
 from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
 from pydrake.multibody.tree import JacobianWrtVariable
-from pydrake.systems.framework import BasicVector_, LeafSystem_, ValueProducer
+from pydrake.systems.framework import BasicVector_, Context_, LeafSystem_, ValueProducer
 from pydrake.systems.scalar_conversion import TemplateSystem
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
@@ -301,7 +301,7 @@ def AdmittanceDeformation_(T):
                 converter=converter,
             )
 
-        def gains(self, context) -> tuple:
+        def gains(self, context: Context_[T]) -> tuple:
             """(M, D, K) of this context (the numeric parameters)."""
             return tuple(
                 context.get_numeric_parameter(i).CopyToVector()

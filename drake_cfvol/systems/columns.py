@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import Box, FramePoseVector, GeometryFrame, GeometryInstance, ProximityProperties
+from pydrake.geometry import Box, FramePoseVector, GeometryFrame, GeometryInstance, ProximityProperties, SceneGraph
 from pydrake.math import RigidTransform
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import Context, LeafSystem
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap, merged_rectangles
@@ -94,7 +94,7 @@ class PerceivedColumns(LeafSystem):
 
     def __init__(
         self,
-        scene_graph,
+        scene_graph: SceneGraph,
         grid: MapGrid,
         *,
         levels: int = 5,
@@ -150,7 +150,7 @@ class PerceivedColumns(LeafSystem):
         if not log or log[-1][1] != tiles:
             state.get_mutable_abstract_state(self._log).set_value(log + ((context.get_time(), tiles),))
 
-    def tiles_log(self, context) -> tuple:
+    def tiles_log(self, context: Context) -> tuple:
         """((t, tiles), ...): the tiles ((level, i, j, top), ...) in force
         from each time t on (logged every ``log_period`` s, when changed)."""
         return context.get_abstract_state(self._log).get_value()

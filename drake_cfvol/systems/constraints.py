@@ -18,7 +18,8 @@ import itertools
 from typing import NamedTuple
 
 import numpy as np
-from pydrake.multibody.tree import JacobianWrtVariable
+import numpy.typing as npt
+from pydrake.multibody.tree import Frame, JacobianWrtVariable
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.systems.filter_kernel import BOX_ROWS, DAMPER_ROWS, LIMIT_ROWS, filter_rounds, stack_rows
@@ -143,7 +144,7 @@ class FilterConstraint:
         """(A (m, k), b (m,)) at this update, to first order."""
         raise NotImplementedError
 
-    def second_order_rows(self, step: FilterStep):
+    def second_order_rows(self, step: FilterStep) -> np.ndarray | None:
         """(m,) per row, the damper row (of ``step.damper``) whose
         second-order term it adds at the step taken; None: none."""
         return None
@@ -190,7 +191,7 @@ class VelocityLimits(FilterConstraint):
 
     name, priority, stack = "velocity_limits", HARD, LIMIT_ROWS
 
-    def rows(self, step):
+    def rows(self, step: FilterStep) -> tuple[np.ndarray, np.ndarray]:
         return _own_rows(self, step)[:2]
 
 
@@ -203,7 +204,7 @@ class JointBox(FilterConstraint):
     def __init__(self, weight: float):
         self.weight = float(weight)
 
-    def rows(self, step):
+    def rows(self, step: FilterStep) -> tuple[np.ndarray, np.ndarray]:
         return _own_rows(self, step)[:2]
 
 
@@ -224,14 +225,14 @@ class DamperConstraint(FilterConstraint):
 
     priority, stack = ROW, DAMPER_ROWS
 
-    def __init__(self, *, weight: float, relax: bool, pairs, name: str):
+    def __init__(self, *, weight: float, relax: bool, pairs: npt.ArrayLike, name: str):
         self.weight, self.relaxed, self.name = float(weight), bool(relax), name
         self.pairs = np.array(pairs, bool).reshape(-1)
 
-    def rows(self, step):
+    def rows(self, step: FilterStep) -> tuple[np.ndarray, np.ndarray]:
         return _own_rows(self, step)[:2]
 
-    def second_order_rows(self, step):
+    def second_order_rows(self, step: FilterStep) -> np.ndarray | None:
         return _own_rows(self, step)[2]
 
 
@@ -278,13 +279,13 @@ class ToolSpeedLimit(FilterConstraint):
 
     name, priority = "tool_speed", HARD
 
-    def __init__(self, frame, speed: float, point=(0.0, 0.0, 0.0)):
+    def __init__(self, frame: Frame, speed: float, point: npt.ArrayLike = (0.0, 0.0, 0.0)):
         if not speed > 0:
             raise ParameterError(f"ToolSpeedLimit: speed must be > 0 m/s, got {speed}.")
         self.frame, self.speed = frame, float(speed)
         self.point = np.asarray(point, float).reshape(3)
 
-    def jacobian(self, step) -> np.ndarray:
+    def jacobian(self, step: FilterStep) -> np.ndarray:
         """(3, k): the point's translational velocity per unit joint velocity."""
         plant = step.plant
         J = plant.CalcJacobianTranslationalVelocity(
@@ -297,7 +298,7 @@ class ToolSpeedLimit(FilterConstraint):
         )
         return step.robot_slice.columns(J)
 
-    def rows(self, step):
+    def rows(self, step: FilterStep) -> tuple[np.ndarray, np.ndarray]:
         DJ = _SPEED_DIRS @ self.jacobian(step)
         c = self.speed / _SPEED_RADIUS
         return np.vstack([DJ, -DJ]), np.full(2 * len(DJ), -c)

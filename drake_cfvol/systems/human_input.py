@@ -8,7 +8,7 @@ import numpy as np
 from numba import njit
 from pydrake.autodiffutils import AutoDiffXd
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import LeafSystem_
+from pydrake.systems.framework import Context_, LeafSystem_
 from pydrake.systems.scalar_conversion import TemplateSystem
 
 from drake_cfvol.exceptions import ParameterError
@@ -132,7 +132,7 @@ def HumanInputCheck_(T):
                 return self.human_wrench_input.Eval(context)
             return np.zeros(6)
 
-        def plausible(self, context) -> bool:
+        def plausible(self, context: Context_[T]) -> bool:
             """True if both inputs are finite and within their limits."""
             tau, w = _values(self._torque(context)), _values(self._wrench(context))
             if T is float:

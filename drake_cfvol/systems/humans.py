@@ -5,6 +5,7 @@ robot's position."""
 import dataclasses
 
 import numpy as np
+import numpy.typing as npt
 from pydrake.systems.framework import LeafSystem
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
@@ -157,7 +158,16 @@ class ReactiveCoworker(LeafSystem):
         max_torque: N m (N) per joint; scalar or (k,); >= 0.
     """
 
-    def __init__(self, k: int, *, gain, offset, start: float, duration: float, max_torque):
+    def __init__(
+        self,
+        k: int,
+        *,
+        gain: npt.ArrayLike,
+        offset: npt.ArrayLike,
+        start: float,
+        duration: float,
+        max_torque: npt.ArrayLike,
+    ):
         super().__init__()
         self.k = int(k)
         self.gain = _vector(gain, k, "gain", nonnegative=True)
@@ -204,7 +214,7 @@ class RandomPushShaper(LeafSystem):
         max_torque: N m (N) per joint; scalar or (k,); >= 0.
     """
 
-    def __init__(self, k: int, *, probability: float, max_torque):
+    def __init__(self, k: int, *, probability: float, max_torque: npt.ArrayLike):
         super().__init__()
         if not 0.0 <= probability <= 1.0:
             raise ParameterError(f"probability must lie in [0, 1], got {probability}.")
@@ -216,7 +226,7 @@ class RandomPushShaper(LeafSystem):
             name="human_torque", size=self.k, calc=lambda c, o: o.SetFromVector(self.torque(self.uniform_input.Eval(c)))
         )
 
-    def torque(self, u) -> np.ndarray:
+    def torque(self, u: npt.ArrayLike) -> np.ndarray:
         """The push for random numbers u (k + 1,)."""
         u = np.asarray(u, float)
         if u[0] >= self.probability:

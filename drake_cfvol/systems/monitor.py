@@ -1,12 +1,13 @@
 """Clearance, collision and volume contact through a SceneGraph's query
 port."""
 
+from collections.abc import Collection, Iterable
 from typing import Any
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import QueryObject, Role
-from pydrake.systems.framework import LeafSystem, ValueProducer
+from pydrake.geometry import GeometryId, QueryObject, Role
+from pydrake.systems.framework import Context, LeafSystem, ValueProducer
 
 from drake_cfvol.exceptions import ParameterError
 
@@ -62,7 +63,14 @@ class ClearanceMonitor(LeafSystem):
     """
 
     def __init__(
-        self, *, robot_ids, moving_ids, volume_ids, max_distance: float = 2.0, obstacle_ids=None, ignored_pairs=()
+        self,
+        *,
+        robot_ids: Iterable[GeometryId],
+        moving_ids: Iterable[GeometryId],
+        volume_ids: Iterable[GeometryId],
+        max_distance: float = 2.0,
+        obstacle_ids: Iterable[GeometryId] | None = None,
+        ignored_pairs: Collection[tuple[GeometryId, GeometryId]] = (),
     ):
         super().__init__()
         self._robot = frozenset(robot_ids)
@@ -114,7 +122,7 @@ class ClearanceMonitor(LeafSystem):
             prerequisites_of_calc={self.query_object_input.ticket()},
         )
 
-    def min_distance(self, context) -> float:
+    def min_distance(self, context: Context) -> float:
         """Smallest signed distance, moving links to obstacles, m."""
         query = self.query_object_input.Eval(context)
         best = self._max

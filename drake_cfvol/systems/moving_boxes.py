@@ -2,6 +2,7 @@
 passer-by (SPEC 12)."""
 
 import dataclasses
+from collections.abc import Sequence
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -15,6 +16,7 @@ from pydrake.geometry import (
     ProximityProperties,
     RenderLabel,
     Rgba,
+    SceneGraph,
 )
 from pydrake.math import RigidTransform
 from pydrake.systems.framework import LeafSystem
@@ -100,10 +102,10 @@ class MovingBoxes(LeafSystem):
 
     def __init__(
         self,
-        scene_graph,
+        scene_graph: SceneGraph,
         obstacles: list[MovingObstacle],
         *,
-        rgba=(0.85, 0.45, 0.1, 1.0),
+        rgba: Sequence[float] = (0.85, 0.45, 0.1, 1.0),
         grid: MapGrid | None = None,
         params: PerceptionParams = PerceptionParams(),
     ):

@@ -5,7 +5,7 @@ import dataclasses
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import Context, LeafSystem
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap
@@ -100,7 +100,7 @@ class OnlineBoundsEstimator(LeafSystem):
         o = self.online
         self.online = OnlineBounds(o.workcell, o.base, horizon=o.horizon, max_proofs=o.max_proofs)
 
-    def log(self, context) -> np.ndarray:
+    def log(self, context: Context) -> np.ndarray:
         """(n, 6) the updates so far (:data:`LOG_FIELDS`)."""
         rows = context.get_abstract_state(self._log).get_value()
         return np.array(rows, float).reshape(-1, len(self.LOG_FIELDS))

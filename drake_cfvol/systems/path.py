@@ -5,6 +5,7 @@ import dataclasses
 import typing
 
 import numpy as np
+import numpy.typing as npt
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
@@ -34,7 +35,9 @@ class PathProgressConfig:
     max_rate: typing.Optional[float] = None
 
 
-def safe_path_rate(bounds: BoundsTable, velocity_limits, *, share: float = PathProgressConfig.velocity_share) -> float:
+def safe_path_rate(
+    bounds: BoundsTable, velocity_limits: npt.ArrayLike, *, share: float = PathProgressConfig.velocity_share
+) -> float:
     """The fastest path progress, in waypoints per second, at which the
     nominal and the bounds move no joint faster than ``share`` of its
     velocity limit.
@@ -141,7 +144,7 @@ class PathProgress(Diagram):
         return self.start_time + (self.g - 1) / self.rate + self.ramp
 
 
-def path_ramp(bounds: BoundsTable, rate: float, acceleration_limits, *, share: float) -> float:
+def path_ramp(bounds: BoundsTable, rate: float, acceleration_limits: npt.ArrayLike, *, share: float) -> float:
     """The ramp (s) over which the path reaches ``rate`` from rest so that
     the nominal accelerates no joint faster than ``share`` of its
     acceleration limit (the nominal's largest step per waypoint times the

@@ -5,6 +5,7 @@ its points into an obstacle map (SPEC 12), and their settings
 import dataclasses
 import math
 import typing
+from collections.abc import Iterable
 
 import numpy as np
 from pydrake.common.value import AbstractValue
@@ -21,16 +22,18 @@ from pydrake.geometry import (
     RenderCameraCore,
     RenderEngineVtkParams,
     Role,
+    SceneGraph,
 )
 from pydrake.math import RigidTransform, RotationMatrix
 from pydrake.perception import BaseField, DepthImageToPointCloud, PointCloud
-from pydrake.systems.framework import LeafSystem
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import ConstantValueSource
 from pydrake.systems.sensors import CameraInfo, ImageDepth32F, ImageLabel16I, RgbdSensor
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.online.obstacle_map import MapGrid, ObstacleMap, PerceptionParams
 from drake_cfvol.scene.robot import robot_bodies
+from drake_cfvol.scene.workcell import Workcell
 
 __all__ = [
     "make_renderable",
@@ -113,13 +116,13 @@ class ObstacleMapper(LeafSystem):
     def __init__(
         self,
         grid: MapGrid,
-        robot_labels,
+        robot_labels: Iterable[int],
         *,
         params: PerceptionParams = PerceptionParams(),
         period: float = 0.05,
         offset: float = 0.0,
-        camera_info=None,
-        X_WC=None,
+        camera_info: CameraInfo | None = None,
+        X_WC: RigidTransform | None = None,
     ):
         super().__init__()
         if not period > 0:
@@ -264,7 +267,7 @@ class CellModel(typing.NamedTuple):
     position_input: object
 
 
-def AddCellModel(builder, *, workcell, name: str = "cell_model") -> CellModel:
+def AddCellModel(builder: DiagramBuilder, *, workcell: Workcell, name: str = "cell_model") -> CellModel:
     """Adds the cell's model (its known obstacles and the robot, a
     kinematic plant and a SceneGraph of their own) to someone's builder:
     what the cell camera expects to see. Connect the robot's position to
@@ -316,9 +319,9 @@ def robot_render_labels(plant, scene_graph, robot) -> set[int]:
 
 
 def AddCellCamera(
-    builder,
+    builder: DiagramBuilder,
     *,
-    scene_graph,
+    scene_graph: SceneGraph,
     model: CellModel,
     grid: MapGrid,
     params: PerceptionParams = PerceptionParams(),

@@ -9,17 +9,18 @@ real force.
 import dataclasses
 import math
 import typing
+from collections.abc import Iterable
 
 import numpy as np
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import SceneGraph
+from pydrake.geometry import GeometryId, SceneGraph
 from pydrake.multibody.math import SpatialForce
 from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlant
 from pydrake.multibody.tree import Frame, ModelInstanceIndex
 from pydrake.systems.framework import DiagramBuilder, InputPort, LeafSystem, OutputPort
 from pydrake.systems.primitives import Adder, Demultiplexer
 
-from drake_cfvol.algorithm.table import check_table
+from drake_cfvol.algorithm.table import BoundsTable, check_table
 from drake_cfvol.exceptions import ParameterError, StationError
 from drake_cfvol.io.arguments import instance, real_number
 from drake_cfvol.scene.robot import RobotSlice, robot_instances
@@ -213,18 +214,18 @@ def _lookahead(limits, rate: float, period: float) -> float:
 
 
 def AddCoManipulation(
-    builder,
+    builder: DiagramBuilder,
     *,
-    plant,
-    scene_graph,
-    robot,
-    table,
-    tool_frame,
+    plant: MultibodyPlant,
+    scene_graph: SceneGraph,
+    robot: ModelInstanceIndex | str,
+    table: BoundsTable,
+    tool_frame: Frame | str,
     period: float = 0.01,
     measured_state: bool = True,
     config: CoManipulationConfig = CoManipulationConfig(),
-    obstacle_ids=None,
-    dynamic_ids=(),
+    obstacle_ids: Iterable[GeometryId] | None = None,
+    dynamic_ids: Iterable[GeometryId] = (),
     name: str = "cfvol",
     overlap_depth: float | None = None,
 ) -> CoManipulationSystems:
@@ -382,7 +383,7 @@ class ToolPushForce(LeafSystem):
         frame: the frame (e.g. the tool's) whose origin the wrench acts at.
     """
 
-    def __init__(self, frame):
+    def __init__(self, frame: Frame):
         super().__init__()
         self._body = frame.body().index()
         self._p_BoFo_B = frame.GetFixedPoseInBodyFrame().translation().copy()

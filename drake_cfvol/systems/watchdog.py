@@ -85,7 +85,7 @@ class StatusWatchdog(LeafSystem):
             model without ``utime``.
     """
 
-    def __init__(self, model, *, period: float, timeout: float | None = None):
+    def __init__(self, model: Any, *, period: float, timeout: float | None = None):
         super().__init__()
         timeout = 3 * period if timeout is None else timeout
         if not (np.isfinite(period) and period > 0 and np.isfinite(timeout) and timeout > 0):
