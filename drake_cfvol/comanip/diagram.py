@@ -42,7 +42,7 @@ from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
 from drake_cfvol.algorithm.reference import register_volume_boxes
 from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
 from drake_cfvol.algorithm.table import BoundsTable
-from drake_cfvol.algorithm.volume import build_volume, height_map_of
+from drake_cfvol.algorithm.volume import Categories, build_volume, height_map_of
 from drake_cfvol.comanip.checks import cell_file, looks_like_path
 from drake_cfvol.comanip.dynamics import _control_plant, add_driver, add_simulated_plant, driver_of
 from drake_cfvol.comanip.franka import FRANKA_PERIOD, add_franka_controller_interface, add_franka_station
@@ -149,7 +149,7 @@ class Comanipulation:
         return self.progress.duration + self.scenario.path.end_hold
 
 
-def frame_camera(meshcat, workcell, path) -> None:
+def frame_camera(meshcat: Meshcat, workcell: Workcell, path: NominalPath) -> None:
     """Points Meshcat's camera at the robot and its path: at the centre of
     the box holding every link origin and the tool along the path, from a
     distance that fits the box in view (from the front-right, above)."""
@@ -166,7 +166,9 @@ def frame_camera(meshcat, workcell, path) -> None:
     meshcat.SetCameraPose(centre + 1.9 * radius * direction, centre)
 
 
-def show_category_legend(meshcat, workcell, categories, *, prefix: str = "/legend") -> None:
+def show_category_legend(
+    meshcat: Meshcat, workcell: Workcell, categories: Categories, *, prefix: str = "/legend"
+) -> None:
     """Names the obstacle categories in Meshcat's scene tree (the controls
     panel of the live view and of a recording): ``legend/goal (blue)/
     pick_table`` and so on, each a small marker in its colour above the
@@ -629,10 +631,10 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
 def build_comanipulation_diagram(
     scenario: Scenario,
     *,
-    meshcat=None,
+    meshcat: Meshcat | None = None,
     base_dir: Path | None = None,
-    path=None,
-    bounds=None,
+    path: NominalPath | None = None,
+    bounds: BoundsTable | None = None,
     progress: bool = False,
     scenario_file: Path | None = None,
 ) -> Comanipulation:

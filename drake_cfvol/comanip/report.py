@@ -4,6 +4,7 @@ import subprocess
 from pathlib import Path
 
 import numpy as np
+from pydrake.systems.framework import Diagram
 
 from drake_cfvol.comanip.diagram import Comanipulation
 from drake_cfvol.io.plotting import draw, figure
@@ -81,7 +82,7 @@ def missing_dot_notice(stem: Path) -> str:
     )
 
 
-def write_diagram_svg(diagram, stem: Path) -> dict:
+def write_diagram_svg(diagram: Diagram, stem: Path) -> dict:
     """Writes the diagram's GraphViz source and, if ``dot`` is installed,
     an SVG. Returns the written files."""
     dot = diagram.GetGraphvizString(max_depth=1)

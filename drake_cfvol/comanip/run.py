@@ -12,6 +12,8 @@ from pydrake.geometry import Meshcat, MeshcatParams
 from pydrake.systems.analysis import ApplySimulatorConfig, Simulator, SimulatorStatus
 from pydrake.systems.framework import EventStatus
 
+from drake_cfvol.algorithm.planning import NominalPath
+from drake_cfvol.algorithm.table import BoundsTable
 from drake_cfvol.comanip.diagram import Comanipulation, build_comanipulation_diagram
 from drake_cfvol.comanip.online import online_figures, show_online_freedom
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
@@ -128,14 +130,14 @@ def run_outputs(out_dir: str | Path, *, record: bool = True, plot: bool = True, 
 
 
 def run_scenario(
-    scenario_name_or_path,
+    scenario_name_or_path: str | Path,
     out_dir: str | Path,
     *,
     record: bool = True,
     plot: bool = True,
     svg: bool = True,
-    path=None,
-    bounds=None,
+    path: NominalPath | None = None,
+    bounds: BoundsTable | None = None,
     progress: bool = False,
     scenario_text: str | None = None,
     overrides: dict | None = None,
