@@ -17,6 +17,7 @@ from drake_cfvol.systems.filter_kernel import (
     face_speed,
     hard_interval,
     stop_distance,
+    stop_steps,
 )
 
 
@@ -38,6 +39,25 @@ def test_stop_distance_is_the_update_walked_step_by_step():
         jerk = np.inf if rng.random() < 0.3 else rng.uniform(50, 5000)
         v, a = rng.uniform(-0.5, 3.0), rng.uniform(-acc, acc)
         assert stop_distance(v, a, acc, jerk, h) == pytest.approx(_walked(v, a, acc, jerk, h), rel=1e-9, abs=1e-12)
+
+
+def test_stop_steps_are_each_joints_walked_stop_at_the_rows_share():
+    """Per joint, signed: where braking at the row's share of its limits
+    from (v, a) stops it, walked step by step; 0 for a joint without an
+    acceleration limit."""
+    rng = np.random.default_rng(5)
+    for _ in range(100):
+        k = 4
+        acc, jerk, h = rng.uniform(1, 20, k), rng.uniform(50, 5000, k), rng.choice([0.001, 0.01])
+        acc[0] = np.inf
+        v, a = rng.uniform(-3, 3, k), rng.uniform(-1, 1, k) * np.minimum(acc, 20.0)
+        got = stop_steps(v, a, acc, jerk, h)
+        assert got[0] == 0.0
+        share = ROW_DECELERATION_SHARE
+        for j in range(1, k):
+            s = np.sign(v[j]) or 1.0
+            walked = _walked(s * v[j], s * a[j], share * acc[j], share * jerk[j], h)
+            assert got[j] == pytest.approx(s * walked, rel=1e-9, abs=1e-12)
 
 
 def test_face_speed_is_the_fastest_that_still_stops_in_time():
@@ -73,7 +93,7 @@ def test_a_point_mass_braking_on_the_row_stops_at_the_plane():
             gap, v, a = 0.3, np.zeros(1), np.zeros(1)
             for _ in range(int(round(20.0 / h))):
                 lo, hi = hard_interval(vmax, h, v, a, acc, jerk)
-                b = brake_rows(A, np.array([-rate * gap]), rate, acc, jerk, h, v, lo, hi, np.zeros(1))
+                b = brake_rows(A, np.array([-rate * gap]), rate, acc, jerk, h, v, lo, hi, np.zeros(1), np.zeros(1))
                 v_new = np.minimum(hi, -b)  # as fast towards the plane as the row allows
                 assert v_new[0] >= lo[0] - 1e-12
                 a_new = (v_new - v) / h

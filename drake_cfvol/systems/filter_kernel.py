@@ -25,6 +25,7 @@ __all__ = [
     "hard_interval",
     "request",
     "stop_distance",
+    "stop_steps",
 ]
 
 
@@ -300,7 +301,7 @@ ROW_DECELERATION_SHARE = 0.5
 
 
 @njit(cache=True)
-def brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, slack):
+def brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, slack, bend):
     """The damper's rows braked in time: a row i that lets its distance
     shrink (b_i < 0: the gap -b_i / rate above the target) lets it shrink
     no faster than a point mass on the row can still stop within that gap
@@ -310,7 +311,9 @@ def brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, slack
     (:data:`ROW_DECELERATION_SHARE`) of the row's acceleration sum_j
     |A_ij| acceleration_j and jerk sum_j |A_ij| jerk_j (the rest is left
     to the other rows and the box, braking at the same time); where that
-    cannot stop it any more, at all of them. Where the
+    cannot stop it any more, at all of them. The gap is less ``bend`` (m
+    per row): how much more the row closes over the joints' own stop than
+    its first order says (its points turning on the way). Where the
     damper's own rate (-b_i) asks for a faster slow-down than the hard
     interval allows, the row asks for the slowest closing it allows plus
     ``slack`` (m/s per row, room for the second-order terms; at most half
@@ -333,7 +336,7 @@ def brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, slack
             s_hi -= min(A[i, j] * h_lo[j], A[i, j] * h_hi[j])
         if not np.isfinite(acc) or acc <= 0.0:
             continue
-        gap = -b[i] / rate
+        gap = -b[i] / rate - bend[i]
         speed = face_speed(gap, s_last, s_lo, s_hi, ROW_DECELERATION_SHARE * acc, ROW_DECELERATION_SHARE * jrk, period)
         if speed <= s_lo:  # late (the distance fell faster than its first-order row said): all of it
             speed = face_speed(gap, s_last, s_lo, s_hi, acc, jrk, period)
@@ -344,6 +347,23 @@ def brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, slack
         allowed = -b[i] if -b[i] >= s_lo else s_lo + min(slack[i], 0.5 * (s_hi - s_lo))
         cap = speed if speed < s_hi else np.inf  # at s_hi the stop does not bind
         out[i] = -min(cap, allowed)
+    return out
+
+
+@njit(cache=True)
+def stop_steps(v, a_last, acceleration, jerk, period):
+    """Per joint, where braking at the row's share of its limits from the
+    last command (velocity v, acceleration a_last) stops it, relative to
+    where it is (:func:`stop_distance`, signed; 0 without a limit)."""
+    out = np.zeros(len(v))
+    for j in range(len(v)):
+        acc, jrk = ROW_DECELERATION_SHARE * acceleration[j], ROW_DECELERATION_SHARE * jerk[j]
+        if not (np.isfinite(acc) and acc > 0.0):
+            continue
+        if v[j] >= 0.0:
+            out[j] = stop_distance(v[j], a_last[j], acc, jrk, period)
+        else:
+            out[j] = -stop_distance(-v[j], -a_last[j], acc, jrk, period)
     return out
 
 

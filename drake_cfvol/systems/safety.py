@@ -215,7 +215,15 @@ from drake_cfvol.systems.constraints import (
     solve_rounds,
 )
 from drake_cfvol.systems.damper import DamperRows, DynamicPairs, VelocityDamper
-from drake_cfvol.systems.filter_kernel import brake_rows, braking_lead, budget_after, finish, hard_interval, request
+from drake_cfvol.systems.filter_kernel import (
+    brake_rows,
+    braking_lead,
+    budget_after,
+    finish,
+    hard_interval,
+    request,
+    stop_steps,
+)
 
 __all__ = ["FAULTS", "SafetyFilter", "SafetyFilterConfig"]
 
@@ -725,7 +733,7 @@ class SafetyFilter(LeafSystem):
             # the others' budget, both with the robot at this base.
             dmin, keep = budget_after(rows.distances, budget, self.influence_distance, base)
             if self._braked and len(rows.b):
-                rows = self._braked_rows(rows, v_last, h_lo, h_hi, kin)
+                rows = self._braked_rows(rows, base, v_last, a_last, h_lo, h_hi, kin)
             fault = self._fault(rows)
             if fault:  # braked to a stop from now on: no QP at this update or after
                 self._brake(discrete_state, q, v_last, a_last)
@@ -794,7 +802,7 @@ class SafetyFilter(LeafSystem):
         lead, ramp = braking_lead(v_last, a_last, self._vmax, self._acceleration, self._jerk, self.rate, h)
         return np.maximum(self.target_distance + (speed + ramp * closing) * lead + speed * h, self.influence_distance)
 
-    def _braked_rows(self, rows: DamperRows, v_last, h_lo, h_hi, kin) -> DamperRows:
+    def _braked_rows(self, rows: DamperRows, base, v_last, a_last, h_lo, h_hi, kin) -> DamperRows:
         """The rows braked in time (:func:`~.filter_kernel.brake_rows`),
         less those that cannot bind at this update: within the hard
         interval [h_lo, h_hi] (|v_j| <= w_j) their first-order rate A v
@@ -810,8 +818,14 @@ class SafetyFilter(LeafSystem):
         theta = float(w.sum()) * self.period
         slot = np.append(self._damper.levers(kin[2], kin[3]) @ w, 0.0)  # per slot; the last: welded
         bound = theta * slot[rows.slots].sum(axis=1)  # twice the bound, as a rate (m/s)
+        # The rows' points turn on the way to the joints' stop: each row
+        # closes by its second-order term over that step more than it says.
+        stop = stop_steps(v_last, a_last, self._acceleration, self._jerk, self.period)
+        # (The rows' points carried there; a round shape's sliding witness,
+        # which the rounds bound per step, is not motion towards the pair.)
+        bend = self._damper.second_order(base, rows._replace(rounds=np.zeros_like(rows.rounds)), stop)
         b = brake_rows(
-            rows.A, rows.b, self.rate, self._acceleration, self._jerk, self.period, v_last, h_lo, h_hi, bound
+            rows.A, rows.b, self.rate, self._acceleration, self._jerk, self.period, v_last, h_lo, h_hi, bound, bend
         )
         keep = worst < b + bound
         if keep.all():
