@@ -85,6 +85,7 @@ _COMPILED = (
     filter_kernel.hard_interval,
     filter_kernel.brake_rows,
     filter_kernel.braking_lead,
+    filter_kernel.stop_steps,
     filter_kernel.finish,
     damper_kernel.pair_rows,
     damper_kernel.near_pairs,
