@@ -12,8 +12,6 @@ from drake_cfvol.exceptions import ParameterError, ScenarioError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.workcell import builtin_cells
 
-if typing.TYPE_CHECKING:  # scenario.py imports this module
-    from drake_cfvol.comanip.scenario import Scenario
 
 __all__ = ["validate_scenario", "check_scenario_against_cell", "scenario_file_path", "looks_like_path", "cell_file"]
 
@@ -259,7 +257,9 @@ def _check_bounds(bounds, where) -> None:
         raise ScenarioError(where, f"bounds.params.{field}" if field else "bounds.params", str(e).rstrip(".")) from None
 
 
-def validate_scenario(scenario: "Scenario", file: Path | None = None, *, base_dir: Path | None = None) -> None:
+# ``scenario``: a Scenario, typed Any: scenario.py imports this module, so
+# naming its class here would make an import cycle.
+def validate_scenario(scenario: typing.Any, file: Path | None = None, *, base_dir: Path | None = None) -> None:
     """Checks a scenario's values before any planning or bounding: positive
     durations and periods, a resolution whose volume fits in memory, known
     volume parameters, a cell that exists, push sizes, named files.
