@@ -6,6 +6,7 @@ to catch them all.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Sequence
 
 
@@ -132,7 +133,7 @@ class FileError(CfvolError, OSError):
 class RecordFormatError(FileError, ValueError):
     """A saved path or bounds file is empty, truncated or of another kind."""
 
-    def __init__(self, path, what: str, reason: str):
+    def __init__(self, path: str | os.PathLike[str], what: str, reason: str):
         self.path = str(path)
         super().__init__(
             f"cannot read {what} file '{path}': {reason}. Expected a file written by drake_cfvol "
@@ -147,7 +148,7 @@ class OutputExistsError(FileError, FileExistsError):
 class OutputPathError(FileError):
     """An output file or folder cannot be created."""
 
-    def __init__(self, path, reason: str):
+    def __init__(self, path: str | os.PathLike[str], reason: str):
         self.path = str(path)
         super().__init__(f"cannot write '{path}': {reason}. Choose a folder you can write to (--out).")
 
@@ -155,7 +156,7 @@ class OutputPathError(FileError):
 class ScenarioError(CfvolError, ValueError):
     """A co-manipulation scenario file or value is invalid."""
 
-    def __init__(self, file, field: str | None, message: str):
+    def __init__(self, file: str | os.PathLike[str], field: str | None, message: str):
         self.file = str(file)
         self.field = field
         self.detail = message

@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
+import numpy.typing as npt
 
 from drake_cfvol.algorithm.table import BoundsTable, require_table
 from drake_cfvol.exceptions import DimensionError, ParameterError, WorkcellError
 from drake_cfvol.io.arguments import instance, real_array, whole_number
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.scene.workcell import Workcell
+
+if TYPE_CHECKING:
+    from pydrake.planning import CollisionChecker
 
 __all__ = [
     "shown_percent",
@@ -75,13 +80,13 @@ CROSS_CHECK = 10_000
 
 
 def confidence_factor(
-    workcell,
+    workcell: Workcell,
     bounds: BoundsTable,
     *,
     windows: int = 30,
     samples: int = 10000,
     seed: int = 0,
-    checker=None,
+    checker: CollisionChecker | None = None,
     judge: str = "drake",
     prefilter: bool = True,
     cross_check: int = CROSS_CHECK,
@@ -237,7 +242,7 @@ def box_freedom(lo, hi, limit_lower, limit_upper) -> float | np.ndarray:
     return float(gm) if np.ndim(gm) == 0 else gm
 
 
-def freedom(bounds: BoundsTable, revolute=None) -> Freedom:
+def freedom(bounds: BoundsTable, revolute: npt.ArrayLike | None = None) -> Freedom:
     """Freedom of a bounds table (reported beside every CF: a box of zero
     width has CF 100 %); ``revolute``: (k,) True for a revolute joint (its
     widths in degrees), default all.
@@ -255,7 +260,7 @@ def freedom(bounds: BoundsTable, revolute=None) -> Freedom:
             raise DimensionError(
                 "freedom: revolute", bounds.k, mask.shape, f"The joints: {', '.join(bounds.joint_names)}."
             )
-        revolute = mask != 0
+        revolute = cast(np.ndarray, mask != 0)  # numpy's stubs type != as Any
     gm = np.asarray(box_freedom(bounds.lower, bounds.upper, bounds.limit_lower, bounds.limit_upper))
     med = np.median(bounds.widths(), axis=0)
     med = np.where(revolute, np.degrees(med), med)

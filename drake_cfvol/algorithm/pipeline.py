@@ -104,14 +104,14 @@ def _bound(workcell, W, vb, params, backend: str, progress: bool):
 
 
 def estimate_bounds(
-    workcell,
+    workcell: Workcell,
     path: NominalPath,
     params: VolumeParams | None = None,
     *,
     backend: str = "fast",
     certify: Certify | None = None,
     progress: bool = False,
-    **overrides,
+    **overrides: float | None,
 ) -> BoundsTable:
     """Algorithm 1: categorize, grow the volume, bound every joint at every
     waypoint.

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 from pydrake.multibody.tree import JacobianWrtVariable
 
 from drake_cfvol.algorithm import _ompl
@@ -311,8 +312,8 @@ def _attempt(
 
 def plan_nominal_path(
     workcell: Workcell,
-    q_start,
-    q_goal,
+    q_start: npt.ArrayLike,
+    q_goal: npt.ArrayLike,
     *,
     seed: int,
     time_limit: float = 10.0,

@@ -534,7 +534,9 @@ class BoundsTable:
         """(g, k) upper - lower."""
         return self.upper - self.lower
 
-    def problem(self, position_lower=None, position_upper=None) -> str | None:
+    def problem(
+        self, position_lower: npt.ArrayLike | None = None, position_upper: npt.ArrayLike | None = None
+    ) -> str | None:
         """What makes the table unusable, as one phrase (the first found), or
         None: a non-finite value, lower > upper, a nominal outside its box,
         a negative rate (a stretch's bounds may cross: :func:`box_at` widens
@@ -562,8 +564,11 @@ class BoundsTable:
         if np.isnan(self.rate).any() or (self.rate < 0).any():
             return f"rate must be >= 0 (or none) for every joint, got {self.rate.tolist()}"
         inf = np.full(self.k, np.inf)
-        given = position_lower is not None and position_upper is not None
-        if given and np.shape(position_lower) == np.shape(position_upper) == (self.k,):
+        if (
+            position_lower is not None
+            and position_upper is not None
+            and np.shape(position_lower) == np.shape(position_upper) == (self.k,)
+        ):
             lo = np.where(np.isfinite(position_lower), position_lower, -np.inf)
             hi = np.where(np.isfinite(position_upper), position_upper, np.inf)
         else:  # no limits, or another robot's (its joints are named where they are compared)

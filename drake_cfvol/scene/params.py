@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.io.arguments import instance
@@ -128,7 +129,7 @@ class VolumeParams:
                 bad(f"{name} must be > 0, got {getattr(self, name)}.")
 
     @classmethod
-    def for_workcell(cls, workcell, **overrides) -> "VolumeParams":
+    def for_workcell(cls, workcell: Workcell, **overrides: float | None) -> "VolumeParams":
         """Defaults, then the workcell's ``cfvol.params``, then ``overrides``."""
         instance(workcell, Workcell, "VolumeParams.for_workcell: workcell", "drake_cfvol.load_workcell")
         merged = dict(workcell.params)
@@ -138,7 +139,7 @@ class VolumeParams:
             merged["reach"] = workcell.reach
         return cls(**merged)
 
-    def replace(self, **changes) -> "VolumeParams":
+    def replace(self, **changes: Any) -> "VolumeParams":
         """A copy with some fields changed (validated)."""
         _known(changes)
         return dataclasses.replace(self, **changes)

@@ -26,9 +26,13 @@ import re
 import xml.etree.ElementTree as ET
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from drake_cfvol.io.cache import write_atomic
 from drake_cfvol.scene import meshes as _meshes
+
+if TYPE_CHECKING:
+    from pydrake.multibody.parsing import Parser
 
 __all__ = ["AddModels", "UrdfQuirks", "fix_urdf_quirks", "condensed_drake_warnings"]
 
@@ -177,7 +181,7 @@ def condensed_drake_warnings(notes: list[str] | None = None, *, log: bool = True
 
 
 def AddModels(
-    parser, *, file: str | Path | None = None, url: str | None = None, notes: list[str] | None = None
+    parser: Parser, *, file: str | Path | None = None, url: str | None = None, notes: list[str] | None = None
 ) -> list:
     """Drake's ``Parser.AddModels`` for a user's own robot file, as a
     workcell file's directives load it: STL meshes converted (Drake 1.51

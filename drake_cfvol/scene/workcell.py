@@ -13,7 +13,7 @@ import math
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict, Unpack
 
 import numpy.typing as npt
 from pydrake.common.schema import Transform
@@ -457,7 +457,14 @@ class Workcell(WorkcellSetup, WorkcellQueries):
         )
 
 
-def load_workcell(name_or_path: str | Path, **kwargs) -> Workcell:
+class WorkcellOptions(TypedDict, total=False):
+    """:func:`load_workcell`'s keyword arguments, passed to :class:`Workcell`."""
+
+    edge_step: float
+    embedded: bool
+
+
+def load_workcell(name_or_path: str | Path, **kwargs: Unpack[WorkcellOptions]) -> Workcell:
     """Loads a built-in workcell by name, or a workcell YAML file by path.
 
     Args:
