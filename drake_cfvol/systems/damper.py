@@ -14,7 +14,7 @@ from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
 
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies
 from drake_cfvol.systems.damper_kernel import ball_radius, pair_rows, probes, round_radius
-from drake_cfvol.systems.damper_kinematics import SlotKinematics
+from drake_cfvol.systems.damper_kinematics import SlotKinematics, _levers, _pair_speeds
 from drake_cfvol.systems.damper_parts import BroadPhase, RowList, drake_pair_rows, side_arrays
 
 __all__ = ["DamperRows", "VelocityDamper"]
@@ -166,7 +166,7 @@ class VelocityDamper:
         self._self_pairs = np.flatnonzero((self._pair_bodies >= 0).all(axis=1))
         moves = self._kin.moves
         one, two = self._pair_bodies[self._self_pairs, 0], self._pair_bodies[self._self_pairs, 1]
-        self._only = (moves[one] & ~moves[two], moves[two] & ~moves[one])
+        self._only = np.array([moves[one] & ~moves[two], moves[two] & ~moves[one]]).reshape(2, len(one), self.k)
         self._sides, self._drake_rows = side_arrays(self, inspector)
 
     def poses(self, q) -> tuple[np.ndarray, np.ndarray]:
@@ -367,7 +367,7 @@ class VelocityDamper:
         geometry moves per unit of the joint's velocity, |J_v_j| + |J_w_j|
         r (r the body's radius about its origin; the Jacobians at the
         origins, :meth:`SlotKinematics.poses_and_jacobians`)."""
-        return np.linalg.norm(J_v, axis=1) + np.linalg.norm(J_w, axis=1) * self._body_radius[:, None]
+        return _levers(J_w, J_v, self._body_radius)
 
     def pair_speeds(self, J_w, J_v, v, dv) -> np.ndarray:
         """(P,): per pair, the fastest its distance can shrink at the joint
@@ -379,15 +379,9 @@ class VelocityDamper:
         (:meth:`levers`) of the side joint j moves, over the joints that
         move only one side. Geometry that moves on its own
         (:attr:`self_moving`) adds its own speed, not counted."""
-        levers = self.levers(J_w, J_v)
-        now = np.linalg.norm(J_v @ v, axis=1) + np.linalg.norm(J_w @ v, axis=1) * self._body_radius
-        slot = np.append(now + levers @ dv, 0.0)  # the last entry: a welded side
-        out = slot[self._pair_bodies].sum(axis=1)
-        if len(self._self_pairs):
-            w = np.abs(v) + dv
-            one, two = self._pair_bodies[self._self_pairs, 0], self._pair_bodies[self._self_pairs, 1]
-            out[self._self_pairs] = (self._only[0] * levers[one] + self._only[1] * levers[two]) @ w
-        return out
+        return _pair_speeds(
+            J_w, J_v, self._body_radius, self._pair_bodies, self._self_pairs, self._only, np.asarray(v, float), dv
+        )
 
     @property
     def self_moving(self) -> np.ndarray:

@@ -165,6 +165,57 @@ def _budget_moved(q0, q1, chain, body, R_WB, p_WB, radius, pair_bodies, budget):
     return out
 
 
+@njit(cache=True)
+def _levers(J_w, J_v, radius):
+    """(S, k): |J_v_j| + |J_w_j| r per slot and joint (see
+    :meth:`~drake_cfvol.systems.damper.VelocityDamper.levers`)."""
+    S, _, k = J_v.shape
+    out = np.zeros((S, k))
+    for s in range(S):
+        for j in range(k):
+            lin = np.sqrt(J_v[s, 0, j] ** 2 + J_v[s, 1, j] ** 2 + J_v[s, 2, j] ** 2)
+            ang = np.sqrt(J_w[s, 0, j] ** 2 + J_w[s, 1, j] ** 2 + J_w[s, 2, j] ** 2)
+            out[s, j] = lin + ang * radius[s]
+    return out
+
+
+@njit(cache=True)
+def _pair_speeds(J_w, J_v, radius, pair_bodies, self_pairs, only, v, dv):
+    """Per pair, the fastest its distance can shrink at v + e, |e_j| <=
+    dv_j (see :meth:`~drake_cfvol.systems.damper.VelocityDamper.pair_speeds`);
+    ``only`` (2, n, k): per self pair, the joints that move its first side
+    only, its second side only."""
+    S, _, k = J_v.shape
+    levers = _levers(J_w, J_v, radius)
+    slot = np.zeros(S + 1)  # the last entry: a welded side
+    for s in range(S):
+        lv, av = np.zeros(3), np.zeros(3)
+        for j in range(k):
+            for r in range(3):
+                lv[r] += J_v[s, r, j] * v[j]
+                av[r] += J_w[s, r, j] * v[j]
+        x = np.sqrt(lv[0] ** 2 + lv[1] ** 2 + lv[2] ** 2) + np.sqrt(av[0] ** 2 + av[1] ** 2 + av[2] ** 2) * radius[s]
+        for j in range(k):
+            x += levers[s, j] * dv[j]
+        slot[s] = x
+    P = len(pair_bodies)
+    out = np.empty(P)
+    for p in range(P):
+        out[p] = slot[pair_bodies[p, 0]] + slot[pair_bodies[p, 1]]
+    for n in range(len(self_pairs)):
+        p = self_pairs[n]
+        a, b = pair_bodies[p, 0], pair_bodies[p, 1]
+        x = 0.0
+        for j in range(k):
+            w = abs(v[j]) + dv[j]
+            if only[0, n, j]:
+                x += levers[a, j] * w
+            if only[1, n, j]:
+                x += levers[b, j] * w
+        out[p] = x
+    return out
+
+
 class SlotKinematics:
     """Forward kinematics of the damper's moving bodies ("slots") by the
     kernel's chain: poses and Jacobians at their origins, in the robot's k

@@ -91,6 +91,7 @@ _COMPILED = (
     damper_kernel.near_pairs,
     damper_kinematics._budget_moved,
     damper_kinematics._slot_jacobians,
+    damper_kinematics._pair_speeds,
 )
 
 
