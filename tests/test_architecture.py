@@ -342,13 +342,6 @@ def _subpackage(module: str) -> str:
     return module.split(".")[0] if "." in module or module in LAYERS else ""
 
 
-#: Private names still crossing a subpackage: the kernel's shape-row offsets
-#: (``kernel.types``, re-exported by ``kernel``), read by scene and online.
-#: Naming them publicly edits the kernel, whose compiled cache is stamped by
-#: all of its files (a recompile everywhere): pending.
-ROW_OFFSETS = {"_K", "_C", "_R", "_S", "_V0", "_V1", "_EI", "_U", "_ED", "_ES"}
-
-
 def _private_crossings(package: Path = PACKAGE) -> set[tuple[str, str, str]]:
     """(module, the module it takes it from, name) for every private name
     (one leading underscore) a module takes from another subpackage's
@@ -383,12 +376,32 @@ def _private_crossings(package: Path = PACKAGE) -> set[tuple[str, str, str]]:
     return out
 
 
+def _private_exports(package: Path = PACKAGE) -> set[tuple[str, str]]:
+    """(module, name) for every private name (one leading underscore) a
+    module lists in its ``__all__`` (assigned or extended)."""
+    out = set()
+    for m, path in _modules(package).items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Assign):
+                targets, value = node.targets, node.value
+            elif isinstance(node, (ast.AugAssign, ast.AnnAssign)):
+                targets, value = [node.target], node.value
+            else:
+                continue
+            if value is None or not any(isinstance(t, ast.Name) and t.id == "__all__" for t in targets):
+                continue
+            for c in ast.walk(value):
+                if isinstance(c, ast.Constant) and isinstance(c.value, str):
+                    if c.value.startswith("_") and not c.value.startswith("__"):
+                        out.add((m, c.value))
+    return out
+
+
 def test_no_private_name_crosses_a_subpackage():
-    """A private name stays inside its subpackage (the kernel's shape-row
-    offsets pending, :data:`ROW_OFFSETS`, and no other)."""
-    found = _private_crossings()
-    other = {x for x in found if not (x[1] in ("kernel", "kernel.types") and x[2] in ROW_OFFSETS)}
-    assert not other, sorted(other)
+    """A private name stays inside its subpackage: no module takes one from
+    another subpackage, and no module exports one in its ``__all__``."""
+    assert not _private_crossings(), sorted(_private_crossings())
+    assert not _private_exports(), sorted(_private_exports())
 
 
 def test_the_private_name_check_finds_planted_crossings(tmp_path):
@@ -410,3 +423,17 @@ def test_the_private_name_check_finds_planted_crossings(tmp_path):
         ("systems.d", "scene.a", "_HIDDEN"),
         ("systems.e", "scene", "_TOP"),
     }
+
+
+def test_the_private_export_check_finds_planted_exports(tmp_path):
+    """Planted: a subpackage's ``__all__`` holding private names (assigned,
+    annotated and extended), beside public and dunder names, which pass."""
+    package = _plant_tree(
+        tmp_path,
+        {
+            "kernel/__init__.py": '_K = 0\nfk = 1\n__all__ = ["fk", "_K"]\n',
+            "kernel/types.py": '__all__: list[str] = ["SHAPE_W", "__version__"]\n__all__ += ["_V0"]\n',
+            "scene/a.py": '__all__ = ("shape_cover",)\n',
+        },
+    )
+    assert _private_exports(package) == {("kernel", "_K"), ("kernel.types", "_V0")}

@@ -8,7 +8,7 @@ import pytest
 from drake_cfvol import kernel as K
 from drake_cfvol.exceptions import WorkcellError
 from drake_cfvol.kernel.spheres import place_balls
-from drake_cfvol.kernel.types import _EI
+from drake_cfvol.kernel.types import ROW_E_ISO
 from drake_cfvol.scene.covers import MAX_SLABS, check_cover, shape_cover
 
 MESH_CELL = "tests/data/mesh_cell.yaml"
@@ -23,21 +23,21 @@ def mesh_cell():
 
 def _row(kind, size, R=np.eye(3), c=(0.0, 0.0, 0.0), inflation=0.0):
     row = np.zeros(K.SHAPE_W)
-    row[K._K] = kind
-    row[K._C : K._C + 3] = c
-    row[K._R : K._R + 9] = np.asarray(R).ravel()
-    row[K._S : K._S + 3] = size
-    row[_EI] = inflation
+    row[K.ROW_KIND] = kind
+    row[K.ROW_CENTRE : K.ROW_CENTRE + 3] = c
+    row[K.ROW_ROTATION : K.ROW_ROTATION + 9] = np.asarray(R).ravel()
+    row[K.ROW_SIZE : K.ROW_SIZE + 3] = size
+    row[ROW_E_ISO] = inflation
     return row
 
 
 def _points_inside(row, verts, n, rng):
     """n points drawn inside the shape (its own geometry, not the cover's),
     in the row's parent frame."""
-    kind = int(row[K._K])
-    s = row[K._S : K._S + 3]
+    kind = int(row[K.ROW_KIND])
+    s = row[K.ROW_SIZE : K.ROW_SIZE + 3]
     if kind == K.HULL:
-        V = verts[int(row[K._V0]) : int(row[K._V1])]
+        V = verts[int(row[K.ROW_FIRST_VERTEX]) : int(row[K.ROW_END_VERTEX])]
         w = rng.dirichlet(np.full(len(V), 0.3), n)
         local = w @ V
     elif kind == K.BOX:
@@ -61,9 +61,9 @@ def _points_inside(row, verts, n, rng):
     # ... grown by the inflation in a random direction
     g = rng.normal(size=(n, 3))
     g /= np.linalg.norm(g, axis=1, keepdims=True)
-    local = local + g * row[_EI] * rng.random((n, 1))
-    R = row[K._R : K._R + 9].reshape(3, 3)
-    return row[K._C : K._C + 3] + local @ R.T
+    local = local + g * row[ROW_E_ISO] * rng.random((n, 1))
+    R = row[K.ROW_ROTATION : K.ROW_ROTATION + 9].reshape(3, 3)
+    return row[K.ROW_CENTRE : K.ROW_CENTRE + 3] + local @ R.T
 
 
 def _outside(points, cover):
@@ -85,11 +85,11 @@ def test_covers_contain_every_vertex_and_points_inside(cell, request, mesh_cell)
     for s, row in enumerate(arrays.shapes):
         cover = spheres[ranges[s, 0] : ranges[s, 1]]
         assert 1 <= len(cover) <= MAX_SLABS
-        kinds.add(int(row[K._K]))
-        if int(row[K._K]) == K.HULL:  # the vertices themselves, by hand
-            V = arrays.verts[int(row[K._V0]) : int(row[K._V1])]
-            R = row[K._R : K._R + 9].reshape(3, 3)
-            assert _outside(row[K._C : K._C + 3] + V @ R.T, cover).max() <= 0.0
+        kinds.add(int(row[K.ROW_KIND]))
+        if int(row[K.ROW_KIND]) == K.HULL:  # the vertices themselves, by hand
+            V = arrays.verts[int(row[K.ROW_FIRST_VERTEX]) : int(row[K.ROW_END_VERTEX])]
+            R = row[K.ROW_ROTATION : K.ROW_ROTATION + 9].reshape(3, 3)
+            assert _outside(row[K.ROW_CENTRE : K.ROW_CENTRE + 3] + V @ R.T, cover).max() <= 0.0
         assert _outside(_points_inside(row, arrays.verts, 4000, rng), cover).max() <= 0.0
     if cell == "mesh":
         assert K.HULL in kinds
@@ -123,7 +123,7 @@ def test_hull_cover_of_a_long_prism():
     rng = np.random.default_rng(2)
     V = rng.normal(size=(60, 3)) * (1.0, 0.15, 0.1)
     row = _row(K.HULL, (0, 0, 0))
-    row[K._V0], row[K._V1] = 0, len(V)
+    row[K.ROW_FIRST_VERTEX], row[K.ROW_END_VERTEX] = 0, len(V)
     cover = shape_cover(row, V)
     assert len(cover) > 2
     assert cover[:, 3].max() < np.linalg.norm(V - V.mean(0), axis=1).max()

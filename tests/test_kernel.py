@@ -554,11 +554,11 @@ def test_box_separation_before_gjk_is_exact_for_boxes_and_never_wrong():
 
 def _row(kind, centre, verts_range=(0, 0)):
     row = np.zeros(K.SHAPE_W)
-    row[K._K] = kind
-    row[K._C : K._C + 3] = centre
-    row[K._R : K._R + 9] = np.eye(3).ravel()
-    row[K._S : K._S + 3] = (0.2, 0.3, 0.25)
-    row[K._V0], row[K._V1] = verts_range
+    row[K.ROW_KIND] = kind
+    row[K.ROW_CENTRE : K.ROW_CENTRE + 3] = centre
+    row[K.ROW_ROTATION : K.ROW_ROTATION + 9] = np.eye(3).ravel()
+    row[K.ROW_SIZE : K.ROW_SIZE + 3] = (0.2, 0.3, 0.25)
+    row[K.ROW_FIRST_VERTEX], row[K.ROW_END_VERTEX] = verts_range
     return row
 
 

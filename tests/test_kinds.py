@@ -86,7 +86,7 @@ def test_every_kind_through_every_function(name):
     g = kinds.geometry(shape)
     row, verts, radius, centre = _row(shape)
     kinds.check_rows(row[None], verts, "test shape")
-    k = kinds.kind(row[K._K])
+    k = kinds.kind(row[K.ROW_KIND])
     assert k is g.kind and k.drake_names and type(shape).__name__ in k.drake_names
     R, t = X_WG.rotation().matrix(), X_WG.translation()
     np.testing.assert_allclose(centre, t + R @ g.centre, atol=1e-12)
@@ -144,16 +144,16 @@ def test_every_kind_through_every_function(name):
     if k.exact_near:
         Pl = np.zeros(12 * NB)
         for e in range(9):
-            Pl[e * NB : (e + 1) * NB] = row[K._R + e]
+            Pl[e * NB : (e + 1) * NB] = row[K.ROW_ROTATION + e]
         for e in range(3):
-            Pl[(9 + e) * NB : (10 + e) * NB] = row[K._C + e]
+            Pl[(9 + e) * NB : (10 + e) * NB] = row[K.ROW_CENTRE + e]
         cb = np.zeros(3 * NB)
         C = t + rng.uniform(-0.5, 0.5, (NB, 3))
         for e in range(3):
             cb[e * NB : (e + 1) * NB] = C[:, e]
         r = 0.05
         near = np.ones(NB)
-        _near_exact(cb, r, k.code, Pl, row[K._S : K._S + 3].copy(), near, NB)
+        _near_exact(cb, r, k.code, Pl, row[K.ROW_SIZE : K.ROW_SIZE + 3].copy(), near, NB)
         d = _distance(query, shape, C)
         assert np.all(near[d <= r] == 1.0)
         assert np.any(near == 0.0) and np.any(near == 1.0)
@@ -198,7 +198,7 @@ def test_every_kind_through_every_function(name):
 
 def test_a_half_space_is_a_big_box_below_its_plane_for_the_kernel_and_drakes_alone_for_the_filter():
     row, verts, _, centre = _row(HalfSpace())
-    assert kinds.kind(row[K._K]) is kinds.KINDS[K.BOX]
+    assert kinds.kind(row[K.ROW_KIND]) is kinds.KINDS[K.BOX]
     n = X_WG.rotation().matrix()[:, 2]  # the plane's normal in the world
     top = np.empty(3)
     support(row, verts, *n, top)
@@ -212,12 +212,12 @@ def test_an_unknown_kind_is_refused_when_the_scene_is_built(mesh_arrays):
     """A row of a kind no module has, or a hull without vertices, is
     refused with a message naming it; the known kinds pass."""
     bad = mesh_arrays.obstacles.copy()
-    bad[0, K._K] = 9
+    bad[0, K.ROW_KIND] = 9
     with pytest.raises(WorkcellError, match="obstacle shape 0 has shape kind 9"):
         dataclasses.replace(mesh_arrays, obstacles=bad)
     bad = mesh_arrays.shapes.copy()
-    hull = int(np.flatnonzero(bad[:, K._K] == K.HULL)[0])
-    bad[hull, K._V1] = bad[hull, K._V0] + 2
+    hull = int(np.flatnonzero(bad[:, K.ROW_KIND] == K.HULL)[0])
+    bad[hull, K.ROW_END_VERTEX] = bad[hull, K.ROW_FIRST_VERTEX] + 2
     with pytest.raises(WorkcellError, match=f"robot shape {hull} is a convex hull"):
         dataclasses.replace(mesh_arrays, shapes=bad)
     with pytest.raises(WorkcellError, match="not one the kernel knows"):

@@ -11,7 +11,7 @@ from drake_cfvol.kernel.heightfield import no_height_field
 from drake_cfvol.kernel.regions import _region_workspace
 from drake_cfvol.kernel.spheres import ball_apart_row
 from drake_cfvol.kernel.swept import region_quick_free
-from drake_cfvol.kernel.types import _EI
+from drake_cfvol.kernel.types import ROW_E_ISO
 from drake_cfvol.scene.covers import robot_covers
 
 #: Sweep inputs and bounds recorded from the kernel before sphere covers and
@@ -59,19 +59,19 @@ def test_ball_against_a_box_by_hand():
     """A ball against a rotated box: apart exactly when its centre is
     farther than its radius from the box (distance worked by hand)."""
     row = np.zeros(K.SHAPE_W)
-    row[K._K] = K.BOX
+    row[K.ROW_KIND] = K.BOX
     c, s = np.cos(0.3), np.sin(0.3)
     R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-    row[K._C : K._C + 3] = (1.0, 2.0, 0.5)
-    row[K._R : K._R + 9] = R.ravel()
-    row[K._S : K._S + 3] = (0.5, 0.2, 0.5)
+    row[K.ROW_CENTRE : K.ROW_CENTRE + 3] = (1.0, 2.0, 0.5)
+    row[K.ROW_ROTATION : K.ROW_ROTATION + 9] = R.ravel()
+    row[K.ROW_SIZE : K.ROW_SIZE + 3] = (0.5, 0.2, 0.5)
     aabb = np.zeros(6)
     K.row_aabb(row, np.zeros((0, 3)), aabb)
     # 0.3 m beyond the +x face and 0.4 m beyond the +y face: 0.5 m away.
     x = np.array([1.0, 2.0, 0.5]) + R @ np.array([0.8, 0.6, 0.0])
     assert ball_apart_row(*x, 0.49, row, aabb)
     assert not ball_apart_row(*x, 0.51, row, aabb)
-    row[_EI] = 0.02  # the row's inflation counts
+    row[ROW_E_ISO] = 0.02  # the row's inflation counts
     assert not ball_apart_row(*x, 0.49, row, aabb)
 
 
@@ -178,11 +178,11 @@ def _two_finger_model():
         np.zeros((2, 3)),
     )
     shapes = np.zeros((2, K.SHAPE_W))
-    shapes[:, K._K] = K.BOX
-    shapes[:, K._R : K._R + 9] = eye.ravel()
-    shapes[0, K._S : K._S + 3] = (0.02, 0.02, 0.02)
-    shapes[1, K._S : K._S + 3] = (0.075, 0.02, 0.02)
-    shapes[1, K._C : K._C + 3] = (-0.375, 0.0, 0.0)
+    shapes[:, K.ROW_KIND] = K.BOX
+    shapes[:, K.ROW_ROTATION : K.ROW_ROTATION + 9] = eye.ravel()
+    shapes[0, K.ROW_SIZE : K.ROW_SIZE + 3] = (0.02, 0.02, 0.02)
+    shapes[1, K.ROW_SIZE : K.ROW_SIZE + 3] = (0.075, 0.02, 0.02)
+    shapes[1, K.ROW_CENTRE : K.ROW_CENTRE + 3] = (-0.375, 0.0, 0.0)
     verts = np.zeros((0, 3))
     spheres, ranges = robot_covers(shapes, verts)
     moved = np.array([[True, False], [False, True]])

@@ -20,7 +20,8 @@ plain arrays extracted from Drake once (:mod:`drake_cfvol.scene.arrays`):
   the columns by recursive halving of its footprint (exact at one cell).
 
 Shape rows (``SHAPE_W`` floats): kind, centre (3), rotation (9, row-major),
-size (3), first vertex, end vertex, e_iso, axis u (3), e_disc, e_seg.
+size (3), first vertex, end vertex, e_iso, axis u (3), e_disc, e_seg; their
+offsets are ``ROW_KIND`` ... ``ROW_E_SEG``.
 
 Modules, by concern: ``types`` (constants and the typed arguments),
 ``kinematics``, ``shapes``, ``gjk``, ``heightfield``, ``checks``
@@ -86,12 +87,6 @@ from drake_cfvol.kernel.kinematics import fk, fk_into  # noqa: E402
 from drake_cfvol.kernel.regions import regions_hit, sweep_chains  # noqa: E402
 from drake_cfvol.kernel.shapes import object_aabb, pose_shape, row_aabb, set_motion, support  # noqa: E402
 from drake_cfvol.kernel.types import (  # noqa: E402
-    _C,
-    _K,
-    _R,
-    _S,
-    _V0,
-    _V1,
     BOX,
     CAPSULE,
     CYLINDER,
@@ -102,6 +97,16 @@ from drake_cfvol.kernel.types import (  # noqa: E402
     MAX_V_SAMPLES,
     MEMO_T,
     MEMO_W,
+    ROW_AXIS,
+    ROW_CENTRE,
+    ROW_E_DISC,
+    ROW_E_ISO,
+    ROW_E_SEG,
+    ROW_END_VERTEX,
+    ROW_FIRST_VERTEX,
+    ROW_KIND,
+    ROW_ROTATION,
+    ROW_SIZE,
     SHAPE_W,
     SPHERE,
     Blocks,
@@ -169,10 +174,14 @@ __all__ = [
     "STEP_SHARES",
     "PARALLEL_SHARES",
     "HELPER_STEPS",
-    "_K",
-    "_C",
-    "_R",
-    "_S",
-    "_V0",
-    "_V1",
+    "ROW_KIND",
+    "ROW_CENTRE",
+    "ROW_ROTATION",
+    "ROW_SIZE",
+    "ROW_FIRST_VERTEX",
+    "ROW_END_VERTEX",
+    "ROW_E_ISO",
+    "ROW_AXIS",
+    "ROW_E_DISC",
+    "ROW_E_SEG",
 ]

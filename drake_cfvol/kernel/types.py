@@ -33,8 +33,17 @@ BOX, SPHERE, CAPSULE, CYLINDER, ELLIPSOID, HULL = 0, 1, 2, 3, 4, 5
 SHAPE_W = 25
 
 
-# Offsets in a shape row.
-_K, _C, _R, _S, _V0, _V1, _EI, _U, _ED, _ES = 0, 1, 4, 13, 16, 17, 18, 19, 22, 23
+# Offsets in a shape row: its kind, centre (3), rotation (9, row-major),
+# size (3), the hull's vertex range [first, end) in the vertex table, the
+# motion's ball radius e_iso, axis u (3), disc radius e_disc and segment
+# half-length e_seg (:func:`drake_cfvol.kernel.shapes.set_motion`).
+ROW_KIND, ROW_CENTRE, ROW_ROTATION, ROW_SIZE = 0, 1, 4, 13
+ROW_FIRST_VERTEX, ROW_END_VERTEX = 16, 17
+ROW_E_ISO, ROW_AXIS, ROW_E_DISC, ROW_E_SEG = 18, 19, 22, 23
+# The kernel's own short spellings, for index arithmetic in compiled code.
+_K, _C, _R, _S = ROW_KIND, ROW_CENTRE, ROW_ROTATION, ROW_SIZE
+_V0, _V1 = ROW_FIRST_VERTEX, ROW_END_VERTEX
+_EI, _U, _ED, _ES = ROW_E_ISO, ROW_AXIS, ROW_E_DISC, ROW_E_SEG
 
 
 #: A separating direction must separate by at least this (m): numerical

@@ -173,9 +173,11 @@ def shape_radii(arrays) -> np.ndarray:
     holding all its shapes, m."""
     out = np.zeros(arrays.num_bodies)
     for row, b in zip(arrays.shapes, arrays.shape_body):
-        k = kinds.kind(row[K._K])
-        r = k.radius(row[K._S : K._S + 3], arrays.verts[int(row[K._V0]) : int(row[K._V1])])
-        out[b] = max(out[b], float(np.linalg.norm(row[K._C : K._C + 3])) + r)
+        k = kinds.kind(row[K.ROW_KIND])
+        r = k.radius(
+            row[K.ROW_SIZE : K.ROW_SIZE + 3], arrays.verts[int(row[K.ROW_FIRST_VERTEX]) : int(row[K.ROW_END_VERTEX])]
+        )
+        out[b] = max(out[b], float(np.linalg.norm(row[K.ROW_CENTRE : K.ROW_CENTRE + 3])) + r)
     return out
 
 

@@ -64,11 +64,11 @@ def shape_row(shape, R_BG: np.ndarray, p_BG: np.ndarray, verts: list) -> tuple[n
     if len(g.verts):
         start = sum(len(x) for x in verts)
         verts.append(g.verts)
-        row[K._V0], row[K._V1] = start, start + len(g.verts)
-    row[K._K] = g.kind.code
-    row[K._C : K._C + 3] = c
-    row[K._R : K._R + 9] = R.ravel()
-    row[K._S : K._S + 3] = g.sizes
+        row[K.ROW_FIRST_VERTEX], row[K.ROW_END_VERTEX] = start, start + len(g.verts)
+    row[K.ROW_KIND] = g.kind.code
+    row[K.ROW_CENTRE : K.ROW_CENTRE + 3] = c
+    row[K.ROW_ROTATION : K.ROW_ROTATION + 9] = R.ravel()
+    row[K.ROW_SIZE : K.ROW_SIZE + 3] = g.sizes
     return row, g.kind.radius(g.sizes, g.verts), c
 
 
@@ -185,10 +185,10 @@ class SceneArrays:
         centres = np.asarray(centres, float).reshape(-1, 3)
         sizes = np.asarray(sizes, float).reshape(-1, 3)
         rows = np.zeros((len(centres), K.SHAPE_W))
-        rows[:, K._K] = K.BOX
-        rows[:, K._C : K._C + 3] = centres
-        rows[:, K._R : K._R + 9] = np.eye(3).ravel()
-        rows[:, K._S : K._S + 3] = sizes / 2
+        rows[:, K.ROW_KIND] = K.BOX
+        rows[:, K.ROW_CENTRE : K.ROW_CENTRE + 3] = centres
+        rows[:, K.ROW_ROTATION : K.ROW_ROTATION + 9] = np.eye(3).ravel()
+        rows[:, K.ROW_SIZE : K.ROW_SIZE + 3] = sizes / 2
         aabb = np.concatenate([centres - sizes / 2, centres + sizes / 2], axis=1)
         out = dataclasses.replace(
             self,
@@ -250,7 +250,7 @@ class SceneArrays:
         if self._blocks is None:
             balls, ranges = robot_covers(self.shapes, self.verts, tight=True)
             KR, Kp = K.block_chain(self.chain)
-            kind = np.array([int(k) if int(k) in K.EXACT_KINDS else -1 for k in self.shapes[:, K._K]], np.int64)
+            kind = np.array([int(k) if int(k) in K.EXACT_KINDS else -1 for k in self.shapes[:, K.ROW_KIND]], np.int64)
             self._blocks = K.Blocks(KR, Kp, balls, ranges, K.shape_bounds(balls, ranges), kind)
         return self._blocks
 
@@ -565,8 +565,8 @@ def _rows_digest(rows: np.ndarray, verts: np.ndarray) -> str:
     parts = []
     for row in rows:
         r = row.copy()
-        v0, v1 = int(r[K._V0]), int(r[K._V1])
-        r[K._V0] = r[K._V1] = 0.0
+        v0, v1 = int(r[K.ROW_FIRST_VERTEX]), int(r[K.ROW_END_VERTEX])
+        r[K.ROW_FIRST_VERTEX] = r[K.ROW_END_VERTEX] = 0.0
         parts += [r, verts[v0:v1] if v1 > v0 else np.zeros((0, 3))]
     return _digest(*parts)
 

@@ -27,7 +27,7 @@ from drake_cfvol import kernel as K
 from drake_cfvol.exceptions import WorkcellError
 from drake_cfvol.kernel import kinds
 from drake_cfvol.kernel.kinds import MAX_SEGMENT_BALLS, MAX_SLABS, SEGMENT_SLACK
-from drake_cfvol.kernel.types import _ED, _EI, _ES
+from drake_cfvol.kernel.types import ROW_E_DISC, ROW_E_ISO, ROW_E_SEG
 
 __all__ = ["shape_cover", "robot_covers", "check_cover", "MAX_SLABS", "SEGMENT_SLACK", "MAX_SEGMENT_BALLS"]
 
@@ -37,8 +37,12 @@ _ROUNDING = 1e-9
 
 def _local(row: np.ndarray, verts: np.ndarray) -> tuple:
     """A row's kind, sizes and hull vertices (its own frame)."""
-    k = kinds.kind(row[K._K])
-    return k, row[K._S : K._S + 3], verts[int(row[K._V0]) : int(row[K._V1])] if k.code == K.HULL else verts[:0]
+    k = kinds.kind(row[K.ROW_KIND])
+    return (
+        k,
+        row[K.ROW_SIZE : K.ROW_SIZE + 3],
+        verts[int(row[K.ROW_FIRST_VERTEX]) : int(row[K.ROW_END_VERTEX])] if k.code == K.HULL else verts[:0],
+    )
 
 
 def shape_cover(row: np.ndarray, verts: np.ndarray, tight: bool = False) -> np.ndarray:
@@ -57,10 +61,10 @@ def shape_cover(row: np.ndarray, verts: np.ndarray, tight: bool = False) -> np.n
     """
     k, sizes, v = _local(row, verts)
     local = k.cover(sizes, v, tight)
-    R = row[K._R : K._R + 9].reshape(3, 3)
+    R = row[K.ROW_ROTATION : K.ROW_ROTATION + 9].reshape(3, 3)
     out = np.empty_like(local)
-    out[:, :3] = row[K._C : K._C + 3] + local[:, :3] @ R.T
-    out[:, 3] = local[:, 3] + row[_EI] + row[_ED] + row[_ES] + _ROUNDING
+    out[:, :3] = row[K.ROW_CENTRE : K.ROW_CENTRE + 3] + local[:, :3] @ R.T
+    out[:, 3] = local[:, 3] + row[ROW_E_ISO] + row[ROW_E_DISC] + row[ROW_E_SEG] + _ROUNDING
     return out
 
 
@@ -71,8 +75,8 @@ def shape_points(row: np.ndarray, verts: np.ndarray, rings: int = 16) -> np.ndar
     ``rings`` heights (and its caps)."""
     k, sizes, v = _local(row, verts)
     local = k.points(sizes, v, rings)
-    R = row[K._R : K._R + 9].reshape(3, 3)
-    return row[K._C : K._C + 3] + local @ R.T
+    R = row[K.ROW_ROTATION : K.ROW_ROTATION + 9].reshape(3, 3)
+    return row[K.ROW_CENTRE : K.ROW_CENTRE + 3] + local @ R.T
 
 
 def check_cover(row: np.ndarray, verts: np.ndarray, cover: np.ndarray) -> None:
@@ -83,13 +87,13 @@ def check_cover(row: np.ndarray, verts: np.ndarray, cover: np.ndarray) -> None:
     Raises:
         WorkcellError: a point outside the cover (a bug, never expected).
     """
-    grow = row[_EI] + row[_ED] + row[_ES]
+    grow = row[ROW_E_ISO] + row[ROW_E_DISC] + row[ROW_E_SEG]
     P = shape_points(row, verts)
     d = np.linalg.norm(P[:, None, :] - cover[None, :, :3], axis=2) + grow - cover[None, :, 3]
     worst = float(d.min(axis=1).max())
     if worst > 0.0:
         raise WorkcellError(
-            f"a sphere cover misses a point of its shape (kind {int(row[K._K])}) by {worst:.3g} m; "
+            f"a sphere cover misses a point of its shape (kind {int(row[K.ROW_KIND])}) by {worst:.3g} m; "
             "please report this with the robot's model."
         )
 
