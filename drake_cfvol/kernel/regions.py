@@ -1,6 +1,7 @@
 """Region tests: a straight piece of the nominal with one joint swept over a
 range, proven free by a grid of poses and a second-order growth bound; the
-sweep's adaptive search for each joint's bound, and many regions at once.
+sweep's adaptive search for each joint's bound (the paper's Algorithm 2,
+made sound: :func:`sound_joint_bounding`), and many regions at once.
 """
 
 from __future__ import annotations
@@ -30,9 +31,10 @@ from drake_cfvol.kernel.types import (
     HeightField,
     Model,
     RegionScratch,
+    Scratch,
 )
 
-__all__ = ["sweep_chains", "regions_hit"]
+__all__ = ["sweep_chains", "regions_hit", "sound_joint_bounding"]
 
 
 @njit(cache=True)
@@ -307,10 +309,38 @@ def _memo_fits(memo, n_old, k, va, vb, nv, changed):
 
 
 @njit(cache=True)
-def _search(i, j, sgn, guess, W, lims, grid, m, field, sc, rs, pad, memo, n_old, changed):
-    """The bound v of joint j over stretch i (upper for sgn +1, lower for
-    -1): for every t in [0, 1], moving joint j alone from nom(i + t) to v is
-    free. An adaptive search from the stretch's nominal range outwards:
+def sound_joint_bounding(
+    i: int,
+    j: int,
+    sgn: int,
+    guess: float,
+    W: np.ndarray,
+    lims: tuple[np.ndarray, np.ndarray, np.ndarray],
+    grid: tuple[int, float],
+    m: Model,
+    field: HeightField,
+    sc: Scratch,
+    rs: RegionScratch,
+    pad: float,
+    memo: np.ndarray,
+    n_old: int,
+    changed: np.ndarray,
+) -> tuple[float, int, int]:
+    """The paper's Algorithm 2 (Joint Bounding, section III-C "Joint Space
+    Exploration"), made sound (docs/spec.md, SPEC 6 and SPEC 7).
+
+    The bound v of joint j over stretch i (upper for sgn +1, lower for -1).
+    What it proves: for every t in [0, 1] and every value between the
+    stretch's nominal range and v, moving joint j alone from nom(i + t) to
+    that value, the other joints on the nominal, keeps the robot at least
+    ``pad`` (m) from V, the obstacles and itself. The paper bisects on end
+    values only and can jump over an obstacle; here each test proves a whole
+    interval of v free (:func:`_region_hits`, conservative), so v may stop
+    short of the true bound but never goes past it; the search ends where
+    an interval no wider than ``delta[j]`` beyond v may collide, or at the
+    absolute bound.
+
+    An adaptive search from the stretch's nominal range outwards:
     test [F, F + w]; free -> certified, advance and double w; possible
     collision -> halve w; stop once a possibly colliding interval is no
     wider than delta[j]. From a neighbour's bound: [F, its bound - delta]
@@ -474,7 +504,7 @@ def sweep_chains(
     memo_n: np.ndarray,
     changed: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Certified single-joint bounds of every stretch (:func:`_search`),
+    """Certified single-joint bounds of every stretch (:func:`sound_joint_bounding`),
     keeping stretch i at least ``pads[i]`` (m) from the scene and itself.
     Chain n = (j, sign) walks the stretches in order, each search starting
     from the previous stretch's bound (the first from ``guesses[n]``; NaN:
@@ -483,7 +513,7 @@ def sweep_chains(
 
     ``memo`` (n, g-1, T, MEMO_W) and ``memo_n`` (n, g-1): each search's
     tests as run last time and how many rows are valid, read and rewritten
-    (:func:`_search`; a memo of no chains, (0, 0, 0, MEMO_W), keeps none);
+    (:func:`sound_joint_bounding`; a memo of no chains, (0, 0, 0, MEMO_W), keeps none);
     ``changed`` (C, 6): the boxes (min xyz, max xyz) where the obstacles or
     V changed since.
 
@@ -561,7 +591,7 @@ def sweep_chains(
             else:
                 mem = no_memo
                 n_old = 0
-            bound, c, kept = _search(
+            bound, c, kept = sound_joint_bounding(
                 i, j, sgn, guess, W, lm, (nts[i, j], v_steps[j]), mm, fld, sc, rs, pads[i], mem, n_old, changed
             )
             if memo.shape[0] > 0:
