@@ -11,94 +11,19 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from pydrake.geometry import (
-    AddContactMaterial,
-    Box,
-    GeometryInstance,
-    MakePhongIllustrationProperties,
-    ProximityProperties,
-)
-from pydrake.math import RigidTransform
-from pydrake.multibody.plant import CoulombFriction
 
 from drake_cfvol.algorithm.heightmap import Volume
 from drake_cfvol.algorithm.table import absolute_bounds
+from drake_cfvol.algorithm.volume import register_volume_boxes
 from drake_cfvol.exceptions import ParameterError
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.queries import RobotChecker
 
-__all__ = ["VOLUME_BOX_PREFIX", "register_volume_boxes", "ReferenceScene", "drake_sweep_bounds"]
-
-#: Names of the volume's geometries in SceneGraph.
-VOLUME_BOX_PREFIX = "cfvol_volume_"
+__all__ = ["ReferenceScene", "drake_sweep_bounds"]
 
 #: Above this many columns the reference refuses (cost: see module docs).
 MAX_REFERENCE_BOXES = 3000
-
-
-def register_volume_boxes(
-    plant,
-    volume: Volume,
-    *,
-    colour=(0.2, 0.75, 0.3, 0.35),
-    visual: bool = True,
-    boxes=None,
-    scene_graph=None,
-    proximity: bool = True,
-) -> list:
-    """Registers the volume's columns on the world body of a plant (before
-    ``Finalize``): proximity geometry, and an illustration if ``visual``.
-    A finalized plant's are registered on its SceneGraph instead, as
-    anchored geometry of the plant's source (``scene_graph`` needed).
-
-    Args:
-        boxes: (centres, sizes) to register instead of one box per column
-            (e.g. :meth:`Volume.merged_boxes`).
-        scene_graph: the plant's SceneGraph (needed for a finalized plant).
-        proximity: register proximity geometry (False: an illustration
-            only, e.g. in a simulated plant, where the boxes must not push).
-
-    Returns:
-        The proximity ``GeometryId`` of each box.
-    """
-    centres, sizes = volume.boxes() if boxes is None else boxes[:2]
-    if plant.is_finalized():
-        return _register_anchored(plant, scene_graph, centres, sizes, colour, visual)
-    world = plant.world_body()
-    ids = []
-    for i, (c, s) in enumerate(zip(centres, sizes)):
-        X_WC = RigidTransform(c)
-        if proximity:
-            ids.append(
-                plant.RegisterCollisionGeometry(
-                    world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}{i}", CoulombFriction(0.5, 0.5)
-                )
-            )
-        if visual:
-            plant.RegisterVisualGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}visual_{i}", np.asarray(colour))
-    return ids
-
-
-def _register_anchored(plant, scene_graph, centres, sizes, colour, visual) -> list:
-    """The volume's boxes as anchored geometry of a finalized plant's source."""
-    if scene_graph is None:
-        raise ParameterError(
-            "register_volume_boxes: the plant is finalized; pass its scene_graph to register the "
-            "boxes as anchored geometry."
-        )
-    source, ids = plant.get_source_id(), []
-    for i, (c, s) in enumerate(zip(centres, sizes)):
-        gid = scene_graph.RegisterAnchoredGeometry(
-            source, GeometryInstance(RigidTransform(c), Box(*s), f"{VOLUME_BOX_PREFIX}{i}")
-        )
-        props = ProximityProperties()
-        AddContactMaterial(friction=CoulombFriction(0.5, 0.5), properties=props)
-        scene_graph.AssignRole(source, gid, props)
-        if visual:
-            scene_graph.AssignRole(source, gid, MakePhongIllustrationProperties(np.asarray(colour)))
-        ids.append(gid)
-    return ids
 
 
 class ReferenceScene:

@@ -1,15 +1,25 @@
-"""Object categorization (SPEC 4) and the height-map volume V (SPEC 5)."""
+"""Object categorization (SPEC 4), the height-map volume V (SPEC 5) and its
+columns as Drake geometry (:func:`register_volume_boxes`)."""
 
 from __future__ import annotations
 
 import dataclasses
 
 import numpy as np
+from pydrake.geometry import (
+    AddContactMaterial,
+    Box,
+    GeometryInstance,
+    MakePhongIllustrationProperties,
+    ProximityProperties,
+)
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import CoulombFriction
 
 from drake_cfvol import kernel as K
 from drake_cfvol.algorithm.heightmap import HeightMap, Volume, height_function
 from drake_cfvol.algorithm.planning import NominalPath
-from drake_cfvol.exceptions import WorkcellError
+from drake_cfvol.exceptions import ParameterError, WorkcellError
 from drake_cfvol.scene.params import VolumeParams
 
 __all__ = [
@@ -21,6 +31,8 @@ __all__ = [
     "footprint_masks",
     "volume_from_masks",
     "ground_obstacles",
+    "VOLUME_BOX_PREFIX",
+    "register_volume_boxes",
 ]
 
 #: An obstacle whose top is at most this high is ground (the floor).
@@ -286,3 +298,71 @@ def lower_along_path(vol: Volume, arrays, waypoints: np.ndarray, clearance: floa
     changed = vol.heights < vol.raw_heights
     vol.dropped = int(np.count_nonzero(changed & (vol.heights <= 0)))
     vol.lowered = int(np.count_nonzero(changed & (vol.heights > 0)))
+
+
+#: Names of the volume's geometries in SceneGraph.
+VOLUME_BOX_PREFIX = "cfvol_volume_"
+
+
+def register_volume_boxes(
+    plant,
+    volume: Volume,
+    *,
+    colour=(0.2, 0.75, 0.3, 0.35),
+    visual: bool = True,
+    boxes=None,
+    scene_graph=None,
+    proximity: bool = True,
+) -> list:
+    """Registers the volume's columns on the world body of a plant (before
+    ``Finalize``): proximity geometry, and an illustration if ``visual``.
+    A finalized plant's are registered on its SceneGraph instead, as
+    anchored geometry of the plant's source (``scene_graph`` needed).
+
+    Args:
+        boxes: (centres, sizes) to register instead of one box per column
+            (e.g. :meth:`Volume.merged_boxes`).
+        scene_graph: the plant's SceneGraph (needed for a finalized plant).
+        proximity: register proximity geometry (False: an illustration
+            only, e.g. in a simulated plant, where the boxes must not push).
+
+    Returns:
+        The proximity ``GeometryId`` of each box.
+    """
+    centres, sizes = volume.boxes() if boxes is None else boxes[:2]
+    if plant.is_finalized():
+        return _register_anchored(plant, scene_graph, centres, sizes, colour, visual)
+    world = plant.world_body()
+    ids = []
+    for i, (c, s) in enumerate(zip(centres, sizes)):
+        X_WC = RigidTransform(c)
+        if proximity:
+            ids.append(
+                plant.RegisterCollisionGeometry(
+                    world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}{i}", CoulombFriction(0.5, 0.5)
+                )
+            )
+        if visual:
+            plant.RegisterVisualGeometry(world, X_WC, Box(*s), f"{VOLUME_BOX_PREFIX}visual_{i}", np.asarray(colour))
+    return ids
+
+
+def _register_anchored(plant, scene_graph, centres, sizes, colour, visual) -> list:
+    """The volume's boxes as anchored geometry of a finalized plant's source."""
+    if scene_graph is None:
+        raise ParameterError(
+            "register_volume_boxes: the plant is finalized; pass its scene_graph to register the "
+            "boxes as anchored geometry."
+        )
+    source, ids = plant.get_source_id(), []
+    for i, (c, s) in enumerate(zip(centres, sizes)):
+        gid = scene_graph.RegisterAnchoredGeometry(
+            source, GeometryInstance(RigidTransform(c), Box(*s), f"{VOLUME_BOX_PREFIX}{i}")
+        )
+        props = ProximityProperties()
+        AddContactMaterial(friction=CoulombFriction(0.5, 0.5), properties=props)
+        scene_graph.AssignRole(source, gid, props)
+        if visual:
+            scene_graph.AssignRole(source, gid, MakePhongIllustrationProperties(np.asarray(colour)))
+        ids.append(gid)
+    return ids

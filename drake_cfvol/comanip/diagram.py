@@ -39,10 +39,9 @@ from pydrake.visualization import VisualizationConfig
 
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
-from drake_cfvol.algorithm.reference import register_volume_boxes
 from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
 from drake_cfvol.algorithm.table import BoundsTable
-from drake_cfvol.algorithm.volume import Categories, build_volume, height_map_of
+from drake_cfvol.algorithm.volume import Categories, build_volume, height_map_of, register_volume_boxes
 from drake_cfvol.comanip.checks import cell_file, looks_like_path
 from drake_cfvol.comanip.dynamics import _control_plant, add_driver, add_simulated_plant, driver_of
 from drake_cfvol.comanip.franka import FRANKA_PERIOD, add_franka_controller_interface, add_franka_station

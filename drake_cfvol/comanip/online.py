@@ -12,7 +12,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.geometry import CollisionFilterDeclaration, GeometrySet, Role
 from pydrake.systems.primitives import ZeroOrderHold
 
-from drake_cfvol.algorithm.reference import VOLUME_BOX_PREFIX
+from drake_cfvol.algorithm.volume import VOLUME_BOX_PREFIX
 from drake_cfvol.comanip.recording import animate_columns, animate_freedom
 from drake_cfvol.online import MapGrid, ObstacleMap, OnlineBounds, PerceptionParams
 from drake_cfvol.systems import AddCellCamera, MovingBoxes, OnlineBoundsEstimator, PerceivedColumns
