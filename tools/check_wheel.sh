@@ -65,4 +65,20 @@ cfvol="$tmp/venv/bin/cfvol"
 # certification is the tests'.
 "$cfvol" simulate automotive_push --out run --json --scenario-text "{bounds: {certify: null}}" >/dev/null
 test -s run/recording.html && test -s run/summary.json
+# Bad input refused from the wheel too (issue 49): exit 2 and one line, no
+# traceback, nothing overwritten.
+refused() {  # refused <what> <command...>: exit 2 with one "cfvol: error:" line
+  local what=$1; shift
+  set +e; "$@" >/dev/null 2>"$tmp/err"; local code=$?; set -e
+  if [ "$code" != 2 ] || grep -q Traceback "$tmp/err" || [ "$(grep -c . "$tmp/err")" != 1 ] ||
+     ! grep -q "^cfvol: error: " "$tmp/err"; then
+    echo "wheel check: $what: expected exit 2 and one error line, got exit $code:" >&2; cat "$tmp/err" >&2; exit 1
+  fi
+}
+before=$(sha256sum run/summary.json)
+refused "a second run into one folder" "$cfvol" simulate automotive_push --out run --scenario-text "{bounds: {certify: null}}"
+test "$(sha256sum run/summary.json)" = "$before"
+printf 'n\xe4me: cell\n' > latin1.yaml
+refused "a workcell file that is not UTF-8" "$cfvol" plan latin1.yaml --path 1
+refused "a time limit that is not finite" "$cfvol" plan automotive --path 1 --time-limit inf
 echo "wheel check: OK"
