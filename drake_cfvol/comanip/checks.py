@@ -12,7 +12,6 @@ from drake_cfvol.exceptions import ParameterError, ScenarioError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.workcell import builtin_cells
 
-
 __all__ = ["validate_scenario", "check_scenario_against_cell", "scenario_file_path", "looks_like_path", "cell_file"]
 
 
