@@ -132,7 +132,7 @@ def estimate_bounds(
             ``total``).
         progress: progress bars on a terminal for the long steps (the
             kernel's first compile, the reference backend, certification);
-            the fast bounding takes well under 2 s and shows none.
+            the fast bounding ends before a bar would show.
 
     Returns:
         The bounds table, its ``volume`` field set; ``timing_ms["total"]`` is

@@ -33,8 +33,8 @@ class ReferenceScene:
         workcell: the workcell.
         volume: the volume V.
         edge_step: Drake's edge-check step, rad or m.
-        max_boxes: refuse volumes with more columns than this (Drake needs
-            ~1-2 s per 1000 boxes, 12 GB and a minute at 5000).
+        max_boxes: refuse volumes with more columns than this (Drake's
+            scene grows in time and memory with every box).
         clearance: Drake's collision padding, m: a configuration nearer than
             this to the volume, an obstacle or itself counts as colliding.
     """
@@ -112,8 +112,8 @@ def drake_sweep_bounds(
     is the last free sample before the first collision (a sample nearer
     than ``params.clearance`` counts as one).
 
-    With ``progress``, a bar on a terminal counts the waypoints (building
-    the scene is ~1 % of the time at R = 1000)."""
+    With ``progress``, a bar on a terminal counts the waypoints (the
+    sampling, not building the scene, takes the time)."""
     waypoints = np.asarray(waypoints, float)
     g, k = waypoints.shape
     scene = scene or ReferenceScene(workcell, volume, clearance=params.clearance)

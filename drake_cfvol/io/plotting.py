@@ -24,8 +24,8 @@ def _pyplot():
 def figure(rows: int, cols: int, *, size: tuple[float, float], margins: tuple[float, float, float, float], **kw):
     """A figure of ``rows`` x ``cols`` axes without pyplot (no global state,
     nothing to close), its margins fixed in inches (left, right, bottom,
-    top; matplotlib's tight layout measured every label and took a third of
-    a plot's time). Returns (figure, axes as a 2-D array)."""
+    top; matplotlib's tight layout measures every label, a large share of a
+    plot's time). Returns (figure, axes as a 2-D array)."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=size)

@@ -178,7 +178,7 @@ _SafeLoader: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 class _UniqueLoader(_SafeLoader):
     """YAML's safe loader that refuses a key given twice in one mapping
-    (libyaml's parser where PyYAML has it: about 5x faster than PyYAML's own)."""
+    (libyaml's parser where PyYAML has it: faster than PyYAML's own)."""
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):

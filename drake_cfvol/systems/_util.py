@@ -57,8 +57,8 @@ def _clip(x, lo, hi):
 def _module_by_globals():
     """While open, pydrake's templates find the module that creates them
     from the creating frame's globals instead of ``inspect.stack()``, which
-    reads the source of every frame on the stack (about 0.1 s per template
-    method; a templated system's instantiation makes two). The same module;
+    reads the source of every frame on the stack (slow, and a templated
+    system's instantiation makes two such look-ups). The same module;
     pydrake's own lookup where the globals name none."""
     try:
         from pydrake.common import cpp_template
