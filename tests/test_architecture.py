@@ -437,3 +437,33 @@ def test_the_private_export_check_finds_planted_exports(tmp_path):
         },
     )
     assert _private_exports(package) == {("kernel", "_K"), ("kernel.types", "_V0")}
+
+
+#: The safety filter's module docstring points to its theory's one document and stays short.
+SAFETY_DOC_LINES = 30
+
+
+def _safety_doc_problems(source: str) -> list[str]:
+    """What is wrong with a safety module's docstring (``source``: the module's text): longer than
+    :data:`SAFETY_DOC_LINES` lines, or no pointer to docs/safety.md."""
+    doc = ast.get_docstring(ast.parse(source), clean=False) or ""
+    problems = []
+    if len(doc.splitlines()) > SAFETY_DOC_LINES:
+        problems.append(f"{len(doc.splitlines())} lines (at most {SAFETY_DOC_LINES})")
+    if "docs/safety.md" not in doc:
+        problems.append("no pointer to docs/safety.md")
+    return problems
+
+
+def test_safety_module_docstring_points_to_the_theory():
+    """The filter's theory is written once, in docs/safety.md: systems/safety.py's module docstring says
+    what the system is in at most 30 lines and points there."""
+    assert _safety_doc_problems((PACKAGE / "systems" / "safety.py").read_text()) == []
+
+
+def test_safety_docstring_check_catches_a_long_docstring():
+    """Planted: a 31-line docstring that points to docs/safety.md, and a short one that does not."""
+    long = '"""A filter.\n' + "More theory.\n" * 29 + 'docs/safety.md"""\n'
+    assert _safety_doc_problems(long) == ["31 lines (at most 30)"]
+    assert _safety_doc_problems('"""A filter."""\n') == ["no pointer to docs/safety.md"]
+    assert _safety_doc_problems('"""A filter; its theory: docs/safety.md."""\n') == []

@@ -44,7 +44,7 @@ def _simulate(cm, scenario, meshcat, progress: bool):
             set_visualizations_while_recording=False,
         )
     if cm.diagram.HasOutputPort("filter_fault"):
-        # A faulted filter holds the robot for good (safety.py, Fault): the run ends there.
+        # A faulted filter holds the robot for good (docs/safety.md, "Hold and faults"): the run ends there.
         fault = cm.diagram.GetOutputPort("filter_fault")
         sim.set_monitor(
             lambda root: (

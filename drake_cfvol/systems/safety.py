@@ -1,198 +1,26 @@
 """A smooth runtime safety filter between the admittance and the robot
-(SPEC 9): every update it commands the motion closest to the one asked for
-that keeps the joint velocity limits, the box at the next path position and
-a clearance margin, the last through the diagram's own SceneGraph (:class:`SafetyFilter`).
+(SPEC 9, :class:`SafetyFilter`): every update it commands the motion
+closest to the one asked for that keeps the joint velocity limits (and
+the acceleration and jerk limits, where given), the box at the next path
+position and a clearance margin. The margin is a velocity damper on the
+signed distances of the diagram's own SceneGraph, its rows held to second
+order. Where the request would break a row, a small QP solves the rows by
+priority; elsewhere the filter is the identity. Nothing raises in the
+control loop: a bad input holds the command.
 
-**Outputs**: ``filter_active`` is 1 after an update that changed the
-request (the commanded position differs from ``desired_position`` by more
-than 1e-9); ``filter_count`` counts such updates; ``min_distance`` is the
-smallest signed distance over the filter's pairs at the last update (m;
-self pairs included; inf with none; a skipped pair counts with its lower
-bound, so above the influence distance this is a lower bound);
-``velocity_ratio`` is max_j |v_j| / velocity_limit_j of the last update;
-``fallback_count``, ``damper_misses``, ``box_exits`` count updates (see
-below); ``tracking_fault`` and ``tracking_faults``: a robot that tracks
-with an error (below). ``commanded_velocity`` is the last update's v; ``desired_state`` is
-[q_d; v] on the straight line from the last update's position to q_c,
-reached at the next update: continuous in time, for a tracking controller
-(Drake's ``InverseDynamicsController``, a driver).
+Ports in: ``desired_position``, the box (``lower``, ``upper``; optional
+``lower_ahead``, ``upper_ahead``), the optional ``nominal``,
+``measured_position`` and ``hold``, and ``query_object``. Out: the
+discrete state q_c as ``commanded_position`` (it depends on no input, so
+the plant may be posed from it), ``commanded_velocity``,
+``desired_state`` and status outputs (counts, flags, the latched
+``filter_fault``).
 
-**A robot that tracks with an error** (a time-stepping plant under a
-controller): connect its ``measured_position`` q_m. The damper's rows are
-then taken at q_m, from the SceneGraph posed by the plant (the distances
-where the robot is), and constrain the command's step, A v >= b: near an
-obstacle the command moves away at the damper's rate, and the robot
-follows it; the tracking error itself is the controller's to close (a
-command that tried to undo it within one update would chase the robot).
-Its growth is not: a co-worker deflecting a soft arm moves the robot
-faster than its command, so each damper row also subtracts its share of
-the robot's drift where that share approaches, b_i - min(0, a_i u), u =
-(q_m - q_m,last) / dt - v_last the robot's velocity beyond the last
-command's; and the relaxation towards the nominal (below) holds only
-while the robot itself, not only its command, is near the nominal, and
-admits only the robot's own way back to it. Where even that cannot be
-kept (a damper row missed with the command at its velocity limits: the
-robot drifts faster than the command can counter, more than the margin
-can absorb; any damper row missed with a measured robot counts),
-``tracking_fault`` is 1 after the update, ``tracking_faults`` counts such
-updates, and the next update holds the request (v_t = 0 within the
-acceleration limits: only the box and the rows move the command); the
-flag falls at the next update that misses no row, or is held. A
-non-finite measured position holds the command as a non-finite input
-does.
-
-**Fault**: every update's cost is bounded: at most ``SECOND_ORDER_ROUNDS``
-QP rounds of at most one solve per priority stage, each by a solver with
-an iteration cap; the distance queries are the damper's pairs at most
-(fixed when it is built); and the QP's size is capped: an update whose
-damper rows number more than ``MAX_ROWS`` is not solved. Where that cap
-is hit (``filter_fault`` 1), or a pair with geometry that moves on its
-own (``dynamic_ids``: perceived obstacles) overlaps the robot by more
-than ``overlap_depth`` (``filter_fault`` 2: the obstacle as perceived,
-not only the margin its map adds around it, overlaps the robot), the
-filter holds the last command (v = 0) at that update and every update
-after: the fault is latched until the context is reset. A run reports
-it and ends (:func:`~drake_cfvol.comanip.run_scenario`).
-
-**Hold**: while the optional ``hold`` input is above 0.5 (or NaN), an
-update keeps the last command (v = 0) and counts itself in ``hold_count``:
-a robot whose status went stale (:class:`~drake_cfvol.systems.StatusWatchdog`)
-is not commanded anywhere new. Every pair is measured again at the first
-update after the hold.
-
-The discrete state is the commanded position q_c (rad, or m for a
-prismatic joint); ``commanded_position`` outputs it, so it depends on no
-input: the plant may be posed from it (``MultibodyPositionToGeometryPose``
-into the SceneGraph whose ``query_object`` this system reads) without an
-algebraic loop. Every ``period`` seconds the update picks the velocity v
-and sets q_c <- q_c + v dt (dt = ``period``), v solving::
-
-    minimise  |v - v_des|^2,   v_des = (desired_position - q_c) / dt
-    subject to
-      |v_j| <= velocity_limit_j                           (hard, always)
-      lower_j <= q_c,j + v_j dt <= upper_j                (the box ahead)
-      n_i^T (J_Ai - J_Bi) v >= -rate (d_i - d_t)          (each row i of the damper)
-
-**Velocity, acceleration and jerk limits** are hard: no update moves
-joint j by more than ``velocity_limit_j`` x dt, changes its velocity by
-more than ``acceleration_limit_j`` x dt, or its acceleration (the change
-of velocity over dt) by more than ``jerk_limit_j`` x dt, whatever the
-inputs (:func:`~.filter_kernel.hard_interval`; the velocity limit is
-braked for in time under the jerk limit). The filter commands at most
-(1 - 1e-9) of each velocity limit and (1 - 1e-6) of the others, so that
-rounding in q_c + v dt never shows a step above them. A hold, a fault and
-a bad input brake at these limits rather than stop at once.
-
-**Braking in time**: the box's faces are approached so that braking at
-the limits after the step still stops inside them
-(:func:`~.filter_kernel.face_speed`, exact for the discrete update), and
-each damper row lets its distance shrink no faster than a point mass
-braking at the row's share of the acceleration and jerk limits still
-stops at the margin (:func:`~.filter_kernel.brake_rows`, exact for the
-discrete update). A pair gets its row as far out as braking needs at the
-speed it may close at by the next update (its reach:
-:func:`~.filter_kernel.braking_lead`, :meth:`VelocityDamper.pair_speeds`),
-not only within the influence distance. Where the limits leave no
-way to keep a row (a moving obstacle faster than the arm can brake, a
-fault upstream), the command brakes at its limits and the update counts
-in ``braking_faults``.
-
-**The box**: ``lower`` and ``upper`` are the bounds at the next path
-position (where the command takes effect: a second JointBoundsSource fed
-by ``PathProgress.path_index_ahead``). The path's own motion is
-rate-limited (:func:`~drake_cfvol.systems.safe_path_rate`), so the box
-moves by a share of the velocity limit per update and stays reachable;
-should q_c lie farther outside it than one step at the limit, the joint
-moves towards it at the limit rather than jumping. The box gives way to
-the damper only (see Solver): an uncertified box whose corner sweeps
-into an obstacle is left rather than followed in (``box_exits``). Under
-acceleration limits a face is braked for (Braking in time), as are the
-faces ahead where the box comes from a source with ``lookahead``; a face
-that turns inwards faster than the joint can brake (the nominal itself
-turning at a waypoint, where the box leaves no room beside it) is left by
-as little as the limits allow, and the update counts in ``box_exits``.
-
-**The damper** (Faverjon and Tournassoud's velocity damper; Drake's
-``DifferentialInverseKinematicsSystem.CollisionConstraint`` is its
-discrete limit): for every pair of geometries (the robot's moving links
-against the obstacles, and the robot's pairs not filtered against each
-other; never the volume V, which is virtual), Drake's signed distance
-d_i, its unit normal n_i (``nhat_BA_W``, from B to A) and witness points
-(``p_ACa``/``p_BCb``, moved into the body frames with the inspector's
-``GetPoseInFrame``) come through ``query_object`` at the robot's present
-configuration. Within the influence distance d_inf the distance may
-shrink only as fast as still lets it stop at d_t = ``clearance`` +
-``allowance``: its rate n_i^T (J_Ai - J_Bi) v, J the translational
-Jacobians (world frame) of the witness points, is held above
--rate (d_i - d_t), rate = min(xi / (d_inf - d_t), 1 / dt), xi the
-``damper_gain`` (m/s: the approach speed allowed at the edge of the
-influence zone). With rate dt <= 1 the linearised next distance stays
->= d_t; the approach slows smoothly (exponentially, time constant
-1 / rate) to the margin: a soft wall, not a hold and a snap. A pair
-below it must move apart at rate (d_t - d_i).
-
-**Second order**: a row is first order in the step, and a turning link
-curves away from its tangent: at 3 rad/s over 10 ms a point 1.5 m out
-moves about 1 mm off it. So each row asks for e_i(v dt) / dt more, e_i
-the bound of :meth:`second_order` on how far the step can move its
-distance beyond the first-order change (from the joint axes' lever arms
-at the row's points); e depends on the step, so the QP is solved again
-with e at its solution until the solution meets its own e. Against a
-static obstacle the rows' distances are then bounded exactly (the plane
-through the obstacle's witness, at a polytope's vertices or a round
-shape's centre); between two moving links it is an estimate.
-
-One witness row sees only the closest features: a face tilting towards
-an obstacle brings its corners closer faster than its witness point.
-So each pair also has rows at probe points of its moving shapes (box
-corners, cylinder rims, capsule end spheres, convex hull vertices):
-against a static obstacle, a probe's distance from the plane through the
-obstacle's witness (normal n_i), a lower bound of its distance from the
-obstacle; against another moving link, the probe's own distance from it
-(Drake's ``ComputeSignedDistanceToPoint``) and its gradient.
-
-**The nominal**: within two steps (at the velocity limits) of the nominal
-at the next path position (input ``nominal``), each row is relaxed to
-b_i' = min(b_i, a_i v_ref), v_ref the step to that nominal (clipped to
-the limits and the box; from the measured position, where one is
-connected, and both it and the command within the two steps), fully
-within one step and fading out by two:
-at zero deviation v_ref is the nominal's own motion, so the nominal is
-always admissible, also where its own clearance is below the margin
-(near a goal), and a row is relaxed only as far as following the
-nominal shrinks it. Farther out no row is relaxed: there a row's
-linearisation says nothing reliable about the nominal's distances (a
-straight joint-space line back to the nominal may cross an obstacle).
-
-**Solver**: where the request (clipped to the velocity limits and the
-box) meets every row of every constraint, it is commanded as is: away
-from obstacles the filter is the identity and ``filter_active`` is 0.
-Otherwise a small QP over the constraints' rows
-(:mod:`~drake_cfvol.systems.constraints`: each constraint contributes
-rows A v >= b with a priority; a user's own, such as a
-:class:`~drake_cfvol.systems.constraints.ToolSpeedLimit`, come through
-``constraints``), solved by a dense dual active-set method warm-started
-from the last solve (:mod:`~drake_cfvol.systems.qp`; no program built
-per update), in stages by priority, the velocity limits (and any other
-hard rows) hard in all:
-(1) the box and the rows hard; (2) if nothing meets both, the rows hard
-and the box soft (weight ``BOX_WEIGHT``: left as little as it must be);
-(3) if the limits leave nothing that meets the rows, the rows soft too
-(weight ``SLACK_WEIGHT``: missed as little as possible,
-``damper_misses``). Should the solver fail, the filter holds (as far as
-the box allows) and ``fallback_count`` counts it. Nothing raises inside
-a simulation: a non-finite or crossed input holds q_c the same way.
-
-Cost: a pair known to lie beyond the influence distance is measured
-again only once the robot's motion since (from the base position where it
-was measured to this update's: commanded or measured) could have brought
-it within (``skip_far_pairs``); a pair with geometry that moves on its own
-is measured at every update; a pair whose bounding shapes lie that far
-apart is not measured at all (the damper's broad phase). The near pairs'
-rows come from one compiled call
-(:mod:`~drake_cfvol.systems.damper_kernel`), their kinematics from the
-kernel's forward kinematics (:mod:`~drake_cfvol.systems.damper_kinematics`),
-and the QP rounds from another (:mod:`~drake_cfvol.systems.filter_kernel`).
+The theory is in one place, docs/safety.md, "The safety filter": the
+update, the damper and its second-order term, the box, the nominal, the
+solver's stages, a robot that tracks with an error, hold and faults, the
+outputs, the cost, and the acceleration and jerk limits. The requirement
+is docs/spec.md, SPEC 9.
 """
 
 import dataclasses
@@ -379,7 +207,7 @@ class SafetyFilter(LeafSystem):
         - braking_faults
 
     The update, its constraints and guarantees, the outputs and the measured
-    position: see :mod:`drake_cfvol.systems.safety`. Scalar type: float only.
+    position: see docs/safety.md, "The safety filter". Scalar type: float only.
 
     Args:
         plant: the finalized MultibodyPlant registered with ``scene_graph``;
@@ -411,7 +239,7 @@ class SafetyFilter(LeafSystem):
             objects (e.g. a :class:`~drake_cfvol.systems.constraints.ToolSpeedLimit`).
         overlap_depth: m (>= 0): a pair with geometry of ``dynamic_ids``
             overlapping the robot deeper than this faults the filter (see
-            the module's Fault); None: never (perceived columns: the margin
+            docs/safety.md, "Hold and faults"); None: never (perceived columns: the margin
             their map adds around what the camera saw).
     """
 
@@ -654,7 +482,7 @@ class SafetyFilter(LeafSystem):
         v_last = context.get_discrete_state(self._velocity).CopyToVector()
         a_last = context.get_discrete_state(self._accel).CopyToVector()
         status = context.get_discrete_state(self._status).CopyToVector()
-        if status[_FAULT]:  # latched: the command brakes to a stop and stays (see the module's Fault)
+        if status[_FAULT]:  # latched: the command brakes to a stop and stays (docs/safety.md, "Hold and faults")
             self._brake(discrete_state, q, v_last, a_last)
             return
         if self.hold_input.HasValue(context) and not self.hold_input.Eval(context)[0] <= 0.5:
