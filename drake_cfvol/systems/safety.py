@@ -25,17 +25,22 @@ is docs/spec.md, SPEC 9.
 
 import dataclasses
 import typing
+from collections.abc import Iterable
 
 import numpy as np
+import numpy.typing as npt
 from pydrake.common.value import AbstractValue
-from pydrake.geometry import QueryObject
-from pydrake.systems.framework import LeafSystem, ValueProducer
+from pydrake.geometry import GeometryId, QueryObject, SceneGraph
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import ModelInstanceIndex
+from pydrake.systems.framework import Context, LeafSystem, ValueProducer
 
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.scene.robot import RobotSlice
 from drake_cfvol.systems._util import _limits
 from drake_cfvol.systems.constraints import (
     DamperConstraint,
+    FilterConstraint,
     FilterStep,
     JointBox,
     PriorityQP,
@@ -261,23 +266,23 @@ class SafetyFilter(LeafSystem):
 
     def __init__(
         self,
-        plant,
-        scene_graph,
-        robot,
+        plant: MultibodyPlant,
+        scene_graph: SceneGraph,
+        robot: ModelInstanceIndex,
         *,
-        velocity_limits=None,
-        obstacle_ids=None,
+        velocity_limits: npt.ArrayLike | None = None,
+        obstacle_ids: Iterable[GeometryId] | None = None,
         clearance: float = 0.0,
         influence_distance: float = SafetyFilterConfig.influence_distance,
         period: float = 0.01,
         damper_gain: float = SafetyFilterConfig.damper_gain,
         allowance: float = SafetyFilterConfig.allowance,
-        acceleration_limits=None,
-        jerk_limits=None,
-        initial_position=None,
+        acceleration_limits: npt.ArrayLike | None = None,
+        jerk_limits: npt.ArrayLike | None = None,
+        initial_position: npt.ArrayLike | None = None,
         skip_far_pairs: bool = True,
-        dynamic_ids=(),
-        constraints=(),
+        dynamic_ids: Iterable[GeometryId] = (),
+        constraints: Iterable[FilterConstraint] = (),
         overlap_depth: float | None = None,
     ):
         super().__init__()
@@ -425,7 +430,7 @@ class SafetyFilter(LeafSystem):
     def _pctx(self, context):
         return self._scratch.get_mutable_cache_entry_value(context).GetMutableValueOrThrow()
 
-    def base_position(self, context) -> np.ndarray:
+    def base_position(self, context: Context) -> np.ndarray:
         """Where the rows are taken: the ``measured_position`` input if it
         is connected (a robot that tracks its command with an error; the
         SceneGraph is posed from the measured state), else the commanded
@@ -434,7 +439,7 @@ class SafetyFilter(LeafSystem):
             return np.asarray(self.measured_position_input.Eval(context), float)
         return context.get_discrete_state(self._position).CopyToVector()
 
-    def damper_rows(self, context, measure=None) -> DamperRows:
+    def damper_rows(self, context: Context, measure: np.ndarray | None = None) -> DamperRows:
         """The damper's rows at :meth:`base_position` (:meth:`VelocityDamper.rows`):
         A v >= b to first order, before the second-order term and the
         relaxation towards the nominal.
@@ -446,13 +451,13 @@ class SafetyFilter(LeafSystem):
         q = self.base_position(context)
         return self._damper.rows(self.query_object_input.Eval(context), q, measure)
 
-    def second_order(self, context, rows: DamperRows, dq) -> np.ndarray:
+    def second_order(self, context: Context, rows: DamperRows, dq: np.ndarray) -> np.ndarray:
         """Per row, how far a joint step ``dq`` from :meth:`base_position`
         falls short of the row's first-order change, m
         (:meth:`VelocityDamper.second_order`)."""
         return self._damper.second_order(self.base_position(context), rows, dq)
 
-    def set_initial_position(self, context, q) -> None:
+    def set_initial_position(self, context: Context, q: npt.ArrayLike) -> None:
         """Sets the commanded position q_c of ``context`` (e.g. the path's
         start before a run)."""
         q = np.asarray(q, float)
