@@ -207,7 +207,8 @@ def _instrument(timers, cm):
     """Wraps the stack's Python callbacks on the instances' classes (before
     the systems are built) and counts the filter's QP solves and measured
     pairs. Returns an undo function."""
-    from drake_cfvol.systems import admittance, bounds_source, human_input, safety
+    from drake_cfvol.systems import admittance, bounds_source, human_input
+    from drake_cfvol.systems.filter import safety
 
     patches = [
         (admittance.AdmittanceDeformation_[float], "_update", "admittance"),
@@ -239,7 +240,7 @@ def _instrument(timers, cm):
 def _counters(timers):
     """(class, method, wrapper factory) that count the filter's QP solves
     and the pairs its damper measured."""
-    from drake_cfvol.systems import damper
+    from drake_cfvol.systems.filter import damper
 
     def solves(fn):
         def counted(*args, **kwargs):
@@ -261,9 +262,9 @@ def _counters(timers):
         return counted
 
     try:  # the QP class of this checkout (StagedQP before the constraint interface)
-        from drake_cfvol.systems.constraints import PriorityQP as qp
+        from drake_cfvol.systems.filter.constraints import PriorityQP as qp
     except ImportError:
-        from drake_cfvol.systems.safety import StagedQP as qp
+        from drake_cfvol.systems.filter.safety import StagedQP as qp
     return [(qp, "solve", solves), (damper.VelocityDamper, "rows", pairs)]
 
 

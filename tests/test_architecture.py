@@ -171,16 +171,16 @@ def test_layer_check_catches_a_planted_upward_import(tmp_path):
         {
             "exceptions.py": "from drake_cfvol.io import records\n",
             "io/records.py": "X = 1\n",
-            "algorithm/certify.py": "def f():\n    from drake_cfvol.systems.safety import SafetyFilter\n",
+            "algorithm/certify.py": "def f():\n    from drake_cfvol.systems.filter.safety import SafetyFilter\n",
             "algorithm/sweep.py": "from ..comanip import run\nfrom drake_cfvol.algorithm import certify\n",
             "algorithm/table.py": "import drake_cfvol.apps.cli\nfrom drake_cfvol.io.records import X\n",
-            "systems/safety.py": "from drake_cfvol.algorithm.certify import f\nfrom drake_cfvol.exceptions import E\n",
+            "systems/filter/safety.py": "from drake_cfvol.algorithm.certify import f\nfrom drake_cfvol.exceptions import E\n",
             "comanip/run.py": "",
             "apps/cli.py": "",
         },
     )
     assert _upward_imports(_import_graph(package)) == [
-        ("algorithm.certify", "systems.safety"),
+        ("algorithm.certify", "systems.filter.safety"),
         ("algorithm.sweep", "comanip"),
         ("algorithm.sweep", "comanip.run"),
         ("algorithm.table", "apps.cli"),
@@ -221,6 +221,73 @@ def test_old_module_names_are_gone(old):
     removed in 0.3 (CHANGELOG.md): they no longer import."""
     with pytest.raises(ModuleNotFoundError):
         importlib.import_module(f"drake_cfvol.{old}")
+
+
+@pytest.mark.parametrize(
+    "old",
+    [
+        "safety",
+        "constraints",
+        "damper",
+        "damper_kernel",
+        "damper_kinematics",
+        "damper_parts",
+        "filter_kernel",
+        "qp",
+        "warmup",
+    ],
+)
+def test_the_filter_modules_moved(old):
+    """The safety filter's flat modules in ``systems`` moved to ``systems.filter`` in 0.10
+    (CHANGELOG.md): the old paths no longer import."""
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module(f"drake_cfvol.systems.{old}")
+
+
+#: What the safety filter takes from the rest of the systems layer: the shared helpers.
+FILTER_NEEDS = {"systems._util", "systems.columns"}
+
+
+def _in_filter(module: str) -> bool:
+    return module == "systems.filter" or module.startswith("systems.filter.")
+
+
+def _filter_reaches_out(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """The (filter module, systems module) pairs where ``systems.filter`` imports a module of the
+    systems layer outside it other than :data:`FILTER_NEEDS`."""
+    return sorted(
+        (m, t)
+        for m, targets in graph.items()
+        if _in_filter(m)
+        for t in targets
+        if _layer(t) == LAYERS.index("systems") and not _in_filter(t) and t not in FILTER_NEEDS
+    )
+
+
+def test_the_filter_stands_below_the_other_systems():
+    """The safety filter (``systems.filter``) is a subpackage of the systems layer that the stations
+    build on: it imports from the rest of the layer only its shared helpers, never a station."""
+    graph = _import_graph()
+    assert graph["systems.station"] >= {"systems.filter.safety"}, "the parser found no filter import"
+    assert not _filter_reaches_out(graph), _filter_reaches_out(graph)
+
+
+def test_the_filter_check_catches_a_planted_import(tmp_path):
+    """Planted: a filter module importing the station (inside a function), and one importing the
+    systems' helpers and its own subpackage, which pass."""
+    package = _plant_tree(
+        tmp_path,
+        {
+            "systems/_util.py": "",
+            "systems/station.py": "from drake_cfvol.systems.filter.safety import F\n",
+            "systems/filter/safety.py": "def f():\n    from drake_cfvol.systems import station\n",
+            "systems/filter/qp.py": "from drake_cfvol.systems._util import x\nfrom . import safety\n",
+        },
+    )
+    assert _filter_reaches_out(_import_graph(package)) == [
+        ("systems.filter.safety", "systems"),
+        ("systems.filter.safety", "systems.station"),
+    ]
 
 
 def test_public_api_and_readme_paths_import():
@@ -456,9 +523,9 @@ def _safety_doc_problems(source: str) -> list[str]:
 
 
 def test_safety_module_docstring_points_to_the_theory():
-    """The filter's theory is written once, in docs/safety.md: systems/safety.py's module docstring says
+    """The filter's theory is written once, in docs/safety.md: systems/filter/safety.py's module docstring says
     what the system is in at most 30 lines and points there."""
-    assert _safety_doc_problems((PACKAGE / "systems" / "safety.py").read_text()) == []
+    assert _safety_doc_problems((PACKAGE / "systems" / "filter" / "safety.py").read_text()) == []
 
 
 def test_safety_docstring_check_catches_a_long_docstring():

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from pydrake.systems.analysis import Simulator
 from test_safety import VMAX, _arm, _drake_distance, _fix
 
-from drake_cfvol.systems.filter_kernel import (
+from drake_cfvol.systems.filter.filter_kernel import (
     ROW_DECELERATION_SHARE,
     brake_rows,
     braking_lead,

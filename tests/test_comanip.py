@@ -130,16 +130,16 @@ def test_outputs_written(run):
 
 def test_the_filter_warm_up_compiles_what_a_run_uses(run):
     """The safety filter's compiled parts, as the made-up two-link station
-    of :func:`drake_cfvol.systems.warmup.warm_up` calls them, have the
+    of :func:`drake_cfvol.systems.filter.compile_ahead.warm_up` calls them, have the
     signatures a real run (the cell's robot and obstacles) used: one each,
     so a fresh cache compiles each once, ahead of the run."""
-    from drake_cfvol.systems import warmup
+    from drake_cfvol.systems.filter import compile_ahead
 
-    compiled = warmup._COMPILED
+    compiled = compile_ahead._COMPILED
     used = {f.py_func.__name__: list(f.signatures) for f in compiled}
     # The run called each at most once (the braking parts only under acceleration limits).
     assert all(len(v) <= 1 for v in used.values()) and sum(map(len, used.values())) >= 8, used
-    warmup._two_link_run()  # the warm-up's station, run whether cached or not
+    compile_ahead._two_link_run()  # the warm-up's station, run whether cached or not
     after = {f.py_func.__name__: list(f.signatures) for f in compiled}
     assert all(after[name] == v for name, v in used.items() if v) and all(len(v) == 1 for v in after.values())
 

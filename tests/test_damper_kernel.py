@@ -1,4 +1,4 @@
-"""The damper's compiled point distance (systems/damper_kernel.py) against
+"""The damper's compiled point distance (systems/filter/damper_kernel.py) against
 Drake's ComputeSignedDistanceToPoint, and the damper's rows against a
 Python assembly from Drake's own queries."""
 
@@ -8,7 +8,7 @@ from pydrake.geometry import Box, Capsule, Cylinder, SceneGraph, Sphere
 from pydrake.math import RigidTransform, RollPitchYaw
 from pydrake.multibody.plant import CoulombFriction, MultibodyPlant
 
-from drake_cfvol.systems.damper_kernel import point_distance, point_query_shape
+from drake_cfvol.systems.filter.damper_kernel import point_distance, point_query_shape
 
 
 @pytest.mark.parametrize(
@@ -52,7 +52,7 @@ def _cell_damper(cell: str):
     from pydrake.systems.framework import DiagramBuilder
 
     from drake_cfvol.scene.workcell import load_workcell
-    from drake_cfvol.systems.damper import VelocityDamper
+    from drake_cfvol.systems.filter.damper import VelocityDamper
 
     wc = load_workcell(cell)
     builder = DiagramBuilder()
@@ -74,7 +74,7 @@ def test_compiled_rows_are_the_drake_assembled_rows():
     rows assembled pair by pair from Drake's point queries (1e-9), row by
     row; every measured pair's distance is Drake's and every pair the broad
     phase skipped lies at least its lower bound away (Drake)."""
-    from drake_cfvol.systems.damper_parts import side_arrays
+    from drake_cfvol.systems.filter.damper_parts import side_arrays
 
     wc, plant, sg, robot, damper, pctx, sgctx = _cell_damper("cobot")
     lo, hi = wc.position_lower, wc.position_upper
@@ -147,7 +147,7 @@ def test_slot_kinematics_are_drakes(cell, request):
     from pydrake.multibody.tree import JacobianWrtVariable
 
     from drake_cfvol.scene.robot import RobotSlice, robot_bodies
-    from drake_cfvol.systems.damper_kinematics import SlotKinematics
+    from drake_cfvol.systems.filter.damper_kinematics import SlotKinematics
 
     if cell == "gripper":
         plant, robot, extra = _gripper_station()

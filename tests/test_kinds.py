@@ -24,7 +24,7 @@ from drake_cfvol.kernel.shapes import support
 from drake_cfvol.kernel.spheres import ball_apart_row
 from drake_cfvol.scene.arrays import shape_row
 from drake_cfvol.scene.covers import check_cover, shape_cover, shape_points
-from drake_cfvol.systems import damper_kernel as DK
+from drake_cfvol.systems.filter import damper_kernel as DK
 
 MESH = str(Path(__file__).resolve().parents[1] / "models" / "mesh_arm" / "meshes" / "link3.obj")
 

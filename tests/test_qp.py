@@ -1,4 +1,4 @@
-"""The safety filter's QP (systems/qp.py, PriorityQP in systems/constraints.py)
+"""The safety filter's QP (systems/filter/qp.py, PriorityQP in systems/filter/constraints.py)
 against Drake's Clarabel on random instances of the filter's size, and the
 constraint interface (a tool speed limit added as one class)."""
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from pydrake.solvers import ClarabelSolver, MathematicalProgram, SolverOptions
 
-from drake_cfvol.systems.constraints import BOX, HARD, ROW, ConstraintRows, PriorityQP
-from drake_cfvol.systems.qp import QP_INFEASIBLE, QP_OPTIMAL, solve_qp
+from drake_cfvol.systems.filter.constraints import BOX, HARD, ROW, ConstraintRows, PriorityQP
+from drake_cfvol.systems.filter.qp import QP_INFEASIBLE, QP_OPTIMAL, solve_qp
 
 BOX_WEIGHT, SLACK_WEIGHT = 1e3, 1e6
 

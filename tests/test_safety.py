@@ -17,7 +17,7 @@ from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 import drake_cfvol as cf
 from drake_cfvol.systems import SafetyFilter, ToolSpeedLimit
-from drake_cfvol.systems.safety import _EXITS, _HAIR, _MIN_DISTANCE  # the status state's layout; the limits' hair
+from drake_cfvol.systems.filter.safety import _EXITS, _HAIR, _MIN_DISTANCE  # the status layout; the limits' hair
 
 L1, L2, R = 0.5, 0.4, 0.05  # link lengths and the tip sphere's radius, m
 VMAX = np.array([1.0, 1.5])  # rad/s
@@ -593,7 +593,7 @@ def test_a_constraint_naming_a_damper_row_that_does_not_exist_is_refused():
     update does not have (the compiled rounds would read past the rows) is
     refused at the update with an error naming the constraint."""
     from drake_cfvol.exceptions import ParameterError
-    from drake_cfvol.systems.constraints import FilterConstraint
+    from drake_cfvol.systems.filter.constraints import FilterConstraint
 
     class Wrong(FilterConstraint):
         name = "wrong"
@@ -712,8 +712,8 @@ def test_the_stacked_rows_are_the_constraints_written_out():
     finite limit (b = v_lo, -v_hi), the box [I; -I] (b = lo, -hi), each
     damper block's rows of its pairs in order (with their row indices),
     the per-row priorities, weights and relaxation, zeros' signs included."""
-    from drake_cfvol.systems.constraints import BOX, HARD, ROW
-    from drake_cfvol.systems.filter_kernel import BOX_ROWS, DAMPER_ROWS, LIMIT_ROWS, stack_rows
+    from drake_cfvol.systems.filter.constraints import BOX, HARD, ROW
+    from drake_cfvol.systems.filter.filter_kernel import BOX_ROWS, DAMPER_ROWS, LIMIT_ROWS, stack_rows
 
     rng = np.random.default_rng(3)
     for _ in range(50):
@@ -758,7 +758,7 @@ def test_the_filters_own_constraints_in_one_call_equal_them_one_by_one():
     through each constraint's rows instead. Both give the same commands,
     bit for bit, over a push into the wall and along it (damper rows
     active, the box and the limits binding)."""
-    from drake_cfvol.systems.constraints import FilterConstraint
+    from drake_cfvol.systems.filter.constraints import FilterConstraint
 
     class NoRows(FilterConstraint):
         name = "no_rows"
@@ -789,7 +789,7 @@ def test_a_damper_constraint_with_the_wrong_number_of_pairs_is_refused():
     damper watches (the compiled stacking would read past them) is refused
     at the update, naming what it must hold."""
     from drake_cfvol.exceptions import ParameterError
-    from drake_cfvol.systems.constraints import DamperConstraint
+    from drake_cfvol.systems.filter.constraints import DamperConstraint
 
     short = DamperConstraint(weight=1.0, relax=False, pairs=[], name="short")
     diagram, sf, _, _ = _arm("wall", clearance=0.02, constraints=[short])

@@ -464,7 +464,7 @@ def test_the_filters_tracking_fault_holds_the_admittance(station_bounds, measure
     ``tests/test_systems.py``), also where the caller connects the measured
     position itself (``measured_state=False``, as the scenario runner and
     the iiwa controller do)."""
-    from drake_cfvol.systems.safety import _TRACKING
+    from drake_cfvol.systems.filter.safety import _TRACKING
 
     _, table = station_bounds
     builder, _, cm = _station_comanipulation(table, measured_state=measured_state)

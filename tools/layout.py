@@ -1,6 +1,6 @@
 """Draws the guide's layout section (docs/layout.md) from the package tree: each
 subpackage (in pipeline order) with the first sentence of its docstring, and
-each of its modules with the first sentence of its own.
+each of its modules and its own subpackages' modules with the first sentence of their own.
 
     tools/dev.sh python tools/layout.py            # print it
     tools/dev.sh python tools/layout.py --write    # replace it in docs/layout.md
@@ -44,8 +44,10 @@ def layout() -> str:
                 continue
             lines.append(f"     - `{mod.stem}`: {_first_sentence(mod)}.")
         for sub in sorted(p.parent for p in folder.glob("*/__init__.py")):
-            modules = ", ".join(f"`{m.stem}`" for m in sorted(sub.glob("*.py")) if m.name != "__init__.py")
-            lines.append(f"     - `{sub.name}/` ({modules}): {_first_sentence(sub / '__init__.py')}.")
+            lines.append(f"     - `{sub.name}/`: {_first_sentence(sub / '__init__.py')}.")
+            for mod in sorted(sub.glob("*.py")):
+                if mod.name != "__init__.py":
+                    lines.append(f"       - `{mod.stem}`: {_first_sentence(mod)}.")
     lines += ["  - `exceptions`: " + _first_sentence(PACKAGE / "exceptions.py") + ".", "", END]
     return "\n".join(lines)
 

@@ -68,7 +68,7 @@ def replay(name: str, full: bool) -> list[float]:
 #: systems, the monitor and the stand-ins for the world (the scripted
 #: co-worker, the moving boxes), each reported apart.
 _PARTS = (
-    ("safety", "SafetyFilter", "_update", "safety filter"),
+    ("filter.safety", "SafetyFilter", "_update", "safety filter"),
     ("admittance", "AdmittanceDeformation_", "_update", "admittance"),
     ("admittance", "AdmittanceDeformation_", "_calc_commanded", "admittance"),
     ("human_input", "HumanInputCheck_", "_update", "input check"),

@@ -13,8 +13,8 @@ from drake_cfvol.io.plotting import in_background, plot_bounds
 from drake_cfvol.io.records import output_stem
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.workcell import load_workcell
-from drake_cfvol.systems.warmup import WARM_UP_SHARE
-from drake_cfvol.systems.warmup import warm_up as warm_up_filter
+from drake_cfvol.systems.filter.compile_ahead import WARM_UP_SHARE
+from drake_cfvol.systems.filter.compile_ahead import warm_up as warm_up_filter
 
 
 def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: int = 1000) -> int:

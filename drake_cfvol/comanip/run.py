@@ -20,7 +20,7 @@ from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagr
 from drake_cfvol.comanip.scenario import load_scenario
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.io.records import prepare_outputs
-from drake_cfvol.systems.safety import FAULTS
+from drake_cfvol.systems.filter.safety import FAULTS
 
 __all__ = ["bound_figures", "run_outputs", "run_scenario"]
 

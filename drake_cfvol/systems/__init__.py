@@ -5,7 +5,7 @@
   nominal, clamped inside the bounds without wind-up.
 - :class:`HumanInputCheck`: the sensed push checked for plausibility; a
   fault holds the admittance's last safe command.
-- :class:`SafetyFilter` (from :mod:`drake_cfvol.systems.safety`): between the
+- :class:`SafetyFilter` (the subpackage :mod:`drake_cfvol.systems.filter`): between the
   admittance and the robot, the motion closest to the one asked for that
   keeps the velocity limits, the box ahead and a clearance margin (a
   velocity damper on the SceneGraph's signed distances); its constraints
@@ -42,7 +42,7 @@ One system per module. Imports ``online``, ``algorithm`` (the bounds table), ``s
 from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformation, AdmittanceDeformation_
 from drake_cfvol.systems.bounds_source import JointBoundsSource, JointBoundsSource_
 from drake_cfvol.systems.columns import PerceivedColumns
-from drake_cfvol.systems.constraints import FilterConstraint, ToolSpeedLimit
+from drake_cfvol.systems.filter import FilterConstraint, SafetyFilter, SafetyFilterConfig, ToolSpeedLimit
 from drake_cfvol.systems.human_input import HumanInputCheck, HumanInputCheck_
 from drake_cfvol.systems.humans import Push, RandomPushes, RandomPushShaper, Reactive, ReactiveCoworker, ScriptedHuman
 from drake_cfvol.systems.monitor import ClearanceMonitor
@@ -57,7 +57,6 @@ from drake_cfvol.systems.perception import (
     ObstacleMapper,
     PerceptionConfig,
 )
-from drake_cfvol.systems.safety import SafetyFilter, SafetyFilterConfig
 from drake_cfvol.systems.station import AddCoManipulation, CoManipulationConfig, CoManipulationSystems, ToolPushForce
 from drake_cfvol.systems.watchdog import StatusWatchdog
 

@@ -163,7 +163,7 @@ def AdmittanceDeformation_(T):
         ``upper`` come from the planner, not a sensor: they raise a
         :class:`~drake_cfvol.ParameterError` naming the port.
 
-        The collision checks are not here: a :class:`drake_cfvol.systems.safety.SafetyFilter`
+        The collision checks are not here: a :class:`drake_cfvol.systems.filter.safety.SafetyFilter`
         between this system and the robot keeps the clearance.
 
         Scalar types: float and AutoDiffXd (``ToAutoDiffXd()``); with

@@ -26,10 +26,10 @@ from drake_cfvol.io.arguments import instance, real_number
 from drake_cfvol.scene.robot import RobotSlice, robot_instances
 from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformation
 from drake_cfvol.systems.bounds_source import JointBoundsSource
-from drake_cfvol.systems.constraints import ToolSpeedLimit
+from drake_cfvol.systems.filter.constraints import ToolSpeedLimit
+from drake_cfvol.systems.filter.safety import SafetyFilter, SafetyFilterConfig
 from drake_cfvol.systems.human_input import HumanInputCheck
 from drake_cfvol.systems.path import PathProgress, PathProgressConfig, path_ramp, safe_path_rate
-from drake_cfvol.systems.safety import SafetyFilter, SafetyFilterConfig
 
 __all__ = ["AddCoManipulation", "CoManipulationConfig", "CoManipulationSystems", "ToolPushForce"]
 

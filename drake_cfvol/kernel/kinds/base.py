@@ -5,7 +5,7 @@ A kind's compiled code (its support point, its extent along an axis, a
 point's excess over its core, a point's signed distance) is a set of
 ``@njit(inline="always")`` functions in the kind's own module; the kernel's
 dispatchers (:mod:`drake_cfvol.kernel.shapes`, :mod:`drake_cfvol.kernel.batch`)
-and the damper's (:mod:`drake_cfvol.systems.damper_kernel`) call them by
+and the damper's (:mod:`drake_cfvol.systems.filter.damper_kernel`) call them by
 kind. Everything else about a kind is here, in Python: how it is read from a
 Drake shape, its bounding radius and box, its ball cover, points on it and
 the safety filter's probe points.

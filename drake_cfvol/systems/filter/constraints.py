@@ -22,8 +22,8 @@ import numpy.typing as npt
 from pydrake.multibody.tree import Frame, JacobianWrtVariable
 
 from drake_cfvol.exceptions import ParameterError
-from drake_cfvol.systems.filter_kernel import BOX_ROWS, DAMPER_ROWS, LIMIT_ROWS, filter_rounds, stack_rows
-from drake_cfvol.systems.qp import stage_problem, staged_solve
+from drake_cfvol.systems.filter.filter_kernel import BOX_ROWS, DAMPER_ROWS, LIMIT_ROWS, filter_rounds, stack_rows
+from drake_cfvol.systems.filter.qp import stage_problem, staged_solve
 
 __all__ = [
     "HARD",
@@ -77,9 +77,9 @@ class FilterStep:
         drift: the measured robot's velocity beyond the command's, rad/s
             (m/s), (k,): the tracking error's rate, which the damper's rows
             subtract where it approaches (zeros without a measured position).
-        damper: the damper's rows at q (:class:`~drake_cfvol.systems.damper.DamperRows`).
+        damper: the damper's rows at q (:class:`~drake_cfvol.systems.filter.damper.DamperRows`).
         kinematics: the damper's moving bodies' kinematics
-            (:class:`~drake_cfvol.systems.damper_kinematics.SlotKinematics`),
+            (:class:`~drake_cfvol.systems.filter.damper_kinematics.SlotKinematics`),
             for the rows' second-order term.
     """
 
@@ -127,7 +127,7 @@ class FilterConstraint:
     implement :meth:`rows`. Rows that are damper rows (their right-hand
     side grows by the row's second-order term at the step taken) say which
     in :meth:`second_order_rows`; :attr:`relaxed` rows are relaxed towards
-    the nominal (:func:`~drake_cfvol.systems.filter_kernel.relaxation`).
+    the nominal (:func:`~drake_cfvol.systems.filter.filter_kernel.relaxation`).
     """
 
     name = "constraint"
@@ -309,7 +309,7 @@ class PriorityQP:
     stages by priority: first every row hard; if no v meets them all, the
     :data:`BOX` rows soft (a miss s >= 0 per row, cost weight s^2); then the
     :data:`ROW` rows soft too. :data:`HARD` rows are hard in every stage.
-    Solved by :func:`~drake_cfvol.systems.qp.staged_solve`, warm-started
+    Solved by :func:`~drake_cfvol.systems.filter.qp.staged_solve`, warm-started
     from the last solve's active rows (by constraint and row).
 
     Attributes:
@@ -341,7 +341,7 @@ class PriorityQP:
 
     @staticmethod
     def stage_problem(v_t, blocks, soft_from):
-        """The stage's QP (:func:`~drake_cfvol.systems.qp.stage_problem`):
+        """The stage's QP (:func:`~drake_cfvol.systems.filter.qp.stage_problem`):
         (h, g, C, c, soft) over x = [v; one slack per soft row, in the
         blocks' order], ``soft`` per block; blocks of priority >=
         ``soft_from`` (None: none) soft."""
@@ -505,7 +505,7 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
     then the relaxation towards the nominal) until that solution meets its
     own (at most ``rounds`` solves; the right-hand sides only grow, a row
     still short by ``nudge`` more). One compiled call
-    (:func:`~drake_cfvol.systems.filter_kernel.filter_rounds`)."""
+    (:func:`~drake_cfvol.systems.filter.filter_kernel.filter_rounds`)."""
     k = len(v_t)
     plan = _plan(constraints)
     if plan is not None:  # the filter's own constraints only: stacked in one compiled call

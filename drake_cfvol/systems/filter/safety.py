@@ -38,7 +38,7 @@ from pydrake.systems.framework import Context, LeafSystem, ValueProducer
 from drake_cfvol.exceptions import DimensionError, ParameterError
 from drake_cfvol.scene.robot import RobotSlice
 from drake_cfvol.systems._util import _limits
-from drake_cfvol.systems.constraints import (
+from drake_cfvol.systems.filter.constraints import (
     DamperConstraint,
     FilterConstraint,
     FilterStep,
@@ -47,8 +47,8 @@ from drake_cfvol.systems.constraints import (
     VelocityLimits,
     solve_rounds,
 )
-from drake_cfvol.systems.damper import DamperRows, DynamicPairs, VelocityDamper
-from drake_cfvol.systems.filter_kernel import (
+from drake_cfvol.systems.filter.damper import DamperRows, DynamicPairs, VelocityDamper
+from drake_cfvol.systems.filter.filter_kernel import (
     brake_rows,
     braking_lead,
     budget_after,
@@ -71,7 +71,7 @@ class SafetyFilterConfig:
         damper_gain: xi, m/s (> 0): the approach speed allowed at d_inf.
         allowance: m (>= 0): the damper aims this far above the margin (what the rows' second-order bound misses).
         tool_speed: m/s (> 0): the tool frame's origin moves at most this fast (a
-            :class:`~drake_cfvol.systems.constraints.ToolSpeedLimit`); None: no such limit.
+            :class:`~drake_cfvol.systems.filter.constraints.ToolSpeedLimit`); None: no such limit.
     """
 
     clearance: typing.Optional[float] = None
@@ -240,8 +240,8 @@ class SafetyFilter(LeafSystem):
             anything else.
         dynamic_ids: geometry that moves on its own: measured at every
             update (:meth:`~.damper.DynamicPairs.mark`), rows never relaxed.
-        constraints: further :class:`~drake_cfvol.systems.constraints.FilterConstraint`
-            objects (e.g. a :class:`~drake_cfvol.systems.constraints.ToolSpeedLimit`).
+        constraints: further :class:`~drake_cfvol.systems.filter.constraints.FilterConstraint`
+            objects (e.g. a :class:`~drake_cfvol.systems.filter.constraints.ToolSpeedLimit`).
         overlap_depth: m (>= 0): a pair with geometry of ``dynamic_ids``
             overlapping the robot deeper than this faults the filter (see
             docs/safety.md, "Hold and faults"); None: never (perceived columns: the margin
@@ -342,7 +342,7 @@ class SafetyFilter(LeafSystem):
         dynamic = np.zeros(n_pairs, bool)  # per pair: with geometry that moves on its own
         dynamic[self._dynamic.pairs] = True
 
-        #: The QP's constraints (:mod:`~drake_cfvol.systems.constraints`):
+        #: The QP's constraints (:mod:`~drake_cfvol.systems.filter.constraints`):
         #: the velocity limits, the box, the damper's rows (the static
         #: scene's, relaxed near the nominal; the moving geometry's, never),
         #: then ``constraints``.
@@ -699,7 +699,7 @@ class SafetyFilter(LeafSystem):
 
     def _filter(self, context, base, q, v_t, lo, hi, rows: DamperRows, nominal, drift=None, hard=None):
         """The velocity commanded for the request v_t: (v, missed: a
-        :data:`~drake_cfvol.systems.constraints.ROW` row missed at v,
+        :data:`~drake_cfvol.systems.filter.constraints.ROW` row missed at v,
         solved (False: the fallback)). Each constraint's rows at the step
         taken (the damper's: first order plus the second-order bound
         :meth:`second_order` at v, then relaxed towards the nominal): they

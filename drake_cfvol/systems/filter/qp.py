@@ -236,7 +236,7 @@ def solve_qp(h, g, C, c, *, warm=None):
 
 @njit(cache=True)
 def stage_problem(v_t, A, b, prio, weight, soft_from, hard):
-    """The staged QP's stage (see :class:`~drake_cfvol.systems.constraints.PriorityQP`)
+    """The staged QP's stage (see :class:`~drake_cfvol.systems.filter.constraints.PriorityQP`)
     over x = [v; one slack per soft row], as (h, g, C, c, soft): rows of
     priority >= ``soft_from`` (and not ``hard``) soft (``soft_from`` past
     every priority: none), each soft row i as A_i v + s_i >= b_i with

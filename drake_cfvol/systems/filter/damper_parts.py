@@ -1,4 +1,4 @@
-"""Parts of the velocity damper (:class:`~drake_cfvol.systems.damper.VelocityDamper`):
+"""Parts of the velocity damper (:class:`~drake_cfvol.systems.filter.damper.VelocityDamper`):
 its broad phase (:class:`BroadPhase`), the pair sides' arrays for the
 compiled rows (:func:`side_arrays`) and the rows of a pair assembled from
 Drake's own point queries (:func:`drake_pair_rows`, for a probe against a
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drake_cfvol.systems.damper_kernel import NO_POINT_QUERY, local_box, near_pairs, point_query_shape
+from drake_cfvol.systems.filter.damper_kernel import NO_POINT_QUERY, local_box, near_pairs, point_query_shape
 
 __all__ = ["BroadPhase", "RowList", "side_arrays", "drake_pair_rows"]
 

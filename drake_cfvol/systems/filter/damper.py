@@ -13,9 +13,9 @@ import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
 
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies
-from drake_cfvol.systems.damper_kernel import ball_radius, pair_rows, probes, round_radius
-from drake_cfvol.systems.damper_kinematics import SlotKinematics, _levers, _pair_speeds
-from drake_cfvol.systems.damper_parts import BroadPhase, RowList, drake_pair_rows, side_arrays
+from drake_cfvol.systems.filter.damper_kernel import ball_radius, pair_rows, probes, round_radius
+from drake_cfvol.systems.filter.damper_kinematics import SlotKinematics, _levers, _pair_speeds
+from drake_cfvol.systems.filter.damper_parts import BroadPhase, RowList, drake_pair_rows, side_arrays
 
 __all__ = ["DamperRows", "VelocityDamper"]
 
@@ -94,7 +94,7 @@ class DynamicPairs:
 class VelocityDamper:
     """The velocity damper's geometry: the watched pairs, their probe
     points, and at a configuration the damper's rows and their second-order
-    term (see :class:`~drake_cfvol.systems.safety.SafetyFilter`).
+    term (see :class:`~drake_cfvol.systems.filter.safety.SafetyFilter`).
 
     Args:
         plant: the finalized MultibodyPlant (the robot's k joints, and any

@@ -222,7 +222,7 @@ def _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains):
 @njit(cache=True)
 def pair_rows(near, sides, kin, gains):
     """Every near pair's rows (SPEC 9; see
-    :meth:`~drake_cfvol.systems.damper.VelocityDamper.rows`).
+    :meth:`~drake_cfvol.systems.filter.damper.VelocityDamper.rows`).
 
     Args:
         near: (pairs, dist, normal, witness, pose_R, pose_t):

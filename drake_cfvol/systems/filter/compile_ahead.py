@@ -22,8 +22,8 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_cfvol.kernel.warmup import cached
-from drake_cfvol.systems import damper_kernel, damper_kinematics, filter_kernel
-from drake_cfvol.systems.safety import SafetyFilter
+from drake_cfvol.systems.filter import damper_kernel, damper_kinematics, filter_kernel
+from drake_cfvol.systems.filter.safety import SafetyFilter
 
 __all__ = ["warm_up", "WARM_UP_SHARE"]
 

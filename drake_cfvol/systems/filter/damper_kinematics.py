@@ -168,7 +168,7 @@ def _budget_moved(q0, q1, chain, body, R_WB, p_WB, radius, pair_bodies, budget):
 @njit(cache=True)
 def _levers(J_w, J_v, radius):
     """(S, k): |J_v_j| + |J_w_j| r per slot and joint (see
-    :meth:`~drake_cfvol.systems.damper.VelocityDamper.levers`)."""
+    :meth:`~drake_cfvol.systems.filter.damper.VelocityDamper.levers`)."""
     S, _, k = J_v.shape
     out = np.zeros((S, k))
     for s in range(S):
@@ -182,7 +182,7 @@ def _levers(J_w, J_v, radius):
 @njit(cache=True)
 def _pair_speeds(J_w, J_v, radius, pair_bodies, self_pairs, only, v, dv):
     """Per pair, the fastest its distance can shrink at v + e, |e_j| <=
-    dv_j (see :meth:`~drake_cfvol.systems.damper.VelocityDamper.pair_speeds`);
+    dv_j (see :meth:`~drake_cfvol.systems.filter.damper.VelocityDamper.pair_speeds`);
     ``only`` (2, n, k): per self pair, the joints that move its first side
     only, its second side only."""
     S, _, k = J_v.shape
@@ -278,7 +278,7 @@ class SlotKinematics:
     @staticmethod
     def second_order(before, after, rows, rev, dq) -> np.ndarray:
         """Per row, how far the step dq falls short of the row's first-order
-        change (see :meth:`~drake_cfvol.systems.damper.VelocityDamper.second_order`),
+        change (see :meth:`~drake_cfvol.systems.filter.damper.VelocityDamper.second_order`),
         from the slots' poses ``before`` and ``after`` it."""
         return _second_order(
             before[0], before[1], after[0], after[1], rows.A, rows.dirs, rows.points, rows.slots, rows.rounds, rev, dq

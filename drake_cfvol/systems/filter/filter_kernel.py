@@ -3,7 +3,7 @@ update (:func:`filter_rounds`): the constraints' rows stacked, each
 damper row's right-hand side grown by its second-order term at the step
 (the robot's chain posed by the kernel's forward kinematics) and, for the
 static scene's rows, relaxed towards the nominal; the staged QP
-(:func:`~drake_cfvol.systems.qp.staged_solve`) solved again at its own
+(:func:`~drake_cfvol.systems.filter.qp.staged_solve`) solved again at its own
 solution until that solution meets its rows.
 """
 
@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.systems.damper_kinematics import _second_order, _slot_poses
-from drake_cfvol.systems.qp import staged_solve
+from drake_cfvol.systems.filter.damper_kinematics import _second_order, _slot_poses
+from drake_cfvol.systems.filter.qp import staged_solve
 
 __all__ = [
     "ROW_DECELERATION_SHARE",
@@ -116,7 +116,7 @@ def _short(A, v, need, tol, prio, only):
 @njit(cache=True)
 def filter_rounds(v_t, rows, damper, kin, at, qp, warm):
     """The velocity commanded for the request v_t (within the box and the
-    limits; see :func:`~drake_cfvol.systems.constraints.solve_rounds`).
+    limits; see :func:`~drake_cfvol.systems.filter.constraints.solve_rounds`).
 
     Args:
         rows: (A (m, k), b (m,), prio (m,), weight (m,), so_row (m,): the
