@@ -263,7 +263,7 @@ def _bounding(cfg: KernelBenchConfig) -> list[dict]:
 
 def _certification(cfg: KernelBenchConfig) -> list[dict]:
     """The certify cases as batch jobs on a one-process LocalCluster."""
-    from drake_cfvol.apps.batch import BatchSettings, Job, run_batch
+    from drake_cfvol.apps.batch_jobs import BatchSettings, Job, run_batch
 
     setting = BatchSettings(
         resolution=1000,

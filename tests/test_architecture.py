@@ -290,6 +290,62 @@ def test_the_filter_check_catches_a_planted_import(tmp_path):
     ]
 
 
+@pytest.mark.parametrize("old", ["apps.batch", "comanip.checks", "algorithm.regions"])
+def test_the_repeated_module_names_moved(old):
+    """The modules whose names repeated another layer's were renamed in 0.10 (CHANGELOG.md):
+    the old paths no longer import."""
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module(f"drake_cfvol.{old}")
+
+
+def test_comanipulation_takes_its_siblings_spelling():
+    """``Comanipulation`` is ``CoManipulation`` since 0.10, beside ``AddCoManipulation`` and
+    ``CoManipulationConfig``; no alias keeps the old name."""
+    import drake_cfvol.comanip as comanip
+
+    assert hasattr(comanip, "CoManipulation")
+    assert not hasattr(comanip, "Comanipulation")
+
+
+def _repeated_module_names(package: Path = PACKAGE) -> dict[str, list[str]]:
+    """Module basename -> its modules (dotted, below the package at ``package``), for every
+    basename two or more modules share; ``__init__`` and ``__main__`` are not names of their own."""
+    by_name: dict[str, list[str]] = {}
+    for m, path in _modules(package).items():
+        if path.stem not in ("__init__", "__main__"):
+            by_name.setdefault(path.stem, []).append(m)
+    return {n: sorted(ms) for n, ms in sorted(by_name.items()) if len(ms) > 1}
+
+
+def test_no_module_name_repeats():
+    """Each module's own name says what it holds, once in the package: two layers' ``regions``
+    (or ``checks``, ``batch``) leave a reader, a traceback and a search to tell them apart by
+    their path."""
+    assert "algorithm.boundary_regions" in _modules(), "the tree walk found no modules"
+    repeated = _repeated_module_names()
+    assert not repeated, f"module names used twice: {repeated}"
+
+
+def test_the_repeated_name_check_catches_a_planted_pair(tmp_path):
+    """Planted: ``regions`` in two layers and ``checks`` in a layer and its subpackage are caught;
+    the ``__init__`` of every folder and names met once are not."""
+    package = _plant_tree(
+        tmp_path,
+        {
+            "kernel/regions.py": "",
+            "algorithm/regions.py": "",
+            "systems/checks.py": "",
+            "systems/filter/checks.py": "",
+            "systems/filter/qp.py": "",
+            "__main__.py": "",
+        },
+    )
+    assert _repeated_module_names(package) == {
+        "checks": ["systems.checks", "systems.filter.checks"],
+        "regions": ["algorithm.regions", "kernel.regions"],
+    }
+
+
 def test_public_api_and_readme_paths_import():
     """Every name of ``drake_cfvol.__all__`` and the module paths the README
     shows (systems, exceptions, comanip, kernel) still import."""

@@ -895,8 +895,8 @@ def _check_mutated_scenario(data, folder: Path, automotive) -> None:
     import yaml
 
     import drake_cfvol as cf
-    from drake_cfvol.comanip.checks import check_scenario_against_cell
     from drake_cfvol.comanip.scenario import load_scenario
+    from drake_cfvol.comanip.scenario_checks import check_scenario_against_cell
 
     f = folder / "scenario.yaml"
     f.write_bytes(_mutated(data, yaml.safe_load(SCENARIO), _yaml_dump))

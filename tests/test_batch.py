@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import drake_cfvol as cf
-from drake_cfvol.apps.batch import expand_jobs, load_jobs, output_files, run_batch, write_batch
+from drake_cfvol.apps.batch_jobs import expand_jobs, load_jobs, output_files, run_batch, write_batch
 from drake_cfvol.apps.cli import main
 
 #: Two paths of one cell at a small R and few CF samples: seconds per job.

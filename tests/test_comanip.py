@@ -539,7 +539,7 @@ def test_sensor_faults_are_held_and_reported(tmp_path, monkeypatch):
     file with a non-finite push is refused (tests/test_bad_inputs.py); here
     the scripted pushes stand in for a faulty sensor at run time, so the
     file's check of them is bypassed."""
-    import drake_cfvol.comanip.checks as checks
+    import drake_cfvol.comanip.scenario_checks as checks
 
     monkeypatch.setattr(checks, "_check_pushes", lambda human, where: None)
     s = run_scenario(

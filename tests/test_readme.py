@@ -249,7 +249,7 @@ def test_yaml_blocks_load(block, tmp_path):
     """A YAML block loads as a batch jobs file, a workcell file (the cell is
     built) or scenario text over a bundled scenario."""
     import drake_cfvol as cf
-    from drake_cfvol.apps.batch import expand_jobs, load_jobs
+    from drake_cfvol.apps.batch_jobs import expand_jobs, load_jobs
     from drake_cfvol.comanip import load_scenario
 
     code = block[3]

@@ -39,7 +39,7 @@ cuts the waypoint boxes are rate-limited again
 (:func:`drake_cfvol.algorithm.table.rate_limited`), which may tighten neighbours;
 the proof runs until no stretch's box changes.
 
-The regions are :mod:`drake_cfvol.algorithm.regions`; the cuts
+The regions are :mod:`drake_cfvol.algorithm.boundary_regions`; the cuts
 :mod:`drake_cfvol.algorithm.cuts`.
 """
 
@@ -49,8 +49,7 @@ import itertools
 
 import numpy as np
 
-from drake_cfvol.algorithm.cuts import cut_for, cut_point, cut_slacks, reaching_joints
-from drake_cfvol.algorithm.regions import (
+from drake_cfvol.algorithm.boundary_regions import (
     MAX_SPLITS,
     S_SPLITS,
     _box,
@@ -60,6 +59,7 @@ from drake_cfvol.algorithm.regions import (
     edge_tasks,
     regions_may_collide,
 )
+from drake_cfvol.algorithm.cuts import cut_for, cut_point, cut_slacks, reaching_joints
 from drake_cfvol.algorithm.table import rate_limited
 from drake_cfvol.exceptions import ParameterError
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drake_cfvol.algorithm.regions import _box, _Item, _test, regions_may_collide
+from drake_cfvol.algorithm.boundary_regions import _box, _Item, _test, regions_may_collide
 
 __all__ = ["reaching_joints", "cut_point", "cut_slacks"]
 

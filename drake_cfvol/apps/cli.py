@@ -718,7 +718,7 @@ def _add_bench(sub) -> None:
 
 
 def cmd_batch(args) -> int:
-    from drake_cfvol.apps.batch import expand_jobs, load_jobs, output_files, run_batch, write_batch
+    from drake_cfvol.apps.batch_jobs import expand_jobs, load_jobs, output_files, run_batch, write_batch
 
     if args.scheduler and args.serial:
         raise ParameterError("--serial runs the jobs here, one after the other: leave out --scheduler.")
@@ -765,7 +765,7 @@ def _add_batch(sub) -> None:
         help="bounds, certificates and CF for many cells x paths x settings, in parallel "
         "on Dask's distributed scheduler",
     )
-    b.add_argument("jobs", help="a jobs YAML file (cells, paths, settings; see drake_cfvol.apps.batch)")
+    b.add_argument("jobs", help="a jobs YAML file (cells, paths, settings; see drake_cfvol.apps.batch_jobs)")
     b.add_argument("--scheduler", help="a Dask scheduler's address (tcp://host:8786; default: a local cluster)")
     b.add_argument("--workers", type=int, help="the local cluster's worker processes (default: one per core)")
     b.add_argument("--serial", action="store_true", help="run the jobs here one after the other (no Dask)")

@@ -42,7 +42,6 @@ from drake_cfvol.algorithm.planning import NominalPath, plan_nominal_path
 from drake_cfvol.algorithm.reuse import load_bounds_for, load_path_for
 from drake_cfvol.algorithm.table import BoundsTable
 from drake_cfvol.algorithm.volume import Categories, build_volume, height_map_of, register_volume_boxes
-from drake_cfvol.comanip.checks import cell_file, looks_like_path
 from drake_cfvol.comanip.dynamics import _control_plant, add_driver, add_simulated_plant, driver_of
 from drake_cfvol.comanip.franka import FRANKA_PERIOD, add_franka_controller_interface, add_franka_station
 from drake_cfvol.comanip.iiwa import (
@@ -65,6 +64,7 @@ from drake_cfvol.comanip.scenario import (
     scenario_file_path,
     validate_scenario,
 )
+from drake_cfvol.comanip.scenario_checks import cell_file, looks_like_path
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.io.style import CATEGORY_COLOURS, COLOUR_NAMES, FLOOR_COLOUR, ROBOT_COLOUR, VOLUME_COLOUR
 from drake_cfvol.scene.params import VolumeParams
@@ -82,7 +82,7 @@ from drake_cfvol.systems import (
 )
 from drake_cfvol.systems.hand import first_push_direction, waiting_point
 
-__all__ = ["Comanipulation", "build_comanipulation_diagram"]
+__all__ = ["CoManipulation", "build_comanipulation_diagram"]
 
 
 #: Signals also logged at the control update rate (``update_<name>``).
@@ -95,7 +95,7 @@ MAX_PROXIMITY_BOXES = 1500
 
 
 @dataclasses.dataclass
-class Comanipulation:
+class CoManipulation:
     """A built co-manipulation diagram and what it was built from.
 
     Attributes:
@@ -636,7 +636,7 @@ def build_comanipulation_diagram(
     bounds: BoundsTable | None = None,
     progress: bool = False,
     scenario_file: Path | None = None,
-) -> Comanipulation:
+) -> CoManipulation:
     """Builds a co-manipulation diagram from a scenario, composing its parts
     as Drake's ``hardware_sim`` composes its ``Apply*Config`` calls: the
     scene (plant, SceneGraph, the volume's boxes), the perception (moving
@@ -657,7 +657,7 @@ def build_comanipulation_diagram(
         progress: progress bars on a terminal for long steps (the kernel's first compile).
 
     Returns:
-        The :class:`Comanipulation`.
+        The :class:`CoManipulation`.
     """
     wc, path, bounds, times = _workcell_path_bounds(scenario, base_dir, scenario_file, path, bounds, progress)
     t2 = time.perf_counter()
@@ -744,7 +744,7 @@ def build_comanipulation_diagram(
     diagram = builder.Build()
     diagram.set_name("comanipulation")
     times["diagram"] = (time.perf_counter() - t2) * 1e3
-    return Comanipulation(
+    return CoManipulation(
         diagram,
         scenario,
         wc,

@@ -6,11 +6,11 @@ from pathlib import Path
 import numpy as np
 from pydrake.systems.framework import Diagram
 
-from drake_cfvol.comanip.diagram import Comanipulation
+from drake_cfvol.comanip.diagram import CoManipulation
 from drake_cfvol.io.plotting import draw, figure
 
 
-def plot_run(logs: dict, cm: Comanipulation, path: Path) -> Path:
+def plot_run(logs: dict, cm: CoManipulation, path: Path) -> Path:
     """Per joint over time: nominal, bounds, commanded; and the clearance.
     Shaded in every panel: when the co-worker pushes (joint torque or tool
     wrench not zero); ticks on the clearance panel: when the safety filter

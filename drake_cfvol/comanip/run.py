@@ -14,7 +14,7 @@ from pydrake.systems.framework import EventStatus
 
 from drake_cfvol.algorithm.planning import NominalPath
 from drake_cfvol.algorithm.table import BoundsTable
-from drake_cfvol.comanip.diagram import Comanipulation, build_comanipulation_diagram
+from drake_cfvol.comanip.diagram import CoManipulation, build_comanipulation_diagram
 from drake_cfvol.comanip.online import online_figures, show_online_freedom
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
 from drake_cfvol.comanip.scenario import load_scenario
@@ -299,7 +299,7 @@ def run_problems(summary: dict) -> list[str]:
     return out
 
 
-def _count(cm: Comanipulation, context, name: str) -> int:
+def _count(cm: CoManipulation, context, name: str) -> int:
     """A counter exported by the diagram, at the end of the run (0 if the
     diagram has no such port: the filter is off)."""
     if not cm.diagram.HasOutputPort(name):
@@ -307,7 +307,7 @@ def _count(cm: Comanipulation, context, name: str) -> int:
     return int(cm.diagram.GetOutputPort(name).Eval(context)[0])
 
 
-def update_rate_figures(logs: dict, cm: Comanipulation) -> dict:
+def update_rate_figures(logs: dict, cm: CoManipulation) -> dict:
     """Speed, clearance and collisions from the logs at the control update
     rate (``update_*``): the largest |dq_j| / (period x velocity_limit_j)
     between consecutive updates (one update period apart by construction,

@@ -19,13 +19,13 @@ from pydrake.systems.analysis import SimulatorConfig
 from pydrake.visualization import VisualizationConfig
 
 from drake_cfvol.algorithm.certify import Certify
-from drake_cfvol.comanip.checks import (
+from drake_cfvol.comanip.drivers import TORQUE_SENSING_DRIVERS, DriverConfig, FrankaDriver, InverseDynamicsDriver
+from drake_cfvol.comanip.scenario_checks import (
     check_scenario_against_cell,
     looks_like_path,
     scenario_file_path,
     validate_scenario,
 )
-from drake_cfvol.comanip.drivers import TORQUE_SENSING_DRIVERS, DriverConfig, FrankaDriver, InverseDynamicsDriver
 from drake_cfvol.exceptions import ScenarioError
 from drake_cfvol.scene.params import VolumeParams
 from drake_cfvol.scene.schema import CfvolSection, read_yaml, read_yaml_text, yaml_error_line
@@ -317,7 +317,7 @@ class Scenario:
     @property
     def duration(self) -> float:
         """Total simulated time at the requested path duration, s (a run
-        whose path had to slow down lasts longer: ``Comanipulation.duration``)."""
+        whose path had to slow down lasts longer: ``CoManipulation.duration``)."""
         return self.control.path_progress.start_time + self.path.duration + self.path.end_hold
 
     def certify(self) -> Certify | None:

@@ -195,7 +195,7 @@ def load_jobs(file: str | Path | None = None, *, text: str | None = None) -> tup
 def expand_jobs(jobs: BatchJobs, base_dir: Path | None = None) -> list[Job]:
     """Every cell x path x setting as a :class:`Job`, in that order; cell
     files relative to ``base_dir`` (the jobs file's folder)."""
-    from drake_cfvol.comanip.checks import cell_file
+    from drake_cfvol.comanip.scenario_checks import cell_file
     from drake_cfvol.scene.schema import builtin_cells
 
     labels = [path_label(label) for label in jobs.paths]
