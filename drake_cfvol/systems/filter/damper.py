@@ -369,7 +369,7 @@ class VelocityDamper:
         origins, :meth:`SlotKinematics.poses_and_jacobians`)."""
         return _levers(J_w, J_v, self._body_radius)
 
-    def pair_speeds(self, J_w, J_v, v, dv) -> np.ndarray:
+    def pair_speeds(self, J_w, J_v, v, dv, levers=None) -> np.ndarray:
         """(P,): per pair, the fastest its distance can shrink at the joint
         velocity v + e for any |e_j| <= dv_j, m/s. Against a side that
         does not move: its body's fastest point, |J_v v| + |J_w v| r plus
@@ -378,9 +378,20 @@ class VelocityDamper:
         Between two moving bodies: sum_j (|v_j| + dv_j) times the lever
         (:meth:`levers`) of the side joint j moves, over the joints that
         move only one side. Geometry that moves on its own
-        (:attr:`self_moving`) adds its own speed, not counted."""
+        (:attr:`self_moving`) adds its own speed, not counted. ``levers``:
+        :meth:`levers` at these Jacobians, if already computed."""
+        if levers is None:
+            levers = self.levers(J_w, J_v)
         return _pair_speeds(
-            J_w, J_v, self._body_radius, self._pair_bodies, self._self_pairs, self._only, np.asarray(v, float), dv
+            J_w,
+            J_v,
+            self._body_radius,
+            levers,
+            self._pair_bodies,
+            self._self_pairs,
+            self._only,
+            np.asarray(v, float),
+            dv,
         )
 
     @property

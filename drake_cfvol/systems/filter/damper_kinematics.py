@@ -180,13 +180,12 @@ def _levers(J_w, J_v, radius):
 
 
 @njit(cache=True)
-def _pair_speeds(J_w, J_v, radius, pair_bodies, self_pairs, only, v, dv):
+def _pair_speeds(J_w, J_v, radius, levers, pair_bodies, self_pairs, only, v, dv):
     """Per pair, the fastest its distance can shrink at v + e, |e_j| <=
     dv_j (see :meth:`~drake_cfvol.systems.filter.damper.VelocityDamper.pair_speeds`);
     ``only`` (2, n, k): per self pair, the joints that move its first side
-    only, its second side only."""
+    only, its second side only; ``levers`` (S, k): :func:`_levers`."""
     S, _, k = J_v.shape
-    levers = _levers(J_w, J_v, radius)
     slot = np.zeros(S + 1)  # the last entry: a welded side
     for s in range(S):
         lv, av = np.zeros(3), np.zeros(3)

@@ -542,10 +542,11 @@ class SafetyFilter(LeafSystem):
             discrete_state.get_mutable_vector(self._measured_last).SetFromVector(np.full(k, np.nan))
         else:
             n = self._damper.num_pairs
-            kin, reach = None, None
+            kin, reach, levers = None, None, None
             if self._braked and n:
                 kin = self._damper.kinematics.poses_and_jacobians(base)
-                reach = self._braking_reach(kin, v_last, a_last)
+                levers = self._damper.levers(kin[2], kin[3])
+                reach = self._braking_reach(kin, levers, v_last, a_last)
             kept = context.get_discrete_state(self._budget).CopyToVector()
             if self.skip_far_pairs and n:
                 # What the budget kept at the last update's base still certainly holds here.
@@ -566,7 +567,7 @@ class SafetyFilter(LeafSystem):
             # the others' budget, both with the robot at this base.
             dmin, keep = budget_after(rows.distances, budget, self.influence_distance, base)
             if self._braked and len(rows.b):
-                rows = self._braked_rows(rows, base, v_last, a_last, h_lo, h_hi, kin)
+                rows = self._braked_rows(rows, base, v_last, a_last, h_lo, h_hi, levers)
             fault = self._fault(rows)
             if fault:  # braked to a stop from now on: no QP at this update or after
                 self._brake(discrete_state, q, v_last, a_last)
@@ -620,7 +621,7 @@ class SafetyFilter(LeafSystem):
         v = np.minimum(np.maximum(0.0, h_lo), h_hi)
         self._command(discrete_state, q + v * self.period, v, v_last)
 
-    def _braking_reach(self, kin, v_last, a_last) -> np.ndarray:
+    def _braking_reach(self, kin, levers, v_last, a_last) -> np.ndarray:
         """Per pair, how near it must be to get a row at this update, m:
         the influence distance, or farther where its closing speed and
         acceleration by the next update (the last command's, plus one
@@ -630,12 +631,12 @@ class SafetyFilter(LeafSystem):
         h = self.period
         dv = np.where(np.isfinite(self._acceleration), self._acceleration * h, 0.0)
         da = np.where(np.isfinite(self._jerk), self._jerk * h, 0.0)
-        speed = self._damper.pair_speeds(kin[2], kin[3], v_last, dv)
-        closing = self._damper.pair_speeds(kin[2], kin[3], a_last, da)
+        speed = self._damper.pair_speeds(kin[2], kin[3], v_last, dv, levers)
+        closing = self._damper.pair_speeds(kin[2], kin[3], a_last, da, levers)
         lead, ramp = braking_lead(v_last, a_last, self._vmax, self._acceleration, self._jerk, self.rate, h)
         return np.maximum(self.target_distance + (speed + ramp * closing) * lead + speed * h, self.influence_distance)
 
-    def _braked_rows(self, rows: DamperRows, base, v_last, a_last, h_lo, h_hi, kin) -> DamperRows:
+    def _braked_rows(self, rows: DamperRows, base, v_last, a_last, h_lo, h_hi, levers) -> DamperRows:
         """The rows braked in time (:func:`~.filter_kernel.brake_rows`),
         less those that cannot bind at this update: within the hard
         interval [h_lo, h_hi] (|v_j| <= w_j) their first-order rate A v
@@ -649,7 +650,7 @@ class SafetyFilter(LeafSystem):
         worst = np.minimum(rows.A * h_lo, rows.A * h_hi).sum(axis=1)  # the least A v in the interval
         w = np.maximum(np.abs(h_lo), np.abs(h_hi))
         theta = float(w.sum()) * self.period
-        slot = np.append(self._damper.levers(kin[2], kin[3]) @ w, 0.0)  # per slot; the last: welded
+        slot = np.append(levers @ w, 0.0)  # per slot; the last: welded
         bound = theta * slot[rows.slots].sum(axis=1)  # twice the bound, as a rate (m/s)
         # The rows' points turn on the way to the joints' stop: each row
         # closes by its second-order term over that step more than it says.
