@@ -28,7 +28,7 @@ from pydrake.geometry.optimization import HPolyhedron, Hyperellipsoid
 from pydrake.planning import IrisZo, IrisZoOptions
 
 from drake_cfvol._version import __version__
-from drake_cfvol.algorithm.certify import Certify
+from drake_cfvol.algorithm.certificate.certify import Certify
 from drake_cfvol.algorithm.metrics import confidence_factor, freedom
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import plan_nominal_path

@@ -42,7 +42,7 @@ from pydrake.solvers import ClarabelSolver, MathematicalProgram
 
 from benchmarks.realtime import CELLS
 from benchmarks.report import machine_lines, targets_lines, write_results
-from drake_cfvol.algorithm.certify import Certify
+from drake_cfvol.algorithm.certificate.certify import Certify
 from drake_cfvol.algorithm.metrics import box_freedom, freedom
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import plan_nominal_path

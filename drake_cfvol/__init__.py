@@ -61,7 +61,7 @@ from drake_cfvol.exceptions import (
 #: The public names that need Drake, each with its module: imported on first
 #: use (PEP 562), so ``import drake_cfvol`` and ``cfvol --help`` load no pydrake.
 _LAZY = {
-    "Certify": "drake_cfvol.algorithm.certify",
+    "Certify": "drake_cfvol.algorithm.certificate.certify",
     "CFResult": "drake_cfvol.algorithm.metrics",
     "Freedom": "drake_cfvol.algorithm.metrics",
     "confidence_factor": "drake_cfvol.algorithm.metrics",

@@ -290,6 +290,62 @@ def test_the_filter_check_catches_a_planted_import(tmp_path):
     ]
 
 
+@pytest.mark.parametrize("old", ["certify", "boundary", "boundary_regions", "cuts", "cert_cache"])
+def test_the_certificate_modules_moved(old):
+    """The certificate's flat modules in ``algorithm`` moved to ``algorithm.certificate`` in 0.11
+    (CHANGELOG.md): the old paths no longer import."""
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module(f"drake_cfvol.algorithm.{old}")
+
+
+def _in_certificate(module: str) -> bool:
+    return module == "algorithm.certificate" or module.startswith("algorithm.certificate.")
+
+
+#: The one module of the paper's method that calls the certificate: the pipeline (Algorithm 1
+#: with ``certify=``).
+CERTIFICATE_CALLERS = {"algorithm.pipeline"}
+
+
+def _method_reaches_certificate(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """The (method module, certificate module) pairs where a module of the paper's method (the
+    algorithm layer outside ``algorithm.certificate``) other than :data:`CERTIFICATE_CALLERS`
+    imports the certificate."""
+    return sorted(
+        (m, t)
+        for m, targets in graph.items()
+        if _layer(m) == LAYERS.index("algorithm") and not _in_certificate(m) and m not in CERTIFICATE_CALLERS
+        for t in targets
+        if _in_certificate(t)
+    )
+
+
+def test_the_method_stands_apart_from_the_certificate():
+    """The paper's method does not use the certificate built on it: only the pipeline calls it."""
+    graph = _import_graph()
+    assert graph["algorithm.pipeline"] >= {"algorithm.certificate.certify"}, "the parser found no certificate import"
+    assert graph["algorithm.certificate.certify"] >= {"algorithm.table"}, "the parser found no method import"
+    assert not _method_reaches_certificate(graph), _method_reaches_certificate(graph)
+
+
+def test_the_certificate_check_catches_a_planted_import(tmp_path):
+    """Planted: the sweep importing the certificate's cuts (inside a function); the pipeline's
+    import passes."""
+    package = _plant_tree(
+        tmp_path,
+        {
+            "algorithm/pipeline.py": "from drake_cfvol.algorithm.certificate.certify import C\n",
+            "algorithm/sweep.py": "def f():\n    from drake_cfvol.algorithm.certificate import cuts\n",
+            "algorithm/certificate/cuts.py": "from drake_cfvol.algorithm.table import T\n",
+            "algorithm/certificate/certify.py": "",
+        },
+    )
+    assert _method_reaches_certificate(_import_graph(package)) == [
+        ("algorithm.sweep", "algorithm.certificate"),
+        ("algorithm.sweep", "algorithm.certificate.cuts"),
+    ]
+
+
 @pytest.mark.parametrize("old", ["apps.batch", "comanip.checks", "algorithm.regions"])
 def test_the_repeated_module_names_moved(old):
     """The modules whose names repeated another layer's were renamed in 0.10 (CHANGELOG.md):
@@ -321,7 +377,7 @@ def test_no_module_name_repeats():
     """Each module's own name says what it holds, once in the package: two layers' ``regions``
     (or ``checks``, ``batch``) leave a reader, a traceback and a search to tell them apart by
     their path."""
-    assert "algorithm.boundary_regions" in _modules(), "the tree walk found no modules"
+    assert "algorithm.certificate.boundary_regions" in _modules(), "the tree walk found no modules"
     repeated = _repeated_module_names()
     assert not repeated, f"module names used twice: {repeated}"
 
@@ -455,7 +511,7 @@ def test_every_public_name_resolves():
         value = getattr(cf, name)
         if name in cf._LAZY:
             assert value is getattr(importlib.import_module(cf._LAZY[name]), name)
-    assert cf.algorithm.certify.Certify is cf.Certify
+    assert cf.algorithm.certificate.certify.Certify is cf.Certify
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         cf.nope  # noqa: B018
 

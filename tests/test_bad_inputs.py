@@ -758,7 +758,7 @@ def test_a_second_certification_into_one_folder_refuses_at_once(tmp_path, capsys
     """The first --certify run writes its files (its computation replaced by
     the session's table, to stay fast); the second refuses before planning
     or bounding anything, naming the files the first one wrote."""
-    import drake_cfvol.algorithm.certify as certify
+    import drake_cfvol.algorithm.certificate.certify as certify
     import drake_cfvol.algorithm.pipeline as pipeline
     import drake_cfvol.algorithm.planning as planning
 

@@ -5,7 +5,7 @@ import pytest
 from conftest import write_arm_cell
 
 import drake_cfvol as cf
-from drake_cfvol.algorithm.certify import Certify, certification_rng
+from drake_cfvol.algorithm.certificate.certify import Certify, certification_rng
 
 
 def _corner_cell(folder, mesh_links=False):
@@ -118,7 +118,7 @@ def test_greedy_cut_by_hand():
     origin (the same box at both ends of the stretch): cutting joint 0's
     upper bound to 0.9 loses log(2 / 1.9) per end, joint 1's to 0.2 loses
     log(2 / 1.2); the cheaper cut is taken, at both ends, and only it."""
-    from drake_cfvol.algorithm.certify import _greedy_cut
+    from drake_cfvol.algorithm.certificate.certify import _greedy_cut
 
     L, U, N = _stretch([-1.0, -1.0], [1.0, 1.0], [0.0, 0.0])
     n = _greedy_cut(np.array([[0.9, 0.2]]), np.array([0.5]), L, U, N, 0)
@@ -132,7 +132,7 @@ def test_greedy_cut_removes_many_at_once():
     cuts of x's upper bound (the losses telescope to log(2 / 1.5), cheaper
     than any cut of y that would remove them), the lone one by y's lower
     bound to -0.95 (log(2 / 1.95), cheaper than x's lower bound to 0.05)."""
-    from drake_cfvol.algorithm.certify import _greedy_cut
+    from drake_cfvol.algorithm.certificate.certify import _greedy_cut
 
     X = np.vstack([np.column_stack([np.linspace(0.5, 0.95, 10), np.full(10, 0.1)]), [[0.05, -0.95]]])
     L, U, N = _stretch([-1.0, -1.0], [1.0, 1.0], [0.0, 0.0])
@@ -147,7 +147,7 @@ def test_greedy_cut_in_a_changing_box_by_hand():
     to 1.5 (nominal 0): a sample at x = 0.9, halfway (the bound there is
     1.0), goes when joint 0's deviation is scaled below 0.9 at both ends:
     0.45 and 1.35."""
-    from drake_cfvol.algorithm.certify import _greedy_cut
+    from drake_cfvol.algorithm.certificate.certify import _greedy_cut
 
     L = np.array([[-1.0], [-1.0]])
     U = np.array([[0.5], [1.5]])
@@ -160,7 +160,7 @@ def test_greedy_cut_moves_a_bound_a_few_ulps_wide():
     """A deviation of 8e-5 rad on a bound near 1.4 rad, a sample on it: the
     cut still moves the bound below the sample (it terminates, and the
     sample is out), and nothing else changes."""
-    from drake_cfvol.algorithm.certify import _greedy_cut
+    from drake_cfvol.algorithm.certificate.certify import _greedy_cut
 
     L, U, N = _stretch([0.0, -1.0], [1.39891897 + 8e-5, 1.0], [1.39891897, 0.0])
     x = np.array([[U[0, 0], 0.0]])
@@ -171,7 +171,7 @@ def test_greedy_cut_moves_a_bound_a_few_ulps_wide():
 
 def test_greedy_cut_refuses_a_sample_at_its_nominal():
     """A colliding sample at its own nominal cannot be cut away: -1."""
-    from drake_cfvol.algorithm.certify import _greedy_cut
+    from drake_cfvol.algorithm.certificate.certify import _greedy_cut
 
     L, U, N = _stretch([-1.0, -1.0], [1.0, 1.0], [0.3, 0.3])
     assert _greedy_cut(np.array([[0.3, 0.3]]), np.array([0.5]), L, U, N, 0) == -1
@@ -180,7 +180,7 @@ def test_greedy_cut_refuses_a_sample_at_its_nominal():
 def test_edge_biased_share():
     """With share s, a coordinate lies in the outer tenth with probability
     s + 0.2 (1 - s) (the snapped ones plus uniform ones that land there)."""
-    from drake_cfvol.algorithm.certify import _edge_biased
+    from drake_cfvol.algorithm.certificate.certify import _edge_biased
 
     U = _edge_biased(np.random.default_rng(0), (200000, 2), 0.5)
     outer = ((U < 0.1) | (U > 0.9)).mean()
@@ -214,7 +214,7 @@ def test_certificate_run_keeps_exact_draws_across_cuts(corner):
     itself and cuts during the run. Its samples at the end are N uniform and
     Nc clamp draws, each exactly its own random draws mapped into the final
     (cut) box, inside it, and free by the kernel and by Drake's checker."""
-    from drake_cfvol.algorithm.certify import _Certification, _clamp_q
+    from drake_cfvol.algorithm.certificate.certify import _Certification, _clamp_q
     from drake_cfvol.io.progress import Progress
 
     wc, path = corner
@@ -241,7 +241,7 @@ def test_cache_reuses_exact_inputs_only(corner, tmp_path, monkeypatch):
     """A second identical certification loads the first one's boxes (same
     arrays, report marked cached); another seed computes anew; cache=False
     and DRAKE_CFVOL_CACHE=off never read the cache."""
-    from drake_cfvol.algorithm.certify import cache_dir
+    from drake_cfvol.algorithm.certificate.certify import cache_dir
 
     wc, path = corner
     monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path))
@@ -376,7 +376,7 @@ def test_regrow_gives_back_an_unneeded_cut_and_keeps_the_proof(cell, request):
     Drake's padded checker. Regrow without the proof is refused."""
     import dataclasses
 
-    from drake_cfvol.algorithm.certify import _Certification
+    from drake_cfvol.algorithm.certificate.certify import _Certification
     from drake_cfvol.algorithm.metrics import boundary_check
 
     wc, path = request.getfixturevalue(cell)
@@ -404,7 +404,7 @@ def test_greedy_cut_uses_only_allowed_joints():
     """The by-hand sample (0.9, 0.2) whose colliding pair only joint 1
     reaches: joint 0 (the cheaper cut) may not cut it, so joint 1's upper
     bound goes to just below 0.2 and joint 0 keeps its width."""
-    from drake_cfvol.algorithm.certify import _greedy_cut
+    from drake_cfvol.algorithm.certificate.certify import _greedy_cut
 
     L, U, N = _stretch([-1.0, -1.0], [1.0, 1.0], [0.0, 0.0])
     assert _greedy_cut(np.array([[0.9, 0.2]]), np.array([0.5]), L, U, N, 0, np.array([[False, True]])) == 1
@@ -414,7 +414,7 @@ def test_greedy_cut_uses_only_allowed_joints():
 def test_greedy_cut_falls_back_when_no_allowed_joint_can_cut():
     """A sample off the nominal only in joint 0 while only joint 1 is
     allowed: it is still cut (by joint 0), never left in the box."""
-    from drake_cfvol.algorithm.certify import _greedy_cut
+    from drake_cfvol.algorithm.certificate.certify import _greedy_cut
 
     L, U, N = _stretch([-1.0, -1.0], [1.0, 1.0], [0.0, 0.0])
     assert _greedy_cut(np.array([[0.7, 0.0]]), np.array([0.5]), L, U, N, 0, np.array([[False, True]])) == 1
@@ -425,7 +425,7 @@ def test_clamp_draws_land_where_a_clamp_does():
     """Clamp draws stay in the box; each joint sits at its nominal about half
     the time (not pushed), on a bound about a quarter (pushed past it), and
     strictly inside otherwise; both sides are pushed alike."""
-    from drake_cfvol.algorithm.certify import clamp_draws
+    from drake_cfvol.algorithm.certificate.certify import clamp_draws
 
     rng = np.random.default_rng(7)
     n = 40000

@@ -491,7 +491,7 @@ def test_scenario_certify_asks_for_certified_bounds(monkeypatch):
     with those settings, seeded with the scenario's seed); null, on the
     paper's."""
     import drake_cfvol.comanip.diagram as C
-    from drake_cfvol.algorithm.certify import Certify
+    from drake_cfvol.algorithm.certificate.certify import Certify
 
     asked = []
     real = C.estimate_bounds

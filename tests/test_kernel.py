@@ -472,7 +472,7 @@ def test_the_warm_up_compiles_the_signatures_the_package_calls(automotive, mesh_
     """Every entry point's signature as the package calls it (read-only
     inputs, an optional argument given) is the one the warm-up compiled: a
     fresh cache compiles each once, not again at first use."""
-    from drake_cfvol.algorithm.boundary_regions import regions_may_collide
+    from drake_cfvol.algorithm.certificate.boundary_regions import regions_may_collide
 
     K.warm_up(jobs=1)
     before = _signatures()

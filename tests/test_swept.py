@@ -127,7 +127,7 @@ def test_the_whole_region_test_never_frees_a_colliding_region(cell, request):
     regions anywhere in the joint limits, where the robot often nears
     itself: wherever it calls a region free, Drake's padded checker (self
     pairs included) finds a dense grid over it free. Both verdicts occur."""
-    from drake_cfvol.algorithm.boundary_regions import regions_may_collide
+    from drake_cfvol.algorithm.certificate.boundary_regions import regions_may_collide
 
     if cell == "mesh":
         import drake_cfvol as cf

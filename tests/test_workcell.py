@@ -90,7 +90,7 @@ def test_cache_off_writes_no_cache_anywhere(tmp_path, monkeypatch):
     (its meshes converted into a folder of the process's own), nothing is
     written into ./off or the user's cache folder, and the certificate cache
     is off too."""
-    from drake_cfvol.algorithm.cert_cache import cache_dir as certificate_dir
+    from drake_cfvol.algorithm.certificate.cert_cache import cache_dir as certificate_dir
     from drake_cfvol.scene.meshes import cache_dir as mesh_dir
 
     work, user_cache = tmp_path / "work", tmp_path / "xdg"

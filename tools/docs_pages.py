@@ -59,7 +59,7 @@ ROOTS = [
     ),
     (
         "Certificate settings",
-        "drake_cfvol.algorithm.certify",
+        "drake_cfvol.algorithm.certificate.certify",
         "Certify",
         "`estimate_bounds(..., certify=cf.Certify(...))`, `cfvol bounds --certify`.",
     ),

@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import drake_cfvol as cf  # noqa: E402
 from benchmarks.kernel import samples_in_bounds  # noqa: E402
-from drake_cfvol.algorithm.boundary_regions import _grid, edge_tasks  # noqa: E402
+from drake_cfvol.algorithm.certificate.boundary_regions import _grid, edge_tasks  # noqa: E402
 from drake_cfvol.kernel import batch as Bt  # noqa: E402
 from drake_cfvol.kernel import regions as Rg  # noqa: E402
 from drake_cfvol.kernel.blocks import NB, _fk_scratch, fk_block  # noqa: E402

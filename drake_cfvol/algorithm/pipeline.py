@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from drake_cfvol import kernel as K
-from drake_cfvol.algorithm.certify import CUTS_SHARE, Certify, certified_table, certify_bounds, warm_up_cuts
+from drake_cfvol.algorithm.certificate.certify import CUTS_SHARE, Certify, certified_table, certify_bounds, warm_up_cuts
 from drake_cfvol.algorithm.planning import NominalPath
 from drake_cfvol.algorithm.reference import drake_sweep_bounds
 from drake_cfvol.algorithm.reuse import fingerprint_of

@@ -241,7 +241,7 @@ def run_job(job: Job, threads: int | None = None) -> JobResult:
 
 
 def _run_job(job: Job, threads: int | None) -> JobResult:
-    from drake_cfvol.algorithm.certify import Certify
+    from drake_cfvol.algorithm.certificate.certify import Certify
     from drake_cfvol.algorithm.metrics import confidence_factor, freedom
     from drake_cfvol.algorithm.pipeline import estimate_bounds
     from drake_cfvol.algorithm.planning import plan_nominal_path

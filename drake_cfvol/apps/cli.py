@@ -257,7 +257,7 @@ def _path_and_table(args, wc, label: str, params, bars: bool):
     path = _path_to_bound(args, wc, label, params.clearance)
     certify = None
     if args.certify:
-        from drake_cfvol.algorithm.certify import Certify
+        from drake_cfvol.algorithm.certificate.certify import Certify
 
         given = {
             n: getattr(args, n) for n in ("epsilon", "clamp_epsilon", "confidence") if getattr(args, n) is not None

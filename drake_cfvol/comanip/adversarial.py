@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from drake_cfvol.algorithm.certify import Certify
+from drake_cfvol.algorithm.certificate.certify import Certify
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import plan_nominal_path
 from drake_cfvol.comanip.run import MARGIN_TOLERANCE, run_scenario

@@ -18,7 +18,7 @@ from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import SimulatorConfig
 from pydrake.visualization import VisualizationConfig
 
-from drake_cfvol.algorithm.certify import Certify
+from drake_cfvol.algorithm.certificate.certify import Certify
 from drake_cfvol.comanip.drivers import TORQUE_SENSING_DRIVERS, DriverConfig, FrankaDriver, InverseDynamicsDriver
 from drake_cfvol.comanip.scenario_checks import (
     check_scenario_against_cell,

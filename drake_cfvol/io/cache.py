@@ -1,5 +1,5 @@
 """The user's cache folder, the one place ``$DRAKE_CFVOL_CACHE`` is read:
-certificates (:mod:`drake_cfvol.algorithm.cert_cache`) and converted meshes
+certificates (:mod:`drake_cfvol.algorithm.certificate.cert_cache`) and converted meshes
 and model files (:mod:`drake_cfvol.scene.meshes`) are kept below it.
 """
 

@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from drake_cfvol import kernel as K
-from drake_cfvol.algorithm.boundary import colliding_points, failures
+from drake_cfvol.algorithm.certificate.boundary import colliding_points, failures
 from drake_cfvol.algorithm.heightmap import Volume, height_function
 from drake_cfvol.algorithm.planning import NominalPath
 from drake_cfvol.algorithm.sweep import default_rate, sweep_range, sweep_setup
@@ -527,7 +527,7 @@ class OnlineBounds:
         map and stretch while ``proofs`` (a shared budget) lasts: every edge
         and corner of a linear box holding the live box is proven free of
         the perceived boxes by the kernel's region tests (the boundary
-        proof, :mod:`drake_cfvol.algorithm.boundary`), with the margin."""
+        proof, :mod:`drake_cfvol.algorithm.certificate.boundary`), with the margin."""
         if not len(self._boxes):
             return True
         # Boxes perceived: update set the map and its scene with them.

@@ -2,14 +2,14 @@
 scale one bound's (or a group's) deviation from the nominal at both ends
 of a stretch, or at the nearer one, and keep the cut that loses the least
 log-width (the rate limit's effect on the neighbours counted). See
-:mod:`drake_cfvol.algorithm.boundary`.
+:mod:`drake_cfvol.algorithm.certificate.boundary`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from drake_cfvol.algorithm.boundary_regions import _box, _Item, _test, regions_may_collide
+from drake_cfvol.algorithm.certificate.boundary_regions import _box, _Item, _test, regions_may_collide
 
 __all__ = ["reaching_joints", "cut_point", "cut_slacks"]
 

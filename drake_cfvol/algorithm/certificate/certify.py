@@ -8,7 +8,7 @@ table "linear" (each bound linear in s between its waypoints,
 :func:`drake_cfvol.algorithm.table.box_at`) and adds, for the whole box:
 
 - a *proof* where a clamp lands: every edge and corner of the box at every
-  s is free by the kernel's region tests (:mod:`drake_cfvol.algorithm.boundary`);
+  s is free by the kernel's region tests (:mod:`drake_cfvol.algorithm.certificate.boundary`);
 - a *sampled* guarantee for the faces and the interior: N consecutive
   samples, drawn as the Confidence Factor draws them (s uniform over the
   path, q uniform in the box at s), are all certified free by the compiled
@@ -30,7 +30,7 @@ again, :func:`drake_cfvol.algorithm.table.rate_limited`):
    side at both ends of the stretch, the one that loses the least
    log-width per colliding sample it removes.
 2. Proof of the boundary (edges and corners), cutting where a region may
-   collide (:func:`drake_cfvol.algorithm.boundary.prove_boundary`).
+   collide (:func:`drake_cfvol.algorithm.certificate.boundary.prove_boundary`).
 3. Certificate: N free samples of the whole path uniform in the box at s
    (and Nc where a clamp lands). A colliding sample is cut the same way,
    its stretch is searched again (``focus_samples`` per round until a
@@ -53,8 +53,8 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from drake_cfvol.algorithm.boundary import cut_point, cut_slacks, failures, prove_boundary, reaching_joints
-from drake_cfvol.algorithm.cert_cache import cache_dir, cache_key, cache_load, cache_store
+from drake_cfvol.algorithm.certificate.boundary import cut_point, cut_slacks, failures, prove_boundary, reaching_joints
+from drake_cfvol.algorithm.certificate.cert_cache import cache_dir, cache_key, cache_load, cache_store
 from drake_cfvol.algorithm.metrics import freedom
 from drake_cfvol.algorithm.sweep import stretch_margins
 from drake_cfvol.algorithm.table import rate_limited, within_stretches
@@ -111,7 +111,7 @@ class Certify:
             samples per round (a count, at most N), until a round finds
             nothing (at most ``focus_rounds`` rounds, a count; 0: none).
         boundary: prove every edge and corner of the box at every s
-            (:mod:`drake_cfvol.algorithm.boundary`), where a clamp pushed steadily
+            (:mod:`drake_cfvol.algorithm.certificate.boundary`), where a clamp pushed steadily
             lands (default). False: the sampled certificate only, a little
             faster and a little wider, but a corner may then come nearer
             than the margin, and only the runtime safety filter keeps the

@@ -39,8 +39,8 @@ cuts the waypoint boxes are rate-limited again
 (:func:`drake_cfvol.algorithm.table.rate_limited`), which may tighten neighbours;
 the proof runs until no stretch's box changes.
 
-The regions are :mod:`drake_cfvol.algorithm.boundary_regions`; the cuts
-:mod:`drake_cfvol.algorithm.cuts`.
+The regions are :mod:`drake_cfvol.algorithm.certificate.boundary_regions`; the cuts
+:mod:`drake_cfvol.algorithm.certificate.cuts`.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ import itertools
 
 import numpy as np
 
-from drake_cfvol.algorithm.boundary_regions import (
+from drake_cfvol.algorithm.certificate.boundary_regions import (
     MAX_SPLITS,
     S_SPLITS,
     _box,
@@ -59,7 +59,7 @@ from drake_cfvol.algorithm.boundary_regions import (
     edge_tasks,
     regions_may_collide,
 )
-from drake_cfvol.algorithm.cuts import cut_for, cut_point, cut_slacks, reaching_joints
+from drake_cfvol.algorithm.certificate.cuts import cut_for, cut_point, cut_slacks, reaching_joints
 from drake_cfvol.algorithm.table import rate_limited
 from drake_cfvol.exceptions import ParameterError
 
