@@ -115,6 +115,95 @@ def test_a_large_batch_is_checked_in_a_coherent_order_with_the_same_answers(auto
     assert 0 < whole.sum() < len(Q)
 
 
+def test_the_parallel_loops_answer_as_one_thread_on_the_model_given(automotive, mesh_cell):
+    """The parallel entry points take the model into their loops flattened
+    and rebuilt (kernel.flat_model): the rebuilt model holds the given
+    arrays themselves, and on random regions and paths regions_hit and
+    sweep_chains answer, bit for bit, as their compiled callees do on this
+    thread with the model as given (the batch check: the test above)."""
+    from drake_cfvol.algorithm.sweep import sweep_range, sweep_setup
+    from drake_cfvol.kernel.flat_model import flatten_model, model_from_flat
+    from drake_cfvol.kernel.regions import _region_hits, _region_workspace, sound_joint_bounding
+
+    for wc in (automotive, mesh_cell):
+        arrays = wc.scene_arrays()
+        m = arrays.model
+        back = model_from_flat(flatten_model(m))
+        assert type(back) is K.Model and type(back.chain) is K.Chain
+        for a, b in zip((*m.chain, *m[1:]), (*back.chain, *back[1:]), strict=True):
+            # The same buffer (an empty array shares no memory, but keeps its pointer).
+            assert a.ctypes.data == b.ctypes.data and a.shape == b.shape and a.dtype == b.dtype
+
+        def workspace():
+            B, O = m.chain.parent.shape[0], m.obstacles.shape[0]
+            return K.new_scratch(), _region_workspace(B, k, O, m.shapes, m.verts, m.spheres, m.shape_spheres)
+
+        k = wc.num_joints
+        rng = np.random.default_rng(11)
+        Q = _random_configs(wc, 400, 11)
+        free = Q[~arrays.may_collide(Q, 0.02)]
+        # Regions from free and from random configurations. 32 tasks: regions_hit runs chunks of 4,
+        # each on one workspace, the quick pass tried on every task (QUICK_TRIALS = 8); so does this.
+        n = 32
+        A = np.where(np.arange(n)[:, None] % 2 == 0, free[:n], Q[:n])
+        B = A + rng.normal(0.0, 0.05, A.shape)
+        js = rng.integers(0, k, n)
+        va = A[np.arange(n), js] - rng.uniform(0.0, 0.2, n)
+        vb = A[np.arange(n), js] + rng.uniform(0.0, 0.2, n)
+        nts = rng.integers(2, K.MAX_T_SAMPLES + 1, n)
+        nvs = rng.integers(2, K.MAX_V_SAMPLES + 1, n)
+        pads = rng.uniform(0.0, 0.03, n)
+        hits = K.regions_hit(A, B, js, va, vb, nts, nvs, pads, m)
+        ref = np.zeros(n, bool)
+        for c in range(0, n, 4):
+            sc, rs = workspace()
+            for i in range(c, c + 4):
+                W = np.ascontiguousarray(np.stack([A[i], B[i]]))
+                ts, vs = (0.0, 1.0, nts[i]), (va[i], vb[i], nvs[i])
+                ref[i] = _region_hits(W, 0, js[i], ts, vs, m, K.no_height_field(), sc, rs, pads[i])
+        np.testing.assert_array_equal(hits, ref)
+        assert 0 < hits.sum() < n
+        # The sweep of a short random path from a free configuration, every chain cold.
+        W = np.cumsum(np.vstack([free[-1], rng.normal(0.0, 0.03, (4, k))]), axis=0)
+        lo, hi = np.tile(wc.position_lower, (4, 1)), np.tile(wc.position_upper, (4, 1))
+        setup = sweep_setup(arrays, W, cf.VolumeParams(), lo, hi)
+        field = volume_table(None)
+        bounds, tests, fps = sweep_range(setup, arrays, W, field, 0, 3, np.full(len(setup.chains), np.nan))
+        no_memo, changed = np.zeros((0, K.MEMO_W)), np.zeros((0, 6))
+        for c, (j, sgn) in enumerate(setup.chains):
+            sc, rs = workspace()
+            guess, count = np.nan, 0
+            for i in range(4):
+                rs.fp[:3], rs.fp[3:] = np.inf, -np.inf
+                grid = (setup.nts[i, j], setup.v_steps[j])
+                lims = (setup.lim_lo, setup.lim_hi, setup.delta)
+                guess, run, _ = sound_joint_bounding(
+                    i,
+                    j,
+                    sgn,
+                    guess,
+                    W,
+                    lims,
+                    grid,
+                    m,
+                    K.HeightField(*field),
+                    sc,
+                    rs,
+                    setup.margins[i],
+                    no_memo,
+                    0,
+                    changed,
+                )
+                assert guess == bounds[c, i]
+                # A search that runs no test (its limit inside the nominal's range) has no footprint:
+                # sweep_chains reports the chain's previous one there (numba's parallel loop drops the
+                # reset before it), a box no change of the scene can make matter.
+                if run > 0:
+                    np.testing.assert_array_equal(rs.fp, fps[c, i])
+                count += run
+            assert count == tests[c]
+
+
 def test_sincos_matches_the_library():
     """The kernel's branch-free sine and cosine equal libm's within 3e-16
     over the angles a joint can have, quadrant boundaries included."""

@@ -27,7 +27,8 @@ Modules, by concern: ``types`` (constants and the typed arguments),
 ``kinematics``, ``shapes``, ``gjk``, ``heightfield``, ``checks``
 (configurations), ``blocks`` and ``batch`` (configurations in blocks of
 ``NB``: forward kinematics and the batch check), ``regions`` (region
-tests and the sweep), ``footprints``, ``warmup`` and ``cache_lock`` (numba's
+tests and the sweep), ``flat_model`` (the model into their parallel
+loops), ``footprints``, ``warmup`` and ``cache_lock`` (numba's
 cache kept consistent across processes). Imports nothing of the package.
 
 numba's cache (``cache=True``) invalidates a compiled function when its own

@@ -21,6 +21,7 @@ from numba import njit, prange
 
 from drake_cfvol.kernel.blocks import NB, _fk_scratch, fk_block
 from drake_cfvol.kernel.checks import _pose_padded
+from drake_cfvol.kernel.flat_model import flatten_model, model_from_flat
 from drake_cfvol.kernel.gjk import _gjk_from
 from drake_cfvol.kernel.kinds import box as _box
 from drake_cfvol.kernel.kinds import capsule as _capsule
@@ -42,7 +43,6 @@ from drake_cfvol.kernel.types import (
     SHAPE_W,
     SPHERE,
     Blocks,
-    Chain,
     Model,
 )
 
@@ -470,46 +470,13 @@ def configs_may_collide(
     out = np.zeros(N, np.bool_)
     n_blocks = (N + NB - 1) // NB
     per = max(1, per)
-    # numba passes no tuples of arrays into a parallel loop: the arrays go
-    # in one by one, the tuples are rebuilt inside.
-    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
-    (
-        shapes_,
-        shape_body_,
-        verts_,
-        obstacles_,
-        obstacle_aabb_,
-        body_pairs_,
-        shape_pairs_,
-        movable_,
-        moved_,
-        reach_,
-        curvature_,
-        revolute_,
-        joint_body_,
-        spheres_,
-        shape_spheres_,
-    ) = m[1:]
+    # numba passes no named tuples into a parallel loop: the model goes in
+    # as a plain tuple of its arrays, the blocks' arrays one by one; both
+    # are rebuilt inside.
+    flat = flatten_model(m)
     KR, Kp, balls, ranges, bounds, kind = blk
     for t in prange((n_blocks + per - 1) // per):
-        mm = Model(
-            Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB),
-            shapes_,
-            shape_body_,
-            verts_,
-            obstacles_,
-            obstacle_aabb_,
-            body_pairs_,
-            shape_pairs_,
-            movable_,
-            moved_,
-            reach_,
-            curvature_,
-            revolute_,
-            joint_body_,
-            spheres_,
-            shape_spheres_,
-        )
+        mm = model_from_flat(flat)
         _check_blocks(
             Q, order, t * per, min(n_blocks, (t + 1) * per), mm, Blocks(KR, Kp, balls, ranges, bounds, kind), pad, out
         )

@@ -18,6 +18,7 @@ from drake_cfvol.kernel.cells import (
     _scene_clear_of_box,
     shape_bounds,
 )
+from drake_cfvol.kernel.flat_model import flatten_model, model_from_flat
 from drake_cfvol.kernel.heightfield import new_scratch, no_height_field
 from drake_cfvol.kernel.kinematics import _axis_rotation, fk_into
 from drake_cfvol.kernel.shapes import _aabb_apart, pose_shape_inline, row_aabb_inline, set_motion
@@ -27,7 +28,6 @@ from drake_cfvol.kernel.types import (
     MAX_V_SAMPLES,
     MEMO_W,
     SHAPE_W,
-    Chain,
     HeightField,
     Model,
     RegionScratch,
@@ -531,53 +531,19 @@ def sweep_chains(
     tests = np.zeros(n_chains, np.int64)
     B = m.chain.parent.shape[0]
     k = W.shape[1]
-    # numba passes no tuples of arrays into a parallel loop: the model's
-    # arrays go in one by one, the model is rebuilt inside.
-    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
-    (
-        shapes_,
-        shape_body_,
-        verts_,
-        obstacles_,
-        obstacle_aabb_,
-        body_pairs_,
-        shape_pairs_,
-        movable_,
-        moved_,
-        reach_,
-        curvature_,
-        revolute_,
-        joint_body_,
-        spheres_,
-        shape_spheres_,
-    ) = m[1:]
+    # numba passes no named tuples into a parallel loop: the model goes in
+    # as a plain tuple of its arrays and is rebuilt inside.
+    flat = flatten_model(m)
     lim_lo, lim_hi, delta = lims
     table, ox, oy, side = field
     for n in prange(n_chains):
-        mm = Model(
-            Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB),
-            shapes_,
-            shape_body_,
-            verts_,
-            obstacles_,
-            obstacle_aabb_,
-            body_pairs_,
-            shape_pairs_,
-            movable_,
-            moved_,
-            reach_,
-            curvature_,
-            revolute_,
-            joint_body_,
-            spheres_,
-            shape_spheres_,
-        )
+        mm = model_from_flat(flat)
         fld = HeightField(table, ox, oy, side)
         lm = (lim_lo, lim_hi, delta)
         j = chains[n, 0]
         sgn = chains[n, 1]
         sc = new_scratch()
-        rs = _region_workspace(B, k, obstacles_.shape[0], shapes_, verts_, spheres_, shape_spheres_)
+        rs = _region_workspace(B, k, mm.obstacles.shape[0], mm.shapes, mm.verts, mm.spheres, mm.shape_spheres)
         guess = guesses[n]
         count = 0
         no_memo = np.zeros((0, MEMO_W))
@@ -643,48 +609,14 @@ def regions_hit(
     # threads busy on a boundary proof's ~200 edges (64 left one thread a third idle).
     chunk = min(64, max(4, n_tasks // 8))
     n_chunks = (n_tasks + chunk - 1) // chunk
-    # numba passes no tuples of arrays into a parallel loop: the model's
-    # arrays go in one by one, the model is rebuilt inside.
-    parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB = m.chain
-    (
-        shapes_,
-        shape_body_,
-        verts_,
-        obstacles_,
-        obstacle_aabb_,
-        body_pairs_,
-        shape_pairs_,
-        movable_,
-        moved_,
-        reach_,
-        curvature_,
-        revolute_,
-        joint_body_,
-        spheres_,
-        shape_spheres_,
-    ) = m[1:]
+    # numba passes no named tuples into a parallel loop: the model goes in
+    # as a plain tuple of its arrays and is rebuilt inside.
+    flat = flatten_model(m)
     for c in prange(n_chunks):
-        mm = Model(
-            Chain(parent, jtype, qidx, axis, R_PF, p_PF, R_MB, p_MB),
-            shapes_,
-            shape_body_,
-            verts_,
-            obstacles_,
-            obstacle_aabb_,
-            body_pairs_,
-            shape_pairs_,
-            movable_,
-            moved_,
-            reach_,
-            curvature_,
-            revolute_,
-            joint_body_,
-            spheres_,
-            shape_spheres_,
-        )
+        mm = model_from_flat(flat)
         no_field = no_height_field()
         sc = new_scratch()
-        rs = _region_workspace(B_n, k, obstacles_.shape[0], shapes_, verts_, spheres_, shape_spheres_)
+        rs = _region_workspace(B_n, k, mm.obstacles.shape[0], mm.shapes, mm.verts, mm.spheres, mm.shape_spheres)
         W = np.empty((2, k))
         tried = 0
         decided = 0
