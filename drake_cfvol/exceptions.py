@@ -154,13 +154,19 @@ class OutputPathError(FileError):
 
 
 class ScenarioError(CfvolError, ValueError):
-    """A co-manipulation scenario file or value is invalid."""
+    """A co-manipulation scenario file or value is invalid: the file, the
+    field (None: the file as a whole), what is wrong and the fix, and the
+    field's line in the file where it is known."""
 
-    def __init__(self, file: str | os.PathLike[str], field: str | None, message: str):
+    def __init__(self, file: str | os.PathLike[str], field: str | None, message: str, line: int | None = None):
         self.file = str(file)
         self.field = field
         self.detail = message
-        where = f"{file}: field '{field}'" if field else f"{self.what} '{file}'"
+        self.line = line
+        if line is not None:
+            where = f"{file}, line {line}: " + (f"field '{field}'" if field else f"the {self.what}")
+        else:
+            where = f"{file}: field '{field}'" if field else f"{self.what} '{file}'"
         super().__init__(f"{where} {message}.")
 
     what = "scenario"

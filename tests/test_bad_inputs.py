@@ -177,6 +177,89 @@ def test_a_duplicate_json_key_in_a_saved_path_is_refused(tmp_path, capsys):
     refused(["bounds", "automotive", "--path-file", f], capsys, str(f), "'waypoints' appears twice")
 
 
+#: The one typed-YAML loader (drake_cfvol.io.typed_yaml) behind every command's file:
+#: (reader, the text's line to find, what replaces it, the field named, the fix). The bad line is the
+#: replacement's first line that the original text does not hold.
+TYPED = {
+    "workcell-wrong-type": ("workcell", "  reach: 2.8\n", "  reach: far\n", "cfvol.reach", "must be a number"),
+    "workcell-list-item": (
+        "workcell",
+        "      goal: [-1.134464, 0.610865,",
+        "      goal: [-1.134464, near,",
+        "cfvol.configurations.path1.goal item 2",
+        "must be a number",
+    ),
+    "workcell-misspelled": (
+        "workcell",
+        "  reach: 2.8\n",
+        "  reach: 2.8\n  rail_jiont: x\n",
+        "cfvol.rail_jiont",
+        "check its spelling",
+    ),
+    "workcell-directive": (
+        "workcell",
+        "- add_model:\n    name: cell\n",
+        "- add_modle:\n    name: cell\n",
+        "directives item 3: add_modle",
+        "known fields: add_model,",
+    ),
+    "workcell-inside-drake": (
+        "workcell",
+        "    name: abb\n",
+        "    name: abb\n    flie: x.urdf\n",
+        "directives item 1: add_model.flie",
+        "check its spelling",
+    ),
+    "scenario-wrong-type": ("scenario", "  resolution: 1000\n", "  resolution: fine\n", "bounds.resolution", "integer"),
+    "scenario-list-item": (
+        "scenario",
+        "      wrench: [0, 0, 0, 0, 250, 0]\n",
+        "      wrench: [0, 0, 0, 0, strong, 0]\n",
+        "human.pushes item 1: wrench item 5",
+        "must be a number",
+    ),
+    "scenario-misspelled": (
+        "scenario",
+        "random_seed: 0\n",
+        "random_sed: 0\n",
+        "random_sed",
+        "known fields: random_seed",
+    ),
+    "scenario-inside-drake": (
+        "scenario",
+        "simulation:\n",
+        "simulation:\n  visualization: {default_illustration_color: {rgbb: [1, 0, 0]}}\n",
+        "simulation.visualization.default_illustration_color.rgbb",
+        "check its spelling",
+    ),
+    "jobs-misspelled": ("jobs", "paths: [1]\n", "pathz: [1]\n", "pathz", "known fields: cells, paths"),
+    "jobs-wrong-type": ("jobs", "cells: [automotive]\n", "cells: automotive\n", "cells", "must be a list"),
+}
+
+
+@pytest.mark.parametrize("case", TYPED)
+def test_a_bad_field_is_named_with_its_file_line_and_fix(tmp_path, capsys, case):
+    reader, old, new, field, fix = TYPED[case]
+    text, argv = READERS[reader]
+    assert old in text, old
+    bad = text.replace(old, new, 1)
+    line = next(n for n, (a, b) in enumerate(zip(bad.splitlines(), text.splitlines()), 1) if a != b)
+    f = tmp_path / "file.yaml"
+    f.write_text(bad)
+    refused(argv(f), capsys, f"{f}, line {line}: field '{field}'", fix)
+    assert not (tmp_path / "out").exists()  # nothing written
+
+
+@pytest.mark.parametrize("reader", READERS)
+@pytest.mark.parametrize("text", ["- a list\n- at the top\n", "key: [unclosed\n"])
+def test_a_file_that_is_no_mapping_or_no_yaml_is_refused_at_its_line(tmp_path, capsys, reader, text):
+    f = tmp_path / "file.yaml"
+    f.write_text("# a comment\n" + text)
+    line = 2 if text.startswith("-") else 3  # the list's first item; the end where the bracket is missed
+    says = "must hold a mapping of" if text.startswith("-") else "is not valid YAML"
+    refused(READERS[reader][1](f), capsys, f"{f}, line {line}: ", says)
+
+
 # --- 2. Saved tables and paths: values, and the cell they were made in ---------------------------------
 
 

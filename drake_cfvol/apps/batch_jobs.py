@@ -30,9 +30,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import yaml
 
-from drake_cfvol.exceptions import BatchError, CfvolError, ScenarioError
+from drake_cfvol.exceptions import BatchError, CfvolError
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.io.records import path_label, prepare_outputs
 
@@ -166,28 +165,16 @@ def load_jobs(file: str | Path | None = None, *, text: str | None = None) -> tup
     """Reads a jobs file (or YAML ``text``) over the defaults and checks it:
     unknown fields and values of the wrong type are named with the file,
     the field and the fix (:class:`drake_cfvol.BatchError`)."""
-    from pydrake.common.yaml import yaml_load_typed
-
-    from drake_cfvol.comanip.scenario import check_fields
-    from drake_cfvol.scene.schema import read_yaml, read_yaml_text, yaml_error_line
+    from drake_cfvol.io.typed_yaml import load_typed
 
     where = Path(file) if file is not None else Path("<text>")
-    if file is not None:
-        if not where.is_file():
-            raise BatchError(where, None, "does not exist: pass the path of a jobs YAML file")
-        text = read_yaml_text(where, "jobs", lambda message: BatchError(where, None, message.rstrip(".")))
-    try:
-        raw = read_yaml(text or "")
-    except yaml.YAMLError as e:
-        raise BatchError(where, None, f"cannot be read as YAML ({yaml_error_line(e)})") from None
-    try:
-        check_fields(raw, BatchJobs, "", where)
-    except ScenarioError as e:
-        raise BatchError(e.file, e.field, e.detail) from None
-    try:
-        jobs = yaml_load_typed(schema=BatchJobs, data=text, defaults=BatchJobs())
-    except Exception as e:
-        raise BatchError(where, None, f"is not a valid jobs file: {e}") from None
+    if file is not None and not where.is_file():
+        raise BatchError(where, None, "does not exist: pass the path of a jobs YAML file")
+
+    def error(field: str | None, message: str, line: int | None) -> BatchError:
+        return BatchError(where, field, message, line)
+
+    jobs, _ = load_typed(BatchJobs, where, error, text=None if file is not None else text or "", defaults=BatchJobs())
     _checked_settings(jobs, where)
     return jobs, (where.resolve() if file is not None else None)
 

@@ -1,18 +1,17 @@
-"""Co-manipulation scenarios: the typed file schema in sections (dataclasses
-loaded with ``yaml_load_typed``, the systems' own configs among them), field
-checks that name the file and field, and the bundled scenarios' folder.
+"""Co-manipulation scenarios: the typed file schema in sections (dataclasses,
+the systems' own configs among them, read by the package's typed YAML
+loader, :mod:`drake_cfvol.io.typed_yaml`, whose errors name the file, the
+field and its line), and the bundled scenarios' folder.
 """
 
 import dataclasses
 import inspect
 import re
-import types
 import typing
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 
-import yaml
-from pydrake.common.yaml import yaml_load_typed
 from pydrake.multibody.parsing import ModelDirective
 from pydrake.multibody.plant import MultibodyPlantConfig
 from pydrake.systems.analysis import SimulatorConfig
@@ -27,8 +26,9 @@ from drake_cfvol.comanip.scenario_checks import (
     validate_scenario,
 )
 from drake_cfvol.exceptions import ScenarioError
+from drake_cfvol.io.typed_yaml import ErrorFactory, load_typed
 from drake_cfvol.scene.params import VolumeParams
-from drake_cfvol.scene.schema import CfvolSection, read_yaml, read_yaml_text, yaml_error_line
+from drake_cfvol.scene.schema import CfvolSection
 from drake_cfvol.systems import (
     CoManipulationConfig,
     MovingObstacle,
@@ -41,7 +41,6 @@ from drake_cfvol.systems import (
 )
 
 __all__ = [
-    "check_fields",
     "check_scenario_against_cell",
     "scenario_file_path",
     "InverseDynamicsDriver",
@@ -327,12 +326,13 @@ class Scenario:
         return None if c is None else Certify(**dataclasses.asdict(c), seed=self.random_seed)
 
 
-def _type_name(t) -> str:
-    return {int: "an integer", float: "a number", bool: "true or false", str: "a string"}.get(t, str(t))
-
-
 #: Fields a scenario no longer has, and what took their place.
 RENAMED = {"seed": "random_seed", "human.random_pushes.seed": "random_seed", "bounds.certify.seed": "random_seed"}
+_RENAMED = {
+    old: f"is now '{new}' (one seed for the planner, the certificate and the random pushes, as in Drake's "
+    "hardware_sim); rename it"
+    for old, new in RENAMED.items()
+}
 
 #: The top-level fields of the scenario form before 0.3 (flat), and where
 #: each went in the sections.
@@ -366,6 +366,16 @@ OLD_FIELDS = {
 _OLD_NAMES = {"cell": "cell.name", "path": "path.name", "perception": "perception.mode"}
 
 
+def _errors(file: Path) -> ErrorFactory:
+    """The typed YAML loader's errors for a scenario (or its override text)."""
+    return lambda field, message, line: ScenarioError(file, field, message, line)
+
+
+def _checked_form(file: Path) -> Callable[[dict], None]:
+    """:func:`_check_form` of the file's mapping, for the loader."""
+    return lambda raw: _check_form(raw, file)
+
+
 def _check_form(raw, file) -> None:
     """Refuses a scenario of the form before 0.3 (flat fields) with one
     error naming the first old field, where it went and where to read the
@@ -391,96 +401,6 @@ def _check_form(raw, file) -> None:
             f"is a field of the scenario form before drake_cfvol 0.3; it is now "
             f"'{new}'. CHANGELOG.md lists where every field of the old form went",
         )
-
-
-def _is_number(value) -> bool:
-    """A YAML number, or text Drake's reader takes as one (PyYAML reads
-    ``1.0e6`` as text; Drake reads it as a float)."""
-    if isinstance(value, bool):
-        return False
-    if isinstance(value, (int, float)):
-        return True
-    if not isinstance(value, str):
-        return False  # None, a list, a mapping
-    try:
-        float(value)
-        return True
-    except ValueError:
-        return False
-
-
-def _check_scalar(value, t, name, file) -> None:
-    ok = (
-        isinstance(value, bool)
-        if t is bool
-        else isinstance(value, int) and not isinstance(value, bool)
-        if t is int
-        else _is_number(value)
-        if t is float
-        else isinstance(value, str)
-    )
-    if not ok:
-        raise ScenarioError(file, name, f"must be {_type_name(t)}, got {value!r}")
-
-
-def _check_value(value, t, name: str, file: Path) -> None:
-    """Checks one value against its type: dataclasses field by field, list
-    items by their position (counted from 1), Drake's config structs by
-    their field names, scalars by type."""
-    origin = typing.get_origin(t)
-    if origin in (typing.Union, types.UnionType):
-        args = [a for a in typing.get_args(t) if a is not type(None)]
-        if value is not None and len(args) == 1:
-            _check_value(value, args[0], name, file)
-        return  # None, or a tagged variant: Drake's reader checks it
-    if dataclasses.is_dataclass(t):
-        check_fields(value, t, name, file)
-    elif origin is list:
-        if not isinstance(value, list):
-            raise ScenarioError(file, name, f"must be a list, got {value!r}")
-        (item,) = typing.get_args(t)
-        for i, v in enumerate(value, 1):
-            _check_value(v, item, f"{name} item {i}", file)
-    elif origin is dict:
-        if not isinstance(value, dict):
-            raise ScenarioError(file, name, f"must be a mapping, got {value!r}")
-        for key, v in value.items():
-            _check_value(v, typing.get_args(t)[1], f"{name}.{key}", file)
-    elif hasattr(t, "__fields__"):  # a Drake config struct (SimulatorConfig, ModelDirective, ...)
-        known = [f.name for f in t.__fields__]
-        if not isinstance(value, dict):
-            raise ScenarioError(file, name, f"must be a mapping of {t.__name__} fields, got {value!r}")
-        for sub in value:
-            if sub not in known:
-                raise ScenarioError(
-                    file, f"{name}.{sub}", f"is not a field of {t.__name__}; known fields: {', '.join(known)}"
-                )
-    elif t in (int, float, bool, str):
-        _check_scalar(value, t, name, file)
-
-
-def check_fields(raw, schema, where: str, file: Path) -> None:
-    """Checks a scenario mapping against its dataclass before Drake reads
-    it: unknown or renamed keys and values of the wrong type are named with
-    the file, the field (list items by position, counted from 1) and the fix."""
-    if raw is None:
-        return
-    if not isinstance(raw, dict):
-        raise ScenarioError(file, where or "the file", f"must be a mapping of fields, got {raw!r}")
-    fields = {f.name: f for f in dataclasses.fields(schema)}
-    hints = typing.get_type_hints(schema)
-    for key, value in raw.items():
-        name = f"{where}{': ' if re.search(r'item [0-9]+$', where) else '.'}{key}" if where else str(key)
-        if key not in fields:
-            if name in RENAMED:
-                raise ScenarioError(
-                    file,
-                    name,
-                    f"is now '{RENAMED[name]}' (one seed for the planner, the "
-                    "certificate and the random pushes, as in Drake's hardware_sim); rename it",
-                )
-            raise ScenarioError(file, name, f"is not a field of {schema.__name__}; known fields: {', '.join(fields)}")
-        _check_value(value, hints[key], name, file)
 
 
 def load_scenario(
@@ -517,29 +437,18 @@ def load_scenario(
             raise ScenarioError(
                 name_or_path, None, f"{what}. Bundled: {', '.join(known)}; or pass the path of a scenario YAML file"
             )
-    text = read_yaml_text(p, "scenario", lambda message: ScenarioError(p, None, message.rstrip(".")))
-    try:
-        raw = read_yaml(text)
-    except yaml.YAMLError as e:
-        raise ScenarioError(p, None, f"cannot be read as YAML ({yaml_error_line(e)})") from None
-    _check_form(raw, p)
-    check_fields(raw, Scenario, "", p)
-    try:
-        scenario = yaml_load_typed(schema=Scenario, data=text, defaults=Scenario())
-    except Exception as e:
-        raise ScenarioError(p, None, f"not a valid scenario: {e}") from None
+    scenario, _ = load_typed(Scenario, p, _errors(p), defaults=Scenario(), check_raw=_checked_form(p), renamed=_RENAMED)
     if scenario_text:
         where = Path("--scenario-text")
-        try:
-            extra = read_yaml(scenario_text)
-        except yaml.YAMLError as e:
-            raise ScenarioError(where, None, f"cannot be read as YAML ({yaml_error_line(e)})") from None
-        _check_form(extra, where)
-        check_fields(extra, Scenario, "", where)
-        try:
-            scenario = yaml_load_typed(schema=Scenario, data=scenario_text, defaults=scenario)
-        except Exception as e:
-            raise ScenarioError(where, None, f"not a valid scenario override: {e}") from None
+        scenario, _ = load_typed(
+            Scenario,
+            where,
+            _errors(where),
+            text=scenario_text,
+            defaults=scenario,
+            check_raw=_checked_form(where),
+            renamed=_RENAMED,
+        )
     for key, value in (overrides or {}).items():
         scenario = _replace(scenario, key.split("."), value, p, key)
     validate_scenario(scenario, p.resolve())

@@ -13,8 +13,9 @@ from pydrake.multibody.parsing import ModelDirectives, ProcessModelDirectives
 from pydrake.planning import RobotDiagramBuilder
 
 from drake_cfvol.exceptions import WorkcellFormatError
+from drake_cfvol.io.typed_yaml import read_yaml, read_yaml_text, yaml_error_line
 from drake_cfvol.scene import meshes as _meshes
-from drake_cfvol.scene.schema import models_dir, read_yaml, read_yaml_text, yaml_error_line
+from drake_cfvol.scene.schema import models_dir
 from drake_cfvol.scene.urdf import condensed_drake_warnings, fix_urdf_quirks
 
 __all__ = ["add_packages", "diagram_from_directives", "prepare_directives"]
