@@ -38,19 +38,19 @@ def test_run_inside_bounds_and_free(run):
     name, out, summary = run
     logs = np.load(out / "logs.npz")
     q, lo, hi = logs["commanded_position"], logs["lower"], logs["upper"]
-    assert len(q) == summary["steps"] > 100
+    assert len(q) == summary.steps > 100
     # Inside to rounding: the filter's state was set against the bounds one
     # period ahead, looked up at a path index rounded differently.
     assert np.all(q >= lo - 1e-12) and np.all(q <= hi + 1e-12)
-    wc = cf.load_workcell(summary["cell"])
+    wc = cf.load_workcell(summary.cell)
     q_update = logs["update_commanded_position"]
     free = np.array(wc.checker.CheckConfigsCollisionFree(q_update), bool)
     assert free.all(), f"{(~free).sum()} steps collide at the update rate"
-    assert summary["collisions"] == 0 and summary["max_bound_violation"] <= 1e-12
+    assert summary.collisions == 0 and summary.max_bound_violation <= 1e-12
     # The human really moved the robot off the nominal (Drake-independent:
     # the logged command against the logged nominal).
     assert np.abs(q - logs["nominal"]).max() > 0.2
-    assert summary["filter_fallbacks"] == 0 and summary["faults"] == 0
+    assert summary.filter_fallbacks == 0 and summary.faults == 0
 
 
 def test_run_within_velocity_limits(run):
@@ -60,14 +60,14 @@ def test_run_within_velocity_limits(run):
     name, out, summary = run
     logs = np.load(out / "logs.npz")
     t, q = logs["update_commanded_position_t"], logs["update_commanded_position"]
-    wc = cf.load_workcell(summary["cell"])
+    wc = cf.load_workcell(summary.cell)
     np.testing.assert_allclose(np.diff(t), 0.01)  # every update
     ratio = (np.abs(np.diff(q, axis=0)) / 0.01 / wc.velocity_limits).max()
-    assert ratio == pytest.approx(summary["max_velocity_ratio"]) and ratio <= 1.0
+    assert ratio == pytest.approx(summary.max_velocity_ratio) and ratio <= 1.0
     scenario, _ = load_scenario(name)
-    assert summary["path_duration_s"] >= scenario.path.duration - 1e-9
-    assert summary["duration_s"] == pytest.approx(
-        scenario.control.path_progress.start_time + summary["path_duration_s"] + scenario.path.end_hold
+    assert summary.path_duration_s >= scenario.path.duration - 1e-9
+    assert summary.duration_s == pytest.approx(
+        scenario.control.path_progress.start_time + summary.path_duration_s + scenario.path.end_hold
     )
 
 
@@ -80,17 +80,17 @@ def test_run_reports_volume_and_clearance(run):
 
     name, out, summary = run
     logs = np.load(out / "logs.npz")
-    wc = cf.load_workcell(summary["cell"])
+    wc = cf.load_workcell(summary.cell)
     scenario, file = load_scenario(name, scenario_text=FAST)
     cm = build_comanipulation_diagram(scenario, base_dir=file.parent)
     hits = ReferenceScene(wc, cm.bounds.volume.volume).volume_hits(logs["commanded_position"])
-    assert summary["volume_penetrations"] >= int(hits.sum())
+    assert summary.volume_penetrations >= int(hits.sum())
     # The clearance, recounted by the workcell's own Drake scene at every
     # update (not the diagram's monitor that the summary read).
     recount = min(
         min(wc.obstacle_distances(q, 2.0, changeable_only=True).values()) for q in logs["update_commanded_position"]
     )
-    assert summary["min_clearance_m"] == pytest.approx(recount, abs=1e-9)
+    assert summary.min_clearance_m == pytest.approx(recount, abs=1e-9)
 
 
 def test_filter_count_matches_what_it_changed(run):
@@ -107,7 +107,7 @@ def test_filter_count_matches_what_it_changed(run):
     steps = np.diff(logs["update_filter_count"][:, 0], prepend=0.0)
     assert set(np.unique(steps)) <= {0.0, 1.0}
     acted = np.flatnonzero(steps > 0)
-    assert len(acted) == summary["filter_steps"]
+    assert len(acted) == summary.filter_steps
     np.testing.assert_array_equal(acted, np.flatnonzero(changed))
 
 
@@ -116,16 +116,16 @@ def test_outputs_written(run):
     run asked for none writes none (logs and summary only)."""
     name, out, summary = run
     if name != RECORDED:
-        assert summary["recording_html"] is summary["plot_png"] is summary["diagram_dot"] is None
+        assert summary.recording_html is summary.plot_png is summary.diagram_dot is None
         assert sorted(p.name for p in out.iterdir()) == ["logs.npz", "summary.json"]
         return
-    html = Path(summary["recording_html"]).read_text()
+    html = Path(summary.recording_html).read_text()
     assert "<script" in html and not re.search(r"<script[^>]+src=", html)
     assert not re.search(r"<link[^>]+stylesheet", html)
     # (three.js's inlined code mentions URLs in strings; no tag loads one.)
     assert not re.search(r"<(script|link|img|iframe)[^>]+(src|href)=\"https?://", html)
-    assert Path(summary["plot_png"]).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert "admittance" in Path(summary["diagram_dot"]).read_text()
+    assert Path(summary.plot_png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "admittance" in Path(summary.diagram_dot).read_text()
 
 
 def test_the_filter_warm_up_compiles_what_a_run_uses(run):
@@ -211,7 +211,7 @@ def test_recording_renders_in_headless_chromium(run):
         "--window-size=400,300",
         "--virtual-time-budget=1000",
         f"--screenshot={shot}",
-        Path(summary["recording_html"]).as_uri(),
+        Path(summary.recording_html).as_uri(),
     ]
     assert _screenshot(cmd, shot), f"headless Chromium wrote no screenshot in 3 tries: {' '.join(cmd)}"
     from matplotlib.image import imread
@@ -457,15 +457,16 @@ def test_every_bundled_scenario_runs_safely(name, tmp_path):
     (Drake, recounted), joint speeds within the limits, the summary's keys
     reported; the co-worker really moves the robot."""
     s = run_scenario(name, tmp_path, record=False, plot=False, svg=False, scenario_text=FAST)
-    assert all(k in s and s[k] is not None for k in _KEYS)
+    d = s.to_dict()  # the keys summary.json holds
+    assert all(k in d and d[k] is not None for k in _KEYS)
     logs = np.load(tmp_path / "logs.npz")
     q, lo, hi = logs["commanded_position"], logs["lower"], logs["upper"]
     assert np.all(q >= lo - 1e-12) and np.all(q <= hi + 1e-12)
-    wc = cf.load_workcell(s["cell"])
+    wc = cf.load_workcell(s.cell)
     q = logs["update_commanded_position"]
     assert np.array(wc.checker.CheckConfigsCollisionFree(q), bool).all()
     assert (np.abs(np.diff(q, axis=0)) / 0.01 / wc.velocity_limits).max() <= 1.0
-    assert s["max_deviation"] > 0.05 and np.abs(logs["human_torque"]).max() > 0
+    assert s.max_deviation > 0.05 and np.abs(logs["human_torque"]).max() > 0
 
 
 def test_push_toward_nearest_obstacle_points_at_it():
@@ -522,12 +523,12 @@ def test_certified_scenarios_run_safely_with_the_filter(name, tmp_path):
     scenario, _ = load_scenario(name)
     assert scenario.bounds.certify is not None and scenario.control.safety_filter is not None
     s = run_scenario(name, tmp_path, record=False, plot=False, svg=False)
-    assert s["collisions"] == 0 and s["filter_fallbacks"] == 0 and s["filter_damper_misses"] == 0
-    assert s["max_velocity_ratio"] <= 1.0
+    assert s.collisions == 0 and s.filter_fallbacks == 0 and s.filter_damper_misses == 0
+    assert s.max_velocity_ratio <= 1.0
     logs = np.load(tmp_path / "logs.npz")
     q = logs["commanded_position"]
     assert np.all(q >= logs["lower"] - 1e-12) and np.all(q <= logs["upper"] + 1e-12)
-    wc = cf.load_workcell(s["cell"])
+    wc = cf.load_workcell(s.cell)
     assert np.array(wc.checker.CheckConfigsCollisionFree(logs["update_commanded_position"]), bool).all()
 
 
@@ -555,7 +556,7 @@ def test_sensor_faults_are_held_and_reported(tmp_path, monkeypatch):
             "{start: 3.0, duration: 0.2, wrench: [0, 0, 0, 0, .inf, 0]}]}}"
         ),
     )
-    assert s["faults"] == 100 and s["collisions"] == 0
+    assert s.faults == 100 and s.collisions == 0
     logs = np.load(tmp_path / "logs.npz")
     assert np.isfinite(logs["update_commanded_position"]).all()
     t, fault = logs["fault_t"], logs["fault"][:, 0]
@@ -583,7 +584,7 @@ def test_steady_push_into_an_obstacle_keeps_the_margin(tmp_path):
     clearance = np.array([min(wc.obstacle_distances(x, 2.0, moving_only=True).values(), default=2.0) for x in q])
     assert clearance.min() >= 0.02 - 0.002
     assert (np.abs(np.diff(q, axis=0)) / 0.01 / wc.velocity_limits).max() <= 1.0
-    assert s["max_deviation"] > 0.1 and s["filter_steps"] > 0
+    assert s.max_deviation > 0.1 and s.filter_steps > 0
 
 
 @pytest.mark.slow  # four adversarial runs: about 40 s
@@ -605,23 +606,76 @@ def test_steady_corner_pushes_keep_the_margin():
     assert off[0]["drake_colliding_updates"] > 0
 
 
-def test_run_problems_name_what_went_wrong():
+def test_run_problems_name_what_went_wrong(run):
     """A run is unsafe when it collided, came nearer than min(margin, the
     nominal's own) - 2 mm, or exceeded a velocity limit; otherwise nothing."""
+    import dataclasses
+
     from drake_cfvol.comanip import run_problems
 
-    ok = {
-        "collisions": 0,
-        "clearance_m": 0.02,
-        "nominal_min_clearance_m": 0.05,
-        "min_clearance_m": 0.0185,
-        "max_velocity_ratio": 1.0,
-    }
+    ok = dataclasses.replace(
+        run[2],
+        collisions=0,
+        clearance_m=0.02,
+        nominal_min_clearance_m=0.05,
+        min_clearance_m=0.0185,
+        max_velocity_ratio=1.0,
+        max_acceleration_ratio=0.0,
+        max_jerk_ratio=0.0,
+        max_bound_violation=0.0,
+        filter_fault=None,
+    )
     assert run_problems(ok) == []
-    assert run_problems({**ok, "nominal_min_clearance_m": 0.01, "min_clearance_m": 0.0085}) == []
-    assert "collided" in run_problems({**ok, "collisions": 3})[0]
-    assert "below the margin" in run_problems({**ok, "min_clearance_m": 0.0175})[0]
-    assert "velocity limit" in run_problems({**ok, "max_velocity_ratio": 1.01})[0]
+    assert run_problems(dataclasses.replace(ok, nominal_min_clearance_m=0.01, min_clearance_m=0.0085)) == []
+    assert "collided" in run_problems(dataclasses.replace(ok, collisions=3))[0]
+    assert "below the margin" in run_problems(dataclasses.replace(ok, min_clearance_m=0.0175))[0]
+    assert "velocity limit" in run_problems(dataclasses.replace(ok, max_velocity_ratio=1.01))[0]
+
+
+#: The keys of a kinematic run's summary.json with fixed bounds, as tests, tools and users read them
+#: (recorded from the dict the summary was before it was typed).
+SUMMARY_KEYS = (
+    "scenario cell path resolution g steps duration_s path_duration_s sim_wall_s min_clearance_m "
+    "max_velocity_ratio max_acceleration_ratio max_jerk_ratio volume_penetrations collisions max_bound_violation "
+    "live_box_excess_max live_box_catchup_s filter_steps filter_fallbacks filter_damper_misses braking_faults "
+    "filter_box_exits filter_holds tracking_faults faults filter_fault ended_s safety_filter filter_clearance_m "
+    "max_deviation n_boxes volume_boxes_in_scene bounds_time_ms build_ms recording_html plot_png diagram_svg "
+    "diagram_dot notices clearance_m nominal_min_clearance_m dynamic problems"
+).split()
+
+
+def test_the_summary_is_typed_and_its_json_written_from_it(run):
+    """run_scenario returns a RunSummary, every field described in its
+    docstring; summary.json is its to_dict, with the keys it always had in
+    their order (the online and tracking figures flat among them only where
+    the run has them), each field's value as the attribute holds it."""
+    import dataclasses
+    import importlib.util
+    import json
+
+    from drake_cfvol.comanip import OnlineFigures, RunSummary, TrackingFigures
+
+    name, out, summary = run
+    assert isinstance(summary, RunSummary) and summary.online is None and summary.tracking is None
+    written = json.loads((out / "summary.json").read_text())
+    assert list(written) == SUMMARY_KEYS
+    assert written == json.loads(json.dumps(summary.to_dict()))
+    for f in dataclasses.fields(RunSummary):
+        if f.name not in ("online", "tracking"):
+            assert written[f.name] == json.loads(json.dumps(getattr(summary, f.name))), f.name
+    assert written["dynamic"] is False and written["cell"] == summary.cell == name.split("_")[0]
+    online = OnlineFigures("truth", 3, 1.5, 2.5, 3, None, 1.0, ["cart"], 0)
+    tracking = TrackingFigures(0.001, 0.01, 0.002)
+    both = dataclasses.replace(summary, online=online, tracking=tracking, volume_penetrations=None).to_dict()
+    at = SUMMARY_KEYS.index("dynamic")
+    extra = [f.name for f in dataclasses.fields(OnlineFigures)]
+    track = [f.name for f in dataclasses.fields(TrackingFigures)]
+    assert list(both) == SUMMARY_KEYS[:at] + extra + ["dynamic"] + track + ["problems"]
+    assert both["dynamic"] is True and both["bounds_latency_s"] is None and both["tracking_error_max"] == 0.01
+    spec = importlib.util.spec_from_file_location("docs_pages", Path(__file__).parents[1] / "tools" / "docs_pages.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    assert tool.undocumented([RunSummary, OnlineFigures, TrackingFigures]) == []
 
 
 #: A trolley that is not in the repository, rolled next to path 1's start
@@ -643,11 +697,11 @@ def test_moving_obstacle_run_meets_its_targets(tmp_path):
     summary = run_scenario(
         "automotive_moving_obstacle", tmp_path, scenario_text=TROLLEY, record=False, plot=False, svg=False
     )
-    assert summary["moving_obstacles"] == ["trolley"] and summary["perception"] == "camera"
-    assert summary["collisions"] == 0 and summary["problems"] == []
-    assert summary["min_clearance_m"] >= summary["clearance_m"] - 0.002
-    assert summary["bounds_latency_s"] <= 0.2 and summary["bounds_updates"] > 10
-    assert summary["freedom_end_ratio"] > 0.999
+    assert summary.online.moving_obstacles == ["trolley"] and summary.online.perception == "camera"
+    assert summary.collisions == 0 and summary.problems == []
+    assert summary.min_clearance_m >= summary.clearance_m - 0.002
+    assert summary.online.bounds_latency_s <= 0.2 and summary.online.bounds_updates > 10
+    assert summary.online.freedom_end_ratio > 0.999
     scenario, _ = load_scenario("automotive_moving_obstacle", scenario_text=TROLLEY)
     ob = scenario.cell.moving_obstacles[0]
     logs = np.load(tmp_path / "logs.npz")
@@ -656,7 +710,7 @@ def test_moving_obstacle_run_meets_its_targets(tmp_path):
     near = []
     for tk, qk in zip(t, q):
         alone = arrays.with_boxes(ob.position(tk)[None], np.asarray(ob.box)[None])
-        near.append(bool(alone.may_collide(qk[None], summary["clearance_m"] - 0.005)[0]))
+        near.append(bool(alone.may_collide(qk[None], summary.clearance_m - 0.005)[0]))
     assert not any(near), f"{sum(near)} updates nearer than the margin to the trolley (kernel)"
 
 
@@ -673,8 +727,8 @@ def test_truth_perception_run_keeps_the_margin(tmp_path):
         plot=False,
         svg=False,
     )
-    assert summary["perception"] == "truth" and summary["collisions"] == 0 and summary["problems"] == []
-    assert summary["min_clearance_m"] >= summary["clearance_m"] - 0.002 and summary["bounds_latency_s"] <= 0.2
+    assert summary.online.perception == "truth" and summary.collisions == 0 and summary.problems == []
+    assert summary.min_clearance_m >= summary.clearance_m - 0.002 and summary.online.bounds_latency_s <= 0.2
 
 
 #: A cart that rolls onto the robot's base (its centre at the base's axis at 4 s) and parks there.
@@ -694,15 +748,15 @@ def test_an_obstacle_parked_over_the_robot_ends_the_run_with_the_filter_fault(tm
     summary = run_scenario(
         "automotive_moving_obstacle", tmp_path, scenario_text=PARKED_OVER_THE_BASE, record=False, plot=False, svg=False
     )
-    assert summary["perception"] == "camera"
-    assert summary["filter_fault"] in ("too_many_rows", "perceived_overlap")
-    assert 0 < summary["ended_s"] < 4.0
-    assert any("safety filter faulted" in p for p in summary["problems"])
-    assert summary["collisions"] == 0
-    assert summary["sim_wall_s"] < 240.0
+    assert summary.online.perception == "camera"
+    assert summary.filter_fault in ("too_many_rows", "perceived_overlap")
+    assert 0 < summary.ended_s < 4.0
+    assert any("safety filter faulted" in p for p in summary.problems)
+    assert summary.collisions == 0
+    assert summary.sim_wall_s < 240.0
     logs = np.load(tmp_path / "logs.npz")
     t, q = logs["update_commanded_position_t"], logs["update_commanded_position"]
-    assert t[-1] == pytest.approx(summary["ended_s"])  # the run ended at the fault
+    assert t[-1] == pytest.approx(summary.ended_s)  # the run ended at the fault
     fault_t, fault = logs["filter_fault_t"], logs["filter_fault"][:, 0]
-    held = t >= fault_t[np.argmax(fault > 0)] - 1e-9 if (fault > 0).any() else t >= summary["ended_s"] - 1e-9
+    held = t >= fault_t[np.argmax(fault > 0)] - 1e-9 if (fault > 0).any() else t >= summary.ended_s - 1e-9
     assert np.ptp(q[held], axis=0).max() == 0.0  # the last command held

@@ -45,10 +45,10 @@ def test_dynamic_automotive_push_keeps_the_margin_on_the_measured_robot(tmp_path
         svg=False,
         scenario_text="{simulation: {plant_config: {time_step: 0.001}}, bounds: {certify: null}}",
     )
-    assert s["dynamic"] and s["collisions"] == 0 and s["problems"] == []
-    assert s["min_clearance_m"] >= s["clearance_m"] - 0.002
-    assert 1e-4 < s["tracking_error_max"] < 0.05
-    assert s["max_deviation"] > 0.1
+    assert s.dynamic and s.collisions == 0 and s.problems == []
+    assert s.min_clearance_m >= s.clearance_m - 0.002
+    assert 1e-4 < s.tracking.tracking_error_max < 0.05
+    assert s.max_deviation > 0.1
     logs = np.load(tmp_path / "logs.npz")
     q = logs["update_measured_position"]
     assert np.abs(q[-1] - logs["nominal"][-1]).max() < 2e-3

@@ -375,12 +375,12 @@ def test_franka_lcm_push_run_sends_only_commands_within_franka_limits(tmp_path, 
 
     monkeypatch.setattr(diagram, "DrakeLcm", recording_lcm)
     s = run_scenario("franka_lcm", tmp_path, record=False, plot=False, svg=False)
-    assert len(buses) == 1 and s["dynamic"]
-    assert s["collisions"] == 0 and s["problems"] == []
+    assert len(buses) == 1 and s.dynamic
+    assert s.collisions == 0 and s.problems == []
     ratios = _limit_ratios(_commanded_velocity(commands, "position"))
     assert all(r <= 1 + 1e-6 for r in ratios.values()), ratios
-    assert commands[-1].utime * 1e-6 >= s["ended_s"] - 2 * FRANKA_PERIOD  # every tick of the run
+    assert commands[-1].utime * 1e-6 >= s.ended_s - 2 * FRANKA_PERIOD  # every tick of the run
     logs = np.load(tmp_path / "logs.npz")
     t, tau = logs["human_torque_t"], logs["human_torque"]
     assert np.abs(tau[(t > 1.2) & (t < 2.5)]).max() > 5.0  # N m, felt by the arm's torque sensing
-    assert s["max_deviation"] > 0.01
+    assert s.max_deviation > 0.01

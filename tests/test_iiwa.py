@@ -70,13 +70,13 @@ def test_cobot_push_runs_under_the_iiwa_driver(tmp_path):
     collisions: the hand's pushes reach the admittance only through the
     driver's external-torque estimate, deform the motion, and the path ends."""
     s = run_scenario("cobot_push", tmp_path, record=False, plot=False, svg=False)
-    assert s["dynamic"] and s["collisions"] == 0 and s["problems"] == []
+    assert s.dynamic and s.collisions == 0 and s.problems == []
     logs = np.load(tmp_path / "logs.npz")
     t, tau = logs["human_torque_t"], logs["human_torque"]
     pushing = (t > 1.2) & (t < 2.5)
     assert np.abs(tau[pushing]).max() > 5.0  # N m, felt by the arm's torque sensing
     assert np.abs(tau[t < 0.9]).max() == 0.0  # nothing before the first push
-    assert s["max_deviation"] > 0.02
+    assert s.max_deviation > 0.02
     assert np.abs(logs["update_measured_position"][-1] - logs["nominal"][-1]).max() < 0.01
 
 

@@ -408,11 +408,11 @@ def cmd_simulate(args) -> int:
         if created and out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # a failed run leaves no empty folder behind
         raise
-    for note in summary.get("notices", []):
+    for note in summary.notices:
         print(f"cfvol: note: {note}", file=sys.stderr)
-    _emit(summary, args.json)
-    if summary.get("problems"):
-        print(f"cfvol: unsafe run: {'; '.join(summary['problems'])}.", file=sys.stderr)
+    _emit(summary.to_dict(), args.json)
+    if summary.problems:
+        print(f"cfvol: unsafe run: {'; '.join(summary.problems)}.", file=sys.stderr)
         return 1
     return 0
 

@@ -108,14 +108,15 @@ def run_demo(*, out_dir: Path, seed: int = 0, quick: bool = False, resolution: i
             progress=True,
             overwrite=True,  # the demo's folder is its own: each demo replaces the last
         )
-        print(f"   {s['steps']} logged steps over {s['duration_s']:.1f} s (simulated in {s['sim_wall_s']:.2f} s)")
+        print(f"   {s.steps} logged steps over {s.duration_s:.1f} s (simulated in {s.sim_wall_s:.2f} s)")
+        low = "-" if s.min_clearance_m is None else f"{s.min_clearance_m * 100:.1f} cm"  # None: no update logged
         print(
-            f"   min clearance {s['min_clearance_m'] * 100:.1f} cm, collisions {s['collisions']}, "
-            f"bound violation {s['max_bound_violation']:.1e}, safety filter acted on {s['filter_steps']} updates"
+            f"   min clearance {low}, collisions {s.collisions}, "
+            f"bound violation {s.max_bound_violation:.1e}, safety filter acted on {s.filter_steps} updates"
         )
-        for note in s.get("notices", []):
+        for note in s.notices:
             print(f"cfvol: note: {note}", file=sys.stderr)
-        summary = {"cf_percent": cf.percent, "freedom": fr.mean, "bounds_time_ms": t["total"], "run": s}
+        summary = {"cf_percent": cf.percent, "freedom": fr.mean, "bounds_time_ms": t["total"], "run": s.to_dict()}
         (out_dir / "demo_summary.json").write_text(json.dumps(summary, indent=1))
     print(f"\nEverything is in {out_dir.resolve()}:")
     for f in sorted(out_dir.iterdir()):

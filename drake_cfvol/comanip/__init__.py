@@ -40,6 +40,7 @@ from drake_cfvol.comanip.diagram import (
 )
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
 from drake_cfvol.comanip.run import MARGIN_TOLERANCE, run_problems, run_scenario, update_rate_figures
+from drake_cfvol.comanip.run_summary import OnlineFigures, RunSummary, TrackingFigures
 from drake_cfvol.comanip.scenario import (
     BoundsConfig,
     CellConfig,
@@ -79,6 +80,9 @@ __all__ = [
     "UPDATE_RATE_LOGS",
     "MAX_PROXIMITY_BOXES",
     "run_scenario",
+    "RunSummary",
+    "OnlineFigures",
+    "TrackingFigures",
     "run_problems",
     "update_rate_figures",
     "MARGIN_TOLERANCE",

@@ -177,7 +177,7 @@ def steady_push_runs(
                 overwrite=True,
             )
             logs = np.load(Path(tmp) / "logs.npz")
-            margin = s["filter_clearance_m"] if s["filter_clearance_m"] is not None else margin_default
+            margin = s.filter_clearance_m if s.filter_clearance_m is not None else margin_default
             row = {
                 "cell": cell,
                 "seed": seed,
@@ -187,7 +187,7 @@ def steady_push_runs(
                 "safety_filter": bool(safety_filter),
                 "certify": bool(certify),
                 "margin_m": margin,
-                **{key: s.get(key, 0) for key in _SUMMARY_KEYS},
+                **{key: getattr(s, key) for key in _SUMMARY_KEYS},
                 **_recount(wc, path, bounds, scenario, s, logs, margin, nominal_clearance),
             }
             rows.append(row)
@@ -223,7 +223,7 @@ def _recount(wc, path, bounds, scenario, summary, logs, margin, nominal_clearanc
     q = logs["update_commanded_position"]
     dist = logs["update_min_distance"][:, 0]
     # The path index at each update, as PathProgress has it.
-    rate = (path.g - 1) / summary["path_duration_s"] if summary["path_duration_s"] > 0 else np.inf
+    rate = (path.g - 1) / summary.path_duration_s if summary.path_duration_s > 0 else np.inf
     s_at = np.clip((t - scenario.control.path_progress.start_time) * rate, 0.0, path.g - 1.0)
     s_at = np.round(s_at, 9)
     q_nom = bounds.boxes_at(s_at)[2] if len(t) else np.empty_like(q)

@@ -2,6 +2,7 @@
 run's problems (collision, margin, velocity).
 """
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -17,6 +18,7 @@ from drake_cfvol.algorithm.table import BoundsTable
 from drake_cfvol.comanip.diagram import CoManipulation, build_comanipulation_diagram
 from drake_cfvol.comanip.online import online_figures, show_online_freedom
 from drake_cfvol.comanip.report import missing_dot_notice, plot_run, write_diagram_svg
+from drake_cfvol.comanip.run_summary import OnlineFigures, RunSummary, TrackingFigures
 from drake_cfvol.comanip.scenario import load_scenario
 from drake_cfvol.io.progress import Progress
 from drake_cfvol.io.records import prepare_outputs
@@ -83,24 +85,17 @@ def _write_files(cm, logs, out: Path, meshcat, plot: bool, svg: bool, ctx=None) 
     return files
 
 
-def _tracking(logs, scenario) -> dict:
-    """A dynamic run's tracking: per update, the largest joint error between
-    the measured position and the command it was to reach (the previous
-    update's), rad (m); the volume's boxes are drawn only (not proximity
-    geometry of a simulated plant), so volume contacts are not counted."""
+def _tracking(logs, scenario) -> TrackingFigures | None:
+    """A dynamic run's tracking (None: a kinematic run): per update, the
+    largest joint error between the measured position and the command it
+    was to reach (the previous update's), rad (m)."""
     pc = scenario.simulation.plant_config
     if pc is None:
-        return {"dynamic": False}
+        return None
     m, c = logs["update_measured_position"][1], logs["update_commanded_position"][1]
     n = min(len(m), len(c))
     err = np.abs(m[1:n] - c[: n - 1]).max(axis=1) if n > 1 else np.zeros(1)
-    return {
-        "dynamic": True,
-        "time_step_s": pc.time_step,
-        "tracking_error_max": float(err.max()),
-        "tracking_error_median": float(np.median(err)),
-        "volume_penetrations": None,
-    }
+    return TrackingFigures(pc.time_step, float(err.max()), float(np.median(err)))
 
 
 def _margins(cm, scenario) -> tuple[float, float]:
@@ -142,7 +137,7 @@ def run_scenario(
     scenario_text: str | None = None,
     overrides: dict | None = None,
     overwrite: bool = False,
-) -> dict:
+) -> RunSummary:
     """Loads a scenario, builds its diagram, simulates it and writes the
     recording (self-contained HTML), plots and a summary.
 
@@ -150,7 +145,8 @@ def run_scenario(
     ``scenario_text`` and ``overrides`` change fields (see :func:`load_scenario`).
 
     Returns:
-        The summary dict (also written as ``summary.json``).
+        The run's summary (also written as ``summary.json``, from
+        :meth:`RunSummary.to_dict`).
 
     Raises:
         OutputExistsError: a file of :func:`run_outputs` exists and
@@ -173,59 +169,67 @@ def run_scenario(
     _, nom = logs["nominal"]
     _, s_log = logs["path_index"]
     rates = update_rate_figures(logs, cm)
-    penetrations = int(logs["in_volume"][1].sum())
     files = _write_files(cm, logs, out, meshcat, plot, svg, ctx)
     np.savez(out / "logs.npz", **{f"{k}_t": v[0] for k, v in logs.items()}, **{k: v[1] for k, v in logs.items()})
-    summary = {
-        "scenario": str(file) if file else str(scenario_name_or_path),
-        "cell": cm.workcell.name,
-        "path": scenario.path.name,
-        "resolution": scenario.bounds.resolution,
-        "g": cm.path.g,
-        "steps": int(len(t)),
-        "duration_s": cm.duration,
-        "path_duration_s": cm.progress.duration - cm.progress.start_time,
-        "sim_wall_s": sim_s,
-        "min_clearance_m": rates["min_clearance_m"],
-        "max_velocity_ratio": rates["max_velocity_ratio"],
-        "max_acceleration_ratio": rates["max_acceleration_ratio"],
-        "max_jerk_ratio": rates["max_jerk_ratio"],
-        "volume_penetrations": penetrations,
-        "collisions": rates["collisions"],
-        **bound_figures(t, q, *cm.bounds.boxes_at(np.clip(s_log[:, 0], 0.0, cm.bounds.g - 1))[:2], lo, hi),
-        "filter_steps": _count(cm, ctx, "filter_count"),
-        "filter_fallbacks": _count(cm, ctx, "filter_fallbacks"),
-        "filter_damper_misses": _count(cm, ctx, "filter_damper_misses"),
-        "braking_faults": _count(cm, ctx, "filter_braking_faults"),
-        "filter_box_exits": _count(cm, ctx, "filter_box_exits"),
-        "filter_holds": _count(cm, ctx, "filter_holds"),
-        "tracking_faults": _count(cm, ctx, "tracking_faults"),
-        "faults": _count(cm, ctx, "fault_count"),
-        "filter_fault": FAULTS.get(_count(cm, ctx, "filter_fault")),
-        "ended_s": ctx.get_time(),
-        "safety_filter": cm.control is not None and cm.control.safety is not None,
-        "filter_clearance_m": cm.filter_clearance,
-        "max_deviation": float(np.max(np.abs(q - nom))) if len(q) else 0.0,
-        "n_boxes": cm.bounds.info["n_boxes"],
-        "volume_boxes_in_scene": cm.volume_boxes["count"],
-        "bounds_time_ms": cm.bounds.timing_ms["total"],
-        "build_ms": cm.build_ms,
-        "recording_html": files.get("recording_html"),
-        "plot_png": files.get("plot_png"),
-        "diagram_svg": files.get("diagram_svg"),
-        "diagram_dot": files.get("diagram_dot"),
-        "notices": list(cm.workcell.notes),
-    }
-    summary["clearance_m"], summary["nominal_min_clearance_m"] = _margins(cm, scenario)
-    summary.update(online_figures(cm.online, ctx, scenario))
+    clearance, nominal_own = _margins(cm, scenario)
+    online = None
     if cm.online is not None:
-        summary["moving_obstacles"] = [o.name for o in scenario.cell.moving_obstacles]
-        summary["column_overflow"] = _count(cm, ctx, "column_overflow")
-    summary.update(_tracking(logs, scenario))
-    summary["problems"] = run_problems(summary)
+        online = OnlineFigures(
+            **online_figures(cm.online, ctx, scenario),
+            moving_obstacles=[o.name for o in scenario.cell.moving_obstacles],
+            column_overflow=_count(cm, ctx, "column_overflow"),
+        )
+    tracking = _tracking(logs, scenario)
+    notices = list(cm.workcell.notes)
     if svg and files.get("diagram_svg") is None:
-        summary["notices"].append(missing_dot_notice(out / "diagram"))
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+        notices.append(missing_dot_notice(out / "diagram"))
+    summary = RunSummary(
+        scenario=str(file) if file else str(scenario_name_or_path),
+        cell=cm.workcell.name,
+        path=scenario.path.name,
+        resolution=scenario.bounds.resolution,
+        g=cm.path.g,
+        steps=int(len(t)),
+        duration_s=cm.duration,
+        path_duration_s=cm.progress.duration - cm.progress.start_time,
+        sim_wall_s=sim_s,
+        min_clearance_m=rates["min_clearance_m"],
+        max_velocity_ratio=rates["max_velocity_ratio"],
+        max_acceleration_ratio=rates["max_acceleration_ratio"],
+        max_jerk_ratio=rates["max_jerk_ratio"],
+        # A dynamic run draws the volume's boxes only (no proximity geometry of its plant): not counted.
+        volume_penetrations=None if tracking is not None else int(logs["in_volume"][1].sum()),
+        collisions=rates["collisions"],
+        **bound_figures(t, q, *cm.bounds.boxes_at(np.clip(s_log[:, 0], 0.0, cm.bounds.g - 1))[:2], lo, hi),
+        filter_steps=_count(cm, ctx, "filter_count"),
+        filter_fallbacks=_count(cm, ctx, "filter_fallbacks"),
+        filter_damper_misses=_count(cm, ctx, "filter_damper_misses"),
+        braking_faults=_count(cm, ctx, "filter_braking_faults"),
+        filter_box_exits=_count(cm, ctx, "filter_box_exits"),
+        filter_holds=_count(cm, ctx, "filter_holds"),
+        tracking_faults=_count(cm, ctx, "tracking_faults"),
+        faults=_count(cm, ctx, "fault_count"),
+        filter_fault=FAULTS.get(_count(cm, ctx, "filter_fault")),
+        ended_s=ctx.get_time(),
+        safety_filter=cm.control is not None and cm.control.safety is not None,
+        filter_clearance_m=cm.filter_clearance,
+        max_deviation=float(np.max(np.abs(q - nom))) if len(q) else 0.0,
+        n_boxes=cm.bounds.info["n_boxes"],
+        volume_boxes_in_scene=cm.volume_boxes["count"],
+        bounds_time_ms=cm.bounds.timing_ms["total"],
+        build_ms=cm.build_ms,
+        recording_html=files.get("recording_html"),
+        plot_png=files.get("plot_png"),
+        diagram_svg=files.get("diagram_svg"),
+        diagram_dot=files.get("diagram_dot"),
+        notices=notices,
+        clearance_m=clearance,
+        nominal_min_clearance_m=nominal_own,
+        online=online,
+        tracking=tracking,
+    )
+    summary = dataclasses.replace(summary, problems=run_problems(summary))
+    (out / "summary.json").write_text(json.dumps(summary.to_dict(), indent=1))
     return summary
 
 
@@ -268,7 +272,7 @@ def bound_figures(t, q, base_lower, base_upper, lower, upper) -> dict:
     }
 
 
-def run_problems(summary: dict) -> list[str]:
+def run_problems(summary: RunSummary) -> list[str]:
     """What went wrong in a run, one sentence each (empty: nothing): it
     collided, came nearer than min(margin, the nominal's own clearance) -
     MARGIN_TOLERANCE, or moved a joint faster than its limit (measured at
@@ -276,24 +280,28 @@ def run_problems(summary: dict) -> list[str]:
     filter did not give the box way to a damper row (``filter_box_exits``),
     or the safety filter faulted (``filter_fault``: the run ended there)."""
     out = []
-    if summary.get("filter_fault"):
+    if summary.filter_fault:
         out.append(
-            f"the safety filter faulted at {summary.get('ended_s', 0.0):.2f} s ({summary['filter_fault']}): it held "
+            f"the safety filter faulted at {summary.ended_s:.2f} s ({summary.filter_fault}): it held "
             "the last command and the run ended there"
         )
-    if summary.get("collisions", 0) > 0:
-        out.append(f"the robot collided at {summary['collisions']} update(s)")
-    need = min(summary.get("clearance_m", 0.0), summary.get("nominal_min_clearance_m", 0.0))
-    low = summary.get("min_clearance_m")
+    if summary.collisions > 0:
+        out.append(f"the robot collided at {summary.collisions} update(s)")
+    need = min(summary.clearance_m, summary.nominal_min_clearance_m)
+    low = summary.min_clearance_m
     if low is not None and low < need - MARGIN_TOLERANCE:
         out.append(f"the clearance fell to {low * 1e3:.1f} mm, below the margin of {need * 1e3:.1f} mm")
-    for key, what in (("velocity", "moved at"), ("acceleration", "accelerated at"), ("jerk", "jerked at")):
-        ratio = summary.get(f"max_{key}_ratio", 0.0)
-        if ratio > 1.0 + 1e-6 and summary.get("safety_filter", True):
+    limits = (
+        ("velocity", "moved at", summary.max_velocity_ratio),
+        ("acceleration", "accelerated at", summary.max_acceleration_ratio),
+        ("jerk", "jerked at", summary.max_jerk_ratio),
+    )
+    for key, what, ratio in limits:
+        if ratio > 1.0 + 1e-6 and summary.safety_filter:
             out.append(f"a joint {what} {ratio:.2f} x its {key} limit")
-    if summary.get("max_bound_violation", 0.0) > 1e-6 and not summary.get("filter_box_exits", 0):
+    if summary.max_bound_violation > 1e-6 and not summary.filter_box_exits:
         out.append(
-            f"the command left the bounds table by {summary['max_bound_violation']:.2e} rad (m) "
+            f"the command left the bounds table by {summary.max_bound_violation:.2e} rad (m) "
             "without the filter giving the box way to a damper row"
         )
     return out
