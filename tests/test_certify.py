@@ -293,6 +293,27 @@ def test_certificate_report_in_words(corner):
     assert rep["samples"] >= rep["n_samples"] and rep["time_ms"] > 0
 
 
+def test_certificate_report_is_typed_and_its_json_comes_from_it(corner, tmp_path, monkeypatch):
+    """``info["certificate"]`` is the typed report's dict: its boundary
+    figures a :class:`BoundaryFigures`, counted as the proof counts them,
+    and the report read back from the cache (its JSON) equals the one
+    written."""
+    import json
+
+    from drake_cfvol.algorithm.certificate.certify import BoundaryFigures, CertificateReport
+
+    monkeypatch.setenv("DRAKE_CFVOL_CACHE", str(tmp_path))
+    wc, path = corner
+    c = Certify(epsilon=1e-3, batch=200, search_rounds=1)
+    rep = cf.estimate_bounds(wc, path, h_max=0.0, certify=c).info["certificate"]
+    typed = CertificateReport.from_dict(json.loads(json.dumps(rep)))
+    assert isinstance(typed.boundary, BoundaryFigures)
+    assert typed.to_dict() == rep
+    assert typed.boundary.edge_tests > 0 and typed.boundary.unproven == []
+    cached = cf.estimate_bounds(wc, path, h_max=0.0, certify=c).info["certificate"]
+    assert cached["cached"] and {**cached, "cached": False} == rep
+
+
 # Automotive at the defaults, boundary proof included (~170 s, the certificate
 # the README example, the certified scenario runs and the adversarial test
 # share within the run); aerospace with the sampled certificate only at
@@ -392,7 +413,7 @@ def test_regrow_gives_back_an_unneeded_cut_and_keeps_the_proof(cell, request):
     assert job.regrow() >= 1
     assert np.any(job.lower[:, 0] < before_lo[:, 0] - 1e-9)
     assert np.all(job.lower <= before_lo + 1e-12) and np.all(job.upper >= before_hi - 1e-12)
-    assert job.boundary["regrown"] >= 1
+    assert job.boundary.regrown >= 1
     margin = float(job.margins.min())
     check = boundary_check(wc, job.current, clearance=max(0.0, margin - 1e-3))
     assert check.corners_colliding == 0 and check.edges_colliding == 0 and check.corners > 0

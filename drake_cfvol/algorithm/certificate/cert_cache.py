@@ -69,11 +69,11 @@ def cache_key(arrays, table, certify) -> str:
 
 
 def cache_load(file: Path, report_type):
-    """(lower, upper, report_type(**the saved report)), or None if the
-    entry is missing or damaged (then it is computed again)."""
+    """(lower, upper, report_type.from_dict(the saved report)), or None if
+    the entry is missing or damaged (then it is computed again)."""
     try:
         with np.load(file, allow_pickle=False) as z:
-            report = report_type(**json.loads(str(z["report"])))
+            report = report_type.from_dict(json.loads(str(z["report"])))
             return z["lower"].copy(), z["upper"].copy(), report
     except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile):
         return None

@@ -64,6 +64,7 @@ from drake_cfvol.io.progress import Progress
 __all__ = [
     "Certify",
     "CertificateReport",
+    "BoundaryFigures",
     "certify_bounds",
     "certified_table",
     "certification_rng",
@@ -185,6 +186,29 @@ class Certify:
 
 
 @dataclasses.dataclass
+class BoundaryFigures:
+    """What the boundary proof did (:func:`drake_cfvol.algorithm.certificate.boundary.prove_boundary`).
+
+    Attributes:
+        edge_tests: region tests run, a count.
+        edge_cuts: bounds the proof cut, a count.
+        edge_rounds: rounds of region tests and cuts, a count.
+        margins_lowered: stretches whose margin was lowered because the
+            nominal itself comes nearer between its waypoints, a count.
+        unproven: the stretches left unproven (empty unless the proof ran
+            out of rounds).
+        regrown: bounds widened back by ``Certify(regrow=True)``, a count.
+    """
+
+    edge_tests: int = 0
+    edge_cuts: int = 0
+    edge_rounds: int = 0
+    margins_lowered: int = 0
+    unproven: list[int] = dataclasses.field(default_factory=list)
+    regrown: int = 0
+
+
+@dataclasses.dataclass
 class CertificateReport:
     """What certification did, in words and figures.
 
@@ -198,8 +222,7 @@ class CertificateReport:
         sampled: what the sampled certificate says.
         cached: the result was read from the cache.
         clearance_m: the margin certified, m.
-        boundary: the boundary proof's figures (region tests, cuts,
-            rounds, stretches whose margin was lowered, unproven stretches).
+        boundary: the boundary proof's figures.
     """
 
     epsilon: float
@@ -214,10 +237,16 @@ class CertificateReport:
     sampled: str = ""
     cached: bool = False
     clearance_m: float = 0.0
-    boundary: dict = dataclasses.field(default_factory=dict)
+    boundary: BoundaryFigures = dataclasses.field(default_factory=BoundaryFigures)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """The report as JSON-ready values (``table.info["certificate"]``)."""
         return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "CertificateReport":
+        """The report :meth:`to_dict` gave (a cached certificate's)."""
+        return cls(**{**d, "boundary": BoundaryFigures(**d.get("boundary", {}))})
 
 
 def certification_rng(seed: int) -> np.random.Generator:
@@ -506,13 +535,7 @@ class _Certification:
         self.samples = self.shrinks = 0
         self.proven: dict = {}
         self.memo: dict = {}
-        self.boundary: dict[str, Any] = {
-            "edge_tests": 0,
-            "edge_cuts": 0,
-            "edge_rounds": 0,
-            "margins_lowered": 0,
-            "unproven": [],
-        }
+        self.boundary = BoundaryFigures()
         self.start_lower, self.start_upper = self.lower.copy(), self.upper.copy()  # before any cut
         self.current = certified_table(table, self.lower, self.upper)
 
@@ -616,9 +639,12 @@ class _Certification:
             self.proven,
             memo=self.memo,
         )
-        for key in ("edge_tests", "edge_cuts", "edge_rounds", "margins_lowered"):
-            self.boundary[key] += stats[key]
-        self.boundary["unproven"] = stats["unproven"]
+        b = self.boundary
+        b.edge_tests += stats["edge_tests"]
+        b.edge_cuts += stats["edge_cuts"]
+        b.edge_rounds += stats["edge_rounds"]
+        b.margins_lowered += stats["margins_lowered"]
+        b.unproven = list(stats["unproven"])
         self.refresh()
 
     def regrow(self, share: float = 0.5) -> int:
@@ -651,13 +677,13 @@ class _Certification:
                     failed, tests = failures(
                         self.arrays, lower, upper, self.nominal, stretches, self.margins, self.memo
                     )
-                    self.boundary["edge_tests"] += tests
+                    self.boundary.edge_tests += tests
                     if not failed:
                         self.lower[:], self.upper[:] = lower, upper
                         grown += 1
         if grown:
             self.refresh()
-        self.boundary["regrown"] = self.boundary.get("regrown", 0) + grown
+        self.boundary.regrown += grown
         return grown
 
     def search(self, stretches, per, clamp=None) -> int:
@@ -753,7 +779,7 @@ class _Certification:
                 self.prove()
                 run = run.without(flagged)
                 check = self._moved(run, *before)
-            bar.set(certify.search_rounds + min(run.counts()[0], N), cuts=self.shrinks + self.boundary["edge_cuts"])
+            bar.set(certify.search_rounds + min(run.counts()[0], N), cuts=self.shrinks + self.boundary.edge_cuts)
         return run
 
     def _moved(self, run: "_Draws", lower, upper) -> np.ndarray:
@@ -781,7 +807,7 @@ class _Certification:
             if clearance > 0
             else "free of collision with the obstacles and the robot itself (clearance 0)"
         )
-        unproven = boundary["unproven"]
+        unproven = boundary.unproven
         single = (
             "Every single-joint motion from the nominal to that joint's bound, at every s along the path, "
             f"keeps {margin} and the volume."
@@ -796,7 +822,7 @@ class _Certification:
             proven = single + (
                 " So does every edge of the box (one joint over its whole width, every other joint at "
                 "one of its bounds), and so every corner, at every s: the kernel's region tests "
-                f"({boundary['edge_tests']} regions)."
+                f"({boundary.edge_tests} regions)."
             )
         else:
             proven = single + (
@@ -822,11 +848,11 @@ class _Certification:
             self.N,
             time_ms,
             self.samples,
-            self.shrinks + boundary["edge_cuts"],
+            self.shrinks + boundary.edge_cuts,
             freedom(self.table).mean,
             freedom(self.current).mean,
             proven,
             sampled,
             clearance_m=clearance,
-            boundary=boundary,
+            boundary=dataclasses.replace(boundary, unproven=list(boundary.unproven)),
         )
