@@ -16,8 +16,9 @@ from ``exceptions`` and ``_version``, which import nothing of the package);
    meshes, the method's parameters;
 4. ``algorithm``: planning (RRT-Connect), the height map and the volume V,
    the sweep (joint bounding), the bounds table, the Drake reference
-   backend, the certificate and its boundary proof, CF and freedom, and
-   the pipeline (Algorithm 1: ``estimate_bounds``);
+   backend, CF and freedom, and the pipeline (Algorithm 1:
+   ``estimate_bounds``); beyond the paper, the certificate and its
+   boundary proof (``algorithm.certificate``);
 5. ``online``: bounds that follow a changing cell: the obstacle map from a
    depth camera's points and the volume and bounds re-estimated from it,
    incrementally (SPEC 12);

@@ -496,11 +496,12 @@ def _pydrake_after(*modules: str) -> list:
 
 
 def test_the_top_level_and_the_cli_load_no_pydrake():
-    """``import drake_cfvol`` and the CLI module load no pydrake (the public
+    """``import drake_cfvol``, the CLI module and the push patterns it lists
+    (through the lazy ``drake_cfvol.comanip``) load no pydrake (the public
     names that need it are imported on first use); the probe itself sees
     pydrake where a module does import it (a planted violation: the
     workcell module), so its empty answer means something."""
-    assert _pydrake_after("drake_cfvol", "drake_cfvol.apps.cli") == []
+    assert _pydrake_after("drake_cfvol", "drake_cfvol.apps.cli", "drake_cfvol.comanip.push_patterns") == []
     assert _pydrake_after("drake_cfvol.scene.workcell") == ["pydrake"]
 
 
@@ -514,6 +515,29 @@ def test_every_public_name_resolves():
     assert cf.algorithm.certificate.certify.Certify is cf.Certify
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         cf.nope  # noqa: B018
+
+
+def test_every_name_of_the_lazy_comanip_resolves():
+    """``drake_cfvol.comanip`` imports its names on first use: each of its
+    ``__all__`` is in its lazy table and is the object its module defines,
+    and the type checker's imports name the same modules."""
+    import ast
+
+    import drake_cfvol.comanip as comanip
+
+    assert set(comanip.__all__) == set(comanip._LAZY)
+    for name in comanip.__all__:
+        assert getattr(comanip, name) is getattr(importlib.import_module(comanip._LAZY[name]), name)
+    tree = ast.parse(Path(comanip.__file__).read_text())
+    checked = {
+        alias.name: node.module
+        for block in tree.body
+        if isinstance(block, ast.If)
+        for node in block.body
+        if isinstance(node, ast.ImportFrom)
+        for alias in node.names
+    }
+    assert checked == comanip._LAZY
 
 
 def _subpackage(module: str) -> str:

@@ -163,13 +163,19 @@ def test_bench_quick_flags(tmp_path, capsys):
     assert (tmp_path / "results.md").is_file() and (tmp_path / "trials.csv").is_file()
 
 
-def test_push_patterns_agree():
-    """The CLI's push-pattern choices are the library's (spelled out in the
-    CLI so that --help does not import Drake)."""
-    from drake_cfvol.apps.cli import PUSH_PATTERNS
+def test_push_patterns_are_written_once(capsys):
+    """The CLI's push-pattern choices are the library's own tuple (one place,
+    :mod:`drake_cfvol.comanip.push_patterns`), and ``cfvol bench --help``
+    lists them."""
+    from drake_cfvol.apps import cli
     from drake_cfvol.comanip.adversarial import PATTERNS
 
-    assert PUSH_PATTERNS == PATTERNS
+    assert cli.PATTERNS is PATTERNS
+    assert not hasattr(cli, "PUSH_PATTERNS")
+    with pytest.raises(SystemExit):
+        cli.main(["bench", "--help"])
+    help_text = capsys.readouterr().out
+    assert all(p in help_text for p in PATTERNS), help_text
 
 
 @pytest.mark.parametrize(

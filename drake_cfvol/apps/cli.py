@@ -8,12 +8,9 @@ import sys
 from pathlib import Path
 
 from drake_cfvol._version import __version__
+from drake_cfvol.comanip.push_patterns import PATTERNS
 from drake_cfvol.exceptions import CfvolError, ParameterError
 from drake_cfvol.io.records import output_stem, path_label, prepare_output, prepare_outputs
-
-#: drake_cfvol.comanip.adversarial.PATTERNS, spelled out so that ``cfvol --help``
-#: does not import Drake (tests/test_cli.py checks the two agree).
-PUSH_PATTERNS = ("random", "nearest", "random_pushes")
 
 _DESCRIPTION = (
     "Joint bounds that tell a robot how far a co-worker may push it off its planned path "
@@ -696,8 +693,8 @@ def _add_bench(sub) -> None:
     n.add_argument(
         "--adversarial-patterns",
         nargs="+",
-        choices=PUSH_PATTERNS,
-        help=f"push patterns of the adversarial section (default all: {', '.join(PUSH_PATTERNS)})",
+        choices=PATTERNS,
+        help=f"push patterns of the adversarial section (default all: {', '.join(PATTERNS)})",
     )
     n.add_argument(
         "--adversarial-only",

@@ -25,6 +25,7 @@ import numpy as np
 from drake_cfvol.algorithm.certificate.certify import Certify
 from drake_cfvol.algorithm.pipeline import estimate_bounds
 from drake_cfvol.algorithm.planning import plan_nominal_path
+from drake_cfvol.comanip.push_patterns import PATTERNS
 from drake_cfvol.comanip.run import MARGIN_TOLERANCE, run_scenario
 from drake_cfvol.comanip.scenario import load_scenario
 from drake_cfvol.exceptions import ParameterError
@@ -40,11 +41,6 @@ __all__ = [
     "MARGIN_TOLERANCE",
 ]
 
-#: Push patterns: "random" (a steady push with seeded signs: corner-seeking),
-#: "nearest" (a steady push toward the nearest obstacle at a path position
-#: the seed picks) or "random_pushes" (the ``<cell>_random`` scenario's
-#: seeded sequence of random pushes, push seed = the run's seed).
-PATTERNS = ("random", "nearest", "random_pushes")
 
 #: A run's summary figures each row carries as they are.
 _SUMMARY_KEYS = (
