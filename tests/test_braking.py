@@ -10,9 +10,12 @@ from hypothesis import strategies as st
 from pydrake.systems.analysis import Simulator
 from test_safety import VMAX, _arm, _drake_distance, _fix
 
+from drake_cfvol.systems.filter.damper_kinematics import _second_order
 from drake_cfvol.systems.filter.filter_kernel import (
     ROW_DECELERATION_SHARE,
+    _sum_as_numpy,
     brake_rows,
+    braked_rows,
     braking_lead,
     face_speed,
     hard_interval,
@@ -58,6 +61,55 @@ def test_stop_steps_are_each_joints_walked_stop_at_the_rows_share():
             s = np.sign(v[j]) or 1.0
             walked = _walked(s * v[j], s * a[j], share * acc[j], share * jerk[j], h)
             assert got[j] == pytest.approx(s * walked, rel=1e-9, abs=1e-12)
+
+
+def _rotations(rng, n):
+    """n random rotations (QR of Gaussian matrices)."""
+    out = np.zeros((n, 3, 3))
+    for i in range(n):
+        Q, R = np.linalg.qr(rng.standard_normal((3, 3)))
+        out[i] = Q * np.sign(np.diag(R))
+    return out
+
+
+def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
+    """braked_rows, one compiled call, equals the filter's former steps in
+    NumPy bit for bit: the least A v in the hard interval (NumPy's pairwise
+    sum, 8 running sums from 8 joints on), the bound, the rows carried to
+    the joints' stop (no round radii), brake_rows and the test; random rows
+    for 1 to 20 joints. And its sum is NumPy's for 1 to 128 terms."""
+    rng = np.random.default_rng(11)
+    for n in range(1, 129):
+        x = rng.standard_normal(n) * 10.0 ** rng.uniform(-5, 5, n)
+        assert _sum_as_numpy(x, n) == x.sum()
+    for trial in range(60):
+        k, S, m = 1 + trial % 20, int(rng.integers(1, 5)), int(rng.integers(1, 40))
+        A, b = rng.standard_normal((m, k)), rng.uniform(-0.3, 0.1, m)
+        dirs = rng.standard_normal((m, 3))
+        dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+        points, slots = rng.standard_normal((m, 2, 3)), rng.integers(-1, S, (m, 2))
+        before = (_rotations(rng, S), rng.standard_normal((S, 3)))
+        after = (_rotations(rng, S), rng.standard_normal((S, 3)))
+        rev = (rng.random((S, k)) < 0.7).astype(float)
+        acc, jerk = rng.uniform(1, 20, k), rng.uniform(50, 5000, k)
+        acc[0] = np.inf if trial % 3 == 0 else acc[0]
+        v_last, h = rng.uniform(-1, 1, k), 1e-3
+        h_lo, h_hi = v_last - rng.uniform(0, 0.05, k), v_last + rng.uniform(0, 0.05, k)
+        stop, slot, theta = rng.uniform(-0.1, 0.1, k), np.append(rng.uniform(0, 2, S), 0.0), rng.uniform(0, 0.01)
+        worst = np.minimum(A * h_lo, A * h_hi).sum(axis=1)
+        bound = theta * slot[slots].sum(axis=1)
+        bend = _second_order(*before, *after, A, dirs, points, slots, np.zeros((m, 2)), rev, stop)
+        expected = brake_rows(A, b, 2.0, acc, jerk, h, v_last, h_lo, h_hi, bound, bend)
+        got, keep = braked_rows(
+            (A, b, dirs, points, slots),
+            before,
+            after,
+            (rev, stop, slot, theta),
+            (acc, jerk, h, 2.0),
+            (v_last, h_lo, h_hi),
+        )
+        assert np.array_equal(got, expected)
+        assert np.array_equal(keep, worst < expected + bound)
 
 
 def test_face_speed_is_the_fastest_that_still_stops_in_time():

@@ -84,6 +84,7 @@ _COMPILED = (
     filter_kernel.request,
     filter_kernel.hard_interval,
     filter_kernel.brake_rows,
+    filter_kernel.braked_rows,
     filter_kernel.braking_lead,
     filter_kernel.stop_steps,
     filter_kernel.finish,

@@ -168,6 +168,8 @@ class VelocityDamper:
         one, two = self._pair_bodies[self._self_pairs, 0], self._pair_bodies[self._self_pairs, 1]
         self._only = np.array([moves[one] & ~moves[two], moves[two] & ~moves[one]]).reshape(2, len(one), self.k)
         self._sides, self._drake_rows = side_arrays(self, inspector)
+        # Each pair's two ids, for the per-pair loop of rows.
+        self._pair_ids = [(a, b) for a, b, _, _ in self._pairs]
 
     def poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """The moving bodies' rotations (S, 3, 3) and origins (S, 3) at q
@@ -286,29 +288,35 @@ class VelocityDamper:
         dists, look = self._broad.near(query, R, o, np.asarray(measure, bool), pair_reach, poses)
         measured[look] = True
         # The near pairs' Drake results, for the kernel's rows (index, distance,
-        # normal, witnesses) or, for the few it cannot make, Drake's (slow).
+        # Drake's result) or, for the few it cannot make, Drake's (slow).
+        # Plain lists in the loop: a NumPy scalar or row access per pair cost
+        # more than Drake's query.
         near: list[int] = []
+        found: list[Any] = []
         slow: list[tuple[int, Any]] = []
-        N = len(look)
-        dist, normal, witness = np.empty(N), np.empty((N, 3)), np.empty((N, 2, 3))
+        ids, drake_rows, limit = self._pair_ids, self._drake_rows.tolist(), pair_reach.tolist()
+        measured_distance = query.ComputeSignedDistancePairClosestPoints
         for index in look.tolist():
-            id_a, id_b = self._pairs[index][:2]
             try:
-                pair = query.ComputeSignedDistancePairClosestPoints(id_a, id_b)
+                pair = measured_distance(*ids[index])
             except RuntimeError:  # a shape pair Drake cannot measure: not watched
                 continue
             d = dists[index] = pair.distance
-            if d < pair_reach[index]:
-                if self._drake_rows[index]:
+            if d < limit[index]:
+                if drake_rows[index]:
                     slow.append((index, pair))
                     continue
-                i = len(near)
                 near.append(index)
-                dist[i], normal[i], witness[i, 0], witness[i, 1] = d, pair.nhat_BA_W, pair.p_ACa, pair.p_BCb
+                found.append(pair)
         if not near and not slow:
             return self.empty()._replace(distances=dists, measured=measured)
-        n = len(near)
-        parts = [self._kernel_rows(near, dist[:n], normal[:n], witness[:n], R, o, J_w, J_v)] if n else []
+        parts = []
+        if near:
+            # The witnesses' arrays built once from all the near pairs.
+            dist = np.array([pair.distance for pair in found])
+            normal = np.array([pair.nhat_BA_W for pair in found], float).reshape(-1, 3)
+            witness = np.array([(pair.p_ACa, pair.p_BCb) for pair in found], float).reshape(-1, 2, 3)
+            parts.append(self._kernel_rows(near, dist, normal, witness, R, o, J_w, J_v))
         if slow:
             out = RowList()
             for index, pair in slow:

@@ -19,6 +19,7 @@ __all__ = [
     "ROW_DECELERATION_SHARE",
     "braking_lead",
     "brake_rows",
+    "braked_rows",
     "budget_after",
     "face_speed",
     "filter_rounds",
@@ -365,6 +366,81 @@ def stop_steps(v, a_last, acceleration, jerk, period):
         else:
             out[j] = -stop_distance(-v[j], -a_last[j], acc, jrk, period)
     return out
+
+
+@njit(cache=True)
+def _sum_as_numpy(x: np.ndarray, n: int) -> float:
+    """x[:n].sum() in NumPy's order (its pairwise summation: in sequence
+    below 8 terms, else in 8 running sums), so that compiled sums equal
+    the ones NumPy took before bit for bit. For n <= 128 (NumPy halves
+    longer sums; a joint count never comes near)."""
+    if n < 8:
+        out = 0.0
+        for i in range(n):
+            out += x[i]
+        return out
+    if n > 128:
+        raise ValueError("_sum_as_numpy: more than 128 terms")
+    r = np.empty(8)
+    for j in range(8):
+        r[j] = x[j]
+    i = 8
+    while i < n - n % 8:
+        for j in range(8):
+            r[j] += x[i + j]
+        i += 8
+    out = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        out += x[i]
+        i += 1
+    return out
+
+
+@njit(cache=True)
+def braked_rows(
+    rows: tuple, before: tuple, after: tuple, motion: tuple, limits: tuple, command: tuple
+) -> tuple[np.ndarray, np.ndarray]:
+    """The damper's rows braked in time and which of them can bind at this
+    update (:meth:`~drake_cfvol.systems.filter.safety.SafetyFilter._braked_rows`),
+    in one call: (b, keep).
+
+    Args:
+        rows: (A, b, dirs, points, slots), the damper's rows.
+        before, after: (R, o), the slots' poses at the base and carried by
+            the joints' stop from it.
+        motion: (rev, stop, slot_rate, theta): rev (S, k) the slots'
+            revolute joints (:attr:`SlotKinematics.rev`); stop (k,) the
+            joints' stop (:func:`stop_steps`); slot_rate (S + 1,) per slot
+            the levers times the joints' largest speeds, m/s (the last:
+            welded, 0); theta the step's largest turn, rad (a row's bound:
+            theta times its two slots' rates).
+        limits: (acceleration, jerk, period, rate): the limits (k,) each,
+            dt (s) and the damper's rate (1/s).
+        command: (v_last, h_lo, h_hi) (k,) each: the last command and the
+            hard interval.
+    """
+    A, b, dirs, points, slots = rows
+    rev, stop, slot_rate, theta = motion
+    acceleration, jerk, period, rate = limits
+    v_last, h_lo, h_hi = command
+    m, k = A.shape
+    # The least A v in [h_lo, h_hi] and twice the second-order bound, per row.
+    worst, bound = np.empty(m), np.empty(m)
+    low = np.empty(k)
+    for i in range(m):
+        for j in range(k):
+            x, y = A[i, j] * h_lo[j], A[i, j] * h_hi[j]
+            low[j] = np.nan if x != x or y != y else (x if x <= y else y)
+        worst[i] = _sum_as_numpy(low, k)
+        bound[i] = theta * (slot_rate[slots[i, 0]] + slot_rate[slots[i, 1]])
+    # The rows' points carried to the stop (a round shape's sliding witness,
+    # which the rounds bound per step, is not motion towards the pair).
+    bend = _second_order(before[0], before[1], after[0], after[1], A, dirs, points, slots, np.zeros((m, 2)), rev, stop)
+    out = brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, bound, bend)
+    keep = np.empty(m, np.bool_)
+    for i in range(m):
+        keep[i] = worst[i] < out[i] + bound[i]
+    return out, keep
 
 
 @njit(cache=True)

@@ -49,7 +49,7 @@ from drake_cfvol.systems.filter.constraints import (
 )
 from drake_cfvol.systems.filter.damper import DamperRows, DynamicPairs, VelocityDamper
 from drake_cfvol.systems.filter.filter_kernel import (
-    brake_rows,
+    braked_rows,
     braking_lead,
     budget_after,
     finish,
@@ -637,7 +637,8 @@ class SafetyFilter(LeafSystem):
         return np.maximum(self.target_distance + (speed + ramp * closing) * lead + speed * h, self.influence_distance)
 
     def _braked_rows(self, rows: DamperRows, base, v_last, a_last, h_lo, h_hi, levers) -> DamperRows:
-        """The rows braked in time (:func:`~.filter_kernel.brake_rows`),
+        """The rows braked in time (:func:`~.filter_kernel.brake_rows`, by
+        :func:`~.filter_kernel.braked_rows`),
         less those that cannot bind at this update: within the hard
         interval [h_lo, h_hi] (|v_j| <= w_j) their first-order rate A v
         stays above b plus twice a bound of the second-order term the
@@ -647,21 +648,23 @@ class SafetyFilter(LeafSystem):
         :meth:`VelocityDamper.levers`: each second derivative of a point is
         at most the lever of the later joint). Such a pair is measured
         again at the next update (its budget is spent)."""
-        worst = np.minimum(rows.A * h_lo, rows.A * h_hi).sum(axis=1)  # the least A v in the interval
         w = np.maximum(np.abs(h_lo), np.abs(h_hi))
         theta = float(w.sum()) * self.period
         slot = np.append(levers @ w, 0.0)  # per slot; the last: welded
-        bound = theta * slot[rows.slots].sum(axis=1)  # twice the bound, as a rate (m/s)
         # The rows' points turn on the way to the joints' stop: each row
         # closes by its second-order term over that step more than it says.
         stop = stop_steps(v_last, a_last, self._acceleration, self._jerk, self.period)
-        # (The rows' points carried there; a round shape's sliding witness,
-        # which the rounds bound per step, is not motion towards the pair.)
-        bend = self._damper.second_order(base, rows._replace(rounds=np.zeros_like(rows.rounds)), stop)
-        b = brake_rows(
-            rows.A, rows.b, self.rate, self._acceleration, self._jerk, self.period, v_last, h_lo, h_hi, bound, bend
+        # One compiled call for every row (the rows are many, few are kept):
+        # the least A v in the interval, twice the bound as a rate (m/s),
+        # the rows' points carried to the stop, the braked b and the test.
+        b, keep = braked_rows(
+            (rows.A, rows.b, rows.dirs, rows.points, rows.slots),
+            self._damper.poses(base),
+            self._damper.poses(base + stop),
+            (self._damper.kinematics.rev, stop, slot, theta),
+            (self._acceleration, self._jerk, self.period, self.rate),
+            (v_last, h_lo, h_hi),
         )
-        keep = worst < b + bound
         if keep.all():
             return rows._replace(b=b)
         return rows._replace(
