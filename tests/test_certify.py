@@ -314,6 +314,40 @@ def test_certificate_report_is_typed_and_its_json_comes_from_it(corner, tmp_path
     assert cached["cached"] and {**cached, "cached": False} == rep
 
 
+def _clamp_proven_share(k: int, edges: bool) -> float:
+    """The share of clamp landings (:func:`clamp_draws`) on a proven part, by
+    enumerating each joint's three states: not pushed (1/2: at the nominal),
+    pushed but inside (1/4: the push amount under the deviation) or pushed
+    onto its bound (1/4). Proven: at most one joint off the nominal, or (the
+    edges proven) at most one joint off its bounds."""
+    import itertools
+
+    total = 0.0
+    for states in itertools.product(range(3), repeat=k):
+        p = np.prod([(0.5, 0.25, 0.25)[x] for x in states])
+        off_nominal = sum(x > 0 for x in states)
+        off_bounds = sum(x < 2 for x in states)
+        if off_nominal <= 1 or (edges and off_bounds <= 1):
+            total += p
+    return total
+
+
+@pytest.mark.parametrize("boundary", [True, False])
+def test_proven_share_is_where_a_clamp_lands_on_a_proof(corner, boundary):
+    """The report's proven share is the share of the run's clamp landings on
+    a single-joint motion or (with the boundary proof) an edge or corner:
+    15/16 for two joints with the edges, 3/4 without, by enumeration of the
+    clamp's draws, within 4 standard deviations of the run's sample."""
+    wc, path = corner
+    c = Certify(epsilon=1e-3, batch=200, search_rounds=1, boundary=boundary, cache=False)
+    rep = cf.estimate_bounds(wc, path, h_max=0.0, certify=c).info["certificate"]
+    expected = _clamp_proven_share(2, boundary)
+    assert expected == (15 / 16 if boundary else 3 / 4)
+    n = c.n_clamp_samples
+    assert abs(rep["proven_share"] - expected) <= 4 * np.sqrt(expected * (1 - expected) / n), (rep, n)
+    assert f"a share {rep['proven_share']:.3f} lies where the proofs above hold" in rep["sampled"]
+
+
 # Automotive at the defaults, boundary proof included (~170 s, the certificate
 # the README example, the certified scenario runs and the adversarial test
 # share within the run); aerospace with the sampled certificate only at

@@ -223,6 +223,11 @@ class CertificateReport:
         cached: the result was read from the cache.
         clearance_m: the margin certified, m.
         boundary: the boundary proof's figures.
+        proven_share: the share of the certificate run's clamp landings
+            that lie where a proof holds: at most one joint off the nominal
+            (a single-joint motion, proven by the sweep) or, with the
+            boundary proof, at most one joint off its bounds (an edge or a
+            corner). The rest of them, on the box's faces, is sampled.
     """
 
     epsilon: float
@@ -238,6 +243,7 @@ class CertificateReport:
     cached: bool = False
     clearance_m: float = 0.0
     boundary: BoundaryFigures = dataclasses.field(default_factory=BoundaryFigures)
+    proven_share: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """The report as JSON-ready values (``table.info["certificate"]``)."""
@@ -449,17 +455,18 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             hit[2].cached = True
             return hit
     job = _Certification(workcell, arrays, table, certify)
+    run = None
     bar = Progress(certify.search_rounds + job.N, "Certifying whole boxes", enabled=progress, unit="steps", eta=False)
     try:
         if job.g > 1:
             job.search_rounds(bar)
             job.prove()
-            job.certificate_run(bar)
+            run = job.certificate_run(bar)
             if job.regrow():
-                job.certificate_run(bar)
+                run = job.certificate_run(bar)
     finally:
         bar.close()
-    report = job.report((time.perf_counter() - t0) * 1e3)
+    report = job.report((time.perf_counter() - t0) * 1e3, run)
     if file is not None:
         cache_store(file, job.current.lower, job.current.upper, report)
     return job.current.lower, job.current.upper, report
@@ -798,8 +805,8 @@ class _Certification:
         run.Q[rows[moved]] = Q[moved]
         return rows[moved]
 
-    def report(self, time_ms: float) -> "CertificateReport":
-        """The report, in words."""
+    def report(self, time_ms: float, run: "_Draws | None" = None) -> "CertificateReport":
+        """The report, in words; ``run`` the certificate run's samples."""
         certify, clearance, margins, boundary = self.certify, self.clearance, self.margins, self.boundary
         margin = (
             f"{clearance * 1e3:g} mm from the obstacles and the robot itself (less only where the nominal "
@@ -829,8 +836,10 @@ class _Certification:
                 " So does every edge and corner of the box at every s except on stretches "
                 f"{unproven}, where the proof ran out of rounds."
             )
+        share = self.proven_share(run)
         sampled = (
-            f"The faces and the interior, all joints at once, sampled from two distributions (s uniform over "
+            f"Of where the run's clamps landed, a share {share:.3f} lies where the proofs above hold; "
+            f"the faces and the interior, all joints at once, sampled from two distributions (s uniform over "
             f"the path): {self.N} samples uniform in the box at s, and alongside them {self.Nc} "
             "samples where a clamp lands (the nominal pushed on a random half of its joints, "
             "clamped into the box, so about half of the pushed joints on a bound), all kept the margin; "
@@ -855,4 +864,19 @@ class _Certification:
             sampled,
             clearance_m=clearance,
             boundary=dataclasses.replace(boundary, unproven=list(boundary.unproven)),
+            proven_share=share,
         )
+
+    def proven_share(self, run: "_Draws | None") -> float:
+        """The share of the run's clamp landings that lie where a proof
+        holds: at most one joint off the nominal (a single-joint motion) or,
+        with the boundary proof (all of it proven), at most one joint off
+        its bounds (an edge or a corner). 0 without a run."""
+        if run is None or not run.clamp.any():
+            return 0.0
+        Q = run.Q[run.clamp]
+        lo, hi, nom = self.current.boxes_at(run.s[run.clamp])
+        single = (Q != nom).sum(axis=1) <= 1
+        edge = ((Q != lo) & (Q != hi)).sum(axis=1) <= 1
+        proven_edges = self.certify.boundary and not self.boundary.unproven
+        return float(np.mean(single | (edge & proven_edges)))
