@@ -76,15 +76,17 @@ def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
     """braked_rows, one compiled call, equals the filter's former steps in
     NumPy bit for bit: the least A v in the hard interval (NumPy's pairwise
     sum, 8 running sums from 8 joints on), the bound, the rows carried to
-    the joints' stop (no round radii), brake_rows and the test; random rows
+    the joints' stop (no round radii), brake_rows and the rows the test keeps; random rows
     for 1 to 20 joints. And its sum is NumPy's for 1 to 128 terms."""
     rng = np.random.default_rng(11)
     for n in range(1, 129):
         x = rng.standard_normal(n) * 10.0 ** rng.uniform(-5, 5, n)
         assert _sum_as_numpy(x, n) == x.sum()
+    kept = rows = 0
     for trial in range(60):
         k, S, m = 1 + trial % 20, int(rng.integers(1, 5)), int(rng.integers(1, 40))
         A, b = rng.standard_normal((m, k)), rng.uniform(-0.3, 0.1, m)
+        rows += m
         dirs = rng.standard_normal((m, 3))
         dirs /= np.linalg.norm(dirs, axis=1)[:, None]
         points, slots = rng.standard_normal((m, 2, 3)), rng.integers(-1, S, (m, 2))
@@ -95,21 +97,29 @@ def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
         acc[0] = np.inf if trial % 3 == 0 else acc[0]
         v_last, h = rng.uniform(-1, 1, k), 1e-3
         h_lo, h_hi = v_last - rng.uniform(0, 0.05, k), v_last + rng.uniform(0, 0.05, k)
-        stop, slot, theta = rng.uniform(-0.1, 0.1, k), np.append(rng.uniform(0, 2, S), 0.0), rng.uniform(0, 0.01)
+        stop, lever_speed = rng.uniform(-0.1, 0.1, k), rng.uniform(0, 2, S)
+        rounds, pair = rng.uniform(0, 0.05, (m, 2)), rng.integers(0, 30, m)
+        w = np.maximum(np.abs(h_lo), np.abs(h_hi))
+        theta = float(w.sum()) * h
         worst = np.minimum(A * h_lo, A * h_hi).sum(axis=1)
-        bound = theta * slot[slots].sum(axis=1)
+        bound = theta * np.append(lever_speed, 0.0)[slots].sum(axis=1)
         bend = _second_order(*before, *after, A, dirs, points, slots, np.zeros((m, 2)), rev, stop)
         expected = brake_rows(A, b, 2.0, acc, jerk, h, v_last, h_lo, h_hi, bound, bend)
-        got, keep = braked_rows(
-            (A, b, dirs, points, slots),
+        keep = worst < expected + bound
+        got = braked_rows(
+            (A, b, dirs, points, slots, rounds, pair),
             before,
             after,
-            (rev, stop, slot, theta),
+            (rev, stop, lever_speed, w),
             (acc, jerk, h, 2.0),
             (v_last, h_lo, h_hi),
         )
-        assert np.array_equal(got, expected)
-        assert np.array_equal(keep, worst < expected + bound)
+        for x, y in zip(
+            got, (A[keep], expected[keep], dirs[keep], points[keep], slots[keep], rounds[keep], pair[keep])
+        ):
+            assert x.dtype == y.dtype and np.array_equal(x, y)
+        kept += int(keep.sum())
+    assert 0 < kept < rows
 
 
 def test_face_speed_is_the_fastest_that_still_stops_in_time():

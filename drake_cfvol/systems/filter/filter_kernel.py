@@ -399,31 +399,32 @@ def _sum_as_numpy(x: np.ndarray, n: int) -> float:
 @njit(cache=True)
 def braked_rows(
     rows: tuple, before: tuple, after: tuple, motion: tuple, limits: tuple, command: tuple
-) -> tuple[np.ndarray, np.ndarray]:
-    """The damper's rows braked in time and which of them can bind at this
-    update (:meth:`~drake_cfvol.systems.filter.safety.SafetyFilter._braked_rows`),
-    in one call: (b, keep).
+) -> tuple[np.ndarray, ...]:
+    """The damper's rows braked in time, less those that cannot bind at
+    this update (:meth:`~drake_cfvol.systems.filter.safety.SafetyFilter._braked_rows`),
+    in one call: (A, b, dirs, points, slots, rounds, pair) of the rows kept.
 
     Args:
-        rows: (A, b, dirs, points, slots), the damper's rows.
+        rows: (A, b, dirs, points, slots, rounds, pair), the damper's rows.
         before, after: (R, o), the slots' poses at the base and carried by
             the joints' stop from it.
-        motion: (rev, stop, slot_rate, theta): rev (S, k) the slots'
+        motion: (rev, stop, lever_speed, w): rev (S, k) the slots'
             revolute joints (:attr:`SlotKinematics.rev`); stop (k,) the
-            joints' stop (:func:`stop_steps`); slot_rate (S + 1,) per slot
-            the levers times the joints' largest speeds, m/s (the last:
-            welded, 0); theta the step's largest turn, rad (a row's bound:
-            theta times its two slots' rates).
+            joints' stop (:func:`stop_steps`); lever_speed (S,) per slot
+            its levers times w, m/s; w (k,) the joints' largest speeds in
+            the hard interval (a row's bound: the step's turn, sum_j w_j
+            dt, times its two slots' lever speeds).
         limits: (acceleration, jerk, period, rate): the limits (k,) each,
             dt (s) and the damper's rate (1/s).
         command: (v_last, h_lo, h_hi) (k,) each: the last command and the
             hard interval.
     """
-    A, b, dirs, points, slots = rows
-    rev, stop, slot_rate, theta = motion
+    A, b, dirs, points, slots, rounds, pair = rows
+    rev, stop, lever_speed, w = motion
     acceleration, jerk, period, rate = limits
     v_last, h_lo, h_hi = command
     m, k = A.shape
+    theta = _sum_as_numpy(w, k) * period
     # The least A v in [h_lo, h_hi] and twice the second-order bound, per row.
     worst, bound = np.empty(m), np.empty(m)
     low = np.empty(k)
@@ -432,15 +433,21 @@ def braked_rows(
             x, y = A[i, j] * h_lo[j], A[i, j] * h_hi[j]
             low[j] = np.nan if x != x or y != y else (x if x <= y else y)
         worst[i] = _sum_as_numpy(low, k)
-        bound[i] = theta * (slot_rate[slots[i, 0]] + slot_rate[slots[i, 1]])
+        s0, s1 = slots[i, 0], slots[i, 1]  # a welded side (-1) does not move
+        bound[i] = theta * ((0.0 if s0 < 0 else lever_speed[s0]) + (0.0 if s1 < 0 else lever_speed[s1]))
     # The rows' points carried to the stop (a round shape's sliding witness,
     # which the rounds bound per step, is not motion towards the pair).
     bend = _second_order(before[0], before[1], after[0], after[1], A, dirs, points, slots, np.zeros((m, 2)), rev, stop)
     out = brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, bound, bend)
-    keep = np.empty(m, np.bool_)
-    for i in range(m):
-        keep[i] = worst[i] < out[i] + bound[i]
-    return out, keep
+    keep = np.flatnonzero(worst < out + bound)
+    n = len(keep)
+    kA, kb, kdirs, kpoints = np.empty((n, k)), np.empty(n), np.empty((n, 3)), np.empty((n, 2, 3))
+    kslots, krounds, kpair = np.empty((n, 2), slots.dtype), np.empty((n, 2)), np.empty(n, pair.dtype)
+    for r in range(n):
+        i = keep[r]
+        kA[r], kb[r], kdirs[r], kpoints[r] = A[i], out[i], dirs[i], points[i]
+        kslots[r], krounds[r], kpair[r] = slots[i], rounds[i], pair[i]
+    return kA, kb, kdirs, kpoints, kslots, krounds, kpair
 
 
 @njit(cache=True)

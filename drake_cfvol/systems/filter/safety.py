@@ -542,9 +542,10 @@ class SafetyFilter(LeafSystem):
             discrete_state.get_mutable_vector(self._measured_last).SetFromVector(np.full(k, np.nan))
         else:
             n = self._damper.num_pairs
-            kin, reach, levers = None, None, None
+            kin, reach, levers, slot_poses = None, None, None, None
             if self._braked and n:
                 kin = self._damper.kinematics.poses_and_jacobians(base)
+                slot_poses = kin[:2]
                 levers = self._damper.levers(kin[2], kin[3])
                 reach = self._braking_reach(kin, levers, v_last, a_last)
             kept = context.get_discrete_state(self._budget).CopyToVector()
@@ -567,7 +568,7 @@ class SafetyFilter(LeafSystem):
             # the others' budget, both with the robot at this base.
             dmin, keep = budget_after(rows.distances, budget, self.influence_distance, base)
             if self._braked and len(rows.b):
-                rows = self._braked_rows(rows, base, v_last, a_last, h_lo, h_hi, levers)
+                rows = self._braked_rows(rows, base, v_last, a_last, h_lo, h_hi, levers, slot_poses)
             fault = self._fault(rows)
             if fault:  # braked to a stop from now on: no QP at this update or after
                 self._brake(discrete_state, q, v_last, a_last)
@@ -636,7 +637,7 @@ class SafetyFilter(LeafSystem):
         lead, ramp = braking_lead(v_last, a_last, self._vmax, self._acceleration, self._jerk, self.rate, h)
         return np.maximum(self.target_distance + (speed + ramp * closing) * lead + speed * h, self.influence_distance)
 
-    def _braked_rows(self, rows: DamperRows, base, v_last, a_last, h_lo, h_hi, levers) -> DamperRows:
+    def _braked_rows(self, rows: DamperRows, base, v_last, a_last, h_lo, h_hi, levers, poses) -> DamperRows:
         """The rows braked in time (:func:`~.filter_kernel.brake_rows`, by
         :func:`~.filter_kernel.braked_rows`),
         less those that cannot bind at this update: within the hard
@@ -647,35 +648,24 @@ class SafetyFilter(LeafSystem):
         levers_j |dq_j|) / 2 (theta = sum_j |dq_j|, levers the slot's
         :meth:`VelocityDamper.levers`: each second derivative of a point is
         at most the lever of the later joint). Such a pair is measured
-        again at the next update (its budget is spent)."""
+        again at the next update (its budget is spent). ``poses``: the
+        slots' (R, o) at ``base`` (the update's kinematics)."""
         w = np.maximum(np.abs(h_lo), np.abs(h_hi))
-        theta = float(w.sum()) * self.period
-        slot = np.append(levers @ w, 0.0)  # per slot; the last: welded
         # The rows' points turn on the way to the joints' stop: each row
         # closes by its second-order term over that step more than it says.
         stop = stop_steps(v_last, a_last, self._acceleration, self._jerk, self.period)
         # One compiled call for every row (the rows are many, few are kept):
         # the least A v in the interval, twice the bound as a rate (m/s),
         # the rows' points carried to the stop, the braked b and the test.
-        b, keep = braked_rows(
-            (rows.A, rows.b, rows.dirs, rows.points, rows.slots),
-            self._damper.poses(base),
+        A, b, dirs, points, slots, rounds, pair = braked_rows(
+            (rows.A, rows.b, rows.dirs, rows.points, rows.slots, rows.rounds, rows.pair),
+            poses,
             self._damper.poses(base + stop),
-            (self._damper.kinematics.rev, stop, slot, theta),
+            (self._damper.kinematics.rev, stop, levers @ w, w),
             (self._acceleration, self._jerk, self.period, self.rate),
             (v_last, h_lo, h_hi),
         )
-        if keep.all():
-            return rows._replace(b=b)
-        return rows._replace(
-            A=rows.A[keep],
-            b=b[keep],
-            dirs=rows.dirs[keep],
-            points=rows.points[keep],
-            slots=rows.slots[keep],
-            rounds=rows.rounds[keep],
-            pair=rows.pair[keep],
-        )
+        return rows._replace(A=A, b=b, dirs=dirs, points=points, slots=slots, rounds=rounds, pair=pair)
 
     def _fault(self, rows: DamperRows) -> int:
         """The fault these rows raise (:data:`FAULTS`), or 0: more rows than
