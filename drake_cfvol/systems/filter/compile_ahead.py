@@ -88,6 +88,7 @@ _COMPILED = (
     filter_kernel.braking_lead,
     filter_kernel.stop_steps,
     filter_kernel.finish,
+    filter_kernel.outside,
     damper_kernel.pair_rows,
     damper_kernel.near_pairs,
     damper_kinematics._budget_moved,

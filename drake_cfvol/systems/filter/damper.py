@@ -279,7 +279,7 @@ class VelocityDamper:
         P = len(self._pairs)
         pair_reach = np.full(P, self.influence_distance)
         if reach is not None:
-            pair_reach = np.maximum(pair_reach, np.broadcast_to(np.asarray(reach, float), (P,)))
+            np.maximum(pair_reach, np.asarray(reach, float), out=pair_reach)  # a scalar or (P,), else ValueError
         self.reach = float(pair_reach.max()) if P else self.influence_distance
         # Broad phase: a pair whose bounding balls lie apart by its reach or
         # more is not measured (its distance is at least that).

@@ -248,9 +248,11 @@ def pair_rows(near, sides, kin, gains):
     influence, rate, target = gains
     N, k = len(pairs), kin[2].shape[2]
     cap = N * (1 + 2 * probes.shape[2])
-    A, b = np.zeros((cap, k)), np.zeros(cap)
-    dirs, points = np.zeros((cap, 3)), np.zeros((cap, 2, 3))
-    slots, rounds, owner = np.full((cap, 2), -1, np.int64), np.zeros((cap, 2)), np.zeros(cap, np.int64)
+    # Room for every probe's row (most are not made): not zeroed, _emit
+    # writes each field of a row it makes, and only those rows are returned.
+    A, b = np.empty((cap, k)), np.empty(cap)
+    dirs, points = np.empty((cap, 3)), np.empty((cap, 2, 3))
+    slots, rounds, owner = np.empty((cap, 2), np.int64), np.empty((cap, 2)), np.empty(cap, np.int64)
     out = (A, b, dirs, points, slots, rounds, owner)
     w = np.zeros((2, 3))
     P = np.zeros((2, probes.shape[2], 3))

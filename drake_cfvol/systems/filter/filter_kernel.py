@@ -24,6 +24,7 @@ __all__ = [
     "face_speed",
     "filter_rounds",
     "hard_interval",
+    "outside",
     "request",
     "stop_distance",
     "stop_steps",
@@ -509,6 +510,16 @@ def finish(q, v, lo, hi, h_lo, h_hi, limits, desired, period, sane, changed):
         if abs(q_next[j] - desired[j]) > changed:
             acted = True
     return out, q_next, exited, ratio, acted
+
+
+@njit(cache=True)
+def outside(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, tol: float) -> bool:
+    """Whether q lies outside [lower, upper] by more than ``tol`` in some
+    joint (q < lower - tol or q > upper + tol)."""
+    for j in range(len(q)):
+        if q[j] < lower[j] - tol or q[j] > upper[j] + tol:
+            return True
+    return False
 
 
 @njit(cache=True)

@@ -54,6 +54,7 @@ from drake_cfvol.systems.filter.filter_kernel import (
     budget_after,
     finish,
     hard_interval,
+    outside,
     request,
     stop_steps,
 )
@@ -322,6 +323,10 @@ class SafetyFilter(LeafSystem):
         )
         self._jerk = (np.full(k, np.inf) if self.jerk_limits is None else self.jerk_limits) * (1.0 - _HAIR_ACCELERATION)
         self._braked = bool(np.isfinite(self._acceleration).any() or np.isfinite(self._jerk).any())
+        # One update's change of the velocity and of the acceleration at the
+        # limits (0 without one), for the braking reach.
+        self._step_dv = np.where(np.isfinite(self._acceleration), self._acceleration * self.period, 0.0)
+        self._step_da = np.where(np.isfinite(self._jerk), self._jerk * self.period, 0.0)
         q0 = np.zeros(k) if initial_position is None else np.asarray(initial_position, float)
         if q0.shape != (k,):
             raise DimensionError("initial_position", k, q0.shape)
@@ -509,7 +514,8 @@ class SafetyFilter(LeafSystem):
         face_velocity = np.zeros(k)
         if nominal is not None and self._braked:
             last = context.get_discrete_state(self._nominal_last).CopyToVector()
-            face_velocity = np.nan_to_num((nominal - last) / h, nan=0.0, posinf=0.0, neginf=0.0)
+            face_velocity = (nominal - last) / h
+            face_velocity = np.where(np.isfinite(face_velocity), face_velocity, 0.0)  # NaN: no nominal yet
             discrete_state.get_mutable_vector(self._nominal_last).SetFromVector(nominal)
         ahead = np.full((2, k), np.nan)
         if self.lower_ahead_input.HasValue(context) and self.upper_ahead_input.HasValue(context):
@@ -586,7 +592,7 @@ class SafetyFilter(LeafSystem):
             q, np.asarray(v, float), lo, hi, h_lo, h_hi, self.velocity_limits, desired, h, sane, _CHANGED
         )
         if sane and self._braked:  # a face the limits could not brake for in time counts as leaving the box
-            exited = exited or bool(np.any((q_next < lower - 1e-9) | (q_next > upper + 1e-9)))
+            exited = exited or outside(q_next, lower, upper, 1e-9)
         self._command(discrete_state, q_next, v, v_last)
         if sane and self._damper.num_pairs and self.skip_far_pairs:
             discrete_state.get_mutable_vector(self._budget).SetFromVector(keep)
@@ -630,10 +636,8 @@ class SafetyFilter(LeafSystem):
         need the row earlier to stop it in time
         (:func:`~.filter_kernel.braking_lead`)."""
         h = self.period
-        dv = np.where(np.isfinite(self._acceleration), self._acceleration * h, 0.0)
-        da = np.where(np.isfinite(self._jerk), self._jerk * h, 0.0)
-        speed = self._damper.pair_speeds(kin[2], kin[3], v_last, dv, levers)
-        closing = self._damper.pair_speeds(kin[2], kin[3], a_last, da, levers)
+        speed = self._damper.pair_speeds(kin[2], kin[3], v_last, self._step_dv, levers)
+        closing = self._damper.pair_speeds(kin[2], kin[3], a_last, self._step_da, levers)
         lead, ramp = braking_lead(v_last, a_last, self._vmax, self._acceleration, self._jerk, self.rate, h)
         return np.maximum(self.target_distance + (speed + ramp * closing) * lead + speed * h, self.influence_distance)
 
