@@ -33,7 +33,10 @@ clearance to prove anything, and the cut kept is the one that loses the
 least log-width, counting what the rate limit then takes from the
 neighbouring waypoints. A round cuts the first failing region of each
 failing edge, skipping one an earlier cut of the round freed already;
-the rest is tested again against the cut box next round. Cuts only
+then the same regions' grid points are checked again against the cut box
+and a point still nearer is cut again, up to POINT_ROUNDS times (points
+are cheap; a region round tests again every edge a cut changed). The rest
+is tested again against the cut box next round. Cuts only
 tighten: single-joint motions proven by the sweep stay proven. After the
 cuts the waypoint boxes are rate-limited again
 (:func:`drake_cfvol.algorithm.table.rate_limited`), which may tighten neighbours;
@@ -194,6 +197,10 @@ def _failures_of(arrays, lower, upper, nominal, stretch_tasks, margins, memo, ke
             memo.pop(("failed",) + key, None)  # a failure of a wider range: stale
     return failed + again, tests
 
+
+#: Rounds of point checks and cuts on a round's failing regions before the
+#: region tests run again (see :func:`prove_boundary`).
+POINT_ROUNDS = 8
 
 #: The most halvings along the joint an edge tested again starts with (the
 #: depth at which it passed last time): 2^START_SPLITS pieces at most.
@@ -469,44 +476,35 @@ def prove_boundary(
         for i in todo:
             if i not in failing:  # a failing one is asked again, even if its cut changed nothing
                 proven[i] = _signature(lower, upper, i)
-        taken: set = set()
         stuck = set()
-        points = colliding_points(arrays, lower, upper, nominal, fails, margins, slacks)
-        for fail, hit in zip(fails, points):
-            if fail.i in stuck:
-                continue
-            if hit is not None:
-                # A real collision on the edge: cut as at a corner, the edge's
-                # own joint one of the candidates.
-                s_hit, q = hit
-                cut_point(
-                    workcell,
-                    arrays,
-                    lower,
-                    upper,
-                    nominal,
-                    rate,
-                    fail.i,
-                    s_hit,
-                    q,
-                    float(margins[fail.i]),
-                    float(slacks[fail.i]),
-                    taken,
-                    own=fail.j,
-                )
-            elif not cut_for(
-                workcell,
-                arrays,
-                lower,
-                upper,
-                nominal,
-                rate,
-                fail,
-                float(margins[fail.i]),
-                float(slacks[fail.i]),
-                taken,
-            ):
-                stuck.add(fail.i)
+        round_cuts = 0
+        todo_fails = fails
+        # The failing regions' edge points are checked again after the cuts
+        # and cut again, up to POINT_ROUNDS times, before the region tests
+        # run again: what the next round's tests would find there, points
+        # find, without testing every edge the cuts changed (automotive
+        # path 1: 262k region tests instead of 455k, in 12 rounds instead of 24).
+        for point_round in range(POINT_ROUNDS):
+            points = colliding_points(arrays, lower, upper, nominal, todo_fails, margins, slacks)
+            if point_round > 0:
+                found = [(f, p) for f, p in zip(todo_fails, points) if p is not None]
+                if not found:
+                    break
+                todo_fails, points = [f for f, _ in found], [p for _, p in found]
+            round_taken: set = set()
+            for fail, hit in zip(todo_fails, points):
+                if fail.i in stuck:
+                    continue
+                box = (workcell, arrays, lower, upper, nominal, rate)
+                room = (float(margins[fail.i]), float(slacks[fail.i]), round_taken)
+                if hit is not None:
+                    # A real collision on the edge: cut as at a corner, the edge's
+                    # own joint one of the candidates.
+                    cut_point(*box, fail.i, hit[0], hit[1], *room, own=fail.j)
+                elif not cut_for(*box, fail, *room):
+                    stuck.add(fail.i)
+            round_cuts += len(round_taken)
+            lower[:], upper[:] = rate_limited(lower, upper, nominal, rate)
         for i in stuck:
             # Nothing cut passes: the region sits on the nominal, which comes
             # nearer than this stretch's margin between the points where
@@ -519,7 +517,7 @@ def prove_boundary(
             margins[i] = 0.5 * margins[i] if margins[i] > 1e-4 else 0.0
             proven.pop(i, None)
             lowered += 1
-        cuts += len(taken)
+        cuts += round_cuts
         new_lo, new_hi = rate_limited(lower, upper, nominal, rate)
         lower[:], upper[:] = new_lo, new_hi
     unproven = [i for i in range(n_st) if proven.get(i) != _signature(lower, upper, i)]
