@@ -501,3 +501,39 @@ def test_certificate_report_names_both_distributions(corner):
     text = cert.info["certificate"]["sampled"]
     assert "uniform in the box" in text and "where a clamp lands" in text
     assert "4606 samples uniform" in text and "461 samples where" in text  # epsilon 1e-3 and the clamp's 1e-2
+
+
+def test_halving_in_s_drops_pieces_the_edge_never_reaches(corner, monkeypatch):
+    """A failing region halved in s keeps only the pieces where the edge's
+    joint range (linear in s) meets the region's: a piece it misses holds
+    no point of the edge. By hand: joint 0's box moves from [0, 0.1] at
+    waypoint 0 to [0.3, 0.4] at waypoint 1, so over s in [0.5, 1] it spans
+    [0.15, 0.4], which misses the region's [0, 0.1]. Before, that piece was
+    tested with its range inverted ([0.15, 0.1]) and could fail forever (the
+    mesh robot's proof then cut its box to 0.26 of the joint ranges instead
+    of 0.36)."""
+    from drake_cfvol.algorithm.certificate import boundary
+    from drake_cfvol.algorithm.certificate.boundary_regions import MAX_SPLITS, S_SPLITS, _Item
+
+    wc, _ = corner
+    arrays = wc.scene_arrays()
+    nominal = np.array([[0.05, 0.0], [0.35, 0.0]])
+    lower = np.array([[0.0, -0.05], [0.3, -0.05]])
+    upper = np.array([[0.1, 0.05], [0.4, 0.05]])
+    S = np.array([0, 0])
+    A, B = np.array([0.0, -0.05]), np.array([0.3, -0.05])
+    depth = MAX_SPLITS - S_SPLITS  # the next halving is in s
+    item = _Item(0, 0.0, 1.0, 0, 0.0, 0.1, S, A, B, root=0, depth=depth)
+    tested = []
+    real_test = boundary._test
+
+    def recording(arrays, items, margins):
+        tested.extend(items)
+        return real_test(arrays, items, margins)
+
+    monkeypatch.setattr(boundary, "_test", recording)
+    failed, _, _ = boundary._halvings(arrays, lower, upper, nominal, [item], np.zeros(1), tested=True)
+    assert tested, "the item was not halved"
+    assert all(it.va <= it.vb for it in tested + failed)
+    assert all(it.sb <= 0.5 for it in tested if it.depth == depth + 1), [(it.sa, it.sb) for it in tested]
+    assert not failed  # the arm is far from the post here

@@ -292,6 +292,11 @@ def _halvings(arrays, lower, upper, nominal, items, margins, tested: bool = Fals
             for half in range(2):
                 v_lo = max(min(lo[half, it.j], lo[half + 1, it.j]), it.va)
                 v_hi = min(max(hi[half, it.j], hi[half + 1, it.j]), it.vb)
+                if v_lo > v_hi:
+                    # The edge's range over this half misses the piece's (the
+                    # bound is linear in s): no point of the edge lies here. An
+                    # inverted range would be tested as if it did, and fail.
+                    continue
                 vm = 0.5 * (v_lo + v_hi)
                 for u0, u1 in ((v_lo, vm), (vm, v_hi)):
                     items.append(
