@@ -255,7 +255,6 @@ def _starved_without_cause(workcell, table) -> list[str]:
         {
             ("automotive", "path1"): "issue 48: joint 1 cut to 0.000 rad at waypoint 108 (1.75 uncertified), "
             "its corners free when widened: the cut-by-cut shrinking starves it",
-            ("aerospace", "path2"): "issue 48: joint 3 cut to 0.006 rad at waypoint 113 (3.43 uncertified)",
         },
     ),
 )
