@@ -5,8 +5,8 @@ import pytest
 from conftest import write_arm_cell
 
 import drake_cfvol as cf
-from drake_cfvol.algorithm import boundary as B
-from drake_cfvol.algorithm import cuts as C
+from drake_cfvol.algorithm.certificate import boundary as B
+from drake_cfvol.algorithm.certificate import cuts as C
 
 
 @pytest.fixture(scope="module")
