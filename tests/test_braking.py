@@ -7,9 +7,16 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pydrake.common.eigen_geometry import AngleAxis
+from pydrake.geometry import Box, Capsule
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, CoulombFriction
+from pydrake.multibody.tree import FixedOffsetFrame, RevoluteJoint, SpatialInertia
 from pydrake.systems.analysis import Simulator
+from pydrake.systems.framework import DiagramBuilder
 from test_safety import VMAX, _arm, _drake_distance, _fix
 
+from drake_cfvol.systems.filter.damper_kernel import probes as probes_of
 from drake_cfvol.systems.filter.damper_kinematics import _second_order
 from drake_cfvol.systems.filter.filter_kernel import (
     ROW_DECELERATION_SHARE,
@@ -19,6 +26,7 @@ from drake_cfvol.systems.filter.filter_kernel import (
     braking_lead,
     face_speed,
     hard_interval,
+    plane_bends,
     stop_distance,
     stop_steps,
 )
@@ -72,17 +80,47 @@ def _rotations(rng, n):
     return out
 
 
+def _plane_bends_numpy(before, after, A, dirs, points, slots, pair, stop, sides):
+    """plane_bends written out in NumPy (to 1e-12: its sums in another order)."""
+    probes, counts, radii = sides
+    (R0, o0), (R1, o1) = before, after
+    out, seen = np.zeros(len(A)), set()
+    for i in range(len(A)):
+        p = pair[i]
+        if p in seen:
+            continue
+        seen.add(p)
+        if (slots[i] < 0).any():
+            continue
+        extra = []
+        for t, sign in ((1, 1.0), (0, -1.0)):  # the plane on side t, the other side's probes
+            u, c = 1 - t, counts[p, 1 - t]
+            if c == 0:
+                continue
+            st, su = slots[i, t], slots[i, u]
+            turn = R1[st] @ R0[st].T
+            gap0 = np.min(sign * (probes[p, u, :c] @ R0[su].T + o0[su] - points[i, t]) @ dirs[i] - radii[p, u, :c])
+            n1, w1 = turn @ dirs[i], turn @ (points[i, t] - o0[st]) + o1[st]
+            gap1 = np.min(sign * (probes[p, u, :c] @ R1[su].T + o1[su] - w1) @ n1 - radii[p, u, :c])
+            extra.append(gap0 + A[i] @ stop - gap1)
+        if extra:
+            out[i] = max(min(extra), 0.0)
+    return out
+
+
 def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
     """braked_rows, one compiled call, equals the filter's former steps in
     NumPy bit for bit: the least A v in the hard interval (NumPy's pairwise
     sum, 8 running sums from 8 joints on), the bound, the rows carried to
     the joints' stop (no round radii), brake_rows and the rows the test keeps; random rows
-    for 1 to 20 joints. And its sum is NumPy's for 1 to 128 terms."""
+    for 1 to 20 joints. And its sum is NumPy's for 1 to 128 terms. The
+    witness rows' plane bends (:func:`plane_bends`, which braked_rows
+    calls) are NumPy's to 1e-12 (summed in another order)."""
     rng = np.random.default_rng(11)
     for n in range(1, 129):
         x = rng.standard_normal(n) * 10.0 ** rng.uniform(-5, 5, n)
         assert _sum_as_numpy(x, n) == x.sum()
-    kept = rows = 0
+    kept = rows = bent = 0
     for trial in range(60):
         k, S, m = 1 + trial % 20, int(rng.integers(1, 5)), int(rng.integers(1, 40))
         A, b = rng.standard_normal((m, k)), rng.uniform(-0.3, 0.1, m)
@@ -103,7 +141,19 @@ def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
         theta = float(w.sum()) * h
         worst = np.minimum(A * h_lo, A * h_hi).sum(axis=1)
         bound = theta * np.append(lever_speed, 0.0)[slots].sum(axis=1)
+        n_probes = int(rng.integers(0, 9))
+        sides = (
+            rng.standard_normal((30, 2, n_probes, 3)),
+            rng.integers(0, n_probes + 1, (30, 2)),
+            rng.uniform(0, 0.1, (30, 2, n_probes)),
+        )
         bend = _second_order(*before, *after, A, dirs, points, slots, np.zeros((m, 2)), rev, stop)
+        planes = plane_bends(before, after, A, dirs, points, slots, pair, stop, sides)
+        assert np.allclose(
+            planes, _plane_bends_numpy(before, after, A, dirs, points, slots, pair, stop, sides), rtol=0, atol=1e-12
+        )
+        bent += int((planes > 0).sum())
+        bend = np.maximum(bend, planes)
         expected = brake_rows(A, b, 2.0, acc, jerk, h, v_last, h_lo, h_hi, bound, bend)
         keep = worst < expected + bound
         got = braked_rows(
@@ -113,13 +163,14 @@ def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
             (rev, stop, lever_speed, w),
             (acc, jerk, h, 2.0),
             (v_last, h_lo, h_hi),
+            sides,
         )
         for x, y in zip(
             got, (A[keep], expected[keep], dirs[keep], points[keep], slots[keep], rounds[keep], pair[keep])
         ):
             assert x.dtype == y.dtype and np.array_equal(x, y)
         kept += int(keep.sum())
-    assert 0 < kept < rows
+    assert 0 < kept < rows and bent > 0
 
 
 def test_face_speed_is_the_fastest_that_still_stops_in_time():
@@ -199,6 +250,98 @@ def test_a_row_made_at_the_braking_lead_can_still_stop_its_pair():
         assert s_lo * h + stop_distance(s_lo, (s_lo - s_last) / h, row_acc, row_jerk, h) <= gap + 1e-12
         checked += 1
     assert checked > 2500
+
+
+def _spun_pair(shape_a, X_A, shape_b, X_BG, axis, centre):
+    """Shape A fixed at X_A and shape B on a body turning about ``axis``
+    through ``centre`` (the body's origin, X_BG its pose on it): the plant,
+    its context, the scene graph's query port and the two geometry ids."""
+    builder = DiagramBuilder()
+    plant, sg = AddMultibodyPlantSceneGraph(builder, 0.0)
+    inertia = SpatialInertia.SolidSphereWithMass(1.0, 0.05)
+    body = plant.AddRigidBody("b", inertia)
+    pivot = plant.AddFrame(FixedOffsetFrame("pivot", plant.world_frame(), RigidTransform(centre)))
+    plant.AddJoint(RevoluteJoint("turn", pivot, body.body_frame(), axis))
+    friction = CoulombFriction(0.5, 0.5)
+    id_a = plant.RegisterCollisionGeometry(plant.world_body(), X_A, shape_a, "a", friction)
+    id_b = plant.RegisterCollisionGeometry(body, X_BG, shape_b, "b", friction)
+    plant.Finalize()
+    diagram = builder.Build()
+    ctx = diagram.CreateDefaultContext()
+    return (
+        plant,
+        plant.GetMyMutableContextFromRoot(ctx),
+        sg.get_query_output_port(),
+        sg.GetMyContextFromRoot(ctx),
+        id_a,
+        id_b,
+    )
+
+
+def test_a_spun_link_s_witness_row_closes_no_more_than_its_planes_say():
+    """Two boxes, or a box and a capsule, of two links (the one fixed, the
+    other turning about an axis through a point, up to 0.8 rad: a joint's
+    stop): the pair's witness row, first order in the turn less its bend
+    (the rows' points carried to the turn and, by plane_bends, the pair's
+    witness planes carried with their links), never says more than Drake's
+    signed distance after the turn. The rows' own points alone say more by
+    up to tens of mm where the closest points slide (a box's edge swept
+    across the other's, as the aerospace cell's spinning gripper over its
+    link_3 came 16 mm inside the margin it braked for)."""
+    rng = np.random.default_rng(7)
+    checked, misses = 0, []
+    while checked < 150:
+        size_a, size_b = rng.uniform(0.1, 1.0, 3), rng.uniform(0.1, 1.0, 3)
+        shape_b = Box(*size_b) if checked % 3 else Capsule(size_b[0] / 2, size_b[1])
+        X_A = RigidTransform(RollPitchYaw(rng.uniform(-np.pi, np.pi, 3)), rng.uniform(-0.3, 0.3, 3))
+        X_BG = RigidTransform(RollPitchYaw(rng.uniform(-np.pi, np.pi, 3)), rng.uniform(-0.5, 0.5, 3))
+        axis = rng.standard_normal(3)
+        axis /= np.linalg.norm(axis)
+        centre = rng.uniform(-1.5, 1.5, 3)
+        plant, pctx, port, sctx, id_a, id_b = _spun_pair(Box(*size_a), X_A, shape_b, X_BG, axis, centre)
+        query = port.Eval(sctx)
+        pair = query.ComputeSignedDistancePairClosestPoints(id_a, id_b)
+        if not 0.005 < pair.distance < 0.2:
+            continue
+        first = pair.id_A == id_a  # Drake's A is side 0 of the row
+        ids = (id_a, id_b) if first else (id_b, id_a)
+        shapes = (Box(*size_a), shape_b) if first else (shape_b, Box(*size_a))
+        geometry_on_body = (X_A, X_BG) if first else (X_BG, X_A)
+        slot_of = (0, 1) if first else (1, 0)  # slot 0: the fixed link, 1: the turning one
+        n = np.asarray(pair.nhat_BA_W, float)
+        P1 = query.GetPoseInWorld(ids[0]).multiply(pair.p_ACa)
+        P2 = query.GetPoseInWorld(ids[1]).multiply(pair.p_BCb)
+        speed = {
+            0: np.zeros(3),
+            1: np.cross(axis, (P2 if first else P1) - centre),
+        }  # per unit turn, on the turning side
+        A_row = np.array([[n @ speed[slot_of[0]] - n @ speed[slot_of[1]]]])
+
+        def poses(theta):
+            R = RotationMatrix(AngleAxis(theta, axis)).matrix()
+            return np.stack([np.eye(3), R]), np.stack([np.zeros(3), centre])
+
+        counts, probes, radii = np.zeros((1, 2), np.int64), np.zeros((1, 2, 8, 3)), np.zeros((1, 2, 8))
+        for side in range(2):
+            c, r = probes_of(shapes[side])
+            P_B = geometry_on_body[side].multiply(c).T
+            counts[0, side], probes[0, side, : len(r)], radii[0, side, : len(r)] = len(r), P_B, r
+        dirs, points = n[None], np.array([[P1, P2]])
+        slots, rev = np.array([slot_of]), np.array([[0.0], [1.0]])
+        theta = rng.uniform(-0.8, 0.8)
+        stop = np.array([theta])
+        before, after = poses(0.0), poses(theta)
+        own = _second_order(*before, *after, A_row, dirs, points, slots, np.zeros((1, 2)), rev, stop)[0]
+        planes = plane_bends(
+            before, after, A_row, dirs, points, slots, np.zeros(1, np.int64), stop, (probes, counts, radii)
+        )
+        plant.SetPositions(pctx, [theta])
+        truth = port.Eval(sctx).ComputeSignedDistancePairClosestPoints(id_a, id_b).distance
+        first_order = pair.distance + float(A_row[0] @ stop)
+        assert first_order - max(own, planes[0]) <= truth + 1e-9
+        misses.append(first_order - own - truth)
+        checked += 1
+    assert max(misses) > 0.02  # the rows' own points alone would have said more by over 20 mm
 
 
 def test_the_hard_interval_keeps_every_limit_and_stays_open():

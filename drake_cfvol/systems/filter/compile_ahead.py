@@ -83,7 +83,7 @@ _COMPILED = (
     filter_kernel.budget_after,
     filter_kernel.request,
     filter_kernel.hard_interval,
-    filter_kernel.braked_rows,  # brake_rows compiles into it: no call of its own
+    filter_kernel.braked_rows,  # brake_rows and plane_bends compile into it: no call of their own
     filter_kernel.braking_lead,
     filter_kernel.stop_steps,
     filter_kernel.finish,

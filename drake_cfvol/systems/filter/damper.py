@@ -182,6 +182,13 @@ class VelocityDamper:
         return self._kin
 
     @property
+    def probe_spheres(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per pair and side, its probe spheres in its body's frame: centres
+        (P, 2, n, 3), counts (P, 2) and radii (P, 2, n) (none on a side no
+        joint moves)."""
+        return self._sides[3], self._sides[4], self._sides[5]
+
+    @property
     def num_pairs(self) -> int:
         """How many geometry pairs the damper watches."""
         return len(self._pairs)

@@ -25,6 +25,7 @@ __all__ = [
     "filter_rounds",
     "hard_interval",
     "outside",
+    "plane_bends",
     "request",
     "stop_distance",
     "stop_steps",
@@ -397,9 +398,90 @@ def _sum_as_numpy(x: np.ndarray, n: int) -> float:
     return out
 
 
+@njit(cache=True, inline="always")
+def _plane_gap(n, w, sign, probes, count, radii, R, o, slot):
+    """The least distance of a side's probe spheres (``probes`` (c, 3) in
+    the body frame of ``slot``, posed by R, o; ``radii``) from the plane
+    through ``w`` with normal ``sign`` n (world frame)."""
+    best = np.inf
+    for c in range(count):
+        x = 0.0
+        for r in range(3):
+            p = R[slot, r, 0] * probes[c, 0] + R[slot, r, 1] * probes[c, 1] + R[slot, r, 2] * probes[c, 2] + o[slot, r]
+            x += sign * n[r] * (p - w[r])
+        best = min(best, x - radii[c])
+    return best
+
+
+@njit(cache=True)
+def plane_bends(before, after, A, dirs, points, slots, pair, stop, sides):
+    """Per row, how much more its pair closes over the joints' ``stop``
+    than the row's first order says, by the pair's supporting planes (m):
+    for the witness row (the first row of its pair) of a pair of two
+    moving bodies, the least over the two sides of B_t(before) + A_i stop
+    - B_t(after), B_t the least distance of one side's probe spheres from
+    the plane through the other side's witness (normal towards them),
+    that plane carried with its own body; 0 for the other rows. The
+    witness plane supports its side wherever the body goes, so B_t(after)
+    bounds the pair's distance at the stop from below when the probes
+    hold their shape's lowest points along any direction (a polytope's
+    vertices, a capsule's end spheres), however far the closest points
+    slide. The rows' own points carried to the stop (``_second_order``)
+    do not: two boxes crossing edge to edge close without either's
+    witness point closing.
+
+    Args:
+        before, after: (R, o), the slots' poses at the base and at the stop.
+        A, dirs, points, slots, pair: the damper's rows (each pair's
+            witness row first, P1 on the pair's side 0, dirs from side 1
+            towards side 0).
+        stop: (k,) the joints' stop (:func:`stop_steps`).
+        sides: (probes (P, 2, n, 3) in the body frames, their counts (P,
+            2), radii (P, 2, n)), per pair and side.
+    """
+    probes, counts, radii = sides
+    R0, o0 = before
+    R1, o1 = after
+    m, k = A.shape
+    out = np.zeros(m)
+    seen = np.zeros(max(counts.shape[0], 1), np.bool_)
+    w1, n1 = np.zeros(3), np.zeros(3)
+    for i in range(m):
+        p = pair[i]
+        if seen[p]:
+            continue
+        seen[p] = True
+        s0, s1 = slots[i, 0], slots[i, 1]
+        if s0 < 0 or s1 < 0:
+            continue  # a welded side: its rows are planes fixed in the world, carried exactly
+        lin = 0.0
+        for j in range(k):
+            lin += A[i, j] * stop[j]
+        extra = np.inf
+        for t in range(2):  # the plane on side t, side 1 - t's probes
+            u = 1 - t
+            if counts[p, u] == 0:
+                continue
+            st, su = slots[i, t], slots[i, u]
+            sign = 1.0 if t == 1 else -1.0
+            gap0 = _plane_gap(dirs[i], points[i, t], sign, probes[p, u], counts[p, u], radii[p, u], R0, o0, su)
+            # The plane carried with its body: n' = R1 R0^T n, w' = R1 R0^T (w - o0) + o1.
+            for r in range(3):
+                n1[r], w1[r] = 0.0, o1[st, r]
+                for c in range(3):
+                    rot = R1[st, r, 0] * R0[st, c, 0] + R1[st, r, 1] * R0[st, c, 1] + R1[st, r, 2] * R0[st, c, 2]
+                    n1[r] += rot * dirs[i, c]
+                    w1[r] += rot * (points[i, t, c] - o0[st, c])
+            gap1 = _plane_gap(n1, w1, sign, probes[p, u], counts[p, u], radii[p, u], R1, o1, su)
+            extra = min(extra, gap0 + lin - gap1)
+        if np.isfinite(extra):
+            out[i] = max(extra, 0.0)
+    return out
+
+
 @njit(cache=True)
 def braked_rows(
-    rows: tuple, before: tuple, after: tuple, motion: tuple, limits: tuple, command: tuple
+    rows: tuple, before: tuple, after: tuple, motion: tuple, limits: tuple, command: tuple, sides: tuple
 ) -> tuple[np.ndarray, ...]:
     """The damper's rows braked in time, less those that cannot bind at
     this update (:meth:`~drake_cfvol.systems.filter.safety.SafetyFilter._braked_rows`),
@@ -419,6 +501,7 @@ def braked_rows(
             dt (s) and the damper's rate (1/s).
         command: (v_last, h_lo, h_hi) (k,) each: the last command and the
             hard interval.
+        sides: the pairs' probe spheres (:func:`plane_bends`).
     """
     A, b, dirs, points, slots, rounds, pair = rows
     rev, stop, lever_speed, w = motion
@@ -439,6 +522,8 @@ def braked_rows(
     # The rows' points carried to the stop (a round shape's sliding witness,
     # which the rounds bound per step, is not motion towards the pair).
     bend = _second_order(before[0], before[1], after[0], after[1], A, dirs, points, slots, np.zeros((m, 2)), rev, stop)
+    # A pair of two moving bodies: its witness row closes as its supporting planes say, when more.
+    bend = np.maximum(bend, plane_bends(before, after, A, dirs, points, slots, pair, stop, sides))
     out = brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, bound, bend)
     keep = np.flatnonzero(worst < out + bound)
     n = len(keep)

@@ -656,7 +656,9 @@ class SafetyFilter(LeafSystem):
         slots' (R, o) at ``base`` (the update's kinematics)."""
         w = np.maximum(np.abs(h_lo), np.abs(h_hi))
         # The rows' points turn on the way to the joints' stop: each row
-        # closes by its second-order term over that step more than it says.
+        # closes by its second-order term over that step more than it says;
+        # a pair of two moving links by as much as its supporting planes
+        # say (its closest points slide: :func:`~.filter_kernel.plane_bends`).
         stop = stop_steps(v_last, a_last, self._acceleration, self._jerk, self.period)
         # One compiled call for every row (the rows are many, few are kept):
         # the least A v in the interval, twice the bound as a rate (m/s),
@@ -668,6 +670,7 @@ class SafetyFilter(LeafSystem):
             (self._damper.kinematics.rev, stop, levers @ w, w),
             (self._acceleration, self._jerk, self.period, self.rate),
             (v_last, h_lo, h_hi),
+            self._damper.probe_spheres,
         )
         return rows._replace(A=A, b=b, dirs=dirs, points=points, slots=slots, rounds=rounds, pair=pair)
 
