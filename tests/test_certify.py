@@ -525,14 +525,14 @@ def test_halving_in_s_drops_pieces_the_edge_never_reaches(corner, monkeypatch):
     depth = MAX_SPLITS - S_SPLITS  # the next halving is in s
     item = _Item(0, 0.0, 1.0, 0, 0.0, 0.1, S, A, B, root=0, depth=depth)
     tested = []
-    real_test = boundary._test
+    real_test = boundary._test_regions
 
-    def recording(arrays, items, margins):
-        tested.extend(items)
-        return real_test(arrays, items, margins)
+    def recording(arrays, regions, margins):
+        tested.extend(regions.items())
+        return real_test(arrays, regions, margins)
 
-    monkeypatch.setattr(boundary, "_test", recording)
-    failed, _, _ = boundary._halvings(arrays, lower, upper, nominal, [item], np.zeros(1), tested=True)
+    monkeypatch.setattr(boundary, "_test_regions", recording)
+    failed, _, _ = boundary._halvings(arrays, lower, upper, nominal, boundary._Regions.of_items([item]), np.zeros(1))
     assert tested, "the item was not halved"
     assert all(it.va <= it.vb for it in tested + failed)
     assert all(it.sb <= 0.5 for it in tested if it.depth == depth + 1), [(it.sa, it.sb) for it in tested]

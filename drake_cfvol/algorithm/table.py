@@ -218,6 +218,29 @@ def _deviation_range(lower, upper, nominal, sigma, linear, stretch_lower, stretc
     return dev_lo, dev_hi
 
 
+@njit(cache=True)
+def _linear_boxes(lower, upper, nominal, s, i):
+    """box_at's "linear" rule for (n,) s in stretches i (g > 1), in its
+    arithmetic bit for bit: each bound linear between its waypoints', held
+    at the nominal; at an integer s the waypoint's box and nominal."""
+    n, k = len(s), nominal.shape[1]
+    lo, hi, nom = np.empty((n, k)), np.empty((n, k)), np.empty((n, k))
+    for r in range(n):
+        a = i[r]
+        t = s[r] - a
+        w = int(s[r])
+        exact = s[r] == math.floor(s[r])
+        for j in range(k):
+            if exact:
+                lo[r, j], hi[r, j], nom[r, j] = lower[w, j], upper[w, j], nominal[w, j]
+                continue
+            x = nominal[a, j] + t * (nominal[a + 1, j] - nominal[a, j])
+            lo[r, j] = min((1.0 - t) * lower[a, j] + t * lower[a + 1, j], x)
+            hi[r, j] = max((1.0 - t) * upper[a, j] + t * upper[a + 1, j], x)
+            nom[r, j] = x
+    return lo, hi, nom
+
+
 def box_at(
     lower: np.ndarray,
     upper: np.ndarray,
@@ -276,18 +299,14 @@ def box_at(
     if bad.any():
         raise ParameterError(f"path index s = {s[bad][0]} is outside [0, {g - 1}] (g = {g} waypoints).")
     i = np.clip(np.floor(s).astype(int), 0, max(g - 2, 0))
+    if g > 1 and interpolation == "linear":
+        # One compiled pass: the certificate's search asks for millions.
+        lo, hi, nom = _linear_boxes(lower, upper, nominal, s, i)
+        return (lo[0], hi[0], nom[0]) if scalar else (lo, hi, nom)
     # The nominal, linear between waypoints (nominal_trajectory's values, bit for bit).
     nom = nominal[i] + (s - i)[:, None] * (nominal[i + 1] - nominal[i]) if g > 1 else nominal[i]
     if g == 1:
         lo, hi = lower[i], upper[i]
-    elif interpolation == "linear":
-        t = (s - i)[:, None]
-        lo = (1.0 - t) * lower[i] + t * lower[i + 1]
-        hi = (1.0 - t) * upper[i] + t * upper[i + 1]
-        lo, hi = np.minimum(lo, nom), np.maximum(hi, nom)
-        at = s == np.floor(s)
-        w = s[at].astype(int)
-        lo[at], hi[at], nom[at] = lower[w], upper[w], nominal[w]
     else:
         # The stretch rule with g > 1: its arrays were filled in above.
         assert stretch_lower is not None and stretch_upper is not None and rate is not None

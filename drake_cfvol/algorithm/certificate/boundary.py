@@ -57,7 +57,6 @@ from drake_cfvol.algorithm.certificate.boundary_regions import (
     S_SPLITS,
     _box,
     _Item,
-    _test,
     corner_points,
     edge_tasks,
     regions_may_collide,
@@ -170,15 +169,16 @@ def _failures_of(arrays, lower, upper, nominal, stretch_tasks, margins, memo, ke
     # object only for those that fail, halved further by _halvings.
     hit, tests = _first_test(arrays, stretch_tasks, margins)
     passed_at: dict = {}
-    bad, at = [], 0
+    bad: list[tuple] = []
+    at = 0
     for i, A, B, js, sig, first in stretch_tasks:
         for n, u0, u1, root, d in first:
             if hit[at]:
-                bad.append(_Item(i, float(i), float(i + 1), int(js[n]), u0, u1, sig[n], A[n], B[n], root=root, depth=d))
+                bad.append((i, n, u0, u1, root, d, js, sig, A, B))
             elif passed_at.get(root, MAX_SPLITS + 1) > d:
                 passed_at[root] = d
             at += 1
-    failed, more, deeper = _halvings(arrays, lower, upper, nominal, bad, margins, tested=True)
+    failed, more, deeper = _halvings(arrays, lower, upper, nominal, _Regions.of_first(bad, lower.shape[1]), margins)
     tests += more
     for r, d in deeper.items():
         passed_at[r] = min(passed_at.get(r, MAX_SPLITS + 1), d)
@@ -233,88 +233,236 @@ def _first_test(arrays, stretch_tasks, margins):
     return regions_may_collide(arrays, A, B, js, va, vb, pads), len(js)
 
 
-def _halvings(arrays, lower, upper, nominal, items, margins, tested: bool = False):
-    """Tests the regions, halving the failing ones (see :func:`failures`),
-    until each whole edge (an item's ``root``) is proven or has a failing
-    region: the shallowest halving's first, in order (the others of that
-    edge are not halved further). An item's ``depth`` counts the halvings
-    from its whole edge: along the joint first, in s and the joint past
-    MAX_SPLITS - S_SPLITS, none past MAX_SPLITS. ``tested``: the items
-    failed their test already (the caller's). Returns (failed items, region
-    tests run, root -> the smallest depth at which one of its pieces
-    passed)."""
+class _Regions:
+    """Edge regions as arrays, one row each (what _Item holds for one): the
+    halvings make about a million of them on the mesh robot's proof."""
+
+    __slots__ = ("I", "SA", "SB", "J", "VA", "VB", "S", "A", "B", "root", "depth")
+
+    def __init__(self, I, SA, SB, J, VA, VB, S, A, B, root, depth):
+        self.I, self.SA, self.SB, self.J, self.VA, self.VB = I, SA, SB, J, VA, VB
+        self.S, self.A, self.B, self.root, self.depth = S, A, B, root, depth
+
+    @classmethod
+    def of_first(cls, bad: list[tuple], k: int) -> "_Regions":
+        """The failing first regions: (i, edge row n, va, vb, root, depth, js,
+        sig, A, B) each, whole stretches in s."""
+        if not bad:
+            z, zk = np.zeros(0), np.zeros((0, k))
+            return cls(
+                z.astype(np.int64),
+                z,
+                z,
+                z.astype(np.int64),
+                z,
+                z,
+                zk.astype(np.int64),
+                zk,
+                zk,
+                z.astype(np.int64),
+                z.astype(np.int64),
+            )
+        I = np.array([b[0] for b in bad], np.int64)
+        rows = [b[1] for b in bad]
+        return cls(
+            I,
+            I.astype(float),
+            (I + 1).astype(float),
+            np.array([b[6][n] for b, n in zip(bad, rows)], np.int64),
+            np.array([b[2] for b in bad], float),
+            np.array([b[3] for b in bad], float),
+            np.array([b[7][n] for b, n in zip(bad, rows)]),
+            np.array([b[8][n] for b, n in zip(bad, rows)], float),
+            np.array([b[9][n] for b, n in zip(bad, rows)], float),
+            np.array([b[4] for b in bad], np.int64),
+            np.array([b[5] for b in bad], np.int64),
+        )
+
+    @classmethod
+    def of_items(cls, items: list[_Item]) -> "_Regions":
+        """The rows of these items, in order (int roots)."""
+        return cls(
+            np.array([it.i for it in items], np.int64),
+            np.array([it.sa for it in items], float),
+            np.array([it.sb for it in items], float),
+            np.array([it.j for it in items], np.int64),
+            np.array([it.va for it in items], float),
+            np.array([it.vb for it in items], float),
+            np.array([it.S for it in items]),
+            np.array([it.A for it in items], float),
+            np.array([it.B for it in items], float),
+            np.array([it.root for it in items], np.int64),
+            np.array([it.depth for it in items], np.int64),
+        )
+
+    def __len__(self) -> int:
+        return len(self.I)
+
+    def take(self, rows) -> "_Regions":
+        return _Regions(*(getattr(self, f)[rows] for f in self.__slots__))
+
+    def items(self) -> list[_Item]:
+        """One _Item per row (for the few that fail)."""
+        return [
+            _Item(
+                int(self.I[r]),
+                float(self.SA[r]),
+                float(self.SB[r]),
+                int(self.J[r]),
+                float(self.VA[r]),
+                float(self.VB[r]),
+                self.S[r],
+                self.A[r].copy(),
+                self.B[r].copy(),
+                int(self.root[r]),
+                int(self.depth[r]),
+            )
+            for r in range(len(self))
+        ]
+
+
+def _halvings(arrays, lower, upper, nominal, items: "_Regions", margins):
+    """Halves the failing regions ``items`` (each failed its test already,
+    the caller's; see :func:`failures`), testing the halves, until each
+    whole edge (a region's ``root``) is proven or has a failing region: the
+    shallowest halving's first, in order (the others of that edge are not
+    halved further). A region's ``depth`` counts the halvings from its
+    whole edge: along the joint first, in s and the joint past MAX_SPLITS -
+    S_SPLITS, none past MAX_SPLITS. Returns (failed items, region tests
+    run, root -> the smallest depth at which one of its pieces passed)."""
     tests = 0
     failed: list = []
+    failed_roots: set = set()
     passed_at: dict = {}
-    while items:
-        if tested:  # the caller tested these already: every one failed
-            hit, tested = [True] * len(items), False
-        else:
-            hit = _test(arrays, items, margins)
-            tests += len(items)
-        bad = []
-        for it, h in zip(items, hit):
-            if h:
-                bad.append(it)
-            elif passed_at.get(it.root, MAX_SPLITS + 1) > it.depth:
-                passed_at[it.root] = it.depth
-        failed += [it for it in bad if it.depth >= MAX_SPLITS]
-        bad = [it for it in bad if it.depth < MAX_SPLITS]
-        if not bad:
+    hit = np.ones(len(items), bool)  # the caller tested these already: every one failed
+    while len(items):
+        ok = np.flatnonzero(~hit)
+        if len(ok):
+            # The smallest passing depth per root.
+            order = np.lexsort((items.depth[ok], items.root[ok]))
+            roots, first = np.unique(items.root[ok][order], return_index=True)
+            for r, d in zip(roots.tolist(), items.depth[ok][order][first].tolist()):
+                if passed_at.get(r, MAX_SPLITS + 1) > d:
+                    passed_at[r] = d
+        bad = items.take(np.flatnonzero(hit))
+        deep = bad.depth >= MAX_SPLITS
+        if deep.any():
+            out = bad.take(np.flatnonzero(deep))
+            failed += out.items()
+            failed_roots.update(out.root.tolist())
+        bad = bad.take(np.flatnonzero(~deep))
+        if not len(bad):
             break
-        real = np.array(
-            [
-                h is not None
-                for h in colliding_points(
-                    arrays, lower, upper, nominal, bad, margins, np.zeros(len(margins)), n=REAL_GRID
-                )
-            ]
-        )
-        failed += [it for it, r in zip(bad, real) if r]
+        real = _grid_hits(arrays, lower, upper, nominal, bad, margins, REAL_GRID)
+        if real.any():
+            out = bad.take(np.flatnonzero(real))
+            failed += out.items()
+            failed_roots.update(out.root.tolist())
         # An edge with a failing region is failed: a round cuts its first
         # failing region only (prove_boundary), so its others are not halved.
-        done = {it.root for it in failed}
-        items = []
-        for it in (it for it, r in zip(bad, real) if not r and it.root not in done):
-            d = it.depth + 1
-            if it.depth < MAX_SPLITS - S_SPLITS:
-                # Halved along the joint: the region's hull of poses bulges
-                # inwards by about reach * width^2 / 8, the usual false alarm.
-                vm = 0.5 * (it.va + it.vb)
-                items += [
-                    _Item(it.i, it.sa, it.sb, it.j, it.va, vm, it.S, it.A, it.B, it.root, d),
-                    _Item(it.i, it.sa, it.sb, it.j, vm, it.vb, it.S, it.A, it.B, it.root, d),
-                ]
-                continue
-            ss = np.array([it.sa, 0.5 * (it.sa + it.sb), it.sb])
-            lo, hi, _ = _box(lower, upper, nominal, it.i, ss)
-            c = np.where(it.S == 1, hi, lo)
-            for half in range(2):
-                v_lo = max(min(lo[half, it.j], lo[half + 1, it.j]), it.va)
-                v_hi = min(max(hi[half, it.j], hi[half + 1, it.j]), it.vb)
-                if v_lo > v_hi:
-                    # The edge's range over this half misses the piece's (the
-                    # bound is linear in s): no point of the edge lies here. An
-                    # inverted range would be tested as if it did, and fail.
-                    continue
-                vm = 0.5 * (v_lo + v_hi)
-                for u0, u1 in ((v_lo, vm), (vm, v_hi)):
-                    items.append(
-                        _Item(
-                            it.i,
-                            ss[half],
-                            ss[half + 1],
-                            it.j,
-                            u0,
-                            u1,
-                            it.S,
-                            c[half].copy(),
-                            c[half + 1].copy(),
-                            it.root,
-                            d,
-                        )
-                    )
+        rest = bad.take(np.flatnonzero(~real & ~np.isin(bad.root, np.array(sorted(failed_roots), np.int64))))
+        items = _halves(lower, upper, nominal, rest)
+        if not len(items):
+            break
+        hit = _test_regions(arrays, items, margins)
+        tests += len(items)
     return failed, tests, passed_at
+
+
+def _test_regions(arrays, r: "_Regions", margins) -> np.ndarray:
+    return regions_may_collide(arrays, r.A, r.B, r.J, r.VA, r.VB, np.asarray(margins, float)[r.I])
+
+
+def _halves(lower, upper, nominal, r: "_Regions") -> "_Regions":
+    """Each region's two halves along the joint (depth < MAX_SPLITS -
+    S_SPLITS: the region's hull of poses bulges inwards by about reach *
+    width^2 / 8, the usual false alarm), else its halves in s, each halved
+    along the joint; in the regions' order, depth one more."""
+    by_joint = r.depth < MAX_SPLITS - S_SPLITS
+    parent: list[np.ndarray] = []
+    sub: list[np.ndarray] = []
+    cols: dict[str, list[np.ndarray]] = {f: [] for f in _Regions.__slots__}
+
+    def add(rows, sub_id, SA, SB, VA, VB, A, B):
+        parent.append(rows)
+        sub.append(np.full(len(rows), sub_id))
+        for f, v in (("SA", SA), ("SB", SB), ("VA", VA), ("VB", VB), ("A", A), ("B", B)):
+            cols[f].append(v)
+        for f in ("I", "J", "S", "root"):
+            cols[f].append(getattr(r, f)[rows])
+        cols["depth"].append(r.depth[rows] + 1)
+
+    jr = np.flatnonzero(by_joint)
+    if len(jr):
+        vm = 0.5 * (r.VA[jr] + r.VB[jr])
+        add(jr, 0, r.SA[jr], r.SB[jr], r.VA[jr], vm, r.A[jr], r.B[jr])
+        add(jr, 1, r.SA[jr], r.SB[jr], vm, r.VB[jr], r.A[jr], r.B[jr])
+    sr = np.flatnonzero(~by_joint)
+    if len(sr):
+        I, J = r.I[sr], r.J[sr]
+        ss = np.stack([r.SA[sr], 0.5 * (r.SA[sr] + r.SB[sr]), r.SB[sr]], axis=1)  # (m, 3)
+        lo, hi, _ = _box(lower, upper, nominal, I[:, None], ss)  # (m, 3, k)
+        c = np.where((r.S[sr] == 1)[:, None, :], hi, lo)
+        rows = np.arange(len(sr))
+        for half in range(2):
+            lo_a, lo_b, hi_a, hi_b = lo[rows, half, J], lo[rows, half + 1, J], hi[rows, half, J], hi[rows, half + 1, J]
+            v_lo = np.maximum(np.minimum(lo_a, lo_b), r.VA[sr])
+            v_hi = np.minimum(np.maximum(hi_a, hi_b), r.VB[sr])
+            # The edge's range over this half misses the piece's (the bound
+            # is linear in s): no point of the edge lies here. An inverted
+            # range would be tested as if it did, and fail.
+            keep = ~(v_lo > v_hi)
+            at = np.flatnonzero(keep)
+            vm = 0.5 * (v_lo[at] + v_hi[at])
+            for which, (u0, u1) in enumerate(((v_lo[at], vm), (vm, v_hi[at]))):
+                add(
+                    sr[at],
+                    2 + 2 * half + which,
+                    ss[at, half],
+                    ss[at, half + 1],
+                    u0,
+                    u1,
+                    c[at, half],
+                    c[at, half + 1],
+                )
+    if not parent:
+        return r.take(np.zeros(0, np.int64))
+    order = np.lexsort((np.concatenate(sub), np.concatenate(parent)))
+    return _Regions(*(np.concatenate(cols[f])[order] for f in _Regions.__slots__))
+
+
+def _grid_hits(arrays, lower, upper, nominal, r: "_Regions", margins, n: int) -> np.ndarray:
+    """(m,) True where a point of the region's n x n grid (s and the joint)
+    on the box's edge may come nearer than its margin (:func:`colliding_points`'
+    points, tested as one batch per margin)."""
+    Q, owner, _ = _edge_grid(lower, upper, nominal, r.I, r.J, r.SA, r.SB, r.VA, r.VB, r.S, n)
+    pads = np.asarray(margins, float)[r.I][owner]
+    bad = np.zeros(len(Q), bool)
+    for p in np.unique(pads):
+        sel = pads == p
+        bad[sel] = arrays.may_collide(Q[sel], float(p))
+    out = np.zeros(len(r), bool)
+    out[owner[bad]] = True
+    return out
+
+
+def _edge_grid(lower, upper, nominal, I, J, SA, SB, VA, VB, S, n: int):
+    """The n x n grid points (s-major) of each region on its box edge, those
+    outside the box at their s left out: (Q (P, k), owner (P,), s (P,))."""
+    u = np.linspace(0.0, 1.0, n)
+    s = SA[:, None] + u[None] * (SB - SA)[:, None]  # (F, n)
+    v = VA[:, None] + u[None] * (VB - VA)[:, None]
+    lo, hi, _ = _box(lower, upper, nominal, I[:, None], s)  # (F, n, k)
+    c = np.where(S[:, None] == 1, hi, lo)
+    F = len(I)
+    Q = np.repeat(c[:, :, None], n, axis=2)  # (F, s, v, k)
+    Q[np.arange(F)[:, None, None], np.arange(n)[None, :, None], np.arange(n)[None, None], J[:, None, None]] = v[
+        :, None, :
+    ]
+    rows = np.arange(F)
+    lo_j, hi_j = lo[rows, :, J], hi[rows, :, J]  # (F, n)
+    ok = (v[:, None, :] >= lo_j[:, :, None]) & (v[:, None, :] <= hi_j[:, :, None])
+    return Q[ok], np.nonzero(ok)[0], np.broadcast_to(s[:, :, None], ok.shape)[ok]
 
 
 def corner_pass(
@@ -375,30 +523,26 @@ def colliding_points(arrays, lower, upper, nominal, fails, margins, slacks, n: i
     out: list[tuple[float, np.ndarray] | None] = [None] * len(fails)
     if not fails:
         return out
-    u = np.linspace(0.0, 1.0, n)
     I = np.array([f.i for f in fails], np.int64)
-    J = np.array([f.j for f in fails], np.int64)
     ab = np.array([[f.sa, f.sb, f.va, f.vb] for f in fails], float)
-    s = ab[:, :1] + u[None] * (ab[:, 1:2] - ab[:, :1])  # (F, n)
-    v = ab[:, 2:3] + u[None] * (ab[:, 3:4] - ab[:, 2:3])
-    lo, hi, _ = _box(lower, upper, nominal, I[:, None], s)  # (F, n, k)
-    c = np.where(np.array([f.S for f in fails])[:, None] == 1, hi, lo)
-    F, k = len(fails), lower.shape[1]
-    Q = np.repeat(c[:, :, None], n, axis=2)  # (F, s, v, k)
-    Q[np.arange(F)[:, None, None], np.arange(n)[None, :, None], np.arange(n)[None, None], J[:, None, None]] = v[
-        :, None, :
-    ]
-    rows = np.arange(F)
-    lo_j, hi_j = lo[rows, :, J], hi[rows, :, J]  # (F, n)
-    ok = (v[:, None, :] >= lo_j[:, :, None]) & (v[:, None, :] <= hi_j[:, :, None])
-    Q = Q[ok]
-    owner = np.nonzero(ok)[0]
-    where = np.broadcast_to(s[:, :, None], ok.shape)[ok]
+    Q, owner, where = _edge_grid(
+        lower,
+        upper,
+        nominal,
+        I,
+        np.array([f.j for f in fails], np.int64),
+        ab[:, 0],
+        ab[:, 1],
+        ab[:, 2],
+        ab[:, 3],
+        np.array([f.S for f in fails]),
+        n,
+    )
     pads = (margins[I] + slacks[I])[owner]
     bad = np.zeros(len(Q), bool)
     for p in np.unique(pads):
         sel = pads == p
-        bad[sel] = arrays.may_collide(Q[sel].reshape(-1, k), float(p))
+        bad[sel] = arrays.may_collide(Q[sel], float(p))
     for m in np.flatnonzero(bad):
         if out[owner[m]] is None:
             out[owner[m]] = (float(where[m]), Q[m].copy())

@@ -387,11 +387,26 @@ def _edge_biased(rng, shape, share):
     """Unit-cube draws in which a ``share`` of the coordinates lie in the
     outer tenth of their range (either end): where whole-box collisions
     live, so the search finds them with fewer samples."""
-    U = rng.random(shape)
-    snap = rng.random(shape) < share
-    hi_end = rng.random(shape) < 0.5
-    tenth = 0.1 * rng.random(shape)
-    return np.where(snap, np.where(hi_end, 1.0 - tenth, tenth), U)
+    # The four draws in this order are the search's random stream; one
+    # compiled pass mixes them (np.where's temporaries cost more).
+    U, snap, end, depth = (rng.random(shape) for _ in range(4))
+    return _edge_mix(U, snap, end, depth, float(share))
+
+
+@njit(cache=True)
+def _edge_mix(U, snap, end, depth, share):
+    """:func:`_edge_biased` from its uniform draws: a coordinate with
+    snap < share lies in the outer tenth, at the upper end if end < 0.5,
+    0.1 depth from it; the others are U."""
+    out = np.empty_like(U)
+    u, v, e, d, o = U.ravel(), snap.ravel(), end.ravel(), depth.ravel(), out.ravel()
+    for n in range(u.size):
+        if v[n] < share:
+            tenth = 0.1 * d[n]
+            o[n] = 1.0 - tenth if e[n] < 0.5 else tenth
+        else:
+            o[n] = u[n]
+    return out
 
 
 def clamp_draws(rng, lo, hi, nom) -> np.ndarray:

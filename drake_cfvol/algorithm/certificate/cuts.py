@@ -7,6 +7,8 @@ log-width (the rate limit's effect on the neighbours counted). See
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from drake_cfvol.algorithm.certificate.boundary_regions import _box, _Item, _test, regions_may_collide
@@ -43,14 +45,20 @@ def reaching_joints(workcell, arrays, q, margin) -> np.ndarray:
     if not d.size or not np.isfinite(d).any():
         return np.ones(k, bool)
     n = int(np.argmin(d))
-    plant = workcell.plant
-    names = list(arrays.body_names)
-    a = plant.get_body(rc.robot_indices()[n]).name()
-    b = plant.get_body(rc.other_indices()[n]).name()
-    ma = arrays.moved_by[:, names.index(a)] if a in names else np.zeros(k, bool)
-    if str(rc.collision_types()[n]).endswith("kSelfCollision") and b in names:
-        return ma != arrays.moved_by[:, names.index(b)]
+    column = _columns(tuple(int(x) for x in arrays.body_indices))
+    a = column.get(int(rc.robot_indices()[n]))
+    b = column.get(int(rc.other_indices()[n]))
+    ma = arrays.moved_by[:, a] if a is not None else np.zeros(k, bool)
+    if b is not None and str(rc.collision_types()[n]).endswith("kSelfCollision"):
+        return ma != arrays.moved_by[:, b]
     return ma.copy()
+
+
+@functools.lru_cache(maxsize=16)
+def _columns(body_indices: tuple[int, ...]) -> dict[int, int]:
+    """The robot's body index -> its column in the kernel's arrays (the
+    certificate asks for the nearest pair's bodies thousands of times)."""
+    return {b: c for c, b in enumerate(body_indices)}
 
 
 def _scaled(lower, upper, nominal, i, moves):
@@ -322,33 +330,29 @@ def cut_point(workcell, arrays, lower, upper, nominal, rate, i, s, q, margin, sl
         cands.append([own])
     moves = []
     if cands:
-        trials, Q = [], []
-        for group in cands:
-            for lam in CUT_SCALES:
-                x = q.copy()
-                x[group] = nom[group] + lam * (q[group] - nom[group])
-                trials.append((tuple(group), lam))
-                Q.append(x)
-        ok = ~arrays.may_collide(np.array(Q), margin + slack)
-        bracket: dict[tuple, tuple[float, float]] = {}
-        failing: dict[tuple, float] = {}  # group -> (largest failing scale, largest passing scale)
-        for (key, lam), good in zip(trials, ok):
-            if key in bracket:
+        # Every group at every scale in one batch (rows group-major, scales
+        # largest first): x = nom + lam (q - nom) on the group's joints.
+        lams = np.array(CUT_SCALES)
+        n_l = len(lams)
+        Q = np.repeat(q[None], len(cands) * n_l, axis=0)
+        for g, group in enumerate(cands):
+            Q[g * n_l : (g + 1) * n_l, group] = nom[group] + lams[:, None] * (q[group] - nom[group])
+        ok = ~arrays.may_collide(Q, margin + slack).reshape(len(cands), n_l)
+        bracket: dict[tuple, tuple[float, float]] = {}  # group -> (largest failing scale, largest passing scale)
+        for group, row in zip(cands, ok):
+            key = tuple(group)
+            if key in bracket or not row.any():
                 continue
-            if good:  # scales run largest first
-                bracket[key] = (failing.get(key, 1.0), lam)
-            else:
-                failing[key] = lam
+            first = int(np.argmax(row))  # scales run largest first
+            bracket[key] = (float(lams[first - 1]) if first else 1.0, float(lams[first]))
         keys = list(bracket)
         for _ in range(REFINE_STEPS if keys else 0):  # bisect each passing scale toward the failing one
-            X = []
-            for key in keys:
-                x = q.copy()
-                x[list(key)] = nom[list(key)] + 0.5 * sum(bracket[key]) * (q[list(key)] - nom[list(key)])
-                X.append(x)
-            good = ~arrays.may_collide(np.array(X), margin + slack)
-            for key, gd in zip(keys, good):
-                mid = 0.5 * sum(bracket[key])
+            X = np.repeat(q[None], len(keys), axis=0)
+            mids = [0.5 * sum(bracket[key]) for key in keys]
+            for r, (key, mid) in enumerate(zip(keys, mids)):
+                X[r, list(key)] = nom[list(key)] + mid * (q[list(key)] - nom[list(key)])
+            good = ~arrays.may_collide(X, margin + slack)
+            for key, mid, gd in zip(keys, mids, good):
                 bracket[key] = (bracket[key][0], mid) if gd else (mid, bracket[key][1])
         for key, (_, lam) in bracket.items():
             mv = []
