@@ -237,11 +237,14 @@ class _Regions:
     """Edge regions as arrays, one row each (what _Item holds for one): the
     halvings make about a million of them on the mesh robot's proof."""
 
-    __slots__ = ("I", "SA", "SB", "J", "VA", "VB", "S", "A", "B", "root", "depth")
+    __slots__ = ("I", "SA", "SB", "J", "VA", "VB", "S", "A", "B", "root", "depth", "halved")
 
-    def __init__(self, I, SA, SB, J, VA, VB, S, A, B, root, depth):
+    def __init__(self, I, SA, SB, J, VA, VB, S, A, B, root, depth, halved=None):
         self.I, self.SA, self.SB, self.J, self.VA, self.VB = I, SA, SB, J, VA, VB
         self.S, self.A, self.B, self.root, self.depth = S, A, B, root, depth
+        # True: a half along the joint of a region whose grid points were
+        # all free (its even grid columns lie on the parent's).
+        self.halved = np.zeros(len(I), bool) if halved is None else halved
 
     @classmethod
     def of_first(cls, bad: list[tuple], k: int) -> "_Regions":
@@ -386,7 +389,8 @@ def _halves(lower, upper, nominal, r: "_Regions") -> "_Regions":
     def add(rows, sub_id, SA, SB, VA, VB, A, B):
         parent.append(rows)
         sub.append(np.full(len(rows), sub_id))
-        for f, v in (("SA", SA), ("SB", SB), ("VA", VA), ("VB", VB), ("A", A), ("B", B)):
+        halved = np.full(len(rows), sub_id < 2)
+        for f, v in (("SA", SA), ("SB", SB), ("VA", VA), ("VB", VB), ("A", A), ("B", B), ("halved", halved)):
             cols[f].append(v)
         for f in ("I", "J", "S", "root"):
             cols[f].append(getattr(r, f)[rows])
@@ -435,7 +439,12 @@ def _grid_hits(arrays, lower, upper, nominal, r: "_Regions", margins, n: int) ->
     """(m,) True where a point of the region's n x n grid (s and the joint)
     on the box's edge may come nearer than its margin (:func:`colliding_points`'
     points, tested as one batch per margin)."""
-    Q, owner, _ = _edge_grid(lower, upper, nominal, r.I, r.J, r.SA, r.SB, r.VA, r.VB, r.S, n)
+    Q, owner, _, col = _edge_grid(lower, upper, nominal, r.I, r.J, r.SA, r.SB, r.VA, r.VB, r.S, n)
+    if n % 2 == 1 and r.halved.any():
+        # A half along the joint of a region whose points were all free:
+        # its even columns are the parent's points (to rounding), checked.
+        new = ~(r.halved[owner] & (col % 2 == 0))
+        Q, owner = Q[new], owner[new]
     pads = np.asarray(margins, float)[r.I][owner]
     bad = np.zeros(len(Q), bool)
     for p in np.unique(pads):
@@ -448,7 +457,8 @@ def _grid_hits(arrays, lower, upper, nominal, r: "_Regions", margins, n: int) ->
 
 def _edge_grid(lower, upper, nominal, I, J, SA, SB, VA, VB, S, n: int):
     """The n x n grid points (s-major) of each region on its box edge, those
-    outside the box at their s left out: (Q (P, k), owner (P,), s (P,))."""
+    outside the box at their s left out: (Q (P, k), owner (P,), s (P,), the
+    point's column along the joint (P,))."""
     u = np.linspace(0.0, 1.0, n)
     s = SA[:, None] + u[None] * (SB - SA)[:, None]  # (F, n)
     v = VA[:, None] + u[None] * (VB - VA)[:, None]
@@ -462,7 +472,8 @@ def _edge_grid(lower, upper, nominal, I, J, SA, SB, VA, VB, S, n: int):
     rows = np.arange(F)
     lo_j, hi_j = lo[rows, :, J], hi[rows, :, J]  # (F, n)
     ok = (v[:, None, :] >= lo_j[:, :, None]) & (v[:, None, :] <= hi_j[:, :, None])
-    return Q[ok], np.nonzero(ok)[0], np.broadcast_to(s[:, :, None], ok.shape)[ok]
+    owner, _, col = np.nonzero(ok)
+    return Q[ok], owner, np.broadcast_to(s[:, :, None], ok.shape)[ok], col
 
 
 def corner_pass(
@@ -525,7 +536,7 @@ def colliding_points(arrays, lower, upper, nominal, fails, margins, slacks, n: i
         return out
     I = np.array([f.i for f in fails], np.int64)
     ab = np.array([[f.sa, f.sb, f.va, f.vb] for f in fails], float)
-    Q, owner, where = _edge_grid(
+    Q, owner, where, _ = _edge_grid(
         lower,
         upper,
         nominal,
