@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit
+from numba import njit, prange
 from pydrake.trajectories import PiecewisePolynomial
 
 from drake_cfvol.exceptions import CfvolError, DimensionError, ParameterError, RecordFormatError
@@ -218,14 +218,14 @@ def _deviation_range(lower, upper, nominal, sigma, linear, stretch_lower, stretc
     return dev_lo, dev_hi
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _linear_boxes(lower, upper, nominal, s, i):
     """box_at's "linear" rule for (n,) s in stretches i (g > 1), in its
     arithmetic bit for bit: each bound linear between its waypoints', held
     at the nominal; at an integer s the waypoint's box and nominal."""
     n, k = len(s), nominal.shape[1]
     lo, hi, nom = np.empty((n, k)), np.empty((n, k)), np.empty((n, k))
-    for r in range(n):
+    for r in prange(n):  # rows apart: the same values on any thread
         a = i[r]
         t = s[r] - a
         w = int(s[r])

@@ -51,7 +51,7 @@ import time
 from typing import Any
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from drake_cfvol.algorithm.certificate.boundary import cut_point, cut_slacks, failures, prove_boundary, reaching_joints
 from drake_cfvol.algorithm.certificate.cert_cache import cache_dir, cache_key, cache_load, cache_store
@@ -389,23 +389,22 @@ def _edge_biased(rng, shape, share):
     live, so the search finds them with fewer samples."""
     # The four draws in this order are the search's random stream; one
     # compiled pass mixes them (np.where's temporaries cost more).
-    U, snap, end, depth = (rng.random(shape) for _ in range(4))
-    return _edge_mix(U, snap, end, depth, float(share))
+    U, snap, end, depth = (rng.random(shape).reshape(-1) for _ in range(4))
+    return _edge_mix(U, snap, end, depth, float(share)).reshape(shape)
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _edge_mix(U, snap, end, depth, share):
-    """:func:`_edge_biased` from its uniform draws: a coordinate with
-    snap < share lies in the outer tenth, at the upper end if end < 0.5,
-    0.1 depth from it; the others are U."""
+    """:func:`_edge_biased` from its uniform draws (flat arrays): a
+    coordinate with snap < share lies in the outer tenth, at the upper end
+    if end < 0.5, 0.1 depth from it; the others are U."""
     out = np.empty_like(U)
-    u, v, e, d, o = U.ravel(), snap.ravel(), end.ravel(), depth.ravel(), out.ravel()
-    for n in range(u.size):
-        if v[n] < share:
-            tenth = 0.1 * d[n]
-            o[n] = 1.0 - tenth if e[n] < 0.5 else tenth
+    for n in prange(len(U)):  # elements apart: the same values on any thread
+        if snap[n] < share:
+            tenth = 0.1 * depth[n]
+            out[n] = 1.0 - tenth if end[n] < 0.5 else tenth
         else:
-            o[n] = u[n]
+            out[n] = U[n]
     return out
 
 
