@@ -247,16 +247,7 @@ def _starved_without_cause(workcell, table) -> list[str]:
 
 
 @pytest.mark.slow  # shares the certified tables of the boundary test
-@pytest.mark.parametrize(
-    "cell, label",
-    _known(
-        PATHS,
-        {
-            ("automotive", "path1"): "issue 48: joint 1 cut to 0.000 rad at waypoint 108 (1.75 uncertified), "
-            "its corners free when widened: the cut-by-cut shrinking starves it",
-        },
-    ),
-)
+@pytest.mark.parametrize("cell, label", PATHS)
 def test_no_joint_is_starved_without_cause(cell, label, certified):
     """Wherever a joint's certified width at a waypoint is under the
     bisection delta (the table's ``delta``, or ``delta_prismatic`` for a

@@ -422,6 +422,45 @@ def test_boundary_proof_frees_every_edge_by_drake(cell, sampled, request):
 
 
 @pytest.mark.parametrize("cell", ["corner", "corner_mesh"])
+def test_a_starved_joint_gets_room_back_and_the_certificate_holds(cell, request):
+    """A joint cut to nothing at a waypoint (joint 1 at waypoint 1, by
+    hand: only safer) though its uncut box had room gets at least the
+    bisection delta back from unstarve where the proof still holds: the
+    report counts it, no other bound moves, every corner and edge point of
+    the box at every waypoint and stretch midpoint keeps the margin by
+    Drake's padded checker, and the run carried on holds N uniform and Nc
+    clamp samples, every one free by Drake too."""
+    import dataclasses
+
+    from drake_cfvol.algorithm.certificate.certify import _Certification
+    from drake_cfvol.algorithm.metrics import boundary_check
+    from drake_cfvol.io.progress import Progress
+
+    wc, path = request.getfixturevalue(cell)
+    table = dataclasses.replace(cf.estimate_bounds(wc, path, h_max=0.0), rate=None)
+    job = _Certification(wc, wc.scene_arrays(), table, Certify(epsilon=1e-3, cache=False))
+    job.prove()
+    job.lower[1, 0] = job.upper[1, 0] = job.nominal[1, 0]
+    job.refresh()
+    job.prove()
+    bar = Progress(1, "test", enabled=False)
+    run = job.certificate_run(bar)
+    before_lo, before_hi = job.lower.copy(), job.upper.copy()
+    run = job.unstarve(run, bar)
+    delta = table.params["delta"]
+    assert job.upper[1, 0] - job.lower[1, 0] >= delta - 1e-12
+    assert job.boundary.unstarved >= 1
+    moved = (job.lower != before_lo) | (job.upper != before_hi)
+    assert moved[1, 0] and moved.sum() == 1
+    margin = float(job.margins.min())
+    check = boundary_check(wc, job.current, clearance=max(0.0, margin - 1e-3))
+    assert check.corners_colliding == 0 and check.edges_colliding == 0 and check.corners > 0
+    assert run.counts() == (job.N, job.Nc)
+    free = np.asarray(wc.padded_checker(max(0.0, margin - 1e-3)).CheckConfigsCollisionFree(run.Q), bool)
+    assert free.all()
+
+
+@pytest.mark.parametrize("cell", ["corner", "corner_mesh"])
 def test_regrow_gives_back_an_unneeded_cut_and_keeps_the_proof(cell, request):
     """After the proof, a cut made unneeded (joint 1's lower deviation
     shrunk to a fifth everywhere: only safer) is given back by regrow where

@@ -198,6 +198,8 @@ class BoundaryFigures:
         unproven: the stretches left unproven (empty unless the proof ran
             out of rounds).
         regrown: bounds widened back by ``Certify(regrow=True)``, a count.
+        unstarved: joints given back room at a waypoint where the cuts had
+            starved them (:meth:`_Certification.unstarve`), a count.
     """
 
     edge_tests: int = 0
@@ -206,6 +208,7 @@ class BoundaryFigures:
     margins_lowered: int = 0
     unproven: list[int] = dataclasses.field(default_factory=list)
     regrown: int = 0
+    unstarved: int = 0
 
 
 @dataclasses.dataclass
@@ -478,6 +481,7 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             run = job.certificate_run(bar)
             if job.regrow():
                 run = job.certificate_run(bar)
+            run = job.unstarve(run, bar)
     finally:
         bar.close()
     report = job.report((time.perf_counter() - t0) * 1e3, run)
@@ -739,7 +743,7 @@ class _Certification:
             per *= 2
             bar.update(1)
 
-    def certificate_run(self, bar):
+    def certificate_run(self, bar, run: "_Draws | None" = None, recheck: np.ndarray | None = None):
         """N free samples of the whole path uniform in the box at s and,
         drawn alongside, Nc where a clamp lands (see :class:`_Draws`).
 
@@ -751,14 +755,19 @@ class _Certification:
         the cut box's distribution; the cut was chosen from other draws,
         so it is independent of them. Those whose configuration moved are
         checked again. So a cut costs the samples of the stretches it
-        changed, not the run (the earlier rule restarted it)."""
-        rng, N, Nc, certify = self.rng, self.N, self.Nc, self.certify
+        changed, not the run (the earlier rule restarted it). ``run``,
+        ``recheck``: a run to carry on, and its samples to check first."""
+        rng, N, Nc = self.rng, self.N, self.Nc
         k = self.nominal.shape[1]
-        run = _Draws.empty(k)
+        run = _Draws.empty(k) if run is None else run
         batch = max(1, N // 64)
         share = Nc / N  # clamp draws per uniform draw
         while True:
             n_u, n_c = run.counts()
+            if recheck is not None and len(recheck):
+                # A run carried on: its samples that moved are checked first.
+                run, recheck = self._settle(run, recheck, bar), None
+                continue
             if n_u >= N and n_c >= Nc:
                 break
             n = min(batch, N - n_u)
@@ -778,30 +787,92 @@ class _Certification:
             )
             new.Q[:] = new.mapped(slice(None), lo, hi, nom)
             run = run.joined(new)
-            check = np.arange(len(run.s) - len(s), len(run.s))
-            while len(check):
-                flagged = check[self.flagged(run.s[check], run.Q[check])]
-                self.samples += len(check)
-                if not len(flagged):
-                    break
-                before = self.lower.copy(), self.upper.copy()
-                self.cut(run.s, run.Q, flagged)
-                self.refresh()
-                # The stretches that still collide get a search of their own
-                # (cheaper than another run over the whole path), from the
-                # distribution that collided: a clamp's landing has
-                # neighbours on the same bound.
-                hit = np.unique(self._stretch_of(run.s[flagged]))
-                focus = max(1, min(certify.focus_samples, N))
-                clamp_share = 0.5 if run.clamp[flagged].any() else None
-                for _ in range(certify.focus_rounds):
-                    if not self.search(hit, focus, clamp_share):
-                        break
-                self.prove()
-                run = run.without(flagged)
-                check = self._moved(run, *before)
-            bar.set(certify.search_rounds + min(run.counts()[0], N), cuts=self.shrinks + self.boundary.edge_cuts)
+            run = self._settle(run, np.arange(len(run.s) - len(s), len(run.s)), bar)
         return run
+
+    def _settle(self, run: "_Draws", check: np.ndarray, bar) -> "_Draws":
+        """Checks the run's samples ``check``: a colliding one is cut (its
+        stretch searched again and the boxes proven again, as in the
+        search), and it leaves the run; the samples the cuts moved are
+        checked again. Returns the run left."""
+        certify, N = self.certify, self.N
+        while len(check):
+            flagged = check[self.flagged(run.s[check], run.Q[check])]
+            self.samples += len(check)
+            if not len(flagged):
+                break
+            before = self.lower.copy(), self.upper.copy()
+            self.cut(run.s, run.Q, flagged)
+            self.refresh()
+            # The stretches that still collide get a search of their own
+            # (cheaper than another run over the whole path), from the
+            # distribution that collided: a clamp's landing has
+            # neighbours on the same bound.
+            hit = np.unique(self._stretch_of(run.s[flagged]))
+            focus = max(1, min(certify.focus_samples, N))
+            clamp_share = 0.5 if run.clamp[flagged].any() else None
+            for _ in range(certify.focus_rounds):
+                if not self.search(hit, focus, clamp_share):
+                    break
+            self.prove()
+            run = run.without(flagged)
+            check = self._moved(run, *before)
+        bar.set(certify.search_rounds + min(run.counts()[0], N), cuts=self.shrinks + self.boundary.edge_cuts)
+        return run
+
+    def unstarve(self, run: "_Draws", bar) -> "_Draws":
+        """Gives a starved joint its room back: where the cuts left a joint
+        under the bisection delta at a waypoint though its box before the
+        cuts had over 10 delta there, the joint alone widens on one side by
+        the largest of 1/2, 1/4, 1/8 of what that side lost, or delta (at
+        least delta, and within the rate limit of the neighbouring waypoints) at
+        which both stretches beside the waypoint stay proven (every edge by
+        the region tests, so every corner). The run's samples it moved are
+        checked again and the run carried on to N free (a collision is cut
+        as in the run). Cuts go one failing region at a time and may take a
+        joint's whole width for what another joint's later cut clears.
+        Returns the run."""
+        if not self.certify.boundary or self.g < 2:
+            return run
+        params = self.table.params
+        delta = np.where(
+            np.asarray(self.workcell.revolute, bool),
+            float(params.get("delta", 0.0) or 0.0),
+            float(params.get("delta_prismatic", 0.0) or 0.0),
+        )
+        starved = (self.upper - self.lower < delta) & (self.start_upper - self.start_lower > 10 * delta)
+        if not starved.any():
+            return run
+        before = self.lower.copy(), self.upper.copy()
+        grown = 0
+        for w, j in zip(*np.nonzero(starved)):
+            stretches = [st for st in (w - 1, w) if 0 <= st < self.g - 1]
+            near = [x for x in (w - 1, w + 1) if 0 <= x < self.g]
+            for side, now, start in ((1, self.upper, self.start_upper), (-1, self.lower, self.start_lower)):
+                gap = side * (start[w, j] - now[w, j])
+                room = float((side * (now[near, j] - now[w, j]) + self.rate[j]).min()) if near else np.inf
+                done = False
+                for step in sorted({min(share * gap, room) for share in (0.5, 0.25, 0.125)} | {delta[j]}, reverse=True):
+                    if step < delta[j] or step > min(gap, room):
+                        continue
+                    lower, upper = self.lower.copy(), self.upper.copy()
+                    (upper if side > 0 else lower)[w, j] += side * step
+                    failed, tests = failures(
+                        self.arrays, lower, upper, self.nominal, stretches, self.margins, self.memo
+                    )
+                    self.boundary.edge_tests += tests
+                    if not failed:
+                        self.lower[:], self.upper[:] = lower, upper
+                        grown += 1
+                        done = True
+                        break
+                if done:
+                    break
+        if not grown:
+            return run
+        self.boundary.unstarved += grown
+        self.refresh()
+        return self.certificate_run(bar, run, self._moved(run, *before))
 
     def _moved(self, run: "_Draws", lower, upper) -> np.ndarray:
         """The run's samples whose configuration the cuts since the boxes
