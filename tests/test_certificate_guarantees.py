@@ -35,15 +35,6 @@ ALL_PATHS = [(cell, f"path{i}") for cell in ("automotive", "aerospace") for i in
 PATHS = ALL_PATHS[:1] if os.environ.get("CFVOL_ALL_PATHS") == "0" else ALL_PATHS
 
 
-def _known(paths, failing: dict):
-    """The paths as parameters, those in ``failing`` marked as the known
-    failures of the open issue 48 (strict: a fix makes them pass, and the
-    mark must then go)."""
-    return [
-        pytest.param(*p, marks=pytest.mark.xfail(strict=True, reason=failing[p])) if p in failing else p for p in paths
-    ]
-
-
 @pytest.fixture(scope="module")
 def certified(automotive, aerospace, planned):
     """certified(cell, label) -> (workcell, table): the path (seed 0)
@@ -71,13 +62,7 @@ def certified(automotive, aerospace, planned):
 @pytest.mark.slow  # certifying takes minutes (shared with the starvation test)
 @pytest.mark.parametrize(
     "cell, label",
-    _known(
-        PATHS,
-        {
-            ("aerospace", "path2"): "issue 48: 1 of 15,040 face points of the certified box collides "
-            "(waypoint 74, joint 3 on its lower bound): faces are only sampled"
-        },
-    ),
+    PATHS,
 )
 def test_no_certified_box_has_a_colliding_boundary_point(cell, label, certified):
     """At every waypoint and stretch midpoint, every corner of the certified

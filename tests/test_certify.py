@@ -422,6 +422,39 @@ def test_boundary_proof_frees_every_edge_by_drake(cell, sampled, request):
 
 
 @pytest.mark.parametrize("cell", ["corner", "corner_mesh"])
+def test_the_face_samples_hold_one_joint_on_a_bound_and_keep_the_margin(cell, request):
+    """The certificate's face samples: N_c of them beside the run's N
+    uniform and N_c clamp samples; each holds exactly one joint exactly on
+    one of its bounds in the certified box at its s (the upper about half
+    the time), its other joints inside; every joint is held about equally
+    often; and every sample of the run, faces included, is free by Drake's
+    checker padded to the margin less 1 mm."""
+    from drake_cfvol.algorithm.certificate.certify import _Certification
+    from drake_cfvol.io.progress import Progress
+
+    wc, path = request.getfixturevalue(cell)
+    table = cf.estimate_bounds(wc, path, h_max=0.0)
+    job = _Certification(wc, wc.scene_arrays(), table, Certify(epsilon=1e-3, clamp_epsilon=1e-3, cache=False))
+    job.prove()
+    bar = Progress(1, "test", enabled=False)
+    run = job.face_run(job.certificate_run(bar), bar)
+    assert run.counts() == (job.N, job.Nc) and int(run.face.sum()) == job.Nc
+    lo, hi, _ = job.current.boxes_at(run.s)
+    Q = run.Q[run.face]
+    lo, hi = lo[run.face], hi[run.face]
+    on_hi, on_lo = (Q == hi) & (hi > lo), (Q == lo) & (hi > lo)
+    held = run.pushed[run.face]
+    assert np.all(held.sum(axis=1) == 1)
+    assert np.all((on_hi | on_lo)[held])
+    assert on_hi[held].mean() == pytest.approx(0.5, abs=0.05)
+    assert held.mean(axis=0) == pytest.approx(np.full(table.k, 1 / table.k), abs=0.05)
+    assert np.all((Q >= lo) & (Q <= hi))
+    margin = float(job.margins.min())
+    free = np.asarray(wc.padded_checker(max(0.0, margin - 1e-3)).CheckConfigsCollisionFree(run.Q), bool)
+    assert free.all()
+
+
+@pytest.mark.parametrize("cell", ["corner", "corner_mesh"])
 def test_a_starved_joint_gets_room_back_and_the_certificate_holds(cell, request):
     """A joint cut to nothing at a waypoint (joint 1 at waypoint 1, by
     hand: only safer) though its uncut box had room gets at least the

@@ -83,6 +83,10 @@ _POINT_SLACK = 0.005
 #: Spawn key that separates certification draws from CF draws of the same seed.
 _CERT_STREAM = 0xCE27
 
+#: The face samples' stream: drawn after the run, so the run's own draws
+#: are those of a certification without them.
+_FACE_STREAM = 0xFACE
+
 
 @dataclasses.dataclass(frozen=True)
 class Certify:
@@ -258,9 +262,10 @@ class CertificateReport:
         return cls(**{**d, "boundary": BoundaryFigures(**d.get("boundary", {}))})
 
 
-def certification_rng(seed: int) -> np.random.Generator:
-    """The certification sampler (distinct from CF's ``default_rng(seed)``)."""
-    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(_CERT_STREAM,)))
+def certification_rng(seed: int, stream: int = _CERT_STREAM) -> np.random.Generator:
+    """The certification sampler (distinct from CF's ``default_rng(seed)``);
+    ``stream`` another of its streams (the face samples')."""
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(stream),)))
 
 
 #: The compiled cuts' share of a fresh compile, s (in the terms of
@@ -482,6 +487,7 @@ def certify_bounds(workcell, table, certify: Certify, *, progress: bool = False)
             if job.regrow():
                 run = job.certificate_run(bar)
             run = job.unstarve(run, bar)
+            run = job.face_run(run, bar)
     finally:
         bar.close()
     report = job.report((time.perf_counter() - t0) * 1e3, run)
@@ -495,8 +501,10 @@ class _Draws:
     """The certificate run's samples with their random draws: path
     parameter s (n,), whether each is a clamp's landing (n,), the unit
     draws U (n, k) (a uniform sample's coordinates in the box; a clamp's
-    push amounts), a clamp's pushed joints and sides (n, k) bool, and the
-    configuration Q (n, k) they map to in the current box."""
+    push amounts), a clamp's pushed joints and sides (n, k) bool (for a
+    sample that is not a clamp's: the joint it holds on a bound, if any,
+    and which bound: a face sample), and the configuration Q (n, k) they
+    map to in the current box."""
 
     s: np.ndarray
     clamp: np.ndarray
@@ -524,17 +532,25 @@ class _Draws:
     def mapped(self, rows, lo, hi, nom) -> np.ndarray:
         """The configurations the draws of ``rows`` give in the boxes
         [lo, hi] at nominals nom (each (len(rows), k)): a uniform draw
-        lo + U (hi - lo), a clamp's landing by :func:`_clamp_q`."""
+        lo + U (hi - lo), a face sample's joint on its bound exactly, a
+        clamp's landing by :func:`_clamp_q`."""
+        pushed, up = self.pushed[rows], self.up[rows]
+        inside = lo + self.U[rows] * (hi - lo)
         return np.where(
             self.clamp[rows, None],
-            _clamp_q((self.pushed[rows], self.up[rows], self.U[rows]), lo, hi, nom),
-            lo + self.U[rows] * (hi - lo),
+            _clamp_q((pushed, up, self.U[rows]), lo, hi, nom),
+            np.where(pushed, np.where(up, hi, lo), inside),
         )
+
+    @property
+    def face(self) -> np.ndarray:
+        """(n,) the face samples."""
+        return ~self.clamp & self.pushed.any(axis=1)
 
     def counts(self) -> tuple[int, int]:
         """(uniform samples, clamp samples)."""
-        nc = int(self.clamp.sum())
-        return len(self.s) - nc, nc
+        nc, nf = int(self.clamp.sum()), int(self.face.sum())
+        return len(self.s) - nc - nf, nc
 
 
 class _Certification:
@@ -557,6 +573,7 @@ class _Certification:
         self.point_slacks = cut_slacks(arrays, nominal, self.margins, _POINT_SLACK)
         self.rng = certification_rng(certify.seed)
         self.N, self.Nc = certify.n_samples, certify.n_clamp_samples
+        self.face_rng = certification_rng(certify.seed, _FACE_STREAM)
         self.samples = self.shrinks = 0
         self.proven: dict = {}
         self.memo: dict = {}
@@ -874,6 +891,37 @@ class _Certification:
         self.refresh()
         return self.certificate_run(bar, run, self._moved(run, *before))
 
+    def face_run(self, run: "_Draws", bar) -> "_Draws":
+        """Nc free samples on the box's faces, beside the run's: s uniform,
+        one joint (uniform) on one of its two bounds (either, 1/2), the
+        others uniform in the box at s; from a stream of their own, drawn
+        after the run. A steady push on one joint lands on a face, which
+        has no volume: the uniform samples never hold a joint on a bound.
+        A colliding face sample is cut as a point (as in the run) and the
+        run carried on until every kind holds its count free. Returns the
+        run."""
+        rng, Nf, k = self.face_rng, self.Nc, self.nominal.shape[1]
+        batch = max(1, Nf // 8)
+        while True:
+            have = int(run.face.sum())
+            if have >= Nf:
+                n_u, n_c = run.counts()
+                if n_u >= self.N and n_c >= self.Nc:
+                    return run
+                run = self.certificate_run(bar, run)  # a cut took some of the run's samples
+                continue
+            n = min(batch, Nf - have)
+            s = rng.uniform(0.0, self.g - 1, n)
+            U = rng.random((n, k))
+            joint = rng.integers(0, k, n)
+            up = rng.random(n) < 0.5
+            pushed = np.zeros((n, k), bool)
+            pushed[np.arange(n), joint] = True
+            new = _Draws(s, np.zeros(n, bool), U, pushed, pushed & up[:, None], np.empty((n, k)))
+            new.Q[:] = new.mapped(slice(None), *self.current.boxes_at(s))
+            run = run.joined(new)
+            run = self._settle(run, np.arange(len(run.s) - n, len(run.s)), bar)
+
     def _moved(self, run: "_Draws", lower, upper) -> np.ndarray:
         """The run's samples whose configuration the cuts since the boxes
         (lower, upper) moved, re-mapped into the current boxes (in place);
@@ -924,16 +972,18 @@ class _Certification:
         share = self.proven_share(run)
         sampled = (
             f"Of where the run's clamps landed, a share {share:.3f} lies where the proofs above hold; "
-            f"the faces and the interior, all joints at once, sampled from two distributions (s uniform over "
+            f"the faces and the interior, all joints at once, sampled from three distributions (s uniform over "
             f"the path): {self.N} samples uniform in the box at s, and alongside them {self.Nc} "
             "samples where a clamp lands (the nominal pushed on a random half of its joints, "
-            "clamped into the box, so about half of the pushed joints on a bound), all kept the margin; "
+            f"clamped into the box, so about half of the pushed joints on a bound) and {self.Nc} on the "
+            "box's faces (one joint on one of its bounds, the others uniform), all kept the margin; "
             "each an exact draw of the certified box's distribution, independent of the cuts (a cut keeps "
             "the run's other samples, their draws mapped into the cut box, and checks again those that "
             "moved). So "
             f"with probability {certify.confidence:g} at most a share {certify.epsilon:g} of the uniform "
             f"configurations comes nearer (about {certify.epsilon * 3e5:g} of 300,000), and at most a share "
-            f"{certify.clamp_share:g} of the clamp's. Beyond the box, the runtime safety filter keeps the "
+            f"{certify.clamp_share:g} of the clamp's, and of the faces'. Beyond the box, the runtime safety "
+            "filter keeps the "
             "margin."
         )
         return CertificateReport(
