@@ -7,7 +7,6 @@
   (:mod:`.damper_kernel`), kinematics (:mod:`.damper_kinematics`) and parts (:mod:`.damper_parts`).
 - :mod:`.qp`: the dense QP solver (:func:`solve_qp`).
 - :mod:`.filter_kernel`: the compiled update, one call per step.
-- :mod:`.unbound`: the pairs whose rows cannot bind at an update, left unmeasured.
 - :mod:`.compile_ahead`: its compiled parts compiled before a run needs them (:func:`~.compile_ahead.warm_up`).
 
 The compiled modules' names (shape kinds, row kinds) stay in their modules. Imports the

@@ -22,7 +22,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_cfvol.kernel.warmup import cached
-from drake_cfvol.systems.filter import damper_kernel, damper_kinematics, filter_kernel, unbound
+from drake_cfvol.systems.filter import damper_kernel, damper_kinematics, filter_kernel
 from drake_cfvol.systems.filter.safety import SafetyFilter
 
 __all__ = ["warm_up", "WARM_UP_SHARE"]
@@ -93,8 +93,6 @@ _COMPILED = (
     damper_kinematics._budget_moved,
     damper_kinematics._slot_jacobians,
     damper_kinematics._pair_speeds,
-    unbound.unbound_pairs,  # normal_cone and stop_at_most compile into it
-    unbound.unbound_after,
 )
 
 

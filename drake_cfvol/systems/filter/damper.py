@@ -15,13 +15,7 @@ from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies
 from drake_cfvol.systems.filter.damper_kernel import ball_radius, pair_rows, probes, round_radius
 from drake_cfvol.systems.filter.damper_kinematics import SlotKinematics, _levers, _pair_speeds
-from drake_cfvol.systems.filter.damper_parts import (
-    BroadPhase,
-    RowList,
-    drake_pair_rows,
-    fixed_obstacle_sides,
-    side_arrays,
-)
+from drake_cfvol.systems.filter.damper_parts import BroadPhase, RowList, drake_pair_rows, side_arrays
 
 __all__ = ["DamperRows", "VelocityDamper"]
 
@@ -176,7 +170,6 @@ class VelocityDamper:
         self._sides, self._drake_rows = side_arrays(self, inspector)
         # Each pair's two ids, for the per-pair loop of rows.
         self._pair_ids = [(a, b) for a, b, _, _ in self._pairs]
-        self._fixed_side, self._fixed_corners = fixed_obstacle_sides(self, inspector)
 
     def poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """The moving bodies' rotations (S, 3, 3) and origins (S, 3) at q
@@ -415,15 +408,6 @@ class VelocityDamper:
             np.asarray(v, float),
             dv,
         )
-
-    @property
-    def fixed_obstacle_pairs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per pair of one link against a fixed convex obstacle
-        (:func:`~.damper_parts.fixed_obstacle_sides`): the link's side (P,)
-        (0 or 1; -1: another kind of pair), its body's slot (P,) and its
-        shape's box corners in the body frame (P, 8, 3)."""
-        slot = np.where(self._fixed_side >= 0, self._pair_bodies[np.arange(len(self._pairs)), self._fixed_side], -1)
-        return self._fixed_side, slot, self._fixed_corners
 
     @property
     def self_moving(self) -> np.ndarray:

@@ -1,19 +1,17 @@
 """Parts of the velocity damper (:class:`~drake_cfvol.systems.filter.damper.VelocityDamper`):
 its broad phase (:class:`BroadPhase`), the pair sides' arrays for the
-compiled rows (:func:`side_arrays`), the rows of a pair assembled from
+compiled rows (:func:`side_arrays`) and the rows of a pair assembled from
 Drake's own point queries (:func:`drake_pair_rows`, for a probe against a
-moving ellipsoid, which the compiled rows do not measure) and the pairs of
-one link against a fixed convex obstacle (:func:`fixed_obstacle_sides`).
+moving ellipsoid, which the compiled rows do not measure).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from drake_cfvol.kernel import kinds
 from drake_cfvol.systems.filter.damper_kernel import NO_POINT_QUERY, local_box, near_pairs, point_query_shape
 
-__all__ = ["BroadPhase", "RowList", "fixed_obstacle_sides", "side_arrays", "drake_pair_rows"]
+__all__ = ["BroadPhase", "RowList", "side_arrays", "drake_pair_rows"]
 
 
 class RowList:
@@ -292,30 +290,3 @@ def _drake_distances(damper, query, gid, X_WO, P, radii):
             d[i], g[i] = found[0].distance, np.asarray(found[0].grad_W, float).reshape(3)
             near[i] = X_WO.multiply(np.asarray(found[0].p_GN, float).reshape(3))
     return d, g, near
-
-
-def fixed_obstacle_sides(damper, inspector) -> tuple[np.ndarray, np.ndarray]:
-    """Per pair of one link of the robot against a fixed obstacle, both
-    shapes convex and bounded as Drake measures them (a kind the kernel
-    knows): the link's side (0 or 1; -1 for any other pair) and the
-    corners of its shape's box (:func:`~.damper_kernel.local_box`) in its
-    body frame (P, 8, 3). Every point a row of the pair reads on the link
-    (its witness, its probes) lies in that box. The pairs
-    :func:`~.unbound.unbound_pairs` may leave unmeasured."""
-    P = len(damper._pairs)
-    side, corners = np.full(P, -1, np.int64), np.zeros((P, 8, 3))
-    signs = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)])
-    moved_by_query = damper.self_moving
-    for n, (a, b, sa, sb) in enumerate(damper._pairs):
-        links = [j for j, s in enumerate((sa, sb)) if s[0] is not None]
-        if len(links) != 1 or moved_by_query[n] or damper._drake_rows[n]:
-            continue
-        shapes = [inspector.GetShape(g) for g in (a, b)]
-        known = [kinds.geometry(shape, strict=False) for shape in shapes]
-        if any(g is None or g.kind.unbounded for g in known):
-            continue
-        j = links[0]
-        centre, half = local_box(shapes[j])
-        corners[n] = (sa, sb)[j][1].multiply((centre + signs * half).T).T
-        side[n] = j
-    return side, corners

@@ -49,7 +49,6 @@ from drake_cfvol.systems.filter.constraints import (
 )
 from drake_cfvol.systems.filter.damper import DamperRows, DynamicPairs, VelocityDamper
 from drake_cfvol.systems.filter.filter_kernel import (
-    ROW_DECELERATION_SHARE,
     braked_rows,
     braking_lead,
     budget_after,
@@ -59,7 +58,6 @@ from drake_cfvol.systems.filter.filter_kernel import (
     request,
     stop_steps,
 )
-from drake_cfvol.systems.filter.unbound import unbound_after, unbound_pairs
 
 __all__ = ["FAULTS", "SafetyFilter", "SafetyFilterConfig"]
 
@@ -123,12 +121,6 @@ _HAIR_ACCELERATION = 1e-6
 #: A command counts as changed when it differs from the request by more
 #: than this, rad (m).
 _CHANGED = 1e-9
-
-#: Drake's signed distances and normals are taken as exact to this, m, where
-#: the filter leaves a pair unmeasured (:mod:`~.unbound`): over the
-#: benchmark's five cells at 1 ms a probe row's plane gap fell below its
-#: pair's distance by at most 0.3 mm (Drake's convex solver's tolerance).
-_DRAKE_TOLERANCE = 2e-3
 
 #: What a row that fell short of its second-order term asks for beyond it
 #: at the next solve, m/s (10 nm per 10 ms update): the rounds converge.
@@ -269,11 +261,6 @@ class SafetyFilter(LeafSystem):
     #: Most QP solves per update for the rows' second-order term.
     SECOND_ORDER_ROUNDS = 4
 
-    #: A pair whose rows cannot bind (:mod:`~.unbound`) is measured at least
-    #: once in this many updates: its last distance and normal stay recent,
-    #: and so does every pair's row as the filter's own status shows it.
-    MEASURE_EVERY = 20
-
     #: Most damper rows an update solves a QP over: more fault the filter (the QP's cost grows with the cube of
     #: its rows where they conflict; the bundled moving-obstacle runs peak at 172 and 232 rows).
     MAX_ROWS = 400
@@ -407,28 +394,6 @@ class SafetyFilter(LeafSystem):
         # moves on its own (not the perceived kind, whose pairs are measured
         # while it is in use: DynamicPairs.mark).
         self._always = self._damper.self_moving & ~dynamic
-        # Per pair, its last measurement by Drake for skipping it while its
-        # rows cannot bind (:mod:`~.unbound`): the distance (NaN: none to
-        # go by), the normal nhat_BA_W, then the updates it was skipped in a
-        # row (declared last: the other states keep their indices).
-        slots = max(n_pairs, 1)
-        self._last = self.DeclareDiscreteState(np.concatenate([np.full(slots, np.nan), np.zeros(4 * slots)]))
-        side, slot, corners = self._damper.fixed_obstacle_pairs
-        # The pairs that may be skipped: one link against a fixed convex obstacle.
-        self._may_skip = (side >= 0) & ~dynamic & ~self._always
-        self._skips = bool(self._may_skip.any())
-        self._unbound = (
-            (side, slot, corners),
-            (
-                self.period,
-                self.rate,
-                self.target_distance,
-                self.influence_distance,
-                _DRAKE_TOLERANCE,
-                ROW_DECELERATION_SHARE,
-                float(self.MEASURE_EVERY),
-            ),
-        )
         # A plant context used as scratch for the Jacobians (never a context
         # outside this system's own).
         self._scratch = self.DeclareCacheEntry(
@@ -510,7 +475,6 @@ class SafetyFilter(LeafSystem):
         """Every pair measured and no drift taken at the next update
         (``state``: discrete state index -> its mutable vector)."""
         self._reset_budget(state(self._budget))
-        self._forget(state(self._last))
         state(self._measured_last).SetFromVector(np.full(self.k, np.nan))
         state(self._nominal_last).SetFromVector(np.full(self.k, np.nan))
 
@@ -518,12 +482,6 @@ class SafetyFilter(LeafSystem):
         """Every pair measured at the next update."""
         x = vector.CopyToVector()
         x[: max(self._damper.num_pairs, 1)] = -1.0
-        vector.SetFromVector(x)
-
-    def _forget(self, vector) -> None:
-        """No pair skipped before Drake has measured it again."""
-        x = vector.CopyToVector()
-        x[: max(self._damper.num_pairs, 1)] = np.nan
         vector.SetFromVector(x)
 
     # -- the update ----------------------------------------------------------
@@ -590,14 +548,12 @@ class SafetyFilter(LeafSystem):
             discrete_state.get_mutable_vector(self._measured_last).SetFromVector(np.full(k, np.nan))
         else:
             n = self._damper.num_pairs
-            kin, reach, levers, slot_poses, stop = None, None, None, None, None
+            kin, reach, levers, slot_poses = None, None, None, None
             if self._braked and n:
                 kin = self._damper.kinematics.poses_and_jacobians(base)
                 slot_poses = kin[:2]
                 levers = self._damper.levers(kin[2], kin[3])
                 reach = self._braking_reach(kin, levers, v_last, a_last)
-                stop = stop_steps(v_last, a_last, self._acceleration, self._jerk, h)
-                stop = (stop, self._damper.poses(base + stop))
             kept = context.get_discrete_state(self._budget).CopyToVector()
             if self.skip_far_pairs and n:
                 # What the budget kept at the last update's base still certainly holds here.
@@ -606,23 +562,6 @@ class SafetyFilter(LeafSystem):
                 measure = (budget < extra) | self._always
             else:
                 budget, measure = np.full(n, -1.0), np.ones(n, bool)
-            last, skipped = None, None
-            if self.skip_far_pairs and stop is not None and self._skips:
-                # The pairs whose rows cannot bind at this update (:mod:`~.unbound`).
-                last = context.get_discrete_state(self._last).CopyToVector()
-                skipped = unbound_pairs(
-                    self._may_skip,
-                    measure,
-                    last,
-                    self.influence_distance + budget,
-                    self._unbound[0],
-                    kin,
-                    stop[1],
-                    (v_last, h_lo, h_hi, stop[0]),
-                    (self._acceleration, self._jerk, levers),
-                    self._unbound[1],
-                )
-                measure &= ~skipped
             query = self.query_object_input.Eval(context)
             poses = self._dynamic.mark(query, measure)
             try:
@@ -634,11 +573,8 @@ class SafetyFilter(LeafSystem):
             # distance; the budget kept: measured pairs' distance beyond it,
             # the others' budget, both with the robot at this base.
             dmin, keep = budget_after(rows.distances, budget, self.influence_distance, base)
-            if last is not None:  # what the next update may skip by
-                last = unbound_after(skipped, rows.pair, rows.dirs, rows.distances, last)
-                discrete_state.get_mutable_vector(self._last).SetFromVector(last)
             if self._braked and len(rows.b):
-                rows = self._braked_rows(rows, base, v_last, a_last, h_lo, h_hi, levers, slot_poses, stop)
+                rows = self._braked_rows(rows, base, v_last, a_last, h_lo, h_hi, levers, slot_poses)
             fault = self._fault(rows)
             if fault:  # braked to a stop from now on: no QP at this update or after
                 self._brake(discrete_state, q, v_last, a_last)
@@ -662,7 +598,6 @@ class SafetyFilter(LeafSystem):
             discrete_state.get_mutable_vector(self._budget).SetFromVector(keep)
         else:  # measure every pair at the next update
             self._reset_budget(discrete_state.get_mutable_vector(self._budget))
-            self._forget(discrete_state.get_mutable_vector(self._last))
         discrete_state.get_mutable_vector(self._status).SetFromVector(
             [
                 float(acted),
@@ -706,7 +641,7 @@ class SafetyFilter(LeafSystem):
         lead, ramp = braking_lead(v_last, a_last, self._vmax, self._acceleration, self._jerk, self.rate, h)
         return np.maximum(self.target_distance + (speed + ramp * closing) * lead + speed * h, self.influence_distance)
 
-    def _braked_rows(self, rows: DamperRows, base, v_last, a_last, h_lo, h_hi, levers, poses, stop=None) -> DamperRows:
+    def _braked_rows(self, rows: DamperRows, base, v_last, a_last, h_lo, h_hi, levers, poses) -> DamperRows:
         """The rows braked in time (:func:`~.filter_kernel.brake_rows`, by
         :func:`~.filter_kernel.braked_rows`),
         less those that cannot bind at this update: within the hard
@@ -718,24 +653,21 @@ class SafetyFilter(LeafSystem):
         :meth:`VelocityDamper.levers`: each second derivative of a point is
         at most the lever of the later joint). Such a pair is measured
         again at the next update (its budget is spent). ``poses``: the
-        slots' (R, o) at ``base`` (the update's kinematics); ``stop``: the
-        joints' stop and the slots' poses there, if already computed."""
+        slots' (R, o) at ``base`` (the update's kinematics)."""
         w = np.maximum(np.abs(h_lo), np.abs(h_hi))
         # The rows' points turn on the way to the joints' stop: each row
         # closes by its second-order term over that step more than it says;
         # a pair of two moving links by as much as its supporting planes
         # say (its closest points slide: :func:`~.filter_kernel.plane_bends`).
-        if stop is None:
-            stop = stop_steps(v_last, a_last, self._acceleration, self._jerk, self.period)
-            stop = (stop, self._damper.poses(base + stop))
+        stop = stop_steps(v_last, a_last, self._acceleration, self._jerk, self.period)
         # One compiled call for every row (the rows are many, few are kept):
         # the least A v in the interval, twice the bound as a rate (m/s),
         # the rows' points carried to the stop, the braked b and the test.
         A, b, dirs, points, slots, rounds, pair = braked_rows(
             (rows.A, rows.b, rows.dirs, rows.points, rows.slots, rows.rounds, rows.pair),
             poses,
-            stop[1],
-            (self._damper.kinematics.rev, stop[0], levers @ w, w),
+            self._damper.poses(base + stop),
+            (self._damper.kinematics.rev, stop, levers @ w, w),
             (self._acceleration, self._jerk, self.period, self.rate),
             (v_last, h_lo, h_hi),
             self._damper.probe_spheres,
