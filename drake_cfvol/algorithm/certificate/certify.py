@@ -709,24 +709,34 @@ class _Certification:
                     gap = side * (start[w, j] - now[w, j])
                     if gap <= 1e-9:
                         continue
-                    # As far as the rate limit lets the bound differ from its neighbours'.
-                    room = side * (now[[x for x in (w - 1, w + 1) if 0 <= x < g], j] - now[w, j]) + self.rate[j]
-                    step = min(share * gap, float(room.min()))
+                    step = min(share * gap, self._rate_room(w, j, side))
                     if step <= 1e-9:
                         continue
-                    lower, upper = self.lower.copy(), self.upper.copy()
-                    (upper if side > 0 else lower)[w, j] += side * step
-                    failed, tests = failures(
-                        self.arrays, lower, upper, self.nominal, stretches, self.margins, self.memo
-                    )
-                    self.boundary.edge_tests += tests
-                    if not failed:
-                        self.lower[:], self.upper[:] = lower, upper
-                        grown += 1
+                    grown += self._widen_if_proven(w, j, side, step, stretches)
         if grown:
             self.refresh()
         self.boundary.regrown += grown
         return grown
+
+    def _rate_room(self, w: int, j: int, side: int) -> float:
+        """How far bound (w, j) on ``side`` may widen before it differs from
+        a neighbouring waypoint's by more than the rate limit."""
+        now = self.upper if side > 0 else self.lower
+        near = [x for x in (w - 1, w + 1) if 0 <= x < self.g]
+        return float((side * (now[near, j] - now[w, j]) + self.rate[j]).min()) if near else math.inf
+
+    def _widen_if_proven(self, w: int, j: int, side: int, step: float, stretches: list) -> bool:
+        """Widens bound (w, j) on ``side`` by ``step`` if every edge of the
+        ``stretches`` beside it is then proven (the region tests, counted);
+        whether it did."""
+        lower, upper = self.lower.copy(), self.upper.copy()
+        (upper if side > 0 else lower)[w, j] += side * step
+        failed, tests = failures(self.arrays, lower, upper, self.nominal, stretches, self.margins, self.memo)
+        self.boundary.edge_tests += tests
+        if failed:
+            return False
+        self.lower[:], self.upper[:] = lower, upper
+        return True
 
     def search(self, stretches, per, clamp=None) -> int:
         """One edge-biased search round, ``per`` samples in each of the
@@ -864,26 +874,16 @@ class _Certification:
         grown = 0
         for w, j in zip(*np.nonzero(starved)):
             stretches = [st for st in (w - 1, w) if 0 <= st < self.g - 1]
-            near = [x for x in (w - 1, w + 1) if 0 <= x < self.g]
             for side, now, start in ((1, self.upper, self.start_upper), (-1, self.lower, self.start_lower)):
                 gap = side * (start[w, j] - now[w, j])
-                room = float((side * (now[near, j] - now[w, j]) + self.rate[j]).min()) if near else np.inf
-                done = False
-                for step in sorted({min(share * gap, room) for share in (0.5, 0.25, 0.125)} | {delta[j]}, reverse=True):
-                    if step < delta[j] or step > min(gap, room):
-                        continue
-                    lower, upper = self.lower.copy(), self.upper.copy()
-                    (upper if side > 0 else lower)[w, j] += side * step
-                    failed, tests = failures(
-                        self.arrays, lower, upper, self.nominal, stretches, self.margins, self.memo
-                    )
-                    self.boundary.edge_tests += tests
-                    if not failed:
-                        self.lower[:], self.upper[:] = lower, upper
-                        grown += 1
-                        done = True
-                        break
-                if done:
+                room = self._rate_room(w, j, side)
+                steps = sorted({min(share * gap, room) for share in (0.5, 0.25, 0.125)} | {delta[j]}, reverse=True)
+                if any(
+                    self._widen_if_proven(w, j, side, step, stretches)
+                    for step in steps
+                    if delta[j] <= step <= min(gap, room)
+                ):
+                    grown += 1
                     break
         if not grown:
             return run
