@@ -227,7 +227,7 @@ def test_a_row_made_at_the_braking_lead_can_still_stop_its_pair():
     limits): from the slowest closing the hard interval allows, the walked
     stop (stop_distance) stays within the gap."""
     rng = np.random.default_rng(4)
-    rate, share = 7.75, ROW_DECELERATION_SHARE
+    share = ROW_DECELERATION_SHARE
     checked = 0
     for _ in range(3000):
         k = int(rng.integers(1, 8))
@@ -242,7 +242,7 @@ def test_a_row_made_at_the_braking_lead_can_still_stop_its_pair():
         lo, hi = hard_interval(vmax, h, v, a, acc, jerk)
         speed = float(np.abs(A) @ np.minimum(np.abs(v) + acc * h, vmax))
         closing = float(np.abs(A) @ np.where(np.isfinite(jerk), np.abs(a) + jerk * h, 0.0))
-        lead, ramp = braking_lead(v, a, vmax, acc, jerk, rate, h)
+        lead, ramp = braking_lead(v, a, vmax, acc, jerk, h)
         gap = (speed + ramp * closing) * lead
         s_last, s_lo = -float(A @ v), -float(np.maximum(A * lo, A * hi).sum())
         nz = A != 0

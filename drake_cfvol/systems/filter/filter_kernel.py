@@ -537,7 +537,7 @@ def braked_rows(
 
 
 @njit(cache=True)
-def braking_lead(v, a_last, vmax, acceleration, jerk, rate, period):
+def braking_lead(v, a_last, vmax, acceleration, jerk, period):
     """How far ahead the damper must make a pair's row for :func:`brake_rows`
     to stop it in time: (lead, s; ramp, s): a pair whose distance shrinks
     at most at ``speed`` (m/s) up to the next update, and whose closing
@@ -553,9 +553,12 @@ def braking_lead(v, a_last, vmax, acceleration, jerk, rate, period):
     j_row) <= ramp c (ramp = tau_w / 2); from s' = speed + ramp c it stops
     within s'^2 / (2 a_row) <= s' (T + ramp max_j w_j / (share a_j)) / 2
     (T = max_j u_j / (share a_j)), plus a step's travel for the discrete
-    update. The damper's own rule (closing at most rate x gap) adds s' /
-    rate. Joints without an acceleration limit do not count (a row that
-    moves them is not braked); without a jerk limit there is no ramp."""
+    update. The damper's own rule (closing at most rate x gap) needs no
+    lead: a row that comes later than that rule would start asks for the
+    slowest closing the limits allow (:func:`brake_rows`), and its stop
+    alone keeps the margin. Joints without an acceleration limit do not
+    count (a row that moves them is not braked); without a jerk limit there
+    is no ramp."""
     T, tau, tau_w, ratio = 0.0, 0.0, 0.0, 0.0
     for j in range(len(v)):
         a = acceleration[j]
@@ -569,7 +572,7 @@ def braking_lead(v, a_last, vmax, acceleration, jerk, rate, period):
             tau_w = max(tau_w, w / (ROW_DECELERATION_SHARE * jerk[j]))
             ratio = max(ratio, w / (ROW_DECELERATION_SHARE * a))
     ramp = 0.5 * tau_w
-    lead = 1.0 / rate + tau_w + tau + 0.5 * (T + ramp * ratio) + period
+    lead = tau_w + tau + 0.5 * (T + ramp * ratio) + period
     return lead, ramp
 
 

@@ -638,7 +638,7 @@ class SafetyFilter(LeafSystem):
         h = self.period
         speed = self._damper.pair_speeds(kin[2], kin[3], v_last, self._step_dv, levers)
         closing = self._damper.pair_speeds(kin[2], kin[3], a_last, self._step_da, levers)
-        lead, ramp = braking_lead(v_last, a_last, self._vmax, self._acceleration, self._jerk, self.rate, h)
+        lead, ramp = braking_lead(v_last, a_last, self._vmax, self._acceleration, self._jerk, h)
         return np.maximum(self.target_distance + (speed + ramp * closing) * lead + speed * h, self.influence_distance)
 
     def _braked_rows(self, rows: DamperRows, base, v_last, a_last, h_lo, h_hi, levers, poses) -> DamperRows:
