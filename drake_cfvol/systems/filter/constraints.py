@@ -330,7 +330,7 @@ class PriorityQP:
         priority soft, ...), or (None, None)."""
         A, b, prio, weight = _stack(blocks, len(v_t))
         v, active = np.zeros(len(v_t)), np.zeros(len(b), bool)
-        stage, solves = staged_solve(
+        stage, solves, _ = staged_solve(
             np.asarray(v_t, float), A, b, prio, weight, _levels(blocks), HARD, self.hints(blocks), v, active
         )
         self.solves += solves

@@ -155,8 +155,9 @@ def filter_rounds(v_t, rows, damper, kin, at, qp, warm):
         return v_t.copy(), False, True, active, 0
     v = v_t.copy()
     solves = 0
+    first = 0  # the right-hand sides only grow: a stage infeasible at one round is at the next
     for _ in range(rounds):
-        stage, n = staged_solve(v_t, A, bs, prio, weight, levels, hard, active.copy(), v, active)
+        stage, n, first = staged_solve(v_t, A, bs, prio, weight, levels, hard, active.copy(), v, active, first)
         solves += n
         if stage < 0:
             v = np.minimum(np.maximum(np.zeros(k), lo), hi)

@@ -13,6 +13,15 @@ keeps the multipliers >= 0) the constraints are inconsistent, which is
 the solver's infeasibility verdict (exact, not a tolerance on a
 residual). A warm start tries the constraints that were active at the
 last solve first: the same problem's answer, fewer iterations.
+
+A stage with soft rows (:func:`staged_solve`) is solved in the joint
+velocities alone (:func:`_soft_stage`): a soft row's miss is
+max(0, b_i - A_i v), so the stage is the piecewise quadratic |v - v_t|^2
++ sum_i w_i max(0, b_i - A_i v)^2 under the hard rows, minimised by
+guessing which soft rows miss and solving that quadratic until the guess
+holds. The slack form (one variable per soft row) has the same unique
+minimiser; it is the fallback where the guesses cycle (a few per cent of
+random instances; a line search along the guesses would end that).
 """
 
 from __future__ import annotations
@@ -268,26 +277,162 @@ def stage_problem(v_t, A, b, prio, weight, soft_from, hard):
     return h, g, C, c, soft
 
 
+#: The guesses of the missing soft rows :func:`_soft_stage` tries before
+#: it leaves the stage to the slack form.
+SOFT_GUESSES = 30
+
+#: A soft row counts as missed below b_i less this share of its scale
+#: (1 + |b_i| + sum_j |A_ij v_j|), and stays counted until it holds by as
+#: much: rounding cannot flip a row that sits on its bound.
+_SOFT_TOL = 1e-13
+
+
 @njit(cache=True)
-def staged_solve(v_t, A, b, prio, weight, levels, hard, warm, v_out, active_out):
-    """The first stage with a solution (0: every row hard; stage s: rows of
-    priority >= ``levels[s - 1]`` soft; ``hard`` rows never), v into
-    ``v_out`` and the rows active there into ``active_out``; returns
-    (stage, QP solves), stage -1 where none has one. ``warm``: the rows
-    active at the last solve, tried first."""
+def _soft_stage(v_t, A, b, soft, weight, warm, v_out, active_out):
+    """A stage with soft rows (``soft`` (m,) bools; the others hard),
+    solved in v alone: argmin |v - v_t|^2 + sum_soft w_i max(0, b_i - A_i
+    v)^2 over the hard rows, the slack form's minimiser. For a guess S of
+    the soft rows that miss, the stage is the quadratic 1/2 v^T H v - r^T v
+    (H = I + sum_S w_i A_i^T A_i, r = v_t + sum_S w_i b_i A_i) under the
+    hard rows, solved by :func:`_solve` in y = L^T v (H = L L^T); the next
+    guess is the rows that miss at its minimiser. Where a guess repeats,
+    its minimiser meets the stage's optimality conditions. Returns the
+    status (:data:`QP_FAILED`: the guesses did not settle in
+    :data:`SOFT_GUESSES`; QP_INFEASIBLE: the hard rows alone admit no v);
+    v into ``v_out``, the active hard rows and the missed soft ones into
+    ``active_out``. ``warm``: the rows active at the last solve (its
+    missed soft rows are the first guess)."""
     k, m = len(v_t), len(b)
-    solves = 0
-    for stage in range(len(levels) + 1):
+    n_hard = 0
+    for i in range(m):
+        if not soft[i]:
+            n_hard += 1
+    hard_rows = np.empty(n_hard, np.int64)
+    r = 0
+    for i in range(m):
+        if not soft[i]:
+            hard_rows[r] = i
+            r += 1
+    guess = np.zeros(m, np.bool_)
+    for i in range(m):
+        guess[i] = soft[i] and warm[i]
+    H, L = np.empty((k, k)), np.zeros((k, k))
+    rhs, g, y, v = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
+    C, c = np.empty((n_hard, k)), np.empty(n_hard)
+    hint, active = np.zeros(n_hard, np.bool_), np.zeros(n_hard, np.bool_)
+    for i in range(n_hard):
+        hint[i] = warm[hard_rows[i]]
+    ones = np.ones(k)
+    for _ in range(SOFT_GUESSES):
+        for a in range(k):
+            rhs[a] = v_t[a]
+            for e in range(k):
+                H[a, e] = 1.0 if a == e else 0.0
+        for i in range(m):
+            if guess[i]:
+                w = weight[i]
+                for a in range(k):
+                    rhs[a] += w * b[i] * A[i, a]
+                    for e in range(k):
+                        H[a, e] += w * A[i, a] * A[i, e]
+        # H = L L^T (H >= I: positive definite).
+        for a in range(k):
+            for e in range(a + 1):
+                x = H[a, e]
+                for f in range(e):
+                    x -= L[a, f] * L[e, f]
+                L[a, e] = np.sqrt(x) if a == e else x / L[e, e]
+        # g = -L^-1 rhs; each hard row A_j v >= b_j as (L^-1 A_j^T)^T y >= b_j.
+        for a in range(k):
+            x = rhs[a]
+            for f in range(a):
+                x += L[a, f] * g[f]  # g holds -L^-1 rhs so far
+            g[a] = -x / L[a, a]
+        for t in range(n_hard):
+            i = hard_rows[t]
+            for a in range(k):
+                x = A[i, a]
+                for f in range(a):
+                    x -= L[a, f] * C[t, f]
+                C[t, a] = x / L[a, a]
+            c[t] = b[i]
+        active[:] = False
+        status = _solve(ones, g, C, c, hint, y, active)
+        if status != QP_OPTIMAL:
+            return status
+        # v = L^-T y.
+        for a in range(k - 1, -1, -1):
+            x = y[a]
+            for f in range(a + 1, k):
+                x -= L[f, a] * v[f]
+            v[a] = x / L[a, a]
+        settled = True
+        for i in range(m):
+            if not soft[i]:
+                continue
+            s, scale = b[i], 1.0 + abs(b[i])
+            for a in range(k):
+                s -= A[i, a] * v[a]
+                scale += abs(A[i, a] * v[a])
+            tol = _SOFT_TOL * scale
+            missed = s > tol or (guess[i] and s > -tol)
+            if missed != guess[i]:
+                guess[i] = missed
+                settled = False
+        if settled:
+            v_out[:] = v
+            for i in range(m):
+                active_out[i] = guess[i]
+            for t in range(n_hard):
+                active_out[hard_rows[t]] = active[t]
+            return QP_OPTIMAL
+        hint[:] = active
+    return QP_FAILED
+
+
+@njit(cache=True)
+def _slack_stage(v_t, A, b, prio, weight, soft_from, hard, warm, v_out, active_out):
+    """A stage in its slack form (:func:`stage_problem`) by :func:`_solve`:
+    its status, v into ``v_out`` and the rows active into ``active_out``."""
+    k, m = len(v_t), len(b)
+    h, g, C, c, soft = stage_problem(v_t, A, b, prio, weight, soft_from, hard)
+    hint = np.zeros(len(c), np.bool_)
+    hint[:m] = warm
+    x = np.zeros(len(g))
+    active = np.zeros(len(c), np.bool_)
+    status = _solve(h, g, C, c, hint, x, active)
+    if status == QP_OPTIMAL:
+        v_out[:] = x[:k]
+        active_out[:] = active[:m]
+    return status
+
+
+@njit(cache=True)
+def staged_solve(v_t, A, b, prio, weight, levels, hard, warm, v_out, active_out, first=0):
+    """The first stage from ``first`` on with a solution (0: every row
+    hard; stage s: rows of priority >= ``levels[s - 1]`` soft; ``hard``
+    rows never), v into ``v_out`` and the rows active there into
+    ``active_out``; returns (stage, QP solves, the stages before the first
+    one not proven infeasible), stage -1 where none has one. A stage with
+    soft rows is solved in v alone (:func:`_soft_stage`), else (or where
+    its guesses do not settle) in its slack form. ``warm``: the rows
+    active at the last solve, tried first. ``first``: the stages before it
+    are known infeasible (an earlier solve of rows no looser)."""
+    m = len(b)
+    solves, proven = 0, first
+    for stage in range(first, len(levels) + 1):
         soft_from = levels[stage - 1] if stage else np.iinfo(np.int64).max
-        h, g, C, c, soft = stage_problem(v_t, A, b, prio, weight, soft_from, hard)
-        hint = np.zeros(len(c), np.bool_)
-        hint[:m] = warm
-        x = np.zeros(len(g))
-        active = np.zeros(len(c), np.bool_)
-        status = _solve(h, g, C, c, hint, x, active)
+        soft = np.zeros(m, np.bool_)
+        for i in range(m):
+            soft[i] = prio[i] != hard and prio[i] >= soft_from
+        status = QP_FAILED
+        if soft.any():
+            status = _soft_stage(v_t, A, b, soft, weight, warm, v_out, active_out)
+        if status == QP_FAILED:
+            status = _slack_stage(v_t, A, b, prio, weight, soft_from, hard, warm, v_out, active_out)
         solves += 1
         if status == QP_OPTIMAL:
-            v_out[:] = x[:k]
-            active_out[:] = active[:m]
-            return stage, solves
-    return -1, solves
+            return stage, solves, proven
+        if status == QP_INFEASIBLE and proven == stage:
+            proven = stage + 1
+    return -1, solves, proven
