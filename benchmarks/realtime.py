@@ -86,6 +86,8 @@ __all__ = [
     "iiwa_case",
     "run_realtime_bench",
     "realtime_targets",
+    "margin_sweep",
+    "sweep_targets",
     "realtime_markdown",
     "write_realtime_outputs",
 ]
@@ -152,6 +154,11 @@ class RealtimeBenchConfig:
         iiwa: also time the iiwa's controller beside a loopback robot at the
             driver's 5 ms status period (:func:`iiwa_case`).
         probe_cells: cells whose 1 ms step :func:`step_probe` takes apart.
+        sweep_seeds: further steady pushes per (cell, period), seeds
+            ``repeats`` .. ``repeats + sweep_seeds - 1``, run by our filter
+            with the limits for its collisions and margin alone
+            (:func:`margin_sweep`): three seeds say little about how often
+            the margin is lost.
     """
 
     cells: list = dataclasses.field(default_factory=lambda: ["automotive", "aerospace", "cobot", "franka", "mesh"])
@@ -167,10 +174,13 @@ class RealtimeBenchConfig:
     diffik: bool = True
     iiwa: bool = True
     probe_cells: list = dataclasses.field(default_factory=lambda: ["automotive", "cobot"])
+    sweep_seeds: int = 20
 
     @classmethod
     def quick(cls) -> "RealtimeBenchConfig":
-        return cls(cells=["automotive"], periods=[0.001], updates=200, repeats=1, iiwa=False, probe_cells=[])
+        return cls(
+            cells=["automotive"], periods=[0.001], updates=200, repeats=1, iiwa=False, probe_cells=[], sweep_seeds=0
+        )
 
     def steps(self, period: float) -> int:
         """Control updates per run at ``period``."""
@@ -874,6 +884,7 @@ def run_realtime_bench(cfg: RealtimeBenchConfig, *, progress: bool = True) -> di
                     f"{row['headroom_median']:.1f}x",
                     flush=True,
                 )
+    sweep = margin_sweep(cfg, progress=progress)
     probe = []
     for name in cfg.probe_cells:
         wc, table = _cell(name, cfg)
@@ -888,9 +899,117 @@ def run_realtime_bench(cfg: RealtimeBenchConfig, *, progress: bool = True) -> di
         "summary": _summary(runs),
         "iiwa": iiwa,
         "probe": probe,
+        "sweep": sweep,
         "reference_step_s": reference,
         "wall_s": time.perf_counter() - t_start,
     }
+
+
+def margin_sweep(cfg: RealtimeBenchConfig, *, progress: bool = False) -> list[dict]:
+    """Per (cell, period): ``cfg.sweep_seeds`` more steady pushes (seeds
+    after the repeats') run by our filter with the limits, with Drake's
+    clearance at every commanded position. Per run: the seed, Drake's
+    closest approach (m), the colliding updates and the braking faults;
+    the margin it must keep: min(the filter's margin, the nominal's own
+    clearance) less :data:`MOTION_TARGETS`' tolerance."""
+    out = []
+    for name in cfg.cells:
+        wc, table = _cell(name, cfg)
+        limits = bench_limits(wc)[:2]
+        for period in cfg.periods:
+            steps = cfg.steps(period)
+            nominal_clearance = None
+            for seed in range(cfg.repeats, cfg.repeats + cfg.sweep_seeds):
+                tau = steady_torque(table.k, cfg.torque, seed)
+                nominal, deviation = desired_motion(wc, table, period=period, steps=steps, tau=tau)
+                if nominal_clearance is None:
+                    nominal_clearance = float(_drake_clearance(wc, nominal).min())
+                row = run_case(
+                    wc,
+                    table,
+                    period=period,
+                    push="steady",
+                    updates=steps,
+                    torque=cfg.torque,
+                    seed=seed,
+                    limits=limits,
+                    motion=(nominal, deviation, nominal_clearance),
+                    instrument=False,
+                )
+                need = min(row["margin_m"], nominal_clearance) - MOTION_TARGETS["margin_tolerance_m"]
+                out.append(
+                    {
+                        "cell": name,
+                        "period_s": period,
+                        "seed": seed,
+                        "closest_m": row["drake_min_distance_m"],
+                        "collisions": row["collisions"],
+                        "braking_faults": row["braking_faults"],
+                        "need_m": need,
+                    }
+                )
+                if progress:
+                    print(
+                        f"sweep {name} {period * 1e3:g} ms seed {seed}: closest {row['drake_min_distance_m'] * 1e3:.1f} "
+                        f"mm (>= {need * 1e3:.1f}), collisions {row['collisions']}",
+                        flush=True,
+                    )
+    return out
+
+
+def _sweep_groups(sweep: list[dict]) -> dict:
+    """The sweep's runs by (cell, period), in their order."""
+    groups: dict = {}
+    for r in sweep:
+        groups.setdefault((r["cell"], r["period_s"]), []).append(r)
+    return groups
+
+
+def _sweep_section(result: dict) -> list[str]:
+    """The margin sweep's table: per (cell, period) the runs, those that
+    collided, those closer than the margin allows, the closest approach and
+    the seeds that lost the margin."""
+    sweep = result.get("sweep") or []
+    if not sweep:
+        return []
+    lines = [
+        "",
+        "## The margin over more pushes",
+        "",
+        f"Our filter with the limits under {len(sweep) // max(len(_sweep_groups(sweep)), 1)} further steady "
+        "pushes per row (seeds after the repeats'), its collisions and margin alone (Drake's clearance at every "
+        "commanded position; the margin kept within 2 mm of min(the filter's margin, the nominal's own "
+        "clearance), as above).",
+        "",
+        "| cell | period | runs | runs with a collision | runs inside the margin | closest mm | seeds inside the margin |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for (cell, period), runs in _sweep_groups(sweep).items():
+        inside = [r for r in runs if r["closest_m"] < r["need_m"]]
+        lines.append(
+            f"| {cell} | {period * 1e3:g} ms | {len(runs)} | {sum(r['collisions'] > 0 for r in runs)} | "
+            f"{len(inside)} | {min(r['closest_m'] for r in runs) * 1e3:.1f} | "
+            f"{', '.join(str(r['seed']) for r in inside) or '-'} |"
+        )
+    return lines
+
+
+def sweep_targets(result: dict) -> list[tuple[str, bool, str]]:
+    """Per (cell, period) of the margin sweep: 0 collisions and the margin
+    kept within 2 mm in every run."""
+    out = []
+    for (cell, period), runs in _sweep_groups(result.get("sweep") or []).items():
+        inside = [r for r in runs if r["closest_m"] < r["need_m"]]
+        worst = min(runs, key=lambda r: r["closest_m"])
+        out.append(
+            (
+                f"{cell} steady {period * 1e3:g} ms, {len(runs)} more pushes: 0 collisions, margin within 2 mm",
+                not inside,
+                f"{sum(r['collisions'] > 0 for r in runs)} runs with a collision, {len(inside)} inside the margin; "
+                f"closest {worst['closest_m'] * 1e3:.1f} mm (>= {worst['need_m'] * 1e3:.1f}, seed {worst['seed']})",
+            )
+        )
+    return out
 
 
 #: How :func:`_summary` folds a figure over a row's repeats.
@@ -973,7 +1092,7 @@ def _before(result: dict, s: dict) -> dict | None:
 
 def realtime_targets(result: dict) -> list[tuple[str, bool, str]]:
     """The issue's targets per (cell, period, push) of our filter with the
-    limits: (name, met, figures). Collisions and the margin (by Drake, within
+    limits, then the margin sweep's (:func:`sweep_targets`): (name, met, figures). Collisions and the margin (by Drake, within
     ``margin_tolerance_m`` of min(the filter's margin, the nominal's own
     clearance)) and the share passed where a steady push measured them; the
     velocity, acceleration and jerk limits at every update; at 1 ms the
@@ -1020,7 +1139,7 @@ def realtime_targets(result: dict) -> list[tuple[str, bool, str]]:
                     f"median {s['median_s'] * 1e3:.3f} ms (<= 0.5), p99 {s['p99_s'] * 1e3:.3f} ms (<= 1.0)",
                 )
             )
-    return out
+    return out + sweep_targets(result)
 
 
 def _fmt(s: dict, name: str, spec: str, scale: float = 1.0) -> str:
@@ -1164,6 +1283,7 @@ def realtime_markdown(result: dict, machine: dict | None = None) -> str:
     lines += ["## Motion and safety", ""] + _motion_table(result)
     lines += ["", "## Time per update (our stack)", ""] + _timing_table(result)
     lines += _probe_section(result)
+    lines += _sweep_section(result)
     lines += ["", "## Targets (issue 50)", ""]
     lines += [f"- {name}: {'met' if met else 'missed'} ({text})" for name, met, text in realtime_targets(result)]
     iiwa = result.get("iiwa") or []

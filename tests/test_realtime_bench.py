@@ -21,7 +21,9 @@ from benchmarks.realtime import (
 )
 
 # 1 s of motion: long enough that the push, not the path's start, sets the share.
-TINY = RealtimeBenchConfig(cells=["automotive"], periods=[0.01], updates=100, repeats=1, iiwa=False, probe_cells=[])
+TINY = RealtimeBenchConfig(
+    cells=["automotive"], periods=[0.01], updates=100, repeats=1, iiwa=False, probe_cells=[], sweep_seeds=2
+)
 
 
 @pytest.fixture(scope="module")
@@ -188,3 +190,66 @@ def test_probe_section_lists_every_setting():
     lines = _probe_section({"probe": probe})
     assert sum(line.startswith("| cobot | ") for line in lines) == len(PROBE_SETTINGS)
     assert _probe_section({"probe": []}) == []
+
+
+def test_margin_sweep_matches_its_runs(tiny, automotive):
+    """The sweep runs the seeds after the repeats' (here 1 and 2); each
+    run's closest approach is Drake's over the run itself (run_case on the
+    same push), and a run lost the margin iff its sweep target says so."""
+    sweep = tiny["sweep"]
+    assert [r["seed"] for r in sweep] == [1, 2]
+    wc, table = automotive
+    limits = bench_limits(wc)[:2]
+    for r in sweep:
+        tau = steady_torque(table.k, TINY.torque, r["seed"])
+        nominal, deviation = desired_motion(wc, table, period=0.01, steps=100, tau=tau)
+        ncl = float(min(wc.clearance(q, 0.15) for q in nominal))
+        row = run_case(
+            wc,
+            table,
+            period=0.01,
+            push="steady",
+            updates=100,
+            torque=TINY.torque,
+            seed=r["seed"],
+            limits=limits,
+            motion=(nominal, deviation, ncl),
+            instrument=False,
+        )
+        assert r["closest_m"] == row["drake_min_distance_m"] and r["collisions"] == row["collisions"]
+        assert r["need_m"] == pytest.approx(min(row["margin_m"], ncl) - 0.002)
+    (name, met, _), *_ = [t for t in realtime_targets(tiny) if "more pushes" in t[0]]
+    assert met == all(r["closest_m"] >= r["need_m"] for r in sweep)
+    assert "## The margin over more pushes" in realtime_markdown(tiny)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="known defect (docs/safety.md, 'Known limits'): at 1 ms with the opt-in acceleration and jerk limits "
+    "the rows' braking misses the closing that the gripper's turn adds, and this push comes within 5 mm",
+)
+def test_aerospace_keeps_its_margin_under_steady_push_4_at_1_ms():
+    """The aerospace cell at 1 ms with its (opt-in) acceleration and jerk
+    limits under the steady push of seed 4 (one of the margin sweep's
+    runs): no collision, and Drake's clearance at every commanded position
+    within 2 mm of the margin."""
+    cfg = RealtimeBenchConfig(cells=["aerospace"], periods=[0.001])
+    wc, table = _cell("aerospace", cfg)
+    steps = cfg.steps(0.001)
+    nominal, deviation = desired_motion(wc, table, period=0.001, steps=steps, tau=steady_torque(table.k, cfg.torque, 4))
+    ncl = float(min(wc.clearance(q, 0.15) for q in nominal))
+    row = run_case(
+        wc,
+        table,
+        period=0.001,
+        push="steady",
+        updates=steps,
+        torque=cfg.torque,
+        seed=4,
+        limits=bench_limits(wc)[:2],
+        motion=(nominal, deviation, ncl),
+        instrument=False,
+    )
+    assert row["collisions"] == 0
+    assert row["drake_min_distance_m"] >= min(row["margin_m"], ncl) - 0.002

@@ -300,6 +300,7 @@ class VelocityDamper:
         # more than Drake's query.
         near: list[int] = []
         found: list[Any] = []
+        near_distance: list[float] = []
         slow: list[tuple[int, Any]] = []
         ids, drake_rows, limit = self._pair_ids, self._drake_rows.tolist(), pair_reach.tolist()
         measured_distance = query.ComputeSignedDistancePairClosestPoints
@@ -315,14 +316,17 @@ class VelocityDamper:
                     continue
                 near.append(index)
                 found.append(pair)
+                near_distance.append(d)
         if not near and not slow:
             return self.empty()._replace(distances=dists, measured=measured)
         parts = []
         if near:
-            # The witnesses' arrays built once from all the near pairs.
-            dist = np.array([pair.distance for pair in found])
-            normal = np.array([pair.nhat_BA_W for pair in found], float).reshape(-1, 3)
-            witness = np.array([(pair.p_ACa, pair.p_BCb) for pair in found], float).reshape(-1, 2, 3)
+            # The witnesses' arrays built once from all the near pairs (one
+            # array of the three vectors per pair: the property reads cost most).
+            vectors = np.array([x for pair in found for x in (pair.nhat_BA_W, pair.p_ACa, pair.p_BCb)], float)
+            vectors = vectors.reshape(-1, 3, 3)
+            dist = np.array(near_distance)
+            normal, witness = np.ascontiguousarray(vectors[:, 0]), np.ascontiguousarray(vectors[:, 1:])
             parts.append(self._kernel_rows(near, dist, normal, witness, R, o, J_w, J_v))
         if slow:
             out = RowList()
