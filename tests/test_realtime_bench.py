@@ -223,21 +223,16 @@ def test_margin_sweep_matches_its_runs(tiny, automotive):
     assert "## The margin over more pushes" in realtime_markdown(tiny)
 
 
-@pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="known defect (docs/safety.md, 'Known limits'): at 1 ms with the opt-in acceleration and jerk limits "
-    "the rows' braking misses the closing that the gripper's turn adds, and this push comes within 5 mm",
-)
-def test_aerospace_keeps_its_margin_under_steady_push_4_at_1_ms():
+def _aerospace_push_at_1_ms(seed: int) -> dict:
     """The aerospace cell at 1 ms with its (opt-in) acceleration and jerk
-    limits under the steady push of seed 4 (one of the margin sweep's
-    runs): no collision, and Drake's clearance at every commanded position
-    within 2 mm of the margin."""
+    limits under the steady push of ``seed``: run_case's figures, Drake's
+    clearance at every commanded position among them, and the margin due
+    (min(the filter's margin, the nominal's own clearance) less 2 mm)."""
     cfg = RealtimeBenchConfig(cells=["aerospace"], periods=[0.001])
     wc, table = _cell("aerospace", cfg)
     steps = cfg.steps(0.001)
-    nominal, deviation = desired_motion(wc, table, period=0.001, steps=steps, tau=steady_torque(table.k, cfg.torque, 4))
+    tau = steady_torque(table.k, cfg.torque, seed)
+    nominal, deviation = desired_motion(wc, table, period=0.001, steps=steps, tau=tau)
     ncl = float(min(wc.clearance(q, 0.15) for q in nominal))
     row = run_case(
         wc,
@@ -246,10 +241,31 @@ def test_aerospace_keeps_its_margin_under_steady_push_4_at_1_ms():
         push="steady",
         updates=steps,
         torque=cfg.torque,
-        seed=4,
+        seed=seed,
         limits=bench_limits(wc)[:2],
         motion=(nominal, deviation, ncl),
         instrument=False,
     )
-    assert row["collisions"] == 0
-    assert row["drake_min_distance_m"] >= min(row["margin_m"], ncl) - 0.002
+    return {**row, "due_m": min(row["margin_m"], ncl) - 0.002}
+
+
+@pytest.mark.slow
+def test_aerospace_keeps_its_margin_under_steady_push_4_at_1_ms():
+    """The push that came to 1.45 mm at 0.11.1 (a row late by the damper's
+    rule kept its acceleration towards the obstacle): no collision, and
+    Drake's clearance at every commanded position within 2 mm of the
+    margin."""
+    row = _aerospace_push_at_1_ms(4)
+    assert row["collisions"] == 0 and row["drake_min_distance_m"] >= row["due_m"]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="known defect (docs/safety.md, 'Known limit: braking against a turning link'): the rows' braking "
+    "misses the closing that the gripper's turn adds, and this push collides",
+)
+def test_aerospace_keeps_its_margin_under_steady_push_36_at_1_ms():
+    """The same under the push of seed 36, which still collides."""
+    row = _aerospace_push_at_1_ms(36)
+    assert row["collisions"] == 0 and row["drake_min_distance_m"] >= row["due_m"]

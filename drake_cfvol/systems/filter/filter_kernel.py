@@ -305,7 +305,7 @@ ROW_DECELERATION_SHARE = 0.5
 
 
 @njit(cache=True)
-def brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, slack, bend):
+def brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, bend):
     """The damper's rows braked in time: a row i that lets its distance
     shrink (b_i < 0: the gap -b_i / rate above the target) lets it shrink
     no faster than a point mass on the row can still stop within that gap
@@ -319,10 +319,12 @@ def brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, slack
     per row): how much more the row closes over the joints' own stop than
     its first order says (its points turning on the way). Where the
     damper's own rate (-b_i) asks for a faster slow-down than the hard
-    interval allows, the row asks for the slowest closing it allows plus
-    ``slack`` (m/s per row, room for the second-order terms; at most half
-    the interval). A row
-    whose joints have no acceleration limit is kept as it is."""
+    interval allows, the row asks for the slowest closing it allows: no
+    room for the rounds' second-order terms, which such a row may then
+    miss (``braking_faults``). At 1 ms the jerk-limited interval is
+    narrow, and room for them (half of it, before 0.11.2) kept the row's
+    acceleration towards its obstacle. A row whose joints have no
+    acceleration limit is kept as it is."""
     out = b.copy()
     m, k = A.shape
     for i in range(m):
@@ -345,10 +347,8 @@ def brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, slack
         if speed <= s_lo:  # late (the distance fell faster than its first-order row said): all of it
             speed = face_speed(gap, s_last, s_lo, s_hi, acc, jrk, period)
         # The damper's own rule (-b_i) where the limits can keep it, else
-        # the slowest they allow (with room for the rounds' second-order
-        # terms: the row's slack, at most half the interval); never past
-        # the stop.
-        allowed = -b[i] if -b[i] >= s_lo else s_lo + min(slack[i], 0.5 * (s_hi - s_lo))
+        # the slowest closing they allow; never past the stop.
+        allowed = -b[i] if -b[i] >= s_lo else s_lo
         cap = speed if speed < s_hi else np.inf  # at s_hi the stop does not bind
         out[i] = -min(cap, allowed)
     return out
@@ -525,7 +525,7 @@ def braked_rows(
     bend = _second_order(before[0], before[1], after[0], after[1], A, dirs, points, slots, np.zeros((m, 2)), rev, stop)
     # A pair of two moving bodies: its witness row closes as its supporting planes say, when more.
     bend = np.maximum(bend, plane_bends(before, after, A, dirs, points, slots, pair, stop, sides))
-    out = brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, bound, bend)
+    out = brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, bend)
     keep = np.flatnonzero(worst < out + bound)
     n = len(keep)
     kA, kb, kdirs, kpoints = np.empty((n, k)), np.empty(n), np.empty((n, 3)), np.empty((n, 2, 3))
