@@ -79,6 +79,7 @@ __all__ = [
     "steady_torque",
     "station",
     "desired_motion",
+    "steady_motion",
     "motion_figures",
     "push_share",
     "run_case",
@@ -826,6 +827,18 @@ def _progress_line(row: dict) -> str:
     return line
 
 
+def steady_motion(wc, table, cfg: RealtimeBenchConfig, period: float, seed: int, nominal_clearance=None) -> tuple:
+    """(nominal, desired deviation, the nominal's own clearance by Drake) of
+    the steady push of ``seed`` at ``period`` (:func:`desired_motion`), for
+    :func:`run_case`'s ``motion``; ``nominal_clearance``: already measured
+    (the same nominal for every push of a cell and period), or None."""
+    tau = steady_torque(table.k, cfg.torque, seed)
+    nominal, deviation = desired_motion(wc, table, period=period, steps=cfg.steps(period), tau=tau)
+    if nominal_clearance is None:
+        nominal_clearance = float(_drake_clearance(wc, nominal).min())
+    return nominal, deviation, nominal_clearance
+
+
 def run_realtime_bench(cfg: RealtimeBenchConfig, *, progress: bool = True) -> dict:
     """Every (cell, period, push, seed) of ``cfg``, each run by our stack
     with the limits of :func:`bench_limits`, without them (``baseline``)
@@ -844,11 +857,8 @@ def run_realtime_bench(cfg: RealtimeBenchConfig, *, progress: bool = True) -> di
                 for seed in range(cfg.repeats):
                     motion = None
                     if push == "steady":
-                        tau = steady_torque(table.k, cfg.torque, seed)
-                        nominal, deviation = desired_motion(wc, table, period=period, steps=steps, tau=tau)
-                        if nominal_clearance is None:  # the same nominal for every push
-                            nominal_clearance = float(_drake_clearance(wc, nominal).min())
-                        motion = (nominal, deviation, nominal_clearance)
+                        motion = steady_motion(wc, table, cfg, period, seed, nominal_clearance)
+                        nominal_clearance = motion[2]
                     rows = [
                         run_case(
                             wc,
@@ -920,10 +930,8 @@ def margin_sweep(cfg: RealtimeBenchConfig, *, progress: bool = False) -> list[di
             steps = cfg.steps(period)
             nominal_clearance = None
             for seed in range(cfg.repeats, cfg.repeats + cfg.sweep_seeds):
-                tau = steady_torque(table.k, cfg.torque, seed)
-                nominal, deviation = desired_motion(wc, table, period=period, steps=steps, tau=tau)
-                if nominal_clearance is None:
-                    nominal_clearance = float(_drake_clearance(wc, nominal).min())
+                motion = steady_motion(wc, table, cfg, period, seed, nominal_clearance)
+                nominal_clearance = motion[2]
                 row = run_case(
                     wc,
                     table,
@@ -933,7 +941,7 @@ def margin_sweep(cfg: RealtimeBenchConfig, *, progress: bool = False) -> list[di
                     torque=cfg.torque,
                     seed=seed,
                     limits=limits,
-                    motion=(nominal, deviation, nominal_clearance),
+                    motion=motion,
                     instrument=False,
                 )
                 need = min(row["margin_m"], nominal_clearance) - MOTION_TARGETS["margin_tolerance_m"]

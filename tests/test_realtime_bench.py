@@ -199,23 +199,8 @@ def test_margin_sweep_matches_its_runs(tiny, automotive):
     sweep = tiny["sweep"]
     assert [r["seed"] for r in sweep] == [1, 2]
     wc, table = automotive
-    limits = bench_limits(wc)[:2]
     for r in sweep:
-        tau = steady_torque(table.k, TINY.torque, r["seed"])
-        nominal, deviation = desired_motion(wc, table, period=0.01, steps=100, tau=tau)
-        ncl = float(min(wc.clearance(q, 0.15) for q in nominal))
-        row = run_case(
-            wc,
-            table,
-            period=0.01,
-            push="steady",
-            updates=100,
-            torque=TINY.torque,
-            seed=r["seed"],
-            limits=limits,
-            motion=(nominal, deviation, ncl),
-            instrument=False,
-        )
+        row, ncl = _steady_push(wc, table, 0.01, 100, TINY.torque, r["seed"])
         assert r["closest_m"] == row["drake_min_distance_m"] and r["collisions"] == row["collisions"]
         assert r["need_m"] == pytest.approx(min(row["margin_m"], ncl) - 0.002)
     (name, met, _), *_ = [t for t in realtime_targets(tiny) if "more pushes" in t[0]]
@@ -223,29 +208,34 @@ def test_margin_sweep_matches_its_runs(tiny, automotive):
     assert "## The margin over more pushes" in realtime_markdown(tiny)
 
 
-def _aerospace_push_at_1_ms(seed: int) -> dict:
-    """The aerospace cell at 1 ms with its (opt-in) acceleration and jerk
-    limits under the steady push of ``seed``: run_case's figures, Drake's
-    clearance at every commanded position among them, and the margin due
-    (min(the filter's margin, the nominal's own clearance) less 2 mm)."""
-    cfg = RealtimeBenchConfig(cells=["aerospace"], periods=[0.001])
-    wc, table = _cell("aerospace", cfg)
-    steps = cfg.steps(0.001)
-    tau = steady_torque(table.k, cfg.torque, seed)
-    nominal, deviation = desired_motion(wc, table, period=0.001, steps=steps, tau=tau)
+def _steady_push(wc, table, period: float, steps: int, torque: float, seed: int) -> tuple[dict, float]:
+    """Our filter with the cell's limits under the steady push of ``seed``:
+    (run_case's figures, Drake's clearance at every commanded position among
+    them; the nominal's own clearance, taken here by Drake's checker)."""
+    nominal, deviation = desired_motion(wc, table, period=period, steps=steps, tau=steady_torque(table.k, torque, seed))
     ncl = float(min(wc.clearance(q, 0.15) for q in nominal))
     row = run_case(
         wc,
         table,
-        period=0.001,
+        period=period,
         push="steady",
         updates=steps,
-        torque=cfg.torque,
+        torque=torque,
         seed=seed,
         limits=bench_limits(wc)[:2],
         motion=(nominal, deviation, ncl),
         instrument=False,
     )
+    return row, ncl
+
+
+def _aerospace_push_at_1_ms(seed: int) -> dict:
+    """The aerospace cell at 1 ms with its (opt-in) acceleration and jerk
+    limits under the steady push of ``seed`` (:func:`_steady_push`), and the
+    margin due (min(the filter's margin, the nominal's own clearance) less 2 mm)."""
+    cfg = RealtimeBenchConfig(cells=["aerospace"], periods=[0.001])
+    wc, table = _cell("aerospace", cfg)
+    row, ncl = _steady_push(wc, table, 0.001, cfg.steps(0.001), cfg.torque, seed)
     return {**row, "due_m": min(row["margin_m"], ncl) - 0.002}
 
 
