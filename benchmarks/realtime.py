@@ -505,7 +505,8 @@ def run_case(
             timers.counts["qp_solves"] = cm.safety.qp_solves
         status = {
             n: float(cm.safety.GetOutputPort(n).Eval(sctx)[0])
-            for n in ("filter_count", "fallback_count", "damper_misses", "box_exits", "braking_faults")
+            for n in ("filter_count", "fallback_count", "damper_misses", "box_exits", "braking_faults", "guard_stops")
+            if cm.safety.HasOutputPort(n)
         }
     finally:
         undo()
@@ -534,6 +535,7 @@ def run_case(
         "damper_misses": status["damper_misses"],
         "box_exits": status["box_exits"],
         "braking_faults": status["braking_faults"],
+        "guard_stops": status.get("guard_stops", 0.0),
         "margin_m": cm.safety.clearance,
         "wall_per_sim_s": float(wall.sum()) / (steps * period),
         **motion_figures(commanded, q0, period, wc.velocity_limits, a, j),

@@ -637,7 +637,7 @@ def test_run_problems_name_what_went_wrong(run):
 SUMMARY_KEYS = (
     "scenario cell path resolution g steps duration_s path_duration_s sim_wall_s min_clearance_m "
     "max_velocity_ratio max_acceleration_ratio max_jerk_ratio volume_penetrations collisions max_bound_violation "
-    "live_box_excess_max live_box_catchup_s filter_steps filter_fallbacks filter_damper_misses braking_faults "
+    "live_box_excess_max live_box_catchup_s filter_steps filter_fallbacks filter_damper_misses braking_faults guard_stops "
     "filter_box_exits filter_holds tracking_faults faults filter_fault ended_s safety_filter filter_clearance_m "
     "max_deviation n_boxes volume_boxes_in_scene bounds_time_ms build_ms recording_html plot_png diagram_svg "
     "diagram_dot notices clearance_m nominal_min_clearance_m dynamic problems"

@@ -604,6 +604,7 @@ def _export_and_log(builder, exported: dict, scenario, safety, adm) -> dict:
                 "filter_fallbacks": safety.fallback_count_output,
                 "filter_damper_misses": safety.damper_misses_output,
                 "filter_braking_faults": safety.braking_faults_output,
+                "filter_guard_stops": safety.guard_stops_output,
                 "filter_box_exits": safety.box_exits_output,
                 "filter_holds": safety.hold_count_output,
                 "tracking_faults": safety.tracking_faults_output,

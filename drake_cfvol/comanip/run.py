@@ -205,6 +205,7 @@ def run_scenario(
         filter_fallbacks=_count(cm, ctx, "filter_fallbacks"),
         filter_damper_misses=_count(cm, ctx, "filter_damper_misses"),
         braking_faults=_count(cm, ctx, "filter_braking_faults"),
+        guard_stops=_count(cm, ctx, "filter_guard_stops"),
         filter_box_exits=_count(cm, ctx, "filter_box_exits"),
         filter_holds=_count(cm, ctx, "filter_holds"),
         tracking_faults=_count(cm, ctx, "tracking_faults"),

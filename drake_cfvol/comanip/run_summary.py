@@ -102,6 +102,8 @@ class RunSummary:
             damper row.
         braking_faults: updates where a damper row could not be kept within
             the acceleration and jerk limits.
+        guard_stops: updates whose command the stop-path guard refused
+            (the filter braked on the stop it had checked before).
         filter_box_exits: updates where the filter gave the bounds' box way
             to a damper row.
         filter_holds: updates held by a stale robot status.
@@ -160,6 +162,7 @@ class RunSummary:
     filter_fallbacks: int
     filter_damper_misses: int
     braking_faults: int
+    guard_stops: int
     filter_box_exits: int
     filter_holds: int
     tracking_faults: int

@@ -33,8 +33,11 @@ from drake_cfvol.scene.robot import robot_bodies
 __all__ = [
     "SceneArrays",
     "cell_fingerprint",
+    "chain_curvature",
+    "chain_reach",
     "fingerprint_differences",
     "fingerprint_problem",
+    "moved_by",
     "robot_chain",
     "scene_arrays",
     "shape_row",
@@ -101,7 +104,7 @@ class SceneArrays:
         reach (k, B): bound on the distance from joint j's axis point to any
             point of body b, at every configuration, m (0 if not moved).
         curvature (k, k, B): bound on |d^2 p / dq_k dq_l| for any point p of
-            body b at any configuration, m (see :func:`_curvature`).
+            body b at any configuration, m (see :func:`chain_curvature`).
         revolute (k,): joint types.
         joint_body (k,): the body whose inboard joint each joint is.
     """
@@ -409,7 +412,7 @@ def _obstacle_shapes(workcell, verts):
     return np.array(obs_rows).reshape(-1, K.SHAPE_W), obs_names
 
 
-def _moved_by(parent, joint_body, B):
+def moved_by(parent, joint_body, B) -> np.ndarray:
     """(k, B): True where joint j moves body b (b at or below the joint's body)."""
     moved = np.zeros((len(joint_body), B), bool)
     for j, b in enumerate(joint_body):
@@ -438,7 +441,7 @@ def scene_arrays(workcell) -> SceneArrays:
         for b in range(a + 1, B)
         if has_geometry[a] and has_geometry[b] and not checker.IsCollisionFilteredBetween(order[a], order[b])
     ]
-    moved = _moved_by(parent, joint_body, B)
+    moved = moved_by(parent, joint_body, B)
     all_verts = np.concatenate(verts) if verts else np.zeros((0, 3))
     obs_aabb = np.zeros((len(obstacles), 6))
     for o in range(len(obstacles)):
@@ -473,7 +476,7 @@ def scene_arrays(workcell) -> SceneArrays:
         np.array(pairs, np.int64).reshape(-1, 2),
         moved,
         reach,
-        _curvature(reach, moved, revolute),
+        chain_curvature(reach, moved, revolute),
         revolute,
         joint_body,
     )
@@ -482,19 +485,40 @@ def scene_arrays(workcell) -> SceneArrays:
 def _reach(
     parent, jtype, axis, p_PF, R_MB, p_MB, shape_body, shape_bc, shape_br, joint_body, moved, lower, upper, qidx
 ) -> np.ndarray:
-    """reach[j, b]: a configuration-independent bound on |p - c_j| for any
-    point p of body b, c_j the origin of joint j's child frame M (on its
-    axis). Triangle inequality along the chain: the distance between
-    consecutive joint origins is fixed in the body between them (plus the
-    travel of a prismatic joint), and each body's points lie within a fixed
-    distance of its own joint origin."""
+    """reach[j, b] (:func:`chain_reach`) with each body's own extent from its
+    shapes (centres ``shape_bc`` and radii ``shape_br`` in the body frame)."""
     B = len(parent)
-    anchor = np.array([-R_MB[b].T @ p_MB[b] for b in range(B)])  # M origin in body b's frame
     own = np.zeros(B)  # max |p - anchor_b| over body b's shapes
     for b in range(B):
         sel = shape_body == b
         if sel.any():
-            own[b] = (np.linalg.norm(shape_bc[sel] - anchor[b], axis=1) + shape_br[sel]).max()
+            anchor = -R_MB[b].T @ p_MB[b]  # M origin in body b's frame
+            own[b] = (np.linalg.norm(shape_bc[sel] - anchor, axis=1) + shape_br[sel]).max()
+    return chain_reach((parent, jtype, qidx, axis, p_PF, R_MB, p_MB), joint_body, moved, own, lower, upper)
+
+
+def chain_reach(chain, joint_body, moved, own, lower, upper) -> np.ndarray:
+    """reach[j, b] (k, B): a configuration-independent bound on |p - c_j| for
+    any point p of body b, c_j the origin of joint j's child frame M (on its
+    axis); 0 where joint j does not move body b. Triangle inequality along
+    the chain: the distance between consecutive joint origins is fixed in
+    the body between them (plus the travel of a prismatic joint, within its
+    position limits ``lower``, ``upper`` (by position index)), and each
+    body's points lie within ``own[b]`` of its own joint origin.
+
+    Args:
+        chain: (parent, jtype, qidx, axis, p_PF, R_MB, p_MB) of a
+            :class:`~drake_cfvol.kernel.Chain` (or the chain itself).
+        joint_body: (k,) each joint's body in the chain.
+        moved: (k, B) bools, joint j moves body b.
+        own: (B,) per body, the largest distance of its points from its
+            joint frame's origin M.
+    """
+    if isinstance(chain, K.Chain):
+        chain = (chain.parent, chain.jtype, chain.qidx, chain.axis, chain.p_PF, chain.R_MB, chain.p_MB)
+    parent, jtype, qidx, _, p_PF, R_MB, p_MB = chain
+    B = len(parent)
+    anchor = np.array([-R_MB[b].T @ p_MB[b] for b in range(B)]).reshape(B, 3)  # M origin in body b's frame
     step = np.zeros(B)  # |anchor_b - anchor_parent| bound, in the parent's frame
     for b in range(B):
         par = parent[b]
@@ -517,7 +541,7 @@ def _reach(
     return reach
 
 
-def _curvature(reach: np.ndarray, moved: np.ndarray, revolute: np.ndarray) -> np.ndarray:
+def chain_curvature(reach: np.ndarray, moved: np.ndarray, revolute: np.ndarray) -> np.ndarray:
     """curvature[k, l, b] >= |d^2 p / dq_k dq_l| for every point p of body b.
 
     With c_l, u_l joint l's axis point and direction, for joint k upstream of

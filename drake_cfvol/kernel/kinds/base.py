@@ -109,6 +109,14 @@ class ShapeKind:
         obstacle. A smooth, strictly convex shape needs none."""
         return np.zeros((0, 3)), np.zeros(0)
 
+    def support_spheres(self, sizes: np.ndarray, verts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Spheres that hold the shape's support: centres (m, 3) and radii
+        (m,), m, such that along every direction n the least n . c - r over
+        them is at most the shape's own least n . x (the stop-path guard's
+        lower bounds on a distance from a plane). The probes where they do
+        (a polytope's vertices, a capsule's end spheres)."""
+        return self.probes(sizes, verts)
+
     def round_radius(self, sizes: np.ndarray) -> float:
         """The radius of the shape's round part, m: a witness point's lever
         arm grows by it (0 for a polytope, whose probes are its vertices)."""

@@ -104,3 +104,9 @@ class Cylinder(ShapeKind):
 
     def round_radius(self, sizes) -> float:
         return float(sizes[0])
+
+    def support_spheres(self, sizes, verts):
+        # The rim's points, each grown by how far the rim bulges past the
+        # polygon they make: r (1 - cos(pi / RIM_POINTS)).
+        centres, _ = self.probes(sizes, verts)
+        return centres, np.full(len(centres), float(sizes[0]) * (1.0 - np.cos(np.pi / RIM_POINTS)))

@@ -60,3 +60,6 @@ class Ellipsoid(ShapeKind):
 
     def round_radius(self, sizes) -> float:
         return float(np.max(sizes))
+
+    def support_spheres(self, sizes, verts):
+        return np.zeros((1, 3)), np.array([float(np.max(sizes))])  # the ball about it

@@ -80,3 +80,6 @@ class Sphere(ShapeKind):
 
     def round_radius(self, sizes) -> float:
         return float(sizes[0])
+
+    def support_spheres(self, sizes, verts):
+        return np.zeros((1, 3)), np.array([float(sizes[0])])

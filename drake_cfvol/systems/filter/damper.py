@@ -13,7 +13,7 @@ import numpy as np
 from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
 
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies
-from drake_cfvol.systems.filter.damper_kernel import ball_radius, pair_rows, probes, round_radius
+from drake_cfvol.systems.filter.damper_kernel import ball_radius, pair_rows, probes, round_radius, support_spheres
 from drake_cfvol.systems.filter.damper_kinematics import SlotKinematics, _levers, _pair_speeds
 from drake_cfvol.systems.filter.damper_parts import BroadPhase, RowList, drake_pair_rows, side_arrays
 
@@ -160,6 +160,18 @@ class VelocityDamper:
             dtype=int,
         ).reshape(-1, 2)
         self._kin = SlotKinematics(plant, robot, self._slice, self._bodies)
+        #: Per pair and side, spheres that hold its shape's support, in its
+        #: body's frame: centres (P, 2, n, 3), counts (P, 2), radii (P, 2, n)
+        #: (none on a side no joint moves), for the stop-path guard.
+        self.support_spheres = self._support_arrays(inspector)
+        #: Per slot, (lever (S, k), curvature (S, k, k)): bounds on how fast
+        #: its geometry's points move and bend along any joint path
+        #: (:meth:`SlotKinematics.path_bounds`), for the stop-path guard.
+        self.path_bounds = self._kin.path_bounds(
+            self._body_radius,
+            plant.GetPositionLowerLimits()[self._slice.qidx],
+            plant.GetPositionUpperLimits()[self._slice.qidx],
+        )
         # The pairs of two moving bodies, and per such pair the joints that
         # move one side and not the other (a joint moving both moves the
         # pair rigidly: its distance does not change).
@@ -170,6 +182,23 @@ class VelocityDamper:
         self._sides, self._drake_rows = side_arrays(self, inspector)
         # Each pair's two ids, for the per-pair loop of rows.
         self._pair_ids = [(a, b) for a, b, _, _ in self._pairs]
+
+    def _support_arrays(self, inspector) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:attr:`support_spheres` from each moving side's shape."""
+        found = []
+        for a, b, sa, sb in self._pairs:
+            for gid, side in ((a, sa), (b, sb)):
+                if side[0] is None:
+                    found.append((np.zeros((0, 3)), np.zeros(0)))
+                    continue
+                centres, radii = support_spheres(inspector.GetShape(gid))
+                found.append((side[1].multiply(centres).T if centres.shape[1] else np.zeros((0, 3)), radii))
+        P, most = len(self._pairs), max([len(r) for _, r in found] + [0])
+        centres, counts, radii = np.zeros((P, 2, most, 3)), np.zeros((P, 2), np.int64), np.zeros((P, 2, most))
+        for n, (c, r) in enumerate(found):
+            p, j = divmod(n, 2)
+            centres[p, j, : len(r)], radii[p, j, : len(r)], counts[p, j] = c, r, len(r)
+        return centres, counts, radii
 
     def poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """The moving bodies' rotations (S, 3, 3) and origins (S, 3) at q
@@ -187,6 +216,11 @@ class VelocityDamper:
         (P, 2, n, 3), counts (P, 2) and radii (P, 2, n) (none on a side no
         joint moves)."""
         return self._sides[3], self._sides[4], self._sides[5]
+
+    @property
+    def round_radii(self) -> np.ndarray:
+        """(P, 2): per pair and side, the radius of its shape's round part (0: none)."""
+        return self._sides[8]
 
     @property
     def num_pairs(self) -> int:

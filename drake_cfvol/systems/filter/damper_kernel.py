@@ -30,6 +30,7 @@ __all__ = [
     "point_distance",
     "pair_rows",
     "probes",
+    "support_spheres",
     "ball_radius",
     "local_box",
     "round_radius",
@@ -66,6 +67,17 @@ def probes(shape) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros((3, 0)), np.zeros(0)
     centres, radii = g.kind.probes(g.sizes, g.verts)
     return (centres + g.centre).T, radii
+
+
+def support_spheres(shape) -> tuple[np.ndarray, np.ndarray]:
+    """The kind's spheres that hold a shape's support
+    (:meth:`ShapeKind.support_spheres`), in its frame: centres (3 x m) and
+    radii (m,) (none for a shape no kind reads)."""
+    g = _geometry(shape)
+    if g is None:
+        return np.zeros((3, 0)), np.zeros(0)
+    centres, radii = g.kind.support_spheres(g.sizes, g.verts)
+    return (np.asarray(centres, float).reshape(-1, 3) + g.centre).T, np.asarray(radii, float)
 
 
 def ball_radius(shape) -> float:

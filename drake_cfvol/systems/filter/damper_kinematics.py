@@ -13,7 +13,7 @@ from numba import njit
 
 from drake_cfvol.kernel import Chain
 from drake_cfvol.kernel.kinematics import fk_into
-from drake_cfvol.scene.arrays import robot_chain
+from drake_cfvol.scene.arrays import chain_curvature, chain_reach, moved_by, robot_chain
 
 __all__ = ["SlotKinematics"]
 
@@ -246,6 +246,29 @@ class SlotKinematics:
         #: (S, k): 1 where a revolute joint turns the slot's body (a body
         #: turns by at most the sum of their |dq_j| in a step dq).
         self.rev = (self._moves & revolute).astype(float)
+
+    def path_bounds(self, radius, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+        """Configuration-independent bounds for a path in joint space:
+        (lever (S, k), curvature (S, k, k)). lever[s, j]: how fast any
+        point within ``radius[s]`` of slot s's origin moves per unit of
+        joint j's velocity (its greatest distance from a revolute joint's
+        axis; 1 for a prismatic joint); curvature[s]: bounds on the
+        points' second derivatives in the joints
+        (:func:`~drake_cfvol.scene.arrays.chain_curvature`). ``lower``,
+        ``upper``: the robot's position limits (a prismatic joint's
+        travel lengthens the chain below it)."""
+        chain, body = self._chain, self._body
+        B = len(chain.parent)
+        own = np.zeros(B)
+        for s, n in enumerate(body):
+            anchor = -chain.R_MB[n].T @ chain.p_MB[n]  # the joint frame's origin in the body's frame
+            own[n] = max(own[n], float(np.linalg.norm(anchor)) + float(radius[s]))
+        moved = moved_by(chain.parent, self._joint_body, B)
+        reach = chain_reach(chain, self._joint_body, moved, own, np.asarray(lower, float), np.asarray(upper, float))
+        revolute = np.array([n >= 0 and chain.jtype[n] == 1 for n in self._joint_body], bool)
+        curvature = chain_curvature(reach, moved, revolute)
+        lever = np.where(revolute[None, :], reach[:, body].T, 1.0) * self._moves
+        return np.ascontiguousarray(lever), np.ascontiguousarray(curvature[:, :, body].transpose(2, 0, 1))
 
     @property
     def moves(self) -> np.ndarray:

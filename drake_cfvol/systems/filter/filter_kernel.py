@@ -16,19 +16,25 @@ from drake_cfvol.systems.filter.damper_kinematics import _second_order, _slot_po
 from drake_cfvol.systems.filter.qp import staged_solve
 
 __all__ = [
+    "BRAKE_JERK_SHARE",
     "ROW_DECELERATION_SHARE",
+    "brake_step",
+    "brake_velocity",
     "braking_lead",
     "brake_rows",
     "braked_rows",
     "budget_after",
+    "carry_plane",
     "face_speed",
     "filter_rounds",
     "hard_interval",
+    "hard_step",
     "outside",
     "plane_bends",
     "request",
     "stop_distance",
     "stop_steps",
+    "witness_rows",
 ]
 
 
@@ -223,6 +229,71 @@ def face_speed(gap, v_last, lo, hi, acceleration, jerk, period):
     return a
 
 
+@njit(cache=True, inline="always")
+def hard_step(vmax, period, v_last, a_last, acceleration, jerk):
+    """One joint's :func:`hard_interval`: (lo, hi)."""
+    h = period
+    ja, jj = acceleration * h, jerk * h * h
+    lo_aj = max(v_last - ja, v_last + a_last * h - jj)
+    hi_aj = min(v_last + ja, v_last + a_last * h + jj)
+    lo_v, hi_v = -vmax, vmax
+    if np.isfinite(jj) and np.isfinite(vmax):
+        # v + (v - v_last)^2 / (2 jerk dt^2) <= vmax for v > v_last: the largest such step x
+        x = jj * (np.sqrt(1.0 + 2.0 * max(vmax - v_last, 0.0) / jj) - 1.0)
+        hi_v = min(vmax, max(v_last, v_last + x))
+        x = jj * (np.sqrt(1.0 + 2.0 * max(vmax + v_last, 0.0) / jj) - 1.0)
+        lo_v = max(-vmax, min(v_last, v_last - x))
+    a, b = max(lo_aj, lo_v), min(hi_aj, hi_v)
+    if a > b:  # the point of the acceleration and jerk interval nearest the velocity limits'
+        if lo_aj > hi_aj:  # the jerk interval misses the acceleration one: the latter's alone
+            lo_aj, hi_aj = v_last - ja, v_last + ja
+        a = b = min(max(min(max(0.0, lo_v), hi_v), lo_aj), hi_aj)
+    return a, b
+
+
+#: The share of the jerk limit the brake plans its last ramp with (the
+#: rest absorbs the discrete steps, so that it does not overshoot).
+BRAKE_JERK_SHARE = 0.9
+
+
+@njit(cache=True, inline="always")
+def brake_step(vmax, period, v_last, a_last, acceleration, jerk):
+    """One joint's next velocity braking to rest within its limits: the
+    acceleration a' that ramps down to 0 at (a share of) the jerk limit J
+    just as the velocity reaches 0 (v + a' dt + a'|a'| / (2 J) = 0),
+    within the acceleration limit, then clipped to the hard interval
+    (:func:`hard_step`). Full deceleration until the last ramp, which
+    ends at rest rather than overshooting into a reversal (a state whose
+    acceleration cannot be ramped down in time still overshoots, as
+    little as the limits allow). Without a jerk limit: 0 as nearly as the
+    hard interval allows."""
+    lo, hi = hard_step(vmax, period, v_last, a_last, acceleration, jerk)
+    J = BRAKE_JERK_SHARE * jerk
+    h = period
+    if not np.isfinite(J) or abs(v_last) <= 0.5 * J * h * h:  # within half a jerk step of rest: rest
+        t = 0.0
+    else:
+        if v_last > 0.0:
+            ap = J * h - np.sqrt(J * J * h * h + 2.0 * J * v_last)
+        else:
+            ap = -J * h + np.sqrt(J * J * h * h - 2.0 * J * v_last)
+        ap = min(max(ap, -acceleration), acceleration)
+        t = v_last + ap * h
+        if (t > 0.0) != (v_last > 0.0):
+            t = 0.0
+    return min(max(t, lo), hi)
+
+
+@njit(cache=True)
+def brake_velocity(vmax, period, v_last, a_last, acceleration, jerk):
+    """Per joint :func:`brake_step`: the command's velocity braking to rest."""
+    k = len(vmax)
+    out = np.empty(k)
+    for j in range(k):
+        out[j] = brake_step(vmax[j], period, v_last[j], a_last[j], acceleration[j], jerk[j])
+    return out
+
+
 @njit(cache=True)
 def hard_interval(vmax, period, v_last, a_last, acceleration, jerk):
     """Per joint the velocity interval [lo, hi] every command keeps: the
@@ -231,27 +302,11 @@ def hard_interval(vmax, period, v_last, a_last, acceleration, jerk):
     to v), |v - v_last| <= acceleration dt and |v - v_last - a_last dt| <=
     jerk dt^2. Where they cannot all hold (a start or a hold that left the
     state outside them), the point of the acceleration and jerk interval
-    nearest the velocity limits'."""
+    nearest the velocity limits' (:func:`hard_step`, per joint)."""
     k = len(vmax)
     lo, hi = np.empty(k), np.empty(k)
-    h = period
     for j in range(k):
-        ja, jj = acceleration[j] * h, jerk[j] * h * h
-        lo_aj = max(v_last[j] - ja, v_last[j] + a_last[j] * h - jj)
-        hi_aj = min(v_last[j] + ja, v_last[j] + a_last[j] * h + jj)
-        lo_v, hi_v = -vmax[j], vmax[j]
-        if np.isfinite(jj) and np.isfinite(vmax[j]):
-            # v + (v - v_last)^2 / (2 jerk dt^2) <= vmax for v > v_last: the largest such step x
-            x = jj * (np.sqrt(1.0 + 2.0 * max(vmax[j] - v_last[j], 0.0) / jj) - 1.0)
-            hi_v = min(vmax[j], max(v_last[j], v_last[j] + x))
-            x = jj * (np.sqrt(1.0 + 2.0 * max(vmax[j] + v_last[j], 0.0) / jj) - 1.0)
-            lo_v = max(-vmax[j], min(v_last[j], v_last[j] - x))
-        a, b = max(lo_aj, lo_v), min(hi_aj, hi_v)
-        if a > b:  # the point of the acceleration and jerk interval nearest the velocity limits'
-            if lo_aj > hi_aj:  # the jerk interval misses the acceleration one: the latter's alone
-                lo_aj, hi_aj = v_last[j] - ja, v_last[j] + ja
-            a = b = min(max(min(max(0.0, lo_v), hi_v), lo_aj), hi_aj)
-        lo[j], hi[j] = a, b
+        lo[j], hi[j] = hard_step(vmax[j], period, v_last[j], a_last[j], acceleration[j], jerk[j])
     return lo, hi
 
 
@@ -400,6 +455,19 @@ def _sum_as_numpy(x: np.ndarray, n: int) -> float:
 
 
 @njit(cache=True, inline="always")
+def carry_plane(n, w, R0, o0, R1, o1, slot, n1, w1):
+    """The plane through w with normal n carried with the body of ``slot``
+    from its pose (R0, o0) to (R1, o1), into n1, w1: n' = R1 R0^T n,
+    w' = R1 R0^T (w - o0) + o1."""
+    for r in range(3):
+        n1[r], w1[r] = 0.0, o1[slot, r]
+        for c in range(3):
+            rot = R1[slot, r, 0] * R0[slot, c, 0] + R1[slot, r, 1] * R0[slot, c, 1] + R1[slot, r, 2] * R0[slot, c, 2]
+            n1[r] += rot * n[c]
+            w1[r] += rot * (w[c] - o0[slot, c])
+
+
+@njit(cache=True, inline="always")
 def _plane_gap(n, w, sign, probes, count, radii, R, o, slot):
     """The least distance of a side's probe spheres (``probes`` (c, 3) in
     the body frame of ``slot``, posed by R, o; ``radii``) from the plane
@@ -412,6 +480,20 @@ def _plane_gap(n, w, sign, probes, count, radii, R, o, slot):
             x += sign * n[r] * (p - w[r])
         best = min(best, x - radii[c])
     return best
+
+
+@njit(cache=True)
+def witness_rows(pair, num_pairs):
+    """The index of each pair's first row (its witness row), in order."""
+    seen = np.zeros(max(num_pairs, 1), np.bool_)
+    out = np.empty(len(pair), np.int64)
+    n = 0
+    for i in range(len(pair)):
+        if not seen[pair[i]]:
+            seen[pair[i]] = True
+            out[n] = i
+            n += 1
+    return out[:n]
 
 
 @njit(cache=True)
@@ -445,13 +527,9 @@ def plane_bends(before, after, A, dirs, points, slots, pair, stop, sides):
     R1, o1 = after
     m, k = A.shape
     out = np.zeros(m)
-    seen = np.zeros(max(counts.shape[0], 1), np.bool_)
     w1, n1 = np.zeros(3), np.zeros(3)
-    for i in range(m):
+    for i in witness_rows(pair, counts.shape[0]):
         p = pair[i]
-        if seen[p]:
-            continue
-        seen[p] = True
         s0, s1 = slots[i, 0], slots[i, 1]
         if s0 < 0 or s1 < 0:
             continue  # a welded side: its rows are planes fixed in the world, carried exactly
@@ -466,13 +544,7 @@ def plane_bends(before, after, A, dirs, points, slots, pair, stop, sides):
             st, su = slots[i, t], slots[i, u]
             sign = 1.0 if t == 1 else -1.0
             gap0 = _plane_gap(dirs[i], points[i, t], sign, probes[p, u], counts[p, u], radii[p, u], R0, o0, su)
-            # The plane carried with its body: n' = R1 R0^T n, w' = R1 R0^T (w - o0) + o1.
-            for r in range(3):
-                n1[r], w1[r] = 0.0, o1[st, r]
-                for c in range(3):
-                    rot = R1[st, r, 0] * R0[st, c, 0] + R1[st, r, 1] * R0[st, c, 1] + R1[st, r, 2] * R0[st, c, 2]
-                    n1[r] += rot * dirs[i, c]
-                    w1[r] += rot * (points[i, t, c] - o0[st, c])
+            carry_plane(dirs[i], points[i, t], R0, o0, R1, o1, st, n1, w1)
             gap1 = _plane_gap(n1, w1, sign, probes[p, u], counts[p, u], radii[p, u], R1, o1, su)
             extra = min(extra, gap0 + lin - gap1)
         if np.isfinite(extra):

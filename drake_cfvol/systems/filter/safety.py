@@ -49,15 +49,16 @@ from drake_cfvol.systems.filter.constraints import (
 )
 from drake_cfvol.systems.filter.damper import DamperRows, DynamicPairs, VelocityDamper
 from drake_cfvol.systems.filter.filter_kernel import (
+    brake_velocity,
     braked_rows,
     braking_lead,
     budget_after,
     finish,
-    hard_interval,
     outside,
     request,
     stop_steps,
 )
+from drake_cfvol.systems.filter.stop_guard import brake_path, check_stop
 
 __all__ = ["FAULTS", "SafetyFilter", "SafetyFilterConfig"]
 
@@ -87,8 +88,9 @@ class SafetyFilterConfig:
 #: |v_j| / limit_j of the last update, updates that used the fallback,
 #: updates that had to miss a damper row, updates whose command left the
 #: box, updates held, a tracking fault at the last update, updates with
-#: one, the latched fault (:data:`FAULTS`; 0: none)].
-#: updates that missed a row with acceleration or jerk limits in force.
+#: one, the latched fault (:data:`FAULTS`; 0: none), updates that missed
+#: a row with acceleration or jerk limits in force, updates whose command
+#: the stop-path guard refused].
 (
     _ACTIVE,
     _COUNT,
@@ -102,7 +104,8 @@ class SafetyFilterConfig:
     _TRACKING_COUNT,
     _FAULT,
     _BRAKING,
-) = range(12)
+    _GUARD,
+) = range(13)
 
 #: The filter's faults (its ``filter_fault`` output), by code: what hit it.
 FAULTS = {
@@ -160,6 +163,7 @@ def _declare_status_outputs(system, status) -> None:
         ("tracking_faults", _TRACKING_COUNT),
         ("filter_fault", _FAULT),
         ("braking_faults", _BRAKING),
+        ("guard_stops", _GUARD),
     ]:
         port = system.DeclareVectorOutputPort(
             name=name,
@@ -211,6 +215,7 @@ class SafetyFilter(LeafSystem):
         - tracking_faults
         - filter_fault
         - braking_faults
+        - guard_stops
 
     The update, its constraints and guarantees, the outputs and the measured
     position: see docs/safety.md, "The safety filter". Scalar type: float only.
@@ -264,6 +269,9 @@ class SafetyFilter(LeafSystem):
     #: Most damper rows an update solves a QP over: more fault the filter (the QP's cost grows with the cube of
     #: its rows where they conflict; the bundled moving-obstacle runs peak at 172 and 232 rows).
     MAX_ROWS = 400
+
+    #: A stop longer than this is refused by the stop-path guard, s.
+    GUARD_HORIZON = 10.0
 
     def __init__(
         self,
@@ -323,6 +331,7 @@ class SafetyFilter(LeafSystem):
         )
         self._jerk = (np.full(k, np.inf) if self.jerk_limits is None else self.jerk_limits) * (1.0 - _HAIR_ACCELERATION)
         self._braked = bool(np.isfinite(self._acceleration).any() or np.isfinite(self._jerk).any())
+        self._guard_steps = int(np.ceil(self.GUARD_HORIZON / self.period))
         # One update's change of the velocity and of the acceleration at the
         # limits (0 without one), for the braking reach.
         self._step_dv = np.where(np.isfinite(self._acceleration), self._acceleration * self.period, 0.0)
@@ -375,7 +384,7 @@ class SafetyFilter(LeafSystem):
         self._position = self.DeclareDiscreteState(q0)
         self._velocity = self.DeclareDiscreteState(k)  # the last commanded velocity
         self._status = self.DeclareDiscreteState(
-            np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+            np.array([0.0, 0.0, np.inf, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
         )
         # Per pair, how far it is known to lie beyond the influence distance
         # (m; negative: measure it at the next update), with the robot at the
@@ -394,6 +403,9 @@ class SafetyFilter(LeafSystem):
         # moves on its own (not the perceived kind, whose pairs are measured
         # while it is in use: DynamicPairs.mark).
         self._always = self._damper.self_moving & ~dynamic
+        # The pairs the stop-path guard leaves to the rows: geometry that
+        # moves on its own (its supporting plane moves too).
+        self._unguarded = self._damper.self_moving | dynamic
         # A plant context used as scratch for the Jacobians (never a context
         # outside this system's own).
         self._scratch = self.DeclareCacheEntry(
@@ -543,15 +555,17 @@ class SafetyFilter(LeafSystem):
             # the rows move the command).
             v_t = np.minimum(np.maximum(np.minimum(np.maximum(0.0, h_lo), h_hi), lo), hi)
             sane = finite
+        measured_rows = self._damper.empty()  # the damper's rows before braking: the stop-path guard's pairs
+        slot_poses = None  # the damper's slot poses at the base, where its rows are made
         if not sane:  # hold, as far as the box (if it is usable) allows
             v, fallback, dmin, missed, tracking = v_t, True, status[_MIN_DISTANCE], False, False
             discrete_state.get_mutable_vector(self._measured_last).SetFromVector(np.full(k, np.nan))
         else:
             n = self._damper.num_pairs
-            kin, reach, levers, slot_poses = None, None, None, None
+            kin, reach, levers = None, None, None
             if self._braked and n:
                 kin = self._damper.kinematics.poses_and_jacobians(base)
-                slot_poses = kin[:2]
+                slot_poses = (kin[0], kin[1])
                 levers = self._damper.levers(kin[2], kin[3])
                 reach = self._braking_reach(kin, levers, v_last, a_last)
             kept = context.get_discrete_state(self._budget).CopyToVector()
@@ -573,6 +587,7 @@ class SafetyFilter(LeafSystem):
             # distance; the budget kept: measured pairs' distance beyond it,
             # the others' budget, both with the robot at this base.
             dmin, keep = budget_after(rows.distances, budget, self.influence_distance, base)
+            measured_rows = rows
             if self._braked and len(rows.b):
                 rows = self._braked_rows(rows, base, v_last, a_last, h_lo, h_hi, levers, slot_poses)
             fault = self._fault(rows)
@@ -591,6 +606,12 @@ class SafetyFilter(LeafSystem):
         v, q_next, exited, ratio, acted = finish(
             q, np.asarray(v, float), lo, hi, h_lo, h_hi, self.velocity_limits, desired, h, sane, _CHANGED
         )
+        guarded = False
+        if sane and self._braked and not fallback and len(measured_rows.b):
+            if not self.stop_is_clear(measured_rows, base, q_next, v, v_last, poses=slot_poses):
+                # The next step of the stop the last command was checked with.
+                v = brake_velocity(self._vmax, h, v_last, a_last, self._acceleration, self._jerk)
+                q_next, guarded, acted = q + v * h, True, True
         if sane and self._braked:  # a face the limits could not brake for in time counts as leaving the box
             exited = exited or outside(q_next, lower, upper, 1e-9)
         self._command(discrete_state, q_next, v, v_last)
@@ -612,6 +633,7 @@ class SafetyFilter(LeafSystem):
                 status[_TRACKING_COUNT] + tracking,
                 0.0,  # no fault (a faulted update returned above)
                 status[_BRAKING] + (missed and self._braked),
+                status[_GUARD] + guarded,
             ]
         )
 
@@ -622,11 +644,61 @@ class SafetyFilter(LeafSystem):
         discrete_state.get_mutable_vector(self._accel).SetFromVector((v - v_last) / self.period)
 
     def _brake(self, discrete_state, q, v_last, a_last) -> None:
-        """The command brakes towards a stop as hard as the limits allow (at
-        once, without acceleration and jerk limits)."""
-        h_lo, h_hi = hard_interval(self._vmax, self.period, v_last, a_last, self._acceleration, self._jerk)
-        v = np.minimum(np.maximum(0.0, h_lo), h_hi)
+        """The command brakes to a stop as hard as the limits allow, its last
+        ramp ending at rest (:func:`~.filter_kernel.brake_step`; at once,
+        without acceleration and jerk limits)."""
+        v = brake_velocity(self._vmax, self.period, v_last, a_last, self._acceleration, self._jerk)
         self._command(discrete_state, q + v * self.period, v, v_last)
+
+    def stop_path(self, q_next: np.ndarray, v: np.ndarray, v_last: np.ndarray) -> np.ndarray:
+        """The positions (n + 1, k) the filter commands if it brakes from the
+        command (q_next, v) that followed ``v_last``, one per update, q_next
+        first (:meth:`_brake` walked to rest; :func:`~.stop_guard.brake_path`)."""
+        h = self.period
+        v = np.asarray(v, float)
+        path, _, _ = brake_path(
+            np.asarray(q_next, float),
+            v,
+            (v - np.asarray(v_last, float)) / h,
+            self._vmax,
+            self._acceleration,
+            self._jerk,
+            h,
+            self._guard_steps,
+        )
+        return path
+
+    def stop_is_clear(
+        self,
+        rows: DamperRows,
+        base: np.ndarray,
+        q_next: np.ndarray,
+        v: np.ndarray,
+        v_last: np.ndarray,
+        *,
+        poses: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> bool:
+        """The stop-path guard: whether braking at the limits from the
+        command (q_next, v) (:meth:`stop_path`) keeps the pairs with damper
+        ``rows`` (made at ``base``; ``poses``: the damper's slot poses
+        there, if at hand) above the margin, or above their distance now
+        where that is nearer (their lower bound there, where that is
+        lower), less the allowance
+        (:func:`~.stop_guard.check_stop`; docs/safety.md, "The stop-path guard")."""
+        h = self.period
+        v, base = np.asarray(v, float), np.asarray(base, float)
+        kin = self._damper.kinematics
+        ok, _, _ = check_stop(
+            (np.asarray(q_next, float), v, (v - np.asarray(v_last, float)) / h),
+            (self._vmax, self._acceleration, self._jerk, h),
+            (kin.compiled(), kin.poses(base) if poses is None else poses, base),
+            (*self._damper.path_bounds, kin.moves),
+            (rows.dirs, rows.points, rows.slots, rows.pair),
+            (*self._damper.support_spheres, self._damper.round_radii),
+            (self._unguarded, rows.distances, self.clearance, self.allowance),
+            self._guard_steps,
+        )
+        return bool(ok)
 
     def _braking_reach(self, kin, levers, v_last, a_last) -> np.ndarray:
         """Per pair, how near it must be to get a row at this update, m:
