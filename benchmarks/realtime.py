@@ -955,6 +955,7 @@ def margin_sweep(cfg: RealtimeBenchConfig, *, progress: bool = False) -> list[di
                         "closest_m": row["drake_min_distance_m"],
                         "collisions": row["collisions"],
                         "braking_faults": row["braking_faults"],
+                        "guard_stops": row["guard_stops"],
                         "need_m": need,
                     }
                 )
@@ -1048,7 +1049,7 @@ _FOLD = {
         "dv_ratio_max",
     ),
     "min": ("min_distance_m", "drake_min_distance_m", "deepest_m", "nominal_clearance_m"),
-    "sum": ("fallbacks", "damper_misses", "box_exits", "braking_faults", "collisions", "stalled"),
+    "sum": ("fallbacks", "damper_misses", "box_exits", "braking_faults", "guard_stops", "collisions", "stalled"),
     "first": ("num_pairs", "limits", "margin_m"),
 }
 
@@ -1161,7 +1162,7 @@ def _motion_table(result: dict) -> list[str]:
     head = (
         "| cell | period | run | a/j limits | colliding updates | deepest mm | closest mm | margin mm | "
         "v ratio | a max rad/s^2 | a ratio | jerk max rad/s^3 | j ratio | dv/vmax max | dv/vmax p99 | "
-        "braking faults | box exits | share passed (range) | stalled | step median ms | p99 ms |"
+        "braking faults | guard stops | box exits | share passed (range) | stalled | step median ms | p99 ms |"
     )
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for s in result["summary"]:
@@ -1178,7 +1179,8 @@ def _motion_table(result: dict) -> list[str]:
             f"{_fmt(s, 'drake_min_distance_m', '.1f', 1e3)} | {margin} | {_fmt(s, 'max_velocity_ratio', '.3f')} | "
             f"{_fmt(s, 'max_acceleration', '.3g')} | {_fmt(s, 'max_acceleration_ratio', '.3f')} | "
             f"{_fmt(s, 'max_jerk', '.3g')} | {_fmt(s, 'max_jerk_ratio', '.3f')} | {_fmt(s, 'dv_ratio_max', '.3f')} | "
-            f"{_fmt(s, 'dv_ratio_p99', '.3f')} | {_fmt(s, 'braking_faults', 'g')} | {_fmt(s, 'box_exits', 'g')} | "
+            f"{_fmt(s, 'dv_ratio_p99', '.3f')} | {_fmt(s, 'braking_faults', 'g')} | {_fmt(s, 'guard_stops', 'g')} | "
+            f"{_fmt(s, 'box_exits', 'g')} | "
             f"{share} | {_fmt(s, 'stalled', 'g')} | {_fmt(s, 'median_s', '.3f', 1e3)} | {_fmt(s, 'p99_s', '.3f', 1e3)} |"
         )
     return lines
@@ -1267,7 +1269,7 @@ def realtime_markdown(result: dict, machine: dict | None = None) -> str:
         "the largest joint acceleration and jerk (finite differences of the commanded positions at the "
         "control rate, from rest; ratios to the limits above, for every run); the largest velocity change per "
         "update over the velocity limit (the largest joint's per update: max and p99); the filter's "
-        "`braking_faults` and `box_exits`; the share of the push passed: <achieved, desired> / <desired, "
+        "`braking_faults`, `guard_stops` (updates the stop-path guard braked) and `box_exits`; the share of the push passed: <achieved, desired> / <desired, "
         "desired> over the run, achieved the command's deviation from the nominal, desired the admittance's "
         "deviation with no bounds; DiffIK's updates with a zero command (`stalled`). Ratios and distances "
         "are the worst over the repeats, counts summed, shares and times medians (the share's range beside it). "
