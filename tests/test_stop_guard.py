@@ -68,7 +68,7 @@ def test_a_stop_the_guard_keeps_stays_clear_by_drake(obstacle):
     """Random commands near a wall (flat face) and a column (round): where
     the guard keeps a command, Drake's distance at every update of the
     stop and halfway between updates stays above the threshold (the
-    margin, or the distance now where nearer, less the allowance). Against
+    margin less the guard's band, or the distance now where nearer). Against
     the wall the plane is exact: a refused stop comes within the
     threshold by Drake too, up to the guard's bound for the path between
     updates (a few micrometres at 1 ms)."""
@@ -106,7 +106,7 @@ def test_a_stop_the_guard_keeps_stays_clear_by_drake(obstacle):
         for x in points:
             sf.set_initial_position(sctx, x)
             dists.append(_drake_distance(diagram, ctx, tip, obs))
-        threshold = min(sf.clearance, d_now) - sf.allowance
+        threshold = min(sf.clearance - sf.GUARD_BAND * sf.allowance, d_now)
         if ok:
             kept += 1
             assert min(dists) >= threshold - 1e-9

@@ -273,6 +273,12 @@ class SafetyFilter(LeafSystem):
     #: A stop longer than this is refused by the stop-path guard, s.
     GUARD_HORIZON = 10.0
 
+    #: The stop-path guard keeps a pair above the margin less this many
+    #: allowances: its bound is a supporting plane's, which a link sliding
+    #: round a curved obstacle undercuts (the damper itself aims at the
+    #: margin plus one allowance).
+    GUARD_BAND = 2.0
+
     def __init__(
         self,
         plant: MultibodyPlant,
@@ -681,9 +687,9 @@ class SafetyFilter(LeafSystem):
         """The stop-path guard: whether braking at the limits from the
         command (q_next, v) (:meth:`stop_path`) keeps the pairs with damper
         ``rows`` (made at ``base``; ``poses``: the damper's slot poses
-        there, if at hand) above the margin, or above their distance now
-        where that is nearer (their lower bound there, where that is
-        lower), less the allowance
+        there, if at hand) above the margin less the allowance, or above
+        their distance now where that is nearer (their lower bound there,
+        where that is lower)
         (:func:`~.stop_guard.check_stop`; docs/safety.md, "The stop-path guard")."""
         h = self.period
         v, base = np.asarray(v, float), np.asarray(base, float)
@@ -695,7 +701,7 @@ class SafetyFilter(LeafSystem):
             (*self._damper.path_bounds, kin.moves),
             (rows.dirs, rows.points, rows.slots, rows.pair),
             (*self._damper.support_spheres, self._damper.round_radii),
-            (self._unguarded, rows.distances, self.clearance, self.allowance),
+            (self._unguarded, rows.distances, self.clearance, self.GUARD_BAND * self.allowance),
             self._guard_steps,
         )
         return bool(ok)

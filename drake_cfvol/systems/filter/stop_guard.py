@@ -110,9 +110,10 @@ def _planes(rows, skip, distances, margin, slack, counts, moves, rounds):
     """The guarded pairs' planes from the damper's rows (each pair's witness
     row first): per guarded pair its witness row, the side u whose probes
     meet the plane through the other side's witness, the threshold (the
-    margin, or the pair's distance now where it is nearer, less
-    ``slack``; :func:`check_stop` lowers it to the plane's own bound
-    there) and the joints that move side u relative to the plane's
+    margin less ``slack``, or the pair's distance now where it is nearer:
+    inside that band a pair may not come nearer at all, else it would
+    creep in by the slack at every update; :func:`check_stop` lowers it
+    to the plane's own bound there) and the joints that move side u relative to the plane's
     side (G, k). Guarded: pairs not in ``skip`` of a moving side and a
     welded one (a static obstacle: the plane stays), or of two links one
     of which is the other's ancestor in the chain (the plane is carried
@@ -154,7 +155,7 @@ def _planes(rows, skip, distances, margin, slack, counts, moves, rounds):
         for j in range(k):
             mask[g, j] = moves[su, j] and not (st >= 0 and moves[st, j])
         keep[g], side[g] = i, u
-        thr[g] = min(margin, distances[p]) - slack
+        thr[g] = min(margin - slack, distances[p])
         g += 1
     return keep[:g], side[:g], thr[:g], mask[:g]
 
@@ -322,7 +323,7 @@ def check_stop(state, limits, kin, bounds, rows, sides, guarded, max_steps):
     gaps = np.empty(len(keep))
     _gaps(base, posed, before, rows, sides, keep, side, gaps)
     for g in range(len(keep)):
-        thr[g] = min(thr[g], gaps[g] - slack)
+        thr[g] = min(thr[g], gaps[g])
     # A pair whose probing side cannot move by the distance it has to spare
     # over the whole stop (its joints' path lengths times their levers) is
     # kept without walking the path.
