@@ -17,6 +17,7 @@ from benchmarks.realtime import (
     realtime_targets,
     run_case,
     run_realtime_bench,
+    steady_motion,
     steady_torque,
 )
 
@@ -200,7 +201,7 @@ def test_margin_sweep_matches_its_runs(tiny, automotive):
     assert [r["seed"] for r in sweep] == [1, 2]
     wc, table = automotive
     for r in sweep:
-        row, ncl = _steady_push(wc, table, 0.01, 100, TINY.torque, r["seed"])
+        row, ncl = _steady_push(wc, table, TINY, 0.01, r["seed"])
         assert r["closest_m"] == row["drake_min_distance_m"] and r["collisions"] == row["collisions"]
         assert r["need_m"] == pytest.approx(min(row["margin_m"], ncl) - 0.002)
     (name, met, _), *_ = [t for t in realtime_targets(tiny) if "more pushes" in t[0]]
@@ -208,25 +209,24 @@ def test_margin_sweep_matches_its_runs(tiny, automotive):
     assert "## The margin over more pushes" in realtime_markdown(tiny)
 
 
-def _steady_push(wc, table, period: float, steps: int, torque: float, seed: int) -> tuple[dict, float]:
-    """Our filter with the cell's limits under the steady push of ``seed``:
-    (run_case's figures, Drake's clearance at every commanded position among
-    them; the nominal's own clearance, taken here by Drake's checker)."""
-    nominal, deviation = desired_motion(wc, table, period=period, steps=steps, tau=steady_torque(table.k, torque, seed))
-    ncl = float(min(wc.clearance(q, 0.15) for q in nominal))
+def _steady_push(wc, table, cfg: RealtimeBenchConfig, period: float, seed: int) -> tuple[dict, float]:
+    """Our filter with the cell's limits under the steady push of ``seed``
+    (:func:`steady_motion`): (run_case's figures, Drake's clearance at every
+    commanded position among them; the nominal's own clearance)."""
+    motion = steady_motion(wc, table, cfg, period, seed)
     row = run_case(
         wc,
         table,
         period=period,
         push="steady",
-        updates=steps,
-        torque=torque,
+        updates=cfg.steps(period),
+        torque=cfg.torque,
         seed=seed,
         limits=bench_limits(wc)[:2],
-        motion=(nominal, deviation, ncl),
+        motion=motion,
         instrument=False,
     )
-    return row, ncl
+    return row, motion[2]
 
 
 def _aerospace_push_at_1_ms(seed: int) -> dict:
@@ -235,7 +235,7 @@ def _aerospace_push_at_1_ms(seed: int) -> dict:
     margin due (min(the filter's margin, the nominal's own clearance) less 2 mm)."""
     cfg = RealtimeBenchConfig(cells=["aerospace"], periods=[0.001])
     wc, table = _cell("aerospace", cfg)
-    row, ncl = _steady_push(wc, table, 0.001, cfg.steps(0.001), cfg.torque, seed)
+    row, ncl = _steady_push(wc, table, cfg, 0.001, seed)
     return {**row, "due_m": min(row["margin_m"], ncl) - 0.002}
 
 
