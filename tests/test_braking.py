@@ -3,6 +3,8 @@ facts: the discrete update's braking walked step by step, a point mass
 approaching a plane (closed-form stopping distance), and random requests,
 boxes and limits on the two-link arm of test_safety (Drake's distances)."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -481,18 +483,33 @@ def test_the_admittance_meets_a_face_at_rest(period):
     assert np.max(-np.diff(free, axis=0)) > 10 * (1 - share) * a.max() * period  # the clamp's stop, for contrast
 
 
-def test_the_tables_deviation_range_equals_its_boxes(bounded):
-    """BoundsTable.deviation_range (the bounds source's window, one compiled
-    call) equals the largest lower and smallest upper deviation of the
-    boxes boxes_at gives at the same path parameters, bit for bit."""
+def test_the_tables_box_ahead_equals_its_boxes(bounded):
+    """BoundsTable.box_ahead (the bounds source's window, one compiled call)
+    equals, bit for bit, what boxes_at gives: the box at s, and the box at s
+    tightened to the largest lower and smallest upper deviation of the boxes
+    at the quarter steps after s and at the window's end, clipped to the box
+    at s; for both interpolation rules, at waypoints and near the end."""
     table = bounded("automotive", "path1")
     rng = np.random.default_rng(5)
-    for _ in range(100):
-        sigma = np.sort(rng.uniform(0, table.g - 1, rng.integers(1, 20)))
-        sigma[0] = np.floor(sigma[0])  # a waypoint too
-        lo, hi, nom = table.boxes_at(sigma)
-        d_lo, d_hi = table.deviation_range(sigma)
-        assert np.array_equal(d_lo, (lo - nom).max(axis=0)) and np.array_equal(d_hi, (hi - nom).min(axis=0))
+    for interpolation in ("stretch", "linear"):
+        t = dataclasses.replace(table, interpolation=interpolation)
+        for s in [0.0, 3.0, t.g - 1.0, t.g - 1.3, *rng.uniform(0, t.g - 1, 60)]:
+            lookahead = float(rng.choice([0.0, 0.25, 1.0, rng.uniform(0, 5)]))
+            lo, hi, nom, lo_a, hi_a = t.box_ahead(s, lookahead)
+            box = t.boxes_at([s])
+            for got_, want in zip((lo, hi, nom), box):
+                assert np.array_equal(got_, want[0])
+            end = min(s + lookahead, t.g - 1.0)
+            if end <= s:
+                assert np.array_equal(lo_a, lo) and np.array_equal(hi_a, hi)
+                continue
+            sigma = [x / 4.0 for x in range(int(np.floor(4 * s)) + 1, int(np.ceil(4 * end)))] + [end]
+            l_s, h_s, n_s = t.boxes_at(sigma)
+            dev_lo = np.maximum(lo - nom, (l_s - n_s).max(axis=0))
+            dev_hi = np.minimum(hi - nom, (h_s - n_s).min(axis=0))
+            assert np.array_equal(lo_a, np.clip(nom + np.minimum(dev_lo, 0.0), lo, hi))
+            assert np.array_equal(hi_a, np.clip(nom + np.maximum(dev_hi, 0.0), lo, hi))
+            assert np.all(lo <= lo_a) and np.all(lo_a <= nom) and np.all(nom <= hi_a) and np.all(hi_a <= hi)
 
 
 def test_the_path_starts_and_stops_within_the_acceleration_limits(bounded):

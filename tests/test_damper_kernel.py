@@ -231,3 +231,50 @@ def test_pair_speeds_bound_drakes_distance_rates(cell):
         checked += len(near)
         self_checked += int(both[near].sum())
     assert checked > 200 and (self_checked > 20 or cell == "aerospace")
+
+
+@pytest.mark.parametrize("cell", ["automotive", "franka"])
+def test_cached_planes_bound_drakes_distance(cell):
+    """VelocityDamper.rows with cached planes (SafetyFilter's plane cache):
+    Drake's witnesses kept at 60 random configurations q0, then each pair a
+    plane may stand in for (any distance: floor -inf) looked at again at q1,
+    q0 plus a random step of up to 0.1 rad per joint. Every cached pair's
+    distance is a lower bound of Drake's at q1 (1e-9), its first row (the
+    witness row) reads that bound (n . (P1 - P2)), and at q0 itself the bound
+    is Drake's distance for most pairs (polytopes' vertices meet their plane
+    exactly). Pairs with geometry of no support spheres, or only round, are
+    never cached on that side."""
+    wc, plant, sg, robot, damper, pctx, sgctx = _cell_damper(cell)
+    lo, hi = wc.position_lower, wc.position_upper
+    rng = np.random.default_rng(11)
+    P = damper.num_pairs
+    everywhere = np.full(P, -np.inf)
+    cached = exact = 0
+    for _ in range(60):
+        q0 = lo + rng.random(len(lo)) * (hi - lo)
+        q1 = np.clip(q0 + rng.uniform(-0.1, 0.1, len(lo)), lo, hi)
+        table = np.zeros((P, 7))
+        table[:, 0] = -1.0
+        planes = (table, damper.plane_side, 1000, everywhere)
+        for q, stored in ((q0, False), (q0, True), (q1, True)):
+            plant.SetPositions(pctx, robot, q)
+            query = sg.get_query_output_port().Eval(sgctx)
+            rows = damper.rows(query, q, reach=10.0, planes=planes)
+            if not stored:  # the first look measures every pair and keeps its plane
+                assert rows.measured[damper.plane_side >= 0].all()
+                continue
+            for p in np.flatnonzero(~rows.measured & np.isfinite(rows.distances)):
+                assert damper.plane_side[p] >= 0
+                a, b, _, _ = damper._pairs[p]
+                d = query.ComputeSignedDistancePairClosestPoints(a, b).distance
+                assert rows.distances[p] <= d + 1e-9, (p, rows.distances[p], d)
+                first = np.flatnonzero(rows.pair == p)[0]
+                gap = rows.dirs[first] @ (rows.points[first, 0] - rows.points[first, 1])
+                assert gap == pytest.approx(rows.distances[p], abs=1e-9)
+                cached += 1
+                exact += bool(q is q0 and abs(rows.distances[p] - d) < 1e-6)
+    assert cached > 1000 and exact > 0.25 * cached
+    sides = damper.plane_side
+    rounds = damper.round_radii
+    on = np.flatnonzero(sides >= 0)
+    assert not (rounds[on, sides[on]] > 0).any()

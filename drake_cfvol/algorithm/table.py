@@ -200,22 +200,41 @@ def _box_one(lower, upper, nominal, s, linear, stretch_lower, stretch_upper, Au,
 
 
 @njit(cache=True)
-def _deviation_range(lower, upper, nominal, sigma, linear, stretch_lower, stretch_upper, Au, Bu, Al, Bl, rate):
-    """Per joint the largest lower and the smallest upper deviation from the
-    nominal of the boxes at the path parameters ``sigma`` (each in
-    [0, g-1]), by :func:`_box_one`'s rule (a waypoint's box at an integer)."""
+def _box_ahead(lower, upper, nominal, s, end, linear, stretch_lower, stretch_upper, Au, Bu, Al, Bl, rate):
+    """(lo, hi, nom, lo_ahead, hi_ahead) at one s in [0, g-1] (g > 1), by
+    :func:`_box_one`'s rule (a waypoint's box at an integer): the box at s
+    and the box ahead, the box at s tightened to the largest lower and the
+    smallest upper deviation from the nominal of the boxes at the quarter
+    steps in (s, end) and at ``end`` (none where end <= s), about the
+    nominal at s and never past the box at s."""
     g, k = nominal.shape
-    dev_lo, dev_hi = np.full(k, -np.inf), np.full(k, np.inf)
-    for s in sigma:
-        if s == math.floor(s):
-            w = int(s)
-            lo, hi, nom = lower[w], upper[w], nominal[w]
+    if s == math.floor(s):
+        w = int(s)
+        lo, hi, nom = lower[w].copy(), upper[w].copy(), nominal[w].copy()
+    else:
+        lo, hi, nom = _box_one(lower, upper, nominal, s, linear, stretch_lower, stretch_upper, Au, Bu, Al, Bl, rate)
+    if not end > s:
+        return lo, hi, nom, lo.copy(), hi.copy()
+    dev_lo, dev_hi = lo - nom, hi - nom
+    first, last = math.floor(4.0 * s) + 1.0, math.ceil(4.0 * end)
+    n = max(int(last - first), 0)
+    for m in range(n + 1):
+        x = (first + m) / 4.0 if m < n else end
+        if x == math.floor(x):
+            w = int(x)
+            lo_x, hi_x, nom_x = lower[w], upper[w], nominal[w]
         else:
-            lo, hi, nom = _box_one(lower, upper, nominal, s, linear, stretch_lower, stretch_upper, Au, Bu, Al, Bl, rate)
+            lo_x, hi_x, nom_x = _box_one(
+                lower, upper, nominal, x, linear, stretch_lower, stretch_upper, Au, Bu, Al, Bl, rate
+            )
         for j in range(k):
-            dev_lo[j] = max(dev_lo[j], lo[j] - nom[j])
-            dev_hi[j] = min(dev_hi[j], hi[j] - nom[j])
-    return dev_lo, dev_hi
+            dev_lo[j] = max(dev_lo[j], lo_x[j] - nom_x[j])
+            dev_hi[j] = min(dev_hi[j], hi_x[j] - nom_x[j])
+    lo_a, hi_a = np.empty(k), np.empty(k)
+    for j in range(k):
+        lo_a[j] = min(max(nom[j] + min(dev_lo[j], 0.0), lo[j]), hi[j])
+        hi_a[j] = min(max(nom[j] + max(dev_hi[j], 0.0), lo[j]), hi[j])
+    return lo, hi, nom, lo_a, hi_a
 
 
 @njit(cache=True, parallel=True)
@@ -515,26 +534,28 @@ class BoundsTable:
             interpolation=self.interpolation,
         )
 
-    def deviation_range(self, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per joint the largest lower and smallest upper deviation from the
-        nominal of the boxes at the path parameters ``sigma`` ((n,) floats
-        in [0, g-1], unchecked: the control loop's bounds source asks), in
-        one compiled call."""
-        sigma = np.asarray(sigma, float)
-        if self.g < 2:
-            return self.lower[0] - self.nominal[0], self.upper[0] - self.nominal[0]
+    def box_ahead(
+        self, s: float, lookahead: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(lower, upper, nominal, lower_ahead, upper_ahead) at path parameter
+        s in [0, g-1], in one compiled call (the control loop's bounds
+        source asks once per update): :meth:`at`, and the box at s tightened
+        to the deviations from the nominal that the boxes allow at the
+        quarter steps over (s, min(s + lookahead, g-1)] (the box at s where
+        that is empty), about the nominal at s, never past the box at s."""
+        s = real_number(s, "BoundsTable.box_ahead: s")
+        g = self.g
+        if g < 2 or not 0.0 <= s <= g - 1:
+            lo, hi, nom = self.at(s)  # one waypoint, or raises for an s outside
+            return lo, hi, nom, lo.copy(), hi.copy()
+        end = min(s + float(lookahead), g - 1.0)
         if self.interpolation == "linear":
-            z = np.zeros(0)
-            L, U = self.lower, self.upper
-            return _deviation_range(L, U, self.nominal, sigma, True, L, U, L, U, L, U, z)
-        sl, su = self.stretch_lower, self.stretch_upper
-        if sl is None or su is None:
-            sl, su = intersection_stretches(self.lower, self.upper)
-        rate = (
-            np.full(self.k, np.inf) if self.rate is None else np.broadcast_to(np.asarray(self.rate, float), (self.k,))
-        )
+            z, L, U = np.zeros(0), self.lower, self.upper
+            return _box_ahead(L, U, self.nominal, s, end, True, L, U, L, U, L, U, z)
+        sl, su, rate = self.stretch_lower, self.stretch_upper, self.rate
+        assert sl is not None and su is not None and rate is not None  # filled in by __post_init__
         Au, Bu, Al, Bl = _stretch_envelopes(sl, su, rate)
-        return _deviation_range(self.lower, self.upper, self.nominal, sigma, False, sl, su, Au, Bu, Al, Bl, rate)
+        return _box_ahead(self.lower, self.upper, self.nominal, s, end, False, sl, su, Au, Bu, Al, Bl, rate)
 
     def boxes_at(self, s: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`at` for many s at once: three (n, k) arrays."""

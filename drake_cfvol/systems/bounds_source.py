@@ -123,6 +123,12 @@ def JointBoundsSource_(T):
             s_in = self.path_index_input.Eval(context)[0]
             live = self.bounds_input.Eval(context) if self.bounds_input.HasValue(context) else None
             if T is float:
+                bounds = self._bounds if live is None else live
+                if self._lookahead > 0 and isinstance(bounds, BoundsTable):  # one compiled call
+                    s = float(s_in)
+                    if self._clamp and np.isfinite(s):
+                        s = min(max(s, 0.0), bounds.g - 1.0)
+                    return bounds.box_ahead(s, self._lookahead)
                 box = self._lookup(float(s_in), live)
                 return tuple(box) + (self._ahead(float(s_in), box, live) if self._lookahead > 0 else tuple(box[:2]))
             s = float(s_in.value())
@@ -152,12 +158,10 @@ def JointBoundsSource_(T):
             end = min(s + self._lookahead, bounds.g - 1.0)
             if not np.isfinite(s) or end <= s:
                 return lo, hi
+            # Live bounds other than a table (a table takes BoundsTable.box_ahead): one lookup a sample.
             sigma = np.append(np.arange(np.floor(4.0 * s) + 1.0, np.ceil(4.0 * end)) / 4.0, end)
-            if hasattr(bounds, "deviation_range"):  # a table: every sample in one compiled call
-                d_lo, d_hi = bounds.deviation_range(sigma)
-            else:  # live bounds: one lookup a sample
-                lo_s, hi_s, nom_s = (np.array(a) for a in zip(*(bounds.at(float(x)) for x in sigma)))
-                d_lo, d_hi = (lo_s - nom_s).max(axis=0), (hi_s - nom_s).min(axis=0)
+            lo_s, hi_s, nom_s = (np.array(a) for a in zip(*(bounds.at(float(x)) for x in sigma)))
+            d_lo, d_hi = (lo_s - nom_s).max(axis=0), (hi_s - nom_s).min(axis=0)
             dev_lo, dev_hi = np.maximum(lo - nom, d_lo), np.minimum(hi - nom, d_hi)
             # About the nominal at s, never past the box at s (rounding).
             return np.clip(nom + np.minimum(dev_lo, 0.0), lo, hi), np.clip(nom + np.maximum(dev_hi, 0.0), lo, hi)

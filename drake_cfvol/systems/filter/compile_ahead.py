@@ -90,6 +90,8 @@ _COMPILED = (
     filter_kernel.outside,
     damper_kernel.pair_rows,
     damper_kernel.near_pairs,
+    damper_kernel.plane_gaps,
+    damper_kernel.store_planes,
     damper_kinematics._budget_moved,
     damper_kinematics._slot_jacobians,
     damper_kinematics._pair_speeds,

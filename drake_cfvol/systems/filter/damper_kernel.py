@@ -22,6 +22,8 @@ from drake_cfvol.kernel.types import BOX, CAPSULE, CYLINDER, SPHERE
 __all__ = [
     "bounding_gaps",
     "near_pairs",
+    "plane_gaps",
+    "store_planes",
     "NO_POINT_QUERY",
     "SPHERE",
     "CAPSULE",
@@ -373,3 +375,123 @@ def near_pairs(measure, slot, centre, half, box_R, box_p, R, o, influence):
             near[m] = n
             m += 1
     return dists, near[:m]
+
+
+@njit(cache=True, inline="always")
+def _geometry_pose(p, s, sides, pose_R, pose_t, R, o, XR, Xt):
+    """Pair p's side s's geometry pose in the world into XR, Xt: from its
+    body's (``sides``: side_slot, side_R, side_t) or, on no moving body,
+    as the broad phase posed it (pose_R, pose_t)."""
+    side_slot, side_R, side_t = sides
+    slot = side_slot[p, s]
+    if slot < 0:
+        XR[:, :] = pose_R[p, s]
+        Xt[:] = pose_t[p, s]
+    else:
+        _mm_into(XR, R[slot], side_R[p, s])
+        _affine_into(Xt, R[slot], side_t[p, s], o[slot])
+
+
+@njit(cache=True)
+def store_planes(fresh, normal, witness, table, plane_side, hold, sides, pose_R, pose_t, R, o):
+    """Keeps Drake's witnesses of the ``fresh`` pairs (N,) (nhat_BA_W
+    (N, 3), p_ACa / p_BCb (N, 2, 3) in their geometry frames) as their
+    planes in ``table`` (P, 7): age 0, the normal towards the other side
+    and a point of the plane, both in the geometry frame of the pair's
+    ``plane_side`` (P,) (-1: none kept). The point: the witness, moved
+    out along the normal as far as the plane side's support spheres
+    (``hold``: centres (P, n, 3) in its geometry frame, counts, radii)
+    reach past it (Drake's normal is as exact as its distance: a far
+    corner may poke through the plane by its error times its lever). The
+    geometries posed as :func:`_geometry_pose` poses them."""
+    hold_c, hold_n, hold_r = hold
+    XR, Xt = np.zeros((3, 3)), np.zeros(3)
+    for i in range(len(fresh)):
+        p = fresh[i]
+        u = plane_side[p]
+        if u < 0:
+            continue
+        _geometry_pose(p, u, sides, pose_R, pose_t, R, o, XR, Xt)
+        sign = 1.0 if u == 1 else -1.0  # nhat_BA_W points from side 1 to side 0
+        for r in range(3):
+            table[p, 1 + r] = sign * (XR[0, r] * normal[i, 0] + XR[1, r] * normal[i, 1] + XR[2, r] * normal[i, 2])
+            table[p, 4 + r] = witness[i, u, r]
+        size = np.sqrt(table[p, 1] ** 2 + table[p, 2] ** 2 + table[p, 3] ** 2)  # Drake's may be off unit
+        for r in range(3):
+            table[p, 1 + r] /= size
+        poke = 0.0
+        for c in range(hold_n[p]):
+            reach = hold_r[p, c]
+            for r in range(3):
+                reach += table[p, 1 + r] * (hold_c[p, c, r] - table[p, 4 + r])
+            poke = max(poke, reach)
+        for r in range(3):
+            table[p, 4 + r] += poke * table[p, 1 + r]
+        table[p, 0] = 0.0
+
+
+@njit(cache=True)
+def plane_gaps(look, table, age, plane_side, spheres, sides, pose_R, pose_t, R, o, floor):
+    """Splits the pairs to measure, ``look`` (N,), into those whose cached
+    plane still keeps them at least their ``floor`` (P,) apart and the
+    others. A pair's
+    plane (``table``, :func:`store_planes`; used while younger than ``age``
+    updates) goes through its ``plane_side``'s witness and is carried with
+    that geometry: the geometry stays behind it however both sides move
+    (Drake measures a convex shape, or a mesh's convex hull), so the other
+    side's support spheres' (``spheres``: centres (P, 2, n, 3) in the body
+    frame, counts, radii) least distance from it bounds the pair's
+    distance from below.
+
+    Returns:
+        (pairs, bounds, normal, witness, left): the cached pairs (their
+        ages counted up) with their bounds, as Drake's witnesses would
+        read (nhat_BA_W; p_ACa, p_BCb in the geometry frames: the point
+        of the support sphere nearest the plane and its foot on the plane,
+        so the row's direction is the plane's normal at both points), and
+        the pairs left for Drake.
+    """
+    centres, counts, radii = spheres
+    N = len(look)
+    cached, gaps, left = np.empty(N, np.int64), np.empty(N), np.empty(N, np.int64)
+    normal, witness = np.empty((N, 3)), np.empty((N, 2, 3))
+    XR, Xt, YR, Yt = np.zeros((3, 3)), np.zeros(3), np.zeros((3, 3)), np.zeros(3)
+    n, w, x, best = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    nc = nl = 0
+    for i in range(N):
+        p = look[i]
+        u = plane_side[p]
+        if u < 0 or not 0.0 <= table[p, 0] < age:
+            left[nl] = p
+            nl += 1
+            continue
+        v = 1 - u
+        _geometry_pose(p, u, sides, pose_R, pose_t, R, o, XR, Xt)
+        for r in range(3):
+            n[r] = XR[r, 0] * table[p, 1] + XR[r, 1] * table[p, 2] + XR[r, 2] * table[p, 3]
+            w[r] = XR[r, 0] * table[p, 4] + XR[r, 1] * table[p, 5] + XR[r, 2] * table[p, 6] + Xt[r]
+        slot = sides[0][p, v]
+        least, radius = np.inf, 0.0
+        for c in range(counts[p, v]):
+            _affine_into(x, R[slot], centres[p, v, c], o[slot])
+            gap = n[0] * (x[0] - w[0]) + n[1] * (x[1] - w[1]) + n[2] * (x[2] - w[2]) - radii[p, v, c]
+            if gap < least:
+                least, radius = gap, radii[p, v, c]
+                best[:] = x
+        if not least >= floor[p]:
+            left[nl] = p
+            nl += 1
+            continue
+        _geometry_pose(p, v, sides, pose_R, pose_t, R, o, YR, Yt)
+        sign = 1.0 if v == 0 else -1.0
+        for r in range(3):
+            normal[nc, r] = sign * n[r]
+            x[r] = best[r] - radius * n[r]  # on the support sphere, nearest the plane
+            w[r] = x[r] - least * n[r]  # its foot on the plane
+        for r in range(3):  # into the geometry frames: R^T (point - t)
+            witness[nc, v, r] = YR[0, r] * (x[0] - Yt[0]) + YR[1, r] * (x[1] - Yt[1]) + YR[2, r] * (x[2] - Yt[2])
+            witness[nc, u, r] = XR[0, r] * (w[0] - Xt[0]) + XR[1, r] * (w[1] - Xt[1]) + XR[2, r] * (w[2] - Xt[2])
+        cached[nc], gaps[nc] = p, least
+        table[p, 0] += 1.0
+        nc += 1
+    return cached[:nc], gaps[:nc], normal[:nc], witness[:nc], left[:nl]
