@@ -393,7 +393,7 @@ class VelocityDamper:
         cached = np.zeros(0, np.int64)
         if planes is not None and len(look):
             table, plane_side, age, floor = planes
-            cached, gaps, cached_normal, cached_witness, look = plane_gaps(
+            cached, gaps, cached_normal, cached_witness, look, (far, far_gaps) = plane_gaps(
                 look,
                 table,
                 age,
@@ -405,12 +405,9 @@ class VelocityDamper:
                 R,
                 o,
                 floor,
+                pair_reach,
             )
-            if len(cached):
-                dists[cached] = gaps
-                close = gaps < pair_reach[cached]
-                cached, gaps = cached[close], gaps[close]
-                cached_normal, cached_witness = cached_normal[close], cached_witness[close]
+            dists[cached], dists[far] = gaps, far_gaps
         measured[look] = True
         # The near pairs' Drake results, for the kernel's rows (index, distance,
         # Drake's result) or, for the few it cannot make, Drake's (slow).

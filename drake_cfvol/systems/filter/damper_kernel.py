@@ -190,12 +190,14 @@ def _emit(out, m, d, p1, p2, s1, s2, rhs, r1, r2, pair, kin):
 
 
 @njit(cache=True, inline="always")
-def _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains):
+def _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains, scratch):
     """Pair p's probe rows (its sides' witnesses w, probes P and geometry
-    poses XR, Xt in the world), from row m on; returns the next row."""
+    poses XR, Xt in the world), from row m on; returns the next row.
+    ``scratch``: (6, 3), overwritten (made once per call of
+    :func:`pair_rows`, not per pair)."""
     side_slot, n_probes, radii, kind, prm = sides[0], sides[4], sides[5], sides[6], sides[7]
     influence, rate, target = gains
-    g, near, q_local, gw, nw, neg = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    g, near, q_local, gw, nw, neg = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
     for s in range(2):
         t = 1 - s
         sign = 1.0 if s == 0 else -1.0
@@ -271,6 +273,7 @@ def pair_rows(near, sides, kin, gains):
     w = np.zeros((2, 3))
     P = np.zeros((2, probes.shape[2], 3))
     XR, Xt = np.zeros((2, 3, 3)), np.zeros((2, 3))
+    scratch = np.zeros((6, 3))
     m = 0
     for i in range(N):
         p = pairs[i]
@@ -301,7 +304,7 @@ def pair_rows(near, sides, kin, gains):
             p,
             kin,
         )
-        m = _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains)
+        m = _probe_rows(out, m, p, n, w, P, XR, Xt, sides, kin, gains, scratch)
     return A[:m], b[:m], dirs[:m], points[:m], slots[:m], rounds[:m], owner[:m]
 
 
@@ -431,7 +434,7 @@ def store_planes(fresh, normal, witness, table, plane_side, hold, sides, pose_R,
 
 
 @njit(cache=True)
-def plane_gaps(look, table, age, plane_side, spheres, sides, pose_R, pose_t, R, o, floor):
+def plane_gaps(look, table, age, plane_side, spheres, sides, pose_R, pose_t, R, o, floor, reach):
     """Splits the pairs to measure, ``look`` (N,), into those whose cached
     plane still keeps them at least their ``floor`` (P,) apart and the
     others. A pair's
@@ -444,20 +447,23 @@ def plane_gaps(look, table, age, plane_side, spheres, sides, pose_R, pose_t, R, 
     distance from below.
 
     Returns:
-        (pairs, bounds, normal, witness, left): the cached pairs (their
-        ages counted up) with their bounds, as Drake's witnesses would
-        read (nhat_BA_W; p_ACa, p_BCb in the geometry frames: the point
-        of the support sphere nearest the plane and its foot on the plane,
-        so the row's direction is the plane's normal at both points), and
-        the pairs left for Drake.
+        (pairs, bounds, normal, witness, left, far): the cached pairs
+        (their ages counted up) nearer than their ``reach`` (P,) with
+        their bounds, as Drake's witnesses would read (nhat_BA_W; p_ACa,
+        p_BCb in the geometry frames: the point of the support sphere
+        nearest the plane and its foot on the plane, so the row's
+        direction is the plane's normal at both points); the pairs left
+        for Drake; the cached pairs at their reach or beyond with their
+        bounds (no rows), as (pairs, bounds).
     """
     centres, counts, radii = spheres
     N = len(look)
     cached, gaps, left = np.empty(N, np.int64), np.empty(N), np.empty(N, np.int64)
+    far, far_gaps = np.empty(N, np.int64), np.empty(N)
     normal, witness = np.empty((N, 3)), np.empty((N, 2, 3))
     XR, Xt, YR, Yt = np.zeros((3, 3)), np.zeros(3), np.zeros((3, 3)), np.zeros(3)
     n, w, x, best = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
-    nc = nl = 0
+    nc = nl = nf = 0
     for i in range(N):
         p = look[i]
         u = plane_side[p]
@@ -482,6 +488,11 @@ def plane_gaps(look, table, age, plane_side, spheres, sides, pose_R, pose_t, R, 
             left[nl] = p
             nl += 1
             continue
+        table[p, 0] += 1.0
+        if least >= reach[p]:
+            far[nf], far_gaps[nf] = p, least
+            nf += 1
+            continue
         _geometry_pose(p, v, sides, pose_R, pose_t, R, o, YR, Yt)
         sign = 1.0 if v == 0 else -1.0
         for r in range(3):
@@ -492,6 +503,5 @@ def plane_gaps(look, table, age, plane_side, spheres, sides, pose_R, pose_t, R, 
             witness[nc, v, r] = YR[0, r] * (x[0] - Yt[0]) + YR[1, r] * (x[1] - Yt[1]) + YR[2, r] * (x[2] - Yt[2])
             witness[nc, u, r] = XR[0, r] * (w[0] - Xt[0]) + XR[1, r] * (w[1] - Xt[1]) + XR[2, r] * (w[2] - Xt[2])
         cached[nc], gaps[nc] = p, least
-        table[p, 0] += 1.0
         nc += 1
-    return cached[:nc], gaps[:nc], normal[:nc], witness[:nc], left[:nl]
+    return cached[:nc], gaps[:nc], normal[:nc], witness[:nc], left[:nl], (far[:nf], far_gaps[:nf])

@@ -583,7 +583,7 @@ class SafetyFilter(LeafSystem):
             face_velocity,
         )
         base, drift = self._base_and_drift(context, q, v_last)
-        finite = bool(np.isfinite(base).all())
+        finite = bool(np.isfinite(base.sum()))  # one check for every entry (an overflow counts as not finite)
         if sane and (status[_TRACKING] or not finite):
             # The last update could not keep the measured robot's rows, or the
             # measured position is not finite: the request is held, braked at
@@ -591,7 +591,7 @@ class SafetyFilter(LeafSystem):
             # the rows move the command).
             v_t = np.minimum(np.maximum(np.minimum(np.maximum(0.0, h_lo), h_hi), lo), hi)
             sane = finite
-        measured_rows = self._damper.empty()  # the damper's rows before braking: the stop-path guard's pairs
+        measured_rows = None  # the damper's rows before braking: the stop-path guard's pairs
         slot_poses = None  # the damper's slot poses at the base, where its rows are made
         if not sane:  # hold, as far as the box (if it is usable) allows
             v, fallback, dmin, missed, tracking = v_t, True, status[_MIN_DISTANCE], False, False
@@ -652,7 +652,7 @@ class SafetyFilter(LeafSystem):
             q, np.asarray(v, float), lo, hi, h_lo, h_hi, self.velocity_limits, desired, h, sane, _CHANGED
         )
         guarded = False
-        if sane and self._braked and not fallback and len(measured_rows.b):
+        if sane and self._braked and not fallback and measured_rows is not None and len(measured_rows.b):
             if not self.stop_is_clear(measured_rows, base, q_next, v, v_last, poses=slot_poses):
                 # The next step of the stop the last command was checked with.
                 v = brake_velocity(self._vmax, h, v_last, a_last, self._acceleration, self._jerk)
