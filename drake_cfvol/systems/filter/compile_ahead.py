@@ -92,6 +92,7 @@ _COMPILED = (
     damper_kernel.near_pairs,
     damper_kernel.plane_gaps,
     damper_kernel.store_planes,
+    damper_kernel.round_pairs,
     damper_kinematics._budget_moved,
     damper_kinematics._slot_jacobians,
     damper_kinematics._pair_speeds,

@@ -14,10 +14,13 @@ from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
 
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies
 from drake_cfvol.systems.filter.damper_kernel import (
+    CAPSULE,
+    SPHERE,
     ball_radius,
     pair_rows,
     plane_gaps,
     probes,
+    round_pairs,
     round_radius,
     store_planes,
     support_spheres,
@@ -193,6 +196,10 @@ class VelocityDamper:
         #: (P,) ints: per pair the side whose cached plane :meth:`rows` may
         #: take for it (-1: none; :func:`~.damper_kernel.plane_gaps`).
         self.plane_side = self._plane_sides(inspector)
+        #: (P,) bools: the pairs of two spheres or capsules, neither moving on
+        #: its own, that :meth:`rows` may measure in closed form (``analytic``).
+        kind = self._sides[6]
+        self.round_shapes = ((kind == SPHERE) | (kind == CAPSULE)).all(axis=1) & ~self.self_moving
         # Each pair's two ids, for the per-pair loop of rows.
         self._pair_ids = [(a, b) for a, b, _, _ in self._pairs]
 
@@ -342,7 +349,9 @@ class VelocityDamper:
 
         return [(a, b, side(a), side(b)) for a, b in pairs]
 
-    def rows(self, query, q, measure=None, poses=None, *, reach=None, kin=None, planes=None) -> DamperRows:
+    def rows(
+        self, query, q, measure=None, poses=None, *, reach=None, kin=None, planes=None, analytic=None
+    ) -> DamperRows:
         """The damper's rows at q (``query``: the SceneGraph's query object,
         posed at q): for
         the pairs closer than the influence distance, A (m x k) and b (m,)
@@ -377,6 +386,9 @@ class VelocityDamper:
                 lower bound, its rows the plane's
                 (:func:`~.damper_kernel.plane_gaps`).
                 None: every pair Drake's.
+            analytic: (P,) bools: pairs of :attr:`round_shapes` measured in
+                closed form (:func:`~.damper_kernel.round_pairs`, what
+                Drake's query reports) instead of by Drake; None: by Drake.
         """
         measured = np.zeros(len(self._pairs), bool)
         R, o, J_w, J_v = self._kin.poses_and_jacobians(q) if kin is None else kin
@@ -408,6 +420,24 @@ class VelocityDamper:
                 pair_reach,
             )
             dists[cached], dists[far] = gaps, far_gaps
+        solved = np.zeros(0, np.int64)
+        if analytic is not None and len(look):
+            solved, solved_d, solved_normal, solved_witness, look = round_pairs(
+                look,
+                analytic,
+                self._sides[:3],
+                self._sides[6],
+                self._sides[7],
+                self._broad.box_R,
+                self._broad.box_p,
+                R,
+                o,
+            )
+            dists[solved] = solved_d
+            measured[solved] = True
+            close = solved_d < pair_reach[solved]
+            solved, solved_d = solved[close], solved_d[close]
+            solved_normal, solved_witness = solved_normal[close], solved_witness[close]
         measured[look] = True
         # The near pairs' Drake results, for the kernel's rows (index, distance,
         # Drake's result) or, for the few it cannot make, Drake's (slow).
@@ -432,10 +462,10 @@ class VelocityDamper:
                 near.append(index)
                 found.append(pair)
                 near_distance.append(d)
-        if not near and not slow and not len(cached):
+        if not near and not slow and not len(cached) and not len(solved):
             return self.empty()._replace(distances=dists, measured=measured)
         parts = []
-        if near or len(cached):
+        if near or len(cached) or len(solved):
             # The witnesses' arrays built once from all the near pairs (one
             # array of the three vectors per pair: the property reads cost most).
             vectors = np.array([x for pair in found for x in (pair.nhat_BA_W, pair.p_ACa, pair.p_BCb)], float)
@@ -455,6 +485,10 @@ class VelocityDamper:
                     R,
                     o,
                 )
+            if len(solved):
+                near = near + solved.tolist()
+                near_distance = near_distance + solved_d.tolist()
+                normal, witness = np.concatenate([normal, solved_normal]), np.concatenate([witness, solved_witness])
             if len(cached):
                 near = near + cached.tolist()
                 near_distance = near_distance + gaps.tolist()

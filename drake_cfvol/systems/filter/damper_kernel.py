@@ -4,7 +4,10 @@ witness points of the near pairs, each pair's witness row and its probe
 rows, and every row's Jacobian row, in one call (:func:`pair_rows`); the
 exact signed distance of a point from a box, sphere, capsule or cylinder
 (:func:`point_distance`, what Drake's ``ComputeSignedDistanceToPoint``
-reports) for a probe against a moving link.
+reports) for a probe against a moving link; the pairs of spheres and
+capsules measured in closed form, as Drake measures them
+(:func:`round_pairs`); cached witness planes that stand in for Drake's
+query (:func:`store_planes`, :func:`plane_gaps`).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ __all__ = [
     "bounding_gaps",
     "near_pairs",
     "plane_gaps",
+    "round_pairs",
     "store_planes",
     "NO_POINT_QUERY",
     "SPHERE",
@@ -505,3 +509,94 @@ def plane_gaps(look, table, age, plane_side, spheres, sides, pose_R, pose_t, R, 
         cached[nc], gaps[nc] = p, least
         nc += 1
     return cached[:nc], gaps[:nc], normal[:nc], witness[:nc], left[:nl], (far[:nf], far_gaps[:nf])
+
+
+@njit(cache=True, inline="always")
+def _clamp01(x):
+    return min(max(x, 0.0), 1.0)
+
+
+@njit(cache=True)
+def _segment_closest(p1, d1, p2, d2, c1, c2):
+    """The closest points c1 = p1 + s d1, c2 = p2 + t d2 (s, t in [0, 1])
+    of two segments, into c1, c2 (Ericson, Real-Time Collision Detection,
+    5.1.9; a zero-length segment is its point)."""
+    r0, r1, r2 = p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2]
+    a = d1[0] * d1[0] + d1[1] * d1[1] + d1[2] * d1[2]
+    e = d2[0] * d2[0] + d2[1] * d2[1] + d2[2] * d2[2]
+    f = d2[0] * r0 + d2[1] * r1 + d2[2] * r2
+    tiny = 1e-24
+    if a <= tiny and e <= tiny:
+        s = t = 0.0
+    elif a <= tiny:
+        s, t = 0.0, _clamp01(f / e)
+    else:
+        c = d1[0] * r0 + d1[1] * r1 + d1[2] * r2
+        if e <= tiny:
+            s, t = _clamp01(-c / a), 0.0
+        else:
+            b = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2]
+            denom = a * e - b * b
+            s = _clamp01((b * f - c * e) / denom) if denom > 0.0 else 0.0
+            t = (b * s + f) / e
+            if t < 0.0:
+                s, t = _clamp01(-c / a), 0.0
+            elif t > 1.0:
+                s, t = _clamp01((b - c) / a), 1.0
+    for i in range(3):
+        c1[i] = p1[i] + s * d1[i]
+        c2[i] = p2[i] + t * d2[i]
+
+
+@njit(cache=True)
+def round_pairs(look, analytic, sides, kind, prm, pose_R, pose_t, R, o):
+    """Splits the pairs to measure, ``look`` (N,), into those of two
+    spheres or capsules (``analytic`` (P,)), measured here in closed form
+    (the distance of their segments less their radii, as Drake measures
+    them), and the others. A pair whose segments meet (no normal) is left
+    for Drake.
+
+    Returns:
+        (pairs, distances, normal, witness, left): the measured pairs with
+        what Drake's query reports (signed distance; nhat_BA_W; p_ACa,
+        p_BCb in the geometry frames), and the pairs left for Drake.
+    """
+    N = len(look)
+    done, dist, left = np.empty(N, np.int64), np.empty(N), np.empty(N, np.int64)
+    normal, witness = np.empty((N, 3)), np.empty((N, 2, 3))
+    XR, Xt = np.zeros((2, 3, 3)), np.zeros((2, 3))
+    ends, axes, closest = np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 3))
+    nd = nl = 0
+    for i in range(N):
+        p = look[i]
+        if not analytic[p]:
+            left[nl] = p
+            nl += 1
+            continue
+        for s in range(2):
+            _geometry_pose(p, s, sides, pose_R, pose_t, R, o, XR[s], Xt[s])
+            h = prm[p, s, 1] if kind[p, s] == CAPSULE else 0.0  # the segment's half length along z
+            for r in range(3):
+                ends[s, r] = Xt[s, r] - h * XR[s, r, 2]
+                axes[s, r] = 2.0 * h * XR[s, r, 2]
+        _segment_closest(ends[0], axes[0], ends[1], axes[1], closest[0], closest[1])
+        g0, g1, g2 = closest[0, 0] - closest[1, 0], closest[0, 1] - closest[1, 1], closest[0, 2] - closest[1, 2]
+        apart = np.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+        if apart <= 1e-9:
+            left[nl] = p
+            nl += 1
+            continue
+        n = (g0 / apart, g1 / apart, g2 / apart)
+        ra, rb = prm[p, 0, 0], prm[p, 1, 0]
+        for r in range(3):
+            normal[nd, r] = n[r]
+        for s in range(2):
+            reach = -ra if s == 0 else rb
+            for r in range(3):  # the witness on side s's surface, into its geometry frame
+                x = closest[s, 0] + reach * n[0] - Xt[s, 0]
+                y = closest[s, 1] + reach * n[1] - Xt[s, 1]
+                z = closest[s, 2] + reach * n[2] - Xt[s, 2]
+                witness[nd, s, r] = XR[s, 0, r] * x + XR[s, 1, r] * y + XR[s, 2, r] * z
+        done[nd], dist[nd] = p, apart - ra - rb
+        nd += 1
+    return done[:nd], dist[:nd], normal[:nd], witness[:nd], left[:nl]

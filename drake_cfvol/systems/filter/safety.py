@@ -426,6 +426,8 @@ class SafetyFilter(LeafSystem):
         # links' planes are looser than Drake's witnesses (a link turning
         # against its ancestor's face plane): only beyond the influence
         # distance, where their rows only brake.
+        # Two spheres or capsules: measured in closed form, as Drake would.
+        self._analytic = self._damper.round_shapes & ~dynamic
         static = (self._damper.pair_bodies < 0).any(axis=1)
         self._plane_floor = np.where(static, self.target_distance + self.PLANE_BAND, self.influence_distance)
         # Pairs measured at every update whatever their budget: geometry that
@@ -624,6 +626,7 @@ class SafetyFilter(LeafSystem):
                     reach=reach,
                     kin=kin,
                     planes=(table, self._plane_side, self._plane_age, self._plane_floor),
+                    analytic=self._analytic,
                 )
             except RuntimeError:
                 rows = self._damper.empty()
