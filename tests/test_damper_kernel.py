@@ -233,58 +233,11 @@ def test_pair_speeds_bound_drakes_distance_rates(cell):
     assert checked > 200 and (self_checked > 20 or cell == "aerospace")
 
 
-@pytest.mark.parametrize("cell", ["automotive", "franka"])
-def test_cached_planes_bound_drakes_distance(cell):
-    """VelocityDamper.rows with cached planes (SafetyFilter's plane cache):
-    Drake's witnesses kept at 60 random configurations q0, then each pair a
-    plane may stand in for (any distance: floor -inf) looked at again at q1,
-    q0 plus a random step of up to 0.1 rad per joint. Every cached pair's
-    distance is a lower bound of Drake's at q1 (1e-9), its first row (the
-    witness row) reads that bound (n . (P1 - P2)), and at q0 itself the bound
-    is Drake's distance for most pairs (polytopes' vertices meet their plane
-    exactly). Pairs with geometry of no support spheres, or only round, are
-    never cached on that side."""
-    wc, plant, sg, robot, damper, pctx, sgctx = _cell_damper(cell)
-    lo, hi = wc.position_lower, wc.position_upper
-    rng = np.random.default_rng(11)
-    P = damper.num_pairs
-    everywhere = np.full(P, -np.inf)
-    cached = exact = 0
-    for _ in range(60):
-        q0 = lo + rng.random(len(lo)) * (hi - lo)
-        q1 = np.clip(q0 + rng.uniform(-0.1, 0.1, len(lo)), lo, hi)
-        table = np.zeros((P, 7))
-        table[:, 0] = -1.0
-        planes = (table, damper.plane_side, 1000, everywhere)
-        for q, stored in ((q0, False), (q0, True), (q1, True)):
-            plant.SetPositions(pctx, robot, q)
-            query = sg.get_query_output_port().Eval(sgctx)
-            rows = damper.rows(query, q, reach=10.0, planes=planes)
-            if not stored:  # the first look measures every pair and keeps its plane
-                assert rows.measured[damper.plane_side >= 0].all()
-                continue
-            for p in np.flatnonzero(~rows.measured & np.isfinite(rows.distances)):
-                assert damper.plane_side[p] >= 0
-                a, b, _, _ = damper._pairs[p]
-                d = query.ComputeSignedDistancePairClosestPoints(a, b).distance
-                assert rows.distances[p] <= d + 1e-9, (p, rows.distances[p], d)
-                first = np.flatnonzero(rows.pair == p)[0]
-                gap = rows.dirs[first] @ (rows.points[first, 0] - rows.points[first, 1])
-                assert gap == pytest.approx(rows.distances[p], abs=1e-9)
-                cached += 1
-                exact += bool(q is q0 and abs(rows.distances[p] - d) < 1e-6)
-    assert cached > 1000 and exact > 0.25 * cached
-    sides = damper.plane_side
-    rounds = damper.round_radii
-    on = np.flatnonzero(sides >= 0)
-    assert not (rounds[on, sides[on]] > 0).any()
-
-
 @pytest.mark.parametrize("cell", ["cobot", "franka"])
 def test_round_pairs_are_drakes(cell):
-    """The pairs of two spheres or capsules measured in closed form
-    (round_pairs: the distance of their segments less their radii; the
-    SafetyFilter's default) against Drake's query at 80 random
+    """The pairs of two spheres or capsules, which gjk_pairs measures in
+    closed form (the distance of their segments less their radii; the
+    SafetyFilter's default), against Drake's query at 80 random
     configurations of the cell's robot: every such pair's distance lies at
     most 1e-9 above Drake's (whose GJK converges from above: it reports up
     to 0.2 mm more on the iiwa's capsules); no two points of the segments
@@ -294,12 +247,14 @@ def test_round_pairs_are_drakes(cell):
     along its normal (so they are a closest pair), which points as Drake's
     where the pair is apart (d > 1 mm). VelocityDamper.rows gives these
     distances for the pairs it measures."""
-    from drake_cfvol.systems.filter.damper_kernel import CAPSULE, point_distance, round_pairs
+    from drake_cfvol.systems.filter.damper_kernel import CAPSULE, SPHERE, point_distance
+    from drake_cfvol.systems.filter.distance_kernel import gjk_pairs
 
     wc, plant, sg, robot, damper, pctx, sgctx = _cell_damper(cell)
     lo, hi = wc.position_lower, wc.position_upper
     rng = np.random.default_rng(7)
-    round_ = damper.round_shapes
+    kind = damper._convex[0]
+    round_ = damper.convex_shapes & ((kind == SPHERE) | (kind == CAPSULE)).all(axis=1)
     assert round_.sum() >= 10
     sides = damper._sides
     checked = unique = 0
@@ -309,8 +264,9 @@ def test_round_pairs_are_drakes(cell):
         query = sg.get_query_output_port().Eval(sgctx)
         R, o, _, _ = damper.kinematics.poses_and_jacobians(q)
         look = np.flatnonzero(round_)
-        done, dist, normal, witness, left = round_pairs(
-            look, round_, sides[:3], sides[6], sides[7], damper._broad.box_R, damper._broad.box_p, R, o
+        hint = np.zeros((damper.num_pairs, 3))
+        done, dist, normal, witness, left = gjk_pairs(
+            look, round_, sides[:3], damper._convex, damper._broad.box_R, damper._broad.box_p, R, o, hint
         )
         assert len(done) + len(left) == len(look)
         for i, p in enumerate(done):
@@ -340,8 +296,95 @@ def test_round_pairs_are_drakes(cell):
             if found.distance > 1e-3:  # both normals point from B to A along a closest pair
                 assert normal[i] @ found.nhat_BA_W > 0.99
                 unique += 1
-        rows = damper.rows(query, q, analytic=round_)
+        rows = damper.rows(query, q, convex=(round_, hint))
         seen = rows.measured[done]  # the others the broad phase bounded, beyond the influence distance
         np.testing.assert_allclose(rows.distances[done][seen], dist[seen])
         assert np.all(rows.distances[done][~seen] <= dist[~seen] + 1e-9)
     assert checked > 400 and unique > 0.5 * checked
+
+
+@pytest.mark.parametrize("cell", ["automotive", "franka", "cobot"])
+def test_gjk_pairs_bound_drakes_distance(cell):
+    """gjk_pairs (the filter's distance for two convex shapes) against
+    Drake's query at 40 random configurations of the cell's robot: every
+    distance lies at most 1e-9 above Drake's and within 3 mm below it (Drake's
+    own GJK reports up to 2.7 mm more than the shapes' distance on the
+    Panda's capsule and box: its witness lies 2 mm inside the capsule); a
+    capsule's against a box is the brute-force distance of the capsule's
+    segment (2001 points, exact point-box distances) to GJK's tolerance,
+    never above it; its normal
+    and witnesses make the distance (n . (p_A - p_B) = d); and the plane
+    through each witness along the normal holds its shape (Drake's closest
+    points of the two shapes, and 200 points of each shape's surface
+    along random directions, the support points: none lies past its
+    plane), so d bounds the distance from below by construction."""
+    from drake_cfvol.kernel.types import BOX, CAPSULE
+    from drake_cfvol.systems.filter.distance_kernel import GJK_TOLERANCE, gjk_pairs
+
+    wc, plant, sg, robot, damper, pctx, sgctx = _cell_damper(cell)
+    lo, hi = wc.position_lower, wc.position_upper
+    rng = np.random.default_rng(5)
+    usable = damper.convex_shapes
+    brute = 0
+    assert usable.sum() > 0.9 * damper.num_pairs
+    hint = np.zeros((damper.num_pairs, 3))
+    checked = 0
+    for trial in range(40):
+        q = lo + rng.random(len(lo)) * (hi - lo)
+        plant.SetPositions(pctx, robot, q)
+        query = sg.get_query_output_port().Eval(sgctx)
+        R, o, _, _ = damper.kinematics.poses_and_jacobians(q)
+        look = np.flatnonzero(usable)
+        done, dist, normal, witness, left = gjk_pairs(
+            look, usable, damper._sides[:3], damper._convex, damper._broad.box_R, damper._broad.box_p, R, o, hint
+        )
+        assert len(done) + len(left) == len(look)
+        for i, p in enumerate(done):
+            a, b, _, _ = damper._pairs[p]
+            found = query.ComputeSignedDistancePairClosestPoints(a, b)
+            assert found.distance - 3e-3 <= dist[i] <= found.distance + 1e-9
+            X = [query.GetPoseInWorld(g) for g in (a, b)]
+            kind, sizes = damper._convex[0][p], damper._convex[1][p]
+            if kind[0] == CAPSULE and kind[1] == BOX and brute < 40:  # tight: the segment's points against the box
+                brute += 1
+                seg = [X[0].multiply([0, 0, t]) for t in np.linspace(-sizes[0, 1], sizes[0, 1], 2001)]
+                local = X[1].inverse().multiply(np.array(seg).T).T
+                box = min(point_distance(BOX, sizes[1], x, np.zeros(3), np.zeros(3)) for x in local)
+                assert dist[i] <= box - sizes[0, 0] + 1e-9 and box - sizes[0, 0] - dist[i] < 2 * GJK_TOLERANCE
+            pa, pb = (X[s].multiply(witness[i, s]) for s in range(2))
+            n = normal[i]
+            assert n @ (pa - pb) == pytest.approx(dist[i], abs=1e-9)
+            # Drake's closest points lie on the shapes: beyond the planes.
+            assert n @ X[0].multiply(found.p_ACa) >= n @ pa - 1e-9
+            assert n @ X[1].multiply(found.p_BCb) <= n @ pb + 1e-9
+            checked += 1
+        if trial < 5:  # each shape's support points along random directions: none past its plane
+            for i, p in enumerate(done[:30]):
+                kind, sizes, centre, verts, count = (x[p] for x in damper._convex)
+                a, b, _, _ = damper._pairs[p]
+                for s, g in enumerate((a, b)):
+                    X = query.GetPoseInWorld(g)
+                    sign = 1.0 if s == 0 else -1.0  # A lies along +n from its plane, B along -n
+                    w = X.multiply(witness[i, s])
+                    for d in rng.normal(size=(200, 3)):
+                        y = X.multiply(_support_point(kind[s], sizes[s], centre[s], verts[s, : count[s]], d))
+                        assert sign * (normal[i] @ (y - w)) >= -1e-9
+    assert checked > 1000 and brute == 40
+
+
+def _support_point(kind, sizes, centre, verts, d):
+    """A shape's support point along d (its frame), by hand for the
+    primitives and by the vertices for a hull."""
+    from drake_cfvol.kernel.types import BOX, CAPSULE, CYLINDER, SPHERE
+
+    d = np.asarray(d, float)
+    if kind == BOX:
+        return np.sign(d) * sizes
+    if kind == SPHERE:
+        return sizes[0] * d / np.linalg.norm(d)
+    if kind == CAPSULE:
+        return np.array([0, 0, np.sign(d[2]) * sizes[1]]) + sizes[0] * d / np.linalg.norm(d)
+    if kind == CYLINDER:
+        radial = np.array([d[0], d[1], 0.0])
+        return np.array([0, 0, np.sign(d[2]) * sizes[1]]) + sizes[0] * radial / np.linalg.norm(radial)
+    return centre + verts[np.argmax(verts @ d)]

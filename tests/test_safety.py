@@ -559,11 +559,13 @@ def test_a_measured_robot_skips_far_pairs_and_measures_every_near_one():
     measured position, which moves up to 0.08 rad per update, five times
     the command's step at the limits) swept from far off the wall to within
     a few cm of it and back: at every update the filter's smallest distance
-    is a lower bound of Drake's at the measured configuration, equal to it
-    whenever the tip lies within the influence distance (the pair was
-    measured), and below it at updates where the pair lay far and was
+    is a lower bound of Drake's at the measured configuration, within GJK's
+    tolerance of it whenever the tip lies within the influence distance (the
+    pair was measured), and below it at updates where the pair lay far and was
     skipped (its budget spent by the measured motion since it was
     measured)."""
+    from drake_cfvol.systems.filter.distance_kernel import GJK_TOLERANCE
+
     diagram, sf, tip, wall_id = _arm("wall", clearance=0.02, influence_distance=0.15, measured=True)
     sim = Simulator(diagram)
     ctx = sim.get_mutable_context()
@@ -580,8 +582,8 @@ def test_a_measured_robot_skips_far_pairs_and_measures_every_near_one():
         seen = sctx.get_discrete_state(sf._status).GetAtIndex(_MIN_DISTANCE)
         true = _drake_distance(diagram, ctx, tip, wall_id)
         assert seen <= true + 1e-9
-        if true < sf.influence_distance:
-            assert seen == pytest.approx(true, abs=1e-9)
+        if true < sf.influence_distance:  # measured: GJK's lower bound, within its tolerance
+            assert seen >= true - GJK_TOLERANCE
             near += 1
         elif seen < true - 1e-6:
             skipped += 1

@@ -22,7 +22,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_cfvol.kernel.warmup import cached
-from drake_cfvol.systems.filter import damper_kernel, damper_kinematics, filter_kernel
+from drake_cfvol.systems.filter import damper_kernel, damper_kinematics, distance_kernel, filter_kernel
 from drake_cfvol.systems.filter.safety import SafetyFilter
 
 __all__ = ["warm_up", "WARM_UP_SHARE"]
@@ -90,9 +90,7 @@ _COMPILED = (
     filter_kernel.outside,
     damper_kernel.pair_rows,
     damper_kernel.near_pairs,
-    damper_kernel.plane_gaps,
-    damper_kernel.store_planes,
-    damper_kernel.round_pairs,
+    distance_kernel.gjk_pairs,
     damper_kinematics._budget_moved,
     damper_kinematics._slot_jacobians,
     damper_kinematics._pair_speeds,

@@ -14,19 +14,15 @@ from pydrake.geometry import Box, Capsule, Cylinder, Ellipsoid, Sphere
 
 from drake_cfvol.scene.robot import RobotSlice, robot_bodies
 from drake_cfvol.systems.filter.damper_kernel import (
-    CAPSULE,
-    SPHERE,
     ball_radius,
     pair_rows,
-    plane_gaps,
     probes,
-    round_pairs,
     round_radius,
-    store_planes,
     support_spheres,
 )
 from drake_cfvol.systems.filter.damper_kinematics import SlotKinematics, _levers, _pair_speeds
-from drake_cfvol.systems.filter.damper_parts import BroadPhase, RowList, drake_pair_rows, side_arrays
+from drake_cfvol.systems.filter.damper_parts import BroadPhase, RowList, convex_arrays, drake_pair_rows, side_arrays
+from drake_cfvol.systems.filter.distance_kernel import gjk_pairs
 
 __all__ = ["DamperRows", "VelocityDamper"]
 
@@ -42,9 +38,8 @@ class DamperRows(NamedTuple):
     b: np.ndarray
     #: (pairs,): every watched pair's signed distance, m; for a pair the
     #: broad phase found beyond the influence distance, a lower bound of it
-    #: (>= the influence distance), and for a pair a cached plane stood in
-    #: for (:meth:`VelocityDamper.rows`' planes), the plane's lower bound;
-    #: NaN: not looked at.
+    #: (>= the influence distance); for a pair GJK measured, its lower bound
+    #: (:meth:`VelocityDamper.rows`' ``convex``); NaN: not looked at.
     distances: np.ndarray
     #: (m, 3): each row's direction (unit) in the world frame.
     dirs: np.ndarray
@@ -193,53 +188,15 @@ class VelocityDamper:
         one, two = self._pair_bodies[self._self_pairs, 0], self._pair_bodies[self._self_pairs, 1]
         self._only = np.array([moves[one] & ~moves[two], moves[two] & ~moves[one]]).reshape(2, len(one), self.k)
         self._sides, self._drake_rows = side_arrays(self, inspector)
-        #: (P,) ints: per pair the side whose cached plane :meth:`rows` may
-        #: take for it (-1: none; :func:`~.damper_kernel.plane_gaps`).
-        self.plane_side = self._plane_sides(inspector)
         #: (P,) bools: the pairs of two spheres or capsules, neither moving on
         #: its own, that :meth:`rows` may measure in closed form (``analytic``).
-        kind = self._sides[6]
-        self.round_shapes = ((kind == SPHERE) | (kind == CAPSULE)).all(axis=1) & ~self.self_moving
+        self._convex = convex_arrays(self._pairs, inspector)
+        #: (P,) bools: the pairs of two convex shapes measured in compiled
+        #: code (a box, sphere, capsule, cylinder or mesh's hull each),
+        #: neither moving on its own, whose rows the kernel makes (``convex``).
+        self.convex_shapes = (self._convex[0] >= 0).all(axis=1) & ~self.self_moving & ~self._drake_rows
         # Each pair's two ids, for the per-pair loop of rows.
         self._pair_ids = [(a, b) for a, b, _, _ in self._pairs]
-
-    def _plane_sides(self, inspector) -> np.ndarray:
-        """:attr:`plane_side`: the side that never moves, or of two links
-        the other's ancestor in the chain (where the stop-path guard carries
-        its plane too), else the other; the plane's side not round (a link
-        sliding round a round shape leaves its tangent plane at once: a
-        loose bound) and the other side moving with the robot's joints
-        alone, held by support spheres. None for geometry that moves on its
-        own or rows only Drake makes. Sets :attr:`_plane_hold`: the plane
-        side's support spheres in its geometry's frame (the plane is moved
-        out to hold them where Drake's witness normal leaves a corner
-        through it)."""
-        moves = self._kin.moves
-        counts, rounds = self.support_spheres[1], self._sides[8]
-        P = len(self._pairs)
-        held = [[support_spheres(inspector.GetShape(g)) for g in (a, b)] if P else [] for a, b, _, _ in self._pairs]
-        most = max([c.shape[1] for pair in held for c, _ in pair] + [0])
-        hold_c, hold_n, hold_r = np.zeros((P, most, 3)), np.zeros(P, np.int64), np.zeros((P, most))
-        out = np.full(P, -1, np.int64)
-        for p, (s0, s1) in enumerate(self._pair_bodies):
-            if self.self_moving[p] or self._drake_rows[p] or (s0 < 0 and s1 < 0):
-                continue
-            if s0 >= 0 and s1 >= 0 and (moves[s0] == moves[s1]).all():
-                continue  # one rigid pair: its distance never changes
-            if s0 < 0 or s1 < 0:
-                order = [0 if s0 < 0 else 1]
-            elif not (moves[s0] & ~moves[s1]).any():
-                order = [0, 1]  # every joint that moves side 0 moves side 1: side 0 is the ancestor
-            else:
-                order = [1, 0]
-            for u in order:
-                centres, radii = held[p][u]
-                if rounds[p, u] == 0.0 and counts[p, 1 - u] and len(radii):
-                    out[p] = u
-                    hold_c[p, : len(radii)], hold_r[p, : len(radii)], hold_n[p] = centres.T, radii, len(radii)
-                    break
-        self._plane_hold = (hold_c, hold_n, hold_r)
-        return out
 
     def _support_arrays(self, inspector) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """:attr:`support_spheres` from each moving side's shape."""
@@ -349,9 +306,7 @@ class VelocityDamper:
 
         return [(a, b, side(a), side(b)) for a, b in pairs]
 
-    def rows(
-        self, query, q, measure=None, poses=None, *, reach=None, kin=None, planes=None, analytic=None
-    ) -> DamperRows:
+    def rows(self, query, q, measure=None, poses=None, *, reach=None, kin=None, convex=None) -> DamperRows:
         """The damper's rows at q (``query``: the SceneGraph's query object,
         posed at q): for
         the pairs closer than the influence distance, A (m x k) and b (m,)
@@ -374,21 +329,12 @@ class VelocityDamper:
                 distance.
             kin: (R, o, J_w, J_v) at q, already computed
                 (:meth:`SlotKinematics.poses_and_jacobians`).
-            planes: (table, plane_side, age, floor): the pairs' cached
-                planes (``table`` (P, 7), kept by the caller between
-                updates and updated in place by
-                :func:`~.damper_kernel.store_planes` from Drake's
-                witnesses; age -1: none), and per pair the side whose plane
-                may stand in for Drake's query (:attr:`plane_side`, or -1
-                where the caller wants none). A pair whose plane, younger
-                than ``age`` updates, still keeps it at least its ``floor``
-                ((P,), m) apart is not measured again: its distance is the plane's
-                lower bound, its rows the plane's
-                (:func:`~.damper_kernel.plane_gaps`).
-                None: every pair Drake's.
-            analytic: (P,) bools: pairs of :attr:`round_shapes` measured in
-                closed form (:func:`~.damper_kernel.round_pairs`, what
-                Drake's query reports) instead of by Drake; None: by Drake.
+            convex: (usable, hint): (P,) bools, pairs of :attr:`convex_shapes`
+                measured in compiled code (:func:`~.distance_kernel.gjk_pairs`:
+                two spheres or capsules exactly, others GJK's lower bound,
+                within :data:`~.distance_kernel.GJK_TOLERANCE`) instead of by
+                Drake, and (P, 3) each pair's last normal (GJK's first
+                direction), updated in place; None: by Drake.
         """
         measured = np.zeros(len(self._pairs), bool)
         R, o, J_w, J_v = self._kin.poses_and_jacobians(q) if kin is None else kin
@@ -402,42 +348,19 @@ class VelocityDamper:
         if measure is None:
             measure = np.ones(P, bool)
         dists, look = self._broad.near(query, R, o, np.asarray(measure, bool), pair_reach, poses)
-        cached = np.zeros(0, np.int64)
-        if planes is not None and len(look):
-            table, plane_side, age, floor = planes
-            cached, gaps, cached_normal, cached_witness, look, (far, far_gaps) = plane_gaps(
-                look,
-                table,
-                age,
-                plane_side,
-                self.support_spheres,
-                self._sides[:3],
-                self._broad.box_R,
-                self._broad.box_p,
-                R,
-                o,
-                floor,
-                pair_reach,
+        # The pairs measured here (closed form, GJK) nearer than their reach.
+        solved, solved_d = np.zeros(0, np.int64), np.zeros(0)
+        solved_normal, solved_witness = np.zeros((0, 3)), np.zeros((0, 2, 3))
+        if convex is not None and len(look):
+            usable, hint = convex
+            by_gjk, gjk_d, gjk_normal, gjk_witness, look = gjk_pairs(
+                look, usable, self._sides[:3], self._convex, self._broad.box_R, self._broad.box_p, R, o, hint
             )
-            dists[cached], dists[far] = gaps, far_gaps
-        solved = np.zeros(0, np.int64)
-        if analytic is not None and len(look):
-            solved, solved_d, solved_normal, solved_witness, look = round_pairs(
-                look,
-                analytic,
-                self._sides[:3],
-                self._sides[6],
-                self._sides[7],
-                self._broad.box_R,
-                self._broad.box_p,
-                R,
-                o,
-            )
-            dists[solved] = solved_d
-            measured[solved] = True
-            close = solved_d < pair_reach[solved]
-            solved, solved_d = solved[close], solved_d[close]
-            solved_normal, solved_witness = solved_normal[close], solved_witness[close]
+            dists[by_gjk] = gjk_d
+            measured[by_gjk] = True
+            close = gjk_d < pair_reach[by_gjk]
+            solved, solved_d = by_gjk[close], gjk_d[close]
+            solved_normal, solved_witness = gjk_normal[close], gjk_witness[close]
         measured[look] = True
         # The near pairs' Drake results, for the kernel's rows (index, distance,
         # Drake's result) or, for the few it cannot make, Drake's (slow).
@@ -462,37 +385,19 @@ class VelocityDamper:
                 near.append(index)
                 found.append(pair)
                 near_distance.append(d)
-        if not near and not slow and not len(cached) and not len(solved):
+        if not near and not slow and not len(solved):
             return self.empty()._replace(distances=dists, measured=measured)
         parts = []
-        if near or len(cached) or len(solved):
+        if near or len(solved):
             # The witnesses' arrays built once from all the near pairs (one
             # array of the three vectors per pair: the property reads cost most).
             vectors = np.array([x for pair in found for x in (pair.nhat_BA_W, pair.p_ACa, pair.p_BCb)], float)
             vectors = vectors.reshape(-1, 3, 3)
             normal, witness = np.ascontiguousarray(vectors[:, 0]), np.ascontiguousarray(vectors[:, 1:])
-            if planes is not None and near:
-                store_planes(
-                    np.array(near, np.int64),
-                    normal,
-                    witness,
-                    planes[0],
-                    planes[1],
-                    self._plane_hold,
-                    self._sides[:3],
-                    self._broad.box_R,
-                    self._broad.box_p,
-                    R,
-                    o,
-                )
             if len(solved):
                 near = near + solved.tolist()
                 near_distance = near_distance + solved_d.tolist()
                 normal, witness = np.concatenate([normal, solved_normal]), np.concatenate([witness, solved_witness])
-            if len(cached):
-                near = near + cached.tolist()
-                near_distance = near_distance + gaps.tolist()
-                normal, witness = np.concatenate([normal, cached_normal]), np.concatenate([witness, cached_witness])
             dist = np.array(near_distance)
             parts.append(self._kernel_rows(near, dist, normal, witness, R, o, J_w, J_v))
         if slow:

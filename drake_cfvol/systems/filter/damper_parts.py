@@ -11,7 +11,7 @@ import numpy as np
 
 from drake_cfvol.systems.filter.damper_kernel import NO_POINT_QUERY, local_box, near_pairs, point_query_shape
 
-__all__ = ["BroadPhase", "RowList", "side_arrays", "drake_pair_rows"]
+__all__ = ["BroadPhase", "RowList", "convex_arrays", "side_arrays", "drake_pair_rows"]
 
 
 class RowList:
@@ -290,3 +290,30 @@ def _drake_distances(damper, query, gid, X_WO, P, radii):
             d[i], g[i] = found[0].distance, np.asarray(found[0].grad_W, float).reshape(3)
             near[i] = X_WO.multiply(np.asarray(found[0].p_GN, float).reshape(3))
     return d, g, near
+
+
+def convex_arrays(pairs, inspector) -> tuple[np.ndarray, ...]:
+    """Each pair side's shape for :func:`~.distance_kernel.gjk_pairs`:
+    kind (P, 2) (-1: one GJK does not measure), sizes (P, 2, 3), centre
+    (P, 2, 3) in the geometry frame, a hull's vertices about it (P, 2, V,
+    3) and their count (P, 2)."""
+    from drake_cfvol.kernel import kinds
+    from drake_cfvol.systems.filter.distance_kernel import GJK_KINDS
+
+    P = len(pairs)
+    found = []
+    for a, b, _, _ in pairs:
+        for gid in (a, b):
+            g = kinds.geometry(inspector.GetShape(gid), strict=False)
+            found.append(None if g is None or g.kind.unbounded or g.kind.code not in GJK_KINDS else g)
+    most = max([len(g.verts) for g in found if g is not None] + [1])
+    kind = np.full((P, 2), -1, np.int64)
+    sizes, centre = np.zeros((P, 2, 3)), np.zeros((P, 2, 3))
+    verts, count = np.zeros((P, 2, most, 3)), np.zeros((P, 2), np.int64)
+    for n, g in enumerate(found):
+        if g is None:
+            continue
+        p, j = divmod(n, 2)
+        kind[p, j], sizes[p, j], centre[p, j] = g.kind.code, g.sizes, g.centre
+        verts[p, j, : len(g.verts)], count[p, j] = g.verts, len(g.verts)
+    return kind, sizes, centre, verts, count

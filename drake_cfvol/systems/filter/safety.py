@@ -270,17 +270,6 @@ class SafetyFilter(LeafSystem):
     #: its rows where they conflict; the bundled moving-obstacle runs peak at 172 and 232 rows).
     MAX_ROWS = 400
 
-    #: How long a pair's cached plane (through one side's witness, carried
-    #: with that side) stands in for Drake's query, s (at least one
-    #: update): the plane stays a sound bound however the pair moves, but
-    #: grows looser as the other side turns against it.
-    PLANE_AGE = 0.01
-
-    #: A cached plane stands in only while it keeps its pair this far
-    #: beyond the distance the damper aims at, m: nearer pairs are
-    #: Drake's, exact, where the rows and the stop-path guard bind.
-    PLANE_BAND = 0.01
-
     #: A stop longer than this is refused by the stop-path guard, s.
     GUARD_HORIZON = 10.0
 
@@ -416,20 +405,12 @@ class SafetyFilter(LeafSystem):
         # The nominal at the last update (NaN: none): the box's faces move
         # with it, and braking for them means matching its velocity.
         self._nominal_last = self.DeclareDiscreteState(np.full(k, np.nan))
-        # Per pair, Drake's last witnesses, while a cached plane may stand in
-        # for its query (VelocityDamper.rows' planes; age -1: none).
-        self._plane_table = self.DeclareDiscreteState(self._empty_planes())
-        self._plane_side = np.where(dynamic, -1, self._damper.plane_side)
-        self._plane_age = max(1, int(round(self.PLANE_AGE / self.period)))
-        # A static obstacle's cached plane is the plane its rows are made
-        # from anyway: it stands in down to PLANE_BAND above the margin. Two
-        # links' planes are looser than Drake's witnesses (a link turning
-        # against its ancestor's face plane): only beyond the influence
-        # distance, where their rows only brake.
-        # Two spheres or capsules: measured in closed form, as Drake would.
-        self._analytic = self._damper.round_shapes & ~dynamic
-        static = (self._damper.pair_bodies < 0).any(axis=1)
-        self._plane_floor = np.where(static, self.target_distance + self.PLANE_BAND, self.influence_distance)
+        # Per pair, GJK's last normal: its first direction at the next update.
+        self._gjk_hint = self.DeclareDiscreteState(np.zeros(3 * max(self._damper.num_pairs, 1)))
+        # Two convex shapes are measured in compiled code, not by Drake's
+        # query one call at a time: two spheres or capsules exactly, others
+        # GJK's lower bound (distance_kernel).
+        self._convex = self._damper.convex_shapes & ~dynamic
         # Pairs measured at every update whatever their budget: geometry that
         # moves on its own (not the perceived kind, whose pairs are measured
         # while it is in use: DynamicPairs.mark).
@@ -520,13 +501,7 @@ class SafetyFilter(LeafSystem):
         self._reset_budget(state(self._budget))
         state(self._measured_last).SetFromVector(np.full(self.k, np.nan))
         state(self._nominal_last).SetFromVector(np.full(self.k, np.nan))
-        state(self._plane_table).SetFromVector(self._empty_planes())
-
-    def _empty_planes(self) -> np.ndarray:
-        """The plane cache's state with no plane: (P, 7) flattened, ages -1."""
-        table = np.zeros((max(self._damper.num_pairs, 1), 7))
-        table[:, 0] = -1.0
-        return table.ravel()
+        state(self._gjk_hint).SetFromVector(np.zeros(3 * max(self._damper.num_pairs, 1)))
 
     def _reset_budget(self, vector) -> None:
         """Every pair measured at the next update."""
@@ -616,7 +591,7 @@ class SafetyFilter(LeafSystem):
                 budget, measure = np.full(n, -1.0), np.ones(n, bool)
             query = self.query_object_input.Eval(context)
             poses = self._dynamic.mark(query, measure)
-            table = discrete_state.get_mutable_value(self._plane_table).reshape(-1, 7)
+            hint = discrete_state.get_mutable_value(self._gjk_hint).reshape(-1, 3)
             try:
                 rows = self._damper.rows(
                     query,
@@ -625,8 +600,7 @@ class SafetyFilter(LeafSystem):
                     poses,
                     reach=reach,
                     kin=kin,
-                    planes=(table, self._plane_side, self._plane_age, self._plane_floor),
-                    analytic=self._analytic,
+                    convex=(self._convex, hint),
                 )
             except RuntimeError:
                 rows = self._damper.empty()
