@@ -90,7 +90,7 @@ _COMPILED = (
     filter_kernel.outside,
     damper_kernel.pair_rows,
     damper_kernel.near_pairs,
-    distance_kernel.gjk_pairs,
+    distance_kernel.convex_rows,  # GJK compiles into it
     damper_kinematics._budget_moved,
     damper_kinematics._slot_jacobians,
     damper_kinematics._pair_speeds,

@@ -22,7 +22,7 @@ from drake_cfvol.systems.filter.damper_kernel import (
 )
 from drake_cfvol.systems.filter.damper_kinematics import SlotKinematics, _levers, _pair_speeds
 from drake_cfvol.systems.filter.damper_parts import BroadPhase, RowList, convex_arrays, drake_pair_rows, side_arrays
-from drake_cfvol.systems.filter.distance_kernel import gjk_pairs
+from drake_cfvol.systems.filter.distance_kernel import convex_rows
 
 __all__ = ["DamperRows", "VelocityDamper"]
 
@@ -348,29 +348,61 @@ class VelocityDamper:
         if measure is None:
             measure = np.ones(P, bool)
         dists, look = self._broad.near(query, R, o, np.asarray(measure, bool), pair_reach, poses)
-        # The pairs measured here (closed form, GJK) nearer than their reach.
-        solved, solved_d = np.zeros(0, np.int64), np.zeros(0)
-        solved_normal, solved_witness = np.zeros((0, 3)), np.zeros((0, 2, 3))
-        if convex is not None and len(look):
+        by_drake = look if convex is None else look[~convex[0][look]]
+        near, dist, normal, witness, slow = self._drake_near(query, by_drake, dists, measured, pair_reach)
+        parts = []
+        if convex is not None and len(look) > len(by_drake):
             usable, hint = convex
-            by_gjk, gjk_d, gjk_normal, gjk_witness, look = gjk_pairs(
-                look, usable, self._sides[:3], self._convex, self._broad.box_R, self._broad.box_p, R, o, hint
+            rows, failed = convex_rows(
+                look,
+                usable,
+                hint,
+                self._convex,
+                pair_reach,
+                dists,
+                measured,
+                (near, dist, normal, witness),
+                self._sides,
+                (R, o, J_w, J_v),
+                (self.reach, self.rate, self.target_distance),
+                self._broad.box_R,
+                self._broad.box_p,
             )
-            dists[by_gjk] = gjk_d
-            measured[by_gjk] = True
-            close = gjk_d < pair_reach[by_gjk]
-            solved, solved_d = by_gjk[close], gjk_d[close]
-            solved_normal, solved_witness = gjk_normal[close], gjk_witness[close]
+            parts.append(rows[:2] + (None,) + rows[2:])
+            if len(failed):  # touching, or GJK did not converge: Drake's
+                near, dist, normal, witness, more = self._drake_near(query, failed, dists, measured, pair_reach)
+                slow += more
+            else:
+                near = near[:0]
+        if len(near):
+            parts.append(self._kernel_rows(near, dist, normal, witness, R, o, J_w, J_v))
+        if slow:
+            out = RowList()
+            for index, pair in slow:
+                drake_pair_rows(self, query, index, pair, R, o, out)
+            parts.append(out.build(o, J_w, J_v, self.k))
+        if not parts:
+            return self.empty()._replace(distances=dists, measured=measured)
+        if len(parts) == 1:
+            A, b, _, dirs, points, slots, rounds, pair = parts[0]
+        else:
+            A, b, dirs, points, slots, rounds, pair = [np.concatenate(x) for x in zip(*(p[:2] + p[3:8] for p in parts))]
+        return DamperRows(A, b, dists, dirs, points, slots, rounds, pair, measured)
+
+    def _drake_near(self, query, look, dists, measured, reach) -> tuple:
+        """Drake's query of the pairs ``look`` (their distances into
+        ``dists``, ``measured`` set): (the pairs nearer than their reach
+        whose rows the kernel makes, their distances, nhat_BA_W and
+        witnesses p_ACa, p_BCb; the near pairs whose rows need Drake's point
+        queries, as (index, Drake's result))."""
         measured[look] = True
-        # The near pairs' Drake results, for the kernel's rows (index, distance,
-        # Drake's result) or, for the few it cannot make, Drake's (slow).
         # Plain lists in the loop: a NumPy scalar or row access per pair cost
         # more than Drake's query.
         near: list[int] = []
         found: list[Any] = []
         near_distance: list[float] = []
         slow: list[tuple[int, Any]] = []
-        ids, drake_rows, limit = self._pair_ids, self._drake_rows.tolist(), pair_reach.tolist()
+        ids, drake_rows, limit = self._pair_ids, self._drake_rows, reach
         measured_distance = query.ComputeSignedDistancePairClosestPoints
         for index in look.tolist():
             try:
@@ -385,31 +417,12 @@ class VelocityDamper:
                 near.append(index)
                 found.append(pair)
                 near_distance.append(d)
-        if not near and not slow and not len(solved):
-            return self.empty()._replace(distances=dists, measured=measured)
-        parts = []
-        if near or len(solved):
-            # The witnesses' arrays built once from all the near pairs (one
-            # array of the three vectors per pair: the property reads cost most).
-            vectors = np.array([x for pair in found for x in (pair.nhat_BA_W, pair.p_ACa, pair.p_BCb)], float)
-            vectors = vectors.reshape(-1, 3, 3)
-            normal, witness = np.ascontiguousarray(vectors[:, 0]), np.ascontiguousarray(vectors[:, 1:])
-            if len(solved):
-                near = near + solved.tolist()
-                near_distance = near_distance + solved_d.tolist()
-                normal, witness = np.concatenate([normal, solved_normal]), np.concatenate([witness, solved_witness])
-            dist = np.array(near_distance)
-            parts.append(self._kernel_rows(near, dist, normal, witness, R, o, J_w, J_v))
-        if slow:
-            out = RowList()
-            for index, pair in slow:
-                drake_pair_rows(self, query, index, pair, R, o, out)
-            parts.append(out.build(o, J_w, J_v, self.k))
-        if len(parts) == 1:
-            A, b, _, dirs, points, slots, rounds, pair = parts[0]
-        else:
-            A, b, dirs, points, slots, rounds, pair = [np.concatenate(x) for x in zip(*(p[:2] + p[3:8] for p in parts))]
-        return DamperRows(A, b, dists, dirs, points, slots, rounds, pair, measured)
+        # The witnesses' arrays built once (one array of the three vectors per
+        # pair: the property reads cost most).
+        vectors = np.array([x for pair in found for x in (pair.nhat_BA_W, pair.p_ACa, pair.p_BCb)], float)
+        vectors = vectors.reshape(-1, 3, 3)
+        normal, witness = np.ascontiguousarray(vectors[:, 0]), np.ascontiguousarray(vectors[:, 1:])
+        return np.array(near, np.int64), np.array(near_distance, float), normal, witness, slow
 
     def _kernel_rows(self, near, dist, normal, witness, R, o, J_w, J_v) -> tuple:
         """The rows of the ``near`` pairs (indices; Drake's distances,
@@ -417,9 +430,8 @@ class VelocityDamper:
         :func:`~.damper_kernel.pair_rows`: (A, b, None, dirs, points, slots,
         rounds, pair). A side on no moving body of the robot is posed as the
         broad phase posed it at this update (fixed, or by the query)."""
-        pairs = np.array(near, np.int64)
         A, b, dirs, points, slots, rounds, owner = pair_rows(
-            (pairs, dist, normal, witness, self._broad.box_R, self._broad.box_p),
+            (np.asarray(near, np.int64), dist, normal, witness, self._broad.box_R, self._broad.box_p),
             self._sides,
             (R, o, J_w, J_v),
             (self.reach, self.rate, self.target_distance),

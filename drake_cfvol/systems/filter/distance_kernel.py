@@ -21,9 +21,9 @@ from drake_cfvol.kernel.kinds import cylinder as _cylinder
 from drake_cfvol.kernel.kinds import hull as _hull
 from drake_cfvol.kernel.kinds import sphere as _sphere
 from drake_cfvol.kernel.types import BOX, CAPSULE, CYLINDER, HULL, SPHERE
-from drake_cfvol.systems.filter.damper_kernel import _geometry_pose
+from drake_cfvol.systems.filter.damper_kernel import _geometry_pose, pair_rows
 
-__all__ = ["GJK_KINDS", "GJK_TOLERANCE", "gjk_pairs"]
+__all__ = ["GJK_KINDS", "GJK_TOLERANCE", "convex_rows", "gjk_pairs"]
 
 #: The kinds :func:`gjk_pairs` measures (their support functions are exact).
 GJK_KINDS = (BOX, SPHERE, CAPSULE, CYLINDER, HULL)
@@ -346,14 +346,53 @@ def _round(kind):
 
 
 @njit(cache=True)
+def _scratch():
+    """The per-call scratch of :func:`_measure`: GJK's (:func:`_workspace`),
+    two poses, a result and three (2, 3) rows for :func:`_round_pair`."""
+    return _workspace(), np.zeros((2, 3, 3)), np.zeros((2, 3)), np.empty(11), np.zeros((3, 2, 3))
+
+
+@njit(cache=True)
+def _measure(p, sides, shapes, pose_R, pose_t, R, o, hint, scratch, normal, witness):
+    """Pair p's signed distance, measured here (:func:`gjk_pairs`), or NaN
+    where it is left to Drake; its nhat_BA_W and witnesses in the geometry
+    frames into normal (3,) and witness (2, 3); its hint updated."""
+    kind, prm, centre, verts, nverts = shapes
+    work, XR, Xt, out, seg = scratch
+    for s in range(2):
+        _geometry_pose(p, s, sides, pose_R, pose_t, R, o, XR[s], Xt[s])
+    shape_a = (kind[p, 0], prm[p, 0], centre[p, 0], verts[p, 0], nverts[p, 0])
+    shape_b = (kind[p, 1], prm[p, 1], centre[p, 1], verts[p, 1], nverts[p, 1])
+    if _round(kind[p, 0]) and _round(kind[p, 1]):
+        ok = _round_pair(XR[0], Xt[0], XR[1], Xt[1], shape_a, shape_b, out, seg[0], seg[1], seg[2])
+    else:
+        ok = _gjk(XR[0], Xt[0], XR[1], Xt[1], shape_a, shape_b, hint[p], out, work)
+    if not ok:
+        hint[p, :] = 0.0
+        return np.nan
+    for r in range(3):
+        hint[p, r] = out[2 + r]
+        normal[r] = out[2 + r]
+    for s in range(2):
+        for r in range(3):  # into the geometry frame: R^T (point - t)
+            x = out[5 + 3 * s] - Xt[s, 0]
+            y = out[6 + 3 * s] - Xt[s, 1]
+            z = out[7 + 3 * s] - Xt[s, 2]
+            witness[s, r] = XR[s, 0, r] * x + XR[s, 1, r] * y + XR[s, 2, r] * z
+    return out[0]
+
+
+@njit(cache=True)
 def gjk_pairs(look, usable, sides, shapes, pose_R, pose_t, R, o, hint):
     """Splits the pairs to measure, ``look`` (N,), into those of two
     convex shapes measured here (``usable`` (P,): two spheres or capsules
     in closed form, :func:`_round_pair`, others by GJK; their shapes
     ``shapes``: kind (P, 2), sizes (P, 2, 3), centre (P, 2, 3), hull
     vertices (P, 2, V, 3) and their counts (P, 2)), apart by more than
-    :data:`GJK_CONTACT`, and the others. ``hint`` (P, 3): each pair's last
-    normal, GJK's first direction (zero: none), updated in place.
+    :data:`GJK_CONTACT`, and the others. ``sides``: (slot, X_BG rotation,
+    translation) per pair side (:func:`~.damper_kernel._geometry_pose`).
+    ``hint`` (P, 3): each pair's last normal, GJK's first direction (zero:
+    none), updated in place.
 
     Returns:
         (pairs, distances, normal, witness, left): the measured pairs with
@@ -361,43 +400,59 @@ def gjk_pairs(look, usable, sides, shapes, pose_R, pose_t, R, o, hint):
         planes' lower bound of the distance; nhat_BA_W; p_ACa, p_BCb on
         those planes, in the geometry frames. The pairs left for Drake.
     """
-    kind, prm, centre, verts, nverts = shapes
     N = len(look)
     done, dist, left = np.empty(N, np.int64), np.empty(N), np.empty(N, np.int64)
     normal, witness = np.empty((N, 3)), np.empty((N, 2, 3))
-    XR, Xt = np.zeros((2, 3, 3)), np.zeros((2, 3))
-    out = np.empty(11)
-    work = _workspace()
-    ends, axes, closest = np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 3))
+    scratch = _scratch()
     nd = nl = 0
     for i in range(N):
         p = look[i]
-        if not usable[p]:
+        d = np.nan
+        if usable[p]:
+            d = _measure(p, sides, shapes, pose_R, pose_t, R, o, hint, scratch, normal[nd], witness[nd])
+        if np.isnan(d):
             left[nl] = p
             nl += 1
             continue
-        for s in range(2):
-            _geometry_pose(p, s, sides, pose_R, pose_t, R, o, XR[s], Xt[s])
-        shape_a = (kind[p, 0], prm[p, 0], centre[p, 0], verts[p, 0], nverts[p, 0])
-        shape_b = (kind[p, 1], prm[p, 1], centre[p, 1], verts[p, 1], nverts[p, 1])
-        if _round(kind[p, 0]) and _round(kind[p, 1]):
-            ok = _round_pair(XR[0], Xt[0], XR[1], Xt[1], shape_a, shape_b, out, ends, axes, closest)
-        else:
-            ok = _gjk(XR[0], Xt[0], XR[1], Xt[1], shape_a, shape_b, hint[p], out, work)
-        if not ok:
-            hint[p, :] = 0.0
-            left[nl] = p
-            nl += 1
-            continue
-        hint[p, :] = out[2:5]
-        for r in range(3):
-            normal[nd, r] = out[2 + r]
-        for s in range(2):
-            for r in range(3):  # into the geometry frame: R^T (point - t)
-                x = out[5 + 3 * s] - Xt[s, 0]
-                y = out[6 + 3 * s] - Xt[s, 1]
-                z = out[7 + 3 * s] - Xt[s, 2]
-                witness[nd, s, r] = XR[s, 0, r] * x + XR[s, 1, r] * y + XR[s, 2, r] * z
-        done[nd], dist[nd] = p, out[0]
+        done[nd], dist[nd] = p, d
         nd += 1
     return done[:nd], dist[:nd], normal[:nd], witness[:nd], left[:nl]
+
+
+@njit(cache=True)
+def convex_rows(look, usable, hint, shapes, reach, dists, measured, given, sides, kin, gains, pose_R, pose_t):
+    """The damper's rows of the pairs ``look`` (N,) in one call: those
+    ``usable`` measured here (:func:`gjk_pairs`; their distances into
+    ``dists``, ``measured`` set), and with the near pairs Drake measured,
+    ``given`` (pairs, distances, nhat_BA_W, witnesses), every pair nearer
+    than its ``reach`` (P,) made into rows (:func:`~.damper_kernel.pair_rows`,
+    ``sides``, ``kin``, ``gains`` its).
+
+    Returns:
+        ((A, b, dirs, points, slots, rounds, pair), failed): the rows, and
+        the usable pairs left for Drake (touching, or GJK did not converge).
+    """
+    g_pairs, g_dist, g_normal, g_witness = given
+    N, G = len(look), len(g_pairs)
+    pairs, dist = np.empty(N + G, np.int64), np.empty(N + G)
+    normal, witness = np.empty((N + G, 3)), np.empty((N + G, 2, 3))
+    pairs[:G], dist[:G], normal[:G], witness[:G] = g_pairs, g_dist, g_normal, g_witness
+    failed = np.empty(N, np.int64)
+    scratch = _scratch()
+    at = (sides[0], sides[1], sides[2])
+    m, nf = G, 0
+    for i in range(N):
+        p = look[i]
+        if not usable[p]:
+            continue
+        d = _measure(p, at, shapes, pose_R, pose_t, kin[0], kin[1], hint, scratch, normal[m], witness[m])
+        if np.isnan(d):
+            failed[nf] = p
+            nf += 1
+            continue
+        dists[p], measured[p] = d, True
+        if d < reach[p]:
+            pairs[m], dist[m] = p, d
+            m += 1
+    rows = pair_rows((pairs[:m], dist[:m], normal[:m], witness[:m], pose_R, pose_t), sides, kin, gains)
+    return rows, failed[:nf]
