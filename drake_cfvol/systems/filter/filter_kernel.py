@@ -311,7 +311,7 @@ def hard_interval(vmax, period, v_last, a_last, acceleration, jerk):
 
 
 @njit(cache=True)
-def request(q, desired, lower, upper, ahead, vmax, period, v_last, a_last, acceleration, jerk, face_velocity):
+def request(q, desired, lower, upper, ahead, vmax, period, v_last, a_last, acceleration, jerk, nominals):
     """The update's request: (sane, lo, hi, v_t, hard_lo, hard_hi). Per
     joint the hard interval (:func:`hard_interval`) and within it the
     velocity interval [lo, hi] that keeps the box, braked in time: from
@@ -320,7 +320,9 @@ def request(q, desired, lower, upper, ahead, vmax, period, v_last, a_last, accel
     the step that lands in the box). Where the box lies farther than that
     (outside it, or one face too close to brake for), the command moves
     towards it as fast as the limits allow. The faces are taken as moving
-    at ``face_velocity`` (the nominal's: braking means matching it), and
+    with the nominal (braking means matching its velocity: ``nominals``
+    (2, k), the nominal now and at the last update; 0 where either is not
+    finite), and
     braked for where ``ahead`` (2, k: the box ahead, inside the box; NaN
     where none) puts them. The requested v_t =
     (desired - q) / dt clipped to [lo, hi]. Not sane (a non-finite or
@@ -338,7 +340,9 @@ def request(q, desired, lower, upper, ahead, vmax, period, v_last, a_last, accel
         low, up = (lower[j], upper[j]) if ok else (q[j], q[j])
         if ok and np.isfinite(ahead[0, j]) and np.isfinite(ahead[1, j]) and ahead[0, j] <= ahead[1, j]:
             low, up = max(low, ahead[0, j]), min(up, ahead[1, j])
-        u = face_velocity[j]
+        u = (nominals[0, j] - nominals[1, j]) / period
+        if not np.isfinite(u):  # no nominal, or none at the last update
+            u = 0.0
         b = u + face_speed(up - q[j], v_last[j] - u, h_lo[j] - u, h_hi[j] - u, acceleration[j], jerk[j], period)
         a = u - face_speed(q[j] - low, u - v_last[j], u - h_hi[j], u - h_lo[j], acceleration[j], jerk[j], period)
         if a > b:  # both faces cannot be kept

@@ -24,6 +24,7 @@ is docs/spec.md, SPEC 9.
 """
 
 import dataclasses
+import math
 import typing
 from collections.abc import Iterable
 
@@ -338,6 +339,9 @@ class SafetyFilter(LeafSystem):
         self._jerk = (np.full(k, np.inf) if self.jerk_limits is None else self.jerk_limits) * (1.0 - _HAIR_ACCELERATION)
         self._braked = bool(np.isfinite(self._acceleration).any() or np.isfinite(self._jerk).any())
         self._guard_steps = int(np.ceil(self.GUARD_HORIZON / self.period))
+        # No box ahead and no nominal's motion, (2, k) NaN (never written:
+        # a read-only flag would make numba compile request a second time).
+        self._no_box = np.full((2, k), np.nan)
         # One update's change of the velocity and of the acceleration at the
         # limits (0 without one), for the braking reach.
         self._step_dv = np.where(np.isfinite(self._acceleration), self._acceleration * self.period, 0.0)
@@ -536,13 +540,11 @@ class SafetyFilter(LeafSystem):
         upper = np.asarray(self.upper_input.Eval(context), float)
         nominal = np.asarray(self.nominal_input.Eval(context), float) if self.nominal_input.HasValue(context) else None
         fallback = False
-        face_velocity = np.zeros(k)
+        nominals = self._no_box  # the faces' motion: the nominal now and at the last update (NaN: none)
         if nominal is not None and self._braked:
-            last = context.get_discrete_state(self._nominal_last).CopyToVector()
-            face_velocity = (nominal - last) / h
-            face_velocity = np.where(np.isfinite(face_velocity), face_velocity, 0.0)  # NaN: no nominal yet
+            nominals = np.array([nominal, context.get_discrete_state(self._nominal_last).get_value()])
             discrete_state.get_mutable_vector(self._nominal_last).SetFromVector(nominal)
-        ahead = np.full((2, k), np.nan)
+        ahead = self._no_box
         if self.lower_ahead_input.HasValue(context) and self.upper_ahead_input.HasValue(context):
             ahead = np.array([self.lower_ahead_input.Eval(context), self.upper_ahead_input.Eval(context)], float)
         sane, lo, hi, v_t, h_lo, h_hi = request(
@@ -557,10 +559,10 @@ class SafetyFilter(LeafSystem):
             a_last,
             self._acceleration,
             self._jerk,
-            face_velocity,
+            nominals,
         )
         base, drift = self._base_and_drift(context, q, v_last)
-        finite = bool(np.isfinite(base.sum()))  # one check for every entry (an overflow counts as not finite)
+        finite = math.isfinite(base.sum())  # one check for every entry (an overflow counts as not finite)
         if sane and (status[_TRACKING] or not finite):
             # The last update could not keep the measured robot's rows, or the
             # measured position is not finite: the request is held, braked at
