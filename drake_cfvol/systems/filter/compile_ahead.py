@@ -83,9 +83,8 @@ _COMPILED = (
     filter_kernel.budget_after,
     filter_kernel.request,
     filter_kernel.hard_interval,
-    filter_kernel.braked_rows,  # brake_rows and plane_bends compile into it: no call of their own
+    filter_kernel.braked_rows_at,  # braked_rows, brake_rows and plane_bends compile into it
     filter_kernel.braking_lead,
-    filter_kernel.stop_steps,
     filter_kernel.finish,
     filter_kernel.outside,
     damper_kernel.pair_rows,
@@ -109,6 +108,15 @@ def _two_link_run() -> None:
         diagram.GetInputPort(name).FixValue(ctx, np.asarray(value, float))
     diagram.GetInputPort("nominal").FixValue(ctx, np.asarray(q0, float))
     sim.AdvanceTo(0.05)
+    # The rows of pairs only Drake measured, where GJK left a pair that
+    # touches: made from Python (the update's other rows in convex_rows).
+    sf._damper._kernel_rows(
+        np.zeros(0, np.int64),
+        np.zeros(0),
+        np.zeros((0, 3)),
+        np.zeros((0, 2, 3)),
+        *sf._damper.kinematics.poses_and_jacobians(np.zeros(2)),
+    )
     # A hold's braking calls this from Python (the update only from compiled code).
     filter_kernel.hard_interval(np.ones(2), 1e-3, np.zeros(2), np.zeros(2), np.full(2, 10.0), np.full(2, 500.0))
 

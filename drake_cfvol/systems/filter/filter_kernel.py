@@ -780,3 +780,36 @@ def stack_rows(kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db
             prio[r], weight[r], rel[r] = prios[i], weights[i], relaxed[i]
         at += counts[i]
     return A, b, prio, weight, so_row, rel, counts
+
+
+@njit(cache=True)
+def braked_rows_at(rows, before, base, kin, levers, rev, limits, command, sides):
+    """:func:`braked_rows` with its motion worked out here, in the same
+    call: the joints' stop (:func:`stop_steps`), the slots posed at the
+    base plus that stop, the joints' largest speeds w in the hard
+    interval and the slots' lever speeds ``levers`` (S, k) times w.
+
+    Args:
+        rows, before, sides: as :func:`braked_rows`.
+        base: (k,) where the rows were made.
+        kin: (chain, slot bodies, scratch R_WB, p_WB) to pose the slots
+            (:meth:`SlotKinematics.compiled`).
+        levers, rev: (S, k) the slots' levers and revolute joints.
+        limits: (acceleration, jerk, period, rate).
+        command: (v_last, a_last, h_lo, h_hi) (k,) each.
+    """
+    acceleration, jerk, period, rate = limits
+    v_last, a_last, h_lo, h_hi = command
+    stop = stop_steps(v_last, a_last, acceleration, jerk, period)
+    chain, body, R_WB, p_WB = kin
+    S, k = len(body), len(base)
+    R1, o1 = np.zeros((S, 3, 3)), np.zeros((S, 3))
+    _slot_poses(base + stop, chain, body, R_WB, p_WB, R1, o1)
+    w = np.empty(k)
+    for j in range(k):
+        w[j] = max(abs(h_lo[j]), abs(h_hi[j]))
+    speed = np.zeros(S)
+    for s in range(S):
+        for j in range(k):
+            speed[s] += levers[s, j] * w[j]
+    return braked_rows(rows, before, (R1, o1), (rev, stop, speed, w), limits, (v_last, h_lo, h_hi), sides)

@@ -51,13 +51,12 @@ from drake_cfvol.systems.filter.constraints import (
 from drake_cfvol.systems.filter.damper import DamperRows, DynamicPairs, VelocityDamper
 from drake_cfvol.systems.filter.filter_kernel import (
     brake_velocity,
-    braked_rows,
+    braked_rows_at,
     braking_lead,
     budget_after,
     finish,
     outside,
     request,
-    stop_steps,
 )
 from drake_cfvol.systems.filter.stop_guard import brake_path, check_stop
 
@@ -750,22 +749,23 @@ class SafetyFilter(LeafSystem):
         at most the lever of the later joint). Such a pair is measured
         again at the next update (its budget is spent). ``poses``: the
         slots' (R, o) at ``base`` (the update's kinematics)."""
-        w = np.maximum(np.abs(h_lo), np.abs(h_hi))
         # The rows' points turn on the way to the joints' stop: each row
         # closes by its second-order term over that step more than it says;
         # a pair of two moving links by as much as its supporting planes
         # say (its closest points slide: :func:`~.filter_kernel.plane_bends`).
-        stop = stop_steps(v_last, a_last, self._acceleration, self._jerk, self.period)
         # One compiled call for every row (the rows are many, few are kept):
-        # the least A v in the interval, twice the bound as a rate (m/s),
-        # the rows' points carried to the stop, the braked b and the test.
-        A, b, dirs, points, slots, rounds, pair = braked_rows(
+        # the joints' stop and the slots posed there, the least A v in the
+        # interval, twice the bound as a rate (m/s), the braked b and the test.
+        kin = self._damper.kinematics
+        A, b, dirs, points, slots, rounds, pair = braked_rows_at(
             (rows.A, rows.b, rows.dirs, rows.points, rows.slots, rows.rounds, rows.pair),
             poses,
-            self._damper.poses(base + stop),
-            (self._damper.kinematics.rev, stop, levers @ w, w),
+            base,
+            kin.compiled(),
+            levers,
+            kin.rev,
             (self._acceleration, self._jerk, self.period, self.rate),
-            (v_last, h_lo, h_hi),
+            (v_last, a_last, h_lo, h_hi),
             self._damper.probe_spheres,
         )
         return rows._replace(A=A, b=b, dirs=dirs, points=points, slots=slots, rounds=rounds, pair=pair)
