@@ -302,9 +302,11 @@ def AdmittanceDeformation_(T):
             )
 
         def gains(self, context: Context_[T]) -> tuple:
-            """(M, D, K) of this context (the numeric parameters)."""
+            """(M, D, K) of this context (the numeric parameters; for float,
+            views into the context: read only)."""
+            read = (lambda v: v.get_value()) if T is float else (lambda v: v.CopyToVector())
             return tuple(
-                context.get_numeric_parameter(i).CopyToVector()
+                read(context.get_numeric_parameter(i))
                 for i in (self.mass_parameter, self.damping_parameter, self.stiffness_parameter)
             )
 

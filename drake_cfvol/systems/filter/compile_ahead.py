@@ -22,7 +22,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_cfvol.kernel.warmup import cached
-from drake_cfvol.systems.filter import damper_kernel, damper_kinematics, distance_kernel, filter_kernel
+from drake_cfvol.systems.filter import damper_kernel, distance_kernel, filter_kernel
 from drake_cfvol.systems.filter.safety import SafetyFilter
 
 __all__ = ["warm_up", "WARM_UP_SHARE"]
@@ -84,15 +84,12 @@ _COMPILED = (
     filter_kernel.request,
     filter_kernel.hard_interval,
     filter_kernel.braked_rows_at,  # braked_rows, brake_rows and plane_bends compile into it
-    filter_kernel.braking_lead,
+    filter_kernel.braking_kinematics,  # braking_lead, the poses, levers and pair speeds compile into it
     filter_kernel.finish,
     filter_kernel.outside,
     damper_kernel.pair_rows,
     damper_kernel.near_pairs,
     distance_kernel.convex_rows,  # GJK compiles into it
-    damper_kinematics._budget_moved,
-    damper_kinematics._slot_jacobians,
-    damper_kinematics._pair_speeds,
 )
 
 

@@ -23,6 +23,7 @@ from drake_cfvol.systems.filter.damper_kernel import (
 from drake_cfvol.systems.filter.damper_kinematics import SlotKinematics, _levers, _pair_speeds
 from drake_cfvol.systems.filter.damper_parts import BroadPhase, RowList, convex_arrays, drake_pair_rows, side_arrays
 from drake_cfvol.systems.filter.distance_kernel import convex_rows
+from drake_cfvol.systems.filter.filter_kernel import braking_kinematics
 
 __all__ = ["DamperRows", "VelocityDamper"]
 
@@ -325,7 +326,7 @@ class VelocityDamper:
             reach: m, a scalar or per pair (P,) (>= the influence
                 distance): rows for the pairs closer than this (a robot
                 braking at its limits needs them from farther away:
-                :func:`~.filter_kernel.braking_reach`); None: the influence
+                :func:`~.filter_kernel.braking_kinematics`); None: the influence
                 distance.
             kin: (R, o, J_w, J_v) at q, already computed
                 (:meth:`SlotKinematics.poses_and_jacobians`).
@@ -464,6 +465,27 @@ class VelocityDamper:
         Negative: measure it. (Geometry that moves on its own, see
         :attr:`self_moving`, is not covered.)"""
         return self._kin.budget_moved(q0, q1, self._body_radius, self._pair_bodies, np.asarray(budget, float))
+
+    def braking_kinematics(self, base, kept, command, limits, skip) -> tuple:
+        """An update's kinematics at ``base`` in one compiled call
+        (:func:`~.filter_kernel.braking_kinematics`): (R, o, J_w, J_v,
+        :meth:`levers`, each pair's reach (farther than the influence
+        distance where braking at the limits needs it), the budgets
+        ``kept`` = (last base, budgets there) still hold here
+        (:meth:`budget_moved`), the pairs to measure). ``command``: (v_last,
+        a_last, one update's velocity and acceleration change at the
+        limits); ``limits``: (vmax, acceleration, jerk, period, braked);
+        ``skip``: (skip far pairs, the pairs always measured)."""
+        return braking_kinematics(
+            np.asarray(base, float),
+            kept,
+            self._kin.jacobian_args(),
+            (self._body_radius, self._pair_bodies, self._self_pairs, self._only),
+            command,
+            limits,
+            (self.target_distance, self.influence_distance),
+            skip,
+        )
 
     def levers(self, J_w, J_v) -> np.ndarray:
         """(S, k): per slot and joint, the fastest any point of the body's

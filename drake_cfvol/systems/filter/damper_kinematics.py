@@ -280,6 +280,12 @@ class SlotKinematics:
         the compiled code that poses the slots."""
         return self._chain, self._body, self._R_WB, self._p_WB
 
+    def jacobian_args(self) -> tuple:
+        """(chain, the slots' bodies, the joints' bodies, moves, scratch
+        poses): the arguments of the compiled code that poses the slots and
+        takes their Jacobians."""
+        return self._chain, self._body, self._joint_body, self._moves, self._R_WB, self._p_WB
+
     def poses(self, q) -> tuple[np.ndarray, np.ndarray]:
         """The slots' rotations (S, 3, 3) and origins (S, 3) at q (k,)."""
         S = len(self._body)

@@ -12,7 +12,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from drake_cfvol.systems.filter.damper_kinematics import _second_order, _slot_poses
+from drake_cfvol.systems.filter.damper_kinematics import (
+    _budget_moved,
+    _levers,
+    _pair_speeds,
+    _second_order,
+    _slot_jacobians,
+    _slot_poses,
+)
 from drake_cfvol.systems.filter.qp import staged_solve
 
 __all__ = [
@@ -813,3 +820,57 @@ def braked_rows_at(rows, before, base, kin, levers, rev, limits, command, sides)
         for j in range(k):
             speed[s] += levers[s, j] * w[j]
     return braked_rows(rows, before, (R1, o1), (rev, stop, speed, w), limits, (v_last, h_lo, h_hi), sides)
+
+
+@njit(cache=True)
+def braking_kinematics(base, kept, chain, pairs, command, limits, gains, skip):
+    """The update's kinematics in one compiled call: the slots'
+    poses and Jacobians at ``base`` (R, o, J_w, J_v), their levers, each
+    pair's reach (the influence distance, or, braked, farther where its closing
+    speed and acceleration by the next update need its row earlier to stop
+    it in time: :func:`braking_lead`), and what the pairs' budgets kept at
+    the last base still hold here, with the pairs to measure (those whose
+    budget lies below their reach beyond the influence distance, and
+    ``skip``'s second entry, those always measured).
+
+    Args:
+        base: (k,) where the rows are made.
+        kept: (the last base (k,), the budgets kept there (P,)).
+        chain: (chain, slot bodies, joint bodies, moves, scratch R_WB, p_WB).
+        pairs: (radius (S,), pair bodies (P, 2), self pairs, only) of the damper.
+        command: (v_last, a_last, dv, da): the last command and one update's
+            change of the velocity and acceleration at the limits.
+        limits: (vmax, acceleration, jerk, period, braked): without
+            ``braked`` every reach is the influence distance.
+        gains: (target, influence): the damper's distances.
+        skip: (skip_far_pairs, always (P,) bools).
+
+    Returns:
+        (R, o, J_w, J_v, levers, reach, budget, measure).
+    """
+    chain_, body, joint_body, moves, R_WB, p_WB = chain
+    radius, pair_bodies, self_pairs, only = pairs
+    v_last, a_last, dv, da = command
+    vmax, acceleration, jerk, period, braked = limits
+    target, influence = gains
+    skip_far, always = skip
+    S, k, P = len(body), len(base), len(pair_bodies)
+    R, o = np.zeros((S, 3, 3)), np.zeros((S, 3))
+    _slot_poses(base, chain_, body, R_WB, p_WB, R, o)
+    J_w, J_v = np.zeros((S, 3, k)), np.zeros((S, 3, k))
+    _slot_jacobians(chain_, joint_body, moves, R_WB, p_WB, o, J_w, J_v)
+    levers = _levers(J_w, J_v, radius)
+    reach = np.full(P, influence)
+    if braked:
+        speed = _pair_speeds(J_w, J_v, radius, levers, pair_bodies, self_pairs, only, v_last, dv)
+        closing = _pair_speeds(J_w, J_v, radius, levers, pair_bodies, self_pairs, only, a_last, da)
+        lead, ramp = braking_lead(v_last, a_last, vmax, acceleration, jerk, period)
+        for p in range(P):
+            reach[p] = max(target + (speed[p] + ramp * closing[p]) * lead + speed[p] * period, influence)
+    measure = np.ones(P, np.bool_)
+    budget = np.full(P, -1.0)
+    if skip_far:
+        budget = _budget_moved(kept[0], base, chain_, body, R_WB, p_WB, radius, pair_bodies, kept[1])
+        for p in range(P):
+            measure[p] = budget[p] < reach[p] - influence or always[p]
+    return R, o, J_w, J_v, levers, reach, budget, measure

@@ -52,7 +52,6 @@ from drake_cfvol.systems.filter.damper import DamperRows, DynamicPairs, Velocity
 from drake_cfvol.systems.filter.filter_kernel import (
     brake_velocity,
     braked_rows_at,
-    braking_lead,
     budget_after,
     finish,
     outside,
@@ -577,19 +576,22 @@ class SafetyFilter(LeafSystem):
         else:
             n = self._damper.num_pairs
             kin, reach, levers = None, None, None
-            if self._braked and n:
-                kin = self._damper.kinematics.poses_and_jacobians(base)
-                slot_poses = (kin[0], kin[1])
-                levers = self._damper.levers(kin[2], kin[3])
-                reach = self._braking_reach(kin, levers, v_last, a_last)
-            kept = context.get_discrete_state(self._budget).CopyToVector()
-            if self.skip_far_pairs and n:
-                # What the budget kept at the last update's base still certainly holds here.
-                budget = self._damper.budget_moved(kept[-k:], base, kept[:n])
-                extra = 0.0 if reach is None else reach - self.influence_distance
-                measure = (budget < extra) | self._always
-            else:
-                budget, measure = np.full(n, -1.0), np.ones(n, bool)
+            budget, measure = np.full(n, -1.0), np.ones(n, bool)
+            if n:
+                # The kinematics, each pair's reach (how near it must be to get
+                # a row at this update: farther with the limits, to brake in
+                # time) and the pairs whose budget kept at the last base no
+                # longer holds here, to measure, in one compiled call
+                # (:func:`~.filter_kernel.braking_kinematics`).
+                kept = context.get_discrete_state(self._budget).get_value()
+                R, o, J_w, J_v, levers, reach, budget, measure = self._damper.braking_kinematics(
+                    base,
+                    (kept[-k:], kept[:n]),
+                    (v_last, a_last, self._step_dv, self._step_da),
+                    (self._vmax, self._acceleration, self._jerk, h, self._braked),
+                    (self.skip_far_pairs, self._always),
+                )
+                kin, slot_poses = (R, o, J_w, J_v), (R, o)
             query = self.query_object_input.Eval(context)
             poses = self._dynamic.mark(query, measure)
             hint = discrete_state.get_mutable_value(self._gjk_hint).reshape(-1, 3)
@@ -722,19 +724,6 @@ class SafetyFilter(LeafSystem):
             self._guard_steps,
         )
         return bool(ok)
-
-    def _braking_reach(self, kin, levers, v_last, a_last) -> np.ndarray:
-        """Per pair, how near it must be to get a row at this update, m:
-        the influence distance, or farther where its closing speed and
-        acceleration by the next update (the last command's, plus one
-        update's acceleration and jerk: :meth:`VelocityDamper.pair_speeds`)
-        need the row earlier to stop it in time
-        (:func:`~.filter_kernel.braking_lead`)."""
-        h = self.period
-        speed = self._damper.pair_speeds(kin[2], kin[3], v_last, self._step_dv, levers)
-        closing = self._damper.pair_speeds(kin[2], kin[3], a_last, self._step_da, levers)
-        lead, ramp = braking_lead(v_last, a_last, self._vmax, self._acceleration, self._jerk, h)
-        return np.maximum(self.target_distance + (speed + ramp * closing) * lead + speed * h, self.influence_distance)
 
     def _braked_rows(self, rows: DamperRows, base, v_last, a_last, h_lo, h_hi, levers, poses) -> DamperRows:
         """The rows braked in time (:func:`~.filter_kernel.brake_rows`, by
