@@ -396,6 +396,8 @@ class VelocityDamper:
         whose rows the kernel makes, their distances, nhat_BA_W and
         witnesses p_ACa, p_BCb; the near pairs whose rows need Drake's point
         queries, as (index, Drake's result))."""
+        if not len(look):
+            return np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 2, 3)), []
         measured[look] = True
         # Plain lists in the loop: a NumPy scalar or row access per pair cost
         # more than Drake's query.
