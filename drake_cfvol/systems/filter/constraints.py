@@ -111,7 +111,11 @@ class FilterStep:
         self._pctx = plant_context
 
     def plant_context(self):
-        """The filter's scratch plant context, posed at :attr:`q`."""
+        """The filter's scratch plant context, posed at :attr:`q` (the
+        ``plant_context`` given, or what it returns where it is a function:
+        looked up only when a constraint asks)."""
+        if callable(self._pctx):
+            self._pctx = self._pctx()
         self.robot_slice.set_positions(self._pctx, self.q)
         return self._pctx
 
@@ -156,7 +160,7 @@ def _own_rows(c, step) -> tuple:
     the code that stacks them all at an update."""
     damper = step.damper
     pairs = c.pairs[None, :] if c.stack == DAMPER_ROWS else np.zeros((1, 0), bool)
-    _check_pairs(np.array([c.stack]), pairs, damper)
+    _check_pairs(c.stack == DAMPER_ROWS, pairs, damper)
     A, b, _, _, so, _, _ = stack_rows(
         np.array([c.stack], np.int64),
         np.array([c.weight], float),
@@ -174,10 +178,10 @@ def _own_rows(c, step) -> tuple:
     return A, b, so
 
 
-def _check_pairs(kinds, pairs, damper) -> None:
+def _check_pairs(has_damper: bool, pairs, damper) -> None:
     """A damper block's pairs must flag every damper pair (the compiled
     stacking reads them by the rows' pair indices, unchecked)."""
-    if (kinds == DAMPER_ROWS).any() and pairs.shape[1] != len(damper.distances):
+    if has_damper and pairs.shape[1] != len(damper.distances):
         raise ParameterError(
             f"DamperConstraint: pairs must hold one flag per damper pair ({len(damper.distances)}), "
             f"got {pairs.shape[1]}."
@@ -445,8 +449,8 @@ def _plan(constraints):
     """For constraints that are all the filter's own (each with a
     :attr:`~FilterConstraint.stack` kind), what :func:`~.filter_kernel.stack_rows`
     needs besides the step: (kinds, weights, priorities, relaxed flags,
-    damper pairs per block, names); else None. Made once per list of
-    constraints."""
+    damper pairs per block, names, whether a block is the damper's); else
+    None. Made once per list of constraints."""
     key = tuple(map(id, constraints))
     memo = _PLANS.get(key)
     if memo is not None and all(a is b for a, b in zip(memo[0], constraints)):
@@ -470,6 +474,7 @@ def _plan(constraints):
             np.array([c.relaxed for c in constraints], bool),
             pairs,
             tuple(c.name for c in constraints),
+            any(c.stack == DAMPER_ROWS for c in constraints),
         )
     if len(_PLANS) > 64:
         _PLANS.clear()
@@ -509,9 +514,9 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
     k = len(v_t)
     plan = _plan(constraints)
     if plan is not None:  # the filter's own constraints only: stacked in one compiled call
-        kinds, weights, prios, relaxed, pairs, names = plan
+        kinds, weights, prios, relaxed, pairs, names, has_damper = plan
         damper = step.damper
-        _check_pairs(kinds, pairs, damper)
+        _check_pairs(has_damper, pairs, damper)
         A, b, prio, weight, so_row, relaxed_rows, counts = stack_rows(
             kinds,
             weights,

@@ -337,6 +337,8 @@ class SafetyFilter(LeafSystem):
         self._jerk = (np.full(k, np.inf) if self.jerk_limits is None else self.jerk_limits) * (1.0 - _HAIR_ACCELERATION)
         self._braked = bool(np.isfinite(self._acceleration).any() or np.isfinite(self._jerk).any())
         self._guard_steps = int(np.ceil(self.GUARD_HORIZON / self.period))
+        # A filter without pairs' budget and pairs to measure (empty).
+        self._no_pairs = (np.zeros(0), np.zeros(0, bool))
         # No box ahead and no nominal's motion, (2, k) NaN (never written:
         # a read-only flag would make numba compile request a second time).
         self._no_box = np.full((2, k), np.nan)
@@ -576,7 +578,7 @@ class SafetyFilter(LeafSystem):
         else:
             n = self._damper.num_pairs
             kin, reach, levers = None, None, None
-            budget, measure = np.full(n, -1.0), np.ones(n, bool)
+            budget, measure = self._no_pairs  # no pairs: nothing to measure
             if n:
                 # The kinematics, each pair's reach (how near it must be to get
                 # a row at this update: farther with the limits, to brake in
@@ -807,7 +809,7 @@ class SafetyFilter(LeafSystem):
             damper=rows,
             plant=self._plant,
             robot_slice=self._robot_slice,
-            plant_context=self._pctx(context),
+            plant_context=lambda: self._pctx(context),  # looked up only where a constraint needs it
             kinematics=self._damper.kinematics,
             drift=drift,
             v_lo=None if hard is None else hard[0],
