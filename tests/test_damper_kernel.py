@@ -233,6 +233,23 @@ def test_pair_speeds_bound_drakes_distance_rates(cell):
     assert checked > 200 and (self_checked > 20 or cell == "aerospace")
 
 
+def _compiled_distances(plant, robot, pctx, sg, sgctx, damper, q, usable, hint):
+    """The plant posed at q: (Drake's query object, and gjk_pairs of the
+    ``usable`` pairs: the pairs measured, distances, normals, witnesses);
+    every usable pair either measured or left to Drake."""
+    from drake_cfvol.systems.filter.distance_kernel import gjk_pairs
+
+    plant.SetPositions(pctx, robot, q)
+    query = sg.get_query_output_port().Eval(sgctx)
+    R, o, _, _ = damper.kinematics.poses_and_jacobians(q)
+    look = np.flatnonzero(usable)
+    done, dist, normal, witness, left = gjk_pairs(
+        look, usable, damper._sides[:3], damper._convex, damper._broad.box_R, damper._broad.box_p, R, o, hint
+    )
+    assert len(done) + len(left) == len(look)
+    return query, done, dist, normal, witness
+
+
 @pytest.mark.parametrize("cell", ["cobot", "franka"])
 def test_round_pairs_are_drakes(cell):
     """The pairs of two spheres or capsules, which gjk_pairs measures in
@@ -248,7 +265,6 @@ def test_round_pairs_are_drakes(cell):
     where the pair is apart (d > 1 mm). VelocityDamper.rows gives these
     distances for the pairs it measures."""
     from drake_cfvol.systems.filter.damper_kernel import CAPSULE, SPHERE, point_distance
-    from drake_cfvol.systems.filter.distance_kernel import gjk_pairs
 
     wc, plant, sg, robot, damper, pctx, sgctx = _cell_damper(cell)
     lo, hi = wc.position_lower, wc.position_upper
@@ -260,15 +276,8 @@ def test_round_pairs_are_drakes(cell):
     checked = unique = 0
     for _ in range(80):
         q = lo + rng.random(len(lo)) * (hi - lo)
-        plant.SetPositions(pctx, robot, q)
-        query = sg.get_query_output_port().Eval(sgctx)
-        R, o, _, _ = damper.kinematics.poses_and_jacobians(q)
-        look = np.flatnonzero(round_)
         hint = np.zeros((damper.num_pairs, 3))
-        done, dist, normal, witness, left = gjk_pairs(
-            look, round_, sides[:3], damper._convex, damper._broad.box_R, damper._broad.box_p, R, o, hint
-        )
-        assert len(done) + len(left) == len(look)
+        query, done, dist, normal, witness = _compiled_distances(plant, robot, pctx, sg, sgctx, damper, q, round_, hint)
         for i, p in enumerate(done):
             a, b, _, _ = damper._pairs[p]
             found = query.ComputeSignedDistancePairClosestPoints(a, b)
@@ -319,7 +328,6 @@ def test_gjk_pairs_bound_drakes_distance(cell):
     along random directions, the support points: none lies past its
     plane), so d bounds the distance from below by construction."""
     from drake_cfvol.kernel.types import BOX, CAPSULE
-    from drake_cfvol.systems.filter.distance_kernel import gjk_pairs
 
     wc, plant, sg, robot, damper, pctx, sgctx = _cell_damper(cell)
     lo, hi = wc.position_lower, wc.position_upper
@@ -331,14 +339,7 @@ def test_gjk_pairs_bound_drakes_distance(cell):
     checked = 0
     for trial in range(40):
         q = lo + rng.random(len(lo)) * (hi - lo)
-        plant.SetPositions(pctx, robot, q)
-        query = sg.get_query_output_port().Eval(sgctx)
-        R, o, _, _ = damper.kinematics.poses_and_jacobians(q)
-        look = np.flatnonzero(usable)
-        done, dist, normal, witness, left = gjk_pairs(
-            look, usable, damper._sides[:3], damper._convex, damper._broad.box_R, damper._broad.box_p, R, o, hint
-        )
-        assert len(done) + len(left) == len(look)
+        query, done, dist, normal, witness = _compiled_distances(plant, robot, pctx, sg, sgctx, damper, q, usable, hint)
         for i, p in enumerate(done):
             a, b, _, _ = damper._pairs[p]
             found = query.ComputeSignedDistancePairClosestPoints(a, b)

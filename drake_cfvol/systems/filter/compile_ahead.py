@@ -84,7 +84,7 @@ _COMPILED = (
     filter_kernel.request,
     filter_kernel.hard_interval,
     filter_kernel.braked_rows_at,  # braked_rows, brake_rows and plane_bends compile into it
-    filter_kernel.braking_kinematics,  # braking_lead, the poses, levers and pair speeds compile into it
+    filter_kernel.update_kinematics,  # braking_lead, the poses, levers and pair speeds compile into it
     filter_kernel.finish,
     filter_kernel.outside,
     damper_kernel.pair_rows,

@@ -23,7 +23,7 @@ from drake_cfvol.systems.filter.damper_kernel import (
 from drake_cfvol.systems.filter.damper_kinematics import SlotKinematics, _levers, _pair_speeds
 from drake_cfvol.systems.filter.damper_parts import BroadPhase, RowList, convex_arrays, drake_pair_rows, side_arrays
 from drake_cfvol.systems.filter.distance_kernel import convex_rows
-from drake_cfvol.systems.filter.filter_kernel import braking_kinematics
+from drake_cfvol.systems.filter.filter_kernel import update_kinematics
 
 __all__ = ["DamperRows", "VelocityDamper"]
 
@@ -189,8 +189,7 @@ class VelocityDamper:
         one, two = self._pair_bodies[self._self_pairs, 0], self._pair_bodies[self._self_pairs, 1]
         self._only = np.array([moves[one] & ~moves[two], moves[two] & ~moves[one]]).reshape(2, len(one), self.k)
         self._sides, self._drake_rows = side_arrays(self, inspector)
-        #: (P,) bools: the pairs of two spheres or capsules, neither moving on
-        #: its own, that :meth:`rows` may measure in closed form (``analytic``).
+        # Per pair side, its shape as the compiled distances read it (kind -1: none).
         self._convex = convex_arrays(self._pairs, inspector)
         #: (P,) bools: the pairs of two convex shapes measured in compiled
         #: code (a box, sphere, capsule, cylinder or mesh's hull each),
@@ -326,7 +325,7 @@ class VelocityDamper:
             reach: m, a scalar or per pair (P,) (>= the influence
                 distance): rows for the pairs closer than this (a robot
                 braking at its limits needs them from farther away:
-                :func:`~.filter_kernel.braking_kinematics`); None: the influence
+                :func:`~.filter_kernel.update_kinematics`); None: the influence
                 distance.
             kin: (R, o, J_w, J_v) at q, already computed
                 (:meth:`SlotKinematics.poses_and_jacobians`).
@@ -468,9 +467,9 @@ class VelocityDamper:
         :attr:`self_moving`, is not covered.)"""
         return self._kin.budget_moved(q0, q1, self._body_radius, self._pair_bodies, np.asarray(budget, float))
 
-    def braking_kinematics(self, base, kept, command, limits, skip) -> tuple:
+    def update_kinematics(self, base, kept, command, limits, skip) -> tuple:
         """An update's kinematics at ``base`` in one compiled call
-        (:func:`~.filter_kernel.braking_kinematics`): (R, o, J_w, J_v,
+        (:func:`~.filter_kernel.update_kinematics`): (R, o, J_w, J_v,
         :meth:`levers`, each pair's reach (farther than the influence
         distance where braking at the limits needs it), the budgets
         ``kept`` = (last base, budgets there) still hold here
@@ -478,7 +477,7 @@ class VelocityDamper:
         a_last, one update's velocity and acceleration change at the
         limits); ``limits``: (vmax, acceleration, jerk, period, braked);
         ``skip``: (skip far pairs, the pairs always measured)."""
-        return braking_kinematics(
+        return update_kinematics(
             np.asarray(base, float),
             kept,
             self._kin.jacobian_args(),

@@ -823,7 +823,7 @@ def braked_rows_at(rows, before, base, kin, levers, rev, limits, command, sides)
 
 
 @njit(cache=True)
-def braking_kinematics(base, kept, chain, pairs, command, limits, gains, skip):
+def update_kinematics(base, kept, chain, pairs, command, limits, gains, skip):
     """The update's kinematics in one compiled call: the slots'
     poses and Jacobians at ``base`` (R, o, J_w, J_v), their levers, each
     pair's reach (the influence distance, or, braked, farther where its closing

@@ -584,9 +584,9 @@ class SafetyFilter(LeafSystem):
                 # a row at this update: farther with the limits, to brake in
                 # time) and the pairs whose budget kept at the last base no
                 # longer holds here, to measure, in one compiled call
-                # (:func:`~.filter_kernel.braking_kinematics`).
+                # (:func:`~.filter_kernel.update_kinematics`).
                 kept = context.get_discrete_state(self._budget).get_value()
-                R, o, J_w, J_v, levers, reach, budget, measure = self._damper.braking_kinematics(
+                R, o, J_w, J_v, levers, reach, budget, measure = self._damper.update_kinematics(
                     base,
                     (kept[-k:], kept[:n]),
                     (v_last, a_last, self._step_dv, self._step_da),
