@@ -114,7 +114,8 @@ def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
     """braked_rows, one compiled call, equals the filter's former steps in
     NumPy bit for bit: the least A v in the hard interval (NumPy's pairwise
     sum, 8 running sums from 8 joints on), the bound, the rows carried to
-    the joints' stop (no round radii), brake_rows and the rows the test keeps; random rows
+    the joints' stop (no round radii), less for a row that opens its first
+    order's opening over the stop, brake_rows and the rows the test keeps; random rows
     for 1 to 20 joints. And its sum is NumPy's for 1 to 128 terms. The
     witness rows' plane bends (:func:`plane_bends`, which braked_rows
     calls) are NumPy's to 1e-12 (summed in another order)."""
@@ -122,7 +123,7 @@ def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
     for n in range(1, 129):
         x = rng.standard_normal(n) * 10.0 ** rng.uniform(-5, 5, n)
         assert _sum_as_numpy(x, n) == x.sum()
-    kept = rows = bent = 0
+    kept = rows = bent = offset = 0
     for trial in range(60):
         k, S, m = 1 + trial % 20, int(rng.integers(1, 5)), int(rng.integers(1, 40))
         A, b = rng.standard_normal((m, k)), rng.uniform(-0.3, 0.1, m)
@@ -156,6 +157,13 @@ def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
         )
         bent += int((planes > 0).sum())
         bend = np.maximum(bend, planes)
+        # A row that opens: its first order's opening over the stop (less
+        # the step) offsets the bend.
+        s_last = -(A @ v_last)
+        f = A @ stop + s_last * h
+        opens = (s_last <= 0.0) & (f > 0.0)
+        offset += int((opens & (bend > 0)).sum())
+        bend = np.where(opens, np.maximum(bend - f, 0.0), bend)
         expected = brake_rows(A, b, 2.0, acc, jerk, h, v_last, h_lo, h_hi, bend)
         keep = worst < expected + bound
         got = braked_rows(
@@ -172,7 +180,7 @@ def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
         ):
             assert x.dtype == y.dtype and np.array_equal(x, y)
         kept += int(keep.sum())
-    assert 0 < kept < rows and bent > 0
+    assert 0 < kept < rows and bent > 0 and offset > 0
 
 
 def test_face_speed_is_the_fastest_that_still_stops_in_time():

@@ -195,8 +195,9 @@ def test_probe_section_lists_every_setting():
 
 def test_margin_sweep_matches_its_runs(tiny, automotive):
     """The sweep runs the seeds after the repeats' (here 1 and 2); each
-    run's closest approach is Drake's over the run itself (run_case on the
-    same push), and a run lost the margin iff its sweep target says so."""
+    run's closest approach and share are the run's own (run_case on the
+    same push), its reference share that of the push without the limits,
+    and a run lost the margin iff its sweep target says so."""
     sweep = tiny["sweep"]
     assert [r["seed"] for r in sweep] == [1, 2]
     wc, table = automotive
@@ -204,6 +205,19 @@ def test_margin_sweep_matches_its_runs(tiny, automotive):
         row, ncl = _steady_push(wc, table, TINY, 0.01, r["seed"])
         assert r["closest_m"] == row["drake_min_distance_m"] and r["collisions"] == row["collisions"]
         assert r["need_m"] == pytest.approx(min(row["margin_m"], ncl) - 0.002)
+        assert r["share"] == row["share"]  # the same push's share, and without the limits its own run's
+        free = run_case(
+            wc,
+            table,
+            period=0.01,
+            push="steady",
+            updates=TINY.steps(0.01),
+            torque=TINY.torque,
+            seed=r["seed"],
+            motion=steady_motion(wc, table, TINY, 0.01, r["seed"]),
+            instrument=False,
+        )
+        assert r["share_without_limits"] == free["share"]
     (name, met, _), *_ = [t for t in realtime_targets(tiny) if "more pushes" in t[0]]
     assert met == all(r["closest_m"] >= r["need_m"] for r in sweep)
     assert "## The margin over more pushes" in realtime_markdown(tiny)

@@ -608,6 +608,21 @@ def braked_rows(
     bend = _second_order(before[0], before[1], after[0], after[1], A, dirs, points, slots, np.zeros((m, 2)), rev, stop)
     # A pair of two moving bodies: its witness row closes as its supporting planes say, when more.
     bend = np.maximum(bend, plane_bends(before, after, A, dirs, points, slots, pair, stop, sides))
+    # A row that opens now (closing speed <= 0) has no stop of its own on
+    # the point mass, yet its first order may open it over the joints' stop
+    # (f = A stop, less the step the point mass counts): its points'
+    # motion there is f less the bend, so only the bend past f closes it.
+    # Counted as closing, the whole bend made a row that opens (a turning
+    # wrist's pair) ask to open as fast as the limits allow, which moved
+    # its stop and its bend further still.
+    for i in range(m):
+        f, s_last = 0.0, 0.0
+        for j in range(k):
+            f += A[i, j] * stop[j]
+            s_last -= A[i, j] * v_last[j]
+        f += s_last * period
+        if s_last <= 0.0 and f > 0.0:
+            bend[i] = max(bend[i] - f, 0.0)
     out = brake_rows(A, b, rate, acceleration, jerk, period, v_last, h_lo, h_hi, bend)
     keep = np.flatnonzero(worst < out + bound)
     n = len(keep)
