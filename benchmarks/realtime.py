@@ -83,6 +83,7 @@ __all__ = [
     "motion_figures",
     "push_share",
     "run_case",
+    "run_nominal",
     "diffik_case",
     "iiwa_case",
     "run_realtime_bench",
@@ -157,9 +158,10 @@ class RealtimeBenchConfig:
         probe_cells: cells whose 1 ms step :func:`step_probe` takes apart.
         sweep_seeds: further steady pushes per (cell, period), seeds
             ``repeats`` .. ``repeats + sweep_seeds - 1``, run by our filter
-            with the limits for its collisions and margin alone
-            (:func:`margin_sweep`): three seeds say little about how often
-            the margin is lost.
+            with the limits for its collisions, margin and share, and
+            without them for the share's reference (:func:`margin_sweep`):
+            three seeds say little about how often the margin is lost, or
+            about the share.
     """
 
     cells: list = dataclasses.field(default_factory=lambda: ["automotive", "aerospace", "cobot", "franka", "mesh"])
@@ -959,7 +961,8 @@ def margin_sweep(cfg: RealtimeBenchConfig, *, progress: bool = False) -> list[di
     clearance at every commanded position. Per run: the seed, Drake's
     closest approach (m), the colliding updates and the braking faults;
     the margin it must keep: min(the filter's margin, the nominal's own
-    clearance) less :data:`MOTION_TARGETS`' tolerance."""
+    clearance) less :data:`MOTION_TARGETS`' tolerance; the share passed,
+    and the same push's share without the limits."""
     out = []
     for name in cfg.cells:
         wc, table = _cell(name, cfg)
@@ -1038,7 +1041,7 @@ def _sweep_section(result: dict) -> list[str]:
         "## The margin over more pushes",
         "",
         f"Our filter with the limits under {len(sweep) // max(len(_sweep_groups(sweep)), 1)} further steady "
-        "pushes per row (seeds after the repeats'), its collisions and margin alone (Drake's clearance at every "
+        "pushes per row (seeds after the repeats'), its collisions and margin (Drake's clearance at every "
         "commanded position; the margin kept within 2 mm of min(the filter's margin, the nominal's own "
         "clearance), as above).",
         "",
