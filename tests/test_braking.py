@@ -183,6 +183,44 @@ def test_the_compiled_braked_rows_are_numpys_bit_for_bit():
     assert 0 < kept < rows and bent > 0 and offset > 0
 
 
+def test_a_row_whose_point_turns_away_is_not_made_to_open_faster():
+    """A point at radius r on a link turning about z, opening from a plane
+    below it: over a stop of theta its height gains r sin(theta) > 0 (it
+    never closes), while its first order says r theta, a bend of r (theta -
+    sin(theta)) (by hand), here more than the row's gap. Braked, the row
+    keeps the damper's own rule, which it cannot bind at this update, and
+    is left out: the first order's opening offsets the bend. Counted whole
+    (brake_rows given the raw bend), the same row asks to open faster than
+    it does now, at the hard interval's end: the runaway the offset removes."""
+    r, theta, h, rate, gap = 1.0, 1.0, 1e-3, 5.0, 0.06
+    bend = r * (theta - np.sin(theta))
+    assert bend > gap  # the case that ran away
+    A, b = np.array([[r]]), np.array([-rate * gap])  # d/dtheta of the height is r at theta = 0
+    dirs = np.array([[0.0, 1.0, 0.0]])  # from the plane (side 1) towards the point (side 0)
+    points = np.array([[[r, 0.0, 0.0], [r, -0.1, 0.0]]])
+    slots, rounds, pair = np.array([[0, -1]]), np.zeros((1, 2)), np.array([0])
+    turn = RotationMatrix.MakeZRotation(theta).matrix()
+    before, after = (np.eye(3)[None], np.zeros((1, 3))), (turn[None], np.zeros((1, 3)))
+    acc, jerk = np.array([10.0]), np.array([500.0])
+    v_last = np.array([1.0])  # opening at r v = 1 m/s
+    h_lo, h_hi = v_last - 1e-3, v_last + 1e-3
+    w = np.maximum(np.abs(h_lo), np.abs(h_hi))
+    got = braked_rows(
+        (A, b, dirs, points, slots, rounds, pair),
+        before,
+        after,
+        (np.ones((1, 1)), np.array([theta]), np.array([r]), w),
+        (acc, jerk, h, rate),
+        (v_last, h_lo, h_hi),
+        (np.zeros((1, 2, 0, 3)), np.zeros((1, 2), np.int64), np.zeros((1, 2, 0))),
+    )
+    assert len(got[1]) == 0  # under the damper's rule it cannot bind at this update: left out
+    # The raw bend: the row asks for the most opening the hard interval allows.
+    raw = brake_rows(A, b, rate, acc, jerk, h, v_last, h_lo, h_hi, np.array([bend]))
+    assert raw[0] > A[0] @ v_last  # more opening than now
+    assert raw[0] == pytest.approx(r * h_hi[0])
+
+
 def test_face_speed_is_the_fastest_that_still_stops_in_time():
     """The velocity returned stops within the gap; a hair faster does not
     (unless it is the interval's end)."""
