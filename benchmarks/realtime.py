@@ -973,31 +973,23 @@ def margin_sweep(cfg: RealtimeBenchConfig, *, progress: bool = False) -> list[di
             for seed in range(cfg.repeats, cfg.repeats + cfg.sweep_seeds):
                 motion = steady_motion(wc, table, cfg, period, seed, nominal_clearance)
                 nominal_clearance = motion[2]
-                row = run_case(
-                    wc,
-                    table,
-                    period=period,
-                    push="steady",
-                    updates=steps,
-                    torque=cfg.torque,
-                    seed=seed,
-                    limits=limits,
-                    motion=motion,
-                    instrument=False,
+                # With the limits, and without them: the share's reference.
+                row, free = (
+                    run_case(
+                        wc,
+                        table,
+                        period=period,
+                        push="steady",
+                        updates=steps,
+                        torque=cfg.torque,
+                        seed=seed,
+                        limits=lim,
+                        motion=motion,
+                        instrument=False,
+                    )
+                    for lim in (limits, None)
                 )
                 need = min(row["margin_m"], nominal_clearance) - MOTION_TARGETS["margin_tolerance_m"]
-                # The share's reference: the same push without the limits.
-                free = run_case(
-                    wc,
-                    table,
-                    period=period,
-                    push="steady",
-                    updates=steps,
-                    torque=cfg.torque,
-                    seed=seed,
-                    motion=motion,
-                    instrument=False,
-                )
                 out.append(
                     {
                         "cell": name,
