@@ -618,3 +618,81 @@ def test_a_fast_approach_from_afar_brakes_in_time_for_the_margin(period):
     a = np.diff(v, axis=0) / period
     assert np.all(np.abs(a) <= acc * (1 + 1e-6))
     assert np.all(np.abs(np.diff(a, axis=0) / period) <= jerk * (1 + 1e-5))
+
+
+def test_the_stop_rows_read_the_brake_walked_at_the_hard_intervals_ends():
+    """stop_guard.stop_rows against the brake itself (stop_guard.brake_path,
+    the guard's walk, one joint at a time): at each end of the hard
+    interval a kept row reads A (v dt + where the brake stops) plus the
+    row's allowed closing, max(g + slack, 0) (g = -b / rate), exactly; a
+    row of two links or of moving geometry is never kept; a row left out
+    cannot bind: at every corner of the interval its walked closing stays
+    within its allowance (brute force over the 2^k corners)."""
+    import itertools
+
+    from drake_cfvol.systems.filter.stop_guard import brake_path, stop_rows
+
+    rng = np.random.default_rng(5)
+    kept_total = 0
+    for _ in range(40):
+        k, m, P = 3, 12, 4
+        h = rng.choice([0.001, 0.01])
+        vmax, acc = rng.uniform(1, 3, k), rng.uniform(5, 20, k)
+        jerk = acc / rng.uniform(0.005, 0.05, k)
+        v_last = rng.uniform(-0.8, 0.8, k) * vmax
+        a_last = rng.uniform(-0.5, 0.5, k) * acc
+        h_lo, h_hi = hard_interval(vmax, h, v_last, a_last, acc, jerk)
+        A, b = rng.normal(size=(m, k)) * 0.3, -rng.uniform(-0.05, 0.6, m)
+        slots = np.where(rng.random((m, 2)) < 0.5, -1, rng.integers(0, 3, (m, 2)))
+        pair, static = rng.integers(0, P, m), rng.random(P) < 0.7
+        rate, slack, limits = 5.0, 0.002, (vmax, acc, jerk, h)
+        As, bs, idx = stop_rows((A, b, slots, pair, static), rate, slack, (v_last, h_lo, h_hi), limits, 10**6)
+        kept_total += len(idx)
+
+        def walked(v):  # the brake's stop from v after the step, joint by joint
+            path, _, done = brake_path(np.zeros(k), v, (v - v_last) / h, vmax, acc, jerk, h, 10**6)
+            assert done
+            return path[-1]
+
+        allowed = np.maximum(-b / rate + slack, 0.0)
+        for r, i in enumerate(idx):
+            assert static[pair[i]] and (slots[i] < 0).any()
+            for v in (h_lo, h_hi):
+                want = A[i] @ (v * h + walked(v)) + allowed[i]
+                assert As[r] @ v - bs[r] == pytest.approx(want, abs=1e-9)
+        for i in set(range(m)) - set(idx.tolist()):
+            if not (static[pair[i]] and (slots[i] < 0).any()):
+                continue
+            for corner in itertools.product(*zip(h_lo, h_hi)):
+                v = np.array(corner)
+                assert A[i] @ (v * h + walked(v)) + allowed[i] >= -1e-9
+    assert kept_total > 0  # some rows bound
+
+
+def test_a_joint_inside_the_box_returns_to_the_box_ahead_within_its_braking_time():
+    """filter_kernel.request, by hand: a joint 4 mrad below the box ahead's
+    lower face, inside the box, at rest on a nominal at rest, asks to move
+    up by at least 4 mrad over return_time (v_max / a + a / j + dt), not
+    at the hard interval's top; 4 mrad below the box itself it still asks
+    for the top (as fast as the limits allow)."""
+    from drake_cfvol.systems.filter.filter_kernel import request, return_time
+
+    k, h = 1, 0.01
+    vmax, acc, jerk = np.array([2.0]), np.array([10.0]), np.array([500.0])
+    zero = np.zeros(k)
+    nominals = np.zeros((2, k))
+    T = 2.0 / 10.0 + 10.0 / 500.0 + h
+    assert return_time(2.0, 10.0, 500.0, h) == pytest.approx(T)
+    q, desired = np.array([0.0]), np.array([-1.0])  # the push pulls down, away from the box ahead
+    ahead = np.array([[0.004], [1.0]])
+    _, lo, hi, v_t, h_lo, h_hi = request(
+        q, desired, np.array([-1.0]), np.array([1.0]), ahead, vmax, h, zero, zero, acc, jerk, nominals
+    )
+    assert h_hi[0] == pytest.approx(jerk[0] * h * h)  # from rest: one jerk step
+    assert 0.004 / T < h_hi[0]  # the return is slower than the limits allow
+    assert lo[0] == pytest.approx(0.004 / T) and v_t[0] == pytest.approx(0.004 / T)
+    # Below the box itself: as fast as the limits allow.
+    _, lo, hi, v_t, h_lo, h_hi = request(
+        q, desired, np.array([0.004]), np.array([1.0]), ahead, vmax, h, zero, zero, acc, jerk, nominals
+    )
+    assert lo[0] == pytest.approx(h_hi[0]) and v_t[0] == pytest.approx(h_hi[0])

@@ -713,9 +713,10 @@ def test_the_stacked_rows_are_the_constraints_written_out():
     rows written out by hand with numpy: [I; -I] over the joints with a
     finite limit (b = v_lo, -v_hi), the box [I; -I] (b = lo, -hi), each
     damper block's rows of its pairs in order (with their row indices),
-    the per-row priorities, weights and relaxation, zeros' signs included."""
+    the stop rows as given (no second-order row), the per-row priorities,
+    weights and relaxation, zeros' signs included."""
     from drake_cfvol.systems.filter.constraints import BOX, HARD, ROW
-    from drake_cfvol.systems.filter.filter_kernel import BOX_ROWS, DAMPER_ROWS, LIMIT_ROWS, stack_rows
+    from drake_cfvol.systems.filter.filter_kernel import BOX_ROWS, DAMPER_ROWS, LIMIT_ROWS, STOP_ROWS, stack_rows
 
     rng = np.random.default_rng(3)
     for _ in range(50):
@@ -729,19 +730,21 @@ def test_the_stacked_rows_are_the_constraints_written_out():
         if not P:
             dA, db = dA[:0], db[:0]
         dynamic = rng.random(P) < 0.4
-        kinds = np.array([LIMIT_ROWS, BOX_ROWS, DAMPER_ROWS, DAMPER_ROWS])
-        weights, prios = np.array([1e6, 1e3, 1e6, 1e6]), np.array([HARD, BOX, ROW, ROW])
-        relaxed = np.array([False, False, True, False])
-        pairs = np.array([np.zeros(P, bool), np.zeros(P, bool), ~dynamic, dynamic])
+        n_stop = rng.integers(0, 4)
+        sA, sb = rng.normal(size=(n_stop, k)), rng.normal(size=n_stop)
+        kinds = np.array([LIMIT_ROWS, BOX_ROWS, DAMPER_ROWS, DAMPER_ROWS, STOP_ROWS])
+        weights, prios = np.array([1e6, 1e3, 1e6, 1e6, 1e6]), np.array([HARD, BOX, ROW, ROW, ROW])
+        relaxed = np.array([False, False, True, False, False])
+        pairs = np.array([np.zeros(P, bool), np.zeros(P, bool), ~dynamic, dynamic, np.zeros(P, bool)])
         A, b, prio, weight, so, rel, counts = stack_rows(
-            kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db, dpair
+            kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db, dpair, sA, sb
         )
         finite = np.isfinite(vmax)
         eye = np.eye(k)
         static, moving = ~dynamic[dpair], dynamic[dpair]
-        want_A = np.vstack([eye[finite], -eye[finite], eye, -eye, dA[static], dA[moving]])
-        want_b = np.concatenate([v_lo[finite], -v_hi[finite], lo, -hi, db[static], db[moving]])
-        want_counts = [2 * finite.sum(), 2 * k, static.sum(), moving.sum()]
+        want_A = np.vstack([eye[finite], -eye[finite], eye, -eye, dA[static], dA[moving], sA])
+        want_b = np.concatenate([v_lo[finite], -v_hi[finite], lo, -hi, db[static], db[moving], sb])
+        want_counts = [2 * finite.sum(), 2 * k, static.sum(), moving.sum(), n_stop]
         assert counts.tolist() == want_counts
         assert np.array_equal(A, want_A) and np.array_equal(np.signbit(A), np.signbit(want_A))
         assert np.array_equal(b, want_b)
@@ -749,7 +752,7 @@ def test_the_stacked_rows_are_the_constraints_written_out():
         assert np.array_equal(weight, np.repeat(weights, want_counts))
         assert np.array_equal(rel, np.repeat(relaxed, want_counts))
         want_so = np.concatenate(
-            [np.full(2 * finite.sum() + 2 * k, -1), np.flatnonzero(static), np.flatnonzero(moving)]
+            [np.full(2 * finite.sum() + 2 * k, -1), np.flatnonzero(static), np.flatnonzero(moving), np.full(n_stop, -1)]
         )
         assert np.array_equal(so, want_so)
 

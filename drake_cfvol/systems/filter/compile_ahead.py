@@ -22,7 +22,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.rendering import MultibodyPositionToGeometryPose
 
 from drake_cfvol.kernel.warmup import cached
-from drake_cfvol.systems.filter import damper_kernel, distance_kernel, filter_kernel
+from drake_cfvol.systems.filter import damper_kernel, distance_kernel, filter_kernel, stop_guard
 from drake_cfvol.systems.filter.safety import SafetyFilter
 
 __all__ = ["warm_up", "WARM_UP_SHARE"]
@@ -90,6 +90,7 @@ _COMPILED = (
     damper_kernel.pair_rows,
     damper_kernel.near_pairs,
     distance_kernel.convex_rows,  # GJK compiles into it
+    stop_guard.stop_rows,  # brake_path compiles into it
 )
 
 

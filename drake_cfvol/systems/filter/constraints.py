@@ -22,7 +22,14 @@ import numpy.typing as npt
 from pydrake.multibody.tree import Frame, JacobianWrtVariable
 
 from drake_cfvol.exceptions import ParameterError
-from drake_cfvol.systems.filter.filter_kernel import BOX_ROWS, DAMPER_ROWS, LIMIT_ROWS, filter_rounds, stack_rows
+from drake_cfvol.systems.filter.filter_kernel import (
+    BOX_ROWS,
+    DAMPER_ROWS,
+    LIMIT_ROWS,
+    STOP_ROWS,
+    filter_rounds,
+    stack_rows,
+)
 from drake_cfvol.systems.filter.qp import stage_problem, staged_solve
 
 __all__ = [
@@ -35,6 +42,7 @@ __all__ = [
     "VelocityLimits",
     "JointBox",
     "DamperConstraint",
+    "StopRows",
     "ToolSpeedLimit",
     "PriorityQP",
     "solve_rounds",
@@ -78,6 +86,8 @@ class FilterStep:
             (m/s), (k,): the tracking error's rate, which the damper's rows
             subtract where it approaches (zeros without a measured position).
         damper: the damper's rows at q (:class:`~drake_cfvol.systems.filter.damper.DamperRows`).
+        stop: (A (m, k), b (m,)): the damper's rows over the stop
+            (:func:`~drake_cfvol.systems.filter.stop_guard.stop_rows`; none by default).
         kinematics: the damper's moving bodies' kinematics
             (:class:`~drake_cfvol.systems.filter.damper_kinematics.SlotKinematics`),
             for the rows' second-order term.
@@ -101,12 +111,14 @@ class FilterStep:
         drift=None,
         v_lo=None,
         v_hi=None,
+        stop=None,
     ):
         self.q, self.q_c, self.period, self.lo, self.hi, self.vmax = q, q_c, period, lo, hi, vmax
         self.v_lo = -np.asarray(vmax, float) if v_lo is None else np.asarray(v_lo, float)
         self.v_hi = np.asarray(vmax, float) if v_hi is None else np.asarray(v_hi, float)
         self.drift = np.zeros(len(q_c)) if drift is None else np.asarray(drift, float)
         self.nominal, self.damper, self.kinematics = nominal, damper, kinematics
+        self.stop = (np.zeros((0, len(q_c))), np.zeros(0)) if stop is None else stop
         self.plant, self.robot_slice = plant, robot_slice
         self._pctx = plant_context
 
@@ -174,6 +186,7 @@ def _own_rows(c, step) -> tuple:
         damper.A,
         damper.b,
         damper.pair,
+        *step.stop,
     )
     return A, b, so
 
@@ -238,6 +251,24 @@ class DamperConstraint(FilterConstraint):
 
     def second_order_rows(self, step: FilterStep) -> np.ndarray | None:
         return _own_rows(self, step)[2]
+
+
+class StopRows(FilterConstraint):
+    """The damper's rows over the stop the stop-path guard checks: each
+    row's first-order closing over the step and the brake after it stays
+    within its gap (:func:`~drake_cfvol.systems.filter.stop_guard.stop_rows`,
+    made by the filter with acceleration limits: ``step.stop``), as
+    :data:`ROW` rows with no second-order term. A command the guard would
+    refuse brakes every joint; these rows let the QP slow the joints that
+    close the pair instead."""
+
+    name, priority, stack = "stop_rows", ROW, STOP_ROWS
+
+    def __init__(self, weight: float):
+        self.weight = float(weight)
+
+    def rows(self, step: FilterStep) -> tuple[np.ndarray, np.ndarray]:
+        return _own_rows(self, step)[:2]
 
 
 def _polytope_radius(dirs) -> float:
@@ -530,6 +561,7 @@ def solve_rounds(qp: PriorityQP, constraints, step: FilterStep, v_t, *, rounds: 
             damper.A,
             damper.b,
             damper.pair,
+            *step.stop,
         )
         counts = counts.tolist()
         layout = tuple((name, n) for name, n in zip(names, counts) if n)

@@ -39,6 +39,7 @@ __all__ = [
     "outside",
     "plane_bends",
     "request",
+    "return_time",
     "stop_distance",
     "stop_steps",
     "witness_rows",
@@ -317,6 +318,18 @@ def hard_interval(vmax, period, v_last, a_last, acceleration, jerk):
     return lo, hi
 
 
+@njit(cache=True, inline="always")
+def return_time(vmax, acceleration, jerk, period):
+    """A joint's braking time from its velocity limit, its jerk's ramp and
+    an update included (s; inf without an acceleration limit): how fast a
+    joint returns to the box ahead (:func:`request`). The box ahead looks
+    twice that far along the path (``AddCoManipulation``'s lookahead)."""
+    if not (np.isfinite(acceleration) and acceleration > 0.0 and np.isfinite(vmax)):
+        return np.inf
+    ramp = acceleration / jerk if np.isfinite(jerk) and jerk > 0.0 else 0.0
+    return vmax / acceleration + ramp + period
+
+
 @njit(cache=True)
 def request(q, desired, lower, upper, ahead, vmax, period, v_last, a_last, acceleration, jerk, nominals):
     """The update's request: (sane, lo, hi, v_t, hard_lo, hard_hi). Per
@@ -331,7 +344,10 @@ def request(q, desired, lower, upper, ahead, vmax, period, v_last, a_last, accel
     (2, k), the nominal now and at the last update; 0 where either is not
     finite), and
     braked for where ``ahead`` (2, k: the box ahead, inside the box; NaN
-    where none) puts them. The requested v_t =
+    where none) puts them. A joint inside the box but beyond a face of
+    the box ahead moves back towards it at least its distance over
+    :func:`return_time` faster than the nominal (as far as the limits and
+    the far face allow), not as fast as the limits allow. The requested v_t =
     (desired - q) / dt clipped to [lo, hi]. Not sane (a non-finite or
     crossed input): the hold, braked at the limits, as far as the box
     allows where it is usable."""
@@ -345,13 +361,30 @@ def request(q, desired, lower, upper, ahead, vmax, period, v_last, a_last, accel
     for j in range(k):
         ok = np.isfinite(lower[j]) and np.isfinite(upper[j]) and lower[j] <= upper[j]
         low, up = (lower[j], upper[j]) if ok else (q[j], q[j])
+        pull_lo, pull_hi = -np.inf, np.inf  # the return to the box ahead from inside the box
         if ok and np.isfinite(ahead[0, j]) and np.isfinite(ahead[1, j]) and ahead[0, j] <= ahead[1, j]:
-            low, up = max(low, ahead[0, j]), min(up, ahead[1, j])
+            # A joint inside the box but outside the box ahead returns to it
+            # within its braking time, not as fast as the limits allow: the
+            # box ahead binds only as the path reaches it, and a full-limit
+            # return made the QP spend every other joint's request on it.
+            T = return_time(vmax[j], acceleration[j], jerk[j], period)
+            if q[j] < ahead[0, j] and q[j] >= low and np.isfinite(T):
+                pull_lo = (ahead[0, j] - q[j]) / T
+            else:
+                low = max(low, ahead[0, j])
+            if q[j] > ahead[1, j] and q[j] <= up and np.isfinite(T):
+                pull_hi = -(q[j] - ahead[1, j]) / T
+            else:
+                up = min(up, ahead[1, j])
         u = (nominals[0, j] - nominals[1, j]) / period
         if not np.isfinite(u):  # no nominal, or none at the last update
             u = 0.0
         b = u + face_speed(up - q[j], v_last[j] - u, h_lo[j] - u, h_hi[j] - u, acceleration[j], jerk[j], period)
         a = u - face_speed(q[j] - low, u - v_last[j], u - h_hi[j], u - h_lo[j], acceleration[j], jerk[j], period)
+        if np.isfinite(pull_lo):
+            a = max(a, min(u + pull_lo, h_hi[j], b))
+        if np.isfinite(pull_hi):
+            b = min(b, max(u + pull_hi, h_lo[j], a))
         if a > b:  # both faces cannot be kept
             if q[j] > up:  # above the box: down to it, fast enough to stop above its lower face
                 b = a
@@ -732,11 +765,11 @@ def budget_after(dists, budget, influence, base):
 
 
 #: Kinds of the constraints whose rows :func:`stack_rows` makes.
-LIMIT_ROWS, BOX_ROWS, DAMPER_ROWS = 0, 1, 2
+LIMIT_ROWS, BOX_ROWS, DAMPER_ROWS, STOP_ROWS = 0, 1, 2, 3
 
 
 @njit(cache=True)
-def stack_rows(kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db, dpair):
+def stack_rows(kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db, dpair, sA, sb):
     """The rows of the filter's own constraints, stacked block after block
     in one call: (A (m, k), b, priority, weight, second-order row (the damper
     row a row is; -1: none), relaxed per row, rows per block).
@@ -744,8 +777,9 @@ def stack_rows(kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db
     Args:
         kinds: (n,) per block :data:`LIMIT_ROWS` (v_j >= v_lo_j and -v_j >=
             -v_hi_j over the joints with finite limits), :data:`BOX_ROWS`
-            (v >= lo, -v >= -hi) or :data:`DAMPER_ROWS` (the damper's rows
-            of the pairs the block's ``pairs`` row holds).
+            (v >= lo, -v >= -hi), :data:`DAMPER_ROWS` (the damper's rows
+            of the pairs the block's ``pairs`` row holds) or
+            :data:`STOP_ROWS` (the rows sA v >= sb, no second-order term).
         weights, prios, relaxed: (n,) the blocks' weight, priority and
             relaxation.
         pairs: (n, P) bools, per damper block its pairs.
@@ -753,6 +787,8 @@ def stack_rows(kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db
             acceleration and jerk limits: :func:`hard_interval`) and the
             box's.
         dA, db, dpair: the damper's rows (m_d, k), (m_d,) and their pairs.
+        sA, sb: the damper's rows over the stop (m_s, k), (m_s,)
+            (:func:`~.stop_guard.stop_rows`).
     """
     n, k, md = len(kinds), len(lo), len(db)
     finite = 0
@@ -765,6 +801,8 @@ def stack_rows(kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db
             counts[i] = 2 * finite
         elif kinds[i] == BOX_ROWS:
             counts[i] = 2 * k
+        elif kinds[i] == STOP_ROWS:
+            counts[i] = len(sb)
         else:
             for r in range(md):
                 if pairs[i, dpair[r]]:
@@ -785,6 +823,11 @@ def stack_rows(kinds, weights, prios, relaxed, pairs, v_lo, v_hi, lo, hi, dA, db
                         A[r, j] = dA[d, j]
                     b[r], so_row[r] = db[d], d
                     r += 1
+        elif kinds[i] == STOP_ROWS:
+            for r in range(len(sb)):
+                for j in range(k):
+                    A[at + r, j] = sA[r, j]
+                b[at + r] = sb[r]
         else:  # [I; -I] over the block's joints (the lower half's zeros negative, as -I's)
             half = counts[i] // 2
             r = at

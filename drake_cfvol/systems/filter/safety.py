@@ -45,6 +45,7 @@ from drake_cfvol.systems.filter.constraints import (
     FilterStep,
     JointBox,
     PriorityQP,
+    StopRows,
     VelocityLimits,
     solve_rounds,
 )
@@ -57,7 +58,7 @@ from drake_cfvol.systems.filter.filter_kernel import (
     outside,
     request,
 )
-from drake_cfvol.systems.filter.stop_guard import brake_path, check_stop
+from drake_cfvol.systems.filter.stop_guard import brake_path, check_stop, stop_rows
 
 __all__ = ["FAULTS", "SafetyFilter", "SafetyFilterConfig"]
 
@@ -369,13 +370,16 @@ class SafetyFilter(LeafSystem):
         #: The QP's constraints (:mod:`~drake_cfvol.systems.filter.constraints`):
         #: the velocity limits, the box, the damper's rows (the static
         #: scene's, relaxed near the nominal; the moving geometry's, never),
-        #: then ``constraints``.
+        #: with acceleration limits the rows over the stop, then ``constraints``.
         self.constraints = [
             VelocityLimits(),
             JointBox(self.BOX_WEIGHT),
             DamperConstraint(weight=self.SLACK_WEIGHT, relax=True, name="damper", pairs=~dynamic),
             DamperConstraint(weight=self.SLACK_WEIGHT, relax=False, name="perceived_obstacles", pairs=dynamic),
         ]
+        if self._braked:  # the static scene's rows over the guard's stop
+            self.constraints.append(StopRows(self.SLACK_WEIGHT))
+        self._static_pair = ~dynamic
         self.constraints += list(constraints)
         self._robot_slice = robot_slice
 
@@ -625,7 +629,10 @@ class SafetyFilter(LeafSystem):
                 faulted[_COUNT] += 1
                 discrete_state.get_mutable_vector(self._status).SetFromVector(faulted)
                 return
-            v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal, drift, (h_lo, h_hi))
+            stop = None
+            if self._braked and len(measured_rows.b):
+                stop = self._stop_rows(measured_rows, v_last, h_lo, h_hi)
+            v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal, drift, (h_lo, h_hi), stop)
             tracking = missed and drift is not None
             if drift is not None:
                 discrete_state.get_mutable_vector(self._measured_last).SetFromVector(base)
@@ -761,6 +768,24 @@ class SafetyFilter(LeafSystem):
         )
         return rows._replace(A=A, b=b, dirs=dirs, points=points, slots=slots, rounds=rounds, pair=pair)
 
+    def _stop_rows(self, rows: DamperRows, v_last, h_lo, h_hi) -> tuple[np.ndarray, np.ndarray]:
+        """The damper's rows of a link and the static scene over the stop
+        the guard checks (:func:`~.stop_guard.stop_rows`): each may close
+        over the step and the brake after it down to the margin less one
+        allowance, one allowance above the guard's own threshold
+        (``GUARD_BAND``)."""
+        # A link against the static scene: the pairs the guard refuses for
+        # (two links' rows stay the damper's alone: the Panda's are many).
+        A, b, _ = stop_rows(
+            (rows.A, rows.b, rows.slots, rows.pair, self._static_pair),
+            self.rate,
+            (self.target_distance - (self.clearance - self.allowance)),
+            (v_last, h_lo, h_hi),
+            (self._vmax, self._acceleration, self._jerk, self.period),
+            self._guard_steps,
+        )
+        return A, b
+
     def _fault(self, rows: DamperRows) -> int:
         """The fault these rows raise (:data:`FAULTS`), or 0: more rows than
         :attr:`MAX_ROWS`; a pair with self-moving geometry overlapping the
@@ -785,7 +810,7 @@ class SafetyFilter(LeafSystem):
         drift = (base - last) / self.period - v_last
         return base, np.where(np.isfinite(drift), drift, 0.0)
 
-    def _filter(self, context, base, q, v_t, lo, hi, rows: DamperRows, nominal, drift=None, hard=None):
+    def _filter(self, context, base, q, v_t, lo, hi, rows: DamperRows, nominal, drift=None, hard=None, stop=None):
         """The velocity commanded for the request v_t: (v, missed: a
         :data:`~drake_cfvol.systems.filter.constraints.ROW` row missed at v,
         solved (False: the fallback)). Each constraint's rows at the step
@@ -814,5 +839,6 @@ class SafetyFilter(LeafSystem):
             drift=drift,
             v_lo=None if hard is None else hard[0],
             v_hi=None if hard is None else hard[1],
+            stop=stop,
         )
         return solve_rounds(self._qp, self.constraints, step, v_t, rounds=self.SECOND_ORDER_ROUNDS, nudge=_NUDGE)

@@ -41,7 +41,54 @@ from drake_cfvol.systems.filter.filter_kernel import (
     witness_rows,
 )
 
-__all__ = ["SPLITS", "brake_path", "check_stop", "stop_guard"]
+__all__ = ["SPLITS", "brake_path", "check_stop", "stop_guard", "stop_rows"]
+
+
+@njit(cache=True, inline="always")
+def _brake_joint(j, x, vj, aj, limits, max_steps, buf, record):
+    """Joint j braked to rest from (x, vj, aj), as :func:`brake_path` does
+    it: (x at rest, updates, path length, stopped within ``max_steps``,
+    buf), its positions written into column j of ``buf`` (grown as it
+    fills) where ``record``."""
+    vmax, acceleration, jerk, period = limits
+    ja = acceleration[j] * period
+    # At full deceleration the step is v - ja (sign v) until the last
+    # ramp (brake_step's a' reaches -acceleration while |v| >= ja +
+    # acceleration^2 / (2 J)), as long as the velocity limit's jerk term
+    # cannot bind: its room near v = 0, x0, is its least (hard_step).
+    jj = jerk[j] * period * period
+    x0 = jj * (np.sqrt(1.0 + 2.0 * vmax[j] / jj) - 1.0) if np.isfinite(jj) and np.isfinite(vmax[j]) else np.inf
+    J = BRAKE_JERK_SHARE * jerk[j]
+    steady = x0 >= ja and np.isfinite(J) and np.isfinite(ja) and ja > 0.0
+    v_ramp = ja + acceleration[j] ** 2 / (2.0 * J) if steady else np.inf
+    if record:
+        buf[0, j] = x
+    n, length, stopped = 0, 0.0, True
+    while not (vj == 0.0 and aj == 0.0):
+        if n == max_steps:
+            stopped = False
+            break
+        sign = 1.0 if vj > 0.0 else -1.0
+        run = 0
+        if steady and sign * aj <= -acceleration[j] * (1.0 - 1e-9) and abs(vj) > v_ramp + 3.0 * ja:
+            run = min(int((abs(vj) - v_ramp) / ja) - 2, max_steps - n)  # steps of v - ja, sparing the ramp
+        for _ in range(max(run, 1)):
+            if run > 0:
+                w = vj - sign * ja
+            else:
+                w = brake_step(vmax[j], period, vj, aj, acceleration[j], jerk[j])
+            aj = (w - vj) / period
+            vj = w
+            x = x + w * period
+            length += abs(w) * period
+            n += 1
+            if record:
+                if n >= buf.shape[0]:  # grow the buffer (the joints before keep their rows)
+                    more = np.empty((2 * buf.shape[0], buf.shape[1]))
+                    more[: buf.shape[0]] = buf
+                    buf = more
+                buf[n, j] = x
+    return x, n, length, stopped, buf
 
 
 @njit(cache=True)
@@ -54,55 +101,114 @@ def brake_path(q, v, a, vmax, acceleration, jerk, period, max_steps):
     stays). Also each joint's path length (k,) and whether the brake
     stopped within ``max_steps`` (else the path is cut there)."""
     k = len(q)
-    cap = 64
-    buf = np.empty((cap, k))
+    buf = np.empty((64, k))
     length = np.zeros(k)
     steps = np.zeros(k, np.int64)
     stopped = True
+    limits = (vmax, acceleration, jerk, period)
     for j in range(k):
-        x, vj, aj = q[j], v[j], a[j]
-        ja = acceleration[j] * period
-        # At full deceleration the step is v - ja (sign v) until the last
-        # ramp (brake_step's a' reaches -acceleration while |v| >= ja +
-        # acceleration^2 / (2 J)), as long as the velocity limit's jerk term
-        # cannot bind: its room near v = 0, x0, is its least (hard_step).
-        jj = jerk[j] * period * period
-        x0 = jj * (np.sqrt(1.0 + 2.0 * vmax[j] / jj) - 1.0) if np.isfinite(jj) and np.isfinite(vmax[j]) else np.inf
-        J = BRAKE_JERK_SHARE * jerk[j]
-        steady = x0 >= ja and np.isfinite(J) and np.isfinite(ja) and ja > 0.0
-        v_ramp = ja + acceleration[j] ** 2 / (2.0 * J) if steady else np.inf
-        buf[0, j] = x
-        n = 0
-        while not (vj == 0.0 and aj == 0.0):
-            if n == max_steps:
-                stopped = False
-                break
-            sign = 1.0 if vj > 0.0 else -1.0
-            run = 0
-            if steady and sign * aj <= -acceleration[j] * (1.0 - 1e-9) and abs(vj) > v_ramp + 3.0 * ja:
-                run = min(int((abs(vj) - v_ramp) / ja) - 2, max_steps - n)  # steps of v - ja, sparing the ramp
-            for _ in range(max(run, 1)):
-                if run > 0:
-                    w = vj - sign * ja
-                else:
-                    w = brake_step(vmax[j], period, vj, aj, acceleration[j], jerk[j])
-                aj = (w - vj) / period
-                vj = w
-                x = x + w * period
-                length[j] += abs(w) * period
-                n += 1
-                if n >= cap:  # grow the buffer (the joints before keep their rows)
-                    more = np.empty((2 * cap, k))
-                    more[:cap] = buf
-                    buf, cap = more, 2 * cap
-                buf[n, j] = x
-        steps[j] = n
+        _, steps[j], length[j], done, buf = _brake_joint(j, q[j], v[j], a[j], limits, max_steps, buf, True)
+        stopped = stopped and done
     n = steps.max() if k else 0
     out = np.empty((n + 1, k))
     for j in range(k):
         out[: steps[j] + 1, j] = buf[: steps[j] + 1, j]
         out[steps[j] + 1 :, j] = buf[steps[j], j]
     return out, length, stopped
+
+
+@njit(cache=True, inline="always")
+def _stop_reach(j, v_last, h_lo, h_hi, limits):
+    """A bound of how far joint j moves over the step and the brake after
+    it, from any velocity in its hard interval (m or rad): the acceleration
+    ramped down at the jerk limit (the velocity growing meanwhile), then
+    the velocity shed at the acceleration limit, both ramps and two updates
+    at the peak speed. Inf without an acceleration limit's stop."""
+    vmax, acceleration, jerk, period = limits
+    w = max(abs(h_lo[j]), abs(h_hi[j]))
+    acc, J = acceleration[j], BRAKE_JERK_SHARE * jerk[j]
+    if not (np.isfinite(acc) and acc > 0.0):
+        return np.inf
+    if not (np.isfinite(J) and J > 0.0):
+        return w * period + w * (w / acc + 2.0 * period)
+    a = max(abs(h_lo[j] - v_last[j]), abs(h_hi[j] - v_last[j])) / period
+    peak = w + a * a / (2.0 * J)
+    return w * period + peak * a / J + peak * (2.0 * acc / J + peak / acc + 2.0 * period)
+
+
+@njit(cache=True)
+def stop_rows(rows, rate, slack, command, limits, max_steps):
+    """The damper's rows over the guard's stop: per row i of a link and
+    the static scene, its first-order closing over this update's step and
+    the brake after it (:func:`brake_path`, each joint to rest at its own
+    limits) at most its distance above the damper's target less ``slack``
+    (a row already below that may close no further). The brake's
+    displacement of a joint is linear in its velocity v over the hard
+    interval to first order: its secant between the interval's ends,
+    S_j(v) = S0_j + sigma_j v. So the row is linear in v: sum_j A_ij (dt +
+    sigma_j) v_j >= -max(g_i + slack, 0) - sum_j A_ij S0_j, g_i = -b_i /
+    rate the row's distance above the damper's target. The damper's own
+    rows brake each pair as a point mass along its direction; braked
+    joint by joint, a joint that opens the row may stop before one that
+    closes it, and the row closes on (the guard then brakes every joint:
+    docs/safety.md, "The stop-path guard"). Only rows that can bind in the
+    hard interval are returned; the brake is walked only where a row's
+    bound of its closing (:func:`_stop_reach`) reaches past its gap.
+
+    Args:
+        rows: (A (m, k), b (m,), slots (m, 2), pair (m,)) the damper's
+            rows, first order, unbraked, and (P,) per pair whether its
+            geometry is static (not moving on its own).
+        rate: the damper's rate, 1/s.
+        slack: how far below the damper's target a row's stop may end, m.
+        command: (v_last, h_lo, h_hi) (k,) each: the last command and the
+            hard interval.
+        limits: (vmax, acceleration, jerk, period).
+        max_steps: the brake's longest stop, updates.
+
+    Returns:
+        (A_s (n, k), b_s (n,), the rows' indices (n,)).
+    """
+    A, b, slots, pair, static = rows
+    v_last, h_lo, h_hi = command
+    period = limits[3]
+    m, k = A.shape
+    reach = np.empty(k)
+    for j in range(k):
+        reach[j] = _stop_reach(j, v_last, h_lo, h_hi, limits)
+    near = np.zeros(m, np.bool_)
+    for i in range(m):
+        if static[pair[i]] and (slots[i, 0] < 0 or slots[i, 1] < 0):
+            bound = 0.0
+            for j in range(k):
+                if A[i, j] != 0.0:
+                    bound += abs(A[i, j]) * reach[j]
+            near[i] = bound > max(-b[i] / rate + slack, 0.0)  # NaN: not near
+    rows_near = np.flatnonzero(near)
+    if len(rows_near) == 0:
+        return np.zeros((0, k)), np.zeros(0), rows_near
+    sigma, S0 = np.zeros(k), np.zeros(k)
+    none = np.empty((1, k))
+    for j in range(k):
+        lo = _brake_joint(j, 0.0, h_lo[j], (h_lo[j] - v_last[j]) / period, limits, max_steps, none, False)[0]
+        if h_hi[j] > h_lo[j]:
+            hi = _brake_joint(j, 0.0, h_hi[j], (h_hi[j] - v_last[j]) / period, limits, max_steps, none, False)[0]
+            sigma[j] = (hi - lo) / (h_hi[j] - h_lo[j])
+        S0[j] = lo - sigma[j] * h_lo[j]
+    n = len(rows_near)
+    As, bs = np.empty((n, k)), np.empty(n)
+    keep = np.zeros(n, np.bool_)
+    for r in range(n):
+        i = rows_near[r]
+        least, shift = 0.0, 0.0
+        for j in range(k):
+            As[r, j] = A[i, j] * (period + sigma[j])
+            shift += A[i, j] * S0[j]
+            least += min(As[r, j] * h_lo[j], As[r, j] * h_hi[j])
+        bs[r] = -max(-b[i] / rate + slack, 0.0) - shift
+        keep[r] = least < bs[r]
+    idx = np.flatnonzero(keep)
+    return As[idx], bs[idx], rows_near[idx]
 
 
 @njit(cache=True)
