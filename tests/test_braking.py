@@ -622,12 +622,15 @@ def test_a_fast_approach_from_afar_brakes_in_time_for_the_margin(period):
 
 def test_the_stop_rows_read_the_brake_walked_at_the_hard_intervals_ends():
     """stop_guard.stop_rows against the brake itself (stop_guard.brake_path,
-    the guard's walk, one joint at a time): at each end of the hard
-    interval a kept row reads A (v dt + where the brake stops) plus the
-    row's allowed closing, max(g + slack, 0) (g = -b / rate), exactly; a
-    row of two links or of moving geometry is never kept; a row left out
+    the guard's walk, which test_stop_guard checks against a walk of its
+    own): at each end of the hard interval a kept row reads A (e + v dt +
+    where the brake stops) plus the row's allowed closing, max(g + slack,
+    0) (g = -b / rate, e the command's lead over the rows' base), exactly;
+    a row of two links or of moving geometry is never kept; a row left out
     cannot bind: at every corner of the interval its walked closing stays
-    within its allowance (brute force over the 2^k corners)."""
+    within its allowance (brute force over the 2^k corners). A joint with
+    no limits at all (an unbounded interval) that moves no row leaves the
+    rows finite."""
     import itertools
 
     from drake_cfvol.systems.filter.stop_guard import brake_path, stop_rows
@@ -635,37 +638,44 @@ def test_the_stop_rows_read_the_brake_walked_at_the_hard_intervals_ends():
     rng = np.random.default_rng(5)
     kept_total = 0
     for _ in range(40):
-        k, m, P = 3, 12, 4
+        k, m, P = 4, 12, 4
         h = rng.choice([0.001, 0.01])
         vmax, acc = rng.uniform(1, 3, k), rng.uniform(5, 20, k)
         jerk = acc / rng.uniform(0.005, 0.05, k)
-        v_last = rng.uniform(-0.8, 0.8, k) * vmax
-        a_last = rng.uniform(-0.5, 0.5, k) * acc
+        vmax[3] = acc[3] = jerk[3] = np.inf  # the last joint has no limits (and moves no row)
+        v_last = rng.uniform(-0.8, 0.8, k) * np.minimum(vmax, 1.0)
+        a_last = rng.uniform(-0.5, 0.5, k) * np.minimum(acc, 1.0)
         h_lo, h_hi = hard_interval(vmax, h, v_last, a_last, acc, jerk)
+        lead = rng.normal(size=k) * 0.002 * (rng.random() < 0.5)
+        lead[3] = 0.0
         A, b = rng.normal(size=(m, k)) * 0.3, -rng.uniform(-0.05, 0.6, m)
+        A[:, 3] = 0.0
         slots = np.where(rng.random((m, 2)) < 0.5, -1, rng.integers(0, 3, (m, 2)))
         pair, static = rng.integers(0, P, m), rng.random(P) < 0.7
         rate, slack, limits = 5.0, 0.002, (vmax, acc, jerk, h)
-        As, bs, idx = stop_rows((A, b, slots, pair, static), rate, slack, (v_last, h_lo, h_hi), limits, 10**6)
+        As, bs, idx = stop_rows((A, b, slots, pair, static), rate, slack, (v_last, h_lo, h_hi, lead), limits, 10**6)
         kept_total += len(idx)
+        assert np.isfinite(As).all() and np.isfinite(bs).all()
 
-        def walked(v):  # the brake's stop from v after the step, joint by joint
+        def walked(v):  # the brake's stop from v after the step, joint by joint (the free joint: none)
+            v = np.where(np.isfinite(v), v, 0.0)
             path, _, done = brake_path(np.zeros(k), v, (v - v_last) / h, vmax, acc, jerk, h, 10**6)
             assert done
-            return path[-1]
+            return np.where(np.isfinite(h_lo), path[-1], 0.0)
 
         allowed = np.maximum(-b / rate + slack, 0.0)
         for r, i in enumerate(idx):
             assert static[pair[i]] and (slots[i] < 0).any()
-            for v in (h_lo, h_hi):
-                want = A[i] @ (v * h + walked(v)) + allowed[i]
+            for end in (h_lo, h_hi):
+                v = np.where(np.isfinite(end), end, 0.0)
+                want = A[i] @ (lead + v * h + walked(v)) + allowed[i]
                 assert As[r] @ v - bs[r] == pytest.approx(want, abs=1e-9)
         for i in set(range(m)) - set(idx.tolist()):
             if not (static[pair[i]] and (slots[i] < 0).any()):
                 continue
-            for corner in itertools.product(*zip(h_lo, h_hi)):
-                v = np.array(corner)
-                assert A[i] @ (v * h + walked(v)) + allowed[i] >= -1e-9
+            for corner in itertools.product(*zip(h_lo[:3], h_hi[:3])):
+                v = np.array(corner + (0.0,))
+                assert A[i] @ (lead + v * h + walked(v)) + allowed[i] >= -1e-9
     assert kept_total > 0  # some rows bound
 
 
@@ -691,8 +701,60 @@ def test_a_joint_inside_the_box_returns_to_the_box_ahead_within_its_braking_time
     assert h_hi[0] == pytest.approx(jerk[0] * h * h)  # from rest: one jerk step
     assert 0.004 / T < h_hi[0]  # the return is slower than the limits allow
     assert lo[0] == pytest.approx(0.004 / T) and v_t[0] == pytest.approx(0.004 / T)
+    # Above the box ahead on a nominal moving up at u: back down at least
+    # 4 mrad over T faster than the nominal.
+    u = 0.01
+    moving = np.array([[u * h], [0.0]])
+    q_up = np.array([0.5]) + 0.004
+    _, lo, hi, v_t, h_lo, h_hi = request(
+        q_up,
+        q_up + 1.0,
+        np.array([-1.0]),
+        np.array([1.0]),
+        np.array([[-1.0], [0.5]]),
+        vmax,
+        h,
+        zero,
+        zero,
+        acc,
+        jerk,
+        moving,
+    )
+    assert h_lo[0] < u - 0.004 / T < 0.0
+    assert hi[0] == pytest.approx(u - 0.004 / T) and v_t[0] == pytest.approx(u - 0.004 / T)
     # Below the box itself: as fast as the limits allow.
     _, lo, hi, v_t, h_lo, h_hi = request(
         q, desired, np.array([0.004]), np.array([1.0]), ahead, vmax, h, zero, zero, acc, jerk, nominals
     )
     assert lo[0] == pytest.approx(h_hi[0]) and v_t[0] == pytest.approx(h_hi[0])
+
+
+def test_a_stop_row_gives_way_to_a_damper_row_and_is_no_miss():
+    """The staged QP with a damper row (ROW: v0 >= 1) against a stop row
+    (STOP: -v0 >= 0) that cannot both hold, in |v| <= 2: the damper row
+    holds exactly (v0 = 1, the least miss of the stop row), the stage is
+    the one with the stop rows soft; with the box (BOX: v1 <= -1) against
+    a stop row (STOP: v1 >= 0) the stop row holds and the box gives way."""
+    from drake_cfvol.systems.filter.constraints import BOX, HARD, ROW, STOP, ConstraintRows, PriorityQP
+
+    eye = np.eye(2)
+    limits = ConstraintRows(np.vstack([eye, -eye]), np.full(4, -2.0), HARD, 1e6, "limits")
+    v_t = np.zeros(2)
+    v, stage = PriorityQP().solve_staged(
+        v_t,
+        [
+            limits,
+            ConstraintRows(eye[:1], np.array([1.0]), ROW, 1e6, "damper"),
+            ConstraintRows(-eye[:1], np.array([0.0]), STOP, 1e6, "stop_rows"),
+        ],
+    )
+    assert v[0] == pytest.approx(1.0, abs=1e-9) and stage == 1  # the one soft stage: STOP
+    v, stage = PriorityQP().solve_staged(
+        v_t,
+        [
+            limits,
+            ConstraintRows(-eye[1:], np.array([1.0]), BOX, 1e3, "box"),
+            ConstraintRows(eye[1:], np.array([0.0]), STOP, 1e6, "stop_rows"),
+        ],
+    )
+    assert v[1] == pytest.approx(0.0, abs=1e-6) and stage == 1  # the box soft, the stop row held

@@ -90,7 +90,7 @@ _COMPILED = (
     damper_kernel.pair_rows,
     damper_kernel.near_pairs,
     distance_kernel.convex_rows,  # GJK compiles into it
-    stop_guard.stop_rows,  # brake_path compiles into it
+    stop_guard.stop_rows,  # brake_path's walk (_brake_joint) compiles into it
 )
 
 

@@ -9,7 +9,10 @@ Priorities, by the QP's stages (:class:`PriorityQP`):
 - :data:`HARD`: never given up (the velocity limits; a tool speed limit);
 - :data:`ROW`: given up only where the hard rows leave no way, missed as
   little as possible (the damper's rows, perceived obstacles);
-- :data:`BOX`: gives way to a :data:`ROW` row (the bounds' box).
+- :data:`STOP`: gives way to a :data:`ROW` row (the damper's rows over the
+  stop-path guard's stop, :class:`StopRows`: the guard keeps the margin,
+  these rows only steer the QP away from its refusals; a miss is no fault);
+- :data:`BOX`: gives way to the rows above (the bounds' box).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from drake_cfvol.systems.filter.qp import stage_problem, staged_solve
 __all__ = [
     "HARD",
     "ROW",
+    "STOP",
     "BOX",
     "ConstraintRows",
     "FilterStep",
@@ -49,7 +53,7 @@ __all__ = [
 ]
 
 #: Priorities (see the module's documentation).
-HARD, ROW, BOX = 0, 1, 2
+HARD, ROW, STOP, BOX = 0, 1, 2, 3
 
 
 class ConstraintRows(NamedTuple):
@@ -258,11 +262,14 @@ class StopRows(FilterConstraint):
     row's first-order closing over the step and the brake after it stays
     within its gap (:func:`~drake_cfvol.systems.filter.stop_guard.stop_rows`,
     made by the filter with acceleration limits: ``step.stop``), as
-    :data:`ROW` rows with no second-order term. A command the guard would
+    :data:`STOP` rows with no second-order term. A command the guard would
     refuse brakes every joint; these rows let the QP slow the joints that
-    close the pair instead."""
+    close the pair instead. They are first order and may be out of reach
+    (a row already below its target that any brake still closes): they
+    give way to the damper's rows, and a miss is no fault (the guard
+    keeps the margin)."""
 
-    name, priority, stack = "stop_rows", ROW, STOP_ROWS
+    name, priority, stack = "stop_rows", STOP, STOP_ROWS
 
     def __init__(self, weight: float):
         self.weight = float(weight)

@@ -379,7 +379,6 @@ class SafetyFilter(LeafSystem):
         ]
         if self._braked:  # the static scene's rows over the guard's stop
             self.constraints.append(StopRows(self.SLACK_WEIGHT))
-        self._static_pair = ~dynamic
         self.constraints += list(constraints)
         self._robot_slice = robot_slice
 
@@ -631,7 +630,7 @@ class SafetyFilter(LeafSystem):
                 return
             stop = None
             if self._braked and len(measured_rows.b):
-                stop = self._stop_rows(measured_rows, v_last, h_lo, h_hi)
+                stop = self._stop_rows(measured_rows, q - base, v_last, h_lo, h_hi)
             v, missed, solved = self._filter(context, base, q, v_t, lo, hi, rows, nominal, drift, (h_lo, h_hi), stop)
             tracking = missed and drift is not None
             if drift is not None:
@@ -768,19 +767,20 @@ class SafetyFilter(LeafSystem):
         )
         return rows._replace(A=A, b=b, dirs=dirs, points=points, slots=slots, rounds=rounds, pair=pair)
 
-    def _stop_rows(self, rows: DamperRows, v_last, h_lo, h_hi) -> tuple[np.ndarray, np.ndarray]:
+    def _stop_rows(self, rows: DamperRows, lead, v_last, h_lo, h_hi) -> tuple[np.ndarray, np.ndarray]:
         """The damper's rows of a link and the static scene over the stop
         the guard checks (:func:`~.stop_guard.stop_rows`): each may close
-        over the step and the brake after it down to the margin less one
-        allowance, one allowance above the guard's own threshold
-        (``GUARD_BAND``)."""
-        # A link against the static scene: the pairs the guard refuses for
-        # (two links' rows stay the damper's alone: the Panda's are many).
+        over the command's lead over the rows' base (``lead``), the step
+        and the brake after it down to the margin less one allowance, one
+        allowance above the guard's own threshold (``GUARD_BAND``)."""
+        # A link against the static scene the guard watches: the pairs it
+        # refuses for (two links' rows stay the damper's alone: the Panda's
+        # are many).
         A, b, _ = stop_rows(
-            (rows.A, rows.b, rows.slots, rows.pair, self._static_pair),
+            (rows.A, rows.b, rows.slots, rows.pair, ~self._unguarded),
             self.rate,
             (self.target_distance - (self.clearance - self.allowance)),
-            (v_last, h_lo, h_hi),
+            (v_last, h_lo, h_hi, lead),
             (self._vmax, self._acceleration, self._jerk, self.period),
             self._guard_steps,
         )

@@ -146,8 +146,9 @@ def stop_rows(rows, rate, slack, command, limits, max_steps):
     displacement of a joint is linear in its velocity v over the hard
     interval to first order: its secant between the interval's ends,
     S_j(v) = S0_j + sigma_j v. So the row is linear in v: sum_j A_ij (dt +
-    sigma_j) v_j >= -max(g_i + slack, 0) - sum_j A_ij S0_j, g_i = -b_i /
-    rate the row's distance above the damper's target. The damper's own
+    sigma_j) v_j >= -max(g_i + slack, 0) - sum_j A_ij (S0_j + e_j), g_i =
+    -b_i / rate the row's distance above the damper's target, e the
+    command's lead over where the rows were made. The damper's own
     rows brake each pair as a point mass along its direction; braked
     joint by joint, a joint that opens the row may stop before one that
     closes it, and the row closes on (the guard then brakes every joint:
@@ -161,16 +162,19 @@ def stop_rows(rows, rate, slack, command, limits, max_steps):
             geometry is static (not moving on its own).
         rate: the damper's rate, 1/s.
         slack: how far below the damper's target a row's stop may end, m.
-        command: (v_last, h_lo, h_hi) (k,) each: the last command and the
-            hard interval.
+        command: (v_last, h_lo, h_hi, lead) (k,) each: the last command,
+            the hard interval and how far the command lies ahead of where
+            the rows were made (q_c - q_m with a measured position: the
+            guard brakes from the command).
         limits: (vmax, acceleration, jerk, period).
-        max_steps: the brake's longest stop, updates.
+        max_steps: the brake's longest stop, updates (a stop cut there
+            counts as far as it got; the guard refuses such a command).
 
     Returns:
         (A_s (n, k), b_s (n,), the rows' indices (n,)).
     """
     A, b, slots, pair, static = rows
-    v_last, h_lo, h_hi = command
+    v_last, h_lo, h_hi, lead = command
     period = limits[3]
     m, k = A.shape
     reach = np.empty(k)
@@ -182,7 +186,7 @@ def stop_rows(rows, rate, slack, command, limits, max_steps):
             bound = 0.0
             for j in range(k):
                 if A[i, j] != 0.0:
-                    bound += abs(A[i, j]) * reach[j]
+                    bound += abs(A[i, j]) * (reach[j] + abs(lead[j]))
             near[i] = bound > max(-b[i] / rate + slack, 0.0)  # NaN: not near
     rows_near = np.flatnonzero(near)
     if len(rows_near) == 0:
@@ -190,20 +194,24 @@ def stop_rows(rows, rate, slack, command, limits, max_steps):
     sigma, S0 = np.zeros(k), np.zeros(k)
     none = np.empty((1, k))
     for j in range(k):
+        if not (np.isfinite(h_lo[j]) and np.isfinite(h_hi[j])):
+            continue  # no limit to brake at: the joint stops with the step
         lo = _brake_joint(j, 0.0, h_lo[j], (h_lo[j] - v_last[j]) / period, limits, max_steps, none, False)[0]
         if h_hi[j] > h_lo[j]:
             hi = _brake_joint(j, 0.0, h_hi[j], (h_hi[j] - v_last[j]) / period, limits, max_steps, none, False)[0]
             sigma[j] = (hi - lo) / (h_hi[j] - h_lo[j])
         S0[j] = lo - sigma[j] * h_lo[j]
     n = len(rows_near)
-    As, bs = np.empty((n, k)), np.empty(n)
+    As, bs = np.zeros((n, k)), np.empty(n)
     keep = np.zeros(n, np.bool_)
     for r in range(n):
         i = rows_near[r]
         least, shift = 0.0, 0.0
         for j in range(k):
+            if A[i, j] == 0.0:
+                continue  # a joint that does not move the row (its interval may be unbounded)
             As[r, j] = A[i, j] * (period + sigma[j])
-            shift += A[i, j] * S0[j]
+            shift += A[i, j] * (S0[j] + lead[j])
             least += min(As[r, j] * h_lo[j], As[r, j] * h_hi[j])
         bs[r] = -max(-b[i] / rate + slack, 0.0) - shift
         keep[r] = least < bs[r]
