@@ -27,6 +27,7 @@ from drake_cfvol.scene.robot import RobotSlice, robot_instances
 from drake_cfvol.systems.admittance import AdmittanceConfig, AdmittanceDeformation
 from drake_cfvol.systems.bounds_source import JointBoundsSource
 from drake_cfvol.systems.filter.constraints import ToolSpeedLimit
+from drake_cfvol.systems.filter.filter_kernel import return_time
 from drake_cfvol.systems.filter.safety import SafetyFilter, SafetyFilterConfig
 from drake_cfvol.systems.human_input import HumanInputCheck
 from drake_cfvol.systems.path import PathProgress, PathProgressConfig, path_ramp, safe_path_rate
@@ -204,13 +205,10 @@ def _lookahead(limits, rate: float, period: float) -> float:
     box's faces: the path's travel in twice the slowest joint's braking
     time (from its velocity limit, the jerk's ramp and an update
     included); 0 without acceleration limits."""
-    velocity, acceleration, jerk = limits
-    finite = np.isfinite(acceleration) & np.isfinite(velocity)
-    if not finite.any():
-        return 0.0
-    ramp = np.where(np.isfinite(jerk), acceleration / jerk, 0.0)
-    braking = float(np.max((velocity / acceleration + ramp)[finite]))
-    return rate * 2.0 * (braking + period)
+    # The braking time is the filter's own (its return to the box ahead).
+    times = [return_time(v, a, j, period) for v, a, j in zip(*limits)]
+    braking = max((t for t in times if math.isfinite(t)), default=None)
+    return 0.0 if braking is None else rate * 2.0 * braking
 
 
 def AddCoManipulation(

@@ -323,7 +323,8 @@ def return_time(vmax, acceleration, jerk, period):
     """A joint's braking time from its velocity limit, its jerk's ramp and
     an update included (s; inf without an acceleration limit): how fast a
     joint returns to the box ahead (:func:`request`). The box ahead looks
-    twice that far along the path (``AddCoManipulation``'s lookahead)."""
+    twice the slowest joint's along the path (``AddCoManipulation``'s
+    lookahead)."""
     if not (np.isfinite(acceleration) and acceleration > 0.0 and np.isfinite(vmax)):
         return np.inf
     ramp = acceleration / jerk if np.isfinite(jerk) and jerk > 0.0 else 0.0
